@@ -1,0 +1,412 @@
+# The board runtime: a J2A board in Python that runs unchanged on CPython and MicroPython.
+#
+# Theory of operation
+# -------------------
+# The runtime owns a function table (index = J2A opcode), a property table, the transducers and
+# their drivers.  The shell around it (a UART loop on a microcontroller, a socket/pty server for
+# virtual boards) does three things in a loop:
+#
+#     runtime.feed(bytes_received)   # parse requests; each complete request is answered at once
+#     runtime.poll()                 # let drivers run; turn their new values into sample SIFs
+#     out = runtime.take_output()    # bytes to send: whole replies first, then whole SIFs
+#
+# Replies and SIFs are kept as whole encoded frames in two queues, so a SIF can never land inside
+# a reply.  The reply queue goes first: a host waiting on a call (and a2jClock's t3 stamp) should
+# not wait behind a burst of samples.  The SIF queue is bounded; when nobody drains it (no host
+# attached) the oldest SIFs are dropped and counted, like a UART with nobody listening.
+#
+# Drivers follow the thesis rule: driver.set_cb(fn); the driver calls fn(channel, value) when it
+# has a new value.  The runtime stamps the value with the board clock at that moment.  A channel
+# that already holds an unsent value flushes the transducer's SIF first, so no value is lost.
+# Drivers that need CPU time implement poll(now_us) and next_due_us().
+#
+# MicroPython subset only: no dataclasses, no typing, no f-strings with '='.
+
+import struct
+
+from .clock import default_clock, new_epoch
+from .dtypes import DTYPES, SIF_MAX_PAYLOAD, sif_size
+from .wire import (
+    EV_CHECKSUM,
+    EV_CUT,
+    EV_ESCAPE,
+    EV_REQUEST,
+    FrameParser,
+    SOF,
+    SOS,
+    encode_frame,
+)
+
+J2A_VERSION = "2"
+ERR_INDEX = 0xF0
+ERR_TIMEOUT = 0xF2
+ERR_CHECKSUM = 0xF3
+ERR_ESCAPE = 0xF4
+MANY_CHUNK = 249
+INTERBYTE_TIMEOUT_US = 10000
+SIF_QUEUE_LIMIT = 64
+
+_PLAIN = 0
+_MANY = 1
+
+# Diagnostic values carried in error frames (spec 1.5: any u16; the original sent line numbers).
+DIAG_CUT = 1
+DIAG_SILENCE = 2
+DIAG_CHECKSUM = 3
+DIAG_ESCAPE = 4
+DIAG_INDEX = 5
+
+
+class Transducer:
+    # One sensor or actuator, as described in spec 2.2 (the thesis's transds.def fields).
+    def __init__(self, name, tid, prefix, model, chan_count, dtype, na, **options):
+        if dtype not in DTYPES:
+            raise ValueError("transducer %s: unknown data type %s" % (name, dtype))
+        if not (0 <= tid <= 239):
+            raise ValueError("transducer %s: id %d outside 0..239" % (name, tid))
+        if not (1 <= chan_count <= 255):
+            raise ValueError("transducer %s: chan_count %d outside 1..255" % (name, chan_count))
+        if sif_size(dtype, chan_count) > SIF_MAX_PAYLOAD:
+            raise ValueError(
+                "transducer %s: %d channels of %s need %d bytes, one SIF carries 255"
+                % (name, chan_count, dtype, sif_size(dtype, chan_count))
+            )
+        self.name = name
+        self.tid = tid
+        self.prefix = prefix
+        self.model = model
+        self.chan_count = chan_count
+        self.dtype = dtype
+        self.na = na
+        self.options = options
+        code, _size, lo, hi = DTYPES[dtype]
+        self._lo = lo
+        self._hi = hi
+        self._float = lo is None
+        self._fmt = "<" + ("Q" + code) * chan_count
+        self._pending = [None] * chan_count  # (stamp_us, value) per channel, None = no new value
+        self._dirty = False
+        self.values_dropped = 0  # illegal values replaced by N/A
+
+    def descriptor_line(self):
+        fields = [
+            self.name,
+            str(self.tid),
+            self.prefix,
+            self.model,
+            str(self.chan_count),
+            self.dtype,
+            _fmt_value(self.na),
+        ]
+        for key in self.options:
+            fields.append("%s=%s" % (key, self.options[key]))
+        return ",".join(fields)
+
+    def legal(self, value):
+        if self._float:
+            return value == value  # NaN is not a measurement
+        return self._lo <= value <= self._hi
+
+    def encode_sif(self, now_us):
+        # Payload per spec 1.10: [t0 v0 t1 v1 ...]; channels without a new value carry N/A,
+        # stamped with the moment the SIF was assembled.
+        args = []
+        pending = self._pending
+        for ch in range(self.chan_count):
+            item = pending[ch]
+            if item is None:
+                args.append(now_us)
+                args.append(self.na)
+            else:
+                args.append(item[0])
+                args.append(item[1])
+                pending[ch] = None
+        self._dirty = False
+        return struct.pack(self._fmt, *args)
+
+
+def _fmt_value(v):
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    return str(v)
+
+
+def read_blob(blob, offset):
+    # Serve one chunk of a read-only blob for a2jMany: (ret, is_last, data).
+    chunk = blob[offset : offset + MANY_CHUNK]
+    return 0, offset + len(chunk) >= len(blob), chunk
+
+
+class BoardRuntime:
+    def __init__(
+        self,
+        name,
+        model,
+        serial,
+        fw_version="0.1.0",
+        clock=None,
+        epoch=None,
+        builtins=True,
+        part2=True,
+    ):
+        self.clock = clock if clock is not None else default_clock()
+        self.parser = FrameParser()
+        self.functions = []  # (name, kind, handler)
+        self.index = {}
+        self.properties = {}
+        self.transducers = []
+        self.drivers = []
+        self._replies = []
+        self._sifs = []
+        self._sif_seq = 0
+        self._debug = bytearray()
+        self._last_byte_us = 0
+        self._blobs = {}  # blob function name -> snapshot taken at offset 0
+        self._request_us = 0
+        self.sifs_dropped = 0
+        self.sifs_sent = 0
+        self.calls = 0
+        self.add_function("a2jGetMapping", self._get_mapping)
+        self.add_function("a2jMany", self._many)
+        if builtins:
+            self.add_blob_function("a2jGetProperties", self.properties_blob)
+            self.add_function("a2jDebug", self._get_debug)
+            self.add_function("a2jEcho", _echo)
+            self.add_many_function("a2jEchoMany", _echo_many)
+        if part2:
+            self.add_blob_function("a2jGetMappingMany", self.mapping_blob)
+            self.add_blob_function("a2jGetTransds", self.transds_blob)
+            self.add_function("a2jClock", self._clock)
+            self.set_property("j2a.version", J2A_VERSION)
+        self.set_property("board.name", name)
+        self.set_property("board.model", model)
+        self.set_property("board.serial", serial)
+        self.set_property("clock.epoch", epoch if epoch is not None else new_epoch())
+        self.set_property("clock.res_us", "1")
+        self.set_property("fw.version", fw_version)
+
+    # ---- configuration -------------------------------------------------------------------
+    def _add(self, name, kind, handler):
+        if name in self.index:
+            raise ValueError("function %s defined twice" % name)
+        if len(self.functions) >= 0xF0:
+            raise ValueError("function table full (indices 0xF0..0xFF are error codes)")
+        self.index[name] = len(self.functions)
+        self.functions.append((name, kind, handler))
+
+    def add_function(self, name, handler):
+        # handler(payload: bytes) -> (return code 0..255 except 0xF0..0xF4, reply payload)
+        self._add(name, _PLAIN, handler)
+
+    def add_many_function(self, name, handler):
+        # handler(is_write, is_last, offset, data) -> (return code, is_last, reply data)
+        self._add(name, _MANY, handler)
+
+    def add_blob_function(self, name, make_blob):
+        # A read-only many-function over the bytes make_blob() returns (snapshot at offset 0).
+        def handler(is_write, is_last, offset, data):
+            if is_write:
+                return 0xFF, True, b""
+            if offset == 0 or name not in self._blobs:
+                self._blobs[name] = make_blob()
+            return read_blob(self._blobs[name], offset)
+
+        self.add_many_function(name, handler)
+
+    def set_property(self, key, value):
+        key = str(key)
+        if not key or "\0" in key or "\0" in str(value):
+            raise ValueError("property keys and values must be non-empty text without NUL")
+        self.properties[key] = str(value)
+
+    def add_transducer(self, transducer, driver=None):
+        for t in self.transducers:
+            if t.tid == transducer.tid:
+                raise ValueError("transducer id %d used twice" % transducer.tid)
+            if t.name == transducer.name:
+                raise ValueError("transducer name %s used twice" % transducer.name)
+        self.transducers.append(transducer)
+        if driver is not None:
+            self.drivers.append(driver)
+            if hasattr(driver, "set_cb"):
+
+                def cb(channel, value, _t=transducer):
+                    self.record(_t, channel, value)
+
+                driver.set_cb(cb)
+
+    def debug(self, text):
+        self._debug.extend(text.encode())
+        if len(self._debug) > 255:
+            self._debug = self._debug[-255:]
+
+    # ---- samples -------------------------------------------------------------------------
+    def record(self, transducer, channel, value):
+        # Called by drivers (through set_cb): stamp now, keep until the next poll().
+        now = self.clock()
+        if not (0 <= channel < transducer.chan_count):
+            self.debug("%s: no channel %d;" % (transducer.name, channel))
+            return
+        if value is None or not transducer.legal(value):
+            transducer.values_dropped += 1
+            value = transducer.na
+        if transducer._pending[channel] is not None:
+            self._queue_sif(transducer, now)
+        transducer._pending[channel] = (now, value)
+        transducer._dirty = True
+
+    def _queue_sif(self, transducer, now):
+        payload = transducer.encode_sif(now)
+        frame = encode_frame(SOS, self._sif_seq, transducer.tid, payload)
+        self._sif_seq = (self._sif_seq + 1) & 0xFF
+        if len(self._sifs) >= SIF_QUEUE_LIMIT:
+            self._sifs.pop(0)
+            self.sifs_dropped += 1
+        self._sifs.append(frame)
+
+    def poll(self):
+        now = self.clock()
+        for d in self.drivers:
+            if hasattr(d, "poll"):
+                d.poll(now)
+        for t in self.transducers:
+            if t._dirty:
+                self._queue_sif(t, now)
+        if self.parser.in_frame() and now - self._last_byte_us > INTERBYTE_TIMEOUT_US:
+            ev = self.parser.abort()
+            if ev is not None and ev[1] is not None:
+                self._error(ev[1], ERR_TIMEOUT, DIAG_SILENCE)
+
+    def next_deadline_us(self):
+        # Board time by which poll() should run again (None: only on input).
+        due = None
+        for d in self.drivers:
+            if hasattr(d, "next_due_us"):
+                t = d.next_due_us()
+                if t is not None and (due is None or t < due):
+                    due = t
+        if self.parser.in_frame():
+            t = self._last_byte_us + INTERBYTE_TIMEOUT_US
+            if due is None or t < due:
+                due = t
+        return due
+
+    def take_output(self):
+        if not self._replies and not self._sifs:
+            return b""
+        out = b"".join(self._replies) + b"".join(self._sifs)
+        self.sifs_sent += len(self._sifs)
+        self._replies = []
+        self._sifs = []
+        return out
+
+    def has_output(self):
+        return bool(self._replies or self._sifs)
+
+    # ---- requests ------------------------------------------------------------------------
+    def feed(self, data):
+        if not data:
+            return
+        self._last_byte_us = self.clock()
+        for ev in self.parser.feed(data):
+            tag = ev[0]
+            if tag == EV_REQUEST:
+                self._dispatch(ev[1], ev[2], ev[3])
+            elif ev[1] is not None:
+                if tag == EV_CUT:
+                    self._error(ev[1], ERR_TIMEOUT, DIAG_CUT)
+                elif tag == EV_CHECKSUM:
+                    self._error(ev[1], ERR_CHECKSUM, DIAG_CHECKSUM)
+                elif tag == EV_ESCAPE:
+                    self._error(ev[1], ERR_ESCAPE, DIAG_ESCAPE)
+
+    def _error(self, seq, code, diag):
+        self._replies.append(encode_frame(SOF, seq, code, bytes(((diag >> 8) & 0xFF, diag & 0xFF))))
+
+    def _reply(self, seq, code, payload):
+        self._replies.append(encode_frame(SOF, seq, code & 0xFF, payload))
+
+    def _dispatch(self, seq, opcode, payload):
+        self._request_us = self.clock()
+        self.calls += 1
+        if opcode >= len(self.functions):
+            self._error(seq, ERR_INDEX, DIAG_INDEX)
+            return
+        _name, kind, handler = self.functions[opcode]
+        if kind != _PLAIN:
+            self._reply(seq, 0xFF, b"")  # many-functions are reached through a2jMany only
+            return
+        try:
+            code, reply = handler(payload)
+        except Exception as e:  # noqa: BLE001 - a failing function must not stop the board
+            self.debug("%s: %s;" % (_name, e))
+            code, reply = 0xFF, b""
+        if reply is None:  # a2jMany with a target beyond the table (spec 1.7)
+            self._error(seq, ERR_INDEX, DIAG_INDEX)
+            return
+        if 0xF0 <= code <= 0xF4:
+            self.debug("%s returned reserved code %d;" % (_name, code))
+            code = 0xFF
+        if len(reply) > 255:
+            self.debug("%s: reply longer than 255 bytes;" % _name)
+            code, reply = 0xFF, b""
+        self._reply(seq, code, reply)
+
+    # ---- built-in functions ---------------------------------------------------------------
+    def mapping_blob(self):
+        return b"".join(name.encode() + b"\0" for name, _k, _h in self.functions)
+
+    def properties_blob(self):
+        out = []
+        for key in self.properties:
+            out.append(key.encode() + b"\0" + self.properties[key].encode() + b"\0")
+        return b"".join(out)
+
+    def transds_blob(self):
+        lines = ["transds/1"]
+        for t in self.transducers:
+            lines.append(t.descriptor_line())
+        return ("\n".join(lines) + "\n").encode()
+
+    def _get_mapping(self, payload):
+        return 0, self.mapping_blob()[:255]
+
+    def _get_debug(self, payload):
+        text = bytes(self._debug[:255])
+        self._debug = bytearray()
+        return 0, text
+
+    def _clock(self, payload):
+        # t2: when the request's last byte arrived (stamped at dispatch, right after parsing);
+        # t3: just before the reply is queued, which is ahead of any pending SIF.
+        t3 = self.clock()
+        return 0, struct.pack("<QQ", self._request_us, t3)
+
+    def _many(self, payload):
+        if len(payload) < 6:
+            return 0xFF, b""
+        target = payload[0]
+        flags = payload[1]
+        offset = payload[2] | (payload[3] << 8) | (payload[4] << 16) | (payload[5] << 24)
+        if target >= len(self.functions):
+            return ERR_INDEX, None  # _dispatch turns this into an 0xF0 error frame
+        name, kind, handler = self.functions[target]
+        if kind != _MANY:
+            ret, last, data = 0xFF, True, b""
+        else:
+            try:
+                ret, last, data = handler(bool(flags & 2), bool(flags & 1), offset, payload[6:])
+            except Exception as e:  # noqa: BLE001
+                self.debug("%s: %s;" % (name, e))
+                ret, last, data = 0xFF, True, b""
+        data = data[:MANY_CHUNK]
+        head = bytes((ret & 0xFF, 1 if last else 0)) + payload[2:6]
+        return 0, head + data
+
+
+def _echo(payload):
+    return 0xBA, payload
+
+
+def _echo_many(is_write, is_last, offset, data):
+    return 0xBE, is_last, data

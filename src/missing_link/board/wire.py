@@ -1,0 +1,146 @@
+# J2A framing for the board side (spec Part 1), in the MicroPython subset.
+#
+# Theory of operation
+# -------------------
+# A board gets its input a few bytes at a time (UART, USB CDC) and has little RAM, so this parser
+# is a byte-at-a-time state machine with a fixed 255-byte payload buffer:
+#
+#   HUNT --0x12--> SEQ -> OP -> LEN -> DATA (len bytes) -> CSUM --> request (or error)
+#   HUNT --0xED--> ignored: a board never acts on SIF frames (spec 1.1); we keep hunting.
+#
+# ESC (0x7D) sets a flag and the next byte is taken +1; a result that is not one of the three
+# specials is a bad escape.  A raw 0x12/0xED inside a frame means the frame was cut: the parser
+# reports it (with the seq if it had arrived) and starts again at that marker.  feed() returns a
+# list of events; the runtime answers errors with error frames (0xF2/0xF3/0xF4) as the original does.
+#
+# The host side has its own, throughput-oriented decoder (missing_link.j2a.codec); the test suite
+# cross-checks the two with random frames in both directions.
+
+SOF = 0x12
+SOS = 0xED
+ESC = 0x7D
+
+# Event tags returned by FrameParser.feed: (tag, seq, opcode, payload_bytes_or_None)
+EV_REQUEST = 0
+EV_CUT = 1
+EV_CHECKSUM = 2
+EV_ESCAPE = 3
+
+_HUNT = 0
+_SEQ = 1
+_OP = 2
+_LEN = 3
+_DATA = 4
+_CSUM = 5
+_IGNORE = 6
+
+
+def escape_into(out, data):
+    # Append data to bytearray out with J2A escaping.
+    for b in data:
+        if b == SOF or b == SOS or b == ESC:
+            out.append(ESC)
+            out.append(b - 1)
+        else:
+            out.append(b)
+
+
+def encode_frame(start, seq, opcode, payload):
+    n = len(payload)
+    if n > 255:
+        raise ValueError("J2A payload longer than 255 bytes")
+    c = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF)
+    for b in payload:
+        c ^= b
+    out = bytearray()
+    out.append(start)
+    escape_into(out, bytes((seq, opcode, n)))
+    escape_into(out, payload)
+    escape_into(out, bytes((c,)))
+    return bytes(out)
+
+
+class FrameParser:
+    def __init__(self):
+        self.buf = bytearray(255)
+        self.state = _HUNT
+        self.esc = False
+        self.seq = 0
+        self.op = 0
+        self.n = 0
+        self.i = 0
+        self.csum = 0
+        self.junk = 0
+        self.errors = 0
+        self.frames = 0
+
+    def in_frame(self):
+        return self.state != _HUNT and self.state != _IGNORE
+
+    def abort(self):
+        # Inter-byte silence: drop the frame.  Returns the cut event if a seq had arrived.
+        st = self.state
+        self.state = _HUNT
+        self.esc = False
+        if st == _HUNT or st == _IGNORE:
+            return None
+        self.errors += 1
+        if st == _SEQ:
+            return (EV_CUT, None, 0, None)
+        return (EV_CUT, self.seq, 0, None)
+
+    def feed(self, data):
+        events = []
+        for b in data:
+            if b == SOF or b == SOS:
+                if self.state != _HUNT and self.state != _IGNORE:
+                    self.errors += 1
+                    events.append((EV_CUT, self.seq if self.state > _SEQ else None, 0, None))
+                self.esc = False
+                self.state = _SEQ if b == SOF else _IGNORE
+                continue
+            st = self.state
+            if st == _HUNT:
+                self.junk += 1
+                continue
+            if st == _IGNORE:
+                continue
+            if self.esc:
+                self.esc = False
+                b += 1
+                if b != SOF and b != SOS and b != ESC:
+                    self.errors += 1
+                    events.append((EV_ESCAPE, self.seq if st > _SEQ else None, 0, None))
+                    self.state = _HUNT
+                    continue
+            elif b == ESC:
+                self.esc = True
+                continue
+            if st == _SEQ:
+                self.seq = b
+                self.csum = b
+                self.state = _OP
+            elif st == _OP:
+                self.op = b
+                self.csum ^= (b + 11) & 0xFF
+                self.state = _LEN
+            elif st == _LEN:
+                self.n = b
+                self.i = 0
+                self.csum ^= (b + 97) & 0xFF
+                self.state = _DATA if b else _CSUM
+            elif st == _DATA:
+                self.buf[self.i] = b
+                self.i += 1
+                self.csum ^= b
+                if self.i == self.n:
+                    self.state = _CSUM
+            else:  # _CSUM
+                self.state = _HUNT
+                if b != self.csum:
+                    self.errors += 1
+                    events.append((EV_CHECKSUM, self.seq, self.op, None))
+                else:
+                    self.frames += 1
+                    events.append((EV_REQUEST, self.seq, self.op, bytes(self.buf[: self.n])))
+        return events

@@ -1,0 +1,351 @@
+"""The J2A frame codec (spec Part 1, sections 1.1-1.3): pure, no I/O.
+
+Theory of operation
+-------------------
+A frame on the wire is ``start | seq | opcode | len | payload | checksum``; ``start`` is raw and
+every later byte is escaped (``0x7D, B-1`` for B in {0x12, 0xED, 0x7D}).  Because an escaped byte
+is never itself 0x7D, the number of raw bytes a frame body occupies is ``n + number of escapes in
+that span`` and can be found with a couple of ``bytes.count`` calls instead of a byte loop.  The
+decoder works on whole spans with C-speed bytes methods (find, count, split) and only falls back
+to byte-level work for the 3-byte header.
+
+The decoder is a streaming state machine with two states:
+
+* HUNTING: discard bytes up to the next start marker (0x12 SOF or 0xED SOS), counting them as junk.
+* IN_FRAME: a start marker was seen at the head of the buffer; wait until the whole frame is
+  buffered, then check it.  A raw start marker inside the frame means the frame was cut: count it,
+  report it (with the seq if it had arrived, so a board can answer 0xF2), and restart at that
+  marker.  A bad escape or checksum is reported and decoding continues after the frame.
+
+Damaged input is data, never an exception: every problem becomes a ``FrameError`` event and a
+counter in ``DecoderStats``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import NamedTuple
+
+SOF = 0x12  #: start of frame: host requests and board replies
+SOS = 0xED  #: start of server-initiated frame (SIF), board -> host
+ESC = 0x7D
+SPECIALS = frozenset((SOF, SOS, ESC))
+MAX_PAYLOAD = 255
+#: worst case on the wire: start byte + (seq, opcode, len, 255 payload, checksum) all escaped
+MAX_ENCODED_FRAME = 1 + 2 * (3 + MAX_PAYLOAD + 1)
+
+# Error codes a board sends as the reply opcode (spec 1.5).
+ERR_INDEX = 0xF0
+ERR_TIMEOUT = 0xF2
+ERR_CHECKSUM = 0xF3
+ERR_ESCAPE = 0xF4
+ERROR_CODES = {
+    ERR_INDEX: "function index out of bounds",
+    0xF1: "unused error code 0xF1",
+    ERR_TIMEOUT: "timeout or cut frame while receiving",
+    ERR_CHECKSUM: "bad checksum",
+    ERR_ESCAPE: "bad escape sequence",
+}
+REPLY_OK = 0x00
+REPLY_FAIL = 0xFF
+
+
+class FrameKind(IntEnum):
+    SOF = SOF
+    SOS = SOS
+
+
+class Frame(NamedTuple):
+    """One good frame.  ``kind`` SOF is a request (board side) or reply (host side); SOS a SIF."""
+
+    kind: FrameKind
+    seq: int
+    opcode: int
+    payload: bytes
+
+
+class FrameErrorKind(IntEnum):
+    CHECKSUM = 1
+    ESCAPE = 2
+    CUT = 3
+
+
+@dataclass(frozen=True, slots=True)
+class FrameError:
+    """A damaged frame.  ``seq`` is known when its seq byte had arrived (else None)."""
+
+    kind: FrameErrorKind
+    start: FrameKind
+    seq: int | None
+    detail: str
+
+
+@dataclass(slots=True)
+class DecoderStats:
+    frames: int = 0
+    junk_bytes: int = 0
+    bad_checksums: int = 0
+    bad_escapes: int = 0
+    cut_frames: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return {
+            "frames": self.frames,
+            "junk_bytes": self.junk_bytes,
+            "bad_checksums": self.bad_checksums,
+            "bad_escapes": self.bad_escapes,
+            "cut_frames": self.cut_frames,
+        }
+
+
+def checksum(seq: int, opcode: int, payload: bytes) -> int:
+    """Spec 1.2: XOR of seq, opcode+11, len+97 and every payload byte (unescaped)."""
+    return seq ^ ((opcode + 11) & 0xFF) ^ ((len(payload) + 97) & 0xFF) ^ xor_bytes(payload)
+
+
+# Masks for folding a big integer in halves: XOR of all bytes in O(log n) big-int operations,
+# which is much faster in CPython than a Python-level loop over the bytes.
+_FOLD_WIDTHS = [8 << k for k in range(12)]  # 8 .. 16384 bits
+_FOLD_MASKS = {w: (1 << w) - 1 for w in _FOLD_WIDTHS}
+
+
+def xor_bytes(data: bytes) -> int:
+    """XOR of all bytes of ``data`` (0 for empty data)."""
+    n = len(data)
+    if n <= 2:
+        if n == 0:
+            return 0
+        return data[0] if n == 1 else data[0] ^ data[1]
+    x = int.from_bytes(data, "little")
+    width = 8 << (n - 1).bit_length()
+    while width > 8:
+        width >>= 1
+        x = (x >> width) ^ (x & _FOLD_MASKS[width])
+    return x
+
+
+def escape(data: bytes) -> bytes:
+    """Escape every special byte (spec 1.3).  ESC first, so inserted escapes stay single."""
+    if b"\x7d" in data:
+        data = data.replace(b"\x7d", b"\x7d\x7c")
+    if b"\x12" in data:
+        data = data.replace(b"\x12", b"\x7d\x11")
+    if b"\xed" in data:
+        data = data.replace(b"\xed", b"\x7d\xec")
+    return data
+
+
+def encode_frame(kind: int, seq: int, opcode: int, payload: bytes = b"") -> bytes:
+    """Encode one frame for the wire.  Raises ValueError on out-of-range fields (caller's fault)."""
+    n = len(payload)
+    if n > MAX_PAYLOAD:
+        raise ValueError(f"J2A payload is {n} bytes; a frame carries at most {MAX_PAYLOAD}")
+    if not (0 <= seq <= 0xFF and 0 <= opcode <= 0xFF):
+        raise ValueError(f"seq {seq} and opcode {opcode} must be 0..255")
+    if kind != SOF and kind != SOS:
+        raise ValueError(f"start marker must be 0x12 or 0xED, not {kind:#x}")
+    body = bytes((seq, opcode, n)) + payload
+    body += bytes((checksum(seq, opcode, payload),))
+    return bytes((kind,)) + escape(body)
+
+
+_MARKERS = re.compile(b"[\x12\xed]")
+_KIND = {SOF: FrameKind.SOF, SOS: FrameKind.SOS}
+_UNESCAPE_OK = frozenset((SOF - 1, SOS - 1, ESC - 1))  # bytes allowed after ESC
+
+
+class FrameDecoder:
+    """Streaming J2A decoder.  ``feed(data)`` returns good frames and errors in arrival order."""
+
+    __slots__ = ("_buf", "stats")
+
+    def __init__(self) -> None:
+        self._buf = b""
+        self.stats = DecoderStats()
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held that belong to an unfinished frame."""
+        return len(self._buf)
+
+    def in_frame(self) -> bool:
+        """True while a started frame is waiting for more bytes (for inter-byte timeouts)."""
+        return bool(self._buf)
+
+    def abort_frame(self) -> FrameError | None:
+        """Drop a half-received frame (e.g. after an inter-byte timeout)."""
+        if not self._buf:
+            return None
+        seq = self._peek_seq(self._buf)
+        start = _KIND[self._buf[0]]
+        self._buf = b""
+        self.stats.cut_frames += 1
+        return FrameError(FrameErrorKind.CUT, start, seq, "frame abandoned after silence")
+
+    @staticmethod
+    def _peek_seq(buf: bytes) -> int | None:
+        if len(buf) < 2:
+            return None
+        b = buf[1]
+        if b != ESC:
+            return b
+        return buf[2] + 1 if len(buf) >= 3 else None
+
+    def feed(self, data: bytes) -> list[Frame | FrameError]:
+        out: list[Frame | FrameError] = []
+        buf = self._buf + data if self._buf else bytes(data)
+        stats = self.stats
+        pos = 0
+        end = len(buf)
+        while pos < end:
+            first = buf[pos]
+            if first != SOF and first != SOS:
+                m = _MARKERS.search(buf, pos)
+                if m is None:
+                    stats.junk_bytes += end - pos
+                    pos = end
+                    break
+                stats.junk_bytes += m.start() - pos
+                pos = m.start()
+                first = buf[pos]
+            # --- header: seq, opcode, len, each possibly escaped ---
+            hdr = [0, 0, 0]
+            p = pos + 1
+            bad: FrameError | None = None
+            cut_at = -1
+            k = 0
+            while k < 3:
+                if p >= end:
+                    break
+                b = buf[p]
+                if b == ESC:
+                    if p + 1 >= end:
+                        break
+                    b2 = buf[p + 1]
+                    if b2 == SOF or b2 == SOS:
+                        cut_at = p + 1
+                        break
+                    p += 2
+                    if b2 not in _UNESCAPE_OK:
+                        bad = FrameError(
+                            FrameErrorKind.ESCAPE,
+                            _KIND[first],
+                            hdr[0] if k > 0 else None,
+                            f"escape 7d {b2:02x} in header",
+                        )
+                        break
+                    hdr[k] = b2 + 1
+                elif b == SOF or b == SOS:
+                    cut_at = p
+                    break
+                else:
+                    hdr[k] = b
+                    p += 1
+                k += 1
+            if cut_at >= 0:
+                stats.cut_frames += 1
+                out.append(
+                    FrameError(
+                        FrameErrorKind.CUT,
+                        _KIND[first],
+                        hdr[0] if k > 0 else None,
+                        "start marker inside frame header",
+                    )
+                )
+                pos = cut_at
+                continue
+            if bad is not None:
+                stats.bad_escapes += 1
+                out.append(bad)
+                pos = p
+                continue
+            if k < 3:
+                break  # need more bytes
+            seq, opcode, n = hdr
+            # --- body: n payload bytes + checksum; raw span = n + 1 + escapes inside it ---
+            need = n + 1
+            stop = p + need
+            esc = buf.count(b"\x7d", p, stop)
+            while True:
+                new_stop = p + need + esc
+                if new_stop == stop:
+                    break
+                stop = new_stop
+                esc = buf.count(b"\x7d", p, stop)
+            if stop > end:
+                # Incomplete, unless a start marker already shows the frame was cut.
+                m = _MARKERS.search(buf, p)
+                if m is None:
+                    break
+                stats.cut_frames += 1
+                out.append(
+                    FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
+                )
+                pos = m.start()
+                continue
+            if buf[stop - 1] == ESC:
+                # The span ends in an escape whose partner is not here yet: one more byte needed.
+                if stop >= end:
+                    break
+                stop += 1
+            m = _MARKERS.search(buf, p, stop)
+            if m is not None:
+                stats.cut_frames += 1
+                out.append(
+                    FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
+                )
+                pos = m.start()
+                continue
+            raw = buf[p:stop]
+            if esc:
+                parts = raw.split(b"\x7d")
+                ok = True
+                for i in range(1, len(parts)):
+                    part = parts[i]
+                    if not part or part[0] not in _UNESCAPE_OK:
+                        ok = False
+                        break
+                    parts[i] = bytes((part[0] + 1,)) + part[1:]
+                if not ok:
+                    stats.bad_escapes += 1
+                    out.append(
+                        FrameError(
+                            FrameErrorKind.ESCAPE, _KIND[first], seq, "bad escape in payload"
+                        )
+                    )
+                    pos = stop
+                    continue
+                body = b"".join(parts)
+                if len(body) != need:
+                    # An escape at the very end swallowed the checksum position: treat as escape error.
+                    stats.bad_escapes += 1
+                    out.append(
+                        FrameError(
+                            FrameErrorKind.ESCAPE, _KIND[first], seq, "escape misaligned frame"
+                        )
+                    )
+                    pos = stop
+                    continue
+            else:
+                body = raw
+            payload = body[:n]
+            got = body[n]
+            want = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF) ^ xor_bytes(payload)
+            pos = stop
+            if got != want:
+                stats.bad_checksums += 1
+                out.append(
+                    FrameError(
+                        FrameErrorKind.CHECKSUM,
+                        _KIND[first],
+                        seq,
+                        f"checksum {got:#04x}, expected {want:#04x}",
+                    )
+                )
+                continue
+            stats.frames += 1
+            out.append(Frame(_KIND[first], seq, opcode, payload))
+        self._buf = buf[pos:] if pos < end else b""
+        return out

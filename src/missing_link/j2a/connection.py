@@ -1,0 +1,348 @@
+"""The host side of a J2A connection, sans-I/O: bytes and ``now`` in, events and frames out.
+
+Theory of operation
+-------------------
+The caller starts *operations*: a plain ``call`` (one request, one reply) or an a2jMany
+``read_many``/``write_many`` transfer (a chain of chunk requests to a2jMany, index 1).  Each gets an
+op id.  Operations wait in a FIFO queue; at most ``window`` requests are in flight (default 1: the
+original board processes one frame at a time and answers before reading the next).  A request is
+given the next 8-bit seq when it is sent, so the seq advances on every request, and replies are
+matched by seq:
+
+* a reply whose seq matches an in-flight request completes that step;
+* a reply whose seq belongs to a request that already timed out is *late*: discarded, counted;
+* any other reply is *foreign*: discarded, counted.  Neither ever reaches the next caller.
+
+A reply opcode 0xF0..0xF4 is an error frame.  0xF2/0xF3/0xF4 mean the request did not arrive
+intact, so the function did not run and the request is sent again (fresh seq) up to ``retries``
+times; 0xF0 (no such function) fails at once.  A timeout is never retried: the function may have
+run.  Timers: every in-flight request has a deadline (``now + timeout``); ``get_timer()`` returns
+the earliest, ``handle_timer(now)`` fails the expired ones.
+
+A transfer moves one chunk at a time.  Reads ask at increasing offsets; every reply must echo the
+offset and carry data unless it is the last; the one with isLast ends the transfer.  Writes send
+chunks of up to 249 bytes, the last with isLast.  A nonzero return value from the target function
+ends the transfer with that status.  Transfers are capped in bytes and chunks.
+
+SIFs (0xED frames) are delivered in arrival order; the gap between a SIF's seq and the previous
+one's is reported as lost SIFs.  Damaged frames become ``FrameDamaged`` events and counters.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+from .blobs import FLAG_LAST, FLAG_WRITE, MANY_CHUNK, MANY_HEADER
+from .codec import ERROR_CODES, SOF, SOS, Frame, FrameDecoder, FrameError, encode_frame
+from .events import (
+    CallCompleted,
+    CallFailed,
+    Event,
+    FailureReason,
+    FrameDamaged,
+    SifReceived,
+    TransferCompleted,
+    TransferProgress,
+)
+
+A2J_MANY = 1
+#: the spec's cap on a2jMany chunks: 4 GiB in 249-byte chunks
+MAX_MANY_CHUNKS = (4 << 30) // MANY_CHUNK
+DEFAULT_MAX_TRANSFER = 64 << 20
+_RETRYABLE = frozenset((0xF2, 0xF3, 0xF4))
+_LATE_MEMORY = 64
+
+
+@dataclass
+class ConnectionStats:
+    requests: int = 0
+    replies: int = 0
+    late_replies: int = 0
+    foreign_replies: int = 0
+    timeouts: int = 0
+    board_errors: int = 0
+    retries: int = 0
+    sifs: int = 0
+    sifs_lost: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _Op:
+    op: int
+    timeout: float
+    # plain call
+    index: int = 0
+    payload: bytes = b""
+    # transfer
+    many: bool = False
+    target: int = 0
+    write: bool = False
+    data: bytes = b""
+    offset: int = 0
+    chunks: int = 0
+    max_bytes: int = DEFAULT_MAX_TRANSFER
+    progress: bool = False
+    received: list[bytes] = field(default_factory=list)
+    retries_left: int = 0
+    # in flight
+    seq: int = -1
+    deadline: float = 0.0
+
+    def next_request(self) -> tuple[int, bytes]:
+        """(opcode, payload) of the next frame this operation sends."""
+        if not self.many:
+            return self.index, self.payload
+        if self.write:
+            chunk = self.data[self.offset : self.offset + MANY_CHUNK]
+            last = self.offset + len(chunk) >= len(self.data)
+            flags = FLAG_WRITE | (FLAG_LAST if last else 0)
+            return A2J_MANY, MANY_HEADER.pack(self.target, flags, self.offset) + chunk
+        return A2J_MANY, MANY_HEADER.pack(self.target, 0, self.offset)
+
+
+class HostConnection:
+    def __init__(self, *, window: int = 1, retries: int = 2) -> None:
+        if not 1 <= window <= 128:
+            raise ValueError("window must be 1..128 requests in flight")
+        self.window = window
+        self.retries = retries
+        self.decoder = FrameDecoder()
+        self.stats = ConnectionStats()
+        self._next_op = 1
+        self._seq = 0
+        self._queue: deque[_Op] = deque()
+        self._in_flight: dict[int, _Op] = {}
+        self._timed_out: deque[int] = deque(maxlen=_LATE_MEMORY)
+        self._out: list[bytes] = []
+        self._sif_expected: int | None = None
+        self._closed: FailureReason | None = None
+
+    # ---- starting operations ------------------------------------------------------------
+    def call(self, index: int, payload: bytes, now: float, timeout: float) -> int:
+        if not 0 <= index <= 0xEF:
+            raise ValueError(f"function index {index} outside 0..239")
+        if len(payload) > 255:
+            raise ValueError(f"payload of {len(payload)} bytes; use write_many above 255")
+        return self._start(_Op(op=0, timeout=timeout, index=index, payload=bytes(payload)), now)
+
+    def read_many(
+        self,
+        target: int,
+        now: float,
+        timeout: float,
+        *,
+        max_bytes: int = DEFAULT_MAX_TRANSFER,
+        progress: bool = False,
+    ) -> int:
+        op = _Op(op=0, timeout=timeout, many=True, target=target, max_bytes=max_bytes)
+        op.progress = progress
+        return self._start(op, now)
+
+    def write_many(
+        self, target: int, data: bytes, now: float, timeout: float, *, progress: bool = False
+    ) -> int:
+        if len(data) > MAX_MANY_CHUNKS * MANY_CHUNK:
+            raise ValueError(f"{len(data)} bytes exceed the a2jMany limit")
+        op = _Op(op=0, timeout=timeout, many=True, target=target, write=True, data=bytes(data))
+        op.progress = progress
+        return self._start(op, now)
+
+    def _start(self, op: _Op, now: float) -> int:
+        if self._closed is not None:
+            raise RuntimeError(f"connection is {self._closed.value}; no new calls")
+        if op.timeout <= 0:
+            raise ValueError("timeout must be positive")
+        op.op = self._next_op
+        op.retries_left = self.retries
+        self._next_op += 1
+        self._queue.append(op)
+        self._pump(now)
+        return op.op
+
+    def pending(self) -> int:
+        return len(self._queue) + len(self._in_flight)
+
+    # ---- output and timers --------------------------------------------------------------
+    def data_to_send(self) -> list[bytes]:
+        """Encoded frames to write, one per element (USB sends one OUT transfer per frame)."""
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        if not self._in_flight:
+            return None
+        return min(op.deadline for op in self._in_flight.values())
+
+    def handle_timer(self, now: float) -> list[Event]:
+        events: list[Event] = []
+        for seq, op in list(self._in_flight.items()):
+            if now >= op.deadline:
+                del self._in_flight[seq]
+                self._timed_out.append(seq)
+                self.stats.timeouts += 1
+                what = f"chunk at offset {op.offset}" if op.many else "reply"
+                events.append(
+                    CallFailed(
+                        op.op,
+                        FailureReason.TIMEOUT,
+                        None,
+                        f"no {what} within {op.timeout * 1000:.0f} ms",
+                    )
+                )
+        if events:
+            self._pump(now)
+        return events
+
+    def close(self, reason: FailureReason = FailureReason.CLOSED, detail: str = "") -> list[Event]:
+        """Fail every pending operation (the link is gone or we are shutting down)."""
+        if self._closed is None:
+            self._closed = reason
+        text = detail or f"connection {reason.value}"
+        events: list[Event] = [
+            CallFailed(op.op, reason, None, text)
+            for op in [*self._in_flight.values(), *self._queue]
+        ]
+        self._in_flight.clear()
+        self._queue.clear()
+        return events
+
+    def _pump(self, now: float) -> None:
+        while self._queue and len(self._in_flight) < self.window:
+            self._send(self._queue.popleft(), now)
+
+    def _send(self, op: _Op, now: float) -> None:
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFF
+        while seq in self._in_flight:  # only possible with a window near 256
+            seq = self._seq
+            self._seq = (seq + 1) & 0xFF
+        opcode, payload = op.next_request()
+        op.seq = seq
+        op.deadline = now + op.timeout
+        self._in_flight[seq] = op
+        self.stats.requests += 1
+        self._out.append(encode_frame(SOF, seq, opcode, payload))
+
+    # ---- input --------------------------------------------------------------------------
+    def receive_data(self, data: bytes, now: float) -> list[Event]:
+        events: list[Event] = []
+        for item in self.decoder.feed(data):
+            if isinstance(item, FrameError):
+                events.append(FrameDamaged(item))
+            elif item.kind == SOS:
+                events.append(self._on_sif(item))
+            else:
+                self._on_reply(item, now, events)
+        if self._queue:
+            self._pump(now)
+        return events
+
+    def _on_sif(self, frame: Frame) -> SifReceived:
+        self.stats.sifs += 1
+        lost = 0
+        if self._sif_expected is not None:
+            lost = (frame.seq - self._sif_expected) & 0xFF
+            self.stats.sifs_lost += lost
+        self._sif_expected = (frame.seq + 1) & 0xFF
+        return SifReceived(frame.opcode, frame.seq, frame.payload, lost)
+
+    def _on_reply(self, frame: Frame, now: float, events: list[Event]) -> None:
+        op = self._in_flight.pop(frame.seq, None)
+        if op is None:
+            if frame.seq in self._timed_out:
+                self.stats.late_replies += 1
+            else:
+                self.stats.foreign_replies += 1
+            return
+        self.stats.replies += 1
+        code = frame.opcode
+        if code in ERROR_CODES:
+            self.stats.board_errors += 1
+            if code in _RETRYABLE and op.retries_left > 0:
+                op.retries_left -= 1
+                self.stats.retries += 1
+                self._queue.appendleft(op)
+                return
+            diag = int.from_bytes(frame.payload[:2], "big") if len(frame.payload) >= 2 else None
+            events.append(
+                CallFailed(
+                    op.op,
+                    FailureReason.BOARD_ERROR,
+                    code,
+                    f"board error {code:#04x} ({ERROR_CODES[code]})"
+                    + (f", diagnostic {diag}" if diag is not None else ""),
+                )
+            )
+            return
+        if not op.many:
+            events.append(CallCompleted(op.op, code, frame.payload))
+            return
+        self._on_chunk(op, frame, events)
+
+    def _on_chunk(self, op: _Op, frame: Frame, events: list[Event]) -> None:
+        p = frame.payload
+        if frame.opcode != 0 or len(p) < 6:
+            events.append(
+                CallFailed(
+                    op.op,
+                    FailureReason.PROTOCOL,
+                    frame.opcode,
+                    f"a2jMany answered {frame.opcode:#04x} with {len(p)} bytes",
+                )
+            )
+            return
+        status, flags, offset = MANY_HEADER.unpack_from(p)
+        chunk = p[6:]
+        if offset != op.offset:
+            events.append(
+                CallFailed(
+                    op.op,
+                    FailureReason.PROTOCOL,
+                    None,
+                    f"a2jMany reply for offset {offset}, expected {op.offset}",
+                )
+            )
+            return
+        op.chunks += 1
+        last = bool(flags & FLAG_LAST)
+        if op.write:
+            sent = min(MANY_CHUNK, len(op.data) - op.offset)
+            op.offset += sent
+            done = op.offset >= len(op.data)
+            last = last or done
+        else:
+            op.received.append(chunk)
+            op.offset += len(chunk)
+            if not chunk and not last:
+                events.append(
+                    CallFailed(
+                        op.op,
+                        FailureReason.PROTOCOL,
+                        None,
+                        f"a2jMany read returned no data at offset {offset} without isLast",
+                    )
+                )
+                return
+            if op.offset > op.max_bytes or op.chunks >= MAX_MANY_CHUNKS:
+                events.append(
+                    CallFailed(
+                        op.op,
+                        FailureReason.LIMIT,
+                        None,
+                        f"transfer passed the cap of {op.max_bytes} bytes",
+                    )
+                )
+                return
+        if status != 0 or last:
+            data = b"".join(op.received) if not op.write else b""
+            events.append(TransferCompleted(op.op, status, data, op.chunks))
+            return
+        if op.progress:
+            total = len(op.data) if op.write else None
+            events.append(TransferProgress(op.op, op.offset, total, op.chunks))
+        op.retries_left = self.retries
+        self._queue.appendleft(op)
