@@ -369,7 +369,11 @@ class BoardRuntime:
         return ("\n".join(lines) + "\n").encode()
 
     def _get_mapping(self, payload):
-        return 0, self.mapping_blob()[:255]
+        # As much as fits, cut at a name boundary; the full table is in a2jGetMappingMany.
+        blob = self.mapping_blob()
+        if len(blob) > 255:
+            blob = blob[: blob.rfind(b"\0", 0, 255) + 1]
+        return 0, blob
 
     def _get_debug(self, payload):
         text = bytes(self._debug[:255])

@@ -1,0 +1,429 @@
+"""The host client: open a board by URL, call its functions by name, read its blobs, get its SIFs.
+
+One reader thread per board feeds received bytes and timer ticks into the sans-I/O
+:class:`~missing_link.j2a.HostConnection` and resolves ``concurrent.futures.Future`` objects; the
+blocking API waits on them, the asyncio API awaits them (``asyncio.wrap_future``).  The connection
+state and the writes share one lock, so frames go out in seq order.  Every error path fails the
+pending futures and lets the reader thread end: nothing is left holding a lock or running.
+
+SIF handlers run on the reader thread; keep them short (hand work to a queue).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any
+
+from .descriptors import Transducer, parse_transds
+from .errors import (
+    BoardError,
+    CallError,
+    CallTimeout,
+    FunctionFailed,
+    LinkLost,
+    TransportBroken,
+    TransportClosed,
+    UnknownFunction,
+)
+from .j2a import (
+    BlobError,
+    CallCompleted,
+    CallFailed,
+    FailureReason,
+    FrameDamaged,
+    HostConnection,
+    SifReceived,
+    TransferCompleted,
+    TransferProgress,
+    parse_mapping,
+    parse_properties,
+)
+from .j2a.blobs import mapping_index
+from .transport import Transport, open_transport
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TIMEOUT = 1.0
+_TICK = 0.02  # longest the reader sleeps before looking at timers again
+SifHandler = Callable[[SifReceived, float], None]
+ProgressFn = Callable[[int, "int | None"], None]
+
+
+@dataclass(frozen=True)
+class CallResult:
+    code: int
+    payload: bytes
+
+    @property
+    def ok(self) -> bool:
+        return self.code == 0
+
+
+class Board:
+    """A connected J2A board (blocking API).  Use :func:`open_board` or ``Board.open(url)``."""
+
+    def __init__(self, transport: Transport, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1):
+        self.transport = transport
+        self.url = transport.url
+        self.timeout = timeout
+        self.conn = HostConnection(window=window)
+        self._lock = threading.Lock()
+        # op -> (future, label for errors, progress callback, is a many-write)
+        self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
+        self._sif_handlers: dict[int, list[SifHandler]] = {}
+        self._any_sif: list[SifHandler] = []
+        self._stopping = False
+        self._closed_reason: BaseException | None = None
+        self.functions: list[str] = []
+        self.index: dict[str, int] = {}
+        self.properties: dict[str, str] = {}
+        self.transducers: list[Transducer] | None = None
+        self.transds_text: str | None = None
+        self._thread = threading.Thread(target=self._reader, name=f"j2a:{self.url}", daemon=True)
+        self._thread.start()
+
+    # ---- opening ---------------------------------------------------------------------------
+    @classmethod
+    def open(
+        cls,
+        url: str,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        window: int = 1,
+        describe: bool = True,
+    ) -> Board:
+        """Open ``url`` and read the board's mapping, properties and transducer descriptors."""
+        board = cls(open_transport(url), timeout=timeout, window=window)
+        try:
+            board.handshake(describe=describe)
+        except BaseException:
+            board.close()
+            raise
+        return board
+
+    @property
+    def name(self) -> str:
+        return self.properties.get("board.name") or self.url
+
+    @property
+    def is_original(self) -> bool:
+        """True for a Part 1 (2014 firmware) board: no ``j2a.version`` property."""
+        return "j2a.version" not in self.properties
+
+    def handshake(self, *, describe: bool = True) -> None:
+        first = self.call_index(0, b"", "a2jGetMapping")
+        blob = first.payload
+        # An original board wraps past 255 bytes; a new one stops at a name boundary and offers
+        # the full table through a2jGetMappingMany.
+        head = blob[: blob.rfind(b"\0") + 1] if b"\0" in blob else b""
+        try:
+            names = parse_mapping(head)
+            if "a2jGetMappingMany" in names:
+                full = self._read_many_index(names.index("a2jGetMappingMany"), "a2jGetMappingMany")
+                names = parse_mapping(full)
+            self.functions = names
+            self.index = mapping_index(names)
+        except BlobError as e:
+            raise BoardError(self.url, f"bad function mapping: {e}") from e
+        if "a2jGetProperties" in self.index:
+            raw = self.read_many("a2jGetProperties")
+            try:
+                self.properties = parse_properties(raw)
+            except BlobError as e:
+                raise BoardError(self.url, f"bad properties: {e}") from e
+        if describe and "a2jGetTransds" in self.index:
+            raw = self.read_many("a2jGetTransds")
+            try:
+                self.transds_text = raw.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise BoardError(self.name, f"transducer descriptors are not UTF-8: {e}") from e
+            self.transducers = parse_transds(self.transds_text, self.name)
+
+    # ---- calls -----------------------------------------------------------------------------
+    def _lookup(self, name: str) -> int:
+        try:
+            return self.index[name]
+        except KeyError:
+            raise UnknownFunction(self.name, name, self.functions) from None
+
+    def call_future(
+        self, name: str, payload: bytes = b"", timeout: float | None = None
+    ) -> Future[CallResult]:
+        return self._start(name, lambda now, t: self.conn.call(self._lookup(name), payload, now, t), timeout)
+
+    def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
+        """Call a function by name; returns its return code and reply payload."""
+        return self._wait(self.call_future(name, payload, timeout), timeout)
+
+    def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
+        """Call and require return code 0; returns the reply payload."""
+        result = self.call(name, payload, timeout)
+        if result.code != 0:
+            raise FunctionFailed(self.name, name, result.code, result.payload)
+        return result.payload
+
+    def call_index(self, index: int, payload: bytes, label: str, timeout: float | None = None) -> CallResult:
+        fut: Future[CallResult] = self._start(
+            label, lambda now, t: self.conn.call(index, payload, now, t), timeout
+        )
+        return self._wait(fut, timeout)
+
+    def read_many_future(
+        self, name: str, *, progress: ProgressFn | None = None, max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+    ) -> Future[bytes]:
+        target = self._lookup(name)
+        return self._start(
+            name,
+            lambda now, t: self.conn.read_many(
+                target, now, t, max_bytes=max_bytes, progress=progress is not None
+            ),
+            timeout,
+            progress,
+        )
+
+    def read_many(
+        self, name: str, *, progress: ProgressFn | None = None, max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+    ) -> bytes:
+        """Read a many-function's whole blob (a2jMany), chunk by chunk."""
+        return self._wait(
+            self.read_many_future(name, progress=progress, max_bytes=max_bytes, timeout=timeout),
+            None,
+        )
+
+    def _read_many_index(self, target: int, label: str) -> bytes:
+        fut: Future[bytes] = self._start(
+            label, lambda now, t: self.conn.read_many(target, now, t), None
+        )
+        return self._wait(fut, None)
+
+    def write_many(
+        self, name: str, data: bytes, *, progress: ProgressFn | None = None,
+        timeout: float | None = None,
+    ) -> int:
+        """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
+        target = self._lookup(name)
+        fut: Future[int] = self._start(
+            name,
+            lambda now, t: self.conn.write_many(target, data, now, t, progress=progress is not None),
+            timeout,
+            progress,
+            write=True,
+        )
+        return self._wait(fut, None)
+
+    def _start(
+        self,
+        label: str,
+        begin: Callable[[float, float], int],
+        timeout: float | None,
+        progress: ProgressFn | None = None,
+        *,
+        write: bool = False,
+    ) -> Future[Any]:
+        fut: Future[Any] = Future()
+        with self._lock:
+            if self._closed_reason is not None:
+                raise self._lost(label, self._closed_reason)
+            op = begin(time.monotonic(), timeout or self.timeout)
+            self._futures[op] = (fut, label, progress, write)
+            self._flush()
+        return fut
+
+    def _wait(self, fut: Future[Any], timeout: float | None) -> Any:
+        # The connection always resolves the future (reply, timeout or close); the extra margin
+        # only guards against a reader thread that died of a bug.
+        limit = (timeout or self.timeout) * 4 + 5.0 if timeout is not None else None
+        return fut.result(limit)
+
+    def _flush(self) -> None:
+        frames = self.conn.data_to_send()
+        if frames:
+            self.transport.write_frames(frames)
+
+    def _lost(self, label: str, reason: BaseException) -> LinkLost:
+        broken = not isinstance(reason, TransportClosed)
+        return LinkLost(self.name, label, str(reason), broken)
+
+    # ---- SIFs ------------------------------------------------------------------------------
+    def on_sif(self, cmd: int | None, handler: SifHandler) -> None:
+        """Call ``handler(sif, host_receive_time)`` for SIFs with ``cmd`` (None: every SIF)."""
+        with self._lock:
+            if cmd is None:
+                self._any_sif.append(handler)
+            else:
+                self._sif_handlers.setdefault(cmd, []).append(handler)
+
+    # ---- the reader thread -----------------------------------------------------------------
+    def _reader(self) -> None:
+        error: BaseException | None = None
+        try:
+            while not self._stopping:
+                timer = self.conn.get_timer()
+                now = time.monotonic()
+                wait = _TICK if timer is None else max(0.0, min(_TICK, timer - now))
+                data = self.transport.read(wait)
+                now = time.monotonic()
+                with self._lock:
+                    events = self.conn.receive_data(data, now) if data else []
+                    if timer is not None and now >= timer:
+                        events += self.conn.handle_timer(now)
+                    self._flush()
+                if events:
+                    self._dispatch(events, now)
+        except (TransportBroken, TransportClosed) as e:
+            error = e
+        except BaseException as e:  # noqa: BLE001 - never die silently with callers waiting
+            log.exception("%s: reader thread failed", self.url)
+            error = TransportBroken(f"{self.url}: reader failed: {e!r}")
+        if error is None:
+            error = TransportClosed(f"{self.url}: closed on this side")
+        with self._lock:
+            self._closed_reason = error
+            reason = FailureReason.CLOSED if isinstance(error, TransportClosed) else FailureReason.BROKEN
+            events = self.conn.close(reason, str(error))
+        self._dispatch(events, time.monotonic())
+
+    def _dispatch(self, events: list[Any], now: float) -> None:
+        for ev in events:
+            if isinstance(ev, SifReceived):
+                for h in self._sif_handlers.get(ev.cmd, ()):
+                    self._run_handler(h, ev, now)
+                for h in self._any_sif:
+                    self._run_handler(h, ev, now)
+            elif isinstance(ev, TransferProgress):
+                entry = self._futures.get(ev.op)
+                if entry and entry[2]:
+                    try:
+                        entry[2](ev.done, ev.total)
+                    except Exception:  # noqa: BLE001
+                        log.exception("progress callback failed")
+            elif isinstance(ev, FrameDamaged):
+                log.debug("%s: damaged frame: %s", self.url, ev.error)
+            else:
+                self._resolve(ev)
+
+    def _resolve(self, ev: CallCompleted | CallFailed | TransferCompleted) -> None:
+        entry = self._futures.pop(ev.op, None)
+        if entry is None:
+            return
+        fut, label, _, is_write = entry
+        if isinstance(ev, CallCompleted):
+            fut.set_result(CallResult(ev.code, ev.payload))
+        elif isinstance(ev, TransferCompleted):
+            if is_write:
+                fut.set_result(ev.status)  # a write reports the function's status
+            elif ev.status == 0:
+                fut.set_result(ev.data)
+            else:
+                fut.set_exception(FunctionFailed(self.name, label, ev.status, ev.data))
+        else:
+            fut.set_exception(self._failure(label, ev))
+
+    def _failure(self, label: str, ev: CallFailed) -> BoardError:
+        if ev.reason is FailureReason.TIMEOUT:
+            return CallTimeout(self.name, label, ev.detail)
+        if ev.reason in (FailureReason.CLOSED, FailureReason.BROKEN):
+            return LinkLost(self.name, label, ev.detail, ev.reason is FailureReason.BROKEN)
+        return CallError(self.name, label, ev.detail, ev.code)
+
+    @staticmethod
+    def _run_handler(h: SifHandler, ev: SifReceived, now: float) -> None:
+        try:
+            h(ev, now)
+        except Exception:  # noqa: BLE001 - one bad handler must not stop the board
+            log.exception("SIF handler %r failed", h)
+
+    # ---- closing ---------------------------------------------------------------------------
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def close(self) -> None:
+        """Close the link, fail pending calls, and join the reader thread.  Idempotent."""
+        self._stopping = True
+        self.transport.close()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> Board:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<Board {self.name} at {self.url}>"
+
+
+def open_board(url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> Board:
+    """Open a board by URL and read its description (blocking)."""
+    return Board.open(url, timeout=timeout, window=window)
+
+
+class AsyncBoard:
+    """The asyncio face of :class:`Board`: the same engine, awaited instead of waited on."""
+
+    def __init__(self, board: Board) -> None:
+        self.board = board
+
+    @classmethod
+    async def open(cls, url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> AsyncBoard:
+        loop = asyncio.get_running_loop()
+        board = await loop.run_in_executor(
+            None, lambda: Board.open(url, timeout=timeout, window=window)
+        )
+        return cls(board)
+
+    @property
+    def functions(self) -> list[str]:
+        return self.board.functions
+
+    @property
+    def properties(self) -> dict[str, str]:
+        return self.board.properties
+
+    @property
+    def transducers(self) -> list[Transducer] | None:
+        return self.board.transducers
+
+    async def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
+        return await asyncio.wrap_future(self.board.call_future(name, payload, timeout))
+
+    async def read_many(self, name: str, *, progress: ProgressFn | None = None) -> bytes:
+        return await asyncio.wrap_future(self.board.read_many_future(name, progress=progress))
+
+    def sifs(self, cmd: int | None = None, maxsize: int = 10000) -> asyncio.Queue[tuple[SifReceived, float]]:
+        """A queue that receives ``(sif, host_time)``; full queues drop the newest (counted)."""
+        loop = asyncio.get_running_loop()
+        queue: asyncio.Queue[tuple[SifReceived, float]] = asyncio.Queue(maxsize)
+
+        def put(item: tuple[SifReceived, float]) -> None:
+            try:
+                queue.put_nowait(item)
+            except asyncio.QueueFull:
+                self.dropped += 1
+
+        self.dropped = 0
+        self.board.on_sif(cmd, lambda ev, now: loop.call_soon_threadsafe(put, (ev, now)))
+        return queue
+
+    async def close(self) -> None:
+        await asyncio.get_running_loop().run_in_executor(None, self.board.close)
+
+    async def __aenter__(self) -> AsyncBoard:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+
+async def open_board_async(url: str, *, timeout: float = DEFAULT_TIMEOUT) -> AsyncBoard:
+    return await AsyncBoard.open(url, timeout=timeout)

@@ -1,0 +1,222 @@
+"""Transducer descriptors (spec 2.2): strict parsing of ``transds/1`` and SIF payload decoding."""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from dataclasses import dataclass, field
+
+from .board.dtypes import DTYPES, FLOAT_TYPES, SIF_MAX_PAYLOAD
+from .errors import DescriptorError
+
+HEADER = "transds/1"
+NAME_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
+ROS_TYPE_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9]*\Z")
+FIELDS = ("name", "id", "prefix", "model", "chan_count", "type", "na")
+KNOWN_KEYS = ("unit", "scale", "offset", "min", "max", "rate_hz", "kind", "call", "ros", "frame_id")
+_FLOAT_KEYS = ("scale", "offset", "min", "max", "rate_hz")
+
+
+@dataclass(frozen=True)
+class Transducer:
+    """One transducer as a board (or a host-side TOML file) describes it."""
+
+    name: str
+    id: int
+    prefix: str
+    model: str
+    chan_count: int
+    dtype: str
+    na: int | float
+    options: dict[str, str] = field(default_factory=dict)
+    unknown: dict[str, str] = field(default_factory=dict)  #: keys this host does not know
+
+    @property
+    def kind(self) -> str:
+        return self.options.get("kind", "sensor")
+
+    @property
+    def is_actuator(self) -> bool:
+        return self.kind == "actuator"
+
+    @property
+    def call(self) -> str | None:
+        return self.options.get("call")
+
+    @property
+    def unit(self) -> str | None:
+        return self.options.get("unit")
+
+    @property
+    def sif_size(self) -> int:
+        return self.chan_count * (8 + DTYPES[self.dtype][1])
+
+    @property
+    def struct(self) -> struct.Struct:
+        return _sif_struct(self.dtype, self.chan_count)
+
+    def value_struct(self) -> struct.Struct:
+        return struct.Struct("<" + DTYPES[self.dtype][0])
+
+    def decode(self, payload: bytes) -> list[tuple[int, int | float | None]]:
+        """SIF payload -> [(board_us, value or None for N/A)] per channel."""
+        st = self.struct
+        if len(payload) != st.size:
+            raise ValueError(
+                f"{self.name}: SIF of {len(payload)} bytes, expected {st.size} "
+                f"({self.chan_count} x (8 + {DTYPES[self.dtype][1]}))"
+            )
+        flat = st.unpack(payload)
+        na = self.na
+        out: list[tuple[int, int | float | None]] = []
+        if self.dtype in FLOAT_TYPES and isinstance(na, float) and math.isnan(na):
+            for i in range(0, len(flat), 2):
+                v = flat[i + 1]
+                out.append((flat[i], None if v != v else v))
+        else:
+            for i in range(0, len(flat), 2):
+                v = flat[i + 1]
+                out.append((flat[i], None if v == na else v))
+        return out
+
+    def line(self) -> str:
+        """The descriptor line, as a board would send it."""
+        base = [self.name, str(self.id), self.prefix, self.model, str(self.chan_count), self.dtype]
+        base.append(_fmt(self.na))
+        extra = [f"{k}={v}" for k, v in {**self.options, **self.unknown}.items()]
+        return ",".join(base + extra)
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "name": self.name,
+            "id": self.id,
+            "prefix": self.prefix,
+            "model": self.model,
+            "chan_count": self.chan_count,
+            "type": self.dtype,
+            "na": self.na if not (isinstance(self.na, float) and math.isnan(self.na)) else "nan",
+            "options": dict(self.options),
+            "unknown": dict(self.unknown),
+        }
+
+
+_STRUCTS: dict[tuple[str, int], struct.Struct] = {}
+
+
+def _sif_struct(dtype: str, n: int) -> struct.Struct:
+    st = _STRUCTS.get((dtype, n))
+    if st is None:
+        st = _STRUCTS[(dtype, n)] = struct.Struct("<" + ("Q" + DTYPES[dtype][0]) * n)
+    return st
+
+
+def _fmt(v: int | float) -> str:
+    return "nan" if isinstance(v, float) and math.isnan(v) else str(v)
+
+
+def parse_na(text: str, dtype: str) -> int | float:
+    """Parse an N/A value in the type's domain; raises ValueError with the reason."""
+    t = text.strip()
+    if dtype in FLOAT_TYPES:
+        return float(t)
+    if dtype == "bool" and t.lower() in ("true", "false"):
+        return 1 if t.lower() == "true" else 0
+    value = int(t, 0)
+    _code, _size, lo, hi = DTYPES[dtype]
+    if not lo <= value <= hi:
+        raise ValueError(f"{value} is outside {dtype} ({lo}..{hi})")
+    return value
+
+
+def parse_line(line: str, board: str = "board", lineno: int = 0) -> Transducer:
+    where = f"transds line {lineno}" if lineno else "transducer"
+
+    def fail(fld: str, why: str) -> DescriptorError:
+        return DescriptorError(board, f"{where}, field {fld}: {why} (line: {line!r})")
+
+    parts = [p.strip() for p in line.split(",")]
+    if len(parts) < len(FIELDS):
+        raise fail(FIELDS[len(parts)], f"missing; a line needs {len(FIELDS)} fields")
+    name, id_s, prefix, model, count_s, dtype, na_s = parts[:7]
+    if not NAME_RE.match(name):
+        raise fail("name", f"{name!r} is not a topic name ([a-z][a-z0-9_]*)")
+    try:
+        tid = int(id_s, 0)
+    except ValueError:
+        raise fail("id", f"{id_s!r} is not a number") from None
+    if not 0 <= tid <= 239:
+        raise fail("id", f"{tid} outside 0..239 (0xF0.. are error codes)")
+    if not prefix:
+        raise fail("prefix", "empty")
+    if not model:
+        raise fail("model", "empty")
+    try:
+        chan_count = int(count_s, 0)
+    except ValueError:
+        raise fail("chan_count", f"{count_s!r} is not a number") from None
+    if not 1 <= chan_count <= 255:
+        raise fail("chan_count", f"{chan_count} outside 1..255")
+    if dtype not in DTYPES:
+        raise fail("type", f"{dtype!r} is not one of {', '.join(DTYPES)}")
+    try:
+        na = parse_na(na_s, dtype)
+    except ValueError as e:
+        raise fail("na", f"{na_s!r} is not a {dtype} value: {e}") from None
+    options: dict[str, str] = {}
+    unknown: dict[str, str] = {}
+    for extra in parts[7:]:
+        if "=" not in extra:
+            raise fail(extra or "(empty)", "optional fields are key=value")
+        key, value = (s.strip() for s in extra.split("=", 1))
+        target = options if key in KNOWN_KEYS else unknown
+        if key in options or key in unknown:
+            raise fail(key, "given twice")
+        target[key] = value
+    for key in _FLOAT_KEYS:
+        if key in options:
+            try:
+                float(options[key])
+            except ValueError:
+                raise fail(key, f"{options[key]!r} is not a number") from None
+    if options.get("kind", "sensor") not in ("sensor", "actuator"):
+        raise fail("kind", f"{options['kind']!r} is not sensor or actuator")
+    if options.get("kind") == "actuator" and not options.get("call"):
+        raise fail("call", "an actuator needs call=<function taking one value>")
+    if "ros" in options and not ROS_TYPE_RE.match(options["ros"]):
+        raise fail("ros", f"{options['ros']!r} is not a message type like sensor_msgs/msg/Range")
+    size = chan_count * (8 + DTYPES[dtype][1])
+    if size > SIF_MAX_PAYLOAD:
+        raise fail(
+            "chan_count",
+            f"{chan_count} channels of {dtype} need {size} bytes; one SIF carries at most 255",
+        )
+    return Transducer(name, tid, prefix, model, chan_count, dtype, na, options, unknown)
+
+
+def parse_transds(text: str, board: str = "board") -> list[Transducer]:
+    """Parse a ``transds/1`` blob; names and ids must be unique."""
+    lines = text.replace("\r\n", "\n").split("\n")
+    if not lines or lines[0].strip() != HEADER:
+        raise DescriptorError(
+            board, f"transds line 1: expected {HEADER!r}, got {lines[0][:40]!r}"
+        )
+    out: list[Transducer] = []
+    names: dict[str, int] = {}
+    ids: dict[int, int] = {}
+    for lineno, line in enumerate(lines[1:], start=2):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        t = parse_line(line, board, lineno)
+        if t.name in names:
+            raise DescriptorError(
+                board, f"transds line {lineno}, field name: {t.name!r} already on line {names[t.name]}"
+            )
+        if t.id in ids:
+            raise DescriptorError(
+                board, f"transds line {lineno}, field id: {t.id} already on line {ids[t.id]}"
+            )
+        names[t.name] = lineno
+        ids[t.id] = lineno
+        out.append(t)
+    return out

@@ -1,0 +1,78 @@
+"""Errors: each says whose fault it was, the state of the link, and what to do next."""
+
+from __future__ import annotations
+
+
+class MissingLinkError(Exception):
+    """Base class of every error missing-link raises on purpose."""
+
+
+class TransportError(MissingLinkError):
+    """The byte link to a board failed or was unusable."""
+
+
+class TransportClosed(TransportError):
+    """The link was closed on this side (our doing); open it again to continue."""
+
+
+class TransportBroken(TransportError):
+    """The link failed under us (board unplugged, peer closed, I/O error); reconnect."""
+
+
+class BadURL(MissingLinkError, ValueError):
+    """A board URL cannot be understood (the caller's input)."""
+
+
+class BoardError(MissingLinkError):
+    """Something went wrong talking to a board; ``board`` names it."""
+
+    def __init__(self, board: str, message: str) -> None:
+        super().__init__(f"{board}: {message}")
+        self.board = board
+
+
+class UnknownFunction(BoardError):
+    def __init__(self, board: str, function: str, available: list[str]) -> None:
+        super().__init__(
+            board,
+            f"board has no function {function!r} (it has: {', '.join(available) or 'none'})",
+        )
+        self.function = function
+
+
+class CallTimeout(BoardError):
+    def __init__(self, board: str, function: str, detail: str) -> None:
+        super().__init__(board, f"{function}: {detail} (board busy, link too slow, or gone?)")
+        self.function = function
+
+
+class CallError(BoardError):
+    """The board answered with an error frame, or the reply broke the protocol."""
+
+    def __init__(self, board: str, function: str, detail: str, code: int | None = None) -> None:
+        super().__init__(board, f"{function}: {detail}")
+        self.function = function
+        self.code = code
+
+
+class FunctionFailed(BoardError):
+    """The function ran and returned a nonzero status where 0 (OK) was required."""
+
+    def __init__(self, board: str, function: str, code: int, payload: bytes = b"") -> None:
+        super().__init__(board, f"{function} returned {code:#04x}")
+        self.function = function
+        self.code = code
+        self.payload = payload
+
+
+class LinkLost(BoardError):
+    """The link to the board closed or broke while a call was waiting."""
+
+    def __init__(self, board: str, function: str, detail: str, broken: bool) -> None:
+        super().__init__(board, f"{function}: {detail}")
+        self.function = function
+        self.broken = broken
+
+
+class DescriptorError(BoardError):
+    """A transducer descriptor is malformed; the message names the line and the field."""

@@ -1,0 +1,17 @@
+"""Byte links to boards, opened by URL: tcp, unix, serial, usb, memory; ``spy+`` dumps traffic."""
+
+from . import memory, serialport, sockets, usb  # noqa: F401 - register the URL schemes
+from .base import FdTransport, Transport, open_transport, register_transport
+from .memory import MemoryListener, MemoryTransport, memory_pair
+from .spy import SpyTransport
+
+__all__ = [
+    "FdTransport",
+    "MemoryListener",
+    "MemoryTransport",
+    "SpyTransport",
+    "Transport",
+    "memory_pair",
+    "open_transport",
+    "register_transport",
+]

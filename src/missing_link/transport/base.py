@@ -1,0 +1,129 @@
+"""The transport interface and the URL registry (one bus interface, plugins by name)."""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from urllib.parse import parse_qs, urlsplit
+
+from ..errors import BadURL, TransportBroken, TransportClosed
+
+
+class Transport(ABC):
+    """A byte link to one board.  Thread rules: one reader thread, writes from any thread."""
+
+    url: str = ""
+
+    @abstractmethod
+    def read(self, timeout: float | None) -> bytes:
+        """Bytes that arrived, waiting at most ``timeout`` seconds; b"" when none came.
+        Raises TransportBroken when the peer went away, TransportClosed after close()."""
+
+    @abstractmethod
+    def write(self, data: bytes) -> None:
+        """Send all of ``data``; raises TransportBroken / TransportClosed."""
+
+    def write_frames(self, frames: list[bytes]) -> None:
+        """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
+        if frames:
+            self.write(b"".join(frames))
+
+    @abstractmethod
+    def close(self) -> None:
+        """Idempotent."""
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.url}>"
+
+
+class FdTransport(Transport):
+    """A transport over a readable/writable file descriptor (socket, pty, serial port)."""
+
+    def __init__(self, url: str, fd: int) -> None:
+        self.url = url
+        self._fd = fd
+        self._closed = False
+        self._wlock = threading.Lock()
+
+    def _check(self) -> None:
+        if self._closed:
+            raise TransportClosed(f"{self.url}: transport closed on this side")
+
+    def _recv(self, n: int) -> bytes:
+        return os.read(self._fd, n)
+
+    def _send(self, data: memoryview) -> int:
+        return os.write(self._fd, data)
+
+    def read(self, timeout: float | None) -> bytes:
+        self._check()
+        try:
+            ready, _, _ = select.select([self._fd], [], [], timeout)
+            if not ready:
+                return b""
+            data = self._recv(65536)
+        except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
+            self._check()
+            raise TransportBroken(f"{self.url}: read failed: {e}") from e
+        if not data:
+            raise TransportBroken(f"{self.url}: the other side closed the link")
+        return data
+
+    def write(self, data: bytes) -> None:
+        self._check()
+        view = memoryview(data)
+        with self._wlock:
+            try:
+                while view:
+                    n = self._send(view)
+                    view = view[n:]
+            except (OSError, ValueError) as e:
+                self._check()
+                raise TransportBroken(f"{self.url}: write failed: {e}") from e
+
+
+Factory = Callable[[str, dict[str, str]], Transport]
+_REGISTRY: dict[str, Factory] = {}
+
+
+def register_transport(scheme: str, factory: Factory) -> None:
+    """Make ``scheme://`` URLs open with ``factory(url, query)``."""
+    _REGISTRY[scheme] = factory
+
+
+def query_dict(url: str) -> dict[str, str]:
+    q = parse_qs(urlsplit(url).query, keep_blank_values=True)
+    return {k: v[-1] for k, v in q.items()}
+
+
+def open_transport(url: str) -> Transport:
+    """Open a board link by URL, e.g. ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
+    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to hex-dump traffic."""
+    if url.startswith("spy+"):
+        from .spy import SpyTransport
+
+        return SpyTransport(open_transport(url[4:]))
+    scheme = url.split("://", 1)[0] if "://" in url else ""
+    if not scheme:
+        raise BadURL(f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)")
+    factory = _REGISTRY.get(scheme)
+    if factory is None:
+        for ep in entry_points(group="missing_link.transports"):
+            if ep.name == scheme:
+                factory = ep.load()
+                register_transport(scheme, factory)  # type: ignore[arg-type]
+                break
+    if factory is None:
+        known = ", ".join(sorted(_REGISTRY))
+        raise BadURL(f"{url!r}: unknown transport {scheme!r} (known: {known}, and spy+ prefix)")
+    return factory(url, query_dict(url))

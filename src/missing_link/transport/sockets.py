@@ -1,0 +1,74 @@
+"""``tcp://HOST:PORT`` and ``unix:///path`` links (virtual boards, serial-to-network bridges)."""
+
+from __future__ import annotations
+
+import socket
+from urllib.parse import urlsplit
+
+from ..errors import BadURL, TransportBroken
+from .base import FdTransport, register_transport
+
+CONNECT_TIMEOUT = 5.0
+
+
+class SocketTransport(FdTransport):
+    def __init__(self, url: str, sock: socket.socket) -> None:
+        sock.setblocking(True)
+        if sock.family in (socket.AF_INET, socket.AF_INET6):
+            # Frames are small and latency matters more than packet count.
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        super().__init__(url, sock.fileno())
+        self.sock = sock
+
+    def _recv(self, n: int) -> bytes:
+        return self.sock.recv(n)
+
+    def _send(self, data: memoryview) -> int:
+        return self.sock.send(data)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            try:
+                self.sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self.sock.close()
+
+
+def parse_host_port(url: str) -> tuple[str, int]:
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError as e:
+        raise BadURL(f"{url!r}: bad port ({e})") from e
+    if not parts.hostname or port is None:
+        raise BadURL(f"{url!r}: expected tcp://HOST:PORT")
+    return parts.hostname, port
+
+
+def open_tcp(url: str, query: dict[str, str]) -> SocketTransport:
+    host, port = parse_host_port(url)
+    try:
+        sock = socket.create_connection((host, port), timeout=CONNECT_TIMEOUT)
+    except OSError as e:
+        raise TransportBroken(f"{url}: cannot connect: {e}") from e
+    return SocketTransport(url, sock)
+
+
+def open_unix(url: str, query: dict[str, str]) -> SocketTransport:
+    path = urlsplit(url).path
+    if not path:
+        raise BadURL(f"{url!r}: expected unix:///path/to/socket")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        sock.settimeout(CONNECT_TIMEOUT)
+        sock.connect(path)
+    except OSError as e:
+        sock.close()
+        raise TransportBroken(f"{url}: cannot connect: {e}") from e
+    return SocketTransport(url, sock)
+
+
+register_transport("tcp", open_tcp)
+register_transport("unix", open_unix)

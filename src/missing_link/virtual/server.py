@@ -1,0 +1,244 @@
+"""Serve a board runtime on a listener: ``tcp://127.0.0.1:PORT`` (0 = pick), ``unix:///path``,
+``pty`` (a pseudo-terminal, opened by hosts as ``serial:///dev/pts/N``) or ``memory://NAME``.
+
+The loop is the board's process loop: wait for input or the next driver deadline, feed, poll,
+write.  Like a real board it never blocks on output: when the host does not read, output waits in
+a bounded buffer and then whole SIF batches are dropped (counted), never parts of a frame.
+One host at a time; a second connection is refused until the first goes away.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import socket
+import threading
+import tty
+from urllib.parse import urlsplit
+
+from ..board.runtime import BoardRuntime
+from ..errors import BadURL
+from ..transport.memory import MemoryListener, MemoryTransport
+
+OUT_LIMIT = 64 * 1024
+_MAX_WAIT = 0.05
+
+
+class _Link:
+    """One connected host: a non-blocking fd (socket or pty master) plus an output buffer."""
+
+    def __init__(self, fd: int, sock: socket.socket | None = None) -> None:
+        self.fd = fd
+        self.sock = sock
+        self.pending = b""
+        self.dropped = 0
+        os.set_blocking(fd, False)
+
+    def recv(self) -> bytes | None:
+        """Bytes, b"" if none now, None when the host went away."""
+        try:
+            data = self.sock.recv(4096) if self.sock else os.read(self.fd, 4096)
+        except BlockingIOError:
+            return b""
+        except OSError as e:
+            if e.errno == errno.EIO and self.sock is None:
+                return b""  # pty with no host attached right now
+            return None
+        return data if data or self.sock is None else None
+
+    def send(self, data: bytes) -> bool:
+        if data:
+            if len(self.pending) + len(data) > OUT_LIMIT:
+                self.dropped += 1  # host not reading: drop this batch whole
+            else:
+                self.pending += data
+        while self.pending:
+            try:
+                n = self.sock.send(self.pending) if self.sock else os.write(self.fd, self.pending)
+            except BlockingIOError:
+                return True
+            except OSError:
+                return False
+            self.pending = self.pending[n:]
+        return True
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+
+
+class BoardServer:
+    """Runs ``runtime`` behind ``listen_url`` until ``stop()``; ``url`` is what hosts open."""
+
+    def __init__(self, runtime: BoardRuntime, listen_url: str) -> None:
+        self.runtime = runtime
+        self.listen_url = listen_url
+        self._stop = threading.Event()
+        self._listener: socket.socket | None = None
+        self._memory: MemoryListener | None = None
+        self._link: _Link | None = None
+        self._mem_link: MemoryTransport | None = None
+        self._pty_slave: int | None = None
+        self.connections = 0
+        self.url = self._bind(listen_url)
+
+    def _bind(self, url: str) -> str:
+        if url == "pty" or url == "pty://":
+            master, slave = os.openpty()
+            # Raw mode at once: a cooked pty would echo the board's own frames back to it.
+            tty.setraw(slave)
+            tty.setraw(master)
+            self._pty_slave = slave  # kept open so the master never sees EOF between hosts
+            self._link = _Link(master)
+            return f"serial://{os.ttyname(slave)}"
+        scheme = url.split("://", 1)[0]
+        if scheme == "tcp":
+            parts = urlsplit(url)
+            host = parts.hostname or "127.0.0.1"
+            try:
+                port = parts.port or 0
+            except ValueError as e:
+                raise BadURL(f"{url!r}: bad port") from e
+            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+            sock.listen(1)
+            self._listener = sock
+            return f"tcp://{host}:{sock.getsockname()[1]}"
+        if scheme == "unix":
+            path = urlsplit(url).path
+            if not path:
+                raise BadURL(f"{url!r}: expected unix:///path")
+            if os.path.exists(path):
+                os.unlink(path)
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.bind(path)
+            sock.listen(1)
+            self._listener = sock
+            return f"unix://{path}"
+        if scheme == "memory":
+            self._memory = MemoryListener(urlsplit(url).netloc)
+            return self._memory.url
+        raise BadURL(f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path, pty or memory://NAME")
+
+    # ---- the process loop ---------------------------------------------------------------------
+    def _wait_time(self) -> float:
+        rt = self.runtime
+        due = rt.next_deadline_us()
+        if due is None:
+            return _MAX_WAIT
+        return min(_MAX_WAIT, max(0.0, (due - rt.clock()) / 1e6))
+
+    def serve_forever(self) -> None:
+        if self._memory is not None:
+            self._serve_memory()
+            return
+        rt = self.runtime
+        try:
+            while not self._stop.is_set():
+                fds = []
+                if self._link is not None:
+                    fds.append(self._link.fd)
+                if self._listener is not None:
+                    fds.append(self._listener.fileno())
+                wfds = [self._link.fd] if self._link is not None and self._link.pending else []
+                ready, _, _ = select.select(fds, wfds, [], self._wait_time())
+                if self._listener is not None and self._listener.fileno() in ready:
+                    self._accept()
+                if self._link is not None and self._link.fd in ready:
+                    data = self._link.recv()
+                    if data is None:
+                        self._drop_link()
+                    elif data:
+                        rt.feed(data)
+                rt.poll()
+                out = rt.take_output()
+                if self._link is not None:
+                    if not self._link.send(out):
+                        self._drop_link()
+        finally:
+            self.close()
+
+    def _accept(self) -> None:
+        assert self._listener is not None
+        sock, _ = self._listener.accept()
+        if self._link is not None:
+            sock.close()  # one host at a time
+            return
+        if sock.family == socket.AF_INET:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._link = _Link(sock.fileno(), sock)
+        self.connections += 1
+
+    def _drop_link(self) -> None:
+        if self._link is not None and self._link.sock is not None:
+            self._link.close()
+            self._link = None
+
+    def _serve_memory(self) -> None:
+        assert self._memory is not None
+        rt = self.runtime
+        link: MemoryTransport | None = None
+        try:
+            while not self._stop.is_set():
+                if link is None:
+                    link = self._memory.accept(self._wait_time())
+                    if link is not None:
+                        self.connections += 1
+                    data = b""
+                else:
+                    try:
+                        data = link.read(self._wait_time())
+                    except Exception:  # noqa: BLE001 - host went away: accept the next one
+                        link = None
+                        data = b""
+                if data:
+                    rt.feed(data)
+                rt.poll()
+                out = rt.take_output()
+                if link is not None and out:
+                    try:
+                        link.write(out)
+                    except Exception:  # noqa: BLE001
+                        link = None
+        finally:
+            if link is not None:
+                link.close()
+            self.close()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._listener is not None:
+            if self._listener.family == socket.AF_UNIX:
+                try:
+                    os.unlink(self._listener.getsockname())
+                except OSError:
+                    pass
+            self._listener.close()
+            self._listener = None
+        if self._link is not None:
+            if self._link.sock is None:
+                os.close(self._link.fd)
+            else:
+                self._link.close()
+            self._link = None
+        if self._pty_slave is not None:
+            os.close(self._pty_slave)
+            self._pty_slave = None
+        if self._memory is not None:
+            self._memory.close()
+
+
+def start_board_thread(
+    runtime: BoardRuntime, listen_url: str = "tcp://127.0.0.1:0"
+) -> tuple[BoardServer, threading.Thread]:
+    """Run a virtual board in a background thread (tests, embedding).  Stop with server.stop()."""
+    server = BoardServer(runtime, listen_url)
+    thread = threading.Thread(target=server.serve_forever, name=f"board:{server.url}", daemon=True)
+    thread.start()
+    return server, thread
+
