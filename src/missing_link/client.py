@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from .descriptors import Transducer, parse_transds
 from .errors import (
@@ -48,6 +48,7 @@ from .j2a.blobs import mapping_index
 from .transport import Transport, open_transport
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 DEFAULT_TIMEOUT = 1.0
 _TICK = 0.02  # longest the reader sleeps before looking at timers again
@@ -155,7 +156,9 @@ class Board:
     def call_future(
         self, name: str, payload: bytes = b"", timeout: float | None = None
     ) -> Future[CallResult]:
-        return self._start(name, lambda now, t: self.conn.call(self._lookup(name), payload, now, t), timeout)
+        return self._start(
+            name, lambda now, t: self.conn.call(self._lookup(name), payload, now, t), timeout
+        )
 
     def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
         """Call a function by name; returns its return code and reply payload."""
@@ -168,14 +171,20 @@ class Board:
             raise FunctionFailed(self.name, name, result.code, result.payload)
         return result.payload
 
-    def call_index(self, index: int, payload: bytes, label: str, timeout: float | None = None) -> CallResult:
+    def call_index(
+        self, index: int, payload: bytes, label: str, timeout: float | None = None
+    ) -> CallResult:
         fut: Future[CallResult] = self._start(
             label, lambda now, t: self.conn.call(index, payload, now, t), timeout
         )
         return self._wait(fut, timeout)
 
     def read_many_future(
-        self, name: str, *, progress: ProgressFn | None = None, max_bytes: int = 64 << 20,
+        self,
+        name: str,
+        *,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
         timeout: float | None = None,
     ) -> Future[bytes]:
         target = self._lookup(name)
@@ -189,7 +198,11 @@ class Board:
         )
 
     def read_many(
-        self, name: str, *, progress: ProgressFn | None = None, max_bytes: int = 64 << 20,
+        self,
+        name: str,
+        *,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
         timeout: float | None = None,
     ) -> bytes:
         """Read a many-function's whole blob (a2jMany), chunk by chunk."""
@@ -205,14 +218,20 @@ class Board:
         return self._wait(fut, None)
 
     def write_many(
-        self, name: str, data: bytes, *, progress: ProgressFn | None = None,
+        self,
+        name: str,
+        data: bytes,
+        *,
+        progress: ProgressFn | None = None,
         timeout: float | None = None,
     ) -> int:
         """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
         target = self._lookup(name)
         fut: Future[int] = self._start(
             name,
-            lambda now, t: self.conn.write_many(target, data, now, t, progress=progress is not None),
+            lambda now, t: self.conn.write_many(
+                target, data, now, t, progress=progress is not None
+            ),
             timeout,
             progress,
             write=True,
@@ -237,7 +256,7 @@ class Board:
             self._flush()
         return fut
 
-    def _wait(self, fut: Future[Any], timeout: float | None) -> Any:
+    def _wait(self, fut: Future[T], timeout: float | None) -> T:
         # The connection always resolves the future (reply, timeout or close); the extra margin
         # only guards against a reader thread that died of a bug.
         limit = (timeout or self.timeout) * 4 + 5.0 if timeout is not None else None
@@ -280,14 +299,16 @@ class Board:
                     self._dispatch(events, now)
         except (TransportBroken, TransportClosed) as e:
             error = e
-        except BaseException as e:  # noqa: BLE001 - never die silently with callers waiting
+        except BaseException as e:
             log.exception("%s: reader thread failed", self.url)
             error = TransportBroken(f"{self.url}: reader failed: {e!r}")
         if error is None:
             error = TransportClosed(f"{self.url}: closed on this side")
         with self._lock:
             self._closed_reason = error
-            reason = FailureReason.CLOSED if isinstance(error, TransportClosed) else FailureReason.BROKEN
+            reason = (
+                FailureReason.CLOSED if isinstance(error, TransportClosed) else FailureReason.BROKEN
+            )
             events = self.conn.close(reason, str(error))
         self._dispatch(events, time.monotonic())
 
@@ -303,7 +324,7 @@ class Board:
                 if entry and entry[2]:
                     try:
                         entry[2](ev.done, ev.total)
-                    except Exception:  # noqa: BLE001
+                    except Exception:
                         log.exception("progress callback failed")
             elif isinstance(ev, FrameDamaged):
                 log.debug("%s: damaged frame: %s", self.url, ev.error)
@@ -338,7 +359,7 @@ class Board:
     def _run_handler(h: SifHandler, ev: SifReceived, now: float) -> None:
         try:
             h(ev, now)
-        except Exception:  # noqa: BLE001 - one bad handler must not stop the board
+        except Exception:
             log.exception("SIF handler %r failed", h)
 
     # ---- closing ---------------------------------------------------------------------------
@@ -375,7 +396,9 @@ class AsyncBoard:
         self.board = board
 
     @classmethod
-    async def open(cls, url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> AsyncBoard:
+    async def open(
+        cls, url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1
+    ) -> AsyncBoard:
         loop = asyncio.get_running_loop()
         board = await loop.run_in_executor(
             None, lambda: Board.open(url, timeout=timeout, window=window)
@@ -394,13 +417,17 @@ class AsyncBoard:
     def transducers(self) -> list[Transducer] | None:
         return self.board.transducers
 
-    async def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
+    async def call(
+        self, name: str, payload: bytes = b"", timeout: float | None = None
+    ) -> CallResult:
         return await asyncio.wrap_future(self.board.call_future(name, payload, timeout))
 
     async def read_many(self, name: str, *, progress: ProgressFn | None = None) -> bytes:
         return await asyncio.wrap_future(self.board.read_many_future(name, progress=progress))
 
-    def sifs(self, cmd: int | None = None, maxsize: int = 10000) -> asyncio.Queue[tuple[SifReceived, float]]:
+    def sifs(
+        self, cmd: int | None = None, maxsize: int = 10000
+    ) -> asyncio.Queue[tuple[SifReceived, float]]:
         """A queue that receives ``(sif, host_time)``; full queues drop the newest (counted)."""
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue[tuple[SifReceived, float]] = asyncio.Queue(maxsize)
@@ -412,7 +439,11 @@ class AsyncBoard:
                 self.dropped += 1
 
         self.dropped = 0
-        self.board.on_sif(cmd, lambda ev, now: loop.call_soon_threadsafe(put, (ev, now)))
+
+        def handler(ev: SifReceived, now: float) -> None:
+            loop.call_soon_threadsafe(put, (ev, now))
+
+        self.board.on_sif(cmd, handler)
         return queue
 
     async def close(self) -> None:

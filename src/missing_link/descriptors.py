@@ -50,10 +50,10 @@ class Transducer:
 
     @property
     def sif_size(self) -> int:
-        return self.chan_count * (8 + DTYPES[self.dtype][1])
+        return self.chan_count * (8 + int(DTYPES[self.dtype][1]))
 
     @property
-    def struct(self) -> struct.Struct:
+    def sif_struct(self) -> struct.Struct:
         return _sif_struct(self.dtype, self.chan_count)
 
     def value_struct(self) -> struct.Struct:
@@ -61,7 +61,7 @@ class Transducer:
 
     def decode(self, payload: bytes) -> list[tuple[int, int | float | None]]:
         """SIF payload -> [(board_us, value or None for N/A)] per channel."""
-        st = self.struct
+        st = self.sif_struct
         if len(payload) != st.size:
             raise ValueError(
                 f"{self.name}: SIF of {len(payload)} bytes, expected {st.size} "
@@ -198,9 +198,7 @@ def parse_transds(text: str, board: str = "board") -> list[Transducer]:
     """Parse a ``transds/1`` blob; names and ids must be unique."""
     lines = text.replace("\r\n", "\n").split("\n")
     if not lines or lines[0].strip() != HEADER:
-        raise DescriptorError(
-            board, f"transds line 1: expected {HEADER!r}, got {lines[0][:40]!r}"
-        )
+        raise DescriptorError(board, f"transds line 1: expected {HEADER!r}, got {lines[0][:40]!r}")
     out: list[Transducer] = []
     names: dict[str, int] = {}
     ids: dict[int, int] = {}
@@ -210,7 +208,8 @@ def parse_transds(text: str, board: str = "board") -> list[Transducer]:
         t = parse_line(line, board, lineno)
         if t.name in names:
             raise DescriptorError(
-                board, f"transds line {lineno}, field name: {t.name!r} already on line {names[t.name]}"
+                board,
+                f"transds line {lineno}, field name: {t.name!r} already on line {names[t.name]}",
             )
         if t.id in ids:
             raise DescriptorError(

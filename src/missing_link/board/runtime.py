@@ -31,9 +31,9 @@ from .wire import (
     EV_CUT,
     EV_ESCAPE,
     EV_REQUEST,
-    FrameParser,
     SOF,
     SOS,
+    FrameParser,
     encode_frame,
 )
 

@@ -3,7 +3,7 @@
 # Theory of operation
 # -------------------
 # A board gets its input a few bytes at a time (UART, USB CDC) and has little RAM, so this parser
-# is a byte-at-a-time state machine with a fixed 255-byte payload buffer:
+# is a byte-at-a-time state machine with a fixed payload buffer:
 #
 #   HUNT --0x12--> SEQ -> OP -> LEN -> DATA (len bytes) -> CSUM --> request (or error)
 #   HUNT --0xED--> ignored: a board never acts on SIF frames (spec 1.1); we keep hunting.
@@ -11,7 +11,7 @@
 # ESC (0x7D) sets a flag and the next byte is taken +1; a result that is not one of the three
 # specials is a bad escape.  A raw 0x12/0xED inside a frame means the frame was cut: the parser
 # reports it (with the seq if it had arrived) and starts again at that marker.  feed() returns a
-# list of events; the runtime answers errors with error frames (0xF2/0xF3/0xF4) as the original does.
+# list of events; the runtime answers errors with error frames (0xF2/0xF3/0xF4), as the original.
 #
 # The host side has its own, throughput-oriented decoder (missing_link.j2a.codec); the test suite
 # cross-checks the two with random frames in both directions.

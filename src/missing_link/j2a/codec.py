@@ -224,7 +224,7 @@ class FrameDecoder:
                     if p + 1 >= end:
                         break
                     b2 = buf[p + 1]
-                    if b2 == SOF or b2 == SOS:
+                    if b2 in (SOF, SOS):
                         cut_at = p + 1
                         break
                     p += 2
@@ -237,7 +237,7 @@ class FrameDecoder:
                         )
                         break
                     hdr[k] = b2 + 1
-                elif b == SOF or b == SOS:
+                elif b in (SOF, SOS):
                     cut_at = p
                     break
                 else:
@@ -319,7 +319,7 @@ class FrameDecoder:
                     continue
                 body = b"".join(parts)
                 if len(body) != need:
-                    # An escape at the very end swallowed the checksum position: treat as escape error.
+                    # A lone escape at the end swallowed the checksum position.
                     stats.bad_escapes += 1
                     out.append(
                         FrameError(

@@ -65,4 +65,6 @@ class FrameDamaged(NamedTuple):
     error: FrameError
 
 
-Event = CallCompleted | CallFailed | TransferProgress | TransferCompleted | SifReceived | FrameDamaged
+Event = (
+    CallCompleted | CallFailed | TransferProgress | TransferCompleted | SifReceived | FrameDamaged
+)

@@ -107,21 +107,23 @@ def query_dict(url: str) -> dict[str, str]:
 
 
 def open_transport(url: str) -> Transport:
-    """Open a board link by URL, e.g. ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
-    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to hex-dump traffic."""
+    """Open a board link by URL: ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
+    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to dump traffic."""
     if url.startswith("spy+"):
         from .spy import SpyTransport
 
         return SpyTransport(open_transport(url[4:]))
     scheme = url.split("://", 1)[0] if "://" in url else ""
     if not scheme:
-        raise BadURL(f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)")
+        raise BadURL(
+            f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)"
+        )
     factory = _REGISTRY.get(scheme)
     if factory is None:
         for ep in entry_points(group="missing_link.transports"):
             if ep.name == scheme:
                 factory = ep.load()
-                register_transport(scheme, factory)  # type: ignore[arg-type]
+                register_transport(scheme, factory)
                 break
     if factory is None:
         known = ", ".join(sorted(_REGISTRY))

@@ -1,4 +1,4 @@
-"""``serial:///dev/ttyACM0?baud=115200``: UARTs, USB CDC-ACM boards and pseudo-terminals (pyserial)."""
+"""``serial:///dev/ttyACM0?baud=115200``: UARTs, USB CDC-ACM boards, pseudo-terminals (pyserial)."""
 
 from __future__ import annotations
 

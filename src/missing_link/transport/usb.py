@@ -37,10 +37,10 @@ def j2a_interface(dev: Any) -> Any | None:
     """The J2A interface of ``dev`` (active configuration), or None."""
     try:
         cfg = dev.get_active_configuration()
-    except Exception:  # noqa: BLE001 - unconfigured devices have no interfaces to offer
+    except Exception:
         try:
             cfg = next(iter(dev))
-        except Exception:  # noqa: BLE001
+        except Exception:
             return None
     for intf in cfg:
         triple = (intf.bInterfaceClass, intf.bInterfaceSubClass, intf.bInterfaceProtocol)
@@ -82,12 +82,12 @@ class USBTransport(Transport):
                 "(permissions? see docs/hardware.md for a udev rule)"
             ) from e
         eps = {ep.bEndpointAddress: ep for ep in intf}
-        self._in = eps.get(EP_IN)
-        self._out = eps.get(EP_OUT)
-        if self._in is None or self._out is None:
+        if EP_IN not in eps or EP_OUT not in eps:
             raise TransportBroken(
                 f"{url}: J2A interface lacks endpoints 0x81/0x02 (has {sorted(eps)})"
             )
+        self._in: Any = eps[EP_IN]
+        self._out: Any = eps[EP_OUT]
 
     def _fail(self, op: str, e: Exception) -> TransportBroken:
         return TransportBroken(f"{self.url}: USB {op} failed: {e} (board unplugged?)")
@@ -126,7 +126,7 @@ class USBTransport(Transport):
         try:
             self._usb.util.release_interface(self._dev, self._intf)
             self._usb.util.dispose_resources(self._dev)
-        except Exception:  # noqa: BLE001 - the device may already be gone
+        except Exception:
             pass
 
 
@@ -157,7 +157,7 @@ def open_usb(url: str, query: dict[str, str], usb: Any | None = None) -> USBTran
 def _serial(dev: Any) -> str | None:
     try:
         return str(dev.serial_number) if dev.serial_number is not None else None
-    except Exception:  # noqa: BLE001 - no permission to read string descriptors
+    except Exception:
         return None
 
 

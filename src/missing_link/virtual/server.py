@@ -120,7 +120,9 @@ class BoardServer:
         if scheme == "memory":
             self._memory = MemoryListener(urlsplit(url).netloc)
             return self._memory.url
-        raise BadURL(f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path, pty or memory://NAME")
+        raise BadURL(
+            f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path, pty or memory://NAME"
+        )
 
     # ---- the process loop ---------------------------------------------------------------------
     def _wait_time(self) -> float:
@@ -128,7 +130,8 @@ class BoardServer:
         due = rt.next_deadline_us()
         if due is None:
             return _MAX_WAIT
-        return min(_MAX_WAIT, max(0.0, (due - rt.clock()) / 1e6))
+        wait: float = (due - rt.clock()) / 1e6
+        return min(_MAX_WAIT, max(0.0, wait))
 
     def serve_forever(self) -> None:
         if self._memory is not None:
@@ -154,9 +157,8 @@ class BoardServer:
                         rt.feed(data)
                 rt.poll()
                 out = rt.take_output()
-                if self._link is not None:
-                    if not self._link.send(out):
-                        self._drop_link()
+                if self._link is not None and not self._link.send(out):
+                    self._drop_link()
         finally:
             self.close()
 
@@ -190,7 +192,7 @@ class BoardServer:
                 else:
                     try:
                         data = link.read(self._wait_time())
-                    except Exception:  # noqa: BLE001 - host went away: accept the next one
+                    except Exception:
                         link = None
                         data = b""
                 if data:
@@ -200,7 +202,7 @@ class BoardServer:
                 if link is not None and out:
                     try:
                         link.write(out)
-                    except Exception:  # noqa: BLE001
+                    except Exception:
                         link = None
         finally:
             if link is not None:
@@ -241,4 +243,3 @@ def start_board_thread(
     thread = threading.Thread(target=server.serve_forever, name=f"board:{server.url}", daemon=True)
     thread.start()
     return server, thread
-

@@ -174,7 +174,9 @@ class Servo(_Driver):
             return
         step = self.DEG_PER_S * self.period_us / 1e6
         delta = self.target - self.position
-        self.position = self.target if abs(delta) <= step else self.position + math.copysign(step, delta)
+        self.position = (
+            self.target if abs(delta) <= step else self.position + math.copysign(step, delta)
+        )
         self.emit(0, self.reported())
 
 
@@ -226,7 +228,15 @@ def _add_servo(rt: BoardRuntime, seed: int) -> Servo:
     rt.add_function("a2j_set_servo", servo.command)
     rt.add_transducer(
         Transducer(
-            "servo", 3, "hs645", "HS-645MG", 1, "int8_t", -128, kind="actuator", call="a2j_set_servo"
+            "servo",
+            3,
+            "hs645",
+            "HS-645MG",
+            1,
+            "int8_t",
+            -128,
+            kind="actuator",
+            call="a2j_set_servo",
         ),
         servo,
     )
@@ -236,14 +246,30 @@ def _add_servo(rt: BoardRuntime, seed: int) -> Servo:
 def _add_rangers(rt: BoardRuntime, seed: int) -> None:
     rt.add_transducer(
         Transducer(
-            "dist_ir", 1, "sharp", "GP2Y0A02YK", 8, "uint16_t", 0, unit="mm", rate_hz=25,
+            "dist_ir",
+            1,
+            "sharp",
+            "GP2Y0A02YK",
+            8,
+            "uint16_t",
+            0,
+            unit="mm",
+            rate_hz=25,
             ros="sensor_msgs/msg/Range",
         ),
         SharpIR(_rng(seed, "ir")),
     )
     rt.add_transducer(
         Transducer(
-            "dist_us", 2, "srf02", "SRF02", 12, "uint32_t", 0x00FFFFFF, unit="mm", rate_hz=25,
+            "dist_us",
+            2,
+            "srf02",
+            "SRF02",
+            12,
+            "uint32_t",
+            0x00FFFFFF,
+            unit="mm",
+            rate_hz=25,
             ros="sensor_msgs/msg/Range",
         ),
         SRF02Sonars(_rng(seed, "us")),
@@ -282,7 +308,9 @@ def original(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntim
     blob = bytes(_rng(seed, "blob").randrange(256) for _ in range(1000))
     rt.add_blob_function("bigBlob", lambda: blob)
     # Sample SIFs like the thesis firmware: cmd 13, [u64 µs][i16]
-    rt.add_transducer(Transducer("quad", 13, "quad", "HEDS-6500", 1, "int16_t", -1), _OneEncoder(seed))
+    rt.add_transducer(
+        Transducer("quad", 13, "quad", "HEDS-6500", 1, "int16_t", -1), _OneEncoder(seed)
+    )
     return rt
 
 

@@ -1,0 +1,283 @@
+"""The ``missing-link`` command line.  Errors go to stderr with a non-zero exit code:
+1 = the board or link failed, 2 = bad command line or input, 130 = interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from . import __version__
+from .client import Board
+from .errors import BadURL, DescriptorError, MissingLinkError
+from .j2a import SifReceived
+from .samples import Sample, SampleDecoder
+
+EXIT_FAIL = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+def _parse_hex(text: str) -> bytes:
+    cleaned = text.replace(" ", "").replace(":", "")
+    try:
+        return bytes.fromhex(cleaned)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--hex {text!r} is not hex bytes (e.g. 01ff or '01 ff')"
+        ) from None
+
+
+def _open(args: argparse.Namespace) -> Board:
+    return Board.open(args.url, timeout=args.timeout)
+
+
+def _emit_json(obj: Any) -> None:
+    print(json.dumps(obj, sort_keys=False), flush=True)
+
+
+# ---- info -------------------------------------------------------------------------------------
+def info_dict(board: Board) -> dict[str, Any]:
+    return {
+        "url": board.url,
+        "original": board.is_original,
+        "functions": [{"index": i, "name": n} for i, n in enumerate(board.functions)],
+        "properties": dict(board.properties),
+        "transducers": None
+        if board.transducers is None
+        else [t.to_json() for t in board.transducers],
+    }
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    with _open(args) as board:
+        if args.json:
+            _emit_json(info_dict(board))
+            return 0
+        kind = (
+            "original (Part 1) board"
+            if board.is_original
+            else f"J2A {board.properties['j2a.version']} board"
+        )
+        print(f"{board.name} at {board.url}: {kind}")
+        print("functions:")
+        for i, name in enumerate(board.functions):
+            print(f"  {i:3d}  {name}")
+        print("properties:")
+        width = max((len(k) for k in board.properties), default=0)
+        for k, v in board.properties.items():
+            print(f"  {k:<{width}}  {v}")
+        print("transducers:")
+        if board.transducers is None:
+            print("  (none described: an original board; give descriptors on the host side)")
+        for t in board.transducers or []:
+            opts = " ".join(f"{k}={v}" for k, v in t.options.items())
+            print(
+                f"  {t.id:3d}  {t.name:<12} {t.model:<12} {t.chan_count:3d} x {t.dtype:<9} "
+                f"N/A={t.na}  {opts}"
+            )
+            if t.unknown:
+                print(f"       unknown keys (ignored): {', '.join(t.unknown)}")
+    return 0
+
+
+# ---- call -------------------------------------------------------------------------------------
+def cmd_call(args: argparse.Namespace) -> int:
+    with _open(args) as board:
+        result = board.call(args.name, args.hex, timeout=args.timeout)
+    if args.json:
+        _emit_json(
+            {
+                "function": args.name,
+                "code": result.code,
+                "ok": result.ok,
+                "payload": result.payload.hex(),
+            }
+        )
+    else:
+        text = result.payload.decode("ascii", "replace") if result.payload.isascii() else ""
+        print(f"return {result.code:#04x} ({result.code})  payload {len(result.payload)} bytes")
+        if result.payload:
+            print(f"  hex   {result.payload.hex(' ')}")
+            if text.isprintable():
+                print(f"  ascii {text}")
+    return 0
+
+
+# ---- listen -----------------------------------------------------------------------------------
+def format_sample(s: Sample, unit: str | None) -> str:
+    value = "N/A" if s.value is None else f"{s.value}{(' ' + unit) if unit else ''}"
+    lost = f"  (lost {s.lost} SIFs before)" if s.lost else ""
+    where = f"{s.board}/{s.transducer}[{s.channel}]"
+    return f"{s.host_rx:14.6f}  {where} = {value}  @board {s.board_us} us{lost}"
+
+
+def cmd_listen(args: argparse.Namespace) -> int:
+    done = threading.Event()
+    count = 0
+    lock = threading.Lock()
+    with _open(args) as board:
+        transducers = board.transducers or []
+        decoder = SampleDecoder(board.name, transducers)
+        units = {t.name: t.unit for t in transducers}
+        wanted = set(args.transducer or [])
+
+        def on_sif(sif: SifReceived, now: float) -> None:
+            nonlocal count
+            with lock:
+                if done.is_set():
+                    return
+                if not transducers:
+                    lines = [
+                        f"{now:14.6f}  sif cmd={sif.cmd} seq={sif.seq} lost={sif.lost}"
+                        f" {sif.payload.hex()}"
+                    ]
+                    objs: list[dict[str, object]] = [
+                        {
+                            "cmd": sif.cmd,
+                            "seq": sif.seq,
+                            "lost": sif.lost,
+                            "payload": sif.payload.hex(),
+                            "host_rx": now,
+                        }
+                    ]
+                else:
+                    samples = [
+                        s
+                        for s in decoder.decode(sif, now, keep_missing=args.missing)
+                        if not wanted or s.transducer in wanted
+                    ]
+                    lines = [format_sample(s, units.get(s.transducer)) for s in samples]
+                    objs = [s.to_json() for s in samples]
+                for line, obj in zip(lines, objs, strict=True):
+                    if args.count and count >= args.count:
+                        done.set()
+                        return
+                    if args.json:
+                        print(json.dumps(obj), flush=False)
+                    else:
+                        print(line, flush=False)
+                    count += 1
+                sys.stdout.flush()
+                if args.count and count >= args.count:
+                    done.set()
+
+        board.on_sif(None, on_sif)
+        deadline = time.monotonic() + args.duration if args.duration else None
+        while not done.is_set() and board.alive:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            done.wait(0.1)
+        done.set()
+        if not board.alive:
+            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
+            return EXIT_FAIL
+    return 0
+
+
+# ---- board ------------------------------------------------------------------------------------
+def cmd_board(args: argparse.Namespace) -> int:
+    from .virtual import BoardServer, make_sim
+
+    try:
+        runtime = make_sim(args.sim, seed=args.seed, **({"name": args.name} if args.name else {}))
+    except ValueError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    server = BoardServer(runtime, args.listen)
+
+    def stop(signum: int, frame: object) -> None:
+        server.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    print(f"LISTENING {server.url}", flush=True)
+    server.serve_forever()
+    return 0
+
+
+# ---- demo -------------------------------------------------------------------------------------
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    return run_demo(duration=args.duration, seed=args.seed)
+
+
+# ---- parser -----------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="missing-link",
+        description="Sensor boards on a J2A link: inspect, call, listen, simulate.",
+        epilog="Board URLs: tcp://HOST:PORT, unix:///PATH, serial:///dev/ttyACM0?baud=115200, "
+        "usb://[BUS:ADDR][?serial=S], memory://NAME; prefix spy+ to hex-dump the traffic.",
+    )
+    p.add_argument("--version", action="version", version=f"missing-link {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def with_url(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("url", help="board URL, e.g. serial:///dev/ttyACM0 or tcp://127.0.0.1:5000")
+        sp.add_argument(
+            "--timeout", type=float, default=1.0, help="per-call timeout in seconds (1.0)"
+        )
+
+    sp = sub.add_parser("info", help="functions, properties and transducers of a board")
+    with_url(sp)
+    sp.add_argument("--json", action="store_true", help="machine-readable output (docs/cli.md)")
+    sp.set_defaults(func=cmd_info)
+
+    sp = sub.add_parser("call", help="call a board function by name")
+    with_url(sp)
+    sp.add_argument("name", help="function name, e.g. a2jEcho")
+    sp.add_argument("--hex", type=_parse_hex, default=b"", help="request payload as hex")
+    sp.add_argument("--json", action="store_true")
+    sp.set_defaults(func=cmd_call)
+
+    sp = sub.add_parser("listen", help="print decoded samples live, one line each")
+    with_url(sp)
+    sp.add_argument("--count", type=int, default=0, help="stop after N samples")
+    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds")
+    sp.add_argument("--transducer", "-t", action="append", help="only this transducer (repeatable)")
+    sp.add_argument("--missing", action="store_true", help="also print N/A channels")
+    sp.add_argument("--json", action="store_true", help="one JSON object per line")
+    sp.set_defaults(func=cmd_listen)
+
+    sp = sub.add_parser("board", help="run a virtual board")
+    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers or original")
+    sp.add_argument(
+        "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
+    )
+    sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
+    sp.add_argument("--name", help="board.name property (default: the sim's)")
+    sp.set_defaults(func=cmd_board)
+
+    sp = sub.add_parser("demo", help="virtual board over a pseudo-terminal, info and a live view")
+    sp.add_argument("--duration", type=float, default=15.0, help="seconds to run (15)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (BadURL, DescriptorError) as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except MissingLinkError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
