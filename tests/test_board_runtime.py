@@ -1,0 +1,144 @@
+"""Board runtime (CPython side of the MicroPython code): vectors, errors, clock, limits."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from missing_link.board.clock import WrappingClock
+from missing_link.board.runtime import INTERBYTE_TIMEOUT_US, BoardRuntime, Transducer
+from missing_link.j2a import SOF, Frame, FrameDecoder, encode_frame, parse_mapping
+from missing_link.virtual.sims import original
+
+from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, SIF, VECTORS
+
+
+class FakeTicks:
+    def __init__(self, period: int) -> None:
+        self.period = period
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t % self.period
+
+
+def frames(rt: BoardRuntime) -> list[Frame]:
+    out = FrameDecoder().feed(rt.take_output())
+    assert all(isinstance(f, Frame) for f in out)
+    return out  # type: ignore[return-value]
+
+
+def test_original_sim_reproduces_golden_vectors() -> None:
+    rt = original(epoch="e")
+    assert [n for n, _k, _h in rt.functions] == ORIGINAL_TABLE
+    for case, request, reply in VECTORS:
+        rt.feed(request)
+        assert rt.take_output() == reply, case
+    rt.feed(PROPS_REQUEST)
+    out = rt.take_output()
+    assert out[:3] == PROPS_REPLY_HEAD[:3] and out[4:10] == PROPS_REPLY_HEAD[4:]
+
+
+def test_sif_vector_layout() -> None:
+    clock = FakeTicks(1 << 62)
+    clock.t = 0x000660C6A1910116
+    rt = BoardRuntime("b", "m", "s", epoch="e", clock=clock)
+
+    class Drv:
+        def set_cb(self, fn):  # type: ignore[no-untyped-def]
+            self.fn = fn
+
+    d = Drv()
+    rt.add_transducer(Transducer("quad", 13, "quad", "HEDS-6500", 1, "int16_t", -1), d)
+    d.fn(0, 0)
+    rt.poll()
+    assert rt.take_output() == SIF
+
+
+def test_error_frames_for_damaged_requests() -> None:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    bad = bytearray(encode_frame(SOF, 9, 4, b"x"))
+    bad[-1] ^= 1
+    rt.feed(bytes(bad))
+    (f,) = frames(rt)
+    assert (f.seq, f.opcode, len(f.payload)) == (9, 0xF3, 2)
+    rt.feed(bytes.fromhex("12 0a 04 01 7d 33".replace(" ", "")))
+    (f,) = frames(rt)
+    assert (f.seq, f.opcode) == (10, 0xF4)
+    rt.feed(bytes.fromhex("120b0402") + encode_frame(SOF, 12, 4, b""))
+    cut, echo = frames(rt)
+    assert (cut.seq, cut.opcode) == (11, 0xF2) and (echo.seq, echo.opcode) == (12, 0xBA)
+
+
+def test_interbyte_silence_aborts_frame_with_f2() -> None:
+    clock = FakeTicks(1 << 62)
+    rt = BoardRuntime("b", "m", "s", epoch="e", clock=clock)
+    rt.feed(bytes.fromhex("12050403"))
+    clock.t += INTERBYTE_TIMEOUT_US + 1
+    rt.poll()
+    (f,) = frames(rt)
+    assert (f.seq, f.opcode) == (5, 0xF2)
+    assert not rt.parser.in_frame()
+
+
+def test_sif_frames_ignored_by_board() -> None:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    rt.feed(SIF)
+    assert rt.take_output() == b""
+
+
+def test_mapping_over_255_bytes_is_readable_in_full() -> None:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    for i in range(30):
+        rt.add_function(f"function_with_a_long_name_{i:02d}", lambda p: (0, b""))
+    rt.feed(encode_frame(SOF, 0, 0))
+    (f,) = frames(rt)
+    head = parse_mapping(f.payload)  # opcode 0 stops at a name boundary
+    assert len(f.payload) <= 255 and "a2jGetMappingMany" in head
+    full = rt.mapping_blob()
+    assert len(full) > 255 and parse_mapping(full)[-1] == "function_with_a_long_name_29"
+
+
+def test_function_table_rules() -> None:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    with pytest.raises(ValueError, match="twice"):
+        rt.add_function("a2jEcho", lambda p: (0, b""))
+    rt.add_function("bad", lambda p: (0xF3, b""))  # reserved code: replaced by 0xFF
+    rt.add_function("boom", lambda p: 1 / 0)
+    rt.feed(encode_frame(SOF, 1, rt.index["bad"]) + encode_frame(SOF, 2, rt.index["boom"]))
+    a, b = frames(rt)
+    assert a.opcode == 0xFF and b.opcode == 0xFF
+    rt.feed(encode_frame(SOF, 3, rt.index["a2jDebug"]))
+    (dbg,) = frames(rt)
+    assert b"reserved" in dbg.payload and b"boom" in dbg.payload
+
+
+def test_transducer_that_cannot_fit_one_sif_is_refused() -> None:
+    with pytest.raises(ValueError, match="one SIF carries 255"):
+        Transducer("big", 1, "p", "M", 22, "uint32_t", 0)
+    Transducer("ok", 1, "p", "M", 21, "uint32_t", 0)
+
+
+def test_clock_extends_wrapping_ticks_to_64_bit() -> None:
+    ticks = FakeTicks(1 << 16)
+    clock = WrappingClock(ticks, 1 << 16)
+    seen = []
+    for _ in range(1000):
+        ticks.t += 1000  # read well inside half a period
+        seen.append(clock())
+    assert seen == [1000 * (k + 1) for k in range(1000)]
+    assert seen[-1] > (1 << 16) * 15  # wrapped 15 times, never went backwards
+    ticks.t -= 5  # an older read (e.g. from an interrupt) never steps back
+    assert clock() == seen[-1]
+
+
+def test_properties_and_transds_blobs() -> None:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    rt.add_transducer(Transducer("x", 3, "p", "M", 2, "float", 0.5, unit="m", rate_hz=10))
+    text = rt.transds_blob().decode()
+    assert text == "transds/1\nx,3,p,M,2,float,0.5,unit=m,rate_hz=10\n"
+    props = rt.properties
+    for key in ("j2a.version", "board.name", "board.model", "board.serial", "clock.epoch",
+                "clock.res_us", "fw.version"):
+        assert key in props

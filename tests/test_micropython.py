@@ -1,0 +1,77 @@
+"""The board runtime runs unchanged on real MicroPython (1.27, WebAssembly port from npm, under
+node): it reproduces the golden vectors and serves the real host client, a2jMany included."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from missing_link.client import Board
+from missing_link.j2a import Frame, FrameDecoder, FrameKind
+
+from .helpers import HexLinePipe
+from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
+
+ROOT = Path(__file__).resolve().parent.parent
+MPY_PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pyscript"
+pytestmark = pytest.mark.micropython
+
+
+@pytest.fixture
+def mpy_board() -> Iterator[HexLinePipe]:
+    if shutil.which("node") is None or not MPY_PKG.exists():
+        pytest.fail("node and the npm MicroPython package are required: run `make node`")
+    pipe = HexLinePipe(
+        [
+            "node",
+            str(ROOT / "tests" / "micropython" / "board_host.mjs"),
+            str(ROOT / "src" / "missing_link" / "board"),
+            str(ROOT / "tests" / "micropython" / "setup_board.py"),
+        ]
+    )
+    try:
+        yield pipe
+    finally:
+        pipe.close()
+
+
+def test_runs_on_micropython_with_wrapping_clock(mpy_board: HexLinePipe) -> None:
+    assert mpy_board.ident.startswith("micropython 1.27")
+    assert "clock=WrappingClock" in mpy_board.ident  # ticks_us extended to 64 bit
+
+
+def test_golden_vectors_on_micropython(mpy_board: HexLinePipe) -> None:
+    for case, request, reply in VECTORS:
+        assert mpy_board.exchange(request) == reply, case
+    out = mpy_board.exchange(PROPS_REQUEST)
+    assert out[:4] == PROPS_REPLY_HEAD[:3] + out[3:4] and out[4:10] == PROPS_REPLY_HEAD[4:]
+
+
+def test_host_client_against_micropython_board(mpy_board: HexLinePipe) -> None:
+    board = Board(mpy_board, timeout=10.0)
+    try:
+        board.handshake()
+        assert board.functions == ORIGINAL_TABLE
+        assert board.is_original and board.properties["board.name"] == "mpy"
+        assert board.transducers is None  # Part 1 board: no descriptors
+        blob = board.read_many("bigBlob")  # 1000 bytes: 5 chunks, offsets past 255
+        assert blob == bytes((i * 7 + 3) & 0xFF for i in range(1000))
+        payload = bytes(range(255))
+        assert board.call("a2jEcho", payload).payload == payload
+        (now,) = struct.unpack("<Q", board.call_ok("getTime"))
+        assert now > 0
+    finally:
+        board.close()
+
+
+def test_sample_sif_from_micropython(mpy_board: HexLinePipe) -> None:
+    mpy_board.send_line("PULSE1234")
+    (frame,) = FrameDecoder().feed(mpy_board.read(10.0))
+    assert isinstance(frame, Frame) and frame.kind == FrameKind.SOS
+    assert frame.opcode == 13 and frame.seq == 0  # cmd = transducer id, board SIF counter
+    stamp, value = struct.unpack("<Qh", frame.payload)
+    assert value == 1234 and stamp >= 0
