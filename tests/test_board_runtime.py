@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import struct
-
 import pytest
 
 from missing_link.board.clock import WrappingClock
@@ -139,6 +137,13 @@ def test_properties_and_transds_blobs() -> None:
     text = rt.transds_blob().decode()
     assert text == "transds/1\nx,3,p,M,2,float,0.5,unit=m,rate_hz=10\n"
     props = rt.properties
-    for key in ("j2a.version", "board.name", "board.model", "board.serial", "clock.epoch",
-                "clock.res_us", "fw.version"):
+    for key in (
+        "j2a.version",
+        "board.name",
+        "board.model",
+        "board.serial",
+        "clock.epoch",
+        "clock.res_us",
+        "fw.version",
+    ):
         assert key in props

@@ -19,7 +19,13 @@ servo,2,hs645,HS-645MG,1,int8_t,-128,kind=actuator,call=a2j_set_servo
 
 def test_spec_example() -> None:
     quad, ir, servo = parse_transds(SPEC_EXAMPLE, "b")
-    assert (quad.name, quad.id, quad.chan_count, quad.dtype, quad.na) == ("quad", 0, 2, "int16_t", -1)
+    assert (quad.name, quad.id, quad.chan_count, quad.dtype, quad.na) == (
+        "quad",
+        0,
+        2,
+        "int16_t",
+        -1,
+    )
     assert quad.options == {"unit": "count", "rate_hz": "100", "kind": "sensor"}
     assert ir.options["ros"] == "sensor_msgs/msg/Range"
     assert servo.is_actuator and servo.call == "a2j_set_servo"

@@ -7,8 +7,20 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parent.parent / "src" / "missing_link"
 FORBIDDEN = {
-    "socket", "select", "selectors", "threading", "asyncio", "subprocess", "os", "io", "serial",
-    "usb", "time", "signal", "multiprocessing", "logging",
+    "socket",
+    "select",
+    "selectors",
+    "threading",
+    "asyncio",
+    "subprocess",
+    "os",
+    "io",
+    "serial",
+    "usb",
+    "time",
+    "signal",
+    "multiprocessing",
+    "logging",
 }
 # The board runtime may read its clock (board/clock.py, injected everywhere else) and nothing more.
 BOARD_ALLOWED = {"board/clock.py": {"time", "os"}}

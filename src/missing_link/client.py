@@ -253,7 +253,12 @@ class Board:
                 raise self._lost(label, self._closed_reason)
             op = begin(time.monotonic(), timeout or self.timeout)
             self._futures[op] = (fut, label, progress, write)
-            self._flush()
+            try:
+                self._flush()
+            except (TransportBroken, TransportClosed) as e:
+                # The reader thread sees the same failure and fails the rest; this call is ours.
+                self._futures.pop(op, None)
+                raise self._lost(label, e) from e
         return fut
 
     def _wait(self, fut: Future[T], timeout: float | None) -> T:

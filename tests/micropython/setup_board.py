@@ -1,10 +1,9 @@
-# Runs on MicroPython: the golden-vector board of spec j2a-vectors.md (the original function table),
-# built from the unchanged board runtime.  _step() is the board's process loop for one chunk of input.
+# Runs on MicroPython: the golden-vector board of spec j2a-vectors.md (original function table),
+# built from the unchanged board runtime.  _step() is one turn of the board's process loop.
 import struct
 import sys
 
 from mlboard.runtime import BoardRuntime, Transducer
-from mlboard.clock import default_clock
 
 rt = BoardRuntime("mpy", "wasm", "mpy-1", epoch="e1", part2=False)
 rt.add_function("getTime", lambda p: (0, struct.pack("<Q", rt.clock())))

@@ -1,0 +1,114 @@
+"""The missing-link command line, run as real processes against a virtual board process."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import pytest
+
+from missing_link.demo import start_board_process, stop_process
+
+pytestmark = pytest.mark.slow
+
+
+def ml(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "missing_link", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+@pytest.fixture(scope="module")
+def board_url() -> Iterator[str]:
+    proc, url = start_board_process("thesis", seed=5, listen="pty")
+    try:
+        yield url
+    finally:
+        stop_process(proc)
+
+
+def test_board_prints_one_listening_line_and_stops_on_sigterm() -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "missing_link",
+            "board",
+            "--sim",
+            "rangers",
+            "--listen",
+            "tcp://127.0.0.1:0",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert line.startswith("LISTENING tcp://127.0.0.1:") and line.endswith("\n")
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(10) == 0
+    assert proc.stdout.read() == ""  # exactly one line
+
+
+def test_info_json(board_url: str) -> None:
+    r = ml("info", board_url, "--json")
+    assert r.returncode == 0, r.stderr
+    info = json.loads(r.stdout)
+    assert info["url"] == board_url and info["original"] is False
+    assert info["functions"][1] == {"index": 1, "name": "a2jMany"}
+    assert info["properties"]["board.name"] == "thesis"
+    quad = info["transducers"][0]
+    assert quad["name"] == "quad" and quad["type"] == "int16_t" and quad["na"] == -1
+
+
+def test_info_text(board_url: str) -> None:
+    r = ml("info", board_url)
+    assert r.returncode == 0
+    assert "functions:" in r.stdout and "GP2Y0A02YK" in r.stdout
+
+
+def test_call_json_and_text(board_url: str) -> None:
+    r = ml("call", board_url, "a2jEcho", "--hex", "12 ed 7d", "--json")
+    assert json.loads(r.stdout) == {
+        "function": "a2jEcho",
+        "code": 186,
+        "ok": False,
+        "payload": "12ed7d",
+    }
+    r = ml("call", board_url, "getTime")
+    assert r.returncode == 0 and r.stdout.startswith("return 0x00 (0)  payload 8 bytes")
+
+
+def test_listen_count_json(board_url: str) -> None:
+    r = ml("listen", board_url, "--count", "25", "--json", "-t", "dist_ir")
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(x) for x in r.stdout.splitlines()]
+    assert len(lines) == 25
+    assert {x["transducer"] for x in lines} == {"dist_ir"}
+    assert all(200 <= x["value"] <= 1500 and x["board_us"] > 0 for x in lines)
+
+
+def test_errors_go_to_stderr_with_exit_codes(board_url: str) -> None:
+    r = ml("call", board_url, "noSuchFunction")
+    assert r.returncode == 1 and r.stdout == ""
+    assert "no function 'noSuchFunction'" in r.stderr
+    r = ml("info", "tcp://127.0.0.1:1")
+    assert r.returncode == 1 and "cannot connect" in r.stderr
+    r = ml("info", "bogus")
+    assert r.returncode == 2 and "not a board URL" in r.stderr
+    r = ml("call", board_url, "a2jEcho", "--hex", "zz")
+    assert r.returncode == 2 and "--hex 'zz' is not hex" in r.stderr
+    r = ml("board", "--sim", "nosuch", "--listen", "pty")
+    assert r.returncode == 2 and "unknown sim 'nosuch'" in r.stderr
+
+
+def test_demo_runs_and_exits_zero() -> None:
+    r = ml("demo", "--duration", "3", timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "demo finished OK" in r.stdout and "servo commands sent:" in r.stdout

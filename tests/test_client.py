@@ -1,0 +1,178 @@
+"""The host client against virtual boards: calls, blobs, SIFs, errors, threads, asyncio."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import struct
+import threading
+import time
+from typing import Any
+
+import pytest
+
+from missing_link import (
+    AsyncBoard,
+    Board,
+    CallTimeout,
+    FunctionFailed,
+    LinkLost,
+    UnknownFunction,
+    open_board,
+)
+from missing_link.j2a import SifReceived
+from missing_link.transport import memory_pair
+
+Serve = Any
+
+
+def test_open_reads_description(serve: Serve) -> None:
+    server = serve("thesis")
+    with open_board(server.url) as board:
+        assert board.functions[:2] == ["a2jGetMapping", "a2jMany"]
+        assert {"a2jGetTransds", "a2jClock", "getTime", "setTrigger", "a2j_set_servo"} <= set(
+            board.functions
+        )
+        assert board.properties["j2a.version"] == "2" and not board.is_original
+        assert [t.name for t in board.transducers or []] == [
+            "quad",
+            "dist_ir",
+            "dist_us",
+            "servo",
+            "trigger",
+        ]
+        assert board.call("a2jEcho", b"abc").payload == b"abc"
+        big = bytes(range(256)) * 3
+        assert board.write_many("a2jEchoMany", big[:249]) == 0xBE
+
+
+def test_original_board_functions_and_properties(serve: Serve) -> None:
+    server = serve("original")
+    progress: list[tuple[int, int | None]] = []
+    with open_board(server.url) as board:
+        assert board.is_original and board.transducers is None
+        assert board.functions[6:] == ["getTime", "syncTime", "bigBlob"]
+        blob = board.read_many(
+            "bigBlob", progress=lambda done, total: progress.append((done, total))
+        )
+        assert len(blob) == 1000
+        assert progress == [(249, None), (498, None), (747, None), (996, None)]
+
+
+def test_unknown_function_names_board_and_choices(serve: Serve) -> None:
+    server = serve("thesis")
+    with open_board(server.url) as board, pytest.raises(UnknownFunction) as err:
+        board.call("setServo")
+    assert "thesis: board has no function 'setServo'" in str(err.value)
+    assert "a2j_set_servo" in str(err.value)
+
+
+def test_function_failed_carries_code(serve: Serve) -> None:
+    server = serve("thesis")
+    with open_board(server.url) as board, pytest.raises(FunctionFailed) as err:
+        board.call_ok("a2j_set_servo", b"\x80")  # -128 is N/A: the servo refuses it
+    assert err.value.code == 0xFF and "a2j_set_servo returned 0xff" in str(err.value)
+
+
+def test_timeout_names_function_and_leaves_no_lock() -> None:
+    host, _silent = memory_pair("silent")
+    board = Board(host, timeout=0.1)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(CallTimeout) as err:
+            board.call_index(0, b"", "a2jGetMapping")
+        assert time.monotonic() - t0 < 2.0
+        assert "a2jGetMapping: no reply within 100 ms" in str(err.value)
+        assert board._lock.acquire(timeout=1)
+        board._lock.release()
+    finally:
+        board.close()
+    assert not board.alive
+
+
+def test_link_broken_vs_closed(serve: Serve) -> None:
+    host, dev = memory_pair("flaky")
+    board = Board(host, timeout=5.0)
+    result: list[BaseException] = []
+
+    def waiter() -> None:
+        try:
+            board.call_index(4, b"", "a2jEcho")
+        except BaseException as e:
+            result.append(e)
+
+    t = threading.Thread(target=waiter)
+    t.start()
+    time.sleep(0.1)
+    dev.close()  # the board end goes away while the call waits
+    t.join(5)
+    assert isinstance(result[0], LinkLost) and result[0].broken
+    assert "other side closed" in str(result[0])
+    board.close()
+    with pytest.raises(LinkLost) as err:
+        board.call_index(4, b"", "a2jEcho")
+    assert err.value.broken  # it broke before we closed it: the first cause is kept
+    assert not board.alive
+
+
+def test_closed_board_reports_closed_not_broken(serve: Serve) -> None:
+    server = serve("thesis")
+    board = open_board(server.url)
+    board.close()
+    with pytest.raises(LinkLost) as err:
+        board.call("a2jEcho")
+    assert err.value.broken is False
+
+
+def test_sif_handlers_by_cmd_and_any(serve: Serve) -> None:
+    server = serve("thesis")
+    got: dict[str, list[SifReceived]] = {"quad": [], "any": []}
+    done = threading.Event()
+    with open_board(server.url) as board:
+        board.on_sif(0, lambda ev, now: got["quad"].append(ev))
+
+        def any_sif(ev: SifReceived, now: float) -> None:
+            got["any"].append(ev)
+            if len(got["any"]) > 50:
+                done.set()
+
+        board.on_sif(None, any_sif)
+        assert done.wait(5)
+        assert {e.cmd for e in got["quad"]} == {0}
+        seqs = [e.seq for e in got["any"][:40]]
+        assert all((b - a) & 0xFF == 1 for a, b in itertools.pairwise(seqs))
+
+
+def test_handler_exception_does_not_stop_board(serve: Serve) -> None:
+    server = serve("thesis")
+    with open_board(server.url) as board:
+        board.on_sif(None, lambda ev, now: 1 / 0)
+        time.sleep(0.2)
+        assert board.call("a2jEcho", b"x").payload == b"x"
+
+
+def test_asyncio_api(serve: Serve) -> None:
+    server = serve("thesis")
+
+    async def main() -> tuple[bytes, int, int]:
+        async with await AsyncBoard.open(server.url) as board:
+            queue = board.sifs(cmd=1)
+            echo = await board.call("a2jEcho", b"async")
+            results = await asyncio.gather(*(board.call("getTime") for _ in range(5)))
+            stamps = [struct.unpack("<Q", r.payload)[0] for r in results]
+            sif, _now = await asyncio.wait_for(queue.get(), 5)
+            return echo.payload, sif.cmd, len(set(stamps))
+
+    payload, cmd, distinct = asyncio.run(main())
+    assert payload == b"async" and cmd == 1 and distinct == 5
+
+
+def test_many_boards_one_broken_does_not_affect_other(serve: Serve) -> None:
+    a = serve("thesis")
+    b = serve("rangers")
+    with open_board(a.url) as ba, open_board(b.url) as bb:
+        b.stop()
+        time.sleep(0.2)
+        assert ba.call("a2jEcho", b"still").payload == b"still"
+        with pytest.raises(LinkLost):
+            bb.call("a2jEcho", b"gone", timeout=0.5)

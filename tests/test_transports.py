@@ -1,0 +1,218 @@
+"""Transports by URL: real sockets and pseudo-terminals; USB faked only at the pyusb boundary."""
+
+from __future__ import annotations
+
+import io
+import os
+import types
+from typing import Any
+
+import pytest
+
+from missing_link import BadURL, Board, LinkLost, TransportBroken, TransportClosed, open_board
+from missing_link.board.runtime import BoardRuntime
+from missing_link.transport import SpyTransport, open_transport
+from missing_link.transport import usb as usb_transport
+from missing_link.virtual import make_sim
+
+Serve = Any
+
+
+@pytest.mark.parametrize(
+    ("url", "msg"),
+    [
+        ("COM3", "not a board URL"),
+        ("nope://x", "unknown transport 'nope'"),
+        ("tcp://127.0.0.1", "expected tcp://HOST:PORT"),
+        ("tcp://127.0.0.1:99999", "bad port"),
+        ("serial://", "expected serial:///dev/DEVICE"),
+        ("serial:///dev/ttyX?baud=fast", "baud must be a number"),
+        ("unix://", "expected unix:///path"),
+    ],
+)
+def test_bad_urls_say_what_is_wrong(url: str, msg: str) -> None:
+    with pytest.raises(BadURL, match=msg):
+        open_transport(url)
+
+
+def test_unreachable_endpoints_are_broken_not_bad() -> None:
+    with pytest.raises(TransportBroken, match="cannot connect"):
+        open_transport("tcp://127.0.0.1:1")
+    with pytest.raises(TransportBroken, match="cannot open"):
+        open_transport("serial:///dev/does-not-exist")
+
+
+@pytest.mark.parametrize("listen", ["tcp://127.0.0.1:0", "pty", "unix"])
+def test_real_links(serve: Serve, listen: str, tmp_path: Any) -> None:
+    if listen == "unix":
+        listen = f"unix://{tmp_path}/board.sock"
+    server = serve("thesis", listen)
+    if listen == "pty":
+        assert server.url.startswith("serial:///dev/pts/")
+    with open_board(server.url) as board:
+        payload = bytes(range(256))[:255]  # every special byte escaped on a real link
+        for _ in range(20):
+            assert board.call("a2jEcho", payload).payload == payload
+        assert board.conn.decoder.stats.bad_checksums == 0
+
+
+def test_socket_closed_vs_broken(serve: Serve) -> None:
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    t = open_transport(server.url)
+    t.close()
+    with pytest.raises(TransportClosed):
+        t.read(0.1)
+    t = open_transport(server.url)
+    server.stop()
+    with pytest.raises(TransportBroken, match="other side closed"):
+        for _ in range(100):
+            t.read(0.1)
+    t.close()
+
+
+def test_pty_survives_host_reconnect(serve: Serve) -> None:
+    server = serve("thesis", "pty")
+    for _ in range(3):
+        with open_board(server.url) as board:
+            assert board.call("a2jEcho", b"again").payload == b"again"
+
+
+def test_spy_dumps_both_directions(serve: Serve) -> None:
+    server = serve("thesis")
+    out = io.StringIO()
+    spy = SpyTransport(open_transport(server.url), out)
+    board = Board(spy)
+    try:
+        board.call_index(board_index := 4, b"\x12hi", "a2jEcho")
+    finally:
+        board.close()
+    text = out.getvalue()
+    assert board_index == 4
+    assert "TX 9 bytes" in text and "12 00 04 03 7d 11 68 69 78" in text
+    assert "RX" in text
+    assert open_transport("spy+" + server.url).url.startswith("spy+memory://")
+
+
+# ---- USB: a fake pyusb whose device is a board runtime ------------------------------------------
+class FakeUSBError(Exception):
+    pass
+
+
+class FakeUSBTimeout(FakeUSBError):
+    pass
+
+
+class FakeEndpoint:
+    def __init__(self, address: int, dev: FakeDevice) -> None:
+        self.bEndpointAddress = address
+        self.dev = dev
+
+    def write(self, data: bytes, timeout: int) -> int:
+        self.dev.out_transfers.append(bytes(data))
+        if self.dev.unplugged:
+            raise FakeUSBError("[Errno 19] No such device")
+        self.dev.runtime.feed(bytes(data))
+        return len(data)
+
+    def read(self, size: int, timeout: int) -> bytes:
+        if self.dev.unplugged:
+            raise FakeUSBError("[Errno 19] No such device")
+        self.dev.runtime.poll()
+        self.dev.pending += self.dev.runtime.take_output()
+        if not self.dev.pending:
+            raise FakeUSBTimeout("timeout")
+        chunk, self.dev.pending = self.dev.pending[:size], self.dev.pending[size:]
+        return chunk
+
+
+class FakeInterface:
+    def __init__(self, dev: FakeDevice, triple: tuple[int, int, int], number: int) -> None:
+        self.bInterfaceClass, self.bInterfaceSubClass, self.bInterfaceProtocol = triple
+        self.bInterfaceNumber = number
+        self.eps = [FakeEndpoint(0x81, dev), FakeEndpoint(0x02, dev)]
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(self.eps)
+
+
+class FakeDevice:
+    def __init__(self, runtime: BoardRuntime, serial: str, bus: int, address: int) -> None:
+        self.runtime = runtime
+        self.serial_number = serial
+        self.bus, self.address = bus, address
+        self.idVendor, self.idProduct = 0x6666, 0xCAFE
+        self.pending = b""
+        self.unplugged = False
+        self.claimed = False
+        self.out_transfers: list[bytes] = []
+        # A composite device: a SyncUSB interface first, then the J2A one.
+        self.config = [
+            FakeInterface(self, (0xFF, 0x00, 0x00), 0),
+            FakeInterface(self, (0xFF, 0x12, 0xEF), 1),
+        ]
+
+    def get_active_configuration(self) -> list[FakeInterface]:
+        return self.config
+
+    def is_kernel_driver_active(self, n: int) -> bool:
+        return False
+
+
+def fake_usb(devices: list[FakeDevice]) -> Any:
+    def find(find_all: bool, custom_match: Any) -> list[FakeDevice]:
+        return [d for d in devices if custom_match(d)]
+
+    def claim(dev: FakeDevice, n: int) -> None:
+        assert n == 1
+        dev.claimed = True
+
+    def release(dev: FakeDevice, n: int) -> None:
+        dev.claimed = False
+
+    core = types.SimpleNamespace(find=find, USBError=FakeUSBError, USBTimeoutError=FakeUSBTimeout)
+    util = types.SimpleNamespace(
+        claim_interface=claim, release_interface=release, dispose_resources=lambda d: None
+    )
+    return types.SimpleNamespace(core=core, util=util)
+
+
+def test_usb_board_through_pyusb_boundary() -> None:
+    dev = FakeDevice(make_sim("thesis", seed=3), "A1", 1, 7)
+    other = FakeDevice(make_sim("rangers", seed=3), "B2", 1, 9)
+    usb = fake_usb([dev, other])
+    t = usb_transport.open_usb("usb://?serial=A1", {"serial": "A1"}, usb=usb)
+    board = Board(t)
+    try:
+        board.handshake()
+        assert board.properties["board.name"] == "thesis" and dev.claimed
+        assert board.call("a2jEcho", b"usb").payload == b"usb"
+        # one OUT transfer per frame
+        assert all(f[0] == 0x12 for f in dev.out_transfers)
+        dev.unplugged = True
+        with pytest.raises(LinkLost) as err:
+            board.call("a2jEcho", b"gone")
+        assert err.value.broken and "board unplugged?" in str(err.value)
+    finally:
+        board.close()
+    assert not dev.claimed
+
+
+def test_usb_selection_errors() -> None:
+    devs = [FakeDevice(make_sim("thesis"), "A1", 1, 7), FakeDevice(make_sim("thesis"), "A2", 2, 3)]
+    usb = fake_usb(devs)
+    with pytest.raises(BadURL, match="2 J2A boards match, pick one with"):
+        usb_transport.open_usb("usb://", {}, usb=usb)
+    assert usb_transport.open_usb("usb://2:3", {}, usb=usb)._dev is devs[1]
+    with pytest.raises(TransportBroken, match="no USB device with a J2A interface"):
+        usb_transport.open_usb("usb://?serial=zz", {"serial": "zz"}, usb=usb)
+    with pytest.raises(BadURL, match="BUS:ADDR"):
+        usb_transport.open_usb("usb://x", {}, usb=usb)
+
+
+def test_pty_raw_mode_keeps_special_bytes(serve: Serve) -> None:
+    server = serve("thesis", "pty")
+    path = server.url[len("serial://") :]
+    assert os.path.exists(path)
+    with open_board(server.url) as board:
+        tricky = b"\x11\x12\x13\x03\x04\x1a\x7d\xed\r\n\x00\xff"
+        assert board.call("a2jEcho", tricky).payload == tricky
