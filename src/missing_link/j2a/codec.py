@@ -109,15 +109,17 @@ def checksum(seq: int, opcode: int, payload: bytes) -> int:
 # which is much faster in CPython than a Python-level loop over the bytes.
 _FOLD_WIDTHS = [8 << k for k in range(12)]  # 8 .. 16384 bits
 _FOLD_MASKS = {w: (1 << w) - 1 for w in _FOLD_WIDTHS}
+_FOLD_START = [8 << (n - 1).bit_length() if n else 8 for n in range(MAX_PAYLOAD + 1)]
 
 
 def xor_bytes(data: bytes) -> int:
     """XOR of all bytes of ``data`` (0 for empty data)."""
     n = len(data)
-    if n <= 2:
-        if n == 0:
-            return 0
-        return data[0] if n == 1 else data[0] ^ data[1]
+    if n <= 24:  # a plain loop beats big-int setup for short payloads
+        x = 0
+        for b in data:
+            x ^= b
+        return x
     x = int.from_bytes(data, "little")
     width = 8 << (n - 1).bit_length()
     while width > 8:
@@ -152,8 +154,19 @@ def encode_frame(kind: int, seq: int, opcode: int, payload: bytes = b"") -> byte
 
 
 _MARKERS = re.compile(b"[\x12\xed]")
+_new_frame = tuple.__new__  # Frame(...) without NamedTuple's Python-level __new__ (hot path)
+
+
+def _find_marker(buf: bytes, start: int, stop: int) -> int:
+    """Index of the first raw start marker in buf[start:stop], or -1 (two C-speed finds)."""
+    a = buf.find(b"\x12", start, stop)
+    b = buf.find(b"\xed", start, stop)
+    if a < 0:
+        return b
+    return a if b < 0 or a < b else b
 _KIND = {SOF: FrameKind.SOF, SOS: FrameKind.SOS}
 _UNESCAPE_OK = frozenset((SOF - 1, SOS - 1, ESC - 1))  # bytes allowed after ESC
+_UNESCAPED = {bytes((b,)): bytes((b + 1,)) for b in _UNESCAPE_OK}
 
 
 class FrameDecoder:
@@ -193,10 +206,69 @@ class FrameDecoder:
             return b
         return buf[2] + 1 if len(buf) >= 3 else None
 
+    def _slow_header(
+        self, buf: bytes, pos: int, end: int, first: int, out: list[Frame | FrameError]
+    ) -> tuple[int, int, int, int] | int | None:
+        """Header with escapes, cut or incomplete: (seq, opcode, len, body start), or the
+        position to resume at after a reported error, or None when more bytes are needed."""
+        stats = self.stats
+        hdr = [0, 0, 0]
+        p = pos + 1
+        k = 0
+        while k < 3:
+            if p >= end:
+                return None
+            b = buf[p]
+            if b == ESC:
+                if p + 1 >= end:
+                    return None
+                b2 = buf[p + 1]
+                if b2 in (SOF, SOS):
+                    stats.cut_frames += 1
+                    out.append(
+                        FrameError(
+                            FrameErrorKind.CUT,
+                            _KIND[first],
+                            hdr[0] if k > 0 else None,
+                            "start marker inside frame header",
+                        )
+                    )
+                    return p + 1
+                p += 2
+                if b2 not in _UNESCAPE_OK:
+                    stats.bad_escapes += 1
+                    out.append(
+                        FrameError(
+                            FrameErrorKind.ESCAPE,
+                            _KIND[first],
+                            hdr[0] if k > 0 else None,
+                            f"escape 7d {b2:02x} in header",
+                        )
+                    )
+                    return p
+                hdr[k] = b2 + 1
+            elif b in (SOF, SOS):
+                stats.cut_frames += 1
+                out.append(
+                    FrameError(
+                        FrameErrorKind.CUT,
+                        _KIND[first],
+                        hdr[0] if k > 0 else None,
+                        "start marker inside frame header",
+                    )
+                )
+                return p
+            else:
+                hdr[k] = b
+                p += 1
+            k += 1
+        return hdr[0], hdr[1], hdr[2], p
+
     def feed(self, data: bytes) -> list[Frame | FrameError]:
         out: list[Frame | FrameError] = []
         buf = self._buf + data if self._buf else bytes(data)
         stats = self.stats
+        good = 0
         pos = 0
         end = len(buf)
         while pos < end:
@@ -210,60 +282,24 @@ class FrameDecoder:
                 stats.junk_bytes += m.start() - pos
                 pos = m.start()
                 first = buf[pos]
-            # --- header: seq, opcode, len, each possibly escaped ---
-            hdr = [0, 0, 0]
-            p = pos + 1
-            bad: FrameError | None = None
-            cut_at = -1
-            k = 0
-            while k < 3:
-                if p >= end:
-                    break
-                b = buf[p]
-                if b == ESC:
-                    if p + 1 >= end:
-                        break
-                    b2 = buf[p + 1]
-                    if b2 in (SOF, SOS):
-                        cut_at = p + 1
-                        break
-                    p += 2
-                    if b2 not in _UNESCAPE_OK:
-                        bad = FrameError(
-                            FrameErrorKind.ESCAPE,
-                            _KIND[first],
-                            hdr[0] if k > 0 else None,
-                            f"escape 7d {b2:02x} in header",
-                        )
-                        break
-                    hdr[k] = b2 + 1
-                elif b in (SOF, SOS):
-                    cut_at = p
-                    break
-                else:
-                    hdr[k] = b
-                    p += 1
-                k += 1
-            if cut_at >= 0:
-                stats.cut_frames += 1
-                out.append(
-                    FrameError(
-                        FrameErrorKind.CUT,
-                        _KIND[first],
-                        hdr[0] if k > 0 else None,
-                        "start marker inside frame header",
-                    )
-                )
-                pos = cut_at
-                continue
-            if bad is not None:
-                stats.bad_escapes += 1
-                out.append(bad)
-                pos = p
-                continue
-            if k < 3:
-                break  # need more bytes
-            seq, opcode, n = hdr
+            # --- header: seq, opcode, len; fast path when none of them is escaped ---
+            if pos + 4 <= end:
+                seq = buf[pos + 1]
+                opcode = buf[pos + 2]
+                n = buf[pos + 3]
+                fast = seq not in SPECIALS and opcode not in SPECIALS and n not in SPECIALS
+            else:
+                fast = False
+            if fast:
+                p = pos + 4
+            else:
+                got = self._slow_header(buf, pos, end, first, out)
+                if got is None:
+                    break  # need more bytes
+                if isinstance(got, int):
+                    pos = got  # damaged header reported; continue from here
+                    continue
+                seq, opcode, n, p = got
             # --- body: n payload bytes + checksum; raw span = n + 1 + escapes inside it ---
             need = n + 1
             stop = p + need
@@ -276,38 +312,38 @@ class FrameDecoder:
                 esc = buf.count(b"\x7d", p, stop)
             if stop > end:
                 # Incomplete, unless a start marker already shows the frame was cut.
-                m = _MARKERS.search(buf, p)
-                if m is None:
+                cut = _find_marker(buf, p, end)
+                if cut < 0:
                     break
                 stats.cut_frames += 1
                 out.append(
                     FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
                 )
-                pos = m.start()
+                pos = cut
                 continue
             if buf[stop - 1] == ESC:
                 # The span ends in an escape whose partner is not here yet: one more byte needed.
                 if stop >= end:
                     break
                 stop += 1
-            m = _MARKERS.search(buf, p, stop)
-            if m is not None:
+            if buf.find(b"\x12", p, stop) >= 0 or buf.find(b"\xed", p, stop) >= 0:
+                cut = _find_marker(buf, p, stop)
                 stats.cut_frames += 1
                 out.append(
                     FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
                 )
-                pos = m.start()
+                pos = cut
                 continue
-            raw = buf[p:stop]
             if esc:
-                parts = raw.split(b"\x7d")
+                parts = buf[p:stop].split(b"\x7d")
                 ok = True
                 for i in range(1, len(parts)):
                     part = parts[i]
-                    if not part or part[0] not in _UNESCAPE_OK:
+                    r = _UNESCAPED.get(part[:1])
+                    if r is None:
                         ok = False
                         break
-                    parts[i] = bytes((part[0] + 1,)) + part[1:]
+                    parts[i] = r + part[1:]
                 if not ok:
                     stats.bad_escapes += 1
                     out.append(
@@ -328,24 +364,36 @@ class FrameDecoder:
                     )
                     pos = stop
                     continue
+                payload = body[:n]
+                got_sum = body[n]
             else:
-                body = raw
-            payload = body[:n]
-            got = body[n]
-            want = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF) ^ xor_bytes(payload)
+                payload = buf[p : p + n]
+                got_sum = buf[p + n]
+            if n > 24:  # xor_bytes inlined: this is the hot path
+                x = int.from_bytes(payload, "little")
+                width = _FOLD_START[n]
+                while width > 8:
+                    width >>= 1
+                    x = (x >> width) ^ (x & _FOLD_MASKS[width])
+            else:
+                x = 0
+                for c in payload:
+                    x ^= c
+            want = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF) ^ x
             pos = stop
-            if got != want:
+            if got_sum != want:
                 stats.bad_checksums += 1
                 out.append(
                     FrameError(
                         FrameErrorKind.CHECKSUM,
                         _KIND[first],
                         seq,
-                        f"checksum {got:#04x}, expected {want:#04x}",
+                        f"checksum {got_sum:#04x}, expected {want:#04x}",
                     )
                 )
                 continue
-            stats.frames += 1
-            out.append(Frame(_KIND[first], seq, opcode, payload))
+            good += 1
+            out.append(_new_frame(Frame, (_KIND[first], seq, opcode, payload)))
+        stats.frames += good
         self._buf = buf[pos:] if pos < end else b""
         return out
