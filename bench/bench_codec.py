@@ -29,7 +29,7 @@ class ReferenceDecoder:
 
     def feed(self, data: bytes) -> None:
         for b in data:
-            if b == SOF or b == SOS:
+            if b in (SOF, SOS):
                 self.start, self.state, self.esc, self.hdr, self.body = b, 1, False, [], bytearray()
                 continue
             if self.state == 0:
@@ -92,7 +92,7 @@ def main() -> int:
         # Feed in 4 KiB reads, as from a serial port or socket.
         chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
 
-        def ours() -> int:
+        def ours(chunks: list[bytes] = chunks, n: int = n) -> int:
             dec = FrameDecoder()
             got = 0
             for c in chunks:
@@ -100,7 +100,7 @@ def main() -> int:
             assert got == n
             return n
 
-        def ref() -> int:
+        def ref(chunks: list[bytes] = chunks, n: int = n) -> int:
             dec = ReferenceDecoder()
             for c in chunks:
                 dec.feed(c)
@@ -109,7 +109,7 @@ def main() -> int:
 
         items = [(SOS, i & 0xFF, 3, rng.randbytes(payload)) for i in range(count)]
 
-        def enc() -> int:
+        def enc(items: list[tuple[int, int, int, bytes]] = items, count: int = count) -> int:
             for item in items:
                 encode_frame(*item)
             return count
