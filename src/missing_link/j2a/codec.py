@@ -164,6 +164,8 @@ def _find_marker(buf: bytes, start: int, stop: int) -> int:
     if a < 0:
         return b
     return a if b < 0 or a < b else b
+
+
 _KIND = {SOF: FrameKind.SOF, SOS: FrameKind.SOS}
 _UNESCAPE_OK = frozenset((SOF - 1, SOS - 1, ESC - 1))  # bytes allowed after ESC
 _UNESCAPED = {bytes((b,)): bytes((b + 1,)) for b in _UNESCAPE_OK}
