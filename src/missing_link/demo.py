@@ -81,7 +81,7 @@ class LiveView:
         self.stats: dict[str, TopicStats] = {t.name: TopicStats() for t in board.transducers or []}
         self.lock = threading.Lock()
         self.rtt_us: deque[float] = deque(maxlen=200)
-        self._last_plain = 0.0
+        self._last_plain = time.monotonic()  # first plain status after 5 s, once data flows
 
     def on_sif(self, sif: SifReceived, now: float) -> None:
         # The virtual board's clock is this machine's CLOCK_MONOTONIC, so latency is exact.
