@@ -112,3 +112,19 @@ def test_demo_runs_and_exits_zero() -> None:
     r = ml("demo", "--duration", "3", timeout=60)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "demo finished OK" in r.stdout and "servo commands sent:" in r.stdout
+
+
+def test_create_msgs_from_board_and_file(board_url: str, tmp_path: object) -> None:
+    out = str(tmp_path)
+    r = ml("create-msgs", board_url, "--out", out, "--package", "thesis_msgs")
+    assert r.returncode == 0, r.stderr
+    written = r.stdout.split()
+    assert f"{out}/thesis_msgs/msg/DistUs.msg" in written
+    with open(f"{out}/thesis_msgs/msg/DistUs.msg") as f:
+        assert f.read().endswith("builtin_interfaces/Time[] times\nuint32[] values\n")
+    r = ml("create-msgs", "examples/original-board.toml", "--out", out, "--ros", "1")
+    assert r.returncode == 0
+    with open(f"{out}/missing_link_msgs/msg/Quad.msg") as f:
+        assert "time[] times\nint16[] values" in f.read()
+    r = ml("create-msgs", board_url, "--out", out, "--package", "Bad-Name")
+    assert r.returncode == 2 and "package name 'Bad-Name'" in r.stderr

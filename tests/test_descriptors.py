@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 
@@ -88,3 +89,26 @@ def test_decode_rejects_wrong_size() -> None:
     (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
     with pytest.raises(ValueError, match="expected 20"):
         t.decode(b"\x00" * 19)
+
+
+def test_toml_descriptors_for_original_boards(tmp_path: Any) -> None:
+    from missing_link.descriptors import load_descriptor_file
+
+    (t,) = load_descriptor_file("examples/original-board.toml")
+    assert (t.name, t.id, t.dtype, t.na, t.unit) == ("quad", 13, "int16_t", -1, "count")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[[transducer]]\nname="a"\nid=1\nprefix="p"\nmodel="M"\nchan_count=1\ntype="int8_t"\nna=0\n'
+        '[[transducer]]\nname="b"\nid=2\nprefix="p"\nmodel="M"\nchan_count=1\ntype="int8_t"\nna=300\n'
+    )
+    with pytest.raises(DescriptorError) as err:
+        load_descriptor_file(str(bad))
+    assert str(err.value).startswith(f"{bad}: [[transducer]] #2, field na: '300'")
+    bad.write_text('[[transducer]]\nname="a"\n')
+    with pytest.raises(DescriptorError, match=r"#1 \(a\): missing id, prefix"):
+        load_descriptor_file(str(bad))
+    bad.write_text("[[transducer]\n")
+    with pytest.raises(DescriptorError, match="not valid TOML"):
+        load_descriptor_file(str(bad))
+    with pytest.raises(DescriptorError, match="cannot read"):
+        load_descriptor_file(str(tmp_path / "none.toml"))

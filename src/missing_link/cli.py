@@ -180,6 +180,44 @@ def cmd_listen(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- create-msgs ------------------------------------------------------------------------------
+def cmd_create_msgs(args: argparse.Namespace) -> int:
+    import os
+
+    from .descriptors import load_descriptor_file
+    from .msgs import check_package, package_files
+
+    check_package(args.package)
+    if os.path.exists(args.source):
+        transducers = load_descriptor_file(args.source)
+        origin = args.source
+    else:
+        with Board.open(args.source, timeout=args.timeout) as board:
+            if board.transducers is None:
+                print(
+                    f"missing-link: error: {board.name} is an original board without descriptors;"
+                    " give them in a file (see docs/descriptors.md)",
+                    file=sys.stderr,
+                )
+                return EXIT_USAGE
+            transducers = board.transducers
+            origin = board.name
+    files = package_files(transducers, args.package, args.ros)
+    root = os.path.join(args.out, args.package)
+    for name, text in sorted(files.items()):
+        path = os.path.join(root, name)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+        print(path)
+    print(
+        f"{len(transducers)} message type(s) from {origin} in ROS {args.ros} package "
+        f"{args.package} ({'colcon build' if args.ros == 2 else 'catkin_make'} to build it)",
+        file=sys.stderr,
+    )
+    return 0
+
+
 # ---- board ------------------------------------------------------------------------------------
 def cmd_board(args: argparse.Namespace) -> int:
     from .virtual import BoardServer, make_sim
@@ -246,6 +284,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true", help="one JSON object per line")
     sp.set_defaults(func=cmd_listen)
 
+    sp = sub.add_parser("create-msgs", help="write .msg files and a ROS package from descriptors")
+    sp.add_argument("source", help="board URL, or a descriptor file (.toml or transds/1 text)")
+    sp.add_argument("--out", required=True, help="directory to write the package into")
+    sp.add_argument("--ros", type=int, choices=(1, 2), default=2, help="ROS version (2)")
+    sp.add_argument("--package", default="missing_link_msgs", help="package name")
+    sp.add_argument("--timeout", type=float, default=1.0)
+    sp.set_defaults(func=cmd_create_msgs)
+
     sp = sub.add_parser("board", help="run a virtual board")
     sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers or original")
     sp.add_argument(
@@ -267,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except (BadURL, DescriptorError) as e:
+    except (BadURL, DescriptorError, ValueError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except MissingLinkError as e:

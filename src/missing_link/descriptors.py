@@ -219,3 +219,61 @@ def parse_transds(text: str, board: str = "board") -> list[Transducer]:
         ids[t.id] = lineno
         out.append(t)
     return out
+
+
+def load_descriptor_file(path: str) -> list[Transducer]:
+    """Descriptors given on the host (for original boards): a ``transds/1`` text file, or TOML
+    with one ``[[transducer]]`` table per transducer (keys: the seven fields, then options)."""
+    import tomllib
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as e:
+        raise DescriptorError(path, f"cannot read descriptor file: {e.strerror}") from e
+    if p.suffix != ".toml":
+        return parse_transds(raw.decode("utf-8", "replace"), path)
+    try:
+        doc = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise DescriptorError(path, f"not valid TOML: {e}") from e
+    tables = doc.get("transducer")
+    if not isinstance(tables, list) or not tables:
+        raise DescriptorError(path, "expected one or more [[transducer]] tables")
+    lines = [HEADER]
+    for k, table in enumerate(tables, start=1):
+        missing = [
+            f
+            for f in ("name", "id", "prefix", "model", "chan_count", "type", "na")
+            if f not in table
+        ]
+        if missing:
+            raise DescriptorError(
+                path,
+                f"[[transducer]] #{k} ({table.get('name', '?')}): missing {', '.join(missing)}",
+            )
+        fields = [str(table[f]) for f in ("name", "id", "prefix", "model", "chan_count", "type")]
+        fields.append(
+            str(table["na"]).lower() if isinstance(table["na"], bool) else str(table["na"])
+        )
+        for key, value in table.items():
+            if key not in ("name", "id", "prefix", "model", "chan_count", "type", "na"):
+                fields.append(f"{key}={value}")
+        if any("," in f or "\n" in f for f in fields):
+            raise DescriptorError(
+                path, f"[[transducer]] #{k}: values must not contain ',' or newlines"
+            )
+        lines.append(",".join(fields))
+    try:
+        return parse_transds("\n".join(lines) + "\n", path)
+    except DescriptorError as e:
+        # Line numbers of the generated text are transducer numbers + 1: say which table.
+        m = re.search(r"transds line (\d+)", str(e))
+        if m:
+            k = int(m.group(1)) - 1
+            raise DescriptorError(
+                path,
+                str(e).split(": ", 1)[1].replace(f"transds line {k + 1}", f"[[transducer]] #{k}"),
+            ) from None
+        raise
