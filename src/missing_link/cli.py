@@ -218,6 +218,67 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- run ----------------------------------------------------------------------------------------
+def build_config(args: argparse.Namespace) -> Any:
+    from .config import BoardSpec, Config, load_config
+
+    cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
+    cfg.boards.extend(BoardSpec(url=u) for u in args.url)
+    for name in args.publisher or []:
+        if name not in cfg.publishers:
+            cfg.publishers.append(name)
+    if args.record:
+        if "mcap" not in cfg.publishers:
+            cfg.publishers.append("mcap")
+        cfg.publisher_options.setdefault("mcap", {})["path"] = args.record
+    if not cfg.boards:
+        raise BadURL("no boards: give URLs on the command line or [[board]] tables in --config")
+    return cfg
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .daemon import Daemon
+
+    daemon = Daemon(build_config(args))
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    with daemon:
+        print(
+            f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
+            f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
+            file=sys.stderr,
+        )
+        stop.wait(args.duration or None)
+    for s in daemon.status():
+        print(
+            f"missing-link: {s['board']}: {s['samples']} samples, {s['lost_sifs']} lost SIFs, "
+            f"{s['connects']} connect(s), state {s['state']}",
+            file=sys.stderr,
+        )
+    for p in daemon.publishers:
+        bags = getattr(p, "bags", None)
+        if bags:
+            print(f"missing-link: recorded {', '.join(str(b) for b in bags)}", file=sys.stderr)
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from .publishers import recover_bag
+
+    try:
+        dest, count = recover_bag(args.path, args.out)
+    except FileNotFoundError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    print(f"recovered {count} messages into {dest}")
+    return 0
+
+
 # ---- board ------------------------------------------------------------------------------------
 def cmd_board(args: argparse.Namespace) -> int:
     from .virtual import BoardServer, make_sim
@@ -292,6 +353,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--timeout", type=float, default=1.0)
     sp.set_defaults(func=cmd_create_msgs)
 
+    sp = sub.add_parser("run", help="the daemon: every board's transducers as topics")
+    sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
+    sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
+    sp.add_argument(
+        "--publisher", "-p", action="append", help="add a publisher (bus, mcap, console)"
+    )
+    sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
+    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
+    sp.set_defaults(func=cmd_run)
+
+    sp = sub.add_parser("recover", help="salvage a recording whose process died")
+    sp.add_argument("path", help="bag directory or .mcap file")
+    sp.add_argument("--out", help="new bag directory (default: PATH_recovered)")
+    sp.set_defaults(func=cmd_recover)
+
     sp = sub.add_parser("board", help="run a virtual board")
     sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers or original")
     sp.add_argument(
@@ -313,7 +389,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except (BadURL, DescriptorError, ValueError) as e:
+    except (BadURL, DescriptorError, ValueError, KeyError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except MissingLinkError as e:

@@ -56,6 +56,15 @@ class Transducer:
     def sif_struct(self) -> struct.Struct:
         return _sif_struct(self.dtype, self.chan_count)
 
+    def legal(self, value: object) -> bool:
+        """Is ``value`` in the data type's domain and not the N/A value?"""
+        if isinstance(value, bool):
+            value = int(value)
+        if self.dtype in FLOAT_TYPES:
+            return isinstance(value, (int, float)) and value == value and value != self.na
+        _c, _s, lo, hi = DTYPES[self.dtype]
+        return isinstance(value, int) and lo <= value <= hi and value != self.na
+
     def value_struct(self) -> struct.Struct:
         return struct.Struct("<" + DTYPES[self.dtype][0])
 

@@ -37,10 +37,10 @@ def j2a_interface(dev: Any) -> Any | None:
     """The J2A interface of ``dev`` (active configuration), or None."""
     try:
         cfg = dev.get_active_configuration()
-    except Exception:
+    except Exception:  # noqa: BLE001 - pyusb/backends raise various errors for unconfigured devices
         try:
             cfg = next(iter(dev))
-        except Exception:
+        except Exception:  # noqa: BLE001 - same: such a device has no interface to offer
             return None
     for intf in cfg:
         triple = (intf.bInterfaceClass, intf.bInterfaceSubClass, intf.bInterfaceProtocol)
@@ -126,7 +126,7 @@ class USBTransport(Transport):
         try:
             self._usb.util.release_interface(self._dev, self._intf)
             self._usb.util.dispose_resources(self._dev)
-        except Exception:
+        except Exception:  # noqa: BLE001 - the device may already be gone; closing must not fail
             pass
 
 
@@ -157,7 +157,7 @@ def open_usb(url: str, query: dict[str, str], usb: Any | None = None) -> USBTran
 def _serial(dev: Any) -> str | None:
     try:
         return str(dev.serial_number) if dev.serial_number is not None else None
-    except Exception:
+    except Exception:  # noqa: BLE001 - string descriptors need permissions some users lack
         return None
 
 

@@ -18,7 +18,7 @@ import tty
 from urllib.parse import urlsplit
 
 from ..board.runtime import BoardRuntime
-from ..errors import BadURL
+from ..errors import BadURL, TransportBroken, TransportClosed
 from ..transport.memory import MemoryListener, MemoryTransport
 
 OUT_LIMIT = 64 * 1024
@@ -192,7 +192,7 @@ class BoardServer:
                 else:
                     try:
                         data = link.read(self._wait_time())
-                    except Exception:
+                    except (TransportBroken, TransportClosed):  # host went away: accept the next
                         link = None
                         data = b""
                 if data:
@@ -202,7 +202,7 @@ class BoardServer:
                 if link is not None and out:
                     try:
                         link.write(out)
-                    except Exception:
+                    except (TransportBroken, TransportClosed):
                         link = None
         finally:
             if link is not None:

@@ -1,0 +1,138 @@
+"""Daemon configuration (TOML), validated: every error names the file, the table and the key.
+
+See ``examples/missing-link.toml`` for a complete, commented example.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .msgs import DISTROS, check_package
+from .topics import check_topic
+
+
+class ConfigError(ValueError):
+    """The configuration is invalid (the user's input): the message says where and why."""
+
+
+@dataclass
+class BoardSpec:
+    url: str
+    name: str | None = None  #: topic prefix; default: the board's board.name property
+    descriptors: str | None = None  #: host-side descriptor file (original boards)
+    timeout: float = 1.0
+
+
+@dataclass
+class Config:
+    boards: list[BoardSpec] = field(default_factory=list)
+    publishers: list[str] = field(default_factory=lambda: ["bus"])
+    node: str = "missing_link"
+    distro: str = "jazzy"
+    package: str = "missing_link_msgs"
+    remap: dict[str, str] = field(default_factory=dict)
+    publisher_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    backoff_min: float = 0.2
+    backoff_max: float = 5.0
+    diagnostics_period: float = 1.0
+    source: str = "<defaults>"
+
+
+_DAEMON_KEYS = {
+    "publishers": list,
+    "node": str,
+    "distro": str,
+    "package": str,
+    "backoff_min": (int, float),
+    "backoff_max": (int, float),
+    "diagnostics_period": (int, float),
+}
+_BOARD_KEYS = {"url": str, "name": str, "descriptors": str, "timeout": (int, float)}
+
+
+def _type_name(t: Any) -> str:
+    if isinstance(t, tuple):
+        return "number"
+    return {list: "list", str: "string"}.get(t, str(t.__name__))
+
+
+def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
+    cfg = Config(source=source)
+
+    def fail(where: str, why: str) -> ConfigError:
+        return ConfigError(f"{source}: {where}: {why}")
+
+    def check(table: dict[str, Any], allowed: dict[str, Any], where: str) -> None:
+        for key, value in table.items():
+            if key not in allowed:
+                raise fail(f"{where}.{key}", f"unknown key (known: {', '.join(allowed)})")
+            if not isinstance(value, allowed[key]) or isinstance(value, bool):
+                raise fail(
+                    f"{where}.{key}", f"expected a {_type_name(allowed[key])}, got {value!r}"
+                )
+
+    known_tables = {"daemon", "board", "remap"}
+    daemon = doc.get("daemon", {})
+    if not isinstance(daemon, dict):
+        raise fail("daemon", "must be a table")
+    check(daemon, _DAEMON_KEYS, "daemon")
+    for key, value in daemon.items():
+        setattr(cfg, key, float(value) if isinstance(value, int) and key != "publishers" else value)
+    if cfg.distro not in DISTROS:
+        raise fail("daemon.distro", f"{cfg.distro!r} is not one of {', '.join(DISTROS)}")
+    try:
+        check_package(cfg.package)
+    except ValueError as e:
+        raise fail("daemon.package", str(e)) from None
+    from .publishers import available_publishers
+
+    known_pubs = available_publishers()
+    for name in cfg.publishers:
+        if name not in known_pubs:
+            raise fail(
+                "daemon.publishers",
+                f"unknown publisher {name!r} (available: {', '.join(known_pubs)})",
+            )
+    boards = doc.get("board", [])
+    if not isinstance(boards, list):
+        raise fail("board", "use [[board]] tables, one per board")
+    for k, b in enumerate(boards, start=1):
+        where = f"[[board]] #{k}"
+        check(b, _BOARD_KEYS, where)
+        if "url" not in b:
+            raise fail(where, "missing url")
+        cfg.boards.append(BoardSpec(**b))
+    remap = doc.get("remap", {})
+    for old, new in remap.items():
+        try:
+            check_topic(old)
+            check_topic(new)
+        except ValueError as e:
+            raise fail(f"remap.{old!r}", str(e)) from None
+        cfg.remap[old] = new
+    for table, value in doc.items():
+        if table in known_tables:
+            continue
+        if table not in known_pubs:
+            raise fail(
+                table, f"unknown table (tables: daemon, board, remap, {', '.join(known_pubs)})"
+            )
+        if not isinstance(value, dict):
+            raise fail(table, "must be a table of publisher options")
+        cfg.publisher_options[table] = dict(value)
+    return cfg
+
+
+def load_config(path: str) -> Config:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    return parse_config(doc, path)

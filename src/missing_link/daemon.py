@@ -1,0 +1,357 @@
+"""The missing-link daemon: boards in, typed topics out.
+
+Theory of operation
+-------------------
+One ``BoardSession`` per configured board runs a supervisor thread through these states:
+
+    connecting --open+describe ok--> up --link lost--> backoff --delay--> connecting
+         \\--fails (no board, bad descriptors)--------> backoff
+    any state --stop()--> stopped
+
+In ``connecting`` the session opens the URL, reads the mapping, properties and descriptors
+(or takes them from a host-side file for original boards), declares one topic per transducer
+(``/<board>/<name>``, remappable) to every publisher, and registers ``/<board>/<name>/cmd`` for
+actuators.  In ``up`` the board's reader thread decodes every sample SIF into an ``Update`` and
+hands it to every publisher; the supervisor thread meanwhile runs actuator commands (latest
+command per actuator wins, so a slow board never builds a backlog, and a subscriber callback
+can never deadlock the reader) and measures the RPC round trip every diagnostics period.  When
+the link breaks the session waits with exponential backoff (``backoff_min`` doubling up to
+``backoff_max``) and reconnects.  Sessions share nothing but the publishers: one broken board
+never stops another.
+
+Host time (provisional, until clock synchronisation): a sample's host time is its board stamp
+plus the smallest (host receive - board stamp) difference seen so far on that connection, on
+CLOCK_REALTIME.  It is exact in offset up to the link's minimum latency, but it ignores clock
+drift and can step back when a faster delivery lowers the minimum.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from collections.abc import Iterable
+from typing import Any
+
+from .client import Board
+from .config import BoardSpec, Config
+from .descriptors import Transducer, load_descriptor_file
+from .errors import MissingLinkError
+from .j2a import SifReceived
+from .publishers import Bus, Publisher, make_publisher
+from .publishers.bus import Callback, Subscription
+from .topics import Topic, Update
+
+log = logging.getLogger(__name__)
+
+CONNECTING, UP, BACKOFF, STOPPED = "connecting", "up", "backoff", "stopped"
+
+
+class BoardSession:
+    def __init__(self, daemon: Daemon, spec: BoardSpec) -> None:
+        self.daemon = daemon
+        self.spec = spec
+        self.state = CONNECTING
+        self.error = ""
+        self.name = spec.name or spec.url
+        self.board: Board | None = None
+        self.topics: dict[int, Topic] = {}  # transducer id -> topic
+        self.connects = 0
+        self.samples = 0
+        self.updates = 0
+        self.unknown_sifs = 0
+        self.bad_sifs = 0
+        self.commands = 0
+        self.command_errors = 0
+        self.rtt_us: float | None = None
+        self._offset_us: int | None = None
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
+        self._pending_lock = threading.Lock()
+        self._thread = threading.Thread(
+            target=self._supervise, name=f"session:{spec.url}", daemon=True
+        )
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self.board is not None:
+            self.board.close()
+        self._thread.join(10)
+        self.state = STOPPED
+
+    # ---- supervisor thread -------------------------------------------------------------------
+    def _supervise(self) -> None:
+        delay = self.daemon.config.backoff_min
+        while not self._stop.is_set():
+            self.state = CONNECTING
+            try:
+                self._connect()
+            except MissingLinkError as e:
+                self.error = str(e)
+                log.warning("%s: %s", self.spec.url, e)
+            else:
+                delay = self.daemon.config.backoff_min
+                self._serve()
+            finally:
+                self._disconnect()
+            if self._stop.is_set():
+                break
+            self.state = BACKOFF
+            self._stop.wait(delay)
+            delay = min(delay * 2, self.daemon.config.backoff_max)
+        self.state = STOPPED
+
+    def _connect(self) -> None:
+        board = Board.open(
+            self.spec.url, timeout=self.spec.timeout, describe=not self.spec.descriptors
+        )
+        self.board = board
+        if self.spec.descriptors:
+            transducers = load_descriptor_file(self.spec.descriptors)
+        elif board.transducers is None:
+            raise MissingLinkError(
+                f"{board.name}: original board without descriptors; give them with "
+                'descriptors = "FILE" in its [[board]] table'
+            )
+        else:
+            transducers = board.transducers
+        self.name = self.spec.name or board.name
+        self._offset_us = None
+        cfg = self.daemon.config
+        self.topics = {}
+        for t in transducers:
+            topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
+            topic = Topic.for_transducer(topic_name, self.name, t, cfg.package)
+            self.topics[t.id] = topic
+            self.daemon._declare(topic)
+            if t.is_actuator:
+                if t.call not in board.index:
+                    raise MissingLinkError(
+                        f"{self.name}: actuator {t.name} names call={t.call}, which the board lacks"
+                    )
+                self.daemon.bus.add_command(f"{topic_name}/cmd", self._command_handler(t))
+        board.on_sif(None, self._on_sif)
+        self.connects += 1
+        self.error = ""
+        self.state = UP
+        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(self.topics))
+
+    def _serve(self) -> None:
+        period = self.daemon.config.diagnostics_period
+        next_ping = time.monotonic()
+        board = self.board
+        assert board is not None
+        while not self._stop.is_set() and board.alive:
+            self._wake.wait(max(0.0, min(0.1, next_ping - time.monotonic())))
+            self._wake.clear()
+            self._run_commands(board)
+            if time.monotonic() >= next_ping:
+                next_ping += period
+                try:
+                    t0 = time.perf_counter()
+                    board.call("a2jEcho", b"", timeout=self.spec.timeout)
+                    self.rtt_us = (time.perf_counter() - t0) * 1e6
+                except MissingLinkError as e:
+                    self.error = str(e)
+        if not board.alive and not self._stop.is_set():
+            self.error = f"link lost: {board.transport.url}"
+
+    def _disconnect(self) -> None:
+        for topic in self.topics.values():
+            self.daemon.bus.remove_command(f"{topic.name}/cmd")
+        if self.board is not None:
+            self.board.close()
+
+    # ---- actuators ---------------------------------------------------------------------------
+    def _command_handler(self, t: Transducer) -> Any:
+        def handler(value: Any) -> None:
+            if isinstance(value, Update):
+                value = next(v for v in value.values if v is not None)
+            elif isinstance(value, (list, tuple)):
+                value = value[0]
+            if not t.legal(value):
+                raise ValueError(f"{t.name}: {value!r} is not a legal {t.dtype} command")
+            with self._pending_lock:
+                self._pending[t.name] = (t, value)
+            self._wake.set()
+
+        return handler
+
+    def _run_commands(self, board: Board) -> None:
+        with self._pending_lock:
+            pending, self._pending = self._pending, {}
+        for t, value in pending.values():
+            try:
+                board.call_ok(str(t.call), t.value_struct().pack(value))
+                self.commands += 1
+            except MissingLinkError as e:
+                self.command_errors += 1
+                self.error = str(e)
+                log.warning("%s", e)
+            except struct.error as e:
+                self.command_errors += 1
+                log.warning("%s: bad command value %r: %s", t.name, value, e)
+
+    # ---- the sample path (board reader thread) -----------------------------------------------
+    def _on_sif(self, sif: SifReceived, now_mono: float) -> None:
+        topic = self.topics.get(sif.cmd)
+        if topic is None:
+            self.unknown_sifs += 1
+            return
+        try:
+            decoded = topic.transducer.decode(sif.payload)
+        except ValueError:
+            self.bad_sifs += 1
+            return
+        recv_ns = int(now_mono * 1e9)
+        recv_us = recv_ns // 1000
+        board_us = [s for s, _v in decoded]
+        values = [v for _s, v in decoded]
+        # Provisional mapping: offset = smallest (receive - stamp) so far; see the module doc.
+        newest = max(board_us)
+        offset = recv_us - newest
+        if self._offset_us is None or offset < self._offset_us:
+            self._offset_us = offset
+        base_ns = (self._offset_us * 1000) + self.daemon.realtime_offset_ns
+        host_ns = [0 if v is None else s * 1000 + base_ns for s, v in decoded]
+        update = Update(topic, board_us, host_ns, values, sif.seq, sif.lost, recv_ns)
+        self.updates += 1
+        self.samples += len(values) - values.count(None)
+        self.daemon._publish(update)
+
+    def status(self) -> dict[str, Any]:
+        b = self.board
+        d = b.conn.decoder.stats if b else None
+        c = b.conn.stats if b else None
+        return {
+            "board": self.name,
+            "url": self.spec.url,
+            "state": self.state,
+            "error": self.error,
+            "serial": b.properties.get("board.serial", "") if b else "",
+            "connects": self.connects,
+            "samples": self.samples,
+            "frames": d.frames if d else 0,
+            "bad_checksums": d.bad_checksums if d else 0,
+            "bad_escapes": d.bad_escapes if d else 0,
+            "cut_frames": d.cut_frames if d else 0,
+            "junk_bytes": d.junk_bytes if d else 0,
+            "lost_sifs": c.sifs_lost if c else 0,
+            "timeouts": c.timeouts if c else 0,
+            "unknown_sifs": self.unknown_sifs,
+            "commands": self.commands,
+            "command_errors": self.command_errors,
+            "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
+        }
+
+
+class Daemon:
+    """Connects every configured board and publishes its transducers.  Use as a context manager."""
+
+    def __init__(self, config: Config, extra_publishers: Iterable[Publisher] = ()) -> None:
+        self.config = config
+        self.bus = Bus()
+        self.publishers: list[Publisher] = [self.bus]
+        for name in config.publishers:
+            if name != "bus":
+                self.publishers.append(make_publisher(name, self._options(name)))
+        self.publishers.extend(extra_publishers)
+        self.sessions = [BoardSession(self, spec) for spec in config.boards]
+        self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
+        self._stop = threading.Event()
+        self._diag_thread = threading.Thread(
+            target=self._diagnostics, name="diagnostics", daemon=True
+        )
+        self.publish_errors = 0
+
+    def _options(self, name: str) -> dict[str, Any]:
+        opts = dict(self.config.publisher_options.get(name, {}))
+        opts.setdefault("distro", self.config.distro)
+        return opts
+
+    def start(self) -> Daemon:
+        for s in self.sessions:
+            s.start()
+        self._diag_thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for s in self.sessions:
+            s.stop()
+        if self._diag_thread.is_alive():
+            self._diag_thread.join(5)
+        for p in self.publishers:
+            try:
+                p.close()
+            except Exception:
+                log.exception("closing publisher %s failed", p.name)
+
+    def __enter__(self) -> Daemon:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ---- for applications (the thesis's Listing 8.4) -----------------------------------------
+    def subscribe(self, topic: str, callback: Callback) -> Subscription:
+        return self.bus.subscribe(topic, callback)
+
+    def send(self, topic: str, value: Any) -> None:
+        self.bus.send(topic, value)
+
+    def wait_until_up(self, timeout: float = 10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all(s.state == UP for s in self.sessions):
+                return True
+            time.sleep(0.02)
+        return False
+
+    def status(self) -> list[dict[str, Any]]:
+        return [s.status() for s in self.sessions]
+
+    # ---- internals -------------------------------------------------------------------------
+    def _declare(self, topic: Topic) -> None:
+        for p in self.publishers:
+            p.add_topic(topic)
+
+    def _publish(self, update: Update) -> None:
+        for p in self.publishers:
+            try:
+                p.publish(update)
+            except Exception:
+                self.publish_errors += 1
+                log.exception("publisher %s failed", p.name)
+
+    def _diagnostics(self) -> None:
+        while not self._stop.wait(self.config.diagnostics_period):
+            status = self.status()
+            now = time.time_ns()
+            for p in self.publishers:
+                try:
+                    p.diagnostics(status, now)
+                except Exception:
+                    log.exception("publisher %s failed on diagnostics", p.name)
+
+
+def connect(*urls: str, publishers: list[str] | None = None, **options: Any) -> Daemon:
+    """Two lines give an application its boards (thesis Listing 8.4)::
+
+    robot = missing_link.connect("serial:///dev/ttyACM0")
+    robot.subscribe("/thesis/quad", lambda update: print(update.values))
+    """
+    cfg = Config(boards=[BoardSpec(url=u) for u in urls], publishers=publishers or ["bus"])
+    for key, value in options.items():
+        if not hasattr(cfg, key):
+            raise TypeError(f"connect() got an unknown option {key!r}")
+        setattr(cfg, key, value)
+    daemon = Daemon(cfg).start()
+    daemon.wait_until_up(10.0)
+    return daemon

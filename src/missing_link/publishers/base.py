@@ -1,0 +1,57 @@
+"""The publisher interface and the registry of publishers by name (plugins, like transports).
+
+A publisher receives topic declarations, updates and diagnostics from the daemon.  ``publish``
+runs on a board's reader thread: it must not block (queue work to a thread of your own).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import Any
+
+from ..topics import Topic, Update
+
+
+class Publisher:
+    name = "publisher"
+
+    def add_topic(self, topic: Topic) -> None:
+        """A topic appeared (a board connected).  Called again after a reconnect."""
+
+    def publish(self, update: Update) -> None:
+        raise NotImplementedError
+
+    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        """Per-board status, about once a second (also published on /diagnostics)."""
+
+    def close(self) -> None:
+        """Flush and release everything.  Idempotent."""
+
+
+Factory = Callable[[dict[str, Any]], Publisher]
+_REGISTRY: dict[str, Factory] = {}
+
+
+def register_publisher(name: str, factory: Factory) -> None:
+    _REGISTRY[name] = factory
+
+
+def available_publishers() -> list[str]:
+    names = set(_REGISTRY)
+    names |= {ep.name for ep in entry_points(group="missing_link.publishers")}
+    return sorted(names)
+
+
+def make_publisher(name: str, options: dict[str, Any]) -> Publisher:
+    factory = _REGISTRY.get(name)
+    if factory is None:
+        for ep in entry_points(group="missing_link.publishers"):
+            if ep.name == name:
+                factory = ep.load()
+                break
+    if factory is None:
+        raise ValueError(
+            f"unknown publisher {name!r}; available: {', '.join(available_publishers())}"
+        )
+    return factory(options)

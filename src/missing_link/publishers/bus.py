@@ -1,0 +1,109 @@
+"""``bus``: the in-process publisher.  Applications subscribe by topic name (or ``*`` patterns);
+messages published on actuator command topics go to the board.  Callbacks run on the board's
+reader thread: keep them short, hand heavy work to a queue."""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from ..topics import Topic, Update
+from .base import Publisher, register_publisher
+
+log = logging.getLogger(__name__)
+Callback = Callable[[Update], None]
+CommandHandler = Callable[[Any], None]
+
+
+class Subscription:
+    def __init__(self, bus: Bus, pattern: str, callback: Callback) -> None:
+        self.bus, self.pattern, self.callback = bus, pattern, callback
+
+    def cancel(self) -> None:
+        self.bus._unsubscribe(self)
+
+
+class Bus(Publisher):
+    name = "bus"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        self._lock = threading.Lock()
+        self._exact: dict[str, list[Subscription]] = {}
+        self._patterns: list[Subscription] = []
+        self._commands: dict[str, CommandHandler] = {}
+        self._last: dict[str, Update] = {}
+        self.topics: dict[str, Topic] = {}
+        self._changed = threading.Condition(self._lock)
+        self.errors = 0
+
+    # ---- for applications ---------------------------------------------------------------------
+    def subscribe(self, topic: str, callback: Callback) -> Subscription:
+        """Call ``callback(update)`` for every update on ``topic`` (``*`` and ``?`` match)."""
+        sub = Subscription(self, topic, callback)
+        with self._lock:
+            if any(c in topic for c in "*?["):
+                self._patterns.append(sub)
+            else:
+                self._exact.setdefault(topic, []).append(sub)
+        return sub
+
+    def last(self, topic: str) -> Update | None:
+        return self._last.get(topic)
+
+    def wait_for_topics(self, names: list[str], timeout: float) -> bool:
+        with self._changed:
+            return self._changed.wait_for(lambda: all(n in self.topics for n in names), timeout)
+
+    def send(self, topic: str, value: Any) -> None:
+        """Publish a command, e.g. ``bus.send("/thesis/servo/cmd", 40)``: the board's actuator
+        function is called with it (asynchronously; latest command wins)."""
+        handler = self._commands.get(topic)
+        if handler is None:
+            known = ", ".join(sorted(self._commands)) or "none yet"
+            raise KeyError(f"no actuator listens on {topic!r} (command topics: {known})")
+        handler(value)
+
+    @property
+    def command_topics(self) -> list[str]:
+        return sorted(self._commands)
+
+    # ---- for the daemon -----------------------------------------------------------------------
+    def add_command(self, topic: str, handler: CommandHandler) -> None:
+        self._commands[topic] = handler
+
+    def remove_command(self, topic: str) -> None:
+        self._commands.pop(topic, None)
+
+    def add_topic(self, topic: Topic) -> None:
+        with self._changed:
+            self.topics[topic.name] = topic
+            for sub in self._patterns:  # pattern subscribers learn the exact name
+                if fnmatch.fnmatchcase(topic.name, sub.pattern):
+                    subs = self._exact.setdefault(topic.name, [])
+                    if sub not in subs:
+                        subs.append(sub)
+            self._changed.notify_all()
+
+    def publish(self, update: Update) -> None:
+        name = update.topic.name
+        self._last[name] = update
+        for sub in self._exact.get(name, ()):
+            try:
+                sub.callback(update)
+            except Exception:
+                self.errors += 1
+                log.exception("bus subscriber %r on %s failed", sub.callback, name)
+
+    def _unsubscribe(self, sub: Subscription) -> None:
+        with self._lock:
+            for subs in self._exact.values():
+                if sub in subs:
+                    subs.remove(sub)
+            if sub in self._patterns:
+                self._patterns.remove(sub)
+
+
+register_publisher("bus", Bus)

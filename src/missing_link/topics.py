@@ -1,0 +1,86 @@
+"""Topics and updates: what the daemon hands to every publisher.
+
+An ``Update`` is one SIF of one transducer: per channel the board stamp, the host time and the
+value (None for N/A).  Its CDR form is computed once, on first use, and shared by every
+publisher that needs it (MCAP, Zenoh, Foxglove)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from .descriptors import Transducer
+from .msgs import CdrEncoder, msgdef, type_name
+
+TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
+
+
+def check_topic(name: str) -> str:
+    """ROS-compatible absolute topic name (tokens may not start with a digit)."""
+    if not TOPIC_RE.match(name):
+        raise ValueError(f"{name!r} is not a topic name like /board/sensor")
+    return name
+
+
+@dataclass(eq=False)
+class Topic:
+    name: str
+    board: str
+    transducer: Transducer
+    type_name: str
+    msgdef: str
+    encoder: CdrEncoder = field(repr=False)
+
+    @classmethod
+    def for_transducer(cls, name: str, board: str, t: Transducer, package: str) -> Topic:
+        return cls(check_topic(name), board, t, type_name(t, package), msgdef(t, 2), CdrEncoder(t))
+
+
+class Update:
+    """One sample SIF, decoded."""
+
+    __slots__ = ("_cdr", "board_us", "host_ns", "lost", "recv_ns", "seq", "topic", "values")
+
+    def __init__(
+        self,
+        topic: Topic,
+        board_us: list[int],
+        host_ns: list[int],
+        values: list[Any],
+        seq: int,
+        lost: int,
+        recv_ns: int,
+    ) -> None:
+        self.topic = topic
+        self.board_us = board_us
+        self.host_ns = host_ns  #: CLOCK_REALTIME ns per channel; 0 where the value is N/A
+        self.values = values  #: None where the board sent N/A
+        self.seq = seq
+        self.lost = lost
+        self.recv_ns = recv_ns  #: CLOCK_REALTIME ns when the SIF arrived
+        self._cdr: bytes | None = None
+
+    @property
+    def stamp_ns(self) -> int:
+        """Latest measurement time in this update (the log time recorders use)."""
+        return max(self.host_ns) or self.recv_ns
+
+    @property
+    def cdr(self) -> bytes:
+        if self._cdr is None:
+            self._cdr = self.topic.encoder.encode(self.host_ns, self.values)
+        return self._cdr
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "topic": self.topic.name,
+            "board_us": self.board_us,
+            "host_ns": self.host_ns,
+            "values": self.values,
+            "seq": self.seq,
+            "lost": self.lost,
+        }
+
+    def __repr__(self) -> str:
+        return f"<Update {self.topic.name} {self.values}>"
