@@ -50,6 +50,7 @@ class McapPublisher(Publisher):
         self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(opts.get("queue", 200_000)))
         self.bags: list[Path] = []
         self.messages = 0
+        self.messages_by_topic: dict[str, int] = {}
         self.dropped = 0
         self._topics: dict[str, Topic] = {}
         self._writer: Any = None
@@ -116,6 +117,7 @@ class McapPublisher(Publisher):
             if conn is None:
                 return
             self._writer.write(conn, stamp, data)
+            self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
         else:
             _, stamp, data = item
             self._writer.write(self._conns[DIAG_TOPIC], stamp, data)
