@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 NODE_STAMP := node_modules/.installed-stamp
-DURATION ?= 15
+DURATION ?= 20
 
 .PHONY: demo test lint typecheck unit bench venv node clean system-deps
 

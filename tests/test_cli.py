@@ -108,10 +108,13 @@ def test_errors_go_to_stderr_with_exit_codes(board_url: str) -> None:
     assert r.returncode == 2 and "unknown sim 'nosuch'" in r.stderr
 
 
-def test_demo_runs_and_exits_zero() -> None:
-    r = ml("demo", "--duration", "3", timeout=60)
+def test_demo_runs_and_exits_zero(tmp_path: object) -> None:
+    r = ml("demo", "--duration", "3", "--record", str(tmp_path), timeout=60)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "demo finished OK" in r.stdout and "servo commands sent:" in r.stdout
+    assert "demo finished OK" in r.stdout
+    sent = int(r.stdout.split("servo commands sent:")[1].split()[0])
+    assert sent > 10  # the encoder steered the servo through the actuator topic
+    assert f"recording: {tmp_path}/demo_" in r.stdout
 
 
 def test_create_msgs_from_board_and_file(board_url: str, tmp_path: object) -> None:

@@ -287,3 +287,12 @@ def test_no_threads_left_after_stop(serve: Serve) -> None:
         if t.name.startswith(("session:", "j2a:", "diagnostics", "mcap"))
     ]
     assert not left
+
+
+def test_pattern_subscription_after_topics_exist(serve: Serve) -> None:
+    server = serve("thesis")
+    with Daemon(Config(boards=[BoardSpec(server.url)])) as d:
+        assert d.wait_until_up()
+        names: set[str] = set()
+        d.subscribe("/thesis/dist_*", lambda u: names.add(u.topic.name))
+        assert wait_for(lambda: names == {"/thesis/dist_ir", "/thesis/dist_us"})

@@ -304,7 +304,7 @@ def cmd_board(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    return run_demo(duration=args.duration, seed=args.seed)
+    return run_demo(duration=args.duration, seed=args.seed, record=args.record)
 
 
 # ---- parser -----------------------------------------------------------------------------------
@@ -377,8 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--name", help="board.name property (default: the sim's)")
     sp.set_defaults(func=cmd_board)
 
-    sp = sub.add_parser("demo", help="virtual board over a pseudo-terminal, info and a live view")
-    sp.add_argument("--duration", type=float, default=15.0, help="seconds to run (15)")
+    sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")
+    sp.add_argument("--duration", type=float, default=20.0, help="seconds to run (20)")
+    sp.add_argument("--record", default="recordings", help="recording directory (recordings)")
     sp.add_argument("--seed", type=int, default=0)
     sp.set_defaults(func=cmd_demo)
     return p

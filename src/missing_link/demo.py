@@ -1,7 +1,16 @@
-"""``missing-link demo``: a virtual thesis board in its own process over a real pseudo-terminal,
-its description, and a live view of its samples; meanwhile the encoder steers the servo by RPC
-(the thesis test application).  Ends after ``duration`` seconds or Ctrl-C with a summary; exit
-code 0 when samples flowed and the link stayed up."""
+"""``missing-link demo``: the thesis test rig on virtual boards.
+
+Board A (encoder + servo) and board B (IR and ultrasonic rangers) each run in their own process
+behind a real pseudo-terminal.  The daemon connects both, publishes every transducer and records
+everything to a rosbag2/MCAP directory.  The thesis test application closes the loop: each
+encoder update becomes a proportional servo deflection, sent back to board A through the
+actuator topic ``/board_a/servo/cmd`` (an RPC of ``a2j_set_servo``).  A live terminal view shows
+per topic rate, latency and last value, per board link state and errors; at the end (``duration``
+or Ctrl-C) a summary.  Exit code 0 when both boards stayed up, samples flowed and the servo moved.
+
+The virtual boards' clocks are this machine's CLOCK_MONOTONIC, so the latency shown (board's
+moment of measurement -> host subscriber callback) is exact, not estimated.
+"""
 
 from __future__ import annotations
 
@@ -14,21 +23,23 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import TextIO
 
-from .client import Board
+from .config import BoardSpec, Config
+from .daemon import Daemon
 from .errors import MissingLinkError
-from .j2a import SifReceived
-from .samples import SampleDecoder
+from .topics import Update
 
 REFRESH = 0.5
-CONTROL_PERIOD = 0.05
+ENCODER_TOPIC = "/board_a/quad"
+SERVO_CMD = "/board_a/servo/cmd"
+COUNTS_PER_STEP = 64  # encoder counts per servo step (2000 counts = one wheel turn)
 
 
 @dataclass
 class TopicStats:
     count: int = 0
     missing: int = 0
-    last: dict[int, int | float] = field(default_factory=dict)
-    recent: deque[float] = field(default_factory=lambda: deque(maxlen=4000))
+    last: list[object] = field(default_factory=list)
+    recent: deque[float] = field(default_factory=lambda: deque(maxlen=5000))
     latency_us: list[float] = field(default_factory=list)
 
 
@@ -71,124 +82,145 @@ def stop_process(proc: subprocess.Popen[str]) -> None:
 
 
 class LiveView:
-    """Per-topic rate, latency and last values; per-board link state and error counters."""
+    """Collects per-topic statistics from the bus and draws them."""
 
-    def __init__(self, board: Board, out: TextIO) -> None:
-        self.board = board
+    def __init__(self, daemon: Daemon, out: TextIO) -> None:
+        self.daemon = daemon
         self.out = out
         self.interactive = out.isatty() and os.environ.get("TERM", "dumb") != "dumb"
-        self.decoder = SampleDecoder(board.name, board.transducers or [])
-        self.stats: dict[str, TopicStats] = {t.name: TopicStats() for t in board.transducers or []}
+        self.stats: dict[str, TopicStats] = {}
         self.lock = threading.Lock()
-        self.rtt_us: deque[float] = deque(maxlen=200)
-        self._last_plain = time.monotonic()  # first plain status after 5 s, once data flows
+        self._last_plain = time.monotonic()
 
-    def on_sif(self, sif: SifReceived, now: float) -> None:
-        # The virtual board's clock is this machine's CLOCK_MONOTONIC, so latency is exact.
-        for s in self.decoder.decode(sif, now):
-            with self.lock:
-                st = self.stats[s.transducer]
-                if s.value is None:
-                    st.missing += 1
-                    continue
-                st.count += 1
-                st.last[s.channel] = s.value
-                st.recent.append(now)
-                st.latency_us.append(now * 1e6 - s.board_us)
-
-    def last(self, topic: str, channel: int) -> int | float | None:
+    def on_update(self, u: Update) -> None:
+        recv_us = u.recv_ns / 1000
         with self.lock:
-            return self.stats[topic].last.get(channel) if topic in self.stats else None
+            st = self.stats.setdefault(u.topic.name, TopicStats())
+            st.last = list(u.values)
+            st.recent.append(recv_us)
+            for stamp, v in zip(u.board_us, u.values, strict=True):
+                if v is None:
+                    st.missing += 1
+                else:
+                    st.count += 1
+                    st.latency_us.append(recv_us - stamp)
 
     def draw(self, elapsed: float, duration: float) -> None:
-        b, now = self.board, time.monotonic()
-        d, c = b.conn.decoder.stats, b.conn.stats
-        rtt = percentile(list(self.rtt_us), 0.5)
-        lines = [
-            f"t={elapsed:5.1f}/{duration:.0f} s  board {b.name}: link {'up' if b.alive else 'DOWN'}"
-            f"  RPC RTT p50 {rtt:5.0f} us  bad frames {d.bad_checksums + d.bad_escapes}"
-            f"  cut {d.cut_frames}  lost SIFs {c.sifs_lost}",
-            f"  {'topic':<20}{'rate/s':>7}{'latency p50':>13}  last values",
-        ]
+        now_us = time.monotonic_ns() / 1000
+        lines = [f"missing-link demo  t={elapsed:5.1f}/{duration:.0f} s"]
+        for s in self.daemon.status():
+            rtt = "-" if s["rtt_us"] is None else f"{s['rtt_us']} us"
+            lines.append(
+                f"  board {s['board']:<8} {s['state']:<10} RTT {rtt:<8} frames {s['frames']:<7}"
+                f" bad {s['bad_checksums'] + s['bad_escapes'] + s['cut_frames']}"
+                f"  lost SIFs {s['lost_sifs']}  servo cmds {s['commands']}"
+            )
+        lines.append(f"  {'topic':<20}{'msgs/s':>7}{'latency p50':>13}  last value")
         with self.lock:
-            for name, st in self.stats.items():
-                rate = sum(1 for t in st.recent if now - t <= 1.0)
+            for name, st in sorted(self.stats.items()):
+                rate = sum(1 for t in st.recent if now_us - t <= 1e6)
                 lat = percentile(st.latency_us[-500:], 0.5)
-                last = " ".join(str(st.last[ch]) for ch in sorted(st.last))
-                lines.append(f"  /{b.name}/{name:<12}{rate:7d}{lat:10.0f} us  {last[:56]}")
+                last = " ".join("-" if v is None else str(v) for v in st.last)
+                lines.append(f"  {name:<20}{rate:7d}{lat:10.0f} us  {last[:48]}")
+        text = "\n".join(lines) + "\n"
         if self.interactive:
-            self.out.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
-        elif now - self._last_plain >= 5.0:
-            self._last_plain = now
-            self.out.write("\n".join(lines) + "\n")
+            self.out.write("\x1b[H\x1b[J" + text)
+        elif time.monotonic() - self._last_plain >= 5.0:
+            self._last_plain = time.monotonic()
+            self.out.write(text)
         self.out.flush()
 
     def summary(self) -> list[str]:
         lines = []
         with self.lock:
-            for name, st in self.stats.items():
+            for name, st in sorted(self.stats.items()):
                 lat = st.latency_us
                 lines.append(
-                    f"  /{self.board.name}/{name:<10}{st.count:8d} samples {st.missing:6d} N/A"
-                    f"   latency p50 {percentile(lat, 0.5):6.0f} us"
+                    f"  {name:<18}{st.count:8d} samples {st.missing:7d} N/A"
+                    f"   latency p50 {percentile(lat, 0.5):5.0f} us"
                     f"  p99 {percentile(lat, 0.99):6.0f} us"
                 )
         return lines
 
 
-def run_demo(duration: float = 15.0, seed: int = 0, out: TextIO = sys.stdout) -> int:
-    print("missing-link demo: virtual thesis board in its own process, over a pty", file=out)
-    proc, url = start_board_process("thesis", seed)
-    servo_cmds = 0
+def run_demo(
+    duration: float = 20.0, seed: int = 0, record: str = "recordings", out: TextIO = sys.stdout
+) -> int:
+    print(
+        "missing-link demo: the thesis test rig on two virtual boards (own processes, ptys)",
+        file=out,
+    )
+    procs: list[subprocess.Popen[str]] = []
+    interrupted = False
     try:
-        with Board.open(url) as board:
-            print(f"board {board.name} at {url}", file=out)
-            print(f"  functions: {', '.join(board.functions)}", file=out)
-            for t in board.transducers or []:
-                print(
-                    f"  transducer {t.id} {t.name}: {t.model}, {t.chan_count} x {t.dtype},"
-                    f" N/A {t.na}",
-                    file=out,
-                )
-            view = LiveView(board, out)
-            board.on_sif(None, view.on_sif)
-            t0 = next_draw = time.monotonic()
-            interrupted = False
+        proc_a, url_a = start_board_process("encoder_servo", seed, "pty", name="board_a")
+        procs.append(proc_a)
+        proc_b, url_b = start_board_process("rangers", seed, "pty", name="board_b")
+        procs.append(proc_b)
+        print(
+            f"  board A (encoder + servo) at {url_a}\n  board B (IR + sonar) at {url_b}", file=out
+        )
+        cfg = Config(
+            boards=[BoardSpec(url_a), BoardSpec(url_b)],
+            publishers=["bus", "mcap"],
+            publisher_options={"mcap": {"path": record, "prefix": "demo"}},
+        )
+        with Daemon(cfg) as daemon:
+            if not daemon.wait_until_up(10.0):
+                raise MissingLinkError(f"boards did not come up: {daemon.status()}")
+            view = LiveView(daemon, out)
+            daemon.subscribe("/*/*", view.on_update)
+
+            def steer(u: Update) -> None:
+                # The thesis test application: encoder count -> proportional servo deflection.
+                count = u.values[0]
+                if count is not None:
+                    step = max(-127, min(127, int(count) // COUNTS_PER_STEP))
+                    daemon.send(SERVO_CMD, step)
+
+            daemon.subscribe(ENCODER_TOPIC, steer)
+            t0 = time.monotonic()
             try:
-                while time.monotonic() - t0 < duration and board.alive:
-                    # The thesis test application: encoder count -> proportional servo deflection.
-                    count = view.last("quad", 0)
-                    if count is not None:
-                        deflection = max(-127, min(127, int(count) // 64))
-                        t1 = time.monotonic()
-                        board.call_ok(
-                            "a2j_set_servo", deflection.to_bytes(1, "little", signed=True)
-                        )
-                        view.rtt_us.append((time.monotonic() - t1) * 1e6)
-                        servo_cmds += 1
-                    if time.monotonic() >= next_draw:
-                        view.draw(time.monotonic() - t0, duration)
-                        next_draw += REFRESH
-                    time.sleep(CONTROL_PERIOD)
+                while time.monotonic() - t0 < duration:
+                    view.draw(time.monotonic() - t0, duration)
+                    time.sleep(REFRESH)
             except KeyboardInterrupt:
                 interrupted = True
-            alive = board.alive
-            d, c = board.conn.decoder.stats, board.conn.stats
-            print("\nsummary", file=out)
-            for line in view.summary():
-                print(line, file=out)
+            status = daemon.status()
+            mcap = next(p for p in daemon.publishers if p.name == "mcap")
+        bags = [str(b) for b in getattr(mcap, "bags", [])]
+        print("\nsummary", file=out)
+        for line in view.summary():
+            print(line, file=out)
+        for s in status:
             print(
-                f"  link: {d.frames} frames, {d.bad_checksums} bad checksums, "
-                f"{c.sifs_lost} SIFs lost, {c.timeouts} call timeouts",
+                f"  board {s['board']}: {s['state']}, {s['frames']} frames, "
+                f"{s['bad_checksums']} bad checksums, {s['lost_sifs']} SIFs lost, "
+                f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} us",
                 file=out,
             )
-            print(f"  servo commands sent: {servo_cmds}", file=out)
-            flowed = sum(st.count for st in view.stats.values()) > 0
+        servo_cmds = sum(s["commands"] for s in status)
+        dropped = getattr(mcap, "dropped", 0)
+        print(f"  servo commands sent: {servo_cmds}", file=out)
+        print(
+            f"  recording: {', '.join(bags)} ({getattr(mcap, 'messages', 0)} messages, "
+            f"{dropped} dropped)",
+            file=out,
+        )
+        expected = ["/board_a/quad", "/board_a/servo", "/board_b/dist_ir", "/board_b/dist_us"]
+        ok = (
+            all(s["state"] == "up" for s in status)
+            and servo_cmds > 0
+            and all(n in view.stats and view.stats[n].count > 0 for n in expected)
+        )
     except MissingLinkError as e:
         print(f"demo FAILED: {e}", file=out)
         return 1
     finally:
-        stop_process(proc)
-    ok = alive and flowed and servo_cmds > 0
-    print("demo " + ("interrupted" if interrupted else "finished OK" if ok else "FAILED"), file=out)
-    return 130 if interrupted else 0 if ok else 1
+        for p in procs:
+            stop_process(p)
+    if interrupted:
+        print("demo interrupted", file=out)
+        return 130
+    print("demo " + ("finished OK" if ok else "FAILED"), file=out)
+    return 0 if ok else 1

@@ -46,6 +46,9 @@ class Bus(Publisher):
         with self._lock:
             if any(c in topic for c in "*?["):
                 self._patterns.append(sub)
+                for name in self.topics:  # topics that already exist match at once
+                    if fnmatch.fnmatchcase(name, topic):
+                        self._exact.setdefault(name, []).append(sub)
             else:
                 self._exact.setdefault(topic, []).append(sub)
         return sub

@@ -331,9 +331,10 @@ SIMS: dict[str, Callable[..., BoardRuntime]] = {
 }
 
 
-def make_sim(name: str, seed: int = 0, **kw: object) -> BoardRuntime:
+def make_sim(sim: str, seed: int = 0, **kw: object) -> BoardRuntime:
+    """A simulated board runtime; ``kw`` go to the sim (e.g. ``name`` = board.name)."""
     try:
-        factory = SIMS[name]
+        factory = SIMS[sim]
     except KeyError:
-        raise ValueError(f"unknown sim {name!r}; choose one of {', '.join(SIMS)}") from None
+        raise ValueError(f"unknown sim {sim!r}; choose one of {', '.join(SIMS)}") from None
     return factory(seed=seed, **kw)
