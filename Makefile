@@ -46,6 +46,7 @@ test: lint typecheck unit
 bench: venv
 	$(PY) bench/bench_codec.py
 	$(PY) bench/bench_rpc.py
+	$(PY) bench/bench_daemon.py
 
 clean:
 	rm -rf $(VENV) node_modules .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -284,7 +284,12 @@ def cmd_board(args: argparse.Namespace) -> int:
     from .virtual import BoardServer, make_sim
 
     try:
-        runtime = make_sim(args.sim, seed=args.seed, **({"name": args.name} if args.name else {}))
+        extra: dict[str, Any] = {"name": args.name} if args.name else {}
+        if args.rate:
+            if args.sim != "rate":
+                raise ValueError("--rate goes with --sim rate")
+            extra["rate_hz"] = args.rate
+        runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
@@ -369,12 +374,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_recover)
 
     sp = sub.add_parser("board", help="run a virtual board")
-    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers or original")
+    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers, original or rate")
     sp.add_argument(
         "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
     )
     sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
     sp.add_argument("--name", help="board.name property (default: the sim's)")
+    sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
     sp.set_defaults(func=cmd_board)
 
     sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")

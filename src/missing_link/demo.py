@@ -51,11 +51,16 @@ def percentile(values: list[float], q: float) -> float:
 
 
 def start_board_process(
-    sim: str, seed: int, listen: str = "pty", name: str | None = None, timeout: float = 10.0
+    sim: str,
+    seed: int,
+    listen: str = "pty",
+    name: str | None = None,
+    timeout: float = 10.0,
+    extra: list[str] | None = None,
 ) -> tuple[subprocess.Popen[str], str]:
     """Start ``missing-link board`` in a child process; return it and the URL it printed."""
     cmd = [sys.executable, "-m", "missing_link", "board", "--sim", sim, "--seed", str(seed)]
-    cmd += ["--listen", listen] + (["--name", name] if name else [])
+    cmd += ["--listen", listen] + (["--name", name] if name else []) + (extra or [])
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     reader = threading.Thread(

@@ -205,6 +205,21 @@ class Trigger(_Driver):
             self.emit(0, self.fired & 0xFF)
 
 
+class Counter(_Driver):
+    """A test signal at an exact rate: every channel gets the sample counter (benchmarks)."""
+
+    def __init__(self, rng: random.Random, rate_hz: float, channels: int) -> None:
+        super().__init__(rng)
+        self.period_us = max(1, round(1e6 / rate_hz))
+        self.channels = channels
+        self.n = 0
+
+    def step(self, now: int) -> None:
+        self.n += 1
+        for ch in range(self.channels):
+            self.emit(ch, self.n & 0x7FFFFFFF)
+
+
 def _rng(seed: int, name: str) -> random.Random:
     return random.Random(f"{seed}:{name}")
 
@@ -300,6 +315,18 @@ def rangers(seed: int = 0, name: str = "board_b", **kw: object) -> BoardRuntime:
     return rt
 
 
+def rate(
+    seed: int = 0, name: str = "rate", rate_hz: float = 100.0, channels: int = 1, **kw: object
+) -> BoardRuntime:
+    """One transducer ``signal`` (int32 counter) at ``rate_hz`` updates/s: for benchmarks."""
+    rt = BoardRuntime(name, "missing-link rate generator", f"sim-{name}-{seed}", **kw)
+    rt.add_transducer(
+        Transducer("signal", 0, "counter", "COUNTER", channels, "int32_t", -1, rate_hz=rate_hz),
+        Counter(_rng(seed, "counter"), rate_hz, channels),
+    )
+    return rt
+
+
 def original(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntime:
     """A Part 1 board: the golden-vector table, no Part 2 functions, no j2a.version."""
     rt = BoardRuntime(name, "2014 firmware (emulated)", f"sim-{name}-{seed}", part2=False, **kw)
@@ -328,6 +355,7 @@ SIMS: dict[str, Callable[..., BoardRuntime]] = {
     "encoder_servo": encoder_servo,
     "rangers": rangers,
     "original": original,
+    "rate": rate,
 }
 
 
