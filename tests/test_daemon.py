@@ -47,9 +47,12 @@ def test_two_lines_give_an_application_its_board(serve: Serve) -> None:
         assert all((ns == 0) == (v is None) for ns, v in zip(u.host_ns, u.values, strict=True))
         assert sorted(robot.bus.topics) == [
             "/thesis/dist_ir",
+            "/thesis/dist_ir/range",
             "/thesis/dist_us",
+            "/thesis/dist_us/range",
             "/thesis/quad",
             "/thesis/servo",
+            "/thesis/servo/joint_states",
             "/thesis/trigger",
         ]
         assert robot.bus.command_topics == ["/thesis/servo/cmd"]
@@ -295,4 +298,59 @@ def test_pattern_subscription_after_topics_exist(serve: Serve) -> None:
         assert d.wait_until_up()
         names: set[str] = set()
         d.subscribe("/thesis/dist_*", lambda u: names.add(u.topic.name))
-        assert wait_for(lambda: names == {"/thesis/dist_ir", "/thesis/dist_us"})
+        deep: set[str] = set()
+        d.subscribe("/thesis/**/range", lambda u: deep.add(u.topic.name))
+        assert wait_for(lambda: names == {"/thesis/dist_ir", "/thesis/dist_us"} and len(deep) == 2)
+        assert deep == {"/thesis/dist_ir/range", "/thesis/dist_us/range"}
+
+
+def test_standard_types_one_message_per_channel(serve: Serve, tmp_path: Path) -> None:
+    server = serve("thesis")
+    cfg = Config(
+        boards=[BoardSpec(server.url)],
+        publishers=["bus", "mcap"],
+        publisher_options={"mcap": {"path": str(tmp_path)}},
+    )
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Daemon(cfg) as d:
+        ir: list[Update] = []
+        us: list[Update] = []
+        servo: list[Update] = []
+        d.subscribe("/thesis/dist_ir/range", ir.append)
+        d.subscribe("/thesis/dist_us/range", us.append)
+        d.subscribe("/thesis/servo/joint_states", servo.append)
+        assert d.wait_until_up()
+        d.send("/thesis/servo/cmd", 127)
+        assert wait_for(lambda: len(ir) > 20 and len(us) > 20 and servo)
+        mcap = d.publishers[1]
+    frames = set()
+    for u in ir[:20]:
+        msg = store.deserialize_cdr(u.cdr, "sensor_msgs/msg/Range")
+        assert msg.radiation_type == 1  # INFRARED
+        assert (msg.min_range, msg.max_range) == (pytest.approx(0.2), pytest.approx(1.5))
+        assert msg.range == pytest.approx(u.values[0] / 1000)
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == u.host_ns[0]
+        frames.add(msg.header.frame_id)
+    assert frames <= {f"thesis/dist_ir/{k}" for k in range(8)} and len(frames) > 1
+    assert store.deserialize_cdr(us[0].cdr, "sensor_msgs/msg/Range").radiation_type == 0
+    joint = store.deserialize_cdr(servo[-1].cdr, "sensor_msgs/msg/JointState")
+    assert joint.name == ["thesis/servo/0"]
+    (bag,) = mcap.bags  # type: ignore[attr-defined]
+    with AnyReader([bag], default_typestore=store) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types["/thesis/dist_ir/range"] == "sensor_msgs/msg/Range"
+        assert types["/thesis/servo/joint_states"] == "sensor_msgs/msg/JointState"
+
+
+def test_unsupported_standard_type_is_reported_not_fatal(serve: Serve, tmp_path: Path) -> None:
+    server = serve("original")
+    desc = tmp_path / "d.toml"
+    desc.write_text(
+        '[[transducer]]\nname="quad"\nid=13\nprefix="quad"\nmodel="HEDS-6500"\nchan_count=1\n'
+        'type="int16_t"\nna=-1\nros="sensor_msgs/msg/Imu"\n'
+    )
+    with Daemon(Config(boards=[BoardSpec(server.url, descriptors=str(desc))])) as d:
+        got: list[Update] = []
+        d.subscribe("/original/quad", got.append)
+        assert wait_for(lambda: len(got) > 2)
+        assert "ros=sensor_msgs/msg/Imu is not supported" in d.status()[0]["warnings"]

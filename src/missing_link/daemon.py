@@ -39,8 +39,10 @@ from .config import BoardSpec, Config
 from .descriptors import Transducer, load_descriptor_file
 from .errors import MissingLinkError
 from .j2a import SifReceived
+from .msgs import typestore_for
 from .publishers import Bus, Publisher, make_publisher
 from .publishers.bus import Callback, Subscription
+from .standard import StandardMapping, mapping_for
 from .topics import Topic, Update
 
 log = logging.getLogger(__name__)
@@ -57,6 +59,8 @@ class BoardSession:
         self.name = spec.name or spec.url
         self.board: Board | None = None
         self.topics: dict[int, Topic] = {}  # transducer id -> topic
+        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        self.warnings: list[str] = []
         self.connects = 0
         self.samples = 0
         self.updates = 0
@@ -125,11 +129,29 @@ class BoardSession:
         self._offset_us = None
         cfg = self.daemon.config
         self.topics = {}
+        self.standard = {}
+        self.warnings = []
         for t in transducers:
             topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
             topic = Topic.for_transducer(topic_name, self.name, t, cfg.package)
             self.topics[t.id] = topic
             self.daemon._declare(topic)
+            try:
+                mapping = mapping_for(t, self.name, self.daemon.typestore)
+            except ValueError as e:
+                self.warnings.append(str(e))
+                log.warning("%s", e)
+                mapping = None
+            if mapping is not None:
+                std = Topic.standard_type(
+                    f"{topic_name}/{mapping.suffix}",
+                    self.name,
+                    t,
+                    mapping.type_name,
+                    self.daemon.typestore,
+                )
+                self.standard[t.id] = (std, mapping)
+                self.daemon._declare(std)
             if t.is_actuator:
                 if t.call not in board.index:
                     raise MissingLinkError(
@@ -224,6 +246,17 @@ class BoardSession:
         self.updates += 1
         self.samples += len(values) - values.count(None)
         self.daemon._publish(update)
+        std = self.standard.get(sif.cmd)
+        if std is not None:
+            std_topic, mapping = std
+            for ch, v in enumerate(values):
+                if v is not None:
+                    cdr = mapping.build(ch, host_ns[ch], v)
+                    self.daemon._publish(
+                        Update(
+                            std_topic, [board_us[ch]], [host_ns[ch]], [v], sif.seq, 0, recv_ns, cdr
+                        )
+                    )
 
     def status(self) -> dict[str, Any]:
         b = self.board
@@ -248,6 +281,7 @@ class BoardSession:
             "commands": self.commands,
             "command_errors": self.command_errors,
             "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
+            "warnings": "; ".join(self.warnings),
         }
 
 
@@ -264,6 +298,7 @@ class Daemon:
         self.publishers.extend(extra_publishers)
         self.sessions = [BoardSession(self, spec) for spec in config.boards]
         self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
+        self.typestore = typestore_for(config.distro)
         self._stop = threading.Event()
         self._diag_thread = threading.Thread(
             target=self._diagnostics, name="diagnostics", daemon=True

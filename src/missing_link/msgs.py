@@ -161,6 +161,20 @@ catkin_package(CATKIN_DEPENDS message_runtime)
     return files
 
 
+_STORES = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY", "kilted": "ROS2_KILTED"}
+
+
+def typestore_for(distro: str) -> Typestore:
+    """A rosbags typestore with the message layouts of a ROS 2 distro."""
+    from rosbags.typesys import Stores, get_typestore
+
+    try:
+        store: Typestore = get_typestore(getattr(Stores, _STORES[distro]))
+    except (KeyError, AttributeError):
+        raise ValueError(f"unknown ROS 2 distro {distro!r}; choose {', '.join(_STORES)}") from None
+    return store
+
+
 def register_types(
     typestore: Typestore, transducers: Iterable[Transducer], package: str = DEFAULT_PACKAGE
 ) -> list[str]:

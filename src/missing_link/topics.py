@@ -30,11 +30,19 @@ class Topic:
     transducer: Transducer
     type_name: str
     msgdef: str
-    encoder: CdrEncoder = field(repr=False)
+    encoder: CdrEncoder | None = field(repr=False)  #: None: updates bring their own CDR
+    standard: bool = False  #: a standard ROS type (already known to every typestore)
 
     @classmethod
     def for_transducer(cls, name: str, board: str, t: Transducer, package: str) -> Topic:
         return cls(check_topic(name), board, t, type_name(t, package), msgdef(t, 2), CdrEncoder(t))
+
+    @classmethod
+    def standard_type(
+        cls, name: str, board: str, t: Transducer, type_name: str, typestore: Any
+    ) -> Topic:
+        text, _ = typestore.generate_msgdef(type_name, ros_version=2)
+        return cls(check_topic(name), board, t, type_name, text, None, standard=True)
 
 
 class Update:
@@ -51,6 +59,7 @@ class Update:
         seq: int,
         lost: int,
         recv_ns: int,
+        cdr: bytes | None = None,
     ) -> None:
         self.topic = topic
         self.board_us = board_us
@@ -59,7 +68,7 @@ class Update:
         self.seq = seq
         self.lost = lost
         self.recv_ns = recv_ns  #: CLOCK_REALTIME ns when the SIF arrived
-        self._cdr: bytes | None = None
+        self._cdr = cdr
 
     @property
     def stamp_ns(self) -> int:
@@ -69,6 +78,7 @@ class Update:
     @property
     def cdr(self) -> bytes:
         if self._cdr is None:
+            assert self.topic.encoder is not None, "standard-type updates carry their CDR"
             self._cdr = self.topic.encoder.encode(self.host_ns, self.values)
         return self._cdr
 

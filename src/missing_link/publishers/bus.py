@@ -4,8 +4,9 @@ reader thread: keep them short, hand heavy work to a queue."""
 
 from __future__ import annotations
 
-import fnmatch
+import functools
 import logging
+import re
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -16,6 +17,22 @@ from .base import Publisher, register_publisher
 log = logging.getLogger(__name__)
 Callback = Callable[[Update], None]
 CommandHandler = Callable[[Any], None]
+
+
+@functools.lru_cache(maxsize=256)
+def topic_pattern(pattern: str) -> re.Pattern[str]:
+    """``*`` and ``?`` match within one level of a topic name, ``**`` across levels."""
+    out = []
+    i = 0
+    while i < len(pattern):
+        c = pattern[i]
+        if pattern.startswith("**", i):
+            out.append(".*")
+            i += 2
+            continue
+        out.append("[^/]*" if c == "*" else "[^/]" if c == "?" else re.escape(c))
+        i += 1
+    return re.compile("".join(out) + r"\Z")
 
 
 class Subscription:
@@ -41,13 +58,14 @@ class Bus(Publisher):
 
     # ---- for applications ---------------------------------------------------------------------
     def subscribe(self, topic: str, callback: Callback) -> Subscription:
-        """Call ``callback(update)`` for every update on ``topic`` (``*`` and ``?`` match)."""
+        """Call ``callback(update)`` for every update on ``topic``.  Patterns: ``*`` and ``?``
+        match within one level (``/board/*``), ``**`` across levels (``/board/**``)."""
         sub = Subscription(self, topic, callback)
         with self._lock:
-            if any(c in topic for c in "*?["):
+            if "*" in topic or "?" in topic:
                 self._patterns.append(sub)
                 for name in self.topics:  # topics that already exist match at once
-                    if fnmatch.fnmatchcase(name, topic):
+                    if topic_pattern(topic).match(name):
                         self._exact.setdefault(name, []).append(sub)
             else:
                 self._exact.setdefault(topic, []).append(sub)
@@ -84,7 +102,7 @@ class Bus(Publisher):
         with self._changed:
             self.topics[topic.name] = topic
             for sub in self._patterns:  # pattern subscribers learn the exact name
-                if fnmatch.fnmatchcase(topic.name, sub.pattern):
+                if topic_pattern(sub.pattern).match(topic.name):
                     subs = self._exact.setdefault(topic.name, [])
                     if sub not in subs:
                         subs.append(sub)

@@ -17,23 +17,13 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from ..msgs import DEFAULT_PACKAGE, register_types
+from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
 log = logging.getLogger(__name__)
 DIAG_TOPIC = "/diagnostics"
 DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
-_STORES = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY", "kilted": "ROS2_KILTED"}
-
-
-def typestore_for(distro: str) -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
-    try:
-        return get_typestore(getattr(Stores, _STORES[distro]))
-    except (KeyError, AttributeError):
-        raise ValueError(f"unknown ROS 2 distro {distro!r}; choose {', '.join(_STORES)}") from None
 
 
 class McapPublisher(Publisher):
@@ -152,8 +142,9 @@ class McapPublisher(Publisher):
     def _connect(self, topic: Topic) -> None:
         if topic.name in self._conns:
             return
-        package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
-        register_types(self.typestore, [topic.transducer], package)
+        if not topic.standard:
+            package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
+            register_types(self.typestore, [topic.transducer], package)
         self._conns[topic.name] = self._writer.add_connection(
             topic.name, topic.type_name, typestore=self.typestore
         )

@@ -252,6 +252,9 @@ def _add_servo(rt: BoardRuntime, seed: int) -> Servo:
             -128,
             kind="actuator",
             call="a2j_set_servo",
+            unit="deg",
+            scale="0.708661",  # int8 command -127..127 = -90..+90 degrees
+            ros="sensor_msgs/msg/JointState",
         ),
         servo,
     )
@@ -270,6 +273,8 @@ def _add_rangers(rt: BoardRuntime, seed: int) -> None:
             0,
             unit="mm",
             rate_hz=25,
+            min=200,
+            max=1500,
             ros="sensor_msgs/msg/Range",
         ),
         SharpIR(_rng(seed, "ir")),
@@ -285,6 +290,8 @@ def _add_rangers(rt: BoardRuntime, seed: int) -> None:
             0x00FFFFFF,
             unit="mm",
             rate_hz=25,
+            min=150,
+            max=6000,
             ros="sensor_msgs/msg/Range",
         ),
         SRF02Sonars(_rng(seed, "us")),
