@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 import tempfile
@@ -72,6 +73,30 @@ def sif_stream(count: int) -> tuple[bytes, Transducer]:
         rt.poll()
         chunks.append(rt.take_output())
     return b"".join(chunks), t
+
+
+def sustained(rate_hz: float, channels: int, seconds: float) -> tuple[float, int, int]:
+    """End to end over a pty: samples/s delivered, counter gaps (lost updates), lost SIFs.
+    The counter sim numbers its updates, so a gap anywhere on the path shows."""
+    proc, url = start_board_process(
+        "rate", 0, "pty", extra=["--rate", str(rate_hz), "--channels", str(channels)]
+    )
+    seen: list[int] = []
+    try:
+        with Daemon(Config(boards=[BoardSpec(url)])) as d:
+            assert d.wait_until_up(10)
+            time.sleep(0.5)
+            d.subscribe("/rate/signal", lambda u: seen.append(u.values[0]))
+            t0 = time.monotonic()
+            time.sleep(seconds)
+            n = len(seen)
+            elapsed = time.monotonic() - t0
+            lost = d.status()[0]["lost_sifs"]
+    finally:
+        stop_process(proc)
+    window = seen[:n]
+    gaps = sum(b - a - 1 for a, b in itertools.pairwise(window) if b > a + 1)
+    return n * channels / elapsed, gaps, lost
 
 
 def throughput(seconds: float) -> tuple[float, float]:
@@ -160,7 +185,12 @@ def main() -> int:
             f"{hz:>5}Hz | {n:>8} {p50:>6.0f}us {p99:>6.0f}us {mx:>6.0f}us {lost:>9}"
             f" | {raw_rtt / 2:.0f} us"
         )
-    print("\n2. decode + publish on one core (8 x uint16 per SIF, one bus subscriber)")
+    print("\n2a. sustained end to end over a pty, 8 x int32 per SIF (board process included)")
+    print(f"{'SIFs/s asked':>12} | {'samples/s got':>13} {'gaps':>6} {'lost SIFs':>9}")
+    for hz in (2000, 8000, 16000, 32000):
+        got, gaps, lost = sustained(hz, 8, 3.0)
+        print(f"{hz:>12} | {got:>13,.0f} {gaps:>6} {lost:>9}")
+    print("\n2b. decode + publish on one core (8 x uint16 per SIF, one bus subscriber)")
     ours, bare = throughput(2.0)
     print(
         f"   samples/s decoded and published: {ours:,.0f}"

@@ -285,10 +285,11 @@ def cmd_board(args: argparse.Namespace) -> int:
 
     try:
         extra: dict[str, Any] = {"name": args.name} if args.name else {}
-        if args.rate:
+        if args.rate or args.channels:
             if args.sim != "rate":
-                raise ValueError("--rate goes with --sim rate")
-            extra["rate_hz"] = args.rate
+                raise ValueError("--rate and --channels go with --sim rate")
+            extra["rate_hz"] = args.rate or 100.0
+            extra["channels"] = args.channels or 1
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
@@ -381,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
     sp.add_argument("--name", help="board.name property (default: the sim's)")
     sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
+    sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")
     sp.set_defaults(func=cmd_board)
 
     sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")
