@@ -221,21 +221,26 @@ class FrameDecoder:
             if p >= end:
                 return None
             b = buf[p]
+            # A raw start marker (alone, or right after an escape) means the frame was cut.
+            cut_at = p if b in (SOF, SOS) else -1
             if b == ESC:
                 if p + 1 >= end:
                     return None
-                b2 = buf[p + 1]
-                if b2 in (SOF, SOS):
-                    stats.cut_frames += 1
-                    out.append(
-                        FrameError(
-                            FrameErrorKind.CUT,
-                            _KIND[first],
-                            hdr[0] if k > 0 else None,
-                            "start marker inside frame header",
-                        )
+                if buf[p + 1] in (SOF, SOS):
+                    cut_at = p + 1
+            if cut_at >= 0:
+                stats.cut_frames += 1
+                out.append(
+                    FrameError(
+                        FrameErrorKind.CUT,
+                        _KIND[first],
+                        hdr[0] if k > 0 else None,
+                        "start marker inside frame header",
                     )
-                    return p + 1
+                )
+                return cut_at
+            if b == ESC:
+                b2 = buf[p + 1]
                 p += 2
                 if b2 not in _UNESCAPE_OK:
                     stats.bad_escapes += 1
@@ -249,17 +254,6 @@ class FrameDecoder:
                     )
                     return p
                 hdr[k] = b2 + 1
-            elif b in (SOF, SOS):
-                stats.cut_frames += 1
-                out.append(
-                    FrameError(
-                        FrameErrorKind.CUT,
-                        _KIND[first],
-                        hdr[0] if k > 0 else None,
-                        "start marker inside frame header",
-                    )
-                )
-                return p
             else:
                 hdr[k] = b
                 p += 1
