@@ -131,3 +131,14 @@ def test_create_msgs_from_board_and_file(board_url: str, tmp_path: object) -> No
         assert "time[] times\nint16[] values" in f.read()
     r = ml("create-msgs", board_url, "--out", out, "--package", "Bad-Name")
     assert r.returncode == 2 and "package name 'Bad-Name'" in r.stderr
+
+
+def test_run_and_recover_input_errors(tmp_path: object) -> None:
+    r = ml("run", "tcp://127.0.0.1:1", "-p", "zenohh", "--duration", "0.1")
+    assert r.returncode == 2 and "--publisher 'zenohh': unknown" in r.stderr
+    r = ml("run")
+    assert r.returncode == 2 and "no boards" in r.stderr
+    r = ml("recover", str(tmp_path))
+    assert r.returncode == 2 and "no .mcap file" in r.stderr
+    r = ml("recover", "examples/original-board.toml", "--out", str(tmp_path))
+    assert r.returncode == 2 and "exists already" in r.stderr

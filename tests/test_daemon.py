@@ -354,3 +354,28 @@ def test_unsupported_standard_type_is_reported_not_fatal(serve: Serve, tmp_path:
         d.subscribe("/original/quad", got.append)
         assert wait_for(lambda: len(got) > 2)
         assert "ros=sensor_msgs/msg/Imu is not supported" in d.status()[0]["warnings"]
+
+
+def test_all_na_update_is_logged_at_host_realtime() -> None:
+    """An update whose channels are all N/A still gets a CLOCK_REALTIME log time."""
+    import struct
+
+    from missing_link.daemon import BoardSession
+    from missing_link.descriptors import parse_transds
+    from missing_link.j2a import SifReceived
+    from missing_link.topics import Topic
+
+    d = Daemon(Config())
+    session = BoardSession(d, BoardSpec("memory://unused"))
+    (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    session.topics = {1: topic}
+    d.bus.add_topic(topic)
+    got: list[Update] = []
+    d.subscribe("/b/x", got.append)
+    before = time.time_ns()
+    session._on_sif(SifReceived(1, 0, struct.pack("<QhQh", 5, -1, 6, -1), 0), time.monotonic())
+    after = time.time_ns()
+    (u,) = got
+    assert u.values == [None, None] and u.host_ns == [0, 0]
+    assert before - 10**7 <= u.stamp_ns <= after + 10**7

@@ -14,6 +14,7 @@ from typing import Any
 
 from . import __version__
 from .client import Board
+from .config import ConfigError
 from .errors import BadURL, DescriptorError, MissingLinkError
 from .j2a import SifReceived
 from .samples import Sample, SampleDecoder
@@ -187,7 +188,11 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
     from .descriptors import load_descriptor_file
     from .msgs import check_package, package_files
 
-    check_package(args.package)
+    try:
+        check_package(args.package)
+    except ValueError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
     if os.path.exists(args.source):
         transducers = load_descriptor_file(args.source)
         origin = args.source
@@ -221,10 +226,14 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
 # ---- run ----------------------------------------------------------------------------------------
 def build_config(args: argparse.Namespace) -> Any:
     from .config import BoardSpec, Config, load_config
+    from .publishers import available_publishers
 
     cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
     cfg.boards.extend(BoardSpec(url=u) for u in args.url)
+    known = available_publishers()
     for name in args.publisher or []:
+        if name not in known:
+            raise ConfigError(f"--publisher {name!r}: unknown (available: {', '.join(known)})")
         if name not in cfg.publishers:
             cfg.publishers.append(name)
     if args.record:
@@ -272,7 +281,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
     try:
         dest, count = recover_bag(args.path, args.out)
-    except FileNotFoundError as e:
+    except (FileNotFoundError, FileExistsError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     print(f"recovered {count} messages into {dest}")
@@ -398,7 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except (BadURL, DescriptorError, ValueError, KeyError) as e:
+    except (BadURL, DescriptorError, ConfigError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except MissingLinkError as e:

@@ -290,7 +290,8 @@ class Board:
         error: BaseException | None = None
         try:
             while not self._stopping:
-                timer = self.conn.get_timer()
+                with self._lock:  # callers add requests under the lock; never read it bare
+                    timer = self.conn.get_timer()
                 now = time.monotonic()
                 wait = _TICK if timer is None else max(0.0, min(_TICK, timer - now))
                 data = self.transport.read(wait)

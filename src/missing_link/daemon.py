@@ -194,7 +194,10 @@ class BoardSession:
     def _command_handler(self, t: Transducer) -> Any:
         def handler(value: Any) -> None:
             if isinstance(value, Update):
-                value = next(v for v in value.values if v is not None)
+                present = [v for v in value.values if v is not None]
+                if not present:
+                    raise ValueError(f"{t.name}: the update on {value.topic.name} has no value")
+                value = present[0]
             elif isinstance(value, (list, tuple)):
                 value = value[0]
             if not t.legal(value):
@@ -227,24 +230,25 @@ class BoardSession:
             self.unknown_sifs += 1
             return
         try:
-            decoded = topic.transducer.decode(sif.payload)
+            board_us, values = topic.transducer.decode_columns(sif.payload)
         except ValueError:
             self.bad_sifs += 1
             return
         recv_ns = int(now_mono * 1e9)
-        recv_us = recv_ns // 1000
-        board_us = [s for s, _v in decoded]
-        values = [v for _s, v in decoded]
         # Provisional mapping: offset = smallest (receive - stamp) so far; see the module doc.
-        newest = max(board_us)
-        offset = recv_us - newest
+        offset = recv_ns // 1000 - max(board_us)
         if self._offset_us is None or offset < self._offset_us:
             self._offset_us = offset
-        base_ns = (self._offset_us * 1000) + self.daemon.realtime_offset_ns
-        host_ns = [0 if v is None else s * 1000 + base_ns for s, v in decoded]
-        update = Update(topic, board_us, host_ns, values, sif.seq, sif.lost, recv_ns)
+        base_ns = self._offset_us * 1000 + self.daemon.realtime_offset_ns
+        host_ns = [
+            0 if v is None else s * 1000 + base_ns for s, v in zip(board_us, values, strict=True)
+        ]
+        missing = values.count(None)
+        # All channels N/A: log at the mapped arrival time (never at 0 or a monotonic stamp).
+        stamp = recv_ns + self.daemon.realtime_offset_ns if missing == len(values) else None
+        update = Update(topic, board_us, host_ns, values, sif.seq, sif.lost, recv_ns, None, stamp)
         self.updates += 1
-        self.samples += len(values) - values.count(None)
+        self.samples += len(values) - missing
         self.daemon._publish(update)
         std = self.standard.get(sif.cmd)
         if std is not None:

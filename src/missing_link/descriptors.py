@@ -68,8 +68,9 @@ class Transducer:
     def value_struct(self) -> struct.Struct:
         return struct.Struct("<" + DTYPES[self.dtype][0])
 
-    def decode(self, payload: bytes) -> list[tuple[int, int | float | None]]:
-        """SIF payload -> [(board_us, value or None for N/A)] per channel."""
+    def decode_columns(self, payload: bytes) -> tuple[list[int], list[int | float | None]]:
+        """SIF payload -> (board_us per channel, value per channel or None for N/A).
+        The sample path: the unpacked tuple is split by C-level slicing, not a Python loop."""
         st = self.sif_struct
         if len(payload) != st.size:
             raise ValueError(
@@ -78,16 +79,19 @@ class Transducer:
             )
         flat = st.unpack(payload)
         na = self.na
-        out: list[tuple[int, int | float | None]] = []
-        if self.dtype in FLOAT_TYPES and isinstance(na, float) and math.isnan(na):
-            for i in range(0, len(flat), 2):
-                v = flat[i + 1]
-                out.append((flat[i], None if v != v else v))
+        raw = flat[1::2]
+        if isinstance(na, float) and math.isnan(na):
+            values: list[int | float | None] = [None if v != v else v for v in raw]
+        elif na in raw:
+            values = [None if v == na else v for v in raw]
         else:
-            for i in range(0, len(flat), 2):
-                v = flat[i + 1]
-                out.append((flat[i], None if v == na else v))
-        return out
+            values = list(raw)
+        return list(flat[0::2]), values
+
+    def decode(self, payload: bytes) -> list[tuple[int, int | float | None]]:
+        """SIF payload -> [(board_us, value or None for N/A)] per channel."""
+        stamps, values = self.decode_columns(payload)
+        return list(zip(stamps, values, strict=True))
 
     def line(self) -> str:
         """The descriptor line, as a board would send it."""

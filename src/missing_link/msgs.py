@@ -206,13 +206,14 @@ class CdrEncoder:
         count2 = times_end  # already 4-aligned
         values_at = count2 + 4
         pad = (-values_at) % size
-        fmt = "<4xI" + "iI" * n + f"I{pad}x" + code * n
+        # The 4-byte encapsulation header (00 01 00 00 = CDR little endian) is packed as data.
+        fmt = "<4BI" + "iI" * n + f"I{pad}x" + code * n
         self.struct = struct.Struct(fmt)
         self.n = n
 
     def encode(self, stamps_ns: list[int], values: list[Any]) -> bytes:
         """``stamps_ns`` host time per channel (0 = no value), ``values`` (None = N/A)."""
-        args: list[Any] = [self.n]
+        args: list[Any] = [0, 1, 0, 0, self.n]
         for ns in stamps_ns:
             sec, nsec = divmod(ns, 1_000_000_000)
             args.append(sec)
@@ -223,6 +224,4 @@ class CdrEncoder:
             args.extend(bool(na) if v is None else bool(v) for v in values)
         else:
             args.extend(na if v is None else v for v in values)
-        data = bytearray(self.struct.pack(*args))
-        data[1] = 1  # encapsulation CDR_LE: 00 01 00 00
-        return bytes(data)
+        return self.struct.pack(*args)

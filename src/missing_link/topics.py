@@ -48,7 +48,17 @@ class Topic:
 class Update:
     """One sample SIF, decoded."""
 
-    __slots__ = ("_cdr", "board_us", "host_ns", "lost", "recv_ns", "seq", "topic", "values")
+    __slots__ = (
+        "_cdr",
+        "board_us",
+        "host_ns",
+        "lost",
+        "recv_ns",
+        "seq",
+        "stamp_ns",
+        "topic",
+        "values",
+    )
 
     def __init__(
         self,
@@ -60,6 +70,7 @@ class Update:
         lost: int,
         recv_ns: int,
         cdr: bytes | None = None,
+        stamp_ns: int | None = None,
     ) -> None:
         self.topic = topic
         self.board_us = board_us
@@ -67,13 +78,11 @@ class Update:
         self.values = values  #: None where the board sent N/A
         self.seq = seq
         self.lost = lost
-        self.recv_ns = recv_ns  #: CLOCK_REALTIME ns when the SIF arrived
+        self.recv_ns = recv_ns  #: CLOCK_MONOTONIC ns when the SIF arrived (for latency)
         self._cdr = cdr
-
-    @property
-    def stamp_ns(self) -> int:
-        """Latest measurement time in this update (the log time recorders use)."""
-        return max(self.host_ns) or self.recv_ns
+        #: host time (CLOCK_REALTIME ns) recorders log it at: the newest measurement in it, or
+        #: the mapped arrival time when every channel is N/A
+        self.stamp_ns = stamp_ns if stamp_ns is not None else max(host_ns)
 
     @property
     def cdr(self) -> bytes:

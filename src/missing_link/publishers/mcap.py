@@ -194,6 +194,8 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, 
     if not files:
         raise FileNotFoundError(f"{src}: no .mcap file to recover")
     dest = Path(out) if out else src.with_name(src.name.removesuffix(".mcap") + "_recovered")
+    if dest.exists():
+        raise FileExistsError(f"{dest} exists already; give another --out")
     ts = get_typestore(Stores.ROS2_JAZZY)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
