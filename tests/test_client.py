@@ -176,3 +176,16 @@ def test_many_boards_one_broken_does_not_affect_other(serve: Serve) -> None:
         assert ba.call("a2jEcho", b"still").payload == b"still"
         with pytest.raises(LinkLost):
             bb.call("a2jEcho", b"gone", timeout=0.5)
+
+
+def test_mapping_longer_than_one_frame_is_read_in_full(serve: Serve) -> None:
+    from missing_link.board.runtime import BoardRuntime
+
+    rt = BoardRuntime("long", "m", "s", epoch="e")
+    for i in range(30):
+        rt.add_function(f"function_with_a_long_name_{i:02d}", lambda p: (0, b""))
+    server = serve(rt)
+    with open_board(server.url) as board:
+        assert len(board.functions) == 39
+        assert board.functions[-1] == "function_with_a_long_name_29"
+        assert board.call("function_with_a_long_name_29").code == 0

@@ -126,7 +126,9 @@ class Board:
         try:
             names = parse_mapping(head)
             if "a2jGetMappingMany" in names:
-                full = self._read_many_index(names.index("a2jGetMappingMany"), "a2jGetMappingMany")
+                full = self._wait(
+                    self._read_future(names.index("a2jGetMappingMany"), "a2jGetMappingMany"), None
+                )
                 names = parse_mapping(full)
             self.functions = names
             self.index = mapping_index(names)
@@ -187,9 +189,18 @@ class Board:
         max_bytes: int = 64 << 20,
         timeout: float | None = None,
     ) -> Future[bytes]:
-        target = self._lookup(name)
+        return self._read_future(self._lookup(name), name, progress, max_bytes, timeout)
+
+    def _read_future(
+        self,
+        target: int,
+        label: str,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+    ) -> Future[bytes]:
         return self._start(
-            name,
+            label,
             lambda now, t: self.conn.read_many(
                 target, now, t, max_bytes=max_bytes, progress=progress is not None
             ),
@@ -210,12 +221,6 @@ class Board:
             self.read_many_future(name, progress=progress, max_bytes=max_bytes, timeout=timeout),
             None,
         )
-
-    def _read_many_index(self, target: int, label: str) -> bytes:
-        fut: Future[bytes] = self._start(
-            label, lambda now, t: self.conn.read_many(target, now, t), None
-        )
-        return self._wait(fut, None)
 
     def write_many(
         self,

@@ -80,7 +80,7 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
         raise fail("daemon", "must be a table")
     check(daemon, _DAEMON_KEYS, "daemon")
     for key, value in daemon.items():
-        setattr(cfg, key, float(value) if isinstance(value, int) and key != "publishers" else value)
+        setattr(cfg, key, float(value) if isinstance(value, int) else value)  # 1 -> 1.0 (seconds)
     if cfg.distro not in DISTROS:
         raise fail("daemon.distro", f"{cfg.distro!r} is not one of {', '.join(DISTROS)}")
     try:

@@ -142,8 +142,8 @@ def parse_na(text: str, dtype: str) -> int | float:
     return value
 
 
-def parse_line(line: str, board: str = "board", lineno: int = 0) -> Transducer:
-    where = f"transds line {lineno}" if lineno else "transducer"
+def parse_line(line: str, board: str = "board", where: str = "transducer") -> Transducer:
+    """One descriptor line; ``where`` names it in errors (e.g. "transds line 3")."""
 
     def fail(fld: str, why: str) -> DescriptorError:
         return DescriptorError(board, f"{where}, field {fld}: {why} (line: {line!r})")
@@ -207,31 +207,36 @@ def parse_line(line: str, board: str = "board", lineno: int = 0) -> Transducer:
     return Transducer(name, tid, prefix, model, chan_count, dtype, na, options, unknown)
 
 
+def check_unique(items: list[tuple[str, str]], board: str) -> list[Transducer]:
+    """Parse (where, line) pairs; names and ids must be unique."""
+    out: list[Transducer] = []
+    names: dict[str, str] = {}
+    ids: dict[int, str] = {}
+    for where, line in items:
+        t = parse_line(line, board, where)
+        if t.name in names:
+            raise DescriptorError(
+                board, f"{where}, field name: {t.name!r} already on {names[t.name]}"
+            )
+        if t.id in ids:
+            raise DescriptorError(board, f"{where}, field id: {t.id} already on {ids[t.id]}")
+        # Refer back to the first one briefly: "line 2" or "[[transducer]] #1".
+        names[t.name] = ids[t.id] = where.removeprefix("transds ")
+        out.append(t)
+    return out
+
+
 def parse_transds(text: str, board: str = "board") -> list[Transducer]:
     """Parse a ``transds/1`` blob; names and ids must be unique."""
     lines = text.replace("\r\n", "\n").split("\n")
     if not lines or lines[0].strip() != HEADER:
         raise DescriptorError(board, f"transds line 1: expected {HEADER!r}, got {lines[0][:40]!r}")
-    out: list[Transducer] = []
-    names: dict[str, int] = {}
-    ids: dict[int, int] = {}
-    for lineno, line in enumerate(lines[1:], start=2):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        t = parse_line(line, board, lineno)
-        if t.name in names:
-            raise DescriptorError(
-                board,
-                f"transds line {lineno}, field name: {t.name!r} already on line {names[t.name]}",
-            )
-        if t.id in ids:
-            raise DescriptorError(
-                board, f"transds line {lineno}, field id: {t.id} already on line {ids[t.id]}"
-            )
-        names[t.name] = lineno
-        ids[t.id] = lineno
-        out.append(t)
-    return out
+    items = [
+        (f"transds line {lineno}", line)
+        for lineno, line in enumerate(lines[1:], start=2)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    return check_unique(items, board)
 
 
 def load_descriptor_file(path: str) -> list[Transducer]:
@@ -254,7 +259,7 @@ def load_descriptor_file(path: str) -> list[Transducer]:
     tables = doc.get("transducer")
     if not isinstance(tables, list) or not tables:
         raise DescriptorError(path, "expected one or more [[transducer]] tables")
-    lines = [HEADER]
+    items: list[tuple[str, str]] = []
     for k, table in enumerate(tables, start=1):
         missing = [
             f
@@ -277,16 +282,5 @@ def load_descriptor_file(path: str) -> list[Transducer]:
             raise DescriptorError(
                 path, f"[[transducer]] #{k}: values must not contain ',' or newlines"
             )
-        lines.append(",".join(fields))
-    try:
-        return parse_transds("\n".join(lines) + "\n", path)
-    except DescriptorError as e:
-        # Line numbers of the generated text are transducer numbers + 1: say which table.
-        m = re.search(r"transds line (\d+)", str(e))
-        if m:
-            k = int(m.group(1)) - 1
-            raise DescriptorError(
-                path,
-                str(e).split(": ", 1)[1].replace(f"transds line {k + 1}", f"[[transducer]] #{k}"),
-            ) from None
-        raise
+        items.append((f"[[transducer]] #{k}", ",".join(fields)))
+    return check_unique(items, path)

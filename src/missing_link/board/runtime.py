@@ -300,9 +300,6 @@ class BoardRuntime:
         self._sifs = []
         return out
 
-    def has_output(self):
-        return bool(self._replies or self._sifs)
-
     # ---- requests ------------------------------------------------------------------------
     def feed(self, data):
         if not data:

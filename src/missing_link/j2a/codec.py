@@ -48,8 +48,6 @@ ERROR_CODES = {
     ERR_CHECKSUM: "bad checksum",
     ERR_ESCAPE: "bad escape sequence",
 }
-REPLY_OK = 0x00
-REPLY_FAIL = 0xFF
 
 
 class FrameKind(IntEnum):

@@ -53,7 +53,6 @@ class Bus(Publisher):
         self._commands: dict[str, CommandHandler] = {}
         self._last: dict[str, Update] = {}
         self.topics: dict[str, Topic] = {}
-        self._changed = threading.Condition(self._lock)
         self.errors = 0
 
     # ---- for applications ---------------------------------------------------------------------
@@ -73,10 +72,6 @@ class Bus(Publisher):
 
     def last(self, topic: str) -> Update | None:
         return self._last.get(topic)
-
-    def wait_for_topics(self, names: list[str], timeout: float) -> bool:
-        with self._changed:
-            return self._changed.wait_for(lambda: all(n in self.topics for n in names), timeout)
 
     def send(self, topic: str, value: Any) -> None:
         """Publish a command, e.g. ``bus.send("/thesis/servo/cmd", 40)``: the board's actuator
@@ -99,14 +94,13 @@ class Bus(Publisher):
         self._commands.pop(topic, None)
 
     def add_topic(self, topic: Topic) -> None:
-        with self._changed:
+        with self._lock:
             self.topics[topic.name] = topic
             for sub in self._patterns:  # pattern subscribers learn the exact name
                 if topic_pattern(sub.pattern).match(topic.name):
                     subs = self._exact.setdefault(topic.name, [])
                     if sub not in subs:
                         subs.append(sub)
-            self._changed.notify_all()
 
     def publish(self, update: Update) -> None:
         name = update.topic.name

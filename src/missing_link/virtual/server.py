@@ -133,11 +133,18 @@ class BoardServer:
         wait: float = (due - rt.clock()) / 1e6
         return min(_MAX_WAIT, max(0.0, wait))
 
+    def _turn(self, data: bytes) -> bytes:
+        """One turn of the board's process loop: feed input, run drivers, return output."""
+        if data:
+            self.runtime.feed(data)
+        self.runtime.poll()
+        out: bytes = self.runtime.take_output()
+        return out
+
     def serve_forever(self) -> None:
         if self._memory is not None:
             self._serve_memory()
             return
-        rt = self.runtime
         try:
             while not self._stop.is_set():
                 fds = []
@@ -149,14 +156,14 @@ class BoardServer:
                 ready, _, _ = select.select(fds, wfds, [], self._wait_time())
                 if self._listener is not None and self._listener.fileno() in ready:
                     self._accept()
+                data = b""
                 if self._link is not None and self._link.fd in ready:
-                    data = self._link.recv()
-                    if data is None:
+                    received = self._link.recv()
+                    if received is None:
                         self._drop_link()
-                    elif data:
-                        rt.feed(data)
-                rt.poll()
-                out = rt.take_output()
+                    else:
+                        data = received
+                out = self._turn(data)
                 if self._link is not None and not self._link.send(out):
                     self._drop_link()
         finally:
@@ -180,7 +187,6 @@ class BoardServer:
 
     def _serve_memory(self) -> None:
         assert self._memory is not None
-        rt = self.runtime
         link: MemoryTransport | None = None
         try:
             while not self._stop.is_set():
@@ -195,10 +201,7 @@ class BoardServer:
                     except (TransportBroken, TransportClosed):  # host went away: accept the next
                         link = None
                         data = b""
-                if data:
-                    rt.feed(data)
-                rt.poll()
-                out = rt.take_output()
+                out = self._turn(data)
                 if link is not None and out:
                     try:
                         link.write(out)
