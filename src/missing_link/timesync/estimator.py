@@ -1,0 +1,261 @@
+"""The clock estimator: board time -> host time from ``a2jClock`` exchanges.  Pure code.
+
+Theory of operation
+-------------------
+One exchange gives four stamps: ``t1`` host ns just before the request was written, ``t2`` board
+µs when the request's last byte arrived, ``t3`` board µs just before the reply's first byte, and
+``t4`` host ns when the reply had been read.  Causality alone gives two *hard* constraints on
+the true map ``H`` (board µs -> host ns)::
+
+    t1 + up_min   <= H(t2 + res)        the request was sent before it arrived
+    H(t3)         <= t4 - down_min      the reply was sent before it was read
+
+(``res``: the board tick, since a stamp is the tick *before* the event; ``up_min``/``down_min``:
+delays known to be in every exchange, e.g. the reply's bytes on a UART after the first one.)
+
+Model: ``H(b) = h_ref + (b - b_ref) * 1000 * (1 + k)`` over a window of recent exchanges, in
+residual coordinates ``r = host_us - board_us`` relative to the newest exchange, where the
+lower constraints are points the line must pass above and the upper ones points it must pass
+below (TICSync, Harrison & Newman 2011; linuxptp's linreg servo).
+
+Each ``add``:
+  1. sanity: ``t1 <= t4``, ``t2 <= t3``; a board time below the previous exchange's means the
+     board clock restarted -> ``RESET`` (the caller starts over and flags a step);
+  2. window: exchanges within ``window_s`` of board time; beyond ``max_points`` the one whose
+     tighter constraint is loosest goes (the newest quarter always stays);
+  3. skew and offset by weighted least squares on the exchange midpoints, weights falling with
+     the exchange's delay above the window's smallest (a slow exchange says little);
+  4. hard skew range from pairs of constraints far apart in time; the skew is clamped into it;
+  5. hard offset band at the newest exchange: every constraint, moved to ``b_ref`` along the
+     fitted skew and widened by the skew uncertainty (plus an allowance for frequency wander
+     over the window); the offset is clamped into the band;
+  6. an empty band (the window no longer fits one line: the clock's rate wandered) drops the
+     oldest exchanges until it fits again - this is what makes the window adaptive.
+
+The estimate carries the band, so any board time maps to host time with a hard interval that
+widens with the distance from the newest exchange.  Everything is float µs relative to the
+newest exchange, so the numbers stay small whatever the uptime.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+#: The skew range assumed before two exchanges are far enough apart to bound it.  Ceramic
+#: resonators are within ±0.5 %; crystals are far better.
+MAX_SKEW = 5000e-6
+
+
+@dataclass(frozen=True)
+class Exchange:
+    """One ``a2jClock`` round trip."""
+
+    t1: int  #: host ns (CLOCK_MONOTONIC), just before the request was written
+    t2: int  #: board µs, when the request's last byte arrived
+    t3: int  #: board µs, just before the reply's first byte
+    t4: int  #: host ns, when the reply had been read
+    down_min_ns: int = 0  #: delay every reply has after t3 (its bytes on a slow link)
+
+    @property
+    def rtt_ns(self) -> int:
+        return self.t4 - self.t1
+
+    @property
+    def delay_ns(self) -> float:
+        """Round trip minus the board's own time between t2 and t3."""
+        return (self.t4 - self.t1) - (self.t3 - self.t2) * 1000.0
+
+
+class AddResult(Enum):
+    ACCEPTED = "accepted"
+    REJECTED = "rejected"  #: malformed stamps (t4 < t1 or t3 < t2); the estimate is unchanged
+    RESET = "reset"  #: board time went backwards: the board restarted; call reset()
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The fitted map at one moment, with its hard band."""
+
+    b_ref: int  #: board µs of the newest exchange (t3)
+    h_ref: float  #: host ns the map gives at b_ref
+    rate: float  #: host ns per board µs (1000 * (1 + skew))
+    lo_ns: float  #: hard band at b_ref, relative to h_ref (<= 0)
+    hi_ns: float  #: (>= 0)
+    dskew: float  #: hard skew uncertainty used to widen the band away from b_ref
+    points: int  #: exchanges in the window
+    span_s: float  #: board time the window covers
+    min_delay_ns: float  #: the window's smallest exchange delay
+    consistent: bool  #: False when even the smallest window violated a constraint
+
+    @property
+    def skew(self) -> float:
+        return self.rate / 1000.0 - 1.0
+
+    @property
+    def width_ns(self) -> float:
+        return self.hi_ns - self.lo_ns
+
+    @property
+    def sigma_ns(self) -> float:
+        """1-sigma error if the truth lies anywhere in the band with equal probability."""
+        return self.width_ns / (2.0 * math.sqrt(3.0))
+
+    def host_at(self, board_us: int) -> float:
+        return self.h_ref + (board_us - self.b_ref) * self.rate
+
+    def interval(self, board_us: int) -> tuple[float, float]:
+        """Hard [lower, upper] host ns for board time ``board_us``."""
+        d = board_us - self.b_ref
+        centre = self.h_ref + d * self.rate
+        widen = abs(d) * 1000.0 * self.dskew
+        return centre + self.lo_ns - widen, centre + self.hi_ns + widen
+
+
+class ClockEstimator:
+    """Offset and skew of one board clock.  Feed ``add(Exchange)``; read ``estimate``."""
+
+    def __init__(
+        self,
+        *,
+        res_us: int = 1,
+        window_s: float = 30.0,
+        max_points: int = 128,
+        min_points: int = 3,
+        wander_per_s: float = 0.05e-6,
+        floor_us: float = 1.0,
+    ) -> None:
+        if max_points < min_points or min_points < 1:
+            raise ValueError("need 1 <= min_points <= max_points")
+        self.res_us = max(1, int(res_us))
+        self.window_s = window_s
+        self.max_points = max_points
+        self.min_points = min_points
+        self.wander_per_s = wander_per_s  #: assumed bound on how fast the rate can change
+        self.floor_us = floor_us  #: delay noise floor in the weights (stamping jitter)
+        self.points: deque[Exchange] = deque()
+        self.estimate: Estimate | None = None
+        self.accepted = 0
+        self.rejected = 0
+        self.trimmed = 0  #: exchanges dropped because the window stopped fitting one line
+
+    def reset(self) -> None:
+        self.points.clear()
+        self.estimate = None
+
+    def add(self, ex: Exchange) -> AddResult:
+        if ex.t4 < ex.t1 or ex.t3 < ex.t2:
+            self.rejected += 1
+            return AddResult.REJECTED
+        if self.points and ex.t2 < self.points[-1].t3:
+            return AddResult.RESET
+        self.points.append(ex)
+        self.accepted += 1
+        while len(self.points) > self.min_points and (ex.t3 - self.points[0].t2) > self.window_s * 1e6:
+            self.points.popleft()
+        if len(self.points) > self.max_points:
+            self._evict()
+        while True:
+            est = self._fit()
+            if est.consistent or len(self.points) <= self.min_points:
+                break
+            self.points.popleft()
+            self.trimmed += 1
+        self.estimate = est
+        return AddResult.ACCEPTED
+
+    def _evict(self) -> None:
+        """Drop the exchange that constrains least: the one whose tighter side is loosest
+        against the current estimate (an NTP-style clock filter, per side).  The newest
+        quarter is kept whatever its delays, so the window keeps reaching the present."""
+        est = self.estimate
+        pts = self.points
+        if est is None:
+            pts.popleft()
+            return
+        res = self.res_us
+        keep = len(pts) - max(1, len(pts) // 4)
+        worst, worst_slack = 0, -math.inf
+        for i in range(keep):
+            p = pts[i]
+            slack = min(est.host_at(p.t2 + res) - p.t1, p.t4 - p.down_min_ns - est.host_at(p.t3))
+            if slack > worst_slack:
+                worst, worst_slack = i, slack
+        del pts[worst]
+
+    # ---- the fit -----------------------------------------------------------------------------
+    def _fit(self) -> Estimate:
+        pts = self.points
+        n = len(pts)
+        newest = pts[-1]
+        b_ref = newest.t3
+        h_ref = (newest.t1 + newest.t4) / 2.0  # ns; only an origin
+        res = float(self.res_us)
+        t1 = np.fromiter((p.t1 for p in pts), float, n)
+        t2 = np.fromiter((p.t2 for p in pts), float, n)
+        t3 = np.fromiter((p.t3 for p in pts), float, n)
+        t4 = np.fromiter((p.t4 - p.down_min_ns for p in pts), float, n)
+        # residual coordinates: x = board µs - b_ref, r = (host - h_ref)/1000 - x
+        xl = t2 + res - b_ref
+        rl = (t1 - h_ref) / 1000.0 - xl
+        xu = t3 - b_ref
+        ru = (t4 - h_ref) / 1000.0 - xu
+        xm = (t2 + t3) / 2.0 - b_ref
+        rm = ((t1 + t4) / 2.0 - h_ref) / 1000.0 - xm
+        delay = (t4 - t1) / 1000.0 - (t3 - t2)
+        dmin = float(delay.min())
+        w = 1.0 / (self.floor_us**2 + (delay - dmin) ** 2)
+
+        # hard skew range from pairs of constraints (later upper vs earlier lower and v.v.)
+        kmin, kmax = -MAX_SKEW, MAX_SKEW
+        sep = 1000.0  # µs: pairs closer than this bound the skew too loosely to matter
+        dx = xu[None, :] - xl[:, None]  # [i lower, j upper]
+        m = dx > sep
+        if m.any():
+            kmax = min(kmax, float(((ru[None, :] - rl[:, None])[m] / dx[m]).min()))
+        dx2 = xl[None, :] - xu[:, None]  # [i upper, j lower]
+        m2 = dx2 > sep
+        if m2.any():
+            kmin = max(kmin, float(((rl[None, :] - ru[:, None])[m2] / dx2[m2]).max()))
+        consistent = kmin <= kmax
+
+        # weighted least squares on the midpoints
+        sw = float(w.sum())
+        mx = float((w * xm).sum()) / sw
+        mr = float((w * rm).sum()) / sw
+        sxx = float((w * (xm - mx) ** 2).sum())
+        prev = self.estimate
+        if sxx > 0 and (xm.max() - xm.min()) > sep:
+            k = float((w * (xm - mx) * (rm - mr)).sum()) / sxx
+        else:
+            k = prev.skew if prev is not None else 0.0
+        if consistent:
+            k = min(max(k, kmin), kmax)
+        c = mr - k * mx  # residual at x = 0
+
+        span_s = (t3.max() - t2.min()) / 1e6
+        dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
+        lo = float((rl - k * xl - dk * np.abs(xl)).max())
+        hi = float((ru - k * xu + dk * np.abs(xu)).min())
+        if lo > hi:
+            consistent = False
+            c = (lo + hi) / 2.0
+            lo = hi = c
+        else:
+            c = min(max(c, lo), hi)
+        return Estimate(
+            b_ref=int(b_ref),
+            h_ref=h_ref + c * 1000.0,
+            rate=1000.0 * (1.0 + k),
+            lo_ns=(lo - c) * 1000.0,
+            hi_ns=(hi - c) * 1000.0,
+            dskew=dk,
+            points=n,
+            span_s=span_s,
+            min_delay_ns=dmin * 1000.0,
+            consistent=consistent,
+        )

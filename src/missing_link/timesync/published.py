@@ -1,0 +1,103 @@
+"""The published map: what samples are stamped with.  Continuous, strictly increasing.  Pure code.
+
+Theory of operation
+-------------------
+The estimator's best line moves a little with every exchange; stamping samples with it directly
+would make host times jump (and sometimes go backwards).  The published map is instead a chain
+of line segments in board time, each starting where the previous one ends (continuity), with a
+rate within ``max_slew`` of the estimator's (so it is always strictly increasing):
+
+    steer(estimate):  anchor a new segment at the newest board time already mapped (or the
+                      estimate's reference, whichever is later), at the current published value;
+                      it slews at ``-error / tau`` (at most ``max_slew``) until the error is gone,
+                      then a second segment continues at the estimate's rate.
+
+So the published map reaches the estimate in ``tau`` (longer only when the slew limit binds),
+never overshoots even if no further exchange comes, and never steps.  Only
+``start()`` steps: at the first estimate and after a board reset; the caller flags it.  Segments
+are anchored at or after every board time already mapped, so a value once published is never
+contradicted by a later segment.  A short history of segments maps samples that arrive late.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+
+from .estimator import Estimate
+
+MAX_SLEW = 500e-6  # relative rate correction (500 ppm, like adjtime)
+
+
+class PublishedMap:
+    def __init__(self, *, max_slew: float = MAX_SLEW, tau_s: float = 2.0, history: int = 256):
+        self.max_slew = max_slew
+        self.tau_us = tau_s * 1e6
+        self.history = history
+        self._anchors: list[int] = []  # board µs
+        self._segs: list[tuple[int, float, float]] = []  # (board µs, host ns, ns per µs)
+        self.newest_mapped: int | None = None
+        self._floor = 0
+        self.steps = 0
+
+    @property
+    def started(self) -> bool:
+        return bool(self._segs)
+
+    def start(self, est: Estimate) -> None:
+        """Step to the estimate (start, or after a reset)."""
+        self._segs = [(est.b_ref, est.h_ref, est.rate)]
+        self._anchors = [est.b_ref]
+        self._floor = est.b_ref
+        self.newest_mapped = None
+        self.steps += 1
+
+    def steer(self, est: Estimate) -> float:
+        """Bend the map towards ``est``; returns the published-minus-estimate error (ns)."""
+        if not self._segs:
+            self.start(est)
+            return 0.0
+        # Anchor no earlier than the last steer or any board time already mapped; the segment
+        # that ends the previous slew may lie beyond that, in the future: it is replaced.
+        b = max(est.b_ref, self._floor)
+        if self.newest_mapped is not None and self.newest_mapped > b:
+            b = self.newest_mapped
+        self._floor = b
+        h = self.at(b)
+        err = h - est.host_at(b)
+        # Segments anchored after b lie in the future (nothing was mapped with them): replace.
+        while len(self._anchors) > 1 and self._anchors[-1] > b:
+            self._anchors.pop()
+            self._segs.pop()
+        if self._anchors[-1] >= b:
+            self._anchors.pop()
+            self._segs.pop()
+        # Remove err within tau, or slower when the slew limit binds.
+        dur = max(self.tau_us, abs(err) / (self.max_slew * est.rate))
+        self._segs.append((b, h, est.rate - err / dur))
+        self._anchors.append(b)
+        end = b + max(1, round(dur))
+        self._segs.append((end, h + (end - b) * (est.rate - err / dur), est.rate))
+        self._anchors.append(end)
+        if len(self._segs) > self.history:
+            del self._segs[:2]
+            del self._anchors[:2]
+        return err
+
+    def at(self, board_us: int) -> float:
+        """Published host ns for a board time (no bookkeeping)."""
+        segs = self._segs
+        b0, h0, rate = segs[-1]
+        if board_us < b0:
+            i = bisect_right(self._anchors, board_us) - 1
+            b0, h0, rate = segs[max(i, 0)]
+        return h0 + (board_us - b0) * rate
+
+    def map(self, board_us: int) -> float:
+        """Published host ns for a sample's board time; remembers the newest one mapped."""
+        if self.newest_mapped is None or board_us > self.newest_mapped:
+            self.newest_mapped = board_us
+        return self.at(board_us)
+
+    @property
+    def rate(self) -> float:
+        return self._segs[-1][2] if self._segs else 1000.0

@@ -1,0 +1,429 @@
+"""Clock and link models, the anchor methods, and a scenario runner.  Pure, seeded, no I/O.
+
+Used by ``bench/bench_timesync.py`` and the tests.  Host time is the truth (ns from 0); a board
+clock is a function of it; a link turns a send time into an arrival time (or a loss).
+
+Link models (delays in µs; every one also has heavy tails, load bursts and loss):
+
+``pty``    two processes on one machine: ~8-9 µs floor per direction plus exponential jitter,
+           a 3 % Pareto tail (scheduling), 0.2-1 s bursts of load every ~20 s, 0.5 % loss.
+``usb``    USB full speed, 1 ms frames: the request goes out within the frame (~25 µs), the
+           reply's completion is reported at the end of the frame it moved in (UHCI/OHCI
+           interrupt-on-complete / done-queue write-back), then host interrupt latency.
+``ftdi``   a UART at 921600 Bd behind an FTDI-like bridge with a 1 ms latency timer: bytes take
+           10.85 µs each; the bridge hands received bytes to USB on its free-running 1 ms timer
+           (its own crystal), and an xHCI-style host completes that transfer at once.
+           The host knows the baud rate, so each exchange carries the reply's time on the wire.
+
+Methods (every one sees exchanges drawn from the same link and clock):
+
+``missing-link``  this package's ClockSync with its own probe schedule;
+``cristian``      micro-ROS style: one exchange (every 1 s), offset from its midpoint, no skew;
+``rosserial``     host stamp of the board's message + the whole round trip, ms resolution,
+                  re-synced every 2.5 s, no skew (maps board t3 to host t4);
+``px4``           PX4/MAVLink TIMESYNC style: 10 Hz, exchanges with RTT < 10 ms, exponential
+                  filter on the midpoint offset plus a skew term, gains 0.05 -> 0.003 over the
+                  first 500 exchanges.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from .estimator import Exchange
+from .sync import ClockSync, SyncOptions
+
+NS = 1_000
+MS = 1_000_000
+S = 1_000_000_000
+
+
+# ---- board clocks ------------------------------------------------------------------------------
+class BoardClock:
+    """Free-running µs counter: offset + (1 + skew + wander(t)) * t, floored to whole ticks.
+
+    Wander: a random walk of the rate (``walk`` per sqrt(s)) plus a slow sinusoid (temperature).
+    """
+
+    def __init__(
+        self,
+        rng: random.Random,
+        duration_s: float,
+        *,
+        skew: float = 100e-6,
+        walk: float = 0.01e-6,
+        sine: float = 1e-6,
+        sine_period_s: float = 600.0,
+    ) -> None:
+        self.offset_us = rng.uniform(1e6, 1e9)
+        dt = 0.1
+        n = int(duration_s / dt) + 3
+        steps = np.array([rng.gauss(0.0, walk * math.sqrt(dt)) for _ in range(n)])
+        phase = rng.uniform(0, 2 * math.pi)
+        t = np.arange(n) * dt
+        rate = skew + np.cumsum(steps) + sine * np.sin(2 * math.pi * t / sine_period_s + phase)
+        self._t = t
+        self._int = np.concatenate(([0.0], np.cumsum((rate[1:] + rate[:-1]) / 2 * dt)))  # s
+        self.skew = skew
+
+    def us(self, t_ns: float) -> int:
+        ts = t_ns / S
+        extra = float(np.interp(ts, self._t, self._int))
+        return math.floor(self.offset_us + (ts + extra) * 1e6)
+
+
+# ---- links -------------------------------------------------------------------------------------
+class Link:
+    name = "link"
+    byte_ns = 0.0  # time on the wire per byte after t3 (0: not a byte-serial link)
+
+    def __init__(self, rng: random.Random, duration_s: float) -> None:
+        self.rng = rng
+        self.bursts: list[tuple[float, float]] = []
+        t = rng.expovariate(1 / 20.0)
+        while t < duration_s:
+            d = rng.uniform(0.2, 1.0)
+            self.bursts.append((t * S, (t + d) * S))
+            t += d + rng.expovariate(1 / 20.0)
+
+    def _burst(self, t: float) -> float:
+        for a, b in self.bursts:
+            if a <= t < b:
+                return self.rng.expovariate(1 / 200.0) * NS
+            if a > t:
+                break
+        return 0.0
+
+    def _tail(self, p: float = 0.03, scale_us: float = 15.0) -> float:
+        if self.rng.random() < p:
+            return min(self.rng.paretovariate(1.5) * scale_us, 3000.0) * NS
+        return 0.0
+
+    def lost(self) -> bool:
+        return self.rng.random() < 0.005
+
+    def up(self, t: float) -> float:
+        """Arrival of the request's last byte at the board."""
+        raise NotImplementedError
+
+    def down(self, t: float, nbytes: int) -> float:
+        """Host time the reply (first byte leaving at t) has been read."""
+        raise NotImplementedError
+
+    def board_stamp_lag(self) -> float:
+        """From the request's arrival to the board's t2 stamp."""
+        return self.rng.expovariate(1 / 1.0) * NS
+
+    def board_turnaround(self) -> float:
+        """From the t2 stamp to the t3 stamp."""
+        return (10.0 + self.rng.expovariate(1 / 5.0)) * NS
+
+
+class PtyLink(Link):
+    name = "pty"
+
+    def up(self, t: float) -> float:
+        r = self.rng
+        return t + (8.0 + r.expovariate(1 / 3.0)) * NS + self._tail() + self._burst(t)
+
+    def down(self, t: float, nbytes: int) -> float:
+        r = self.rng
+        return t + (9.0 + r.expovariate(1 / 3.0)) * NS + self._tail() + self._burst(t)
+
+
+class UsbFullSpeedLink(Link):
+    name = "usb"
+    frame_ns = 1 * MS
+
+    def __init__(self, rng: random.Random, duration_s: float) -> None:
+        super().__init__(rng, duration_s)
+        self.phase = rng.uniform(0, self.frame_ns)
+        # The frame clock is the host controller's crystal, not the CPU's: ±50 ppm apart.
+        self.frame_ns = MS * (1 + rng.uniform(-50e-6, 50e-6))
+
+    def up(self, t: float) -> float:
+        r = self.rng
+        return t + (25.0 + r.expovariate(1 / 20.0)) * NS + self._tail() + self._burst(t)
+
+    def _frame_end(self, t: float) -> float:
+        f = self.frame_ns
+        return math.floor((t - self.phase) / f + 1) * f + self.phase
+
+    def down(self, t: float, nbytes: int) -> float:
+        r = self.rng
+        moved = t + (5.0 + nbytes * 0.7) * NS  # the IN packet, 12 Mbit/s
+        done = self._frame_end(moved)
+        return done + (10.0 + r.expovariate(1 / 10.0)) * NS + self._tail() + self._burst(t)
+
+
+class FtdiUartLink(UsbFullSpeedLink):
+    name = "ftdi"
+    baud = 921_600
+    request_bytes = 5
+
+    def __init__(self, rng: random.Random, duration_s: float) -> None:
+        super().__init__(rng, duration_s)
+        self.byte_ns = 10 * S / self.baud
+        self.timer_phase = rng.uniform(0, MS)
+        self.timer_ns = MS * (1 + rng.uniform(-50e-6, 50e-6))  # the bridge's own crystal
+
+    def up(self, t: float) -> float:
+        at_bridge = super().up(t)
+        return at_bridge + self.request_bytes * self.byte_ns
+
+    def down(self, t: float, nbytes: int) -> float:
+        r = self.rng
+        last = t + nbytes * self.byte_ns
+        tick = math.ceil((last - self.timer_phase) / self.timer_ns) * self.timer_ns + self.timer_phase
+        # The bridge's pending bulk IN is serviced within the frame (an xHCI host reports the
+        # completion at once), then host interrupt latency.
+        usb = tick + (20.0 + r.expovariate(1 / 20.0)) * NS
+        return usb + (10.0 + r.expovariate(1 / 10.0)) * NS + self._tail() + self._burst(t)
+
+
+LINKS: dict[str, type[Link]] = {"pty": PtyLink, "usb": UsbFullSpeedLink, "ftdi": FtdiUartLink}
+
+
+# ---- methods -----------------------------------------------------------------------------------
+class Method(Protocol):
+    name: str
+
+    def due(self) -> float: ...  # host s of the next probe
+    def on_exchange(self, ex: Exchange, now: float) -> None: ...
+    def on_lost(self, now: float) -> None: ...
+    def map(self, board_us: int) -> tuple[float, float | None] | None: ...
+
+
+class Ours:
+    name = "missing-link"
+
+    def __init__(self, options: SyncOptions | None = None) -> None:
+        self.sync = ClockSync(options)
+        self.sync.start(0.0)
+
+    def due(self) -> float:
+        return self.sync.due()
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self.sync.on_exchange(ex, now)
+
+    def on_lost(self, now: float) -> None:
+        self.sync.on_lost(now)
+
+    def map(self, board_us: int) -> tuple[float, float | None] | None:
+        m = self.sync.map(board_us)
+        return None if m is None else (m.host_ns, m.bound_ns)
+
+
+class _Periodic:
+    period = 1.0
+
+    def __init__(self) -> None:
+        self._next = 0.0
+
+    def due(self) -> float:
+        return self._next
+
+    def on_lost(self, now: float) -> None:
+        self._next = now + self.period
+
+
+class Cristian(_Periodic):
+    """micro-ROS style: offset from one exchange's midpoint, no skew, replaced at every sync."""
+
+    name = "cristian"
+    period = 1.0
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.offset: float | None = None
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self.offset = (ex.t1 + ex.t4) / 2 - (ex.t2 + ex.t3) / 2 * 1000
+        self._next = now + self.period
+
+    def map(self, board_us: int) -> tuple[float, float | None] | None:
+        return None if self.offset is None else (board_us * 1000 + self.offset, None)
+
+
+class Rosserial(_Periodic):
+    """rosserial style: the board's message time is the host's receive stamp (the whole trip
+    added), and board time counts in milliseconds; re-synced every 2.5 s, no skew."""
+
+    name = "rosserial"
+    period = 2.5
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.anchor: tuple[float, int] | None = None
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self.anchor = (float(ex.t4), ex.t3 // 1000)
+        self._next = now + self.period
+
+    def map(self, board_us: int) -> tuple[float, float | None] | None:
+        if self.anchor is None:
+            return None
+        h, ms = self.anchor
+        return h + (board_us // 1000 - ms) * 1e6, None
+
+
+class Px4(_Periodic):
+    """PX4/MAVLink TIMESYNC style filter (offset EMA + skew term, RTT < 10 ms)."""
+
+    name = "px4"
+    period = 0.1
+    WINDOW = 500
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.offset: float | None = None
+        self.skew = 0.0
+        self.n = 0
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self._next = now + self.period
+        if ex.rtt_ns >= 10 * MS:
+            return
+        sample = (ex.t1 + ex.t4) / 2 - (ex.t2 + ex.t3) / 2 * 1000
+        if self.offset is None:
+            self.offset = sample
+        else:
+            if self.n < self.WINDOW:
+                progress = self.n / self.WINDOW
+                p = 1.0 - math.exp(0.5 * (1.0 - 1.0 / (1.0 - progress)))
+                gain = p * 0.003 + (1 - p) * 0.05
+            else:
+                gain = 0.003
+            prev = self.offset
+            self.offset = gain * sample + (1 - gain) * (self.offset + self.skew)
+            self.skew = gain * (self.offset - prev) + (1 - gain) * self.skew
+        self.n += 1
+
+    def map(self, board_us: int) -> tuple[float, float | None] | None:
+        return None if self.offset is None else (board_us * 1000 + self.offset, None)
+
+
+METHODS: dict[str, Callable[[], Method]] = {
+    "missing-link": Ours,
+    "cristian": Cristian,
+    "rosserial": Rosserial,
+    "px4": Px4,
+}
+
+
+# ---- the scenario runner -----------------------------------------------------------------------
+@dataclass
+class Result:
+    method: str
+    link: str
+    seed: int
+    errors_ns: np.ndarray = field(repr=False)  # after warm-up
+    backwards: int  # samples whose host time went below the previous sample's
+    covered: float | None  # fraction of samples inside the reported bound (None: no bound)
+    first_bound_s: float | None  # first estimate with a bound < 1 ms
+    settle_s: float | None  # from then on |error| stays under settle_us
+    exchanges: int
+    lost: int
+
+    def pct(self, q: float) -> float:
+        return float(np.percentile(np.abs(self.errors_ns), q)) / 1000.0
+
+
+def run(
+    method: str,
+    link: str,
+    seed: int,
+    *,
+    duration_s: float = 120.0,
+    warmup_s: float = 10.0,
+    sample_hz: float = 100.0,
+    settle_us: float = 50.0,
+    timeout_s: float = 0.1,
+) -> Result:
+    rng = random.Random(f"{seed}:clock")
+    clock = BoardClock(rng, duration_s + 1)
+    lk = LINKS[link](random.Random(f"{seed}:link"), duration_s + 1)
+    m = METHODS[method]()
+    srng = random.Random(f"{seed}:samples")
+    wake = random.Random(f"{seed}:wake")
+    period = S / sample_hz
+    t_sample = srng.uniform(0, period)
+    arrival_lag = 1.5 * MS  # samples are mapped when they reach the host (after any exchange)
+    errors: list[float] = []
+    prev_h: float | None = None
+    backwards = 0
+    inside = total = 0
+    last_bad = 0.0
+    first_bound: float | None = None
+    exchanges = lost = 0
+    now = 0.0
+
+    def samples_until(t_host: float) -> None:
+        nonlocal t_sample, prev_h, backwards, inside, total, last_bad, first_bound
+        while t_sample + arrival_lag < t_host and t_sample < duration_s * S:
+            b = clock.us(t_sample)
+            got = m.map(b)
+            if got is not None:
+                h, bound = got
+                err = h - t_sample
+                if prev_h is not None and h < prev_h:
+                    backwards += 1
+                prev_h = h
+                if bound is not None:
+                    total += 1
+                    inside += abs(err) <= bound
+                    if first_bound is None and bound < 1 * MS:
+                        first_bound = t_sample / S
+                if abs(err) > settle_us * 1000:
+                    last_bad = t_sample
+                if t_sample >= warmup_s * S:
+                    errors.append(err)
+            t_sample += period
+
+    while now < duration_s:
+        now = max(now, m.due())
+        now += wake.uniform(0, 60e-6)  # a sleeping thread wakes up to ~60 µs late
+        t1 = now * S
+        samples_until(t1)
+        if lk.lost():
+            lost += 1
+            now += timeout_s
+            samples_until(now * S)
+            m.on_lost(now)
+            continue
+        arrive = lk.up(t1)
+        t2_true = arrive + lk.board_stamp_lag()
+        t3_true = t2_true + lk.board_turnaround()
+        nbytes = 21 + (lk.rng.random() < 0.1)  # a2jClock reply frame, sometimes one stuffed byte
+        t4 = lk.down(t3_true, nbytes)
+        ex = Exchange(
+            int(t1),
+            clock.us(t2_true),
+            clock.us(t3_true),
+            int(t4),
+            down_min_ns=int(nbytes * lk.byte_ns),
+        )
+        samples_until(t4)
+        now = t4 / S
+        m.on_exchange(ex, now)
+        exchanges += 1
+    samples_until(duration_s * S + arrival_lag + 1)
+    return Result(
+        method,
+        link,
+        seed,
+        np.array(errors),
+        backwards,
+        inside / total if total else None,
+        first_bound,
+        last_bad / S,
+        exchanges,
+        lost,
+    )

@@ -1,0 +1,232 @@
+"""One board's clock synchronisation: estimator + published map + probe schedule.  Pure code.
+
+Theory of operation
+-------------------
+States::
+
+    unsynced --first exchange--> burst --burst_count exchanges--> tracking
+    tracking --timeout / exchange outside the predicted band--> fast --fast_count--> tracking
+    any --board time went backwards (reset)--> unsynced (the next estimate steps the map)
+
+The shell asks ``due()`` when to probe next, runs an ``a2jClock`` exchange and reports it with
+``on_exchange`` (or ``on_lost`` after a timeout).  Probing is fast on connect (``burst``); while
+tracking, the interval doubles towards ``interval`` as long as the bound is within ``target``
+and halves towards ``fast_interval`` while it is not (a link with widely spread delays needs
+more exchanges to find the few fast ones); it goes fast at once when an exchange is lost or
+lands outside the band the estimate predicted for it (the clock rate moved).  ``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a 1-sigma
+estimate, a hard bound and flags; it is the only call made from the sample path, and it is
+cheap.  ``now`` is always passed in; a lock makes ``map`` safe against a concurrent
+``on_exchange`` (the sample path and the prober run on different threads).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+from .estimator import AddResult, ClockEstimator, Estimate, Exchange
+from .published import PublishedMap
+
+UNSYNCED, BURST, TRACKING, FAST = "unsynced", "burst", "tracking", "fast"
+
+#: Update/sample flags
+STEP = 1  #: the map stepped at this sample (first sample after start or a board reset)
+NOT_SYNCED = 2  #: no estimate yet: the host time is not from the clock map, the bound is unknown
+
+
+@dataclass
+class SyncOptions:
+    burst_interval: float = 0.02  #: s between probes right after connecting or a reset
+    burst_count: int = 25  #: exchanges in the burst
+    interval: float = 0.5  #: s between probes once tracking (reached by doubling)
+    fast_interval: float = 0.05  #: s between probes after a loss or a surprise
+    fast_count: int = 10
+    target_us: float = 20.0  #: bound under which probing slows down (above: speeds up)
+    window_s: float = 30.0
+    max_points: int = 128
+    res_us: int = 1
+    tau_s: float = 2.0  #: time constant of the published map's slew
+    max_slew: float = 500e-6
+
+
+@dataclass(frozen=True)
+class Mapped:
+    host_ns: int  #: CLOCK_MONOTONIC ns
+    sigma_ns: int
+    bound_ns: int  #: hard: |host_ns - truth| <= bound_ns (-1: unknown)
+    flags: int
+
+
+class ClockSync:
+    def __init__(self, options: SyncOptions | None = None, seed: int | None = None) -> None:
+        self.opt = options or SyncOptions()
+        # Probe times are dithered: a schedule locked to the link's own period (USB frames, a
+        # bridge's latency timer) would see the same delays every time and learn nothing.
+        self._rng = random.Random(seed)
+        o = self.opt
+        self.estimator = ClockEstimator(res_us=o.res_us, window_s=o.window_s, max_points=o.max_points)
+        self.map_ = PublishedMap(max_slew=o.max_slew, tau_s=o.tau_s)
+        self.state = UNSYNCED
+        self._lock = threading.Lock()
+        self._next = 0.0
+        self._interval = o.burst_interval
+        self._count = 0  # exchanges in the current state
+        self._step_pending = False
+        self.exchanges = 0
+        self.lost = 0
+        self.resets = 0
+        self.surprises = 0
+        self.last_rtt_ns: int | None = None
+        self.min_rtt_ns: int | None = None
+        self.last_error_ns = 0.0  # published - estimate at the last steer
+        self.started_at: float | None = None
+        self.first_bound_at: float | None = None  # s after start when the bound fell below 1 ms
+
+    # ---- schedule ----------------------------------------------------------------------------
+    def start(self, now: float) -> None:
+        self.started_at = now
+        self._enter(BURST if self.state == UNSYNCED else self.state, now)
+        self._next = now
+
+    def due(self) -> float:
+        return self._next
+
+    def _enter(self, state: str, now: float) -> None:
+        self.state = state
+        self._count = 0
+        o = self.opt
+        self._interval = {BURST: o.burst_interval, FAST: o.fast_interval}.get(
+            state, min(o.fast_interval * 2, o.interval)
+        )
+
+    def _advance(self, now: float, ok: bool) -> None:
+        o = self.opt
+        self._count += 1
+        est = self.estimator.estimate
+        good = est is not None and max(-est.lo_ns, est.hi_ns) <= o.target_us * 1000
+        if self.state in (BURST, FAST):
+            done = o.burst_count if self.state == BURST else o.fast_count
+            if self._count >= done:
+                self._enter(TRACKING, now)
+        elif good and ok and self._count % 4 == 0:
+            self._interval = min(o.interval, self._interval * 2)  # within target: slow down
+        elif not good:
+            self._interval = max(o.fast_interval, self._interval / 2)  # a wide band: speed up
+        self._next = now + self._interval * self._rng.uniform(0.75, 1.25)
+
+    # ---- input -------------------------------------------------------------------------------
+    def on_exchange(self, ex: Exchange, now: float) -> AddResult:
+        self.exchanges += 1
+        rtt = ex.rtt_ns
+        self.last_rtt_ns = rtt
+        if self.min_rtt_ns is None or rtt < self.min_rtt_ns:
+            self.min_rtt_ns = rtt
+        with self._lock:
+            prior = self.estimator.estimate
+            result = self.estimator.add(ex)
+            if result is AddResult.RESET:
+                self._reset_locked(now)
+                result = self.estimator.add(ex)
+                result = AddResult.RESET if result is AddResult.ACCEPTED else result
+            est = self.estimator.estimate
+            if est is not None and result is not AddResult.REJECTED:
+                if not self.map_.started:
+                    self.map_.start(est)
+                    self._step_pending = True
+                else:
+                    self.last_error_ns = self.map_.steer(est)
+        surprise = False
+        if prior is not None and result is AddResult.ACCEPTED:
+            _, hi2 = prior.interval(ex.t2 + self.opt.res_us)
+            lo3, _ = prior.interval(ex.t3)
+            # The exchange proves the truth lies outside the band predicted for it: the rate moved.
+            surprise = ex.t1 > hi2 or ex.t4 - ex.down_min_ns < lo3
+            if surprise:
+                self.surprises += 1
+        if (
+            self.first_bound_at is None
+            and est is not None
+            and self.started_at is not None
+            and est.width_ns / 2 < 1e6
+        ):
+            self.first_bound_at = now - self.started_at
+        if result is AddResult.RESET:
+            self._enter(BURST, now)
+        elif surprise and self.state == TRACKING:
+            self._enter(FAST, now)
+        elif self.state == UNSYNCED:
+            self._enter(BURST, now)
+        self._advance(now, result is AddResult.ACCEPTED)
+        return result
+
+    def on_lost(self, now: float) -> None:
+        self.lost += 1
+        if self.state == TRACKING:
+            self._enter(FAST, now)
+        self._advance(now, False)
+
+    def board_reset(self, now: float) -> None:
+        """The shell saw a reset some other way (a new ``clock.epoch``, samples going back)."""
+        with self._lock:
+            self._reset_locked(now)
+        self._enter(BURST, now)
+        self._next = now
+
+    def _reset_locked(self, now: float) -> None:
+        self.resets += 1
+        self.estimator.reset()
+        self.map_ = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
+        self.state = UNSYNCED
+
+    # ---- output ------------------------------------------------------------------------------
+    @property
+    def estimate(self) -> Estimate | None:
+        return self.estimator.estimate
+
+    def map(self, board_us: int) -> Mapped | None:
+        """Host time of a sample's board stamp; None before the first estimate."""
+        with self._lock:
+            est = self.estimator.estimate
+            if est is None or not self.map_.started:
+                return None
+            h = self.map_.map(board_us)
+            flags = 0
+            if self._step_pending:
+                flags = STEP
+                self._step_pending = False
+        lo, hi = est.interval(board_us)
+        bound = max(h - lo, hi - h)
+        dev = h - est.host_at(board_us)
+        sigma = math.sqrt(est.sigma_ns**2 + dev * dev)
+        return Mapped(round(h), round(sigma), math.ceil(bound), flags)
+
+    def status(self) -> dict[str, Any]:
+        est = self.estimator.estimate
+        out: dict[str, Any] = {
+            "sync_state": self.state,
+            "sync_exchanges": self.exchanges,
+            "sync_lost": self.lost,
+            "sync_resets": self.resets,
+            "sync_surprises": self.surprises,
+            "sync_interval_ms": round(self._interval * 1000, 1),
+            "sync_rtt_us": None if self.last_rtt_ns is None else round(self.last_rtt_ns / 1000, 1),
+            "sync_min_rtt_us": None if self.min_rtt_ns is None else round(self.min_rtt_ns / 1000, 1),
+        }
+        if est is not None:
+            out.update(
+                {
+                    "offset_us": round((est.h_ref - est.b_ref * est.rate) / 1000, 3),
+                    "skew_ppm": round(est.skew * 1e6, 3),
+                    "bound_us": round(max(-est.lo_ns, est.hi_ns) / 1000, 2),
+                    "sigma_us": round(est.sigma_ns / 1000, 2),
+                    "slew_error_us": round(self.last_error_ns / 1000, 2),
+                    "window_points": est.points,
+                    "window_s": round(est.span_s, 1),
+                }
+            )
+        if self.first_bound_at is not None:
+            out["first_bound_ms"] = round(self.first_bound_at * 1000, 1)
+        return out
