@@ -299,6 +299,10 @@ def cmd_board(args: argparse.Namespace) -> int:
                 raise ValueError("--rate and --channels go with --sim rate")
             extra["rate_hz"] = args.rate or 100.0
             extra["channels"] = args.channels or 1
+        if args.clock_offset_us is not None or args.clock_skew_ppm is not None:
+            from .virtual.sims import AffineClock
+
+            extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
@@ -392,6 +396,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--name", help="board.name property (default: the sim's)")
     sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
     sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")
+    sp.add_argument(
+        "--clock-offset-us",
+        type=float,
+        help="board clock = OFFSET + (1 + SKEW) * host CLOCK_MONOTONIC (default: the host's clock)",
+    )
+    sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
     sp.set_defaults(func=cmd_board)
 
     sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -45,6 +46,7 @@ from .j2a import (
     parse_properties,
 )
 from .j2a.blobs import mapping_index
+from .timesync import Exchange
 from .transport import Transport, open_transport
 
 log = logging.getLogger(__name__)
@@ -60,6 +62,8 @@ ProgressFn = Callable[[int, "int | None"], None]
 class CallResult:
     code: int
     payload: bytes
+    sent_ns: int = 0  #: CLOCK_MONOTONIC ns just before the request was written
+    recv_ns: int = 0  #: CLOCK_MONOTONIC ns when the read that completed the reply returned
 
     @property
     def ok(self) -> bool:
@@ -78,6 +82,7 @@ class Board:
         # op -> (future, label for errors, progress callback, is a many-write)
         self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
         self._sif_handlers: dict[int, list[SifHandler]] = {}
+        self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
         self._any_sif: list[SifHandler] = []
         self._stopping = False
         self._closed_reason: BaseException | None = None
@@ -165,6 +170,25 @@ class Board:
     def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
         """Call a function by name; returns its return code and reply payload."""
         return self._wait(self.call_future(name, payload, timeout), timeout)
+
+    def clock_exchange(self, timeout: float | None = None, *, byte_ns: float = 0.0) -> Exchange:
+        """One ``a2jClock`` round trip: host send/receive stamps and the board's two stamps.
+
+        Boards without ``a2jClock`` but with the thesis firmware's ``getTime`` (u64 µs) give a
+        one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
+        time on the wire is known (0: not a byte-serial link, or unknown)."""
+        name = "a2jClock" if "a2jClock" in self.index else "getTime"
+        result = self.call(name, b"", timeout)
+        p = result.payload
+        if result.code != 0 or len(p) not in (8, 16):
+            raise FunctionFailed(self.name, name, result.code, p)
+        if len(p) == 16:
+            t2, t3 = struct.unpack("<QQ", p)
+        else:
+            (t2,) = struct.unpack("<Q", p)
+            t3 = t2
+        # The reply's bytes after t3: at least SOF, seq, code, len, payload, checksum.
+        return Exchange(result.sent_ns, t2, t3, result.recv_ns, int((5 + len(p)) * byte_ns))
 
     def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Call and require return code 0; returns the reply payload."""
@@ -258,11 +282,13 @@ class Board:
                 raise self._lost(label, self._closed_reason)
             op = begin(time.monotonic(), timeout or self.timeout)
             self._futures[op] = (fut, label, progress, write)
+            self._sent[op] = time.monotonic_ns()
             try:
                 self._flush()
             except (TransportBroken, TransportClosed) as e:
                 # The reader thread sees the same failure and fails the rest; this call is ours.
                 self._futures.pop(op, None)
+                self._sent.pop(op, None)
                 raise self._lost(label, e) from e
         return fut
 
@@ -300,14 +326,15 @@ class Board:
                 now = time.monotonic()
                 wait = _TICK if timer is None else max(0.0, min(_TICK, timer - now))
                 data = self.transport.read(wait)
-                now = time.monotonic()
+                now_ns = time.monotonic_ns()
+                now = now_ns / 1e9
                 with self._lock:
                     events = self.conn.receive_data(data, now) if data else []
                     if timer is not None and now >= timer:
                         events += self.conn.handle_timer(now)
                     self._flush()
                 if events:
-                    self._dispatch(events, now)
+                    self._dispatch(events, now, now_ns)
         except (TransportBroken, TransportClosed) as e:
             error = e
         except BaseException as e:
@@ -321,9 +348,9 @@ class Board:
                 FailureReason.CLOSED if isinstance(error, TransportClosed) else FailureReason.BROKEN
             )
             events = self.conn.close(reason, str(error))
-        self._dispatch(events, time.monotonic())
+        self._dispatch(events, time.monotonic(), time.monotonic_ns())
 
-    def _dispatch(self, events: list[Any], now: float) -> None:
+    def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
         for ev in events:
             if isinstance(ev, SifReceived):
                 for h in self._sif_handlers.get(ev.cmd, ()):
@@ -340,15 +367,16 @@ class Board:
             elif isinstance(ev, FrameDamaged):
                 log.debug("%s: damaged frame: %s", self.url, ev.error)
             else:
-                self._resolve(ev)
+                self._resolve(ev, now_ns)
 
-    def _resolve(self, ev: CallCompleted | CallFailed | TransferCompleted) -> None:
+    def _resolve(self, ev: CallCompleted | CallFailed | TransferCompleted, now_ns: int) -> None:
         entry = self._futures.pop(ev.op, None)
+        sent = self._sent.pop(ev.op, 0)
         if entry is None:
             return
         fut, label, _, is_write = entry
         if isinstance(ev, CallCompleted):
-            fut.set_result(CallResult(ev.code, ev.payload))
+            fut.set_result(CallResult(ev.code, ev.payload, sent, now_ns))
         elif isinstance(ev, TransferCompleted):
             if is_write:
                 fut.set_result(ev.status)  # a write reports the function's status

@@ -24,6 +24,13 @@ class BoardSpec:
     name: str | None = None  #: topic prefix; default: the board's board.name property
     descriptors: str | None = None  #: host-side descriptor file (original boards)
     timeout: float = 1.0
+    #: UART baud rate when the board is on a real UART (an FTDI-like bridge): the time its
+    #: replies spend on the wire is then known to clock sync.  0: not a UART, or unknown.
+    uart_baud: int = 0
+
+    @property
+    def byte_ns(self) -> float:
+        return 10e9 / self.uart_baud if self.uart_baud > 0 else 0.0
 
 
 @dataclass
@@ -50,7 +57,13 @@ _DAEMON_KEYS = {
     "backoff_max": (int, float),
     "diagnostics_period": (int, float),
 }
-_BOARD_KEYS = {"url": str, "name": str, "descriptors": str, "timeout": (int, float)}
+_BOARD_KEYS = {
+    "url": str,
+    "name": str,
+    "descriptors": str,
+    "timeout": (int, float),
+    "uart_baud": int,
+}
 
 
 def _type_name(t: Any) -> str:

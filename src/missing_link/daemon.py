@@ -19,10 +19,17 @@ the link breaks the session waits with exponential backoff (``backoff_min`` doub
 ``backoff_max``) and reconnects.  Sessions share nothing but the publishers: one broken board
 never stops another.
 
-Host time (provisional, until clock synchronisation): a sample's host time is its board stamp
-plus the smallest (host receive - board stamp) difference seen so far on that connection, on
-CLOCK_REALTIME.  It is exact in offset up to the link's minimum latency, but it ignores clock
-drift and can step back when a faster delivery lowers the minimum.
+Host time: each session runs a :class:`~missing_link.timesync.ClockSync` on the board's
+``a2jClock`` (or the thesis firmware's ``getTime``).  On connect a short burst of exchanges gives
+the first estimate before any sample is published; then the supervisor thread probes on the
+sync's schedule, and every sample's board stamps go through the published map (continuous,
+strictly increasing) into CLOCK_REALTIME ns, with a 1-sigma estimate and a hard bound on the
+update.  A board time far behind the newest one mapped, or an exchange whose board time went
+backwards, is a board reset: the map restarts (the next update is flagged ``STEP``) and samples
+until the new estimate are flagged ``NOT_SYNCED`` (host time = receive time, bound unknown).
+Boards with neither function get the receive time and ``NOT_SYNCED`` on every sample.  Boards
+with ``a2jHostMap`` are handed the current estimate once a second, so they can act at a host
+time (``Daemon.trigger_at``).
 """
 
 from __future__ import annotations
@@ -37,17 +44,19 @@ from typing import Any
 from .client import Board
 from .config import BoardSpec, Config
 from .descriptors import Transducer, load_descriptor_file
-from .errors import MissingLinkError
+from .errors import CallTimeout, MissingLinkError
 from .j2a import SifReceived
 from .msgs import typestore_for
 from .publishers import Bus, Publisher, make_publisher
 from .publishers.bus import Callback, Subscription
 from .standard import StandardMapping, mapping_for
+from .timesync import NOT_SYNCED, AddResult, ClockSync, SyncOptions
 from .topics import Topic, Update
 
 log = logging.getLogger(__name__)
 
 CONNECTING, UP, BACKOFF, STOPPED = "connecting", "up", "backoff", "stopped"
+_RESET_BACKSTEP_US = 1_000_000  # a sample stamped this far behind the newest: the board restarted
 
 
 class BoardSession:
@@ -69,7 +78,10 @@ class BoardSession:
         self.commands = 0
         self.command_errors = 0
         self.rtt_us: float | None = None
-        self._offset_us: int | None = None
+        self.sync: ClockSync | None = None
+        self.epoch = ""
+        self.map_pushes = 0
+        self._next_push = 0.0
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
@@ -126,8 +138,8 @@ class BoardSession:
         else:
             transducers = board.transducers
         self.name = self.spec.name or board.name
-        self._offset_us = None
         cfg = self.daemon.config
+        self._start_sync(board)
         self.topics = {}
         self.standard = {}
         self.warnings = []
@@ -170,19 +182,80 @@ class BoardSession:
         board = self.board
         assert board is not None
         while not self._stop.is_set() and board.alive:
-            self._wake.wait(max(0.0, min(0.1, next_ping - time.monotonic())))
+            due = next_ping if self.sync is None else min(next_ping, self.sync.due())
+            self._wake.wait(max(0.0, min(0.1, due - time.monotonic())))
             self._wake.clear()
             self._run_commands(board)
-            if time.monotonic() >= next_ping:
+            now = time.monotonic()
+            if self.sync is not None and now >= self.sync.due():
+                self._probe(board, now)
+            if now >= next_ping:
                 next_ping += period
-                try:
-                    t0 = time.perf_counter()
-                    board.call("a2jEcho", b"", timeout=self.spec.timeout)
-                    self.rtt_us = (time.perf_counter() - t0) * 1e6
-                except MissingLinkError as e:
-                    self.error = str(e)
+                if self.sync is None:  # no clock exchanges to measure the round trip with
+                    try:
+                        t0 = time.perf_counter()
+                        board.call("a2jEcho", b"", timeout=self.spec.timeout)
+                        self.rtt_us = (time.perf_counter() - t0) * 1e6
+                    except MissingLinkError as e:
+                        self.error = str(e)
         if not board.alive and not self._stop.is_set():
             self.error = f"link lost: {board.transport.url}"
+
+    # ---- clock synchronisation ---------------------------------------------------------------
+    def _start_sync(self, board: Board) -> None:
+        self.sync = None
+        if "a2jClock" not in board.index and "getTime" not in board.index:
+            self.warnings.append(
+                "no a2jClock or getTime: host times are receive times, without a bound"
+            )
+            return
+        try:
+            res = int(board.properties.get("clock.res_us", "1") or 1)
+        except ValueError:
+            res = 1
+        self.epoch = board.properties.get("clock.epoch", "")
+        sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
+        sync.start(time.monotonic())
+        # A first estimate before any sample is published: a few back-to-back exchanges.
+        for _ in range(8):
+            self._probe(board, time.monotonic(), sync)
+        self.sync = sync
+        self._next_push = 0.0
+
+    def _probe(self, board: Board, now: float, sync: ClockSync | None = None) -> None:
+        sync = sync or self.sync
+        assert sync is not None
+        try:
+            ex = board.clock_exchange(self.spec.timeout, byte_ns=self.spec.byte_ns)
+        except CallTimeout:
+            sync.on_lost(time.monotonic())
+            return
+        except MissingLinkError as e:
+            self.error = str(e)
+            sync.on_lost(time.monotonic())
+            return
+        result = sync.on_exchange(ex, time.monotonic())
+        self.rtt_us = ex.rtt_ns / 1000
+        if result is AddResult.RESET:
+            log.warning(
+                "%s: board clock went backwards: board reset, clock map restarted", self.name
+            )
+        if "a2jHostMap" in board.index and time.monotonic() >= self._next_push:
+            self._push_map(board, sync)
+
+    def _push_map(self, board: Board, sync: ClockSync) -> None:
+        got = sync.host_map()
+        if got is None:
+            return
+        b, h, rate = got
+        ppb = round((rate / 1000.0 - 1.0) * 1e9)
+        payload = struct.pack("<Qqi", b, round(h) + self.daemon.realtime_offset_ns, ppb)
+        try:
+            board.call_ok("a2jHostMap", payload, timeout=self.spec.timeout)
+            self.map_pushes += 1
+            self._next_push = time.monotonic() + 1.0
+        except MissingLinkError as e:
+            self.error = str(e)
 
     def _disconnect(self) -> None:
         for topic in self.topics.values():
@@ -235,18 +308,40 @@ class BoardSession:
             self.bad_sifs += 1
             return
         recv_ns = int(now_mono * 1e9)
-        # Provisional mapping: offset = smallest (receive - stamp) so far; see the module doc.
-        offset = recv_ns // 1000 - max(board_us)
-        if self._offset_us is None or offset < self._offset_us:
-            self._offset_us = offset
-        base_ns = self._offset_us * 1000 + self.daemon.realtime_offset_ns
-        host_ns = [
-            0 if v is None else s * 1000 + base_ns for s, v in zip(board_us, values, strict=True)
-        ]
+        rt_off = self.daemon.realtime_offset_ns
         missing = values.count(None)
-        # All channels N/A: log at the mapped arrival time (never at 0 or a monotonic stamp).
-        stamp = recv_ns + self.daemon.realtime_offset_ns if missing == len(values) else None
-        update = Update(topic, board_us, host_ns, values, sif.seq, sif.lost, recv_ns, None, stamp)
+        sync = self.sync
+        got = None
+        if sync is not None:
+            newest = sync.map_.newest_mapped
+            if newest is not None and max(board_us) < newest - _RESET_BACKSTEP_US:
+                log.warning(
+                    "%s: sample stamps went back: board reset, clock map restarted", self.name
+                )
+                sync.board_reset(now_mono)
+            got = sync.map_many(board_us)
+        if got is not None:
+            hosts, sigma, bound, flags = got
+            host_ns = [0 if v is None else h + rt_off for h, v in zip(hosts, values, strict=True)]
+        else:  # no clock map (yet): the receive time, flagged, without a bound
+            sigma, bound, flags = -1, -1, NOT_SYNCED
+            host_ns = [0 if v is None else recv_ns + rt_off for v in values]
+        # All channels N/A: log at the arrival time (never at 0 or a monotonic stamp).
+        stamp = recv_ns + rt_off if missing == len(values) else None
+        update = Update(
+            topic,
+            board_us,
+            host_ns,
+            values,
+            sif.seq,
+            sif.lost,
+            recv_ns,
+            None,
+            stamp,
+            bound,
+            sigma,
+            flags,
+        )
         self.updates += 1
         self.samples += len(values) - missing
         self.daemon._publish(update)
@@ -258,7 +353,18 @@ class BoardSession:
                     cdr = mapping.build(ch, host_ns[ch], v)
                     self.daemon._publish(
                         Update(
-                            std_topic, [board_us[ch]], [host_ns[ch]], [v], sif.seq, 0, recv_ns, cdr
+                            std_topic,
+                            [board_us[ch]],
+                            [host_ns[ch]],
+                            [v],
+                            sif.seq,
+                            0,
+                            recv_ns,
+                            cdr,
+                            None,
+                            bound,
+                            sigma,
+                            flags,
                         )
                     )
 
@@ -286,6 +392,9 @@ class BoardSession:
             "command_errors": self.command_errors,
             "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
             "warnings": "; ".join(self.warnings),
+            "clock_epoch": self.epoch,
+            "map_pushes": self.map_pushes,
+            **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
         }
 
 
@@ -344,6 +453,26 @@ class Daemon:
 
     def send(self, topic: str, value: Any) -> None:
         self.bus.send(topic, value)
+
+    def trigger_at(
+        self, host_ns: int, boards: Iterable[str] | None = None, function: str = "setTriggerAt"
+    ) -> dict[str, int]:
+        """Have boards act at one host time (CLOCK_REALTIME ns), each at its own tick.
+
+        Each board is first handed the current clock map (``a2jHostMap``); ``function`` (i64
+        host ns) converts it on the board.  Returns board name -> the board tick it chose."""
+        wanted = set(boards) if boards is not None else None
+        ticks: dict[str, int] = {}
+        for s in self.sessions:
+            b, sync = s.board, s.sync
+            if wanted is not None and s.name not in wanted:
+                continue
+            if s.state != UP or b is None or sync is None:
+                raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
+            s._push_map(b, sync)
+            reply = b.call_ok(function, struct.pack("<q", host_ns))
+            ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
+        return ticks
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout

@@ -1,8 +1,9 @@
 """Topics and updates: what the daemon hands to every publisher.
 
 An ``Update`` is one SIF of one transducer: per channel the board stamp, the host time and the
-value (None for N/A).  Its CDR form is computed once, on first use, and shared by every
-publisher that needs it (MCAP, Zenoh, Foxglove)."""
+value (None for N/A), plus the clock map's error bound for those host times.  Its CDR form is
+computed once, on first use, and shared by every publisher that needs it (MCAP, Zenoh,
+Foxglove)."""
 
 from __future__ import annotations
 
@@ -51,10 +52,13 @@ class Update:
     __slots__ = (
         "_cdr",
         "board_us",
+        "bound_ns",
+        "clock_flags",
         "host_ns",
         "lost",
         "recv_ns",
         "seq",
+        "sigma_ns",
         "stamp_ns",
         "topic",
         "values",
@@ -71,6 +75,9 @@ class Update:
         recv_ns: int,
         cdr: bytes | None = None,
         stamp_ns: int | None = None,
+        bound_ns: int = -1,
+        sigma_ns: int = -1,
+        clock_flags: int = 0,
     ) -> None:
         self.topic = topic
         self.board_us = board_us
@@ -83,6 +90,13 @@ class Update:
         #: host time (CLOCK_REALTIME ns) recorders log it at: the newest measurement in it, or
         #: the mapped arrival time when every channel is N/A
         self.stamp_ns = stamp_ns if stamp_ns is not None else max(host_ns)
+        #: hard bound: every host time in this update is within ±bound_ns of the truth, as far
+        #: as the clock map can tell (-1: unknown, see clock_flags)
+        self.bound_ns = bound_ns
+        self.sigma_ns = sigma_ns  #: 1-sigma error estimate of the host times (-1: unknown)
+        #: missing_link.timesync.STEP (the clock map stepped here: start or board reset) |
+        #: NOT_SYNCED (no clock map: host time is the receive time)
+        self.clock_flags = clock_flags
 
     @property
     def cdr(self) -> bytes:
@@ -99,6 +113,9 @@ class Update:
             "values": self.values,
             "seq": self.seq,
             "lost": self.lost,
+            "bound_ns": self.bound_ns,
+            "sigma_ns": self.sigma_ns,
+            "clock_flags": self.clock_flags,
         }
 
     def __repr__(self) -> str:

@@ -163,6 +163,8 @@ class BoardRuntime:
         self._last_byte_us = 0
         self._blobs = {}  # blob function name -> snapshot taken at offset 0
         self._request_us = 0
+        self._clock_op = -1
+        self.host_map = None  # (board µs, host ns, host ns per board µs in ppb) from the host
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -177,6 +179,8 @@ class BoardRuntime:
             self.add_blob_function("a2jGetMappingMany", self.mapping_blob)
             self.add_blob_function("a2jGetTransds", self.transds_blob)
             self.add_function("a2jClock", self._clock)
+            self._clock_op = self.index["a2jClock"]
+            self.add_function("a2jHostMap", self._host_map_fn)
             self.set_property("j2a.version", J2A_VERSION)
         self.set_property("board.name", name)
         self.set_property("board.model", model)
@@ -294,7 +298,13 @@ class BoardRuntime:
     def take_output(self):
         if not self._replies and not self._sifs:
             return b""
-        out = b"".join(self._replies) + b"".join(self._sifs)
+        replies = self._replies
+        for i in range(len(replies)):
+            r = replies[i]
+            if isinstance(r, tuple):
+                # a2jClock: t3 is stamped here, as the reply is handed to the link.
+                replies[i] = encode_frame(SOF, r[0], 0, struct.pack("<QQ", r[1], self.clock()))
+        out = b"".join(replies) + b"".join(self._sifs)
         self.sifs_sent += len(self._sifs)
         self._replies = []
         self._sifs = []
@@ -324,12 +334,16 @@ class BoardRuntime:
         self._replies.append(encode_frame(SOF, seq, code & 0xFF, payload))
 
     def _dispatch(self, seq, opcode, payload):
-        self._request_us = self.clock()
+        # The request's last byte arrived no later than the read that delivered it.
+        self._request_us = self._last_byte_us
         self.calls += 1
         if opcode >= len(self.functions):
             self._error(seq, ERR_INDEX, DIAG_INDEX)
             return
         _name, kind, handler = self.functions[opcode]
+        if opcode == self._clock_op and not payload:
+            self._replies.append((seq, self._request_us))  # t3 stamped in take_output
+            return
         if kind != _PLAIN:
             self._reply(seq, 0xFF, b"")  # many-functions are reached through a2jMany only
             return
@@ -378,10 +392,27 @@ class BoardRuntime:
         return 0, text
 
     def _clock(self, payload):
-        # t2: when the request's last byte arrived (stamped at dispatch, right after parsing);
-        # t3: just before the reply is queued, which is ahead of any pending SIF.
-        t3 = self.clock()
-        return 0, struct.pack("<QQ", self._request_us, t3)
+        # Normally answered from _dispatch/take_output (t3 as late as possible); this path
+        # only runs for a request with a payload, which the spec does not define.
+        return 0xFF, b""
+
+    def _host_map_fn(self, payload):
+        # The host's current map (board µs -> host ns), so the board can act at a host time:
+        # <Q board µs><q host ns><i rate - 1 in ppb>.  Empty payload: read it back.
+        if len(payload) == 16 + 4:
+            self.host_map = struct.unpack("<Qqi", payload)
+            return 0, b""
+        if not payload and self.host_map is not None:
+            return 0, struct.pack("<Qqi", *self.host_map)
+        return 0xFF, b""
+
+    def board_time_at(self, host_ns):
+        # Board µs at which the host's map reaches host_ns (None: no map yet).  Integer maths
+        # only, so it is exact on boards whose floats are 32 bit.
+        if self.host_map is None:
+            return None
+        b0, h0, ppb = self.host_map
+        return b0 + ((host_ns - h0) * 1000000) // (1000000000 + ppb)
 
     def _many(self, payload):
         if len(payload) < 6:

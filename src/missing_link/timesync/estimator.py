@@ -155,7 +155,9 @@ class ClockEstimator:
             return AddResult.RESET
         self.points.append(ex)
         self.accepted += 1
-        while len(self.points) > self.min_points and (ex.t3 - self.points[0].t2) > self.window_s * 1e6:
+        while (
+            len(self.points) > self.min_points and (ex.t3 - self.points[0].t2) > self.window_s * 1e6
+        ):
             self.points.popleft()
         if len(self.points) > self.max_points:
             self._evict()

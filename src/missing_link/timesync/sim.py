@@ -139,7 +139,7 @@ class PtyLink(Link):
 
 class UsbFullSpeedLink(Link):
     name = "usb"
-    frame_ns = 1 * MS
+    frame_ns: float = 1 * MS
 
     def __init__(self, rng: random.Random, duration_s: float) -> None:
         super().__init__(rng, duration_s)
@@ -180,7 +180,9 @@ class FtdiUartLink(UsbFullSpeedLink):
     def down(self, t: float, nbytes: int) -> float:
         r = self.rng
         last = t + nbytes * self.byte_ns
-        tick = math.ceil((last - self.timer_phase) / self.timer_ns) * self.timer_ns + self.timer_phase
+        tick = (
+            math.ceil((last - self.timer_phase) / self.timer_ns) * self.timer_ns + self.timer_phase
+        )
         # The bridge's pending bulk IN is serviced within the frame (an xHCI host reports the
         # completion at once), then host interrupt latency.
         usb = tick + (20.0 + r.expovariate(1 / 20.0)) * NS

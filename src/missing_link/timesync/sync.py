@@ -13,10 +13,12 @@ The shell asks ``due()`` when to probe next, runs an ``a2jClock`` exchange and r
 tracking, the interval doubles towards ``interval`` as long as the bound is within ``target``
 and halves towards ``fast_interval`` while it is not (a link with widely spread delays needs
 more exchanges to find the few fast ones); it goes fast at once when an exchange is lost or
-lands outside the band the estimate predicted for it (the clock rate moved).  ``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a 1-sigma
-estimate, a hard bound and flags; it is the only call made from the sample path, and it is
-cheap.  ``now`` is always passed in; a lock makes ``map`` safe against a concurrent
-``on_exchange`` (the sample path and the prober run on different threads).
+lands outside the band the estimate predicted for it (the clock rate moved).
+
+``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a 1-sigma estimate, a hard
+bound and flags; it is the only call made from the sample path, and it is cheap.  ``now`` is
+always passed in; a lock makes ``map`` safe against a concurrent ``on_exchange`` (the sample
+path and the prober run on different threads).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import math
 import random
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,7 +70,9 @@ class ClockSync:
         # bridge's latency timer) would see the same delays every time and learn nothing.
         self._rng = random.Random(seed)
         o = self.opt
-        self.estimator = ClockEstimator(res_us=o.res_us, window_s=o.window_s, max_points=o.max_points)
+        self.estimator = ClockEstimator(
+            res_us=o.res_us, window_s=o.window_s, max_points=o.max_points
+        )
         self.map_ = PublishedMap(max_slew=o.max_slew, tau_s=o.tau_s)
         self.state = UNSYNCED
         self._lock = threading.Lock()
@@ -188,20 +193,37 @@ class ClockSync:
 
     def map(self, board_us: int) -> Mapped | None:
         """Host time of a sample's board stamp; None before the first estimate."""
+        got = self.map_many((board_us,))
+        if got is None:
+            return None
+        hosts, sigma, bound, flags = got
+        return Mapped(hosts[0], sigma, bound, flags)
+
+    def map_many(self, board_us: Sequence[int]) -> tuple[list[int], int, int, int] | None:
+        """Host ns (CLOCK_MONOTONIC) for each stamp of one update, plus the 1-sigma estimate,
+        the hard bound (both for the newest stamp) and flags; None before the first estimate."""
         with self._lock:
             est = self.estimator.estimate
-            if est is None or not self.map_.started:
+            pm = self.map_
+            if est is None or not pm.started:
                 return None
-            h = self.map_.map(board_us)
+            hosts = [round(pm.map(b)) for b in board_us]
             flags = 0
             if self._step_pending:
                 flags = STEP
                 self._step_pending = False
-        lo, hi = est.interval(board_us)
-        bound = max(h - lo, hi - h)
-        dev = h - est.host_at(board_us)
+        newest = max(board_us)
+        h = pm.at(newest)
+        lo, hi = est.interval(newest)
+        dev = h - est.host_at(newest)
         sigma = math.sqrt(est.sigma_ns**2 + dev * dev)
-        return Mapped(round(h), round(sigma), math.ceil(bound), flags)
+        return hosts, round(sigma), math.ceil(max(h - lo, hi - h)), flags
+
+    def host_map(self) -> tuple[int, float, float] | None:
+        """The current estimate as (board µs, host ns, ns per µs), to hand to the board for
+        actions at a host time: the best guess of the truth, not the slewing published map."""
+        est = self.estimator.estimate
+        return None if est is None else (est.b_ref, est.h_ref, est.rate)
 
     def status(self) -> dict[str, Any]:
         est = self.estimator.estimate
@@ -213,13 +235,16 @@ class ClockSync:
             "sync_surprises": self.surprises,
             "sync_interval_ms": round(self._interval * 1000, 1),
             "sync_rtt_us": None if self.last_rtt_ns is None else round(self.last_rtt_ns / 1000, 1),
-            "sync_min_rtt_us": None if self.min_rtt_ns is None else round(self.min_rtt_ns / 1000, 1),
+            "sync_min_rtt_us": None
+            if self.min_rtt_ns is None
+            else round(self.min_rtt_ns / 1000, 1),
         }
         if est is not None:
             out.update(
                 {
                     "offset_us": round((est.h_ref - est.b_ref * est.rate) / 1000, 3),
-                    "skew_ppm": round(est.skew * 1e6, 3),
+                    # the board clock's rate error (a board running fast has a positive skew)
+                    "skew_ppm": round((1000.0 / est.rate - 1.0) * 1e6, 3),
                     "bound_us": round(max(-est.lo_ns, est.hi_ns) / 1000, 2),
                     "sigma_us": round(est.sigma_ns / 1000, 2),
                     "slew_error_us": round(self.last_error_ns / 1000, 2),

@@ -12,11 +12,30 @@ from __future__ import annotations
 import math
 import random
 import struct
+import time
 from collections.abc import Callable
 
 from ..board.runtime import BoardRuntime, Transducer
 
 ValueCb = Callable[[int, int | float], None]
+
+
+class AffineClock:
+    """A board clock whose truth is known: board µs = offset + (1 + skew) * host monotonic µs.
+
+    Benchmarks and tests give a virtual board this clock (``missing-link board --clock-offset-us
+    --clock-skew-ppm``) and compare the daemon's host times with :meth:`host_ns`."""
+
+    def __init__(self, offset_us: float, skew_ppm: float) -> None:
+        self.offset_us = offset_us
+        self.rate = 1.0 + skew_ppm * 1e-6
+
+    def __call__(self) -> int:
+        return math.floor(self.offset_us + time.monotonic_ns() * self.rate / 1000.0)
+
+    def host_ns(self, board_us: float) -> float:
+        """The CLOCK_MONOTONIC ns at which this clock read ``board_us``."""
+        return (board_us - self.offset_us) * 1000.0 / self.rate
 
 
 class _Driver:
@@ -198,6 +217,21 @@ class Trigger(_Driver):
         (self.at,) = struct.unpack("<Q", payload)
         return 0, b""
 
+    def set_at_host(self, rt: BoardRuntime) -> Callable[[bytes], tuple[int, bytes]]:
+        """``setTriggerAt(i64 host ns)``: the same, at a host time, through the host's map
+        (``a2jHostMap``): the board converts it to its own tick."""
+
+        def handler(payload: bytes) -> tuple[int, bytes]:
+            if len(payload) != 8:
+                return 0xFF, b"expects i64 host nanoseconds"
+            at = rt.board_time_at(struct.unpack("<q", payload)[0])
+            if at is None:
+                return 0xFF, b"no host map yet (a2jHostMap)"
+            self.at = at
+            return 0, struct.pack("<Q", at)
+
+        return handler
+
     def poll(self, now: int) -> None:
         if self.at is not None and now >= self.at:
             self.at = None
@@ -228,6 +262,7 @@ def _common(rt: BoardRuntime, seed: int) -> None:
     rt.add_function("getTime", lambda p: (0, struct.pack("<Q", rt.clock())))
     trig = Trigger(_rng(seed, "trigger"))
     rt.add_function("setTrigger", trig.set)
+    rt.add_function("setTriggerAt", trig.set_at_host(rt))
     rt.add_transducer(Transducer("trigger", 4, "gpio", "GPIO-OUT", 1, "uint8_t", 0), trig)
 
 
