@@ -21,21 +21,45 @@ MPY_PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pysc
 pytestmark = pytest.mark.micropython
 
 
-@pytest.fixture
-def mpy_board() -> Iterator[HexLinePipe]:
+def _start(setup: str) -> HexLinePipe:
     if shutil.which("node") is None or not MPY_PKG.exists():
         pytest.fail("node and the npm MicroPython package are required: run `make node`")
-    pipe = HexLinePipe(
+    return HexLinePipe(
         [
             "node",
             str(ROOT / "tests" / "micropython" / "board_host.mjs"),
             str(ROOT / "src" / "missing_link" / "board"),
-            str(ROOT / "tests" / "micropython" / "setup_board.py"),
+            str(ROOT / "tests" / "micropython" / setup),
         ]
     )
+
+
+@pytest.fixture
+def mpy_board() -> Iterator[HexLinePipe]:
+    pipe = _start("setup_board.py")
     try:
         yield pipe
     finally:
+        pipe.close()
+
+
+def test_clock_and_host_map_on_micropython() -> None:
+    """a2jClock answers two ordered 64-bit stamps; the host's map is taken and inverted in
+    integer maths exactly as on CPython."""
+    pipe = _start("setup_part2.py")
+    board = Board(pipe, timeout=10.0)
+    try:
+        board.handshake()
+        ex = board.clock_exchange(10.0)
+        assert 0 <= ex.t2 <= ex.t3 and ex.t1 <= ex.t4
+        b0, h0, ppb = 5_000_000_123, 1_700_000_000_000_000_000, 48_500
+        board.call_ok("a2jHostMap", struct.pack("<Qqi", b0, h0, ppb))
+        assert struct.unpack("<Qqi", board.call_ok("a2jHostMap")) == (b0, h0, ppb)
+        for dt_ns in (0, 1_000, 123_456_789, 86_400 * 10**9):
+            got = struct.unpack("<Q", board.call_ok("boardTimeAt", struct.pack("<q", h0 + dt_ns)))
+            assert got[0] == b0 + (dt_ns * 10**6) // (10**9 + ppb)
+    finally:
+        board.close()
         pipe.close()
 
 

@@ -181,6 +181,70 @@ def cmd_listen(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- sync -------------------------------------------------------------------------------------
+def cmd_sync(args: argparse.Namespace) -> int:
+    from .errors import CallTimeout
+    from .timesync import ClockSync, SyncOptions
+
+    if args.period <= 0:
+        print("missing-link: error: --period must be > 0", file=sys.stderr)
+        return EXIT_USAGE
+    byte_ns = 10e9 / args.uart_baud if args.uart_baud else 0.0
+    with _open(args) as board:
+        if "a2jClock" not in board.index and "getTime" not in board.index:
+            print(
+                f"missing-link: error: {board.name} has neither a2jClock nor getTime",
+                file=sys.stderr,
+            )
+            return EXIT_FAIL
+        res = board.properties.get("clock.res_us", "1")
+        sync = ClockSync(SyncOptions(res_us=int(res) if res.isdigit() else 1))
+        start = time.monotonic()
+        sync.start(start)
+        next_print = start + args.period
+        end = start + args.duration if args.duration else None
+        if not args.json:
+            print(f"clock sync with {board.name} at {board.url} (Ctrl-C to stop)", flush=True)
+        while board.alive:
+            now = time.monotonic()
+            if end is not None and now >= end:
+                break
+            wait = min(sync.due(), next_print) - now
+            if wait > 0:
+                time.sleep(wait)
+                continue
+            if now >= sync.due():
+                try:
+                    sync.on_exchange(board.clock_exchange(args.timeout, byte_ns=byte_ns), now)
+                except CallTimeout:
+                    sync.on_lost(time.monotonic())
+            if now >= next_print:
+                next_print += args.period
+                st = sync.status()
+                st["t_s"] = round(now - start, 3)
+                if args.json:
+                    _emit_json(st)
+                else:
+                    print(format_sync(st), flush=True)
+        if not board.alive:
+            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
+            return EXIT_FAIL
+    return 0
+
+
+def format_sync(st: dict[str, Any]) -> str:
+    head = f"{st['t_s']:7.1f}s {st['sync_state']:<9}"
+    if "offset_us" not in st:
+        return f"{head} no estimate yet (exchanges {st['sync_exchanges']}, lost {st['sync_lost']})"
+    return (
+        f"{head} offset {st['offset_us']:+.3f} µs  skew {st['skew_ppm']:+8.3f} ppm"
+        f"  bound ±{st['bound_us']:.1f} µs  sigma {st['sigma_us']:.1f} µs"
+        f"  rtt {st['sync_rtt_us']:.0f} µs (min {st['sync_min_rtt_us']:.0f})"
+        f"  every {st['sync_interval_ms']:.0f} ms  exchanges {st['sync_exchanges']}"
+        f" lost {st['sync_lost']}"
+    )
+
+
 # ---- create-msgs ------------------------------------------------------------------------------
 def cmd_create_msgs(args: argparse.Namespace) -> int:
     import os
@@ -363,6 +427,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--missing", action="store_true", help="also print N/A channels")
     sp.add_argument("--json", action="store_true", help="one JSON object per line")
     sp.set_defaults(func=cmd_listen)
+
+    sp = sub.add_parser("sync", help="clock synchronisation with a board, live")
+    with_url(sp)
+    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds")
+    sp.add_argument("--period", type=float, default=1.0, help="seconds between lines (1.0)")
+    sp.add_argument("--uart-baud", type=int, default=0, help="baud rate if the link is a UART")
+    sp.add_argument("--json", action="store_true", help="one JSON object per line")
+    sp.set_defaults(func=cmd_sync)
 
     sp = sub.add_parser("create-msgs", help="write .msg files and a ROS package from descriptors")
     sp.add_argument("source", help="board URL, or a descriptor file (.toml or transds/1 text)")

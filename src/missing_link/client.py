@@ -282,14 +282,15 @@ class Board:
                 raise self._lost(label, self._closed_reason)
             op = begin(time.monotonic(), timeout or self.timeout)
             self._futures[op] = (fut, label, progress, write)
-            self._sent[op] = time.monotonic_ns()
+            sent = time.monotonic_ns()
             try:
                 self._flush()
             except (TransportBroken, TransportClosed) as e:
                 # The reader thread sees the same failure and fails the rest; this call is ours.
                 self._futures.pop(op, None)
-                self._sent.pop(op, None)
                 raise self._lost(label, e) from e
+            # the transport's stamp is taken right before the write syscall: later, tighter
+            self._sent[op] = max(sent, self.transport.last_write_ns)
         return fut
 
     def _wait(self, fut: Future[T], timeout: float | None) -> T:

@@ -311,10 +311,12 @@ class BoardRuntime:
         return out
 
     # ---- requests ------------------------------------------------------------------------
-    def feed(self, data):
+    def feed(self, data, rx_us=None):
+        # rx_us: board time the shell saw the data arrive (e.g. as the UART/select woke up);
+        # a2jClock's t2 is this, so the earlier the shell stamps, the better.
         if not data:
             return
-        self._last_byte_us = self.clock()
+        self._last_byte_us = self.clock() if rx_us is None else rx_us
         for ev in self.parser.feed(data):
             tag = ev[0]
             if tag == EV_REQUEST:

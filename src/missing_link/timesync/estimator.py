@@ -49,6 +49,7 @@ import numpy as np
 #: The skew range assumed before two exchanges are far enough apart to bound it.  Ceramic
 #: resonators are within ±0.5 %; crystals are far better.
 MAX_SKEW = 5000e-6
+CENTRE = "band"
 
 
 @dataclass(frozen=True)
@@ -243,6 +244,13 @@ class ClockEstimator:
         dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
         lo = float((rl - k * xl - dk * np.abs(xl)).max())
         hi = float((ru - k * xu + dk * np.abs(xu)).min())
+        if CENTRE == "band":
+            # the middle of the band at the fitted skew (no widening): each side is set by its
+            # own tightest exchanges, so a link whose two directions are slow at different
+            # times (a host busy with samples when the reply arrives) does not bias it
+            blo = float((rl - k * xl).max())
+            bhi = float((ru - k * xu).min())
+            c = (blo + bhi) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0

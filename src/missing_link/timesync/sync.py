@@ -242,7 +242,8 @@ class ClockSync:
         if est is not None:
             out.update(
                 {
-                    "offset_us": round((est.h_ref - est.b_ref * est.rate) / 1000, 3),
+                    # host µs minus board µs, now
+                    "offset_us": round(est.h_ref / 1000 - est.b_ref, 3),
                     # the board clock's rate error (a board running fast has a positive skew)
                     "skew_ppm": round((1000.0 / est.rate - 1.0) * 1e6, 3),
                     "bound_us": round(max(-est.lo_ns, est.hi_ns) / 1000, 2),

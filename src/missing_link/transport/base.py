@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import select
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from importlib.metadata import entry_points
@@ -26,6 +27,10 @@ class Transport(ABC):
     @abstractmethod
     def write(self, data: bytes) -> None:
         """Send all of ``data``; raises TransportBroken / TransportClosed."""
+
+    #: CLOCK_MONOTONIC ns just before the newest write reached the OS (clock sync's t1); 0
+    #: when the transport does not stamp (the caller's stamp is used)
+    last_write_ns: int = 0
 
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
@@ -83,6 +88,7 @@ class FdTransport(Transport):
         self._check()
         view = memoryview(data)
         with self._wlock:
+            self.last_write_ns = time.monotonic_ns()
             try:
                 while view:
                     n = self._send(view)

@@ -133,10 +133,10 @@ class BoardServer:
         wait: float = (due - rt.clock()) / 1e6
         return min(_MAX_WAIT, max(0.0, wait))
 
-    def _turn(self, data: bytes) -> bytes:
+    def _turn(self, data: bytes, rx_us: int | None = None) -> bytes:
         """One turn of the board's process loop: feed input, run drivers, return output."""
         if data:
-            self.runtime.feed(data)
+            self.runtime.feed(data, rx_us)
         self.runtime.poll()
         out: bytes = self.runtime.take_output()
         return out
@@ -154,6 +154,7 @@ class BoardServer:
                     fds.append(self._listener.fileno())
                 wfds = [self._link.fd] if self._link is not None and self._link.pending else []
                 ready, _, _ = select.select(fds, wfds, [], self._wait_time())
+                rx_us = self.runtime.clock()  # input (if any) arrived before select returned
                 if self._listener is not None and self._listener.fileno() in ready:
                     self._accept()
                 data = b""
@@ -163,7 +164,7 @@ class BoardServer:
                         self._drop_link()
                     else:
                         data = received
-                out = self._turn(data)
+                out = self._turn(data, rx_us)
                 if self._link is not None and not self._link.send(out):
                     self._drop_link()
         finally:

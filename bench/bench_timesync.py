@@ -1,0 +1,297 @@
+"""Clock synchronisation, measured against the methods of the anchors in the same run.
+
+1. Simulation (``missing_link.timesync.sim``): board clocks with offset, 100 ppm skew, rate
+   random walk and a slow sinusoid, 1 µs ticks; links ``pty`` (heavy tails, bursts, loss),
+   ``usb`` (full speed, 1 ms frames) and ``ftdi`` (921600 Bd UART behind a 1 ms latency timer).
+   Every method runs on every (link, seed); errors are taken at 100 Hz sample stamps after a
+   10 s warm-up.  Medians over the seeds; ``worst max`` is the largest over all seeds.
+2. Real processes: a virtual board in its own process whose clock is a known affine transform
+   of the host's CLOCK_MONOTONIC (random offset, +50 ppm), over a pty and over TCP.
+   a) the same real exchanges (10 Hz) feed every method; 1 kHz samples are mapped by each;
+   b) the daemon itself (its own probe schedule), error of every published sample.
+3. Synchronised action: two virtual boards (separate processes, clocks +50 ppm and -30 ppm),
+   ``Daemon.trigger_at(T)``; the true host time each board's trigger fired.
+
+    .venv/bin/python bench/bench_timesync.py [--seeds 20] [--sim-seconds 120] [--seconds 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import statistics
+import sys
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from missing_link.client import Board
+from missing_link.config import BoardSpec, Config
+from missing_link.daemon import Daemon
+from missing_link.demo import start_board_process, stop_process
+from missing_link.errors import CallTimeout
+from missing_link.j2a import SifReceived
+from missing_link.timesync import sim
+from missing_link.topics import Update
+from missing_link.virtual.sims import AffineClock
+
+TARGETS = {"pty": (5, 15, 50), "usb": (20, 60, 200), "ftdi": (20, 80, 300), "tcp": (5, 15, 50)}
+
+
+def _one(job: tuple[str, str, int, float]) -> dict[str, Any]:
+    method, link, seed, seconds = job
+    r = sim.run(method, link, seed, duration_s=seconds)
+    return {
+        "method": method,
+        "link": link,
+        "p50": r.pct(50),
+        "p99": r.pct(99),
+        "max": r.pct(100),
+        "back": r.backwards,
+        "cov": r.covered,
+        "first": r.first_bound_s,
+        "settle": r.settle_s,
+        "rate": r.exchanges / seconds,
+    }
+
+
+def _med(xs: list[float]) -> float:
+    return statistics.median(xs)
+
+
+def simulation(seeds: int, seconds: float) -> None:
+    jobs = [(m, lk, s, seconds) for lk in sim.LINKS for m in sim.METHODS for s in range(seeds)]
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
+        rows = list(pool.map(_one, jobs, chunksize=4))
+    print(f"\n## Simulation: {seeds} seeds x {seconds:.0f} s, medians over seeds (µs)\n")
+    print("| link | method | p50 | p99 | max | worst max | p99 vs ours | backwards | probes/s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    extra = []
+    for lk in sim.LINKS:
+        ours_p99 = _med(
+            [r["p99"] for r in rows if r["link"] == lk and r["method"] == "missing-link"]
+        )
+        for m in sim.METHODS:
+            rs = [r for r in rows if r["link"] == lk and r["method"] == m]
+            p99 = _med([r["p99"] for r in rs])
+            print(
+                f"| {lk} | {m} | {_med([r['p50'] for r in rs]):.1f} | {p99:.1f}"
+                f" | {_med([r['max'] for r in rs]):.1f} | {max(r['max'] for r in rs):.1f}"
+                f" | {p99 / ours_p99:.1f}x | {sum(r['back'] for r in rs)}"
+                f" | {_med([r['rate'] for r in rs]):.1f} |"
+            )
+            if m == "missing-link":
+                extra.append((lk, rs))
+    print("\nmissing-link only: bound coverage (worst seed), first bound < 1 ms, settle (< 50 µs)")
+    print("\n| link | target p50/p99/max | coverage (min) | first bound (median, max) | settle |")
+    print("|---|---|---|---|---|")
+    for lk, rs in extra:
+        t = TARGETS[lk]
+        firsts = [r["first"] for r in rs if r["first"] is not None]
+        print(
+            f"| {lk} | {t[0]}/{t[1]}/{t[2]} | {min(r['cov'] for r in rs) * 100:.3f} %"
+            f" | {_med(firsts) * 1000:.1f} ms, {max(firsts) * 1000:.1f} ms"
+            f" | {_med([r['settle'] for r in rs]):.2f} s |"
+        )
+
+
+# ---- real processes ----------------------------------------------------------------------------
+def _board(listen: str, seed: int, skew_ppm: float, sim_name: str = "rate", rate: float = 1000):
+    rng = random.Random(seed)
+    offset = rng.uniform(1e6, 1e9)
+    extra = ["--clock-offset-us", repr(offset), "--clock-skew-ppm", repr(skew_ppm)]
+    if sim_name == "rate":
+        extra += ["--rate", str(rate)]
+    proc, url = start_board_process(sim_name, seed, listen, extra=extra, name=f"b{seed}")
+    return proc, url, AffineClock(offset, skew_ppm)
+
+
+def real_same_exchanges(link: str, seconds: float) -> list[str]:
+    proc, url, truth = _board("pty" if link == "pty" else "tcp://127.0.0.1:0", 11, 50.0)
+    methods = {name: sim.METHODS[name]() for name in sim.METHODS}
+    every = {"missing-link": 1, "px4": 1, "cristian": 10, "rosserial": 25}
+    errors: dict[str, list[float]] = {m: [] for m in methods}
+    back = dict.fromkeys(methods, 0)
+    last: dict[str, float] = {}
+    covered = total = 0
+    lock = threading.Lock()
+    t_start = time.monotonic()
+    try:
+        with Board.open(url) as board:
+
+            def on_sif(sif: SifReceived, now: float) -> None:
+                nonlocal covered, total
+                b = int.from_bytes(sif.payload[:8], "little")
+                true_ns = truth.host_ns(b)
+                warm = now - t_start > 10
+                with lock:
+                    for name, m in methods.items():
+                        got = m.map(b)
+                        if got is None:
+                            continue
+                        h, bound = got
+                        if name in last and h < last[name]:
+                            back[name] += 1
+                        last[name] = h
+                        if warm:
+                            errors[name].append(h - true_ns)
+                            if bound is not None:
+                                total += 1
+                                covered += abs(h - true_ns) <= bound
+
+            board.on_sif(None, on_sif)
+            k = 0
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                now = time.monotonic()
+                try:
+                    ex = board.clock_exchange(1.0)
+                except CallTimeout:
+                    continue
+                with lock:
+                    for name, m in methods.items():
+                        if k % every[name] == 0:
+                            m.on_exchange(ex, now)
+                k += 1
+                time.sleep(0.1 * random.uniform(0.75, 1.25))
+    finally:
+        stop_process(proc)
+    out = []
+    ours = float(np.percentile(np.abs(errors["missing-link"]), 99))
+    for name in methods:
+        e = np.abs(np.array(errors[name])) / 1000
+        cov = f"{covered / total * 100:.3f} %" if name == "missing-link" and total else "-"
+        out.append(
+            f"| {link} | {name} (same exchanges) | {np.percentile(e, 50):.1f}"
+            f" | {np.percentile(e, 99):.1f} | {e.max():.1f}"
+            f" | {np.percentile(e, 99) * 1000 / ours:.1f}x | {back[name]} | {cov} | {len(e)} |"
+        )
+    return out
+
+
+def real_daemon(link: str, seconds: float) -> str:
+    proc, url, truth = _board("pty" if link == "pty" else "tcp://127.0.0.1:0", 12, 50.0)
+    errs: list[float] = []
+    state = {"prev": 0, "back": 0, "in": 0, "n": 0}
+    try:
+        with Daemon(Config(boards=[BoardSpec(url)])) as d:
+            assert d.wait_until_up(10)
+            t0 = time.monotonic()
+            off = d.realtime_offset_ns
+
+            def on_update(u: Update) -> None:
+                h = u.host_ns[0]
+                if h < state["prev"]:
+                    state["back"] += 1
+                state["prev"] = h
+                err = h - off - truth.host_ns(u.board_us[0])
+                state["n"] += 1
+                state["in"] += u.bound_ns >= 0 and abs(err) <= u.bound_ns
+                if time.monotonic() - t0 > 10:
+                    errs.append(err)
+
+            d.subscribe("/b12/signal", on_update)
+            time.sleep(seconds)
+            st = d.status()[0]
+    finally:
+        stop_process(proc)
+    e = np.abs(np.array(errs)) / 1000
+    p50, p99 = np.percentile(e, 50), np.percentile(e, 99)
+    cov = state["in"] / state["n"] * 100
+    return (
+        f"| {link} | missing-link (daemon) | {p50:.1f} | {p99:.1f} | {e.max():.1f} | -"
+        f" | {state['back']} | {cov:.3f} % | {len(e)} |"
+        f"\n\n{link} daemon: first bound {st.get('first_bound_ms')} ms,"
+        f" probes {st['sync_exchanges']} in {seconds:.0f} s, bound now ±{st.get('bound_us')} µs,"
+        f" min RTT {st['sync_min_rtt_us']} µs"
+    )
+
+
+def trigger(repeats: int) -> None:
+    boards = [_board("pty", 21, 50.0, "rangers"), _board("pty", 22, -30.0, "rangers")]
+    fired: dict[str, list[tuple[int, int]]] = {"b21": [], "b22": []}
+    try:
+        cfg = Config(boards=[BoardSpec(url) for _, url, _ in boards])
+        with Daemon(cfg) as d:
+            assert d.wait_until_up(10)
+            for name in fired:
+                d.subscribe(
+                    f"/{name}/trigger", lambda u, n=name: fired[n].append((u.board_us[0], 0))
+                )
+            time.sleep(5)  # converge
+            targets = []
+            ticks = []
+            for _ in range(repeats):
+                t = time.time_ns() + 300_000_000
+                targets.append(t - d.realtime_offset_ns)
+                ticks.append(d.trigger_at(t))
+                time.sleep(0.5)
+            time.sleep(0.5)
+    finally:
+        for p, _, _ in boards:
+            stop_process(p)
+    truth = {"b21": boards[0][2], "b22": boards[1][2]}
+    spread_fire, spread_tick, late = [], [], []
+    for i, target in enumerate(targets):
+        a = truth["b21"].host_ns(fired["b21"][i][0])
+        b = truth["b22"].host_ns(fired["b22"][i][0])
+        spread_fire.append(abs(a - b) / 1000)
+        ta = truth["b21"].host_ns(ticks[i]["b21"])
+        tb = truth["b22"].host_ns(ticks[i]["b22"])
+        spread_tick.append(abs(ta - tb) / 1000)
+        late += [(a - target) / 1000, (b - target) / 1000]
+    print(f"\n## Synchronised trigger, two board processes over ptys, {repeats} triggers\n")
+    print("| measure | median | max |")
+    print("|---|---|---|")
+    print(
+        f"| spread of the chosen board ticks, in true host time (sync only) | "
+        f"{_med(spread_tick):.1f} µs | {max(spread_tick):.1f} µs |"
+    )
+    print(
+        f"| spread of the moments the triggers fired (incl. board wake-up) | "
+        f"{_med(spread_fire):.1f} µs | {max(spread_fire):.1f} µs |"
+    )
+    print(
+        f"| fire time - requested host time (virtual board wake-up lateness) | "
+        f"{_med(late):.1f} µs | {max(late):.1f} µs |"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--sim-seconds", type=float, default=120.0)
+    ap.add_argument("--seconds", type=float, default=60.0, help="each real-process run")
+    ap.add_argument("--triggers", type=int, default=20)
+    ap.add_argument("--only", choices=["sim", "real", "trigger"], action="append")
+    a = ap.parse_args()
+    parts = a.only or ["sim", "real", "trigger"]
+    if "sim" in parts:
+        simulation(a.seeds, a.sim_seconds)
+    if "real" in parts:
+        print(f"\n## Real processes, board clock = offset + (1 + 50 ppm) x host, {a.seconds:.0f} s")
+        print("(errors after 10 s; the same-exchange rows share one 10 Hz exchange stream)\n")
+        print(
+            "| link | method | p50 µs | p99 µs | max µs | p99 vs ours | backwards | in bound | n |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|")
+        notes = []
+        for link in ("pty", "tcp"):
+            for row in real_same_exchanges(link, a.seconds):
+                print(row, flush=True)
+            row, note = real_daemon(link, a.seconds).split("\n\n")
+            print(row, flush=True)
+            notes.append(note)
+        print()
+        for n in notes:
+            print(n)
+    if "trigger" in parts:
+        trigger(a.triggers)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

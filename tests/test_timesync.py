@@ -1,0 +1,378 @@
+"""Clock synchronisation: the pure estimator, published map and schedule; the board's stamps;
+the daemon end to end with a board clock whose truth is known."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import struct
+import subprocess
+import sys
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from missing_link.board.runtime import BoardRuntime
+from missing_link.config import BoardSpec, Config
+from missing_link.daemon import Daemon
+from missing_link.demo import start_board_process, stop_process
+from missing_link.j2a import SOF, FrameDecoder, encode_frame
+from missing_link.timesync import (
+    NOT_SYNCED,
+    STEP,
+    AddResult,
+    ClockEstimator,
+    ClockSync,
+    Exchange,
+    PublishedMap,
+    SyncOptions,
+    sim,
+)
+from missing_link.timesync.sync import BURST, FAST, TRACKING
+from missing_link.topics import Update
+from missing_link.virtual import make_sim
+from missing_link.virtual.sims import AffineClock
+
+
+def exchanges(offset_us: float, skew: float, seed: int, n: int, spacing_s: float = 0.05):
+    """Exchanges against board µs = offset + (1 + skew) * host µs, random delays, 1 µs ticks."""
+    rng = random.Random(seed)
+    t = 1e12
+    out = []
+    for _ in range(n):
+        t += spacing_s * 1e9 * rng.uniform(0.5, 1.5)
+        up = rng.expovariate(1 / 20_000) + 5_000
+        turn = rng.uniform(2_000, 30_000)
+        down = rng.expovariate(1 / 20_000) + 5_000
+        t2h = t + up
+        t3h = t2h + turn
+        t4 = t3h + down
+        b = lambda h: math.floor(offset_us + (1 + skew) * h / 1000)  # noqa: E731
+        out.append((Exchange(int(t), b(t2h), b(t3h), math.ceil(t4)), t2h, t3h))
+    return out
+
+
+def truth_ns(offset_us: float, skew: float, board_us: float) -> float:
+    return (board_us - offset_us) / (1 + skew) * 1000
+
+
+# ---- estimator ---------------------------------------------------------------------------------
+@settings(max_examples=40, deadline=None)
+@given(
+    offset=st.floats(-1e9, 1e9),
+    skew_ppm=st.floats(-400, 400),
+    seed=st.integers(0, 2**16),
+    n=st.integers(1, 150),
+)
+def test_truth_is_always_inside_the_hard_band(
+    offset: float, skew_ppm: float, seed: int, n: int
+) -> None:
+    skew = skew_ppm * 1e-6
+    est = ClockEstimator()
+    for ex, _, _ in exchanges(offset, skew, seed, n):
+        assert est.add(ex) is AddResult.ACCEPTED
+        e = est.estimate
+        assert e is not None and e.consistent
+        for b in (ex.t2, ex.t3, ex.t3 + 50_000):  # at the exchange and 50 ms beyond it
+            lo, hi = e.interval(b)
+            true = truth_ns(offset, skew, b)
+            # the tick: board time b covers [b, b+1) µs of its own clock
+            assert lo - 1_100 <= true <= hi + 1_100
+
+
+def test_estimate_converges_on_offset_and_skew() -> None:
+    offset, skew = 123_456_789.0, 87e-6
+    est = ClockEstimator()
+    for ex, _, _ in exchanges(offset, skew, 1, 400):
+        est.add(ex)
+    e = est.estimate
+    assert e is not None
+    assert abs(e.skew - (1 / (1 + skew) - 1)) < 1e-6  # the map's rate is the inverse
+    err = e.host_at(e.b_ref) - truth_ns(offset, skew, e.b_ref)
+    assert abs(err) < 5_000  # ns; delays are 5 µs + exp(20 µs) each way
+    assert abs(err) <= max(-e.lo_ns, e.hi_ns)
+
+
+def test_malformed_and_backwards_exchanges() -> None:
+    est = ClockEstimator()
+    assert est.add(Exchange(100, 10, 5, 200)) is AddResult.REJECTED  # t3 < t2
+    assert est.add(Exchange(300, 10, 20, 200)) is AddResult.REJECTED  # t4 < t1
+    assert est.estimate is None and est.rejected == 2
+    assert est.add(Exchange(1_000_000, 500, 510, 1_050_000)) is AddResult.ACCEPTED
+    assert est.add(Exchange(2_000_000, 400, 410, 2_050_000)) is AddResult.RESET  # clock went back
+    assert est.estimate is not None and est.estimate.points == 1  # unchanged until reset()
+
+
+def test_window_drops_exchanges_that_no_longer_fit_one_line() -> None:
+    """A rate change (a temperature step) makes old exchanges inconsistent: they are trimmed,
+    and the estimate follows the new rate."""
+    h_step = 1e12 + 10e9  # host ns at which the board starts running 200 ppm fast
+
+    def board(h: float) -> int:
+        if h < h_step:
+            return math.floor(h / 1000)
+        return math.floor(h_step / 1000 + (h - h_step) * (1 + 200e-6) / 1000)
+
+    rng = random.Random(9)
+    est = ClockEstimator(window_s=1000)
+    t = 1e12
+    for _ in range(400):  # 20 s at 20 Hz, the step in the middle
+        t += 50e6
+        t2h = t + rng.expovariate(1 / 10_000) + 5_000
+        t3h = t2h + 10_000
+        est.add(
+            Exchange(int(t), board(t2h), board(t3h), int(t3h + rng.expovariate(1 / 10_000) + 5_000))
+        )
+    assert est.trimmed > 0
+    e = est.estimate
+    assert e is not None and e.consistent
+    assert e.span_s < 15  # the window no longer reaches back before the step
+    assert abs(e.skew - (1 / (1 + 200e-6) - 1)) < 5e-6
+
+
+# ---- published map -----------------------------------------------------------------------------
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**16))
+def test_published_map_is_continuous_strictly_increasing_and_slew_limited(seed: int) -> None:
+    rng = random.Random(seed)
+    pm = PublishedMap(tau_s=0.5)
+    est = ClockEstimator()
+    b_prev, h_prev = None, None
+    for ex, _, _ in exchanges(rng.uniform(0, 1e9), rng.uniform(-3e-4, 3e-4), seed, 60):
+        est.add(ex)
+        e = est.estimate
+        assert e is not None
+        # a jittery estimate: the map must absorb jumps of up to ±2 ms without stepping
+        jumped = type(e)(**{**e.__dict__, "h_ref": e.h_ref + rng.uniform(-2e6, 2e6)})
+        if not pm.started:
+            pm.start(jumped)
+        else:
+            pm.steer(jumped)
+        for b in sorted(rng.randrange(ex.t2 - 20_000, ex.t3 + 60_000) for _ in range(5)):
+            if b_prev is not None and b <= b_prev:
+                continue
+            h = pm.map(b)
+            if b_prev is not None:
+                assert h > h_prev  # strictly increasing
+                rate = (h - h_prev) / (b - b_prev)
+                assert e.rate * (1 - 3e-3) < rate < e.rate * (1 + 3e-3)  # no step hides here
+            b_prev, h_prev = b, h
+    assert pm.steps == 1
+
+
+def test_published_map_reaches_the_estimate_without_overshoot() -> None:
+    est = ClockEstimator()
+    for ex, _, _ in exchanges(0.0, 0.0, 5, 20):
+        est.add(ex)
+    e = est.estimate
+    assert e is not None
+    pm = PublishedMap(tau_s=1.0)
+    pm.start(e)
+    off = type(e)(**{**e.__dict__, "h_ref": e.h_ref + 100_000})  # the estimate moves 100 µs
+    err = pm.steer(off)
+    assert err == pytest.approx(-100_000, abs=1)
+    b = max(e.b_ref, pm._floor)
+    assert pm.at(b + 100_000) != pytest.approx(off.host_at(b + 100_000), abs=10)  # still slewing
+    for d in (1_000_000, 5_000_000, 60_000_000):  # after tau: on the estimate, and it stays
+        assert pm.at(b + d) == pytest.approx(off.host_at(b + d), abs=1)
+
+
+# ---- the sync state machine ------------------------------------------------------------------
+def test_schedule_bursts_then_slows_and_speeds_up_on_loss() -> None:
+    sync = ClockSync(SyncOptions(burst_count=10, interval=0.5, target_us=50), seed=1)
+    sync.start(0.0)
+    assert sync.state == BURST
+    gaps = []
+    now = 0.0
+    for ex, _, _t3h in exchanges(0.0, 20e-6, 7, 60, spacing_s=0.001):
+        now = max(now, sync.due())
+        gaps.append(sync.due() - now)
+        ex = Exchange(
+            int(now * 1e9),
+            ex.t2 - ex.t1 // 1000 + int(now * 1e6),
+            ex.t3 - ex.t1 // 1000 + int(now * 1e6),
+            int(now * 1e9) + ex.rtt_ns,
+        )
+        sync.on_exchange(ex, now + ex.rtt_ns / 1e9)
+        now += ex.rtt_ns / 1e9
+    assert sync.state == TRACKING
+    assert 0.3 < sync.due() - now <= 0.5 * 1.25 + 1e-9  # slowed down to the tracking interval
+    sync.on_lost(now)
+    assert sync.state == FAST and sync.due() - now <= 0.05 * 1.25 + 1e-9
+    st_ = sync.status()
+    assert st_["sync_lost"] == 1 and st_["sync_state"] == FAST and "bound_us" in st_
+
+
+def test_reset_restarts_and_flags_a_step() -> None:
+    sync = ClockSync(seed=2)
+    sync.start(0.0)
+    assert sync.map(123) is None  # nothing before the first estimate
+    sync.on_exchange(Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_050_000), 1.0)
+    first = sync.map(5_000_020)
+    assert first is not None and first.flags & STEP
+    assert not (sync.map(5_000_030).flags & STEP)  # type: ignore[union-attr]
+    # board restarted: its clock is back near zero
+    assert (
+        sync.on_exchange(Exchange(2_000_000_000, 100, 110, 2_000_050_000), 2.0) is AddResult.RESET
+    )
+    assert sync.resets == 1 and sync.state == BURST
+    again = sync.map(120)
+    assert again is not None and again.flags & STEP
+    assert abs(again.host_ns - 2_000_025_000) < 60_000
+
+
+# ---- simulation: our method against the anchors (deterministic, seeded) ------------------------
+@pytest.mark.parametrize("link", ["pty", "usb", "ftdi"])
+def test_simulated_links_no_backwards_steps_and_bound_holds(link: str) -> None:
+    ours = sim.run("missing-link", link, 1, duration_s=30, warmup_s=5)
+    cristian = sim.run("cristian", link, 1, duration_s=30, warmup_s=5)
+    assert ours.backwards == 0
+    assert ours.covered is not None and ours.covered >= 0.999
+    assert ours.first_bound_s is not None and ours.first_bound_s < 0.5
+    assert ours.pct(99) < cristian.pct(99)
+
+
+# ---- the board's stamps ------------------------------------------------------------------------
+class StepClock:
+    def __init__(self) -> None:
+        self.now = 1_000
+
+    def __call__(self) -> int:
+        return self.now
+
+
+def _reply(rt: BoardRuntime) -> bytes:
+    frames = [f for f in FrameDecoder().feed(rt.take_output()) if hasattr(f, "payload")]
+    return frames[0].payload  # type: ignore[no-any-return]
+
+
+def test_a2jclock_t2_is_the_arrival_and_t3_the_hand_off() -> None:
+    clock = StepClock()
+    rt = BoardRuntime("b", "m", "s", clock=clock, epoch="e")
+    request = encode_frame(SOF, 7, rt.index["a2jClock"], b"")
+    rt.feed(request, rx_us=900)  # the shell saw the bytes at 900
+    clock.now = 1_250  # work happens; the reply leaves later
+    t2, t3 = struct.unpack("<QQ", _reply(rt))
+    assert (t2, t3) == (900, 1_250)
+    clock.now = 2_000
+    rt.feed(request)  # no shell stamp: the time feed() was called
+    clock.now = 2_500
+    assert struct.unpack("<QQ", _reply(rt)) == (2_000, 2_500)
+
+
+def test_host_map_and_board_time_at() -> None:
+    rt = BoardRuntime("b", "m", "s", clock=StepClock(), epoch="e")
+    assert rt.board_time_at(10**18) is None
+    b0, h0, ppb = 7_000_000, 1_700_000_000_000_000_000, -30_000
+    rt.feed(encode_frame(SOF, 1, rt.index["a2jHostMap"], struct.pack("<Qqi", b0, h0, ppb)))
+    rt.take_output()
+    for dt in (0, 999, 10**9, 3600 * 10**9):
+        b = rt.board_time_at(h0 + dt)
+        assert b is not None
+        assert abs(b - (b0 + dt / 1000 / (1 + ppb * 1e-9))) <= 1
+
+
+# ---- end to end: the daemon against a board whose clock truth is known -------------------------
+def test_daemon_maps_samples_within_their_bound(serve) -> None:  # type: ignore[no-untyped-def]
+    clock = AffineClock(7_654_321_000.0, 50.0)
+    server = serve(make_sim("rate", 3, rate_hz=500, clock=clock), "tcp://127.0.0.1:0")
+    updates: list[Update] = []
+    with Daemon(Config(boards=[BoardSpec(server.url)])) as d:
+        assert d.wait_until_up(10)
+        d.subscribe("/rate/signal", updates.append)
+        time.sleep(3)
+        status = d.status()[0]
+        off = d.realtime_offset_ns
+    assert len(updates) > 500
+    assert status["sync_state"] in (BURST, TRACKING, FAST) and status["sync_exchanges"] > 20
+    assert abs(status["skew_ppm"] - 50) < 50
+    inside = 0
+    prev = 0
+    for u in updates:
+        assert u.bound_ns > 0 and not (u.clock_flags & NOT_SYNCED)
+        assert u.host_ns[0] > prev  # strictly increasing
+        prev = u.host_ns[0]
+        err = u.host_ns[0] - off - clock.host_ns(u.board_us[0])
+        inside += abs(err) <= u.bound_ns + 1_000  # + the tick
+    assert inside >= 0.999 * len(updates)
+    # the start's step went to the first update published (perhaps before we subscribed)
+    assert not any(u.clock_flags & STEP for u in updates[1:])
+
+
+def test_daemon_detects_a_board_reset(serve) -> None:  # type: ignore[no-untyped-def]
+    jump = {"us": 50_000_000_000}
+
+    def clock() -> int:
+        return jump["us"] + time.monotonic_ns() // 1000
+
+    rt = make_sim("rate", 4, rate_hz=200, clock=clock)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    updates: list[Update] = []
+    d = Daemon(Config(boards=[BoardSpec(server.url)]))
+    d.subscribe("/rate/signal", updates.append)
+    with d:
+        assert d.wait_until_up(10)
+        time.sleep(1.0)
+        # the board restarts without dropping the link: its clock starts again near zero and
+        # its drivers start over
+        jump["us"] = 0
+        rt.drivers[0]._due = None
+        time.sleep(1.5)
+        status = d.status()[0]
+    assert status["sync_resets"] >= 1
+    steps = [i for i, u in enumerate(updates) if u.clock_flags & STEP]
+    assert len(steps) >= 2  # the start and the reset
+    after = updates[steps[-1] :]
+    assert after and all(u.bound_ns > 0 for u in after[1:] if not u.clock_flags & NOT_SYNCED)
+
+
+def test_two_boards_trigger_at_one_host_time(serve) -> None:  # type: ignore[no-untyped-def]
+    clocks = [AffineClock(1e9, 80.0), AffineClock(3e6, -40.0)]
+    urls = [
+        serve(make_sim("rangers", 5 + i, name=f"r{i}", clock=c), "tcp://127.0.0.1:0").url
+        for i, c in enumerate(clocks)
+    ]
+    fired: dict[str, list[int]] = {"r0": [], "r1": []}
+    with Daemon(Config(boards=[BoardSpec(u) for u in urls])) as d:
+        assert d.wait_until_up(10)
+        for name in fired:
+            d.subscribe(f"/{name}/trigger", lambda u, n=name: fired[n].append(u.board_us[0]))
+        time.sleep(1.0)
+        target = time.time_ns() + 300_000_000
+        ticks = d.trigger_at(target)
+        time.sleep(0.8)
+        mono_target = target - d.realtime_offset_ns
+    assert set(ticks) == {"r0", "r1"}
+    for i, name in enumerate(("r0", "r1")):
+        # the tick each board chose is the target in true host time (sync accuracy) ...
+        assert abs(clocks[i].host_ns(ticks[name]) - mono_target) < 1_000_000
+        # ... and the trigger fired then (the virtual board wakes up within milliseconds)
+        assert len(fired[name]) == 1
+        assert 0 <= clocks[i].host_ns(fired[name][0]) - mono_target < 50_000_000
+
+
+def test_cli_sync_reports_the_board_clock() -> None:
+    proc, url = start_board_process(
+        "rate",
+        0,
+        "tcp://127.0.0.1:0",
+        extra=["--clock-offset-us", "1e9", "--clock-skew-ppm", "500"],
+    )
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "missing_link", "sync", url, "--duration", "2.5", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+    finally:
+        stop_process(proc)
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    assert len(lines) >= 2
+    last = lines[-1]
+    assert abs(last["skew_ppm"] - 500) < 100
+    assert last["bound_us"] > 0 and last["sync_exchanges"] > 10 and last["sync_min_rtt_us"] > 0
