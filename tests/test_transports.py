@@ -66,7 +66,7 @@ def test_socket_closed_vs_broken(serve: Serve) -> None:
     server.stop()
     # "closed" when the board had accepted us; "reset" when the listener closed with our
     # connection still in its backlog (the board had not yet seen the first host go)
-    with pytest.raises(TransportBroken, match="other side closed|reset"):
+    with pytest.raises(TransportBroken, match=r"other side closed|reset"):
         for _ in range(100):
             t.read(0.1)
     t.close()

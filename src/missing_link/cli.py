@@ -300,6 +300,10 @@ def build_config(args: argparse.Namespace) -> Any:
             raise ConfigError(f"--publisher {name!r}: unknown (available: {', '.join(known)})")
         if name not in cfg.publishers:
             cfg.publishers.append(name)
+    if args.foxglove is not None:
+        if "foxglove" not in cfg.publishers:
+            cfg.publishers.append("foxglove")
+        cfg.publisher_options.setdefault("foxglove", {})["port"] = args.foxglove
     if args.record:
         if "mcap" not in cfg.publishers:
             cfg.publishers.append("mcap")
@@ -326,6 +330,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
             file=sys.stderr,
         )
+        for p in daemon.publishers:
+            url = getattr(p, "url", None)
+            if url:
+                print(f"missing-link: {p.name} at {url}", file=sys.stderr)
         stop.wait(args.duration or None)
     for s in daemon.status():
         print(
@@ -448,9 +456,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
     sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
     sp.add_argument(
-        "--publisher", "-p", action="append", help="add a publisher (bus, mcap, console)"
+        "--publisher",
+        "-p",
+        action="append",
+        help="add a publisher (bus, console, mcap, zenoh, foxglove, ros1)",
     )
     sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
+    sp.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
+    )
     sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
     sp.set_defaults(func=cmd_run)
 

@@ -169,7 +169,10 @@ class BoardSession:
                     raise MissingLinkError(
                         f"{self.name}: actuator {t.name} names call={t.call}, which the board lacks"
                     )
-                self.daemon.bus.add_command(f"{topic_name}/cmd", self._command_handler(t))
+                handler = self._command_handler(t)
+                self.daemon.bus.add_command(f"{topic_name}/cmd", handler)
+                for p in self.daemon.publishers:
+                    p.add_command_topic(f"{topic_name}/cmd", topic, handler)
         board.on_sif(None, self._on_sif)
         self.connects += 1
         self.error = ""

@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TextIO
+from typing import Any, TextIO
 
 from .config import BoardSpec, Config
 from .daemon import Daemon
@@ -148,8 +148,24 @@ class LiveView:
         return lines
 
 
+def _foxglove(port: int | None) -> Any:
+    """The Foxglove live view on ``port`` (another free port if that one is taken)."""
+    if port is None:
+        return None
+    from .publishers.foxglove import FoxglovePublisher
+
+    try:
+        return FoxglovePublisher({"port": port})
+    except Exception:  # noqa: BLE001 - port taken: any free one will do for a demo
+        return FoxglovePublisher({"port": 0})
+
+
 def run_demo(
-    duration: float = 20.0, seed: int = 0, record: str = "recordings", out: TextIO = sys.stdout
+    duration: float = 20.0,
+    seed: int = 0,
+    record: str = "recordings",
+    out: TextIO = sys.stdout,
+    foxglove_port: int | None = 8765,
 ) -> int:
     print(
         "missing-link demo: the thesis test rig on two virtual boards (own processes, ptys)",
@@ -170,7 +186,10 @@ def run_demo(
             publishers=["bus", "mcap"],
             publisher_options={"mcap": {"path": record, "prefix": "demo"}},
         )
-        with Daemon(cfg) as daemon:
+        fox = _foxglove(foxglove_port)
+        with Daemon(cfg, [fox] if fox is not None else []) as daemon:
+            if fox is not None:
+                print(f"  live view for Foxglove: open connection {fox.url}", file=out)
             if not daemon.wait_until_up(10.0):
                 raise MissingLinkError(f"boards did not come up: {daemon.status()}")
             view = LiveView(daemon, out)
@@ -204,6 +223,15 @@ def run_demo(
                 f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} us",
                 file=out,
             )
+        for s in status:
+            if "bound_us" in s:
+                print(
+                    f"  clock {s['board']}: {s['sync_state']},"
+                    f" board clock {s['skew_ppm']:+.2f} ppm,"
+                    f" bound ±{s['bound_us']} µs, {s['sync_exchanges']} exchanges,"
+                    f" min RTT {s['sync_min_rtt_us']} µs",
+                    file=out,
+                )
         servo_cmds = sum(s["commands"] for s in status)
         dropped = getattr(mcap, "dropped", 0)
         print(f"  servo commands sent: {servo_cmds}", file=out)

@@ -19,6 +19,10 @@ class Publisher:
     def add_topic(self, topic: Topic) -> None:
         """A topic appeared (a board connected).  Called again after a reconnect."""
 
+    def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        """An actuator listens on ``name`` (messages of ``topic``'s type); publishers that reach
+        other processes subscribe there and call ``deliver(values)``.  Default: nothing."""
+
     def publish(self, update: Update) -> None:
         raise NotImplementedError
 

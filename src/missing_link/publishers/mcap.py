@@ -60,7 +60,7 @@ class McapPublisher(Publisher):
         self._put(("msg", update.topic.name, update.stamp_ns, update.cdr))
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        self._put(("diag", now_ns, self._diag_cdr(status, now_ns)))
+        self._put(("diag", now_ns, diagnostics_cdr(self.typestore, status, now_ns)))
 
     def _put(self, item: tuple[Any, ...]) -> None:
         if self._closed:
@@ -154,30 +154,31 @@ class McapPublisher(Publisher):
             self._writer.close()
             self._writer = None
 
-    # ---- diagnostics as diagnostic_msgs/DiagnosticArray -----------------------------------------
-    def _diag_cdr(self, status: list[dict[str, Any]], now_ns: int) -> bytes:
-        ts = self.typestore
-        T = ts.types
-        sec, nsec = divmod(now_ns, 1_000_000_000)
-        header = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""
-        )
-        Status, KV = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
-        items = []
-        for s in status:
-            level = 0 if s["state"] == "up" else 2
-            values = [KV(key=str(k), value=str(v)) for k, v in s.items() if k not in ("board",)]
-            items.append(
-                Status(
-                    level=level,
-                    name=f"missing_link: {s['board']}",
-                    message=str(s["state"]),
-                    hardware_id=str(s.get("serial", "")),
-                    values=values,
-                )
+
+def diagnostics_cdr(typestore: Any, status: list[dict[str, Any]], now_ns: int) -> bytes:
+    """Per-board status as a ``diagnostic_msgs/msg/DiagnosticArray`` (CDR)."""
+    ts = typestore
+    T = ts.types
+    sec, nsec = divmod(now_ns, 1_000_000_000)
+    header = T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""
+    )
+    Status, KV = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
+    items = []
+    for s in status:
+        level = 0 if s["state"] == "up" else 2
+        values = [KV(key=str(k), value=str(v)) for k, v in s.items() if k not in ("board",)]
+        items.append(
+            Status(
+                level=level,
+                name=f"missing_link: {s['board']}",
+                message=str(s["state"]),
+                hardware_id=str(s.get("serial", "")),
+                values=values,
             )
-        msg = T[DIAG_TYPE](header=header, status=items)
-        return bytes(ts.serialize_cdr(msg, DIAG_TYPE))
+        )
+    msg = T[DIAG_TYPE](header=header, status=items)
+    return bytes(ts.serialize_cdr(msg, DIAG_TYPE))
 
 
 def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:

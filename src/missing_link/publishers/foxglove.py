@@ -1,0 +1,87 @@
+"""Live view in Foxglove: a WebSocket server (foxglove-sdk) with every topic as a ros2msg/CDR
+channel, plus ``/diagnostics``.  Open Foxglove, "Open connection", ``ws://127.0.0.1:8765``.
+
+Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  Messages are
+logged at the sample's host time (clock sync), so plots line up across boards.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
+from ..topics import Topic, Update
+from .base import Publisher, register_publisher
+from .mcap import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+
+log = logging.getLogger(__name__)
+
+
+class FoxglovePublisher(Publisher):
+    name = "foxglove"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        import foxglove
+
+        opts = dict(options or {})
+        self.distro = str(opts.get("distro", "jazzy"))
+        self.typestore = typestore_for(self.distro)
+        self._fg = foxglove
+        self.context = foxglove.Context()
+        self.server = foxglove.start_server(
+            name=str(opts.get("name", "missing-link")),
+            host=str(opts.get("host", "127.0.0.1")),
+            port=int(opts.get("port", 8765)),
+            context=self.context,
+        )
+        self.port = int(self.server.port)
+        self.url = f"ws://{opts.get('host', '127.0.0.1')}:{self.port}"
+        self._lock = threading.Lock()
+        self._channels: dict[str, Any] = {}
+        self._closed = False
+        self.logged = 0
+        with self._lock:
+            self._channel(DIAG_TOPIC, DIAG_TYPE)
+        log.info("foxglove: live view at %s", self.url)
+
+    def _channel(self, name: str, type_name: str) -> Any:
+        text, _ = self.typestore.generate_msgdef(type_name, ros_version=2)
+        schema = self._fg.Schema(name=type_name, encoding="ros2msg", data=text.encode())
+        ch = self._fg.Channel(name, schema=schema, message_encoding="cdr", context=self.context)
+        self._channels[name] = ch
+        return ch
+
+    def add_topic(self, topic: Topic) -> None:
+        with self._lock:
+            if self._closed or topic.name in self._channels:
+                return
+            if not topic.standard:
+                package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
+                register_types(self.typestore, [topic.transducer], package)
+            self._channel(topic.name, topic.type_name)
+
+    def publish(self, update: Update) -> None:
+        ch = self._channels.get(update.topic.name)
+        if ch is None or self._closed:
+            return
+        ch.log(update.cdr, log_time=update.stamp_ns)
+        self.logged += 1
+
+    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        if not self._closed:
+            cdr = diagnostics_cdr(self.typestore, status, now_ns)
+            self._channels[DIAG_TOPIC].log(cdr, log_time=now_ns)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            for ch in self._channels.values():
+                ch.close()
+            self.server.stop()
+
+
+register_publisher("foxglove", FoxglovePublisher)

@@ -1,0 +1,219 @@
+"""ROS 2 through Zenoh, in the rmw_zenoh wire format, without a ROS 2 install.
+
+What a ROS 2 graph running rmw_zenoh (``rmw_zenohd`` router, ``RMW_IMPLEMENTATION=rmw_zenoh_cpp``)
+sees from this publisher:
+
+* one node, liveliness token ``@ros2_lv/<domain>/<zid>/<nid>/<nid>/NN/%/%/<node>``;
+* per topic a data key ``<domain>/<topic>/<pkg>::msg::dds_::<Name>_/<type hash>`` and a publisher
+  token ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/MP/%/%/<node>/<%topic>/<dds type>/<hash>/<qos>``;
+* every sample: the CDR payload (with its 4-byte encapsulation header) and the 33-byte
+  attachment ``<q sequence number><q source timestamp ns><B 16><16-byte gid>`` - without it
+  rmw_zenoh drops the sample silently; the source timestamp is the sample's host time from
+  clock sync (when the board measured, not when the message was sent);
+* per actuator a subscription token (``MS``) on ``/<board>/<name>/cmd``: a ROS 2 node
+  publishing the transducer's message type there drives the board.
+
+The type hash is RIHS01 from the configured distro's typestore; Humble has none
+(``TypeHashNotSupported``).  Sessions are peers that connect to ``tcp/127.0.0.1:7447`` (where
+rmw_zenohd listens) with multicast scouting off; every endpoint is configurable.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import struct
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
+from ..topics import Topic, Update
+from .base import Publisher, register_publisher
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CONNECT = ["tcp/127.0.0.1:7447"]
+QOS = "::,10:,:,:,,"  # reliable, volatile, keep last 10 (empty fields: rmw_zenoh defaults)
+DIAG_TOPIC = "/diagnostics"
+DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+
+
+def dds_type(type_name: str) -> str:
+    """``sensor_msgs/msg/Range`` -> ``sensor_msgs::msg::dds_::Range_``."""
+    pkg, kind, name = type_name.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def type_hash(typestore: Any, type_name: str, distro: str) -> str:
+    if distro == "humble":
+        return "TypeHashNotSupported"
+    return str(typestore.hash_rihs01(type_name))
+
+
+def data_key(domain: int, topic: str, type_name: str, hash_: str) -> str:
+    return f"{domain}/{topic.lstrip('/')}/{dds_type(type_name)}/{hash_}"
+
+
+def mangle(name: str) -> str:
+    return name.replace("/", "%")
+
+
+def attachment(seq: int, source_ns: int, gid: bytes) -> bytes:
+    return struct.pack("<qqB", seq, source_ns, 16) + gid
+
+
+class _Entity:
+    __slots__ = ("gid", "key", "pub", "seq", "token")
+
+    def __init__(self, key: str, gid: bytes) -> None:
+        self.key = key
+        self.gid = gid
+        self.seq = 0
+        self.pub: Any = None
+        self.token: Any = None
+
+
+class ZenohPublisher(Publisher):
+    name = "zenoh"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        import zenoh
+
+        opts = dict(options or {})
+        self.distro = str(opts.get("distro", "jazzy"))
+        self.domain = int(opts.get("domain", 0))
+        self.node = str(opts.get("node", "missing_link"))
+        self.typestore = typestore_for(self.distro)
+        mode = str(opts.get("mode", "peer"))
+        if mode not in ("peer", "client"):
+            raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
+        connect = list(opts.get("connect", DEFAULT_CONNECT))
+        listen = list(opts.get("listen", []))
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", json.dumps(mode))
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+        # never scout by multicast: it reaches every interface, and tests stay on loopback
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        if mode == "peer":
+            cfg.insert_json5("scouting/gossip/enabled", "true")
+        self.session: Any = zenoh.open(cfg)
+        self.zid = str(self.session.info.zid())
+        self._lock = threading.Lock()
+        self._entities: dict[str, _Entity] = {}
+        self._subs: dict[str, tuple[Any, Any]] = {}
+        self._next_id = 1
+        self._node_id = 0
+        self.published = 0
+        self.commands = 0
+        self.command_errors = 0
+        self._closed = False
+        self._node_token: Any = self.session.liveliness().declare_token(
+            f"@ros2_lv/{self.domain}/{self.zid}/{self._node_id}/{self._node_id}/NN/%/%/{self.node}"
+        )
+        with self._lock:
+            self._declare_publisher(DIAG_TOPIC, DIAG_TYPE)
+        log.info("zenoh: session %s (%s), connect %s, listen %s", self.zid, mode, connect, listen)
+
+    # ---- graph ------------------------------------------------------------------------------
+    def _gid(self, entity_id: int) -> bytes:
+        return hashlib.blake2b(f"{self.zid}/{entity_id}".encode(), digest_size=16).digest()
+
+    def _token(self, kind: str, entity_id: int, topic: str, type_name: str, hash_: str) -> str:
+        return (
+            f"@ros2_lv/{self.domain}/{self.zid}/{self._node_id}/{entity_id}/{kind}/%/%/{self.node}"
+            f"/{mangle(topic)}/{dds_type(type_name)}/{hash_}/{QOS}"
+        )
+
+    def _register(self, topic: Topic) -> None:
+        if not topic.standard:
+            package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
+            register_types(self.typestore, [topic.transducer], package)
+
+    def add_topic(self, topic: Topic) -> None:
+        with self._lock:
+            if self._closed or topic.name in self._entities:
+                return
+            self._register(topic)
+            self._declare_publisher(topic.name, topic.type_name)
+
+    def _declare_publisher(self, name: str, type_name: str) -> _Entity:
+        hash_ = type_hash(self.typestore, type_name, self.distro)
+        eid = self._next_id
+        self._next_id += 1
+        ent = _Entity(data_key(self.domain, name, type_name, hash_), self._gid(eid))
+        ent.pub = self.session.declare_publisher(ent.key)
+        ent.token = self.session.liveliness().declare_token(
+            self._token("MP", eid, name, type_name, hash_)
+        )
+        self._entities[name] = ent
+        return ent
+
+    def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        """Subscribe to ``name`` (the actuator's command topic, of ``topic``'s type)."""
+        with self._lock:
+            if self._closed or name in self._subs:
+                return
+            self._register(topic)
+            hash_ = type_hash(self.typestore, topic.type_name, self.distro)
+            eid = self._next_id
+            self._next_id += 1
+            key = data_key(self.domain, name, topic.type_name, hash_)
+            type_name = topic.type_name
+
+            def on_sample(sample: Any) -> None:  # zenoh's thread: decode and hand over
+                try:
+                    msg: Any = self.typestore.deserialize_cdr(bytes(sample.payload), type_name)
+                    values = [v.item() if hasattr(v, "item") else v for v in msg.values]
+                    deliver(values)
+                    self.commands += 1
+                except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
+                    self.command_errors += 1
+                    log.warning("zenoh: command on %s rejected: %s", name, e)
+
+            sub = self.session.declare_subscriber(key, on_sample)
+            token = self.session.liveliness().declare_token(
+                self._token("MS", eid, name, topic.type_name, hash_)
+            )
+            self._subs[name] = (sub, token)
+
+    # ---- data -------------------------------------------------------------------------------
+    def publish(self, update: Update) -> None:
+        ent = self._entities.get(update.topic.name)
+        if ent is None or self._closed:
+            return
+        ent.seq += 1
+        ent.pub.put(update.cdr, attachment=attachment(ent.seq, update.stamp_ns, ent.gid))
+        self.published += 1
+
+    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        from .mcap import diagnostics_cdr
+
+        with self._lock:
+            if self._closed:
+                return
+            ent = self._entities[DIAG_TOPIC]
+        ent.seq += 1
+        ent.pub.put(
+            diagnostics_cdr(self.typestore, status, now_ns),
+            attachment=attachment(ent.seq, now_ns, ent.gid),
+        )
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            for sub, token in self._subs.values():
+                token.undeclare()
+                sub.undeclare()
+            for ent in self._entities.values():
+                ent.token.undeclare()
+                ent.pub.undeclare()
+            self._node_token.undeclare()
+            self.session.close()
+
+
+register_publisher("zenoh", ZenohPublisher)

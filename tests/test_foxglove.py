@@ -1,0 +1,59 @@
+"""The Foxglove live view: a plain WebSocket client (websockets, foxglove.sdk.v1 subprotocol)
+sees every topic advertised with its ros2msg schema, subscribes, and decodes a CDR sample."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+
+import websockets
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from missing_link.config import BoardSpec, Config
+from missing_link.daemon import Daemon
+
+
+async def _client(url: str, topic: str) -> tuple[dict, bytes, list[str]]:
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
+        channels: dict[str, dict] = {}
+        while topic not in channels:
+            msg = await asyncio.wait_for(ws.recv(), 10)
+            if isinstance(msg, str):
+                m = json.loads(msg)
+                if m.get("op") == "advertise":
+                    channels.update({c["topic"]: c for c in m["channels"]})
+        ch = channels[topic]
+        await ws.send(
+            json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": ch["id"]}]})
+        )
+        while True:
+            msg = await asyncio.wait_for(ws.recv(), 10)
+            if isinstance(msg, bytes) and msg[0] == 0x01:
+                sub_id, _log_time = struct.unpack_from("<IQ", msg, 1)
+                assert sub_id == 7
+                return ch, msg[13:], sorted(channels)
+
+
+def test_websocket_client_decodes_a_sample(serve) -> None:  # type: ignore[no-untyped-def]
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    cfg = Config(
+        boards=[BoardSpec(server.url)],
+        publishers=["bus", "foxglove"],
+        publisher_options={"foxglove": {"port": 0}},
+    )
+    with Daemon(cfg) as d:
+        assert d.wait_until_up(10)
+        fox = next(p for p in d.publishers if p.name == "foxglove")
+        assert fox.url.startswith("ws://127.0.0.1:")
+        ch, payload, topics = asyncio.run(_client(fox.url, "/thesis/dist_ir"))
+    assert {"/thesis/quad", "/thesis/dist_ir", "/thesis/dist_ir/range", "/diagnostics"} <= set(
+        topics
+    )
+    assert ch["encoding"] == "cdr" and ch["schemaEncoding"] == "ros2msg"
+    assert ch["schemaName"] == "missing_link_msgs/msg/DistIr"
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    ts.register(get_types_from_msg(ch["schema"].split("=" * 80)[0], ch["schemaName"]))
+    msg = ts.deserialize_cdr(payload, ch["schemaName"])
+    assert len(msg.values) == 8 and len(msg.times) == 8
+    assert any(t.sec > 1_600_000_000 for t in msg.times)  # host time (CLOCK_REALTIME) stamps

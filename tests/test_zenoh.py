@@ -1,0 +1,174 @@
+"""ROS 2 through Zenoh: an independent consumer process (plain zenoh + rosbags) receives and
+decodes our samples, sees the graph, and drives a servo; and the same across a Zenoh router with
+the daemon, the board and the consumer each in their own process.  Loopback only, no multicast."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from missing_link.config import BoardSpec, Config
+from missing_link.daemon import Daemon
+from missing_link.demo import start_board_process, stop_process
+from missing_link.publishers.zenoh import attachment, data_key, dds_type
+
+HERE = Path(__file__).resolve().parent
+LISTENER = HERE / "ros2_listener.py"
+QUAD = "builtin_interfaces/Time[] times\\nint16[] values"
+SERVO = "builtin_interfaces/Time[] times\\nint8[] values"
+SIGNAL = "builtin_interfaces/Time[] times\\nint32[] values"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def run_listener(connect: str, *args: str, mode: str = "peer", timeout: float = 60) -> list[dict]:
+    out = subprocess.run(
+        [sys.executable, str(LISTENER), "--connect", connect, "--mode", mode, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert out.returncode == 0, out.stderr
+    return [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+
+
+def test_wire_format_helpers() -> None:
+    assert dds_type("sensor_msgs/msg/Range") == "sensor_msgs::msg::dds_::Range_"
+    assert data_key(0, "/mcu/range", "sensor_msgs/msg/Range", "RIHS01_ab") == (
+        "0/mcu/range/sensor_msgs::msg::dds_::Range_/RIHS01_ab"
+    )
+    att = attachment(7, 1_700_000_000_123_456_789, bytes(range(16)))
+    assert len(att) == 33 and att[16] == 16 and att[17:] == bytes(range(16))
+
+
+def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:  # type: ignore[no-untyped-def]
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    port = free_port()
+    cfg = Config(
+        boards=[BoardSpec(server.url)],
+        publishers=["bus", "zenoh"],
+        publisher_options={"zenoh": {"listen": [f"tcp/127.0.0.1:{port}"], "connect": []}},
+    )
+    with Daemon(cfg) as d:
+        assert d.wait_until_up(10)
+        lines = run_listener(
+            f"tcp/127.0.0.1:{port}",
+            *("--topic", "/thesis/quad", "--type", "missing_link_msgs/msg/Quad"),
+            *("--msgdef", QUAD, "--count", "5"),
+            *("--command", "/thesis/servo/cmd", "--command-type", "missing_link_msgs/msg/Servo"),
+            *("--command-msgdef", SERVO, "--command-value", "50"),
+        )
+        deadline = time.monotonic() + 5
+        while d.sessions[0].commands == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        commands = d.sessions[0].commands
+        zpub = next(p for p in d.publishers if p.name == "zenoh")
+    samples = [x["sample"] for x in lines if "sample" in x]
+    assert len(samples) == 5
+    typehash = zpub.typestore.hash_rihs01("missing_link_msgs/msg/Quad")
+    for s in samples:
+        assert s["key"] == f"0/thesis/quad/missing_link_msgs::msg::dds_::Quad_/{typehash}"
+        assert s["encap"] == "00010000"
+        assert s["attachment_len"] == 33 and s["gid_len"] == 16
+        assert s["source_ns"] == max(s["times"])  # the board's measurement time, synchronised
+        assert 0 <= s["rx_ns"] - s["source_ns"] < 2_000_000_000
+    seqs = [s["seq"] for s in samples]
+    assert seqs == sorted(seqs) and len(set(seqs)) == 5
+    graph = next(x["graph"] for x in lines if "graph" in x)
+    assert any("/NN/%/%/missing_link" in k for k in graph)
+    assert any(
+        "/MP/%/%/missing_link/%thesis%quad/missing_link_msgs::msg::dds_::Quad_/" in k for k in graph
+    )
+    assert any("/MS/%/%/missing_link/%thesis%servo%cmd/" in k for k in graph)
+    assert any("%diagnostics/diagnostic_msgs::msg::dds_::DiagnosticArray_" in k for k in graph)
+    assert commands >= 1  # the consumer's command reached the board's a2j_set_servo
+
+
+ROUTER = textwrap.dedent(
+    """
+    import json, signal, sys, threading, zenoh
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    with zenoh.open(cfg):
+        print("READY", flush=True)
+        stop.wait()
+    """
+)
+
+
+def test_three_processes_through_a_router(tmp_path: Path) -> None:
+    """Router, board + daemon (``missing-link run``) and consumer: separate processes, as on
+    separate machines; the consumer knows only the router's address."""
+    rport = free_port()
+    router = subprocess.Popen(
+        [sys.executable, "-c", ROUTER, f"tcp/127.0.0.1:{rport}"], stdout=subprocess.PIPE, text=True
+    )
+    board, url = start_board_process("rate", 0, "pty", extra=["--rate", "200"])
+    daemon = None
+    try:
+        assert router.stdout is not None and router.stdout.readline().strip() == "READY"
+        conf = tmp_path / "ml.toml"
+        conf.write_text(
+            f'[daemon]\npublishers = ["zenoh"]\n\n[[board]]\nurl = "{url}"\n\n'
+            f'[zenoh]\nconnect = ["tcp/127.0.0.1:{rport}"]\n'
+        )
+        daemon = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "missing_link",
+                "run",
+                "--config",
+                str(conf),
+                "--duration",
+                "40",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        lines = run_listener(
+            f"tcp/127.0.0.1:{rport}",
+            *("--topic", "/rate/signal", "--type", "missing_link_msgs/msg/Signal"),
+            *("--msgdef", SIGNAL, "--count", "20"),
+            mode="client",
+        )
+    finally:
+        if daemon is not None:
+            daemon.terminate()
+            daemon.wait(10)
+        stop_process(board)
+        router.terminate()
+        router.wait(10)
+    samples = [x["sample"] for x in lines if "sample" in x]
+    assert len(samples) == 20
+    values = [s["values"][0] for s in samples]
+    assert values == sorted(values)  # the counter, in order
+    assert all(s["attachment_len"] == 33 for s in samples)
+    graph = next(x["graph"] for x in lines if "graph" in x)
+    assert any("%rate%signal" in k for k in graph)
+
+
+@pytest.mark.parametrize("distro", ["humble", "kilted"])
+def test_distro_sets_the_type_hash_slot(distro: str) -> None:
+    from missing_link.msgs import typestore_for
+    from missing_link.publishers.zenoh import type_hash
+
+    ts = typestore_for(distro)
+    h = type_hash(ts, "sensor_msgs/msg/Range", distro)
+    assert h == "TypeHashNotSupported" if distro == "humble" else h.startswith("RIHS01_")
