@@ -1,0 +1,165 @@
+"""ROS 1 through rospy (Debian's ``ros-core``/``python3-rospy``; see ``scripts/system-deps.sh``).
+
+Thesis-format types are generated at runtime from the descriptors (``time[] times`` + the
+values array, ``genpy.dynamic``: no catkin build); standard types (``sensor_msgs/Range``,
+``sensor_msgs/JointState``) use the installed ROS 1 message classes, filled field by field from
+the ROS 2 layout (so Jazzy's extra ``Range.variance`` is simply not sent).  ``/diagnostics`` goes
+out as ``diagnostic_msgs/DiagnosticArray``.
+
+rospy lives in Debian's system Python; when this interpreter is a different build of the same
+Python minor version (a venv from pyenv, say), Debian's ``dist-packages`` is appended to
+``sys.path`` so rospy and its pure-Python helpers import, while everything the venv has wins.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import sys
+import threading
+from typing import Any
+
+from ..errors import MissingLinkError
+from ..msgs import ROS_TYPES, msg_name, typestore_for
+from ..topics import Topic, Update
+from .base import Publisher, register_publisher
+
+log = logging.getLogger(__name__)
+DEBIAN_DIST = "/usr/lib/python3/dist-packages"
+
+
+def import_rospy() -> Any:
+    try:
+        import rospy
+    except ImportError:
+        if sys.version_info[:2] != (3, 11) or not os.path.isdir(f"{DEBIAN_DIST}/rospy"):
+            raise MissingLinkError(
+                "the ros1 publisher needs rospy: run scripts/system-deps.sh --ros1 "
+                "(Debian's ros-core and python3-rospy)"
+            ) from None
+        sys.path.append(DEBIAN_DIST)
+        import rospy
+    return rospy
+
+
+class Ros1Publisher(Publisher):
+    name = "ros1"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        opts = dict(options or {})
+        master = str(
+            opts.get("master_uri", os.environ.get("ROS_MASTER_URI", "http://127.0.0.1:11311"))
+        )
+        os.environ["ROS_MASTER_URI"] = master
+        os.environ.setdefault("ROS_IP", str(opts.get("ros_ip", "127.0.0.1")))
+        self.rospy = rospy = import_rospy()
+        import genpy.dynamic
+        import rosgraph
+        import roslib.message
+
+        self._dynamic = genpy.dynamic.generate_dynamic
+        self._get_class = roslib.message.get_message_class
+        if not rosgraph.is_master_online(master):
+            raise MissingLinkError(f"ros1: no ROS master at {master} (start roscore)")
+        rospy.init_node(str(opts.get("node", "missing_link")), disable_signals=True)
+        self.queue_size = int(opts.get("queue_size", 100))
+        self.typestore = typestore_for(str(opts.get("distro", "jazzy")))
+        self._lock = threading.Lock()
+        self._pubs: dict[str, tuple[Any, Any, Topic]] = {}
+        self._closed = False
+        self.published = 0
+        diag = self._get_class("diagnostic_msgs/DiagnosticArray")
+        if diag is None:
+            raise MissingLinkError(
+                "ros1: diagnostic_msgs is missing: run scripts/system-deps.sh --ros1"
+            )
+        self._diag = (rospy.Publisher("/diagnostics", diag, queue_size=10), diag)
+        log.info("ros1: node up, master %s", master)
+
+    def add_topic(self, topic: Topic) -> None:
+        with self._lock:
+            if self._closed or topic.name in self._pubs:
+                return
+            if topic.standard:
+                pkg, _, name = topic.type_name.split("/")
+                cls = self._get_class(f"{pkg}/{name}")
+                if cls is None:
+                    log.warning(
+                        "ros1: no ROS 1 class for %s; %s not published", topic.type_name, topic.name
+                    )
+                    return
+            else:
+                pkg = topic.type_name.split("/")[0]
+                t = topic.transducer
+                text = f"time[] times\n{ROS_TYPES[t.dtype]}[] values\n"
+                cls = self._dynamic(f"{pkg}/{msg_name(t)}", text)[f"{pkg}/{msg_name(t)}"]
+            pub = self.rospy.Publisher(topic.name, cls, queue_size=self.queue_size)
+            self._pubs[topic.name] = (pub, cls, topic)
+
+    def publish(self, update: Update) -> None:
+        entry = self._pubs.get(update.topic.name)
+        if entry is None or self._closed:
+            return
+        pub, cls, topic = entry
+        Time = self.rospy.Time
+        if topic.standard:
+            msg = _to_ros1(self.typestore.deserialize_cdr(update.cdr, topic.type_name), cls, Time)
+        else:
+            na = topic.transducer.na
+            values = [na if v is None else v for v in update.values]
+            if isinstance(na, float) and math.isnan(na):
+                values = [float("nan") if v is None else v for v in update.values]
+            msg = cls(times=[Time(h // 10**9, h % 10**9) for h in update.host_ns], values=values)
+        pub.publish(msg)
+        self.published += 1
+
+    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        if self._closed:
+            return
+        pub, cls = self._diag
+        DS = self._get_class("diagnostic_msgs/DiagnosticStatus")
+        KV = self._get_class("diagnostic_msgs/KeyValue")
+        msg = cls()
+        msg.header.stamp = self.rospy.Time(now_ns // 10**9, now_ns % 10**9)
+        for s in status:
+            msg.status.append(
+                DS(
+                    level=0 if s["state"] == "up" else 2,
+                    name=f"missing_link: {s['board']}",
+                    message=str(s["state"]),
+                    hardware_id=str(s.get("serial", "")),
+                    values=[KV(key=str(k), value=str(v)) for k, v in s.items() if k != "board"],
+                )
+            )
+        pub.publish(msg)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            for pub, _, _ in self._pubs.values():
+                pub.unregister()
+            self._diag[0].unregister()
+            self.rospy.signal_shutdown("missing-link daemon closed")
+
+
+def _to_ros1(src: Any, cls: Any, Time: Any) -> Any:
+    """Fill a ROS 1 message of ``cls`` from a rosbags ROS 2 object, field by field by name."""
+    msg = cls()
+    for slot, kind in zip(cls.__slots__, cls._slot_types, strict=True):
+        if not hasattr(src, slot):
+            continue  # e.g. Header.seq (ROS 1 only)
+        value = getattr(src, slot)
+        if kind == "time":
+            value = Time(value.sec, value.nanosec)
+        elif "/" in kind and not kind.endswith("]"):
+            value = _to_ros1(value, type(getattr(msg, slot)), Time)
+        elif hasattr(value, "tolist"):
+            value = value.tolist()
+        setattr(msg, slot, value)
+    return msg
+
+
+register_publisher("ros1", Ros1Publisher)
