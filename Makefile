@@ -47,6 +47,8 @@ bench: venv
 	$(PY) bench/bench_codec.py
 	$(PY) bench/bench_rpc.py
 	$(PY) bench/bench_daemon.py
+	$(PY) bench/bench_timesync.py
+	$(PY) bench/bench_zenoh.py
 
 clean:
 	rm -rf $(VENV) node_modules .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -424,6 +424,8 @@ class Daemon:
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
         opts.setdefault("distro", self.config.distro)
+        if name in ("zenoh", "ros1"):
+            opts.setdefault("node", self.config.node)
         return opts
 
     def start(self) -> Daemon:
