@@ -59,20 +59,6 @@ SUB = textwrap.dedent(
     print(json.dumps({"count": count[0], "lat": lat, "span": last[0] - first[0]}), flush=True)
     """
 )
-ROUTER = textwrap.dedent(
-    """
-    import json, signal, sys, threading, zenoh
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    with zenoh.open(cfg):
-        print("READY", flush=True)
-        stop.wait()
-    """
-)
 
 
 def free_port() -> int:
@@ -107,11 +93,11 @@ def run_remote(n: int, paced_hz: float | None, via_router: bool) -> dict[str, fl
     opts: dict[str, object]
     if via_router:
         router = subprocess.Popen(
-            [sys.executable, "-c", ROUTER, f"tcp/127.0.0.1:{port}"],
+            [sys.executable, "-m", "missing_link", "router", "--listen", f"tcp/127.0.0.1:{port}"],
             stdout=subprocess.PIPE,
             text=True,
         )
-        assert router.stdout is not None and router.stdout.readline().strip() == "READY"
+        assert router.stdout is not None and router.stdout.readline().startswith("READY")
         opts = {"connect": [f"tcp/127.0.0.1:{port}"], "listen": []}
         sub_args = [f"tcp/127.0.0.1:{port}", "client"]
     else:
@@ -124,7 +110,7 @@ def run_remote(n: int, paced_hz: float | None, via_router: bool) -> dict[str, fl
         sub = subprocess.Popen(
             [sys.executable, "-c", SUB, *sub_args, str(n)], stdout=subprocess.PIPE, text=True
         )
-        assert sub.stdout is not None and sub.stdout.readline().strip() == "READY"
+        assert sub.stdout is not None and sub.stdout.readline().startswith("READY")
         time.sleep(1.0)  # let the subscription propagate
         updates = make_updates(tp, n)
         t0 = time.perf_counter()

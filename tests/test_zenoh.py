@@ -8,7 +8,6 @@ import json
 import socket
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -95,33 +94,19 @@ def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:
     assert commands >= 1  # the consumer's command reached the board's a2j_set_servo
 
 
-ROUTER = textwrap.dedent(
-    """
-    import json, signal, sys, threading, zenoh
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    with zenoh.open(cfg):
-        print("READY", flush=True)
-        stop.wait()
-    """
-)
-
-
 def test_three_processes_through_a_router(tmp_path: Path) -> None:
     """Router, board + daemon (``missing-link run``) and consumer: separate processes, as on
     separate machines; the consumer knows only the router's address."""
     rport = free_port()
     router = subprocess.Popen(
-        [sys.executable, "-c", ROUTER, f"tcp/127.0.0.1:{rport}"], stdout=subprocess.PIPE, text=True
+        [sys.executable, "-m", "missing_link", "router", "--listen", f"tcp/127.0.0.1:{rport}"],
+        stdout=subprocess.PIPE,
+        text=True,
     )
     board, url = start_board_process("rate", 0, "pty", extra=["--rate", "200"])
     daemon = None
     try:
-        assert router.stdout is not None and router.stdout.readline().strip() == "READY"
+        assert router.stdout is not None and router.stdout.readline().startswith("READY")
         conf = tmp_path / "ml.toml"
         conf.write_text(
             f'[daemon]\npublishers = ["zenoh"]\n\n[[board]]\nurl = "{url}"\n\n'

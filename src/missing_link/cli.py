@@ -391,6 +391,29 @@ def cmd_board(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- router -----------------------------------------------------------------------------------
+def cmd_router(args: argparse.Namespace) -> int:
+    """A Zenoh router (like rmw_zenohd, without ROS 2): daemons and consumers on several
+    machines meet here.  Multicast scouting off; prints one READY line, stops on SIGINT/SIGTERM."""
+    import zenoh
+
+    if not args.listen:
+        print("missing-link: error: --listen ENDPOINT is required", file=sys.stderr)
+        return EXIT_USAGE
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
+    cfg.insert_json5("connect/endpoints", json.dumps(args.connect or []))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    with zenoh.open(cfg) as session:
+        print(f"READY zenoh router {session.info.zid()} on {', '.join(args.listen)}", flush=True)
+        stop.wait()
+    return 0
+
+
 # ---- demo -------------------------------------------------------------------------------------
 def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
@@ -494,6 +517,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
     sp.set_defaults(func=cmd_board)
+
+    sp = sub.add_parser("router", help="a Zenoh router for daemons and consumers on several hosts")
+    sp.add_argument(
+        "--listen", action="append", help="endpoint, e.g. tcp/0.0.0.0:7447 (repeatable)"
+    )
+    sp.add_argument("--connect", action="append", help="another router to join (repeatable)")
+    sp.set_defaults(func=cmd_router)
 
     sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")
     sp.add_argument("--duration", type=float, default=20.0, help="seconds to run (20)")
