@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import queue
+import socket
 import subprocess
 import threading
 
@@ -84,3 +85,10 @@ class HexLinePipe(Transport):
 
 def j2a_threads() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name.startswith(("j2a:", "board:"))]
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (for servers a test starts)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -20,6 +19,8 @@ from pathlib import Path
 import pytest
 
 from missing_link.demo import start_board_process, stop_process
+
+from .helpers import free_port
 
 HERE = Path(__file__).resolve().parent
 HAVE_ROS1 = shutil.which("roscore") is not None and Path("/usr/bin/python3").exists()
@@ -30,12 +31,6 @@ if not HAVE_ROS1:
             "ML_REQUIRE_ROS1=1 but roscore is missing: scripts/system-deps.sh --ros1"
         )
     pytestmark = pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:

@@ -185,11 +185,9 @@ def test_schedule_bursts_then_slows_and_speeds_up_on_loss() -> None:
     sync = ClockSync(SyncOptions(burst_count=10, interval=0.5, target_us=50), seed=1)
     sync.start(0.0)
     assert sync.state == BURST
-    gaps = []
     now = 0.0
     for ex, _, _t3h in exchanges(0.0, 20e-6, 7, 60, spacing_s=0.001):
         now = max(now, sync.due())
-        gaps.append(sync.due() - now)
         ex = Exchange(
             int(now * 1e9),
             ex.t2 - ex.t1 // 1000 + int(now * 1e6),
@@ -376,3 +374,15 @@ def test_cli_sync_reports_the_board_clock() -> None:
     last = lines[-1]
     assert abs(last["skew_ppm"] - 500) < 100
     assert last["bound_us"] > 0 and last["sync_exchanges"] > 10 and last["sync_min_rtt_us"] > 0
+
+
+def test_samples_stamped_far_back_restart_the_sync() -> None:
+    """A reset seen in the samples first (before any exchange): the update gets no host time
+    from the old map, the sync restarts and probes at once."""
+    sync = ClockSync(seed=3)
+    sync.start(0.0)
+    sync.on_exchange(Exchange(1_000_000_000, 9_000_000, 9_000_010, 1_000_050_000), 1.0)
+    assert sync.map_many([9_000_100], 1.1) is not None
+    assert sync.map_many([9_000_200 - 2_000_000], 1.2) is None  # 2 s behind the newest
+    assert sync.resets == 1 and sync.state == BURST and sync.due() == 1.2
+    assert sync.map_many([5], 1.3) is None  # nothing until the next estimate

@@ -5,7 +5,6 @@ the daemon, the board and the consumer each in their own process.  Loopback only
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import time
@@ -18,17 +17,13 @@ from missing_link.daemon import Daemon
 from missing_link.demo import start_board_process, stop_process
 from missing_link.publishers.zenoh import attachment, data_key, dds_type
 
+from .helpers import free_port
+
 HERE = Path(__file__).resolve().parent
 LISTENER = HERE / "ros2_listener.py"
 QUAD = "builtin_interfaces/Time[] times\\nint16[] values"
 SERVO = "builtin_interfaces/Time[] times\\nint8[] values"
 SIGNAL = "builtin_interfaces/Time[] times\\nint32[] values"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def run_listener(connect: str, *args: str, mode: str = "peer", timeout: float = 60) -> list[dict]:

@@ -56,7 +56,6 @@ from .topics import Topic, Update
 log = logging.getLogger(__name__)
 
 CONNECTING, UP, BACKOFF, STOPPED = "connecting", "up", "backoff", "stopped"
-_RESET_BACKSTEP_US = 1_000_000  # a sample stamped this far behind the newest: the board restarted
 
 
 class BoardSession:
@@ -316,13 +315,10 @@ class BoardSession:
         sync = self.sync
         got = None
         if sync is not None:
-            newest = sync.map_.newest_mapped
-            if newest is not None and max(board_us) < newest - _RESET_BACKSTEP_US:
-                log.warning(
-                    "%s: sample stamps went back: board reset, clock map restarted", self.name
-                )
-                sync.board_reset(now_mono)
-            got = sync.map_many(board_us)
+            resets = sync.resets
+            got = sync.map_many(board_us, now_mono)
+            if sync.resets != resets:
+                log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
         if got is not None:
             hosts, sigma, bound, flags = got
             host_ns = [0 if v is None else h + rt_off for h, v in zip(hosts, values, strict=True)]

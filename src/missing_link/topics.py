@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .descriptors import Transducer
-from .msgs import CdrEncoder, msgdef, type_name
+from .msgs import CdrEncoder, msgdef, register_types, type_name
 
 TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
 
@@ -37,6 +37,11 @@ class Topic:
     @classmethod
     def for_transducer(cls, name: str, board: str, t: Transducer, package: str) -> Topic:
         return cls(check_topic(name), board, t, type_name(t, package), msgdef(t, 2), CdrEncoder(t))
+
+    def register_type(self, typestore: Any) -> None:
+        """Make this topic's type known to a rosbags typestore (standard types already are)."""
+        if not self.standard:
+            register_types(typestore, [self.transducer], self.type_name.split("/")[0])
 
     @classmethod
     def standard_type(

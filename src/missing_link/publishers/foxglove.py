@@ -11,7 +11,7 @@ import logging
 import threading
 from typing import Any
 
-from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
+from ..msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 from .mcap import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
@@ -57,9 +57,7 @@ class FoxglovePublisher(Publisher):
         with self._lock:
             if self._closed or topic.name in self._channels:
                 return
-            if not topic.standard:
-                package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
-                register_types(self.typestore, [topic.transducer], package)
+            topic.register_type(self.typestore)
             self._channel(topic.name, topic.type_name)
 
     def publish(self, update: Update) -> None:

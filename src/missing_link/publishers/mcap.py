@@ -17,7 +17,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
+from ..msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
@@ -142,9 +142,7 @@ class McapPublisher(Publisher):
     def _connect(self, topic: Topic) -> None:
         if topic.name in self._conns:
             return
-        if not topic.standard:
-            package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
-            register_types(self.typestore, [topic.transducer], package)
+        topic.register_type(self.typestore)
         self._conns[topic.name] = self._writer.add_connection(
             topic.name, topic.type_name, typestore=self.typestore
         )

@@ -14,7 +14,6 @@ Python minor version (a venv from pyenv, say), Debian's ``dist-packages`` is app
 from __future__ import annotations
 
 import logging
-import math
 import os
 import sys
 import threading
@@ -106,10 +105,8 @@ class Ros1Publisher(Publisher):
         if topic.standard:
             msg = _to_ros1(self.typestore.deserialize_cdr(update.cdr, topic.type_name), cls, Time)
         else:
-            na = topic.transducer.na
+            na = topic.transducer.na  # the declared N/A value keeps a missing channel's slot
             values = [na if v is None else v for v in update.values]
-            if isinstance(na, float) and math.isnan(na):
-                values = [float("nan") if v is None else v for v in update.values]
             msg = cls(times=[Time(h // 10**9, h % 10**9) for h in update.host_ns], values=values)
         pub.publish(msg)
         self.published += 1

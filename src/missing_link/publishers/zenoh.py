@@ -28,7 +28,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ..msgs import DEFAULT_PACKAGE, register_types, typestore_for
+from ..msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
@@ -127,16 +127,11 @@ class ZenohPublisher(Publisher):
             f"/{mangle(topic)}/{dds_type(type_name)}/{hash_}/{QOS}"
         )
 
-    def _register(self, topic: Topic) -> None:
-        if not topic.standard:
-            package = topic.type_name.split("/")[0] or DEFAULT_PACKAGE
-            register_types(self.typestore, [topic.transducer], package)
-
     def add_topic(self, topic: Topic) -> None:
         with self._lock:
             if self._closed or topic.name in self._entities:
                 return
-            self._register(topic)
+            topic.register_type(self.typestore)
             self._declare_publisher(topic.name, topic.type_name)
 
     def _declare_publisher(self, name: str, type_name: str) -> _Entity:
@@ -156,7 +151,7 @@ class ZenohPublisher(Publisher):
         with self._lock:
             if self._closed or name in self._subs:
                 return
-            self._register(topic)
+            topic.register_type(self.typestore)
             hash_ = type_hash(self.typestore, topic.type_name, self.distro)
             eid = self._next_id
             self._next_id += 1

@@ -23,12 +23,13 @@ Each ``add``:
      board clock restarted -> ``RESET`` (the caller starts over and flags a step);
   2. window: exchanges within ``window_s`` of board time; beyond ``max_points`` the one whose
      tighter constraint is loosest goes (the newest quarter always stays);
-  3. skew and offset by weighted least squares on the exchange midpoints, weights falling with
-     the exchange's delay above the window's smallest (a slow exchange says little);
+  3. skew by weighted least squares on the exchange midpoints, weights falling with the
+     exchange's delay above the window's smallest (a slow exchange says little);
   4. hard skew range from pairs of constraints far apart in time; the skew is clamped into it;
-  5. hard offset band at the newest exchange: every constraint, moved to ``b_ref`` along the
-     fitted skew and widened by the skew uncertainty (plus an allowance for frequency wander
-     over the window); the offset is clamped into the band;
+  5. offset: the middle between the tightest lower and the tightest upper constraint at the
+     fitted skew; hard band at the newest exchange: every constraint, moved to ``b_ref`` along
+     the fitted skew and widened by the skew uncertainty (plus an allowance for frequency
+     wander over the window); the offset is clamped into the band;
   6. an empty band (the window no longer fits one line: the clock's rate wandered) drops the
      oldest exchanges until it fits again - this is what makes the window adaptive.
 
@@ -49,7 +50,6 @@ import numpy as np
 #: The skew range assumed before two exchanges are far enough apart to bound it.  Ceramic
 #: resonators are within ±0.5 %; crystals are far better.
 MAX_SKEW = 5000e-6
-CENTRE = "band"
 
 
 @dataclass(frozen=True)
@@ -238,19 +238,16 @@ class ClockEstimator:
             k = prev.skew if prev is not None else 0.0
         if consistent:
             k = min(max(k, kmin), kmax)
-        c = mr - k * mx  # residual at x = 0
 
         span_s = (t3.max() - t2.min()) / 1e6
         dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
         lo = float((rl - k * xl - dk * np.abs(xl)).max())
         hi = float((ru - k * xu + dk * np.abs(xu)).min())
-        if CENTRE == "band":
-            # the middle of the band at the fitted skew (no widening): each side is set by its
-            # own tightest exchanges, so a link whose two directions are slow at different
-            # times (a host busy with samples when the reply arrives) does not bias it
-            blo = float((rl - k * xl).max())
-            bhi = float((ru - k * xu).min())
-            c = (blo + bhi) / 2.0
+        # Offset: the middle of the band at the fitted skew (no widening).  Each side is set by
+        # its own tightest exchanges, so a link whose two directions are slow at different times
+        # (a host busy with samples when the reply arrives) does not bias it, as a midpoint
+        # fit of whole exchanges would.
+        c = (float((rl - k * xl).max()) + float((ru - k * xu).min())) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0

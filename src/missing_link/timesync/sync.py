@@ -6,7 +6,8 @@ States::
 
     unsynced --first exchange--> burst --burst_count exchanges--> tracking
     tracking --timeout / exchange outside the predicted band--> fast --fast_count--> tracking
-    any --board time went backwards (reset)--> unsynced (the next estimate steps the map)
+    any --board time went backwards in an exchange or a sample (reset)--> unsynced
+        (the next estimate steps the map)
 
 The shell asks ``due()`` when to probe next, runs an ``a2jClock`` exchange and reports it with
 ``on_exchange`` (or ``on_lost`` after a timeout).  Probing is fast on connect (``burst``); while
@@ -53,6 +54,8 @@ class SyncOptions:
     res_us: int = 1
     tau_s: float = 2.0  #: time constant of the published map's slew
     max_slew: float = 500e-6
+    #: a sample stamped this far behind the newest one mapped: the board restarted
+    reset_backstep_us: int = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -73,7 +76,7 @@ class ClockSync:
         self.estimator = ClockEstimator(
             res_us=o.res_us, window_s=o.window_s, max_points=o.max_points
         )
-        self.map_ = PublishedMap(max_slew=o.max_slew, tau_s=o.tau_s)
+        self._map = PublishedMap(max_slew=o.max_slew, tau_s=o.tau_s)
         self.state = UNSYNCED
         self._lock = threading.Lock()
         self._next = 0.0
@@ -133,16 +136,16 @@ class ClockSync:
             prior = self.estimator.estimate
             result = self.estimator.add(ex)
             if result is AddResult.RESET:
-                self._reset_locked(now)
+                self._reset_locked()
                 result = self.estimator.add(ex)
                 result = AddResult.RESET if result is AddResult.ACCEPTED else result
             est = self.estimator.estimate
             if est is not None and result is not AddResult.REJECTED:
-                if not self.map_.started:
-                    self.map_.start(est)
+                if not self._map.started:
+                    self._map.start(est)
                     self._step_pending = True
                 else:
-                    self.last_error_ns = self.map_.steer(est)
+                    self.last_error_ns = self._map.steer(est)
         surprise = False
         if prior is not None and result is AddResult.ACCEPTED:
             _, hi2 = prior.interval(ex.t2 + self.opt.res_us)
@@ -173,17 +176,10 @@ class ClockSync:
             self._enter(FAST, now)
         self._advance(now, False)
 
-    def board_reset(self, now: float) -> None:
-        """The shell saw a reset some other way (a new ``clock.epoch``, samples going back)."""
-        with self._lock:
-            self._reset_locked(now)
-        self._enter(BURST, now)
-        self._next = now
-
-    def _reset_locked(self, now: float) -> None:
+    def _reset_locked(self) -> None:
         self.resets += 1
         self.estimator.reset()
-        self.map_ = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
+        self._map = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
         self.state = UNSYNCED
 
     # ---- output ------------------------------------------------------------------------------
@@ -199,21 +195,37 @@ class ClockSync:
         hosts, sigma, bound, flags = got
         return Mapped(hosts[0], sigma, bound, flags)
 
-    def map_many(self, board_us: Sequence[int]) -> tuple[list[int], int, int, int] | None:
+    def map_many(
+        self, board_us: Sequence[int], now: float = 0.0
+    ) -> tuple[list[int], int, int, int] | None:
         """Host ns (CLOCK_MONOTONIC) for each stamp of one update, plus the 1-sigma estimate,
-        the hard bound (both for the newest stamp) and flags; None before the first estimate."""
+        the hard bound (both for the newest stamp) and flags; None before the first estimate.
+
+        A stamp more than ``reset_backstep_us`` behind the newest one mapped means the board
+        restarted without the link dropping: the sync restarts (``resets`` counts it) and
+        this update gets None, like every one until the next estimate."""
+        newest = max(board_us)
         with self._lock:
             est = self.estimator.estimate
-            pm = self.map_
+            pm = self._map
             if est is None or not pm.started:
                 return None
-            hosts = [round(pm.map(b)) for b in board_us]
-            flags = 0
-            if self._step_pending:
-                flags = STEP
-                self._step_pending = False
-        newest = max(board_us)
-        h = pm.at(newest)
+            last = pm.newest_mapped
+            if last is not None and newest < last - self.opt.reset_backstep_us:
+                self._reset_locked()
+                reset = True
+            else:
+                reset = False
+                hosts = [round(pm.map(b)) for b in board_us]
+                flags = 0
+                if self._step_pending:
+                    flags = STEP
+                    self._step_pending = False
+        if reset:
+            self._enter(BURST, now)
+            self._next = now  # probe at once
+            return None
+        h = pm.at(newest)  # unrounded, for the bound
         lo, hi = est.interval(newest)
         dev = h - est.host_at(newest)
         sigma = math.sqrt(est.sigma_ns**2 + dev * dev)
