@@ -135,7 +135,7 @@ def test_a2jmany_short_header_and_bad_target() -> None:
     short = conn.call(1, b"\x02\x00", 0.0, 1.0)
     beyond = conn.call(1, many_request(230, 0, 0), 0.0, 1.0)
     events = Link(rt, conn).run()
-    assert events[0] == CallCompleted(short, 0xFF, b"")
+    assert events[0] == CallCompleted(short, 0xFF, b"\x02\x00")  # echoed, as the original
     assert isinstance(events[1], CallFailed) and events[1].code == 0xF0 and events[1].op == beyond
 
 

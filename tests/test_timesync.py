@@ -22,6 +22,7 @@ from missing_link.demo import start_board_process, stop_process
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.timesync import (
     NOT_SYNCED,
+    OUTLIER,
     STEP,
     AddResult,
     ClockEstimator,
@@ -212,14 +213,35 @@ def test_reset_restarts_and_flags_a_step() -> None:
     first = sync.map(5_000_020)
     assert first is not None and first.flags & STEP
     assert not (sync.map(5_000_030).flags & STEP)  # type: ignore[union-attr]
-    # board restarted: its clock is back near zero
+    # board restarted: its clock is back near zero.  One such exchange could be a glitch: it is
+    # refused (counted) and a probe is due at once; a second that agrees with it is the reset.
     assert (
-        sync.on_exchange(Exchange(2_000_000_000, 100, 110, 2_000_050_000), 2.0) is AddResult.RESET
+        sync.on_exchange(Exchange(2_000_000_000, 100, 110, 2_000_050_000), 2.0)
+        is AddResult.REJECTED
+    )
+    assert sync.outliers == 1 and sync.resets == 0 and sync.due() == 2.0
+    assert (
+        sync.on_exchange(Exchange(2_001_000_000, 1_100, 1_110, 2_001_050_000), 2.001)
+        is AddResult.RESET
     )
     assert sync.resets == 1 and sync.state == BURST
-    again = sync.map(120)
+    again = sync.map(1_120)
     assert again is not None and again.flags & STEP
-    assert abs(again.host_ns - 2_000_025_000) < 60_000
+    assert abs(again.host_ns - 2_001_025_000) < 60_000
+
+
+def test_one_far_exchange_is_an_outlier_not_a_reset() -> None:
+    sync = ClockSync(seed=2)
+    sync.start(0.0)
+    sync.on_exchange(Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_050_000), 1.0)
+    before = sync.map(5_000_020)
+    glitch = Exchange(1_100_000_000, 5_100_000 + (1 << 40), 5_100_010 + (1 << 40), 1_100_050_000)
+    assert sync.on_exchange(glitch, 1.1) is AddResult.REJECTED
+    ok = Exchange(1_200_000_000, 5_200_000, 5_200_010, 1_200_050_000)
+    assert sync.on_exchange(ok, 1.2) is AddResult.ACCEPTED  # the glitch did not confirm itself
+    assert sync.resets == 0 and sync.outliers == 1
+    after = sync.map(5_200_020)
+    assert before is not None and after is not None and after.host_ns > before.host_ns
 
 
 # ---- simulation: our method against the anchors (deterministic, seeded) ------------------------
@@ -383,6 +405,30 @@ def test_samples_stamped_far_back_restart_the_sync() -> None:
     sync.start(0.0)
     sync.on_exchange(Exchange(1_000_000_000, 9_000_000, 9_000_010, 1_000_050_000), 1.0)
     assert sync.map_many([9_000_100], 1.1) is not None
-    assert sync.map_many([9_000_200 - 2_000_000], 1.2) is None  # 2 s behind the newest
-    assert sync.resets == 1 and sync.state == BURST and sync.due() == 1.2
+    # 2 s behind the newest: an outlier until reset_confirm (3) consistent ones say "reset"
+    assert sync.map_many([9_000_200 - 2_000_000], 1.2) == ([], -1, -1, OUTLIER)
+    assert sync.due() == 1.2  # a probe at once, to confirm or refute
+    assert sync.map_many([9_000_300 - 2_000_000], 1.21) == ([], -1, -1, OUTLIER)
+    assert sync.map_many([9_000_400 - 2_000_000], 1.22) is None
+    assert sync.resets == 1 and sync.state == BURST and sync.due() == 1.22
+    assert sync.outliers == 2
     assert sync.map_many([5], 1.3) is None  # nothing until the next estimate
+
+
+def test_glitch_stamps_never_map_into_the_future() -> None:
+    """A far-future stamp (a byte flip the 8-bit checksum let through) is an outlier; the map
+    and later samples are untouched (no reset, no step)."""
+    sync = ClockSync(seed=3)
+    sync.start(0.0)
+    sync.on_exchange(Exchange(1_000_000_000, 9_000_000, 9_000_010, 1_000_050_000), 1.0)
+    first = sync.map_many([9_000_100], 1.0002)
+    assert first is not None and first[3] & STEP
+    assert sync.map_many([9_000_200 + (1 << 56)], 1.0003) == ([], -1, -1, OUTLIER)
+    later = sync.map_many([9_000_300], 1.0004)
+    assert later is not None and later[3] == 0 and later[0][0] > first[0][0]
+    assert sync.resets == 0 and sync.outliers == 1
+    # scattered far-back glitches (not consistent with each other) never add up to a reset
+    for k in range(6):
+        back = 9_000_300 - 2_000_000 - (k % 2) * 5_000_000
+        assert sync.map_many([back], 1.001 + k / 1000) == ([], -1, -1, OUTLIER)
+    assert sync.resets == 0

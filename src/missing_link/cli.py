@@ -391,6 +391,38 @@ def cmd_board(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- relay ------------------------------------------------------------------------------------
+def cmd_relay(args: argparse.Namespace) -> int:
+    """A fault-injecting relay in front of a board (see missing_link.faults)."""
+    from .faults import FaultRelay, Faults
+
+    try:
+        faults = Faults(
+            corrupt=args.corrupt,
+            drop=args.drop,
+            delay_s=args.delay_ms / 1000.0,
+            blackhole_after=args.blackhole_after,
+            blackhole_for=args.blackhole_for,
+            seed=args.seed,
+        ).check()
+    except ValueError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    relay = FaultRelay(args.url, faults, args.listen)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    relay.start()
+    print(f"LISTENING {relay.url}", flush=True)
+    stop.wait(args.duration or None)
+    relay.stop()
+    counts = ", ".join(f"{k} {v}" for k, v in relay.counters().items())
+    print(f"relay: {counts}", file=sys.stderr)
+    for line in relay.errors[-5:]:
+        print(f"relay: {line}", file=sys.stderr)
+    return 0
+
+
 # ---- router -----------------------------------------------------------------------------------
 def cmd_router(args: argparse.Namespace) -> int:
     """A Zenoh router (like rmw_zenohd, without ROS 2): daemons and consumers on several
@@ -517,6 +549,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
     sp.set_defaults(func=cmd_board)
+
+    sp = sub.add_parser("relay", help="a fault-injecting relay in front of a board (tests)")
+    sp.add_argument("url", help="the board's URL (tcp, unix, serial, ...)")
+    sp.add_argument(
+        "--listen", default="tcp://127.0.0.1:0", help="tcp://127.0.0.1:PORT or unix:///PATH"
+    )
+    sp.add_argument("--corrupt", type=float, default=0.0, help="per-byte bit-flip probability")
+    sp.add_argument("--drop", type=float, default=0.0, help="per-chunk loss probability")
+    sp.add_argument("--delay-ms", type=float, default=0.0, help="hold every chunk this long")
+    sp.add_argument(
+        "--blackhole-after", type=float, help="forward nothing after S s of a connection"
+    )
+    sp.add_argument("--blackhole-for", type=float, help="... for S s (default: for ever)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
+    sp.set_defaults(func=cmd_relay)
 
     sp = sub.add_parser("router", help="a Zenoh router for daemons and consumers on several hosts")
     sp.add_argument(

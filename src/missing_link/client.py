@@ -53,6 +53,14 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 DEFAULT_TIMEOUT = 1.0
+#: the whole handshake (mapping, properties, descriptors) must end within this (s)
+HANDSHAKE_TIMEOUT = 5.0
+#: caps on what a board may send during the handshake (bytes): a board is untrusted
+MAX_MAPPING = 16 << 10
+MAX_PROPERTIES = 16 << 10
+MAX_TRANSDS = 64 << 10
+#: a read_many without a deadline of its own must end within this (s)
+TRANSFER_TIMEOUT = 120.0
 _TICK = 0.02  # longest the reader sleeps before looking at timers again
 SifHandler = Callable[[SifReceived, float], None]
 ProgressFn = Callable[[int, "int | None"], None]
@@ -91,6 +99,8 @@ class Board:
         self.properties: dict[str, str] = {}
         self.transducers: list[Transducer] | None = None
         self.transds_text: str | None = None
+        #: CLOCK_MONOTONIC s when the last intact frame (reply or SIF) arrived: link liveness
+        self.last_frame = time.monotonic()
         self._thread = threading.Thread(target=self._reader, name=f"j2a:{self.url}", daemon=True)
         self._thread.start()
 
@@ -103,11 +113,12 @@ class Board:
         timeout: float = DEFAULT_TIMEOUT,
         window: int = 1,
         describe: bool = True,
+        handshake_timeout: float = HANDSHAKE_TIMEOUT,
     ) -> Board:
         """Open ``url`` and read the board's mapping, properties and transducer descriptors."""
         board = cls(open_transport(url), timeout=timeout, window=window)
         try:
-            board.handshake(describe=describe)
+            board.handshake(describe=describe, deadline=time.monotonic() + handshake_timeout)
         except BaseException:
             board.close()
             raise
@@ -122,8 +133,29 @@ class Board:
         """True for a Part 1 (2014 firmware) board: no ``j2a.version`` property."""
         return "j2a.version" not in self.properties
 
-    def handshake(self, *, describe: bool = True) -> None:
-        first = self.call_index(0, b"", "a2jGetMapping")
+    def handshake(self, *, describe: bool = True, deadline: float | None = None) -> None:
+        """Read the mapping, properties and descriptors, all by ``deadline`` (monotonic s;
+        default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap.  What the board
+        sends is validated here: errors name the board and the field."""
+        if deadline is None:
+            deadline = time.monotonic() + HANDSHAKE_TIMEOUT
+        total = deadline - time.monotonic()
+
+        def left(what: str) -> float:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise CallTimeout(self.name, what, f"handshake not done within {total:.1f} s")
+            return remaining
+
+        # First contact: ask again on a timeout (a board still booting, stale bytes in a pty).
+        while True:
+            try:
+                first = self.call_index(
+                    0, b"", "a2jGetMapping", min(self.timeout, left("a2jGetMapping"))
+                )
+                break
+            except CallTimeout:
+                left("a2jGetMapping")
         blob = first.payload
         # An original board wraps past 255 bytes; a new one stops at a name boundary and offers
         # the full table through a2jGetMappingMany.
@@ -132,7 +164,14 @@ class Board:
             names = parse_mapping(head)
             if "a2jGetMappingMany" in names:
                 full = self._wait(
-                    self._read_future(names.index("a2jGetMappingMany"), "a2jGetMappingMany"), None
+                    self._read_future(
+                        names.index("a2jGetMappingMany"),
+                        "a2jGetMappingMany",
+                        max_bytes=MAX_MAPPING,
+                        timeout=min(self.timeout, left("a2jGetMappingMany")),
+                        deadline=deadline,
+                    ),
+                    None,
                 )
                 names = parse_mapping(full)
             self.functions = names
@@ -140,13 +179,24 @@ class Board:
         except BlobError as e:
             raise BoardError(self.url, f"bad function mapping: {e}") from e
         if "a2jGetProperties" in self.index:
-            raw = self.read_many("a2jGetProperties")
+            raw = self.read_many(
+                "a2jGetProperties",
+                max_bytes=MAX_PROPERTIES,
+                timeout=min(self.timeout, left("a2jGetProperties")),
+                deadline=deadline,
+            )
             try:
                 self.properties = parse_properties(raw)
             except BlobError as e:
                 raise BoardError(self.url, f"bad properties: {e}") from e
+            _check_properties(self.name, self.properties)
         if describe and "a2jGetTransds" in self.index:
-            raw = self.read_many("a2jGetTransds")
+            raw = self.read_many(
+                "a2jGetTransds",
+                max_bytes=MAX_TRANSDS,
+                timeout=min(self.timeout, left("a2jGetTransds")),
+                deadline=deadline,
+            )
             try:
                 self.transds_text = raw.decode("utf-8")
             except UnicodeDecodeError as e:
@@ -212,8 +262,9 @@ class Board:
         progress: ProgressFn | None = None,
         max_bytes: int = 64 << 20,
         timeout: float | None = None,
+        deadline: float | None = None,
     ) -> Future[bytes]:
-        return self._read_future(self._lookup(name), name, progress, max_bytes, timeout)
+        return self._read_future(self._lookup(name), name, progress, max_bytes, timeout, deadline)
 
     def _read_future(
         self,
@@ -222,11 +273,18 @@ class Board:
         progress: ProgressFn | None = None,
         max_bytes: int = 64 << 20,
         timeout: float | None = None,
+        deadline: float | None = None,
     ) -> Future[bytes]:
         return self._start(
             label,
             lambda now, t: self.conn.read_many(
-                target, now, t, max_bytes=max_bytes, progress=progress is not None
+                target,
+                now,
+                t,
+                max_bytes=max_bytes,
+                progress=progress is not None,
+                deadline=deadline if deadline is not None else now + TRANSFER_TIMEOUT,
+                detect_offset_bug=self.is_original,
             ),
             timeout,
             progress,
@@ -239,10 +297,14 @@ class Board:
         progress: ProgressFn | None = None,
         max_bytes: int = 64 << 20,
         timeout: float | None = None,
+        deadline: float | None = None,
     ) -> bytes:
-        """Read a many-function's whole blob (a2jMany), chunk by chunk."""
+        """Read a many-function's whole blob (a2jMany), chunk by chunk.  ``timeout`` is per
+        chunk; ``deadline`` (CLOCK_MONOTONIC s) bounds the whole transfer."""
         return self._wait(
-            self.read_many_future(name, progress=progress, max_bytes=max_bytes, timeout=timeout),
+            self.read_many_future(
+                name, progress=progress, max_bytes=max_bytes, timeout=timeout, deadline=deadline
+            ),
             None,
         )
 
@@ -330,7 +392,13 @@ class Board:
                 now_ns = time.monotonic_ns()
                 now = now_ns / 1e9
                 with self._lock:
-                    events = self.conn.receive_data(data, now) if data else []
+                    if data:
+                        frames = self.conn.decoder.stats.frames
+                        events = self.conn.receive_data(data, now)
+                        if self.conn.decoder.stats.frames != frames:
+                            self.last_frame = now
+                    else:
+                        events = []
                     if timer is not None and now >= timer:
                         events += self.conn.handle_timer(now)
                     self._flush()
@@ -422,6 +490,20 @@ class Board:
 
     def __repr__(self) -> str:
         return f"<Board {self.name} at {self.url}>"
+
+
+def _check_properties(board: str, props: dict[str, str]) -> None:
+    """Range-check the numbers a board states about itself (they steer the host)."""
+    res = props.get("clock.res_us")
+    if res is not None:
+        try:
+            value = int(res)
+        except ValueError:
+            value = 0
+        if not 1 <= value <= 1_000_000:
+            raise BoardError(
+                board, f"property clock.res_us = {res!r}: expected whole µs in 1..1000000"
+            )
 
 
 def open_board(url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> Board:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from .msgs import DISTROS, check_package
+from .text import is_token
 from .topics import check_topic
 
 
@@ -23,7 +24,11 @@ class BoardSpec:
     url: str
     name: str | None = None  #: topic prefix; default: the board's board.name property
     descriptors: str | None = None  #: host-side descriptor file (original boards)
-    timeout: float = 1.0
+    timeout: float = 1.0  #: s per call
+    handshake_timeout: float = 5.0  #: s for mapping, properties and descriptors together
+    #: s without an intact frame from the board before the link is declared stale (frozen
+    #: board, half-open link) and reconnected; heartbeats go out after a third of it
+    link_timeout: float = 1.5
     #: UART baud rate when the board is on a real UART (an FTDI-like bridge): the time its
     #: replies spend on the wire is then known to clock sync.  0: not a UART, or unknown.
     uart_baud: int = 0
@@ -43,7 +48,9 @@ class Config:
     remap: dict[str, str] = field(default_factory=dict)
     publisher_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     backoff_min: float = 0.2
-    backoff_max: float = 5.0
+    #: reconnect attempts back off up to this (s): a board that comes back is up again within
+    #: about this plus its handshake
+    backoff_max: float = 1.0
     diagnostics_period: float = 1.0
     source: str = "<defaults>"
 
@@ -62,7 +69,19 @@ _BOARD_KEYS = {
     "name": str,
     "descriptors": str,
     "timeout": (int, float),
+    "handshake_timeout": (int, float),
+    "link_timeout": (int, float),
     "uart_baud": int,
+}
+#: (low, high) for numbers: a value outside is refused with the file, table and key
+_RANGES: dict[str, tuple[float, float]] = {
+    "backoff_min": (0.01, 60.0),
+    "backoff_max": (0.01, 3600.0),
+    "diagnostics_period": (0.05, 3600.0),
+    "timeout": (0.001, 60.0),
+    "handshake_timeout": (0.1, 600.0),
+    "link_timeout": (0.05, 3600.0),
+    "uart_baud": (0, 100_000_000),
 }
 
 
@@ -86,6 +105,10 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
                 raise fail(
                     f"{where}.{key}", f"expected a {_type_name(allowed[key])}, got {value!r}"
                 )
+            if key in _RANGES:
+                lo, hi = _RANGES[key]
+                if not lo <= value <= hi:
+                    raise fail(f"{where}.{key}", f"{value!r} is outside {lo:g}..{hi:g}")
 
     known_tables = {"daemon", "board", "remap"}
     daemon = doc.get("daemon", {})
@@ -94,6 +117,8 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
     check(daemon, _DAEMON_KEYS, "daemon")
     for key, value in daemon.items():
         setattr(cfg, key, float(value) if isinstance(value, int) else value)  # 1 -> 1.0 (seconds)
+    if cfg.backoff_max < cfg.backoff_min:
+        raise fail("daemon.backoff_max", f"{cfg.backoff_max:g} is below backoff_min")
     if cfg.distro not in DISTROS:
         raise fail("daemon.distro", f"{cfg.distro!r} is not one of {', '.join(DISTROS)}")
     try:
@@ -117,6 +142,8 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
         check(b, _BOARD_KEYS, where)
         if "url" not in b:
             raise fail(where, "missing url")
+        if "name" in b and not is_token(b["name"]):
+            raise fail(f"{where}.name", f"{b['name']!r} is not a topic name ([a-z][a-z0-9_]*)")
         cfg.boards.append(BoardSpec(**b))
     remap = doc.get("remap", {})
     for old, new in remap.items():

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from .board.dtypes import DTYPES, FLOAT_TYPES, SIF_MAX_PAYLOAD
 from .errors import DescriptorError
+from .text import clean
 
 HEADER = "transds/1"
 NAME_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
@@ -148,7 +149,9 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
     def fail(fld: str, why: str) -> DescriptorError:
         return DescriptorError(board, f"{where}, field {fld}: {why} (line: {line!r})")
 
-    parts = [p.strip() for p in line.split(",")]
+    # Board text is untrusted: a \r or an escape sequence in a model string must not reach a
+    # generated .msg file or a terminal.
+    parts = [clean(p).strip() for p in line.split(",")]
     if len(parts) < len(FIELDS):
         raise fail(FIELDS[len(parts)], f"missing; a line needs {len(FIELDS)} fields")
     name, id_s, prefix, model, count_s, dtype, na_s = parts[:7]
@@ -207,17 +210,32 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
     return Transducer(name, tid, prefix, model, chan_count, dtype, na, options, unknown)
 
 
+def msg_name(name: str) -> str:
+    """``dist_ir`` -> ``DistIr``: the message type a transducer's name gives (ROS CamelCase)."""
+    return "".join(part[:1].upper() + part[1:] for part in name.split("_") if part)
+
+
 def check_unique(items: list[tuple[str, str]], board: str) -> list[Transducer]:
-    """Parse (where, line) pairs; names and ids must be unique."""
+    """Parse (where, line) pairs; names, ids and the message type names they give must be
+    unique (``sonar_1`` and ``sonar1`` would both be ``Sonar1``)."""
     out: list[Transducer] = []
     names: dict[str, str] = {}
     ids: dict[int, str] = {}
+    types: dict[str, Transducer] = {}
     for where, line in items:
         t = parse_line(line, board, where)
         if t.name in names:
             raise DescriptorError(
                 board, f"{where}, field name: {t.name!r} already on {names[t.name]}"
             )
+        other = types.get(msg_name(t.name))
+        if other is not None:
+            raise DescriptorError(
+                board,
+                f"{where}, field name: {t.name!r} and {other.name!r} (on {names[other.name]}) "
+                f"would share the message type {msg_name(t.name)}; rename one",
+            )
+        types[msg_name(t.name)] = t
         if t.id in ids:
             raise DescriptorError(board, f"{where}, field id: {t.id} already on {ids[t.id]}")
         # Refer back to the first one briefly: "line 2" or "[[transducer]] #1".

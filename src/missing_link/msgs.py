@@ -22,6 +22,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from .descriptors import Transducer
+from .descriptors import msg_name as _camel
 
 if TYPE_CHECKING:  # rosbags is only needed where types are registered
     from rosbags.typesys.store import Typestore
@@ -60,8 +61,7 @@ _PKG_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
 
 def msg_name(transducer: Transducer | str) -> str:
     """``dist_ir`` -> ``DistIr`` (ROS message names are CamelCase)."""
-    name = transducer if isinstance(transducer, str) else transducer.name
-    return "".join(part[:1].upper() + part[1:] for part in name.split("_") if part)
+    return _camel(transducer if isinstance(transducer, str) else transducer.name)
 
 
 def msg_text(t: Transducer, ros: int = 2) -> str:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .descriptors import Transducer
-from .msgs import CdrEncoder, msgdef, register_types, type_name
+from .msgs import CdrEncoder, msgdef, type_name
 
 TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
 
@@ -35,13 +35,26 @@ class Topic:
     standard: bool = False  #: a standard ROS type (already known to every typestore)
 
     @classmethod
-    def for_transducer(cls, name: str, board: str, t: Transducer, package: str) -> Topic:
-        return cls(check_topic(name), board, t, type_name(t, package), msgdef(t, 2), CdrEncoder(t))
+    def for_transducer(
+        cls, name: str, board: str, t: Transducer, package: str, type_name_: str | None = None
+    ) -> Topic:
+        """``type_name_``: the message type (default ``<package>/msg/<CamelName>``; the daemon
+        qualifies it by board where two boards define one name differently)."""
+        return cls(
+            check_topic(name),
+            board,
+            t,
+            type_name_ or type_name(t, package),
+            msgdef(t, 2),
+            CdrEncoder(t),
+        )
 
     def register_type(self, typestore: Any) -> None:
         """Make this topic's type known to a rosbags typestore (standard types already are)."""
-        if not self.standard:
-            register_types(typestore, [self.transducer], self.type_name.split("/")[0])
+        if not self.standard and self.type_name not in typestore.types:
+            from rosbags.typesys import get_types_from_msg
+
+            typestore.register(get_types_from_msg(self.msgdef, self.type_name))
 
     @classmethod
     def standard_type(

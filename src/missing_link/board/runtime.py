@@ -210,7 +210,7 @@ class BoardRuntime:
         # A read-only many-function over the bytes make_blob() returns (snapshot at offset 0).
         def handler(is_write, is_last, offset, data):
             if is_write:
-                return 0xFF, True, b""
+                return 0xFF, False, b""  # flags byte 00, as the original (spec 1.11)
             if offset == 0 or name not in self._blobs:
                 self._blobs[name] = make_blob()
             return read_blob(self._blobs[name], offset)
@@ -298,17 +298,23 @@ class BoardRuntime:
     def take_output(self):
         if not self._replies and not self._sifs:
             return b""
+        replies, sifs = self.take_frames()
+        return replies + b"".join(sifs)
+
+    def take_frames(self):
+        # (replies as one bytes object, [one bytes object per SIF]): for a shell that must
+        # never drop a reply but may drop (and count) SIFs when the host does not read.
         replies = self._replies
         for i in range(len(replies)):
             r = replies[i]
             if isinstance(r, tuple):
                 # a2jClock: t3 is stamped here, as the reply is handed to the link.
                 replies[i] = encode_frame(SOF, r[0], 0, struct.pack("<QQ", r[1], self.clock()))
-        out = b"".join(replies) + b"".join(self._sifs)
-        self.sifs_sent += len(self._sifs)
+        sifs = self._sifs
+        self.sifs_sent += len(sifs)
         self._replies = []
         self._sifs = []
-        return out
+        return b"".join(replies), sifs
 
     # ---- requests ------------------------------------------------------------------------
     def feed(self, data, rx_us=None):
@@ -418,7 +424,7 @@ class BoardRuntime:
 
     def _many(self, payload):
         if len(payload) < 6:
-            return 0xFF, b""
+            return 0xFF, payload  # as the original: 0xFF, the request payload echoed (spec 1.11)
         target = payload[0]
         flags = payload[1]
         offset = payload[2] | (payload[3] << 8) | (payload[4] << 16) | (payload[5] << 24)

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import struct
 
+from ..text import clean
+
 MANY_HEADER = struct.Struct("<BBI")  # target/return, flags, offset
 MANY_CHUNK = 249
+#: function indices 0xF0..0xFF are error codes: a table can hold at most 240 functions
+MAX_FUNCTIONS = 0xF0
 FLAG_LAST = 0x01
 FLAG_WRITE = 0x02
 
@@ -32,7 +36,14 @@ def parse_mapping(blob: bytes) -> list[str]:
             raise BlobError(f"function {i} has a non-ASCII name {raw!r}") from e
         if not name:
             raise BlobError(f"function {i} has an empty name")
+        if clean(name) != name or " " in name:
+            raise BlobError(f"function {i} has control characters or spaces in its name {raw!r}")
         out.append(name)
+    if len(out) > MAX_FUNCTIONS:
+        raise BlobError(
+            f"function table has {len(out)} entries; indices from {MAX_FUNCTIONS} (0xF0) are "
+            f"error codes, so {out[MAX_FUNCTIONS]!r} and later could never be called"
+        )
     return out
 
 
@@ -66,6 +77,7 @@ def parse_properties(blob: bytes) -> dict[str, str]:
             raise BlobError(f"property {i // 2} is not UTF-8: {parts[i]!r}") from e
         if not key:
             raise BlobError(f"property {i // 2} has an empty key")
+        key, value = clean(key), clean(value)  # untrusted: may reach a terminal or a file
         if key in props:
             raise BlobError(f"property {key!r} appears twice")
         props[key] = value

@@ -22,7 +22,13 @@ the earliest, ``handle_timer(now)`` fails the expired ones.
 A transfer moves one chunk at a time.  Reads ask at increasing offsets; every reply must echo the
 offset and carry data unless it is the last; the one with isLast ends the transfer.  Writes send
 chunks of up to 249 bytes, the last with isLast.  A nonzero return value from the target function
-ends the transfer with that status.  Transfers are capped in bytes and chunks.
+ends the transfer with that status.  Transfers are capped in bytes and chunks, and may be given an
+overall deadline (``deadline``, in ``now`` units) besides the per-chunk timeout: a board that
+streams chunks for ever without isLast cannot hold a caller.  A transfer that makes no progress
+fails at once: a chunk without data and without isLast, or -- the 2014 firmware's bug, which
+used only the low byte of the offset -- chunks past offset 255 that repeat, byte for byte, the
+data at ``offset & 0xFF`` (two in a row, and not a run of one byte value, which could repeat
+honestly).
 
 SIFs (0xED frames) are delivered in arrival order; the gap between a SIF's seq and the previous
 one's is reported as lost SIFs.  Damaged frames become ``FrameDamaged`` events and counters.
@@ -30,6 +36,7 @@ one's is reported as lost SIFs.  Damaged frames become ``FrameDamaged`` events a
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -50,6 +57,8 @@ A2J_MANY = 1
 #: the spec's cap on a2jMany chunks: 4 GiB in 249-byte chunks
 MAX_MANY_CHUNKS = (4 << 30) // MANY_CHUNK
 DEFAULT_MAX_TRANSFER = 64 << 20
+#: chunks past offset 255 that repeat the data at offset & 0xFF before the offset bug is named
+OFFSET_BUG_CHUNKS = 2
 _RETRYABLE = frozenset((0xF2, 0xF3, 0xF4))
 _LATE_MEMORY = 64
 
@@ -86,7 +95,12 @@ class _Op:
     chunks: int = 0
     max_bytes: int = DEFAULT_MAX_TRANSFER
     progress: bool = False
-    received: list[bytes] = field(default_factory=list)
+    received: bytearray = field(default_factory=bytearray)
+    deadline_total: float = math.inf  #: the whole transfer must end by then
+    total_s: float = 0.0  #: for the error message
+    low_byte_repeats: int = 0  #: consecutive chunks that look like the offset bug
+    detect_offset_bug: bool = False
+    periodic: bool = True  #: so far, the blob repeats every 256 bytes
     retries_left: int = 0
     # in flight
     seq: int = -1
@@ -137,9 +151,18 @@ class HostConnection:
         *,
         max_bytes: int = DEFAULT_MAX_TRANSFER,
         progress: bool = False,
+        deadline: float | None = None,
+        detect_offset_bug: bool = True,
     ) -> int:
+        """Read a many-function's blob; ``deadline`` (``now`` units) bounds the whole transfer.
+        ``detect_offset_bug``: fail on the 2014 firmware's offset pattern (off for Part 2 boards,
+        whose blobs may honestly repeat with a period that divides 256)."""
         op = _Op(op=0, timeout=timeout, many=True, target=target, max_bytes=max_bytes)
         op.progress = progress
+        op.detect_offset_bug = detect_offset_bug
+        if deadline is not None:
+            op.deadline_total = deadline
+            op.total_s = deadline - now
         return self._start(op, now)
 
     def write_many(
@@ -183,6 +206,23 @@ class HostConnection:
             if now >= op.deadline:
                 del self._in_flight[seq]
                 self._timed_out.append(seq)
+                if now >= op.deadline_total:
+                    events.append(
+                        CallFailed(
+                            op.op,
+                            FailureReason.LIMIT,
+                            None,
+                            f"transfer not finished within {op.total_s:.1f} s "
+                            f"({op.offset} bytes in {op.chunks} chunks, no isLast yet)"
+                            + (
+                                "; the data repeats like the 2014 firmware's a2jMany offset "
+                                "bug (only the offset's low byte used)"
+                                if op.low_byte_repeats
+                                else ""
+                            ),
+                        )
+                    )
+                    continue
                 self.stats.timeouts += 1
                 what = f"chunk at offset {op.offset}" if op.many else "reply"
                 events.append(
@@ -222,7 +262,7 @@ class HostConnection:
             self._seq = (seq + 1) & 0xFF
         opcode, payload = op.next_request()
         op.seq = seq
-        op.deadline = now + op.timeout
+        op.deadline = min(now + op.timeout, op.deadline_total)
         self._in_flight[seq] = op
         self.stats.requests += 1
         self._out.append(encode_frame(SOF, seq, opcode, payload))
@@ -315,7 +355,20 @@ class HostConnection:
             done = op.offset >= len(op.data)
             last = last or done
         else:
-            op.received.append(chunk)
+            if self._looks_like_offset_bug(op, chunk):
+                events.append(
+                    CallFailed(
+                        op.op,
+                        FailureReason.PROTOCOL,
+                        None,
+                        f"a2jMany read makes no progress: from offset {op.offset} the board "
+                        f"repeats the data of offset {op.offset & 0xFF}; this is the 2014 "
+                        "firmware's a2jMany offset bug (it uses only the offset's low byte), "
+                        "so blobs over ~500 bytes cannot be read from it",
+                    )
+                )
+                return
+            op.received += chunk
             op.offset += len(chunk)
             if not chunk and not last:
                 events.append(
@@ -338,7 +391,7 @@ class HostConnection:
                 )
                 return
         if status != 0 or last:
-            data = b"".join(op.received) if not op.write else b""
+            data = bytes(op.received) if not op.write else b""
             events.append(TransferCompleted(op.op, status, data, op.chunks))
             return
         if op.progress:
@@ -346,3 +399,19 @@ class HostConnection:
             events.append(TransferProgress(op.op, op.offset, total, op.chunks))
         op.retries_left = self.retries
         self._queue.appendleft(op)
+
+    @staticmethod
+    def _looks_like_offset_bug(op: _Op, chunk: bytes) -> bool:
+        o, n = op.offset, len(chunk)
+        if not op.detect_offset_bug or o < 256 or n < 2:
+            return False
+        received = op.received
+        # A blob that repeats every 256 bytes reads the same from a buggy board as from a good
+        # one: that case is left to the deadline.  Kept up to date chunk by chunk (O(chunk)).
+        op.periodic = op.periodic and received[o - 256 : o - 256 + n] == chunk
+        low = o & 0xFF
+        if chunk.count(chunk[0]) != n and received[low : low + n] == chunk:
+            op.low_byte_repeats += 1
+        else:
+            op.low_byte_repeats = 0
+        return op.low_byte_repeats >= OFFSET_BUG_CHUNKS and not op.periodic

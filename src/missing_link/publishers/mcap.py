@@ -164,13 +164,13 @@ def diagnostics_cdr(typestore: Any, status: list[dict[str, Any]], now_ns: int) -
     Status, KV = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
     items = []
     for s in status:
-        level = 0 if s["state"] == "up" else 2
+        level = int(s.get("level", 0 if s["state"] == "up" else 2))
         values = [KV(key=str(k), value=str(v)) for k, v in s.items() if k not in ("board",)]
         items.append(
             Status(
                 level=level,
                 name=f"missing_link: {s['board']}",
-                message=str(s["state"]),
+                message=str(s.get("message") or s["state"]),
                 hardware_id=str(s.get("serial", "")),
                 values=values,
             )

@@ -122,9 +122,9 @@ class Ros1Publisher(Publisher):
         for s in status:
             msg.status.append(
                 DS(
-                    level=0 if s["state"] == "up" else 2,
+                    level=int(s.get("level", 0 if s["state"] == "up" else 2)),
                     name=f"missing_link: {s['board']}",
-                    message=str(s["state"]),
+                    message=str(s.get("message") or s["state"]),
                     hardware_id=str(s.get("serial", "")),
                     values=[KV(key=str(k), value=str(v)) for k, v in s.items() if k != "board"],
                 )

@@ -8,10 +8,11 @@
 
 from .estimator import AddResult, ClockEstimator, Estimate, Exchange
 from .published import PublishedMap
-from .sync import NOT_SYNCED, STEP, ClockSync, Mapped, SyncOptions
+from .sync import NOT_SYNCED, OUTLIER, STEP, ClockSync, Mapped, SyncOptions
 
 __all__ = [
     "NOT_SYNCED",
+    "OUTLIER",
     "STEP",
     "AddResult",
     "ClockEstimator",

@@ -16,6 +16,14 @@ and halves towards ``fast_interval`` while it is not (a link with widely spread 
 more exchanges to find the few fast ones); it goes fast at once when an exchange is lost or
 lands outside the band the estimate predicted for it (the clock rate moved).
 
+Glitches are outliers, not resets.  One stamp (in a sample or an exchange) that lands more than
+``glitch_us`` away from where the estimate puts the board clock -- a byte flip that passed the
+8-bit checksum, a driver bug -- is refused and counted (``outliers``), and a probe is due at
+once to confirm or refute it.  A reset needs consistent evidence: two exchanges in a row that
+agree with each other but not with the map, or ``reset_confirm`` samples in a row stamped far
+behind the newest mapped one and consistent with each other.  A sample is also refused when it
+would map later than ``now + glitch_us`` (nothing is measured in the future).
+
 ``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a 1-sigma estimate, a hard
 bound and flags; it is the only call made from the sample path, and it is cheap.  ``now`` is
 always passed in; a lock makes ``map`` safe against a concurrent ``on_exchange`` (the sample
@@ -39,6 +47,7 @@ UNSYNCED, BURST, TRACKING, FAST = "unsynced", "burst", "tracking", "fast"
 #: Update/sample flags
 STEP = 1  #: the map stepped at this sample (first sample after start or a board reset)
 NOT_SYNCED = 2  #: no estimate yet: the host time is not from the clock map, the bound is unknown
+OUTLIER = 4  #: the board stamp was far from the map (a glitch): refused; host time = receive time
 
 
 @dataclass
@@ -54,8 +63,12 @@ class SyncOptions:
     res_us: int = 1
     tau_s: float = 2.0  #: time constant of the published map's slew
     max_slew: float = 500e-6
-    #: a sample stamped this far behind the newest one mapped: the board restarted
+    #: a sample stamped this far behind the newest one mapped: the board may have restarted
     reset_backstep_us: int = 1_000_000
+    #: ... and this many such samples in a row, consistent with each other, prove it
+    reset_confirm: int = 3
+    #: a stamp this far from the map (in a sample: beyond now + this) is an outlier
+    glitch_us: int = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,10 @@ class ClockSync:
         self.lost = 0
         self.resets = 0
         self.surprises = 0
+        self.outliers = 0
+        self._far_ex: Exchange | None = None  # an exchange far from the map, awaiting a second
+        self._suspects = 0  # samples in a row stamped far behind the newest mapped
+        self._suspect_last = 0
         self.last_rtt_ns: int | None = None
         self.min_rtt_ns: int | None = None
         self.last_error_ns = 0.0  # published - estimate at the last steer
@@ -128,6 +145,15 @@ class ClockSync:
     # ---- input -------------------------------------------------------------------------------
     def on_exchange(self, ex: Exchange, now: float) -> AddResult:
         self.exchanges += 1
+        prior = self.estimator.estimate
+        if prior is not None and abs(ex.t2 - self._board_at(prior, ex.t1)) > self.opt.glitch_us:
+            first = self._far_ex
+            if first is None or not _consistent(first, ex):
+                self._far_ex = ex  # one far exchange is a glitch until the next one agrees
+                self.outliers += 1
+                self._next = now
+                return AddResult.REJECTED
+        self._far_ex = None
         rtt = ex.rtt_ns
         self.last_rtt_ns = rtt
         if self.min_rtt_ns is None or rtt < self.min_rtt_ns:
@@ -176,8 +202,14 @@ class ClockSync:
             self._enter(FAST, now)
         self._advance(now, False)
 
+    @staticmethod
+    def _board_at(est: Estimate, host_ns: float) -> float:
+        return est.b_ref + (host_ns - est.h_ref) / est.rate
+
     def _reset_locked(self) -> None:
         self.resets += 1
+        self._suspects = 0
+        self._far_ex = None
         self.estimator.reset()
         self._map = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
         self.state = UNSYNCED
@@ -196,35 +228,51 @@ class ClockSync:
         return Mapped(hosts[0], sigma, bound, flags)
 
     def map_many(
-        self, board_us: Sequence[int], now: float = 0.0
+        self, board_us: Sequence[int], now: float | None = None
     ) -> tuple[list[int], int, int, int] | None:
         """Host ns (CLOCK_MONOTONIC) for each stamp of one update, plus the 1-sigma estimate,
         the hard bound (both for the newest stamp) and flags; None before the first estimate.
+        ``now``: the host's receive time (monotonic s), to refuse stamps from the future.
 
-        A stamp more than ``reset_backstep_us`` behind the newest one mapped means the board
-        restarted without the link dropping: the sync restarts (``resets`` counts it) and
-        this update gets None, like every one until the next estimate."""
+        An outlier gives ``([], -1, -1, OUTLIER)``: the caller uses its receive time, flagged.
+        ``reset_confirm`` updates in a row stamped more than ``reset_backstep_us`` behind the
+        newest one mapped (and consistent with each other) mean the board restarted without the
+        link dropping: the sync restarts (``resets`` counts it) and this update gets None, like
+        every one until the next estimate."""
         newest = max(board_us)
+        o = self.opt
         with self._lock:
             est = self.estimator.estimate
             pm = self._map
             if est is None or not pm.started:
                 return None
             last = pm.newest_mapped
-            if last is not None and newest < last - self.opt.reset_backstep_us:
-                self._reset_locked()
-                reset = True
+            reset = outlier = False
+            if last is not None and newest < last - o.reset_backstep_us:
+                consistent = self._suspects and 0 <= newest - self._suspect_last <= o.glitch_us
+                self._suspects = self._suspects + 1 if consistent else 1
+                self._suspect_last = newest
+                if self._suspects >= o.reset_confirm:
+                    self._reset_locked()
+                    reset = True
+                else:
+                    outlier = True
+            elif now is not None and pm.at(newest) > now * 1e9 + o.glitch_us * 1000:
+                outlier = True
             else:
-                reset = False
+                self._suspects = 0
                 hosts = [round(pm.map(b)) for b in board_us]
                 flags = 0
                 if self._step_pending:
                     flags = STEP
                     self._step_pending = False
-        if reset:
-            self._enter(BURST, now)
-            self._next = now  # probe at once
-            return None
+        if reset or outlier:
+            if reset:
+                self._enter(BURST, now or 0.0)
+            else:
+                self.outliers += 1
+            self._next = now or 0.0  # probe at once: confirm or refute
+            return None if reset else ([], -1, -1, OUTLIER)
         h = pm.at(newest)  # unrounded, for the bound
         lo, hi = est.interval(newest)
         dev = h - est.host_at(newest)
@@ -245,6 +293,7 @@ class ClockSync:
             "sync_lost": self.lost,
             "sync_resets": self.resets,
             "sync_surprises": self.surprises,
+            "sync_outliers": self.outliers,
             "sync_interval_ms": round(self._interval * 1000, 1),
             "sync_rtt_us": None if self.last_rtt_ns is None else round(self.last_rtt_ns / 1000, 1),
             "sync_min_rtt_us": None
@@ -268,3 +317,11 @@ class ClockSync:
         if self.first_bound_at is not None:
             out["first_bound_ms"] = round(self.first_bound_at * 1000, 1)
         return out
+
+
+def _consistent(a: Exchange, b: Exchange) -> bool:
+    """Do two exchanges agree with each other: board time between them as host time passed
+    (within 1 ms, plus 1000 ppm of it)?"""
+    board = b.t2 - a.t3
+    host_us = (b.t4 - a.t1) / 1000.0
+    return 0 <= board <= host_us * 1.001 + 1000

@@ -3,18 +3,21 @@
 
 The loop is the board's process loop: wait for input or the next driver deadline, feed, poll,
 write.  Like a real board it never blocks on output: when the host does not read, output waits in
-a bounded buffer and then whole SIF batches are dropped (counted), never parts of a frame.
+a bounded queue of whole frames; past its limit the oldest SIFs are dropped (counted), never a
+reply and never part of a frame.
 One host at a time; a second connection is refused until the first goes away.
 """
 
 from __future__ import annotations
 
 import errno
+import itertools
 import os
 import select
 import socket
 import threading
 import tty
+from collections import deque
 from urllib.parse import urlsplit
 
 from ..board.runtime import BoardRuntime
@@ -22,18 +25,27 @@ from ..errors import BadURL, TransportBroken, TransportClosed
 from ..transport.memory import MemoryListener, MemoryTransport
 
 OUT_LIMIT = 64 * 1024
+_WRITE_CHUNK = 16 * 1024
 _MAX_WAIT = 0.05
 
 
 class _Link:
-    """One connected host: a non-blocking fd (socket or pty master) plus an output buffer."""
+    """One connected host: a non-blocking fd (socket or pty master) plus an output queue of
+    whole frames.  When the host does not read, the oldest *SIFs* are dropped (counted) to keep
+    the queue under ``OUT_LIMIT``; a reply is never dropped (a host waits for it)."""
 
     def __init__(self, fd: int, sock: socket.socket | None = None) -> None:
         self.fd = fd
         self.sock = sock
-        self.pending = b""
-        self.dropped = 0
+        self.frames: deque[tuple[bytes, bool]] = deque()  # (frame, is a SIF), oldest first
+        self.queued = 0  # bytes in frames
+        self.head_sent = 0  # bytes of frames[0] already written (it can no longer be dropped)
+        self.dropped = 0  # SIFs dropped because the host did not read
         os.set_blocking(fd, False)
+
+    @property
+    def pending(self) -> bool:
+        return bool(self.frames)
 
     def recv(self) -> bytes | None:
         """Bytes, b"" if none now, None when the host went away."""
@@ -47,21 +59,49 @@ class _Link:
             return None
         return data if data or self.sock is None else None
 
-    def send(self, data: bytes) -> bool:
-        if data:
-            if len(self.pending) + len(data) > OUT_LIMIT:
-                self.dropped += 1  # host not reading: drop this batch whole
-            else:
-                self.pending += data
-        while self.pending:
+    def send(self, replies: bytes, sifs: list[bytes]) -> bool:
+        if replies:
+            self.frames.append((replies, False))
+            self.queued += len(replies)
+        for frame in sifs:
+            self.frames.append((frame, True))
+            self.queued += len(frame)
+        if self.queued > OUT_LIMIT:
+            self._shed()
+        while self.frames:
+            # One write for as many whole frames as fit (a syscall per frame would cost more).
+            parts = [self.frames[0][0][self.head_sent :]]
+            size = len(parts[0])
+            for frame, _ in itertools.islice(self.frames, 1, None):
+                if size >= _WRITE_CHUNK:
+                    break
+                parts.append(frame)
+                size += len(frame)
+            data = b"".join(parts)
             try:
-                n = self.sock.send(self.pending) if self.sock else os.write(self.fd, self.pending)
+                n = self.sock.send(data) if self.sock else os.write(self.fd, data)
             except BlockingIOError:
                 return True
             except OSError:
                 return False
-            self.pending = self.pending[n:]
+            self.head_sent += n
+            while self.frames and self.head_sent >= len(self.frames[0][0]):
+                done = len(self.frames.popleft()[0])
+                self.head_sent -= done
+                self.queued -= done
+            if n < len(data):
+                return True
         return True
+
+    def _shed(self) -> None:
+        keep: deque[tuple[bytes, bool]] = deque()
+        for i, (frame, is_sif) in enumerate(self.frames):
+            if self.queued > OUT_LIMIT and is_sif and not (i == 0 and self.head_sent):
+                self.queued -= len(frame)
+                self.dropped += 1
+            else:
+                keep.append((frame, is_sif))
+        self.frames = keep
 
     def close(self) -> None:
         if self.sock is not None:
@@ -133,12 +173,13 @@ class BoardServer:
         wait: float = (due - rt.clock()) / 1e6
         return min(_MAX_WAIT, max(0.0, wait))
 
-    def _turn(self, data: bytes, rx_us: int | None = None) -> bytes:
-        """One turn of the board's process loop: feed input, run drivers, return output."""
+    def _turn(self, data: bytes, rx_us: int | None = None) -> tuple[bytes, list[bytes]]:
+        """One turn of the board's process loop: feed input, run drivers, return output as
+        (replies, SIF frames)."""
         if data:
             self.runtime.feed(data, rx_us)
         self.runtime.poll()
-        out: bytes = self.runtime.take_output()
+        out: tuple[bytes, list[bytes]] = self.runtime.take_frames()
         return out
 
     def serve_forever(self) -> None:
@@ -164,8 +205,8 @@ class BoardServer:
                         self._drop_link()
                     else:
                         data = received
-                out = self._turn(data, rx_us)
-                if self._link is not None and not self._link.send(out):
+                replies, sifs = self._turn(data, rx_us)
+                if self._link is not None and not self._link.send(replies, sifs):
                     self._drop_link()
         finally:
             self.close()
@@ -202,7 +243,8 @@ class BoardServer:
                     except (TransportBroken, TransportClosed):  # host went away: accept the next
                         link = None
                         data = b""
-                out = self._turn(data)
+                replies, sifs = self._turn(data)
+                out = replies + b"".join(sifs)
                 if link is not None and out:
                     try:
                         link.write(out)

@@ -401,6 +401,15 @@ SIMS: dict[str, Callable[..., BoardRuntime]] = {
 }
 
 
+def _add_hostile() -> None:
+    from .hostile import HOSTILE  # hostile boards build on the drivers above
+
+    SIMS.update(HOSTILE)
+
+
+_add_hostile()
+
+
 def make_sim(sim: str, seed: int = 0, **kw: object) -> BoardRuntime:
     """A simulated board runtime; ``kw`` go to the sim (e.g. ``name`` = board.name)."""
     try:

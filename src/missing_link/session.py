@@ -1,0 +1,514 @@
+"""One board's session in the daemon: connect, validate, serve, notice loss, reconnect.
+
+Theory of operation
+-------------------
+A supervisor thread runs the session through these states::
+
+    connecting --handshake ok--> up --link lost or stale--> backoff --delay--> connecting
+         \\--any failure (no board, bad or hostile board, bug)--> backoff
+    any state --stop()--> stopped
+
+A board is untrusted.  The supervisor catches *every* exception: the first time a given failure
+happens its traceback is logged (a bug of ours shows once, not every backoff), ``error`` gets one
+line, and the session backs off (``backoff_min`` doubling to ``backoff_max``) and tries again.
+Nothing a board sends can end the thread.
+
+``connecting`` opens the transport and owns the :class:`~missing_link.client.Board` *before* the
+handshake, so ``stop()`` can close it at once.  The handshake has one overall deadline
+(``handshake_timeout``) and small caps on the mapping, properties and descriptors (see
+``client.handshake``).  Then everything the board said is validated, with errors that name the
+board and the field: its name must give a topic token (``board-a`` -> ``board_a``, said in the
+warnings) and must not be taken by another board (a second ``robot`` becomes ``robot_2``,
+loudly); message type names are claimed daemon-wide, so two boards whose ``temp`` differ in data
+type never share ``Temp`` (the second is qualified by its board: ``BoardBTemp``).
+
+``up``: the board's reader thread decodes sample SIFs into ``Update`` objects (the sample path,
+``_on_sif``); the supervisor runs actuator commands (latest wins), clock probes on the sync's
+schedule, and watches the link.  A link is *stale* when no intact frame arrived for
+``link_timeout``: a frozen board, a half-open TCP connection or a pulled cable looks like that.
+Silence of a third of that sends a heartbeat (a clock probe or ``a2jEcho``), so a quiet but
+healthy board always answers in time; a stale link is closed, reported (state, error, ERROR in
+``/diagnostics``) and reconnected.  Like a CANopen heartbeat consumer, the host decides from
+what it hears, not from what the transport claims.
+
+Host times: every sample goes through the board's :class:`~missing_link.timesync.ClockSync`.
+Stamps far from the map are outliers (published at the receive time, flagged ``OUTLIER`` and
+counted), never host times in the future.  Per topic, host times are made strictly increasing
+(``host_time_clamps`` counts the nudges, e.g. several samples read in one go while unsynced).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from .client import Board
+from .config import BoardSpec
+from .descriptors import Transducer, load_descriptor_file
+from .errors import BoardError, CallTimeout, MissingLinkError
+from .j2a import SifReceived
+from .standard import StandardMapping, mapping_for
+from .text import slug
+from .timesync import NOT_SYNCED, OUTLIER, AddResult, ClockSync, SyncOptions
+from .topics import Topic, Update
+from .transport import open_transport
+
+if TYPE_CHECKING:
+    from .daemon import Daemon
+
+log = logging.getLogger(__name__)
+
+CONNECTING, UP, BACKOFF, STOPPED = "connecting", "up", "backoff", "stopped"
+#: diagnostic levels (diagnostic_msgs/DiagnosticStatus)
+OK, WARN, ERROR = 0, 1, 2
+
+
+class LinkStale(MissingLinkError):
+    """No frame from the board for ``link_timeout``: frozen, unplugged or half-open."""
+
+
+class BoardSession:
+    def __init__(self, daemon: Daemon, spec: BoardSpec) -> None:
+        self.daemon = daemon
+        self.spec = spec
+        self.state = CONNECTING
+        self.error = ""
+        self.name = spec.name or spec.url
+        self.board: Board | None = None
+        self.topics: dict[int, Topic] = {}  # transducer id -> topic
+        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        self.warnings: list[str] = []
+        self.connects = 0
+        self.failures = 0
+        self.stale_links = 0
+        self.samples = 0
+        self.updates = 0
+        self.unknown_sifs = 0
+        self.bad_sifs = 0
+        self.outliers = 0
+        self.host_time_clamps = 0
+        self.commands = 0
+        self.command_errors = 0
+        self.rtt_us: float | None = None
+        self.sync: ClockSync | None = None
+        self.epoch = ""
+        self.map_pushes = 0
+        self._next_push = 0.0
+        self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
+        self._logged: set[str] = set()  # failures whose traceback was logged once
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
+        self._pending_lock = threading.Lock()
+        self._thread = threading.Thread(
+            target=self._supervise, name=f"session:{spec.url}", daemon=True
+        )
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def request_stop(self) -> None:
+        """Begin stopping without waiting (the daemon stops every session at once)."""
+        self._stop.set()
+        self._wake.set()
+        board = self.board
+        if board is not None:
+            board.close()
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self.request_stop()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        self.state = STOPPED
+
+    # ---- supervisor thread -------------------------------------------------------------------
+    def _supervise(self) -> None:
+        delay = self.daemon.config.backoff_min
+        while not self._stop.is_set():
+            self.state = CONNECTING
+            try:
+                self._connect()
+                delay = self.daemon.config.backoff_min
+                self._serve()
+            except Exception as e:  # noqa: BLE001 - nothing a board does may end this thread
+                self._failed(e)
+            finally:
+                self._disconnect()
+            if self._stop.is_set():
+                break
+            self.state = BACKOFF
+            self._stop.wait(delay)
+            delay = min(delay * 2, self.daemon.config.backoff_max)
+        self.state = STOPPED
+
+    def _failed(self, e: Exception) -> None:
+        self.failures += 1
+        if isinstance(e, MissingLinkError):
+            self.error = str(e)
+            log.warning("%s: %s", self.spec.url, e)
+            return
+        # A bug (ours, or a board case nobody validated yet): the traceback once, then one line.
+        self.error = f"internal error: {type(e).__name__}: {e}"
+        key = f"{type(e).__name__}: {e}"
+        if key in self._logged:
+            log.warning("%s: %s (again)", self.spec.url, self.error)
+        else:
+            self._logged.add(key)
+            log.exception("%s: session failed; retrying with backoff", self.spec.url)
+
+    def _connect(self) -> None:
+        spec = self.spec
+        board = Board(open_transport(spec.url), timeout=spec.timeout)
+        self.board = board  # owned before the handshake: stop() closes it at once
+        if self._stop.is_set():
+            raise BoardError(spec.url, "stopping")
+        board.handshake(
+            describe=not spec.descriptors, deadline=time.monotonic() + spec.handshake_timeout
+        )
+        if spec.descriptors:
+            transducers = load_descriptor_file(spec.descriptors)
+        elif board.transducers is None:
+            raise BoardError(
+                board.name,
+                "original board without descriptors; give them with "
+                'descriptors = "FILE" in its [[board]] table',
+            )
+        else:
+            transducers = board.transducers
+        self.warnings = []
+        self.name = self.daemon._claim_name(self, self._board_name(board))
+        cfg = self.daemon.config
+        self._start_sync(board)
+        self.topics = {}
+        self.standard = {}
+        for t in transducers:
+            topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
+            type_name = self.daemon._claim_type(self, t)
+            topic = Topic.for_transducer(topic_name, self.name, t, cfg.package, type_name)
+            self.topics[t.id] = topic
+            self.daemon._declare(topic)
+            try:
+                mapping = mapping_for(t, self.name, self.daemon.typestore)
+            except ValueError as e:
+                self.warn(str(e))
+                mapping = None
+            if mapping is not None:
+                std = Topic.standard_type(
+                    f"{topic_name}/{mapping.suffix}",
+                    self.name,
+                    t,
+                    mapping.type_name,
+                    self.daemon.typestore,
+                )
+                self.standard[t.id] = (std, mapping)
+                self.daemon._declare(std)
+            if t.is_actuator:
+                if t.call not in board.index:
+                    raise BoardError(
+                        self.name, f"actuator {t.name} names call={t.call}, which the board lacks"
+                    )
+                handler = self._command_handler(t)
+                self.daemon.bus.add_command(f"{topic_name}/cmd", handler)
+                for p in self.daemon.publishers:
+                    p.add_command_topic(f"{topic_name}/cmd", topic, handler)
+        board.on_sif(None, self._on_sif)
+        self.connects += 1
+        self.error = ""
+        self.state = UP
+        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(self.topics))
+
+    def _board_name(self, board: Board) -> str:
+        """The topic token this board publishes under (config name, else board.name)."""
+        if self.spec.name:
+            return self.spec.name  # validated by the config
+        raw = board.properties.get("board.name", "")
+        if not raw:
+            raise BoardError(
+                board.url,
+                'the board states no board.name; name it with name = "..." in its [[board]] table',
+            )
+        token = slug(raw)
+        if not token:
+            raise BoardError(
+                board.url,
+                f"board.name {raw!r} gives no topic name (no ASCII letters or digits); name it "
+                'with name = "..." in its [[board]] table',
+            )
+        if token != raw:
+            self.warn(f"board.name {raw!r} is not a topic token: published as {token!r}")
+        return token
+
+    def warn(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings.append(text)
+            log.warning("%s: %s", self.spec.url, text)
+
+    def _serve(self) -> None:
+        period = self.daemon.config.diagnostics_period
+        link_timeout = self.spec.link_timeout
+        next_ping = time.monotonic()
+        board = self.board
+        assert board is not None
+        while not self._stop.is_set() and board.alive:
+            due = next_ping if self.sync is None else min(next_ping, self.sync.due())
+            self._wake.wait(max(0.0, min(0.1, due - time.monotonic())))
+            self._wake.clear()
+            self._run_commands(board)
+            now = time.monotonic()
+            silent = now - board.last_frame
+            if silent > link_timeout:
+                self.stale_links += 1
+                raise LinkStale(
+                    f"{self.name}: no frame from the board for {silent:.1f} s (frozen, "
+                    "unplugged or a half-open link); reconnecting"
+                )
+            heartbeat = silent > link_timeout / 3
+            if self.sync is not None and (heartbeat or now >= self.sync.due()):
+                self._probe(board, now)
+            elif now >= next_ping or heartbeat:
+                next_ping = now + period
+                if self.sync is None:  # no clock exchanges to measure the round trip with
+                    try:
+                        t0 = time.perf_counter()
+                        board.call("a2jEcho", b"", timeout=min(self.spec.timeout, link_timeout / 3))
+                        self.rtt_us = (time.perf_counter() - t0) * 1e6
+                    except MissingLinkError as e:
+                        self.error = str(e)
+        if not board.alive and not self._stop.is_set():
+            self.error = f"link lost: {board.transport.url}"
+
+    # ---- clock synchronisation ---------------------------------------------------------------
+    def _start_sync(self, board: Board) -> None:
+        self.sync = None
+        if "a2jClock" not in board.index and "getTime" not in board.index:
+            self.warn("no a2jClock or getTime: host times are receive times, without a bound")
+            return
+        res = int(board.properties.get("clock.res_us", "1"))  # range-checked by the handshake
+        self.epoch = board.properties.get("clock.epoch", "")
+        sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
+        sync.start(time.monotonic())
+        # A first estimate before any sample is published: a few back-to-back exchanges.
+        for _ in range(8):
+            self._probe(board, time.monotonic(), sync)
+        self.sync = sync
+        self._next_push = 0.0
+
+    def _probe_timeout(self, sync: ClockSync) -> float:
+        # A probe that is far slower than the link's best is lost anyway (useless to the
+        # estimator): do not wait a whole call timeout for it, e.g. in a board's boot gap.
+        t = self.spec.timeout
+        if sync.min_rtt_ns is not None:
+            t = min(t, max(0.05, 20 * sync.min_rtt_ns / 1e9))
+        return min(t, self.spec.link_timeout / 3)
+
+    def _probe(self, board: Board, now: float, sync: ClockSync | None = None) -> None:
+        sync = sync or self.sync
+        assert sync is not None
+        try:
+            ex = board.clock_exchange(self._probe_timeout(sync), byte_ns=self.spec.byte_ns)
+        except CallTimeout:
+            sync.on_lost(time.monotonic())
+            return
+        except MissingLinkError as e:
+            self.error = str(e)
+            sync.on_lost(time.monotonic())
+            return
+        result = sync.on_exchange(ex, time.monotonic())
+        self.rtt_us = ex.rtt_ns / 1000
+        if result is AddResult.RESET:
+            log.warning(
+                "%s: board clock went backwards: board reset, clock map restarted", self.name
+            )
+        if "a2jHostMap" in board.index and time.monotonic() >= self._next_push:
+            self._push_map(board, sync)
+
+    def _push_map(self, board: Board, sync: ClockSync) -> None:
+        got = sync.host_map()
+        if got is None:
+            return
+        b, h, rate = got
+        ppb = round((rate / 1000.0 - 1.0) * 1e9)
+        payload = struct.pack("<Qqi", b, round(h) + self.daemon.realtime_offset_ns, ppb)
+        try:
+            board.call_ok("a2jHostMap", payload, timeout=self.spec.timeout)
+            self.map_pushes += 1
+            self._next_push = time.monotonic() + 1.0
+        except MissingLinkError as e:
+            self.error = str(e)
+
+    def _disconnect(self) -> None:
+        try:
+            for topic in self.topics.values():
+                self.daemon.bus.remove_command(f"{topic.name}/cmd")
+        finally:
+            if self.board is not None:
+                self.board.close()
+
+    # ---- actuators ---------------------------------------------------------------------------
+    def _command_handler(self, t: Transducer) -> Any:
+        def handler(value: Any) -> None:
+            if isinstance(value, Update):
+                present = [v for v in value.values if v is not None]
+                if not present:
+                    raise ValueError(f"{t.name}: the update on {value.topic.name} has no value")
+                value = present[0]
+            elif isinstance(value, (list, tuple)):
+                value = value[0]
+            if not t.legal(value):
+                raise ValueError(f"{t.name}: {value!r} is not a legal {t.dtype} command")
+            with self._pending_lock:
+                self._pending[t.name] = (t, value)
+            self._wake.set()
+
+        return handler
+
+    def _run_commands(self, board: Board) -> None:
+        with self._pending_lock:
+            pending, self._pending = self._pending, {}
+        for t, value in pending.values():
+            try:
+                board.call_ok(str(t.call), t.value_struct().pack(value))
+                self.commands += 1
+            except MissingLinkError as e:
+                self.command_errors += 1
+                self.error = str(e)
+                log.warning("%s", e)
+            except struct.error as e:
+                self.command_errors += 1
+                log.warning("%s: bad command value %r: %s", t.name, value, e)
+
+    # ---- the sample path (board reader thread) -----------------------------------------------
+    def _on_sif(self, sif: SifReceived, now_mono: float) -> None:
+        topic = self.topics.get(sif.cmd)
+        if topic is None:
+            self.unknown_sifs += 1
+            return
+        try:
+            board_us, values = topic.transducer.decode_columns(sif.payload)
+        except ValueError:
+            self.bad_sifs += 1
+            return
+        recv_ns = int(now_mono * 1e9)
+        rt_off = self.daemon.realtime_offset_ns
+        missing = values.count(None)
+        sync = self.sync
+        got = None
+        if sync is not None:
+            resets = sync.resets
+            got = sync.map_many(board_us, now_mono)
+            if sync.resets != resets:
+                log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
+        if got is not None and not got[3] & OUTLIER:
+            hosts, sigma, bound, flags = got
+            host_ns = [0 if v is None else h + rt_off for h, v in zip(hosts, values, strict=True)]
+        else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
+            sigma, bound, flags = -1, -1, NOT_SYNCED
+            if got is not None:
+                flags |= OUTLIER
+                self.outliers += 1
+                self._wake.set()  # the sync wants a probe now, to confirm or refute
+            host_ns = [0 if v is None else recv_ns + rt_off for v in values]
+        if missing < len(values):
+            newest = max(host_ns)
+            last = self._last_host.get(sif.cmd)
+            if last is not None and newest <= last:
+                # Host times per topic are strictly increasing, whatever the board's stamps.
+                shift = last + 1 - newest
+                host_ns = [h + shift if h else 0 for h in host_ns]
+                newest += shift
+                self.host_time_clamps += 1
+            self._last_host[sif.cmd] = newest
+            stamp = None
+        else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
+            stamp = recv_ns + rt_off
+        update = Update(
+            topic,
+            board_us,
+            host_ns,
+            values,
+            sif.seq,
+            sif.lost,
+            recv_ns,
+            None,
+            stamp,
+            bound,
+            sigma,
+            flags,
+        )
+        self.updates += 1
+        self.samples += len(values) - missing
+        self.daemon._publish(update)
+        std = self.standard.get(sif.cmd)
+        if std is not None:
+            std_topic, mapping = std
+            for ch, v in enumerate(values):
+                if v is not None:
+                    try:
+                        cdr = mapping.build(ch, host_ns[ch], v)
+                    except (ValueError, OverflowError, struct.error):
+                        self.bad_sifs += 1  # a value the standard type cannot carry
+                        continue
+                    self.daemon._publish(
+                        Update(
+                            std_topic,
+                            [board_us[ch]],
+                            [host_ns[ch]],
+                            [v],
+                            sif.seq,
+                            0,
+                            recv_ns,
+                            cdr,
+                            None,
+                            bound,
+                            sigma,
+                            flags,
+                        )
+                    )
+
+    def level(self) -> tuple[int, str]:
+        """Diagnostic level and message: ERROR when not up, WARN when up with warnings."""
+        if self.state != UP:
+            return ERROR, self.error or self.state
+        if self.warnings:
+            return WARN, "; ".join(self.warnings)
+        return OK, "up"
+
+    def status(self) -> dict[str, Any]:
+        b = self.board
+        d = b.conn.decoder.stats if b else None
+        c = b.conn.stats if b else None
+        level, message = self.level()
+        return {
+            "board": self.name,
+            "url": self.spec.url,
+            "state": self.state,
+            "level": level,
+            "message": message,
+            "error": self.error,
+            "serial": b.properties.get("board.serial", "") if b else "",
+            "connects": self.connects,
+            "failures": self.failures,
+            "stale_links": self.stale_links,
+            "samples": self.samples,
+            "frames": d.frames if d else 0,
+            "bad_checksums": d.bad_checksums if d else 0,
+            "bad_escapes": d.bad_escapes if d else 0,
+            "cut_frames": d.cut_frames if d else 0,
+            "junk_bytes": d.junk_bytes if d else 0,
+            "lost_sifs": c.sifs_lost if c else 0,
+            "timeouts": c.timeouts if c else 0,
+            "unknown_sifs": self.unknown_sifs,
+            "bad_sifs": self.bad_sifs,
+            "clock_outliers": self.outliers,
+            "host_time_clamps": self.host_time_clamps,
+            "commands": self.commands,
+            "command_errors": self.command_errors,
+            "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
+            "warnings": "; ".join(self.warnings),
+            "clock_epoch": self.epoch,
+            "map_pushes": self.map_pushes,
+            **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
+        }

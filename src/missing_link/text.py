@@ -1,0 +1,37 @@
+"""Board strings made safe: every string a board sends is untrusted.
+
+``clean`` strips what could change the meaning of the place a string lands in: control
+characters (C0, DEL, C1: ``\\r`` would add a line to a generated ``.msg`` file, ESC starts a
+terminal escape sequence), line and paragraph separators, and invisible format characters
+(bidi overrides).  ``slug`` turns a name into a ROS topic token (``board-a`` -> ``board_a``).
+Pure code."""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+
+_TOKEN_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
+_UNSAFE = frozenset(("Cc", "Cf", "Zl", "Zp", "Cs", "Co", "Cn"))
+
+
+def clean(text: str) -> str:
+    """``text`` without control, separator and format characters (printable as it stands)."""
+    if text.isprintable():  # the common case: nothing to strip (fast)
+        return text
+    return "".join(c for c in text if c == " " or unicodedata.category(c) not in _UNSAFE)
+
+
+def is_token(name: str) -> bool:
+    """A ROS name token as used for board and transducer names: ``[a-z][a-z0-9_]*``."""
+    return bool(_TOKEN_RE.match(name))
+
+
+def slug(name: str) -> str:
+    """A topic token for ``name``: lower case, runs of anything but ``[a-z0-9]`` become one
+    ``_``, no ``_`` at the ends, ``b_`` in front of a leading digit.  '' if nothing is left."""
+    ascii_name = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode()
+    out = re.sub(r"[^a-z0-9]+", "_", ascii_name.lower()).strip("_")
+    if out and out[0].isdigit():
+        out = "b_" + out
+    return out
