@@ -147,3 +147,65 @@ def test_properties_and_transds_blobs() -> None:
         "fw.version",
     ):
         assert key in props
+
+
+# ---- error paths, byte for byte as the 2014 firmware (spec 1.11) -------------------------------
+def test_cut_frame_gets_exactly_one_error_frame() -> None:
+    rt = original(epoch="e")
+    echo = encode_frame(SOF, 6, 4, b"")
+    for cut in ("12050403aa", "120504", "1205", "12050403aa7d"):
+        rt.feed(bytes.fromhex(cut) + echo)
+        got = frames(rt)
+        assert [(f.seq, f.opcode) for f in got] == [(5, 0xF2), (6, 0xBA)], cut
+    rt.feed(bytes.fromhex("12") + echo)  # no seq yet: nothing to answer, as the original
+    assert [(f.seq, f.opcode) for f in frames(rt)] == [(6, 0xBA)]
+
+
+def test_a2jmany_short_header_is_echoed_like_the_original() -> None:
+    rt = original(epoch="e")
+    rt.feed(encode_frame(SOF, 5, 1, b"\x02\x00"))
+    assert rt.take_output() == bytes.fromhex("1205ff0202006e")
+
+
+def test_properties_with_the_write_flag_answer_flags_00() -> None:
+    rt = original(epoch="e")
+    rt.feed(encode_frame(SOF, 3, 1, bytes([2, 0x02, 0, 0, 0, 0])))
+    (f,) = frames(rt)
+    assert f.opcode == 0 and f.payload[1] == 0x00  # flags byte 00, as the original
+
+
+def test_escapes_we_reject_on_purpose() -> None:
+    """7D FF: the original answers F2, we answer F4 (spec 1.3 requires the check).  7D 00 the
+    original accepted as 0x01; we answer F4 (docs/protocol-differences.md)."""
+    rt = original(epoch="e")
+    for esc in ("7dff", "7d00"):
+        rt.feed(bytes.fromhex("120904" + "01" + esc + "00"))
+        got = frames(rt)
+        assert [(f.seq, f.opcode) for f in got] == [(9, 0xF4)], esc
+
+
+def test_silence_after_sof_gets_f2_over_a_real_pty() -> None:
+    import os
+    import select
+    import tty
+
+    from missing_link.virtual import start_board_thread
+
+    server, thread = start_board_thread(original(epoch="e"), "pty")
+    fd = os.open(server.url.removeprefix("serial://"), os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd)
+        os.write(fd, bytes.fromhex("120e"))  # SOF, seq 0x0e, then nothing
+        got = b""
+        deadline = 50
+        while b"\x12\x0e\xf2" not in got and deadline:
+            ready, _, _ = select.select([fd], [], [], 0.1)
+            if ready:
+                got += os.read(fd, 4096)
+            deadline -= 1
+        (f,) = [f for f in FrameDecoder().feed(got) if isinstance(f, Frame) and f.kind == SOF]
+        assert (f.seq, f.opcode, len(f.payload)) == (0x0E, 0xF2, 2)
+    finally:
+        os.close(fd)
+        server.stop()
+        thread.join(5)
