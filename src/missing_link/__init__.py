@@ -1,12 +1,16 @@
 """missing-link: sensor boards on a J2A backbone; every transducer a typed, time-stamped topic.
 
-Two lines give an application a board::
+Two lines give an application its boards, every transducer a topic::
 
     import missing_link
-    board = missing_link.open_board("serial:///dev/ttyACM0")
+    robot = missing_link.connect("serial:///dev/ttyACM0")
+    robot.subscribe("/thesis/dist_ir", print)
+
+or one board, its functions by name: ``board = missing_link.open_board(url)``.
 """
 
 from .client import AsyncBoard, Board, CallResult, open_board, open_board_async
+from .daemon import Daemon, connect
 from .descriptors import Transducer, parse_transds
 from .errors import (
     BadURL,
@@ -35,6 +39,7 @@ __all__ = [
     "CallError",
     "CallResult",
     "CallTimeout",
+    "Daemon",
     "DescriptorError",
     "FunctionFailed",
     "LinkLost",
@@ -48,6 +53,7 @@ __all__ = [
     "TransportError",
     "UnknownFunction",
     "__version__",
+    "connect",
     "open_board",
     "open_board_async",
     "open_transport",

@@ -316,14 +316,18 @@ def build_config(args: argparse.Namespace) -> Any:
 def cmd_run(args: argparse.Namespace) -> int:
     from .daemon import Daemon
 
-    daemon = Daemon(build_config(args))
+    daemon = Daemon(build_config(args))  # config, URL and descriptor errors: exit 2, at once
     stop = threading.Event()
+    interrupted = []
 
     def on_signal(signum: int, frame: object) -> None:
+        if signum == signal.SIGINT:
+            interrupted.append(signum)
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    code = 0
     with daemon:
         print(
             f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
@@ -334,18 +338,74 @@ def cmd_run(args: argparse.Namespace) -> int:
             url = getattr(p, "url", None)
             if url:
                 print(f"missing-link: {p.name} at {url}", file=sys.stderr)
-        stop.wait(args.duration or None)
+        if args.wait_up and not daemon.wait_until_up(args.wait_up):
+            for s in daemon.sessions:
+                if s.state != "up":
+                    print(
+                        f"missing-link: error: {s.spec.url}: not up within {args.wait_up:g} s: "
+                        f"{s.error or s.state}",
+                        file=sys.stderr,
+                    )
+            code = EXIT_FAIL
+        elif args.view:
+            from .view import LiveView
+
+            LiveView(daemon).run(stop, args.duration or None)
+        else:
+            _wait_watching(daemon, stop, args.duration or None)
+    print_summary(daemon, sys.stderr)
+    failures = daemon.failures()
+    for line in failures:
+        print(f"missing-link: error: {line}", file=sys.stderr)
+    if interrupted:
+        return EXIT_INTERRUPTED
+    return EXIT_FAIL if failures else code
+
+
+def _wait_watching(daemon: Any, stop: threading.Event, duration: float | None) -> None:
+    """Wait for the end; a publisher that fails for good (a recording that cannot write) ends
+    the run at once, loudly, rather than running on without it."""
+    deadline = None if duration is None else time.monotonic() + duration
+    while not stop.wait(0.2):
+        if daemon.failures():
+            return
+        if deadline is not None and time.monotonic() >= deadline:
+            return
+
+
+def print_summary(daemon: Any, out: Any) -> None:
+    """What happened, with a number next to every loss: per board, then per publisher."""
     for s in daemon.status():
+        extra = [
+            f"{s[k]} {label}"
+            for k, label in (
+                ("lost_sifs", "lost SIFs"),
+                ("bad_sifs", "bad SIFs"),
+                ("unknown_sifs", "unknown SIFs"),
+                ("clock_outliers", "clock outliers"),
+                ("bad_checksums", "bad checksums"),
+                ("stale_links", "stale links"),
+            )
+            if s.get(k)
+        ]
         print(
-            f"missing-link: {s['board']}: {s['samples']} samples, {s['lost_sifs']} lost SIFs, "
-            f"{s['connects']} connect(s), state {s['state']}",
-            file=sys.stderr,
+            f"missing-link: {s['board']}: {s['samples']} samples"
+            + "".join(f", {e}" for e in extra)
+            + f", {s['connects']} connect(s), state {s['state']}"
+            + (f" ({s['error']})" if s["error"] and s["state"] != "up" else ""),
+            file=out,
         )
     for p in daemon.publishers:
+        st = p.status()
+        bits = []
+        if "messages" in st:
+            bits.append(f"{st['messages']} messages")
+        bits.append(f"{st.get('dropped', 0)} dropped")
         bags = getattr(p, "bags", None)
         if bags:
-            print(f"missing-link: recorded {', '.join(str(b) for b in bags)}", file=sys.stderr)
-    return 0
+            bits.append("recorded " + ", ".join(str(b) for b in bags))
+        if p.name != "bus" or st.get("dropped"):
+            print(f"missing-link: publisher {p.name}: {', '.join(bits)}", file=out)
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
@@ -526,6 +586,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
     )
     sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
+    sp.add_argument(
+        "--wait-up",
+        type=float,
+        default=0,
+        metavar="S",
+        help="fail (exit 1) unless every board is up within S seconds",
+    )
+    sp.add_argument("--view", action="store_true", help="a live view of boards and topics")
     sp.set_defaults(func=cmd_run)
 
     sp = sub.add_parser("recover", help="salvage a recording whose process died")

@@ -32,13 +32,14 @@ from collections.abc import Iterable
 from typing import Any
 
 from .config import BoardSpec, Config
-from .descriptors import Transducer
-from .errors import MissingLinkError
+from .descriptors import Transducer, load_descriptor_file
+from .errors import BadURL, BoardError, MissingLinkError
 from .msgs import msg_name, msgdef, type_name, typestore_for
 from .publishers import Bus, Publisher, make_publisher
 from .publishers.bus import Callback, Subscription
 from .session import UP, BoardSession
 from .topics import Topic, Update
+from .transport import check_url
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +51,21 @@ class Daemon:
 
     def __init__(self, config: Config, extra_publishers: Iterable[Publisher] = ()) -> None:
         self.config = config
+        self._started = self._stopped = False
+        for spec in config.boards:  # what retrying cannot fix fails here, before any thread
+            check_url(spec.url)
+            if spec.descriptors:
+                load_descriptor_file(spec.descriptors)
         self.bus = Bus()
         self.publishers: list[Publisher] = [self.bus]
-        for name in config.publishers:
-            if name != "bus":
-                self.publishers.append(make_publisher(name, self._options(name)))
+        try:
+            for name in config.publishers:
+                if name != "bus":
+                    self.publishers.append(make_publisher(name, self._options(name)))
+        except BaseException:
+            for p in self.publishers:  # a publisher that cannot start fails the daemon at once
+                p.close()
+            raise
         self.publishers.extend(extra_publishers)
         self.sessions = [BoardSession(self, spec) for spec in config.boards]
         self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
@@ -76,12 +87,23 @@ class Daemon:
         return opts
 
     def start(self) -> Daemon:
+        """Start every session (idempotent: ``with connect(...)`` starts nothing twice)."""
+        if self._started:
+            return self
+        self._started = True
         for s in self.sessions:
             s.start()
         self._diag_thread.start()
         return self
 
+    def close(self) -> None:
+        """Stop every board session and close every publisher (the same as ``stop()``)."""
+        self.stop()
+
     def stop(self) -> None:
+        if self._stopped:
+            return
+        self._stopped = True
         self._stop.set()
         for s in self.sessions:
             s.request_stop()  # all at once: a stuck board costs its own time, not the others'
@@ -138,7 +160,22 @@ class Daemon:
         return False
 
     def status(self) -> list[dict[str, Any]]:
+        """Per board: state, level, error and every counter (cumulative over reconnects)."""
         return [s.status() for s in self.sessions]
+
+    def publisher_status(self) -> list[dict[str, Any]]:
+        """Per publisher: level, error, dropped and what it has to say (queue, messages)."""
+        out = []
+        for p in self.publishers:
+            try:
+                out.append(p.status())
+            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others
+                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}"})
+        return out
+
+    def failures(self) -> list[str]:
+        """One line per publisher that failed for good (a recording that stopped writing)."""
+        return [f"{p.name}: {p.error}" for p in self.publishers if p.error]
 
     # ---- internals -------------------------------------------------------------------------
     def _claim_name(self, session: BoardSession, name: str) -> str:
@@ -195,7 +232,7 @@ class Daemon:
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):
-            status = self.status()
+            status = self.status() + self.publisher_status()
             now = time.time_ns()
             for p in self.publishers:
                 try:
@@ -204,17 +241,30 @@ class Daemon:
                     log.exception("publisher %s failed on diagnostics", p.name)
 
 
-def connect(*urls: str, publishers: list[str] | None = None, **options: Any) -> Daemon:
+def connect(
+    *urls: str, publishers: list[str] | None = None, wait: float = 10.0, **options: Any
+) -> Daemon:
     """Two lines give an application its boards (thesis Listing 8.4)::
 
-    robot = missing_link.connect("serial:///dev/ttyACM0")
-    robot.subscribe("/thesis/quad", lambda update: print(update.values))
-    """
+        robot = missing_link.connect("serial:///dev/ttyACM0")
+        robot.subscribe("/thesis/quad", lambda update: print(update.values))
+
+    Returns a running daemon once every board is up.  A board that is not up within ``wait``
+    seconds raises ``BoardError`` naming it and why (the daemon is stopped); ``wait=0`` returns
+    at once and lets boards come up in the background.  Close with ``robot.close()`` or use
+    ``with missing_link.connect(...) as robot:``.  ``options`` are ``Config`` fields
+    (``backoff_max=2.0``, ``distro="kilted"``, ...)."""
+    if not urls:
+        raise BadURL("connect() needs at least one board URL")
     cfg = Config(boards=[BoardSpec(url=u) for u in urls], publishers=publishers or ["bus"])
     for key, value in options.items():
         if not hasattr(cfg, key):
             raise TypeError(f"connect() got an unknown option {key!r}")
         setattr(cfg, key, value)
     daemon = Daemon(cfg).start()
-    daemon.wait_until_up(10.0)
+    if wait > 0 and not daemon.wait_until_up(wait):
+        down = [s for s in daemon.sessions if s.state != UP]
+        daemon.stop()
+        why = "; ".join(f"{s.spec.url}: {s.error or s.state}" for s in down)
+        raise BoardError(", ".join(s.spec.url for s in down), f"not up within {wait:g} s ({why})")
     return daemon

@@ -14,40 +14,20 @@ moment of measurement -> host subscriber callback) is exact, not estimated.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import threading
-import time
-from collections import deque
-from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from .config import BoardSpec, Config
 from .daemon import Daemon
 from .errors import MissingLinkError
 from .topics import Update
+from .view import LiveView
 
-REFRESH = 0.5
 ENCODER_TOPIC = "/board_a/quad"
 SERVO_CMD = "/board_a/servo/cmd"
 COUNTS_PER_STEP = 64  # encoder counts per servo step (2000 counts = one wheel turn)
-
-
-@dataclass
-class TopicStats:
-    count: int = 0
-    missing: int = 0
-    last: list[object] = field(default_factory=list)
-    recent: deque[float] = field(default_factory=lambda: deque(maxlen=5000))
-    latency_us: list[float] = field(default_factory=list)
-
-
-def percentile(values: list[float], q: float) -> float:
-    if not values:
-        return float("nan")
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def start_board_process(
@@ -84,68 +64,6 @@ def stop_process(proc: subprocess.Popen[str]) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
-
-
-class LiveView:
-    """Collects per-topic statistics from the bus and draws them."""
-
-    def __init__(self, daemon: Daemon, out: TextIO) -> None:
-        self.daemon = daemon
-        self.out = out
-        self.interactive = out.isatty() and os.environ.get("TERM", "dumb") != "dumb"
-        self.stats: dict[str, TopicStats] = {}
-        self.lock = threading.Lock()
-        self._last_plain = time.monotonic()
-
-    def on_update(self, u: Update) -> None:
-        recv_us = u.recv_ns / 1000
-        with self.lock:
-            st = self.stats.setdefault(u.topic.name, TopicStats())
-            st.last = list(u.values)
-            st.recent.append(recv_us)
-            for stamp, v in zip(u.board_us, u.values, strict=True):
-                if v is None:
-                    st.missing += 1
-                else:
-                    st.count += 1
-                    st.latency_us.append(recv_us - stamp)
-
-    def draw(self, elapsed: float, duration: float) -> None:
-        now_us = time.monotonic_ns() / 1000
-        lines = [f"missing-link demo  t={elapsed:5.1f}/{duration:.0f} s"]
-        for s in self.daemon.status():
-            rtt = "-" if s["rtt_us"] is None else f"{s['rtt_us']} us"
-            lines.append(
-                f"  board {s['board']:<8} {s['state']:<10} RTT {rtt:<8} frames {s['frames']:<7}"
-                f" bad {s['bad_checksums'] + s['bad_escapes'] + s['cut_frames']}"
-                f"  lost SIFs {s['lost_sifs']}  servo cmds {s['commands']}"
-            )
-        lines.append(f"  {'topic':<20}{'msgs/s':>7}{'latency p50':>13}  last value")
-        with self.lock:
-            for name, st in sorted(self.stats.items()):
-                rate = sum(1 for t in st.recent if now_us - t <= 1e6)
-                lat = percentile(st.latency_us[-500:], 0.5)
-                last = " ".join("-" if v is None else str(v) for v in st.last)
-                lines.append(f"  {name:<20}{rate:7d}{lat:10.0f} us  {last[:48]}")
-        text = "\n".join(lines) + "\n"
-        if self.interactive:
-            self.out.write("\x1b[H\x1b[J" + text)
-        elif time.monotonic() - self._last_plain >= 5.0:
-            self._last_plain = time.monotonic()
-            self.out.write(text)
-        self.out.flush()
-
-    def summary(self) -> list[str]:
-        lines = []
-        with self.lock:
-            for name, st in sorted(self.stats.items()):
-                lat = st.latency_us
-                lines.append(
-                    f"  {name:<18}{st.count:8d} samples {st.missing:7d} N/A"
-                    f"   latency p50 {percentile(lat, 0.5):5.0f} us"
-                    f"  p99 {percentile(lat, 0.99):6.0f} us"
-                )
-        return lines
 
 
 def _foxglove(port: int | None) -> Any:
@@ -192,8 +110,7 @@ def run_demo(
                 print(f"  live view for Foxglove: open connection {fox.url}", file=out)
             if not daemon.wait_until_up(10.0):
                 raise MissingLinkError(f"boards did not come up: {daemon.status()}")
-            view = LiveView(daemon, out)
-            daemon.subscribe("/*/*", view.on_update)
+            view = LiveView(daemon, out, title="missing-link demo")
 
             def steer(u: Update) -> None:
                 # The thesis test application: encoder count -> proportional servo deflection.
@@ -202,15 +119,16 @@ def run_demo(
                     step = max(-127, min(127, int(count) // COUNTS_PER_STEP))
                     daemon.send(SERVO_CMD, step)
 
-            daemon.subscribe(ENCODER_TOPIC, steer)
-            t0 = time.monotonic()
+            steering = daemon.subscribe(ENCODER_TOPIC, steer)
+            stop = threading.Event()
             try:
-                while time.monotonic() - t0 < duration:
-                    view.draw(time.monotonic() - t0, duration)
-                    time.sleep(REFRESH)
+                view.run(stop, duration)
             except KeyboardInterrupt:
                 interrupted = True
+            steering.cancel()  # no commands into boards that are closing
+            view.close()
             status = daemon.status()
+            failures = daemon.failures()
             mcap = next(p for p in daemon.publishers if p.name == "mcap")
         bags = [str(b) for b in getattr(mcap, "bags", [])]
         print("\nsummary", file=out)
@@ -220,7 +138,7 @@ def run_demo(
             print(
                 f"  board {s['board']}: {s['state']}, {s['frames']} frames, "
                 f"{s['bad_checksums']} bad checksums, {s['lost_sifs']} SIFs lost, "
-                f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} us",
+                f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} µs",
                 file=out,
             )
         for s in status:
@@ -236,13 +154,25 @@ def run_demo(
         dropped = getattr(mcap, "dropped", 0)
         print(f"  servo commands sent: {servo_cmds}", file=out)
         print(
-            f"  recording: {', '.join(bags)} ({getattr(mcap, 'messages', 0)} messages, "
-            f"{dropped} dropped)",
+            f"  recording: {', '.join(bags) or 'nothing'} ({getattr(mcap, 'messages', 0)} "
+            f"messages, {dropped} dropped)",
             file=out,
         )
+        losses = {
+            k: sum(s.get(k, 0) for s in status)
+            for k in ("lost_sifs", "bad_sifs", "unknown_sifs", "clock_outliers")
+        }
+        print(
+            "  losses: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in losses.items()),
+            file=out,
+        )
+        for line in failures:
+            print(f"  ERROR {line}", file=out)
         expected = ["/board_a/quad", "/board_a/servo", "/board_b/dist_ir", "/board_b/dist_us"]
         ok = (
-            all(s["state"] == "up" for s in status)
+            not failures
+            and bool(bags)
+            and all(s["state"] == "up" for s in status)
             and servo_cmds > 0
             and all(n in view.stats and view.stats[n].count > 0 for n in expected)
         )

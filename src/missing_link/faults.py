@@ -67,6 +67,10 @@ class _Corrupter:
         self.flipped = 0
         self._gap = self._next_gap()
 
+    def set_p(self, p: float) -> None:
+        self.p = p
+        self._gap = self._next_gap()
+
     def _next_gap(self) -> int:
         if self.p <= 0:
             return 1 << 62
@@ -109,6 +113,7 @@ class FaultRelay:
         self.dropped_bytes = 0
         self.blackholed_bytes = 0
         self.errors: list[str] = []  #: upstream failures, one line each
+        self._corrupters: list[_Corrupter] = []
 
     # ---- control ------------------------------------------------------------------------------
     def start(self) -> FaultRelay:
@@ -123,6 +128,13 @@ class FaultRelay:
             self._forced_hole.set()
         else:
             self._forced_hole.clear()
+
+    def set_corrupt(self, p: float) -> None:
+        """Change the bit-flip probability, live connections included."""
+        self.faults.corrupt = p
+        Faults.check(self.faults)
+        for c in list(self._corrupters):
+            c.set_p(p)
 
     def stop(self) -> None:
         self._stop.set()
@@ -183,6 +195,7 @@ class FaultRelay:
         up: deque[tuple[float, bytes]] = deque()  # host -> board
         corrupt_down = _Corrupter(f.corrupt, random.Random(self.rng.random()))
         corrupt_up = _Corrupter(f.corrupt, random.Random(self.rng.random()))
+        self._corrupters[:] = [c for c in self._corrupters[-8:]] + [corrupt_down, corrupt_up]
         board_fd = getattr(board, "_fd", None)  # fd transports: wait on both at once
         try:
             while not self._stop.is_set():

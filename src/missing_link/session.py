@@ -98,6 +98,8 @@ class BoardSession:
         self.map_pushes = 0
         self._next_push = 0.0
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
+        self._next_sif_seq: int | None = None  # after the last SIF seen on this board boot
+        self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -214,6 +216,11 @@ class BoardSession:
                 self.daemon.bus.add_command(f"{topic_name}/cmd", handler)
                 for p in self.daemon.publishers:
                     p.add_command_topic(f"{topic_name}/cmd", topic, handler)
+        epoch = board.properties.get("clock.epoch", "")
+        if self._next_sif_seq is not None and epoch and epoch == self.epoch:
+            # The same boot as before the outage: SIFs it sent meanwhile count as lost.
+            board.conn.expect_sif_seq(self._next_sif_seq)
+        self.epoch = epoch
         board.on_sif(None, self._on_sif)
         self.connects += 1
         self.error = ""
@@ -287,7 +294,6 @@ class BoardSession:
             self.warn("no a2jClock or getTime: host times are receive times, without a bound")
             return
         res = int(board.properties.get("clock.res_us", "1"))  # range-checked by the handshake
-        self.epoch = board.properties.get("clock.epoch", "")
         sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
         sync.start(time.monotonic())
         # A first estimate before any sample is published: a few back-to-back exchanges.
@@ -344,8 +350,11 @@ class BoardSession:
             for topic in self.topics.values():
                 self.daemon.bus.remove_command(f"{topic.name}/cmd")
         finally:
-            if self.board is not None:
-                self.board.close()
+            board, self.board = self.board, None
+            if board is not None:
+                board.close()
+                for key, value in _link_counters(board).items():
+                    self._past[key] = self._past.get(key, 0) + value
 
     # ---- actuators ---------------------------------------------------------------------------
     def _command_handler(self, t: Transducer) -> Any:
@@ -373,6 +382,8 @@ class BoardSession:
                 board.call_ok(str(t.call), t.value_struct().pack(value))
                 self.commands += 1
             except MissingLinkError as e:
+                if self._stop.is_set():
+                    return  # closing: a command cut short is not an error worth a line
                 self.command_errors += 1
                 self.error = str(e)
                 log.warning("%s", e)
@@ -382,6 +393,7 @@ class BoardSession:
 
     # ---- the sample path (board reader thread) -----------------------------------------------
     def _on_sif(self, sif: SifReceived, now_mono: float) -> None:
+        self._next_sif_seq = sif.seq + 1
         topic = self.topics.get(sif.cmd)
         if topic is None:
             self.unknown_sifs += 1
@@ -477,9 +489,9 @@ class BoardSession:
         return OK, "up"
 
     def status(self) -> dict[str, Any]:
+        """Counters are cumulative over every connection of this session."""
         b = self.board
-        d = b.conn.decoder.stats if b else None
-        c = b.conn.stats if b else None
+        link = _link_counters(b) if b is not None else {}
         level, message = self.level()
         return {
             "board": self.name,
@@ -493,13 +505,7 @@ class BoardSession:
             "failures": self.failures,
             "stale_links": self.stale_links,
             "samples": self.samples,
-            "frames": d.frames if d else 0,
-            "bad_checksums": d.bad_checksums if d else 0,
-            "bad_escapes": d.bad_escapes if d else 0,
-            "cut_frames": d.cut_frames if d else 0,
-            "junk_bytes": d.junk_bytes if d else 0,
-            "lost_sifs": c.sifs_lost if c else 0,
-            "timeouts": c.timeouts if c else 0,
+            **{k: self._past.get(k, 0) + link.get(k, 0) for k in _LINK_COUNTERS},
             "unknown_sifs": self.unknown_sifs,
             "bad_sifs": self.bad_sifs,
             "clock_outliers": self.outliers,
@@ -512,3 +518,29 @@ class BoardSession:
             "map_pushes": self.map_pushes,
             **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
         }
+
+
+_LINK_COUNTERS = (
+    "frames",
+    "bad_checksums",
+    "bad_escapes",
+    "cut_frames",
+    "junk_bytes",
+    "lost_sifs",
+    "timeouts",
+    "late_replies",
+)
+
+
+def _link_counters(board: Board) -> dict[str, int]:
+    d, c = board.conn.decoder.stats, board.conn.stats
+    return {
+        "frames": d.frames,
+        "bad_checksums": d.bad_checksums,
+        "bad_escapes": d.bad_escapes,
+        "cut_frames": d.cut_frames,
+        "junk_bytes": d.junk_bytes,
+        "lost_sifs": c.sifs_lost,
+        "timeouts": c.timeouts,
+        "late_replies": c.late_replies,
+    }

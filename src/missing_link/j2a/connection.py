@@ -186,6 +186,11 @@ class HostConnection:
         self._pump(now)
         return op.op
 
+    def expect_sif_seq(self, seq: int) -> None:
+        """Count the gap to the next SIF from ``seq`` (a link re-opened to the same board boot:
+        the SIFs it sent meanwhile are lost, and counted, modulo 256)."""
+        self._sif_expected = seq & 0xFF
+
     def pending(self) -> int:
         return len(self._queue) + len(self._in_flight)
 

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
+from ..errors import MissingLinkError
 from ..topics import Topic, Update
 
 
@@ -30,7 +31,28 @@ class Publisher:
         """Per-board status, about once a second (also published on /diagnostics)."""
 
     def close(self) -> None:
-        """Flush and release everything.  Idempotent."""
+        """Flush and release everything.  Idempotent; must not block for long, whatever
+        state the publisher is in."""
+
+    #: set when the publisher failed for good (e.g. a recording that cannot write): the daemon
+    #: reports it as ERROR, and ``run`` exits non-zero
+    error: str = ""
+    #: messages this publisher had to drop (queue full, congestion, failed writes)
+    dropped: int = 0
+
+    def status(self) -> dict[str, Any]:
+        """One line of health for /diagnostics, ``Daemon.publisher_status()`` and summaries."""
+        return {
+            "publisher": self.name,
+            "level": 2 if self.error else 0,
+            "message": self.error or "ok",
+            "error": self.error,
+            "dropped": self.dropped,
+        }
+
+
+class PublisherError(MissingLinkError):
+    """A publisher cannot start (e.g. a recording directory that cannot be written)."""
 
 
 Factory = Callable[[dict[str, Any]], Publisher]

@@ -1,6 +1,12 @@
 """``bus``: the in-process publisher.  Applications subscribe by topic name (or ``*`` patterns);
-messages published on actuator command topics go to the board.  Callbacks run on the board's
-reader thread: keep them short, hand heavy work to a queue."""
+messages published on actuator command topics go to the board.
+
+A slow subscriber must not slow a board: by default each subscription has its own bounded queue
+(``queue=10000`` updates) drained by its own thread, in order; when the callback falls that far
+behind, the oldest updates are dropped and counted (``Subscription.dropped``, the bus's
+``dropped``, ``/diagnostics``).  ``queue=0`` calls the callback inline on the board's reader
+thread instead: no thread hop, but a slow callback then delays that board.  A callback that
+raises is counted (``errors``) and its first traceback logged; it never ends a thread."""
 
 from __future__ import annotations
 
@@ -8,6 +14,7 @@ import functools
 import logging
 import re
 import threading
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -36,11 +43,67 @@ def topic_pattern(pattern: str) -> re.Pattern[str]:
 
 
 class Subscription:
-    def __init__(self, bus: Bus, pattern: str, callback: Callback) -> None:
+    def __init__(self, bus: Bus, pattern: str, callback: Callback, queue: int = 10_000) -> None:
         self.bus, self.pattern, self.callback = bus, pattern, callback
+        self.queue = queue
+        self.delivered = 0
+        self.dropped = 0
+        self.errors = 0
+        self._items: deque[Update] = deque()
+        self._lock = threading.Lock()
+        self._ready = threading.Event()
+        self._cancelled = False
+        self._thread: threading.Thread | None = None
+        if queue > 0:
+            self._thread = threading.Thread(target=self._drain, name=f"bus:{pattern}", daemon=True)
+            self._thread.start()
+
+    def deliver(self, update: Update) -> None:
+        """Called by the bus on a board's reader thread."""
+        if self._thread is None:
+            self._call(update)
+            return
+        with self._lock:
+            if len(self._items) >= self.queue:
+                self._items.popleft()  # the oldest goes: the subscriber sees the newest data
+                self.dropped += 1
+            self._items.append(update)
+        self._ready.set()
+
+    def _drain(self) -> None:
+        while not self._cancelled:
+            self._ready.wait(0.5)
+            self._ready.clear()
+            while True:
+                with self._lock:
+                    if not self._items:
+                        break
+                    batch = list(self._items)
+                    self._items.clear()
+                for update in batch:
+                    if self._cancelled:
+                        return
+                    self._call(update)
+
+    def _call(self, update: Update) -> None:
+        try:
+            self.callback(update)
+            self.delivered += 1
+        except Exception:
+            self.errors += 1
+            if self.errors == 1:
+                log.exception("bus subscriber %r on %s failed", self.callback, update.topic.name)
 
     def cancel(self) -> None:
         self.bus._unsubscribe(self)
+        self._stop()
+
+    def _stop(self) -> None:
+        self._cancelled = True
+        self._ready.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(1.0)
 
 
 class Bus(Publisher):
@@ -53,13 +116,16 @@ class Bus(Publisher):
         self._commands: dict[str, CommandHandler] = {}
         self._last: dict[str, Update] = {}
         self.topics: dict[str, Topic] = {}
-        self.errors = 0
 
     # ---- for applications ---------------------------------------------------------------------
-    def subscribe(self, topic: str, callback: Callback) -> Subscription:
+    def subscribe(self, topic: str, callback: Callback, *, queue: int = 10_000) -> Subscription:
         """Call ``callback(update)`` for every update on ``topic``.  Patterns: ``*`` and ``?``
-        match within one level (``/board/*``), ``**`` across levels (``/board/**``)."""
-        sub = Subscription(self, topic, callback)
+        match within one level (``/board/*``), ``**`` across levels (``/board/**``).
+        ``queue``: updates held for a slow callback before the oldest are dropped (counted);
+        0 calls it inline on the board's reader thread."""
+        if queue < 0:
+            raise ValueError(f"queue = {queue}: 0 (inline) or a positive number of updates")
+        sub = Subscription(self, topic, callback, queue)
         with self._lock:
             if "*" in topic or "?" in topic:
                 self._patterns.append(sub)
@@ -106,11 +172,38 @@ class Bus(Publisher):
         name = update.topic.name
         self._last[name] = update
         for sub in self._exact.get(name, ()):
-            try:
-                sub.callback(update)
-            except Exception:
-                self.errors += 1
-                log.exception("bus subscriber %r on %s failed", sub.callback, name)
+            sub.deliver(update)
+
+    def subscriptions(self) -> list[Subscription]:
+        with self._lock:
+            subs = {id(s): s for lst in self._exact.values() for s in lst}
+            subs.update((id(s), s) for s in self._patterns)
+        return list(subs.values())
+
+    @property
+    def dropped(self) -> int:  # type: ignore[override]
+        return sum(s.dropped for s in self.subscriptions())
+
+    @property
+    def errors(self) -> int:
+        return sum(s.errors for s in self.subscriptions())
+
+    def status(self) -> dict[str, Any]:
+        out = super().status()
+        subs = self.subscriptions()
+        out.update(
+            subscriptions=len(subs),
+            delivered=sum(s.delivered for s in subs),
+            callback_errors=self.errors,
+            slowest=max((len(s._items) for s in subs), default=0),
+        )
+        if self.errors:
+            out.update(level=max(out["level"], 1), message=f"{self.errors} callback errors")
+        return out
+
+    def close(self) -> None:
+        for sub in self.subscriptions():
+            sub._stop()
 
     def _unsubscribe(self, sub: Subscription) -> None:
         with self._lock:

@@ -37,9 +37,10 @@ class ConsolePublisher(Publisher):
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         for s in status:
-            if s["state"] != "up":
+            if s.get("level", 0) >= 2:
                 with self._lock:
-                    line = f"{s['board']}: {s['state']} {s.get('error', '')}"
+                    who = s.get("board") or f"publisher {s.get('publisher')}"
+                    line = f"{who}: {s.get('state', 'failed')} {s.get('message', '')}"
                     print(
                         f"{now_ns / 1e9:.6f} /diagnostics {line}",
                         file=self.out,

@@ -1,16 +1,34 @@
 """``mcap``: record every topic to rosbag2 directories with MCAP storage (rosbags' writer), readable
 by rosbags' AnyReader, the ``mcap`` reader, ros2 bag and Foxglove.
 
-Writes happen on a writer thread fed by a bounded queue (a slow disk never stalls a board; drops
-are counted).  Recordings rotate by size and/or time into numbered bag directories.  A recording
-whose process died before ``close()`` lacks its MCAP summary and metadata.yaml; ``recover_bag``
-salvages every complete record into a new, valid bag (``missing-link recover``).
+Theory of operation
+-------------------
+Writes happen on a writer thread fed by a bounded queue (``queue`` items): a slow disk never
+stalls a board; what does not fit is dropped and counted (``dropped``).  Recordings rotate by
+size and/or time into numbered bag directories.
+
+Crash safety.  MCAP keeps messages in a chunk in memory until the chunk is written; rosbags
+closes a chunk at 1 MiB, which at a few hundred kB/s is many seconds of data that a SIGKILL or a
+power cut would take with it.  The writer thread therefore closes the open chunk every
+``chunk_s`` seconds (default 1.0) and flushes the file, so a killed process loses at most about
+that much; ``missing-link recover`` salvages every complete chunk into a valid bag.  The trade
+is file size and read speed: more, smaller chunks (each with its own index records).  Use
+``chunk_s = 5`` for a smaller file on a robot that does not crash, ``0.2`` for a tighter bound.
+
+Failure is loud.  The directory is created and test-written when the publisher starts: a
+recording that cannot start is an error there (``PublisherError``), not a warning later.  A
+write that fails (ENOSPC, EACCES, EIO) sets ``error``; the daemon reports it as ERROR in
+``/diagnostics`` and ``publisher_status()``, ``run`` exits 1 and the demo fails.  After a failure
+the thread keeps draining the queue and counts what it could not write as dropped, so
+publishers never block; ``close()`` returns within ``close_timeout`` whatever the writer is doing.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import tempfile
 import threading
 import time
 from datetime import datetime
@@ -19,11 +37,21 @@ from typing import Any
 
 from ..msgs import typestore_for
 from ..topics import Topic, Update
-from .base import Publisher, register_publisher
+from .base import Publisher, PublisherError, register_publisher
 
 log = logging.getLogger(__name__)
 DIAG_TOPIC = "/diagnostics"
 DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+
+
+def _option(opts: dict[str, Any], key: str, default: float, lo: float, hi: float) -> float:
+    try:
+        value = float(opts.get(key, default))
+    except (TypeError, ValueError):
+        raise PublisherError(f"[mcap] {key} = {opts.get(key)!r}: expected a number") from None
+    if not lo <= value <= hi:
+        raise PublisherError(f"[mcap] {key} = {value:g}: expected {lo:g}..{hi:g}")
+    return value
 
 
 class McapPublisher(Publisher):
@@ -32,23 +60,29 @@ class McapPublisher(Publisher):
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         opts = options or {}
         self.base = Path(opts.get("path", "recordings"))
-        self.rotate_bytes = int(float(opts.get("rotate_mb", 1024)) * 1e6)
-        self.rotate_s = float(opts.get("rotate_s", 0))
+        self.rotate_bytes = int(_option(opts, "rotate_mb", 1024, 0, 1e9) * 1e6)
+        self.rotate_s = _option(opts, "rotate_s", 0, 0, 1e9)
+        self.chunk_s = _option(opts, "chunk_s", 1.0, 0.01, 3600)
+        self.close_timeout = _option(opts, "close_timeout", 10.0, 0.1, 3600)
+        size = _option(opts, "queue", 200_000, 1, 1e9)
         self.distro = str(opts.get("distro", "jazzy"))
         self.prefix = str(opts.get("prefix", "missing_link"))
         self.typestore = typestore_for(self.distro)
-        self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(opts.get("queue", 200_000)))
+        _check_writable(self.base)
+        self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(size))
         self.bags: list[Path] = []
         self.messages = 0
         self.messages_by_topic: dict[str, int] = {}
         self.dropped = 0
+        self.error = ""
         self._topics: dict[str, Topic] = {}
         self._writer: Any = None
         self._conns: dict[str, Any] = {}
         self._bytes = 0
         self._opened = 0.0
+        self._chunk_since: float | None = None  # when the open chunk got its first message
         self._closed = False
-        self.error: BaseException | None = None
+        self._closing = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -74,22 +108,72 @@ class McapPublisher(Publisher):
         if self._closed:
             return
         self._closed = True
-        self._q.put(None)
-        self._thread.join(30)
+        self._closing.set()
+        try:
+            self._q.put_nowait(None)
+        except queue.Full:
+            pass  # the writer sees _closing after the queue's current contents
+        self._thread.join(self.close_timeout)
+        if self._thread.is_alive():
+            left = self._q.qsize()
+            self.dropped += left
+            self._fail(f"writer did not finish within {self.close_timeout:g} s ({left} queued)")
+
+    def status(self) -> dict[str, Any]:
+        out = super().status()
+        out.update(
+            messages=self.messages,
+            queued=self._q.qsize(),
+            path=str(self.bags[-1]) if self.bags else str(self.base),
+        )
+        return out
 
     # ---- writer thread -----------------------------------------------------------------------
     def _run(self) -> None:
         try:
             while True:
-                item = self._q.get()
-                if item is None:
+                try:
+                    item = self._q.get(timeout=self._wait())
+                except queue.Empty:
+                    item = ()
+                if item is None or (not item and self._closing.is_set() and self._q.empty()):
                     break
-                self._handle(item)
-        except BaseException as e:
-            self.error = e
-            log.exception("MCAP recording failed")
+                if self.error:
+                    if item and item[0] != "topic":
+                        self.dropped += 1  # failed for good: count, never block
+                    continue
+                try:
+                    if item:
+                        self._handle(item)
+                    self._maybe_close_chunk()
+                except Exception as e:  # noqa: BLE001 - any write failure is loud and counted
+                    self.dropped += 1 if item and item[0] != "topic" else 0
+                    self._fail(_describe(e, self.base))
         finally:
-            self._close_bag()
+            try:
+                self._close_bag()
+            except Exception as e:  # noqa: BLE001
+                self._fail(f"closing the bag failed: {_describe(e, self.base)}")
+
+    def _wait(self) -> float:
+        if self._chunk_since is None:
+            return 0.5
+        return max(0.0, self._chunk_since + self.chunk_s - time.monotonic())
+
+    def _fail(self, text: str) -> None:
+        if not self.error:
+            self.error = f"recording failed: {text}"
+            log.error("mcap: %s", self.error)
+
+    def _maybe_close_chunk(self) -> None:
+        since = self._chunk_since
+        if since is None or time.monotonic() - since < self.chunk_s:
+            return
+        storage = getattr(self._writer, "storage", None)
+        if storage is not None and hasattr(storage, "close_chunk") and storage.chunk.bio.tell():
+            storage.close_chunk()  # rosbags' MCAP storage: write the chunk and its indexes
+            storage.bio.flush()
+        self._chunk_since = None
 
     def _handle(self, item: tuple[Any, ...]) -> None:
         kind = item[0]
@@ -111,6 +195,8 @@ class McapPublisher(Publisher):
         else:
             _, stamp, data = item
             self._writer.write(self._conns[DIAG_TOPIC], stamp, data)
+        if self._chunk_since is None:
+            self._chunk_since = time.monotonic()
         self._bytes += len(data) + 32
         self.messages += 1
 
@@ -133,6 +219,7 @@ class McapPublisher(Publisher):
         self._conns = {}
         self._bytes = 0
         self._opened = time.monotonic()
+        self._chunk_since = None
         self._conns[DIAG_TOPIC] = writer.add_connection(
             DIAG_TOPIC, DIAG_TYPE, typestore=self.typestore
         )
@@ -148,9 +235,26 @@ class McapPublisher(Publisher):
         )
 
     def _close_bag(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            writer.close()
+
+
+def _check_writable(base: Path) -> None:
+    """Fail at startup, with the reason, when ``base`` cannot hold a recording."""
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".missing-link-probe-", dir=base)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise PublisherError(f"cannot record to {base}: {e.strerror or e}") from None
+
+
+def _describe(e: BaseException, base: Path) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        return f"{e.strerror} ({base})"
+    return f"{type(e).__name__}: {e}"
 
 
 def diagnostics_cdr(typestore: Any, status: list[dict[str, Any]], now_ns: int) -> bytes:
@@ -164,13 +268,18 @@ def diagnostics_cdr(typestore: Any, status: list[dict[str, Any]], now_ns: int) -
     Status, KV = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
     items = []
     for s in status:
-        level = int(s.get("level", 0 if s["state"] == "up" else 2))
+        level = int(s.get("level", 0 if s.get("state") == "up" else 2))
+        label = (
+            f"missing_link: {s['board']}"
+            if "board" in s
+            else f"missing_link publisher: {s.get('publisher')}"
+        )
         values = [KV(key=str(k), value=str(v)) for k, v in s.items() if k not in ("board",)]
         items.append(
             Status(
                 level=level,
-                name=f"missing_link: {s['board']}",
-                message=str(s.get("message") or s["state"]),
+                name=label,
+                message=str(s.get("message") or s.get("state", "")),
                 hardware_id=str(s.get("serial", "")),
                 values=values,
             )

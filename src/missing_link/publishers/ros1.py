@@ -122,9 +122,11 @@ class Ros1Publisher(Publisher):
         for s in status:
             msg.status.append(
                 DS(
-                    level=int(s.get("level", 0 if s["state"] == "up" else 2)),
-                    name=f"missing_link: {s['board']}",
-                    message=str(s.get("message") or s["state"]),
+                    level=int(s.get("level", 0 if s.get("state") == "up" else 2)),
+                    name=f"missing_link: {s['board']}"
+                    if "board" in s
+                    else f"missing_link publisher: {s.get('publisher')}",
+                    message=str(s.get("message") or s.get("state", "")),
                     hardware_id=str(s.get("serial", "")),
                     values=[KV(key=str(k), value=str(v)) for k, v in s.items() if k != "board"],
                 )

@@ -180,7 +180,11 @@ class ZenohPublisher(Publisher):
         if ent is None or self._closed:
             return
         ent.seq += 1
-        ent.pub.put(update.cdr, attachment=attachment(ent.seq, update.stamp_ns, ent.gid))
+        try:
+            ent.pub.put(update.cdr, attachment=attachment(ent.seq, update.stamp_ns, ent.gid))
+        except Exception:  # noqa: BLE001 - a put zenoh refuses is a dropped message, counted
+            self.dropped += 1
+            return
         self.published += 1
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:

@@ -112,6 +112,24 @@ def query_dict(url: str) -> dict[str, str]:
     return {k: v[-1] for k, v in q.items()}
 
 
+def check_url(url: str) -> str:
+    """The URL's scheme if a transport for it exists; ``BadURL`` (a usage error) otherwise.
+    Errors that retrying cannot fix are found here, before any connection attempt."""
+    if url.startswith("spy+"):
+        return check_url(url[4:])
+    scheme = url.split("://", 1)[0] if "://" in url else ""
+    if not scheme:
+        raise BadURL(
+            f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)"
+        )
+    if scheme not in _REGISTRY and not any(
+        ep.name == scheme for ep in entry_points(group="missing_link.transports")
+    ):
+        known = ", ".join(sorted(_REGISTRY))
+        raise BadURL(f"{url!r}: unknown transport {scheme!r} (known: {known}, and spy+ prefix)")
+    return scheme
+
+
 def open_transport(url: str) -> Transport:
     """Open a board link by URL: ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
     ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to dump traffic."""

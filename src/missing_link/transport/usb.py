@@ -55,7 +55,15 @@ def _describe(dev: Any) -> str:
 
 def find_boards(usb: Any | None = None) -> list[Any]:
     usb = usb or _usb_core()
-    return list(usb.core.find(find_all=True, custom_match=lambda d: j2a_interface(d) is not None))
+    try:
+        found = usb.core.find(find_all=True, custom_match=lambda d: j2a_interface(d) is not None)
+        return list(found)
+    except Exception as e:  # noqa: BLE001 - NoBackendError, USBError: say what to install
+        if type(e).__name__ == "NoBackendError":
+            raise TransportBroken(
+                "usb:// needs libusb (Debian: apt install libusb-1.0-0); pyusb found no backend"
+            ) from None
+        raise TransportBroken(f"usb:// cannot list USB devices: {e}") from None
 
 
 class USBTransport(Transport):
