@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -133,12 +134,16 @@ def test_create_msgs_from_board_and_file(board_url: str, tmp_path: object) -> No
     assert r.returncode == 2 and "package name 'Bad-Name'" in r.stderr
 
 
-def test_run_and_recover_input_errors(tmp_path: object) -> None:
+def test_run_and_recover_input_errors(tmp_path: Path) -> None:
     r = ml("run", "tcp://127.0.0.1:1", "-p", "zenohh", "--duration", "0.1")
     assert r.returncode == 2 and "--publisher 'zenohh': unknown" in r.stderr
     r = ml("run")
     assert r.returncode == 2 and "no boards" in r.stderr
     r = ml("recover", str(tmp_path))
     assert r.returncode == 2 and "no .mcap file" in r.stderr
-    r = ml("recover", "examples/original-board.toml", "--out", str(tmp_path))
+    mcap = Path(str(tmp_path)) / "x.mcap"
+    mcap.write_bytes(b"\x89MCAP0\r\n")
+    r = ml("recover", str(mcap), "--out", str(tmp_path))
     assert r.returncode == 2 and "exists already" in r.stderr
+    r = ml("recover", "examples/original-board.toml", "--out", str(tmp_path / "new"))
+    assert r.returncode == 2 and "not an MCAP file" in r.stderr

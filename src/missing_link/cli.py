@@ -34,6 +34,38 @@ def _parse_hex(text: str) -> bytes:
         ) from None
 
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _positive(text) if text.strip() not in ("0", "0.0") else 0.0
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} must be 0 or more")
+    return value
+
+
+def _port(text: str) -> int:
+    value = _count(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"{value} is not a TCP port (0..65535)")
+    return value
+
+
 def _open(args: argparse.Namespace) -> Board:
     return Board.open(args.url, timeout=args.timeout)
 
@@ -88,7 +120,18 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 # ---- call -------------------------------------------------------------------------------------
+#: return values that mean success for built-ins whose OK is not 0 (spec 1.6)
+SUCCESS_CODES = {"a2jEcho": 0xBA}
+
+
 def cmd_call(args: argparse.Namespace) -> int:
+    if len(args.hex) > 255:
+        print(
+            f"missing-link: error: --hex has {len(args.hex)} bytes; one J2A frame carries at "
+            "most 255 (larger transfers go through a many-function)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
     with _open(args) as board:
         result = board.call(args.name, args.hex, timeout=args.timeout)
     if args.json:
@@ -107,6 +150,13 @@ def cmd_call(args: argparse.Namespace) -> int:
             print(f"  hex   {result.payload.hex(' ')}")
             if text.isprintable():
                 print(f"  ascii {text}")
+    if result.code != SUCCESS_CODES.get(args.name, 0) and not args.any_code:
+        print(
+            f"missing-link: error: {args.name} returned {result.code:#04x} (not OK; "
+            "--any-code accepts every return value)",
+            file=sys.stderr,
+        )
+        return EXIT_FAIL
     return 0
 
 
@@ -127,6 +177,15 @@ def cmd_listen(args: argparse.Namespace) -> int:
         decoder = SampleDecoder(board.name, transducers)
         units = {t.name: t.unit for t in transducers}
         wanted = set(args.transducer or [])
+        unknown = wanted - set(units)
+        if unknown:
+            have = ", ".join(units) or "none (an original board without descriptors)"
+            print(
+                f"missing-link: error: {board.name} has no transducer "
+                f"{', '.join(sorted(unknown))} (it has: {have})",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
 
         def on_sif(sif: SifReceived, now: float) -> None:
             nonlocal count
@@ -188,6 +247,13 @@ def cmd_sync(args: argparse.Namespace) -> int:
 
     if args.period <= 0:
         print("missing-link: error: --period must be > 0", file=sys.stderr)
+        return EXIT_USAGE
+    if args.uart_baud and not args.url.removeprefix("spy+").startswith("serial://"):
+        print(
+            "missing-link: error: --uart-baud describes a UART link (serial://); "
+            f"{args.url} is not one, and its bytes do not take UART time",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
     byte_ns = 10e9 / args.uart_baud if args.uart_baud else 0.0
     with _open(args) as board:
@@ -272,12 +338,17 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
             transducers = board.transducers
             origin = board.name
     files = package_files(transducers, args.package, args.ros)
-    root = os.path.join(args.out, args.package)
-    for name, text in sorted(files.items()):
-        path = os.path.join(root, name)
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(text)
+    try:
+        written = write_package(args.out, args.package, files, force=args.force)
+    except (FileExistsError, NotADirectoryError) as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as e:
+        print(
+            f"missing-link: error: cannot write into {args.out}: {e.strerror or e}", file=sys.stderr
+        )
+        return EXIT_FAIL
+    for path in written:
         print(path)
     print(
         f"{len(transducers)} message type(s) from {origin} in ROS {args.ros} package "
@@ -285,6 +356,44 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+#: written into every package create-msgs makes, so it knows what it may overwrite
+MARKER = ".missing-link-generated"
+
+
+def write_package(out: str, package: str, files: dict[str, str], *, force: bool) -> list[str]:
+    """Write the package into ``out/package`` all or nothing: into a temporary directory next to
+    it, then renamed into place.  A directory there that create-msgs did not write is refused
+    unless ``force``."""
+    import os
+    import shutil
+    import tempfile
+
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise NotADirectoryError(f"--out {out}: not a directory")
+    root = os.path.join(out, package)
+    if os.path.exists(root) and not force and not os.path.exists(os.path.join(root, MARKER)):
+        raise FileExistsError(
+            f"{root} exists and was not written by create-msgs; --force replaces it"
+        )
+    os.makedirs(out, exist_ok=True)
+    tmp = tempfile.mkdtemp(prefix=f".{package}-", dir=out)
+    try:
+        for name, text in files.items():
+            path = os.path.join(tmp, name)
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            with open(path, "w", encoding="utf-8") as f:
+                f.write(text)
+        with open(os.path.join(tmp, MARKER), "w", encoding="utf-8") as f:
+            f.write("generated by missing-link create-msgs; rerunning it replaces this package\n")
+        if os.path.exists(root):
+            shutil.rmtree(root)
+        os.rename(tmp, root)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return [os.path.join(root, name) for name in sorted(files)]
 
 
 # ---- run ----------------------------------------------------------------------------------------
@@ -413,9 +522,12 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
     try:
         dest, count = recover_bag(args.path, args.out)
-    except (FileNotFoundError, FileExistsError) as e:
+    except (FileNotFoundError, FileExistsError, ValueError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as e:
+        print(f"missing-link: error: cannot recover {args.path}: {e}", file=sys.stderr)
+        return EXIT_FAIL
     print(f"recovered {count} messages into {dest}")
     return 0
 
@@ -439,7 +551,14 @@ def cmd_board(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    server = BoardServer(runtime, args.listen)
+    try:
+        server = BoardServer(runtime, args.listen)
+    except OSError as e:
+        print(
+            f"missing-link: error: cannot listen on {args.listen}: {e.strerror or e}",
+            file=sys.stderr,
+        )
+        return EXIT_FAIL
 
     def stop(signum: int, frame: object) -> None:
         server.stop()
@@ -489,6 +608,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     machines meet here.  Multicast scouting off; prints one READY line, stops on SIGINT/SIGTERM."""
     import zenoh
 
+    for endpoint in (args.listen or []) + (args.connect or []):
+        if "/" not in endpoint or "://" in endpoint:
+            print(
+                f"missing-link: error: {endpoint!r} is not a Zenoh endpoint "
+                "(e.g. tcp/127.0.0.1:7447)",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
     if not args.listen:
         print("missing-link: error: --listen ENDPOINT is required", file=sys.stderr)
         return EXIT_USAGE
@@ -500,7 +627,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     signal.signal(signal.SIGINT, lambda *a: stop.set())
-    with zenoh.open(cfg) as session:
+    try:
+        session = zenoh.open(cfg)
+    except zenoh.ZError as e:
+        print(
+            f"missing-link: error: zenoh router on {', '.join(args.listen)}: {e}", file=sys.stderr
+        )
+        return EXIT_FAIL
+    with session:
         print(f"READY zenoh router {session.info.zid()} on {', '.join(args.listen)}", flush=True)
         stop.wait()
     return 0
@@ -510,6 +644,9 @@ def cmd_router(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
+    if args.duration < 1:
+        print("missing-link: error: --duration must be at least 1 s", file=sys.stderr)
+        return EXIT_USAGE
     return run_demo(duration=args.duration, seed=args.seed, record=args.record)
 
 
@@ -527,7 +664,7 @@ def build_parser() -> argparse.ArgumentParser:
     def with_url(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("url", help="board URL, e.g. serial:///dev/ttyACM0 or tcp://127.0.0.1:5000")
         sp.add_argument(
-            "--timeout", type=float, default=1.0, help="per-call timeout in seconds (1.0)"
+            "--timeout", type=_positive, default=1.0, help="per-call timeout in seconds (1.0)"
         )
 
     sp = sub.add_parser("info", help="functions, properties and transducers of a board")
@@ -540,12 +677,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("name", help="function name, e.g. a2jEcho")
     sp.add_argument("--hex", type=_parse_hex, default=b"", help="request payload as hex")
     sp.add_argument("--json", action="store_true")
+    sp.add_argument(
+        "--any-code",
+        action="store_true",
+        help="exit 0 whatever the function returns (default: 1 unless it returns OK)",
+    )
     sp.set_defaults(func=cmd_call)
 
     sp = sub.add_parser("listen", help="print decoded samples live, one line each")
     with_url(sp)
-    sp.add_argument("--count", type=int, default=0, help="stop after N samples")
-    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds")
+    sp.add_argument("--count", type=_count, default=0, help="stop after N samples")
+    sp.add_argument("--duration", type=_non_negative, default=0, help="stop after S seconds")
     sp.add_argument("--transducer", "-t", action="append", help="only this transducer (repeatable)")
     sp.add_argument("--missing", action="store_true", help="also print N/A channels")
     sp.add_argument("--json", action="store_true", help="one JSON object per line")
@@ -553,9 +695,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("sync", help="clock synchronisation with a board, live")
     with_url(sp)
-    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds")
-    sp.add_argument("--period", type=float, default=1.0, help="seconds between lines (1.0)")
-    sp.add_argument("--uart-baud", type=int, default=0, help="baud rate if the link is a UART")
+    sp.add_argument("--duration", type=_non_negative, default=0, help="stop after S seconds")
+    sp.add_argument("--period", type=_positive, default=1.0, help="seconds between lines (1.0)")
+    sp.add_argument("--uart-baud", type=_count, default=0, help="baud rate if the link is a UART")
     sp.add_argument("--json", action="store_true", help="one JSON object per line")
     sp.set_defaults(func=cmd_sync)
 
@@ -564,7 +706,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="directory to write the package into")
     sp.add_argument("--ros", type=int, choices=(1, 2), default=2, help="ROS version (2)")
     sp.add_argument("--package", default="missing_link_msgs", help="package name")
-    sp.add_argument("--timeout", type=float, default=1.0)
+    sp.add_argument("--timeout", type=_positive, default=1.0)
+    sp.add_argument(
+        "--force", action="store_true", help="replace a package directory create-msgs did not write"
+    )
     sp.set_defaults(func=cmd_create_msgs)
 
     sp = sub.add_parser("run", help="the daemon: every board's transducers as topics")
@@ -580,15 +725,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument(
         "--foxglove",
         nargs="?",
-        type=int,
+        type=_port,
         const=8765,
         metavar="PORT",
         help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
     )
-    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
+    sp.add_argument(
+        "--duration", type=_non_negative, default=0, help="stop after S seconds (0 = run)"
+    )
     sp.add_argument(
         "--wait-up",
-        type=float,
+        type=_non_negative,
         default=0,
         metavar="S",
         help="fail (exit 1) unless every board is up within S seconds",
@@ -631,7 +778,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--blackhole-for", type=float, help="... for S s (default: for ever)")
     sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--duration", type=float, default=0, help="stop after S seconds (0 = run)")
+    sp.add_argument(
+        "--duration", type=_non_negative, default=0, help="stop after S seconds (0 = run)"
+    )
     sp.set_defaults(func=cmd_relay)
 
     sp = sub.add_parser("router", help="a Zenoh router for daemons and consumers on several hosts")

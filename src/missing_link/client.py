@@ -16,6 +16,7 @@ import logging
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -516,6 +517,7 @@ class AsyncBoard:
 
     def __init__(self, board: Board) -> None:
         self.board = board
+        self.dropped = 0  #: SIFs the ``sifs()`` queue had no room for
 
     @classmethod
     async def open(
@@ -550,20 +552,42 @@ class AsyncBoard:
     def sifs(
         self, cmd: int | None = None, maxsize: int = 10000
     ) -> asyncio.Queue[tuple[SifReceived, float]]:
-        """A queue that receives ``(sif, host_time)``; full queues drop the newest (counted)."""
+        """A queue that receives ``(sif, host_time)``.  Bounded end to end: when the event loop
+        or the consumer falls behind, the newest SIFs are dropped and counted (``dropped``);
+        at most one hand-over callback is ever pending in the loop."""
+        if maxsize <= 0:
+            raise ValueError("maxsize must be > 0: an unbounded queue can eat all memory")
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue[tuple[SifReceived, float]] = asyncio.Queue(maxsize)
-
-        def put(item: tuple[SifReceived, float]) -> None:
-            try:
-                queue.put_nowait(item)
-            except asyncio.QueueFull:
-                self.dropped += 1
-
+        pending: deque[tuple[SifReceived, float]] = deque()
+        lock = threading.Lock()
+        scheduled = [False]
         self.dropped = 0
 
-        def handler(ev: SifReceived, now: float) -> None:
-            loop.call_soon_threadsafe(put, (ev, now))
+        def hand_over() -> None:  # in the loop
+            with lock:
+                items = list(pending)
+                pending.clear()
+                scheduled[0] = False
+            for item in items:
+                try:
+                    queue.put_nowait(item)
+                except asyncio.QueueFull:
+                    self.dropped += 1
+
+        def handler(ev: SifReceived, now: float) -> None:  # on the reader thread
+            with lock:
+                if len(pending) + queue.qsize() >= maxsize:
+                    self.dropped += 1
+                    return
+                pending.append((ev, now))
+                if scheduled[0]:
+                    return
+                scheduled[0] = True
+            try:
+                loop.call_soon_threadsafe(hand_over)
+            except RuntimeError:  # the loop is closed
+                pass
 
         self.board.on_sif(cmd, handler)
         return queue

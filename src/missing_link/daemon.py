@@ -31,11 +31,12 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from .config import BoardSpec, Config
+from .config import BoardSpec, Config, ConfigError
 from .descriptors import Transducer, load_descriptor_file
 from .errors import BadURL, BoardError, MissingLinkError
 from .msgs import msg_name, msgdef, type_name, typestore_for
 from .publishers import Bus, Publisher, make_publisher
+from .publishers.base import PublisherError
 from .publishers.bus import Callback, Subscription
 from .session import UP, BoardSession
 from .topics import Topic, Update
@@ -61,7 +62,12 @@ class Daemon:
         try:
             for name in config.publishers:
                 if name != "bus":
-                    self.publishers.append(make_publisher(name, self._options(name)))
+                    try:
+                        self.publishers.append(make_publisher(name, self._options(name)))
+                    except (MissingLinkError, ConfigError):
+                        raise
+                    except Exception as e:  # zenoh.ZError, a taken port, ...: one line
+                        raise PublisherError(f"publisher {name} cannot start: {e}") from e
         except BaseException:
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
@@ -125,8 +131,10 @@ class Daemon:
         self.stop()
 
     # ---- for applications (the thesis's Listing 8.4) -----------------------------------------
-    def subscribe(self, topic: str, callback: Callback) -> Subscription:
-        return self.bus.subscribe(topic, callback)
+    def subscribe(self, topic: str, callback: Callback, *, queue: int = 10_000) -> Subscription:
+        """``callback(update)`` for every update on ``topic`` (patterns: ``*``, ``**``), on a
+        thread of its own behind a bounded queue (``queue=0``: inline on the reader thread)."""
+        return self.bus.subscribe(topic, callback, queue=queue)
 
     def send(self, topic: str, value: Any) -> None:
         self.bus.send(topic, value)

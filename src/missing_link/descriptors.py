@@ -13,6 +13,7 @@ from .text import clean
 
 HEADER = "transds/1"
 NAME_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
+MAX_NAME = 64
 ROS_TYPE_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9]*\Z")
 FIELDS = ("name", "id", "prefix", "model", "chan_count", "type", "na")
 KNOWN_KEYS = ("unit", "scale", "offset", "min", "max", "rate_hz", "kind", "call", "ros", "frame_id")
@@ -157,6 +158,8 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
     name, id_s, prefix, model, count_s, dtype, na_s = parts[:7]
     if not NAME_RE.match(name):
         raise fail("name", f"{name!r} is not a topic name ([a-z][a-z0-9_]*)")
+    if len(name) > MAX_NAME:
+        raise fail("name", f"{len(name)} characters; at most {MAX_NAME} (it names files too)")
     try:
         tid = int(id_s, 0)
     except ValueError:

@@ -28,6 +28,8 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import shutil
+import struct
 import tempfile
 import threading
 import time
@@ -35,6 +37,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from ..config import ConfigError
 from ..msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError, register_publisher
@@ -42,15 +45,16 @@ from .base import Publisher, PublisherError, register_publisher
 log = logging.getLogger(__name__)
 DIAG_TOPIC = "/diagnostics"
 DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _option(opts: dict[str, Any], key: str, default: float, lo: float, hi: float) -> float:
     try:
         value = float(opts.get(key, default))
     except (TypeError, ValueError):
-        raise PublisherError(f"[mcap] {key} = {opts.get(key)!r}: expected a number") from None
+        raise ConfigError(f"[mcap] {key} = {opts.get(key)!r}: expected a number") from None
     if not lo <= value <= hi:
-        raise PublisherError(f"[mcap] {key} = {value:g}: expected {lo:g}..{hi:g}")
+        raise ConfigError(f"[mcap] {key} = {value:g}: expected {lo:g}..{hi:g}")
     return value
 
 
@@ -301,6 +305,12 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, 
     files = sorted(src.glob("*.mcap")) if src.is_dir() else [src]
     if not files:
         raise FileNotFoundError(f"{src}: no .mcap file to recover")
+    if not src.exists():
+        raise FileNotFoundError(f"{src}: no such file or directory")
+    for f in files:
+        with open(f, "rb") as stream:
+            if stream.read(8) != MCAP_MAGIC:
+                raise ValueError(f"{f}: not an MCAP file (no MCAP magic at its start)")
     dest = Path(out) if out else src.with_name(src.name.removesuffix(".mcap") + "_recovered")
     if dest.exists():
         raise FileExistsError(f"{dest} exists already; give another --out")
@@ -311,6 +321,7 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, 
     count = 0
     writer = Writer(dest, version=9, storage_plugin=StoragePlugin.MCAP)
     writer.open()
+    ok = False
     try:
         for f in files:
             with open(f, "rb") as stream:
@@ -334,10 +345,15 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, 
                                 )
                             writer.write(conns[record.channel_id], record.log_time, record.data)
                             count += 1
-                except (McapError, EOFError, ValueError, OSError) as e:
+                except (McapError, EOFError, ValueError, OSError, struct.error) as e:
                     log.info("%s: stopped at a damaged or missing record: %s", f, e)
+        ok = count > 0
     finally:
         writer.close()
+        if not ok:
+            shutil.rmtree(dest, ignore_errors=True)  # leave nothing half-made behind
+    if not count:
+        raise ValueError(f"{src}: no complete message in it; nothing to recover")
     return dest, count
 
 

@@ -15,6 +15,7 @@ import itertools
 import os
 import select
 import socket
+import stat
 import threading
 import tty
 from collections import deque
@@ -142,7 +143,11 @@ class BoardServer:
                 raise BadURL(f"{url!r}: bad port") from e
             sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.bind((host, port))
+            try:
+                sock.bind((host, port))
+            except OSError:
+                sock.close()
+                raise
             sock.listen(1)
             self._listener = sock
             return f"tcp://{host}:{sock.getsockname()[1]}"
@@ -151,9 +156,15 @@ class BoardServer:
             if not path:
                 raise BadURL(f"{url!r}: expected unix:///path")
             if os.path.exists(path):
-                os.unlink(path)
+                if not stat.S_ISSOCK(os.stat(path).st_mode):
+                    raise FileExistsError(errno.EEXIST, "exists and is not a socket", path)
+                os.unlink(path)  # a stale socket of an earlier run: nothing else is removed
             sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            sock.bind(path)
+            try:
+                sock.bind(path)
+            except OSError:
+                sock.close()
+                raise
             sock.listen(1)
             self._listener = sock
             return f"unix://{path}"
