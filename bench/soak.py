@@ -14,10 +14,11 @@ Each board is a real process (``missing-link board --sim rate``: one int32 count
 Accounting, per board and boot: consecutive updates received with counters a < b carry the
 daemon's ``lost`` count; b - a - 1 samples are missing.  A gap is *counted* when ``lost`` equals
 it, *counted mod 256* when it matches modulo 256 (J2A's SIF seq is 8 bit: an outage of over 255
-SIFs is undercounted by multiples of 256), and *silent* otherwise -- which must never happen.
-Samples a board sends between the daemon's last read and its SIGKILL die with the process and
-are not a host-side loss and are outside these books (a new boot starts a new count).  The reference row is
-the same daemon and boards without faults, measured in the same run.
+SIFs is undercounted by multiples of 256 -- unless the board answers ``a2jSifCount``, as ours
+do), and *silent* otherwise -- which must never happen.
+Samples a board sends between the daemon's last read and its SIGKILL die with the process: they
+are not a host-side loss and are outside these books (a new boot starts a new count).  The
+reference column is the same daemon and boards without faults, measured in the same run.
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ FAULTS = ("freeze", "blackhole", "corrupt", "kill")
 
 def start_board(name: str, rate: float) -> tuple[subprocess.Popen[str], str]:
     p = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "board", "--sim", "rate", "--rate", str(rate)]
-        + ["--name", name, "--listen", "tcp://127.0.0.1:0"],
+        [
+            *(sys.executable, "-m", "missing_link", "board", "--sim", "rate"),
+            *("--rate", str(rate), "--name", name, "--listen", "tcp://127.0.0.1:0"),
+        ],
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -151,6 +154,7 @@ def run(boards: int, seconds: float, rate: float, period: float, faults: bool) -
         "boots": sum(t.boots for t in tallies),
         "bad_checksums": sum(s["bad_checksums"] + s["bad_escapes"] for s in status),
         "stale_links": sum(s["stale_links"] for s in status),
+        "outage_lost": sum(s["outage_lost_sifs"] for s in status),
         "reconnects": sum(s["connects"] - 1 for s in status),
         "threads": end_res[0] - start_res[0],
         "fds": end_res[1] - start_res[1],

@@ -186,6 +186,6 @@ def test_mapping_longer_than_one_frame_is_read_in_full(serve: Serve) -> None:
         rt.add_function(f"function_with_a_long_name_{i:02d}", lambda p: (0, b""))
     server = serve(rt)
     with open_board(server.url) as board:
-        assert len(board.functions) == 40  # 10 built-ins + 30
+        assert len(board.functions) == 41  # 11 built-ins + 30
         assert board.functions[-1] == "function_with_a_long_name_29"
         assert board.call("function_with_a_long_name_29").code == 0

@@ -459,3 +459,28 @@ def test_board_error_names_the_board(serve: Serve) -> None:
     server = serve(make_sim("hostile_res", seed=1))
     with pytest.raises(BoardError, match=r"res: property clock.res_us"):
         Board.open(server.url)
+
+
+def test_outage_losses_are_counted_exactly_past_256(serve: Serve) -> None:
+    """An outage of thousands of SIFs: the 8-bit seq alone would count them modulo 256; the
+    board's a2jSifCount makes the count exact."""
+    server = serve(
+        make_sim("rate", seed=1, name="fast", rate_hz=1000.0), listen="tcp://127.0.0.1:0"
+    )
+    with FaultRelay(server.url) as relay, daemon_for(BoardSpec(relay.url)) as d:
+        assert d.wait_until_up(10)
+        got: list[Update] = []
+        d.subscribe("/fast/signal", got.append)
+        assert wait_for(lambda: len(got) > 100)
+        relay.blackhole(True)
+        assert wait_for(lambda: d.sessions[0].state != "up", 15)
+        relay.blackhole(False)
+        n = len(got)
+        assert wait_for(lambda: d.sessions[0].state == "up" and len(got) > n + 100, 15)
+        (st,) = d.status()
+    values = [u.values[0] for u in got]
+    gaps = [(b - a - 1, u.lost) for a, b, u in zip(values, values[1:], got[1:], strict=False)]
+    big = [(gap, lost) for gap, lost in gaps if gap > 0]
+    assert big and all(gap == lost for gap, lost in big), big
+    assert max(g for g, _ in big) > 256  # the outage really was past one wrap
+    assert st["outage_lost_sifs"] >= max(g for g, _ in big)

@@ -128,6 +128,7 @@ def run_demo(
             steering.cancel()  # no commands into boards that are closing
             view.close()
             status = daemon.status()
+            pub_status = daemon.publisher_status()
             failures = daemon.failures()
             mcap = next(p for p in daemon.publishers if p.name == "mcap")
         bags = [str(b) for b in getattr(mcap, "bags", [])]
@@ -164,6 +165,11 @@ def run_demo(
         }
         print(
             "  losses: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in losses.items()),
+            file=out,
+        )
+        print(
+            "  publishers: "
+            + ", ".join(f"{p['publisher']} {p.get('dropped', 0)} dropped" for p in pub_status),
             file=out,
         )
         for line in failures:

@@ -99,6 +99,9 @@ class BoardSession:
         self._next_push = 0.0
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
         self._next_sif_seq: int | None = None  # after the last SIF seen on this board boot
+        self._sif_total: int | None = None  # the next SIF's number since boot (unwrapped seq)
+        self._outage_count: int | None = None  # a2jSifCount read after an outage
+        self.outage_lost_sifs = 0  #: SIFs lost while the link was down (included in lost_sifs)
         self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
@@ -217,9 +220,15 @@ class BoardSession:
                 for p in self.daemon.publishers:
                     p.add_command_topic(f"{topic_name}/cmd", topic, handler)
         epoch = board.properties.get("clock.epoch", "")
+        count = self._sif_count(board)
         if self._next_sif_seq is not None and epoch and epoch == self.epoch:
-            # The same boot as before the outage: SIFs it sent meanwhile count as lost.
+            # The same boot as before the outage: SIFs it sent meanwhile count as lost, modulo
+            # 256 from the seq; exactly when the board can tell how many it has sent.
             board.conn.expect_sif_seq(self._next_sif_seq)
+            self._outage_count = count
+        else:
+            self._sif_total = count
+            self._outage_count = None
         self.epoch = epoch
         board.on_sif(None, self._on_sif)
         self.connects += 1
@@ -392,8 +401,32 @@ class BoardSession:
                 log.warning("%s: bad command value %r: %s", t.name, value, e)
 
     # ---- the sample path (board reader thread) -----------------------------------------------
+    def _sif_count(self, board: Board) -> int | None:
+        if "a2jSifCount" not in board.index:
+            return None
+        try:
+            payload = board.call_ok("a2jSifCount", timeout=self.spec.timeout)
+        except MissingLinkError:
+            return None
+        return int.from_bytes(payload[:8], "little") if len(payload) >= 8 else None
+
     def _on_sif(self, sif: SifReceived, now_mono: float) -> None:
         self._next_sif_seq = sif.seq + 1
+        total = self._sif_total
+        if self._outage_count is not None and total is not None:
+            # First SIF after an outage: the seq gives the loss modulo 256; the board's count
+            # of SIFs sent (read at the handshake, just before this one) gives the wraps.
+            mod = sif.lost
+            wraps = max(0, round((self._outage_count - (total + mod)) / 256))
+            if wraps:
+                sif = sif._replace(lost=mod + 256 * wraps)
+                board = self.board
+                if board is not None:
+                    board.conn.stats.sifs_lost += 256 * wraps
+            self.outage_lost_sifs += sif.lost
+            self._outage_count = None
+        if total is not None:
+            self._sif_total = total + 1 + sif.lost
         topic = self.topics.get(sif.cmd)
         if topic is None:
             self.unknown_sifs += 1
@@ -508,6 +541,7 @@ class BoardSession:
             **{k: self._past.get(k, 0) + link.get(k, 0) for k in _LINK_COUNTERS},
             "unknown_sifs": self.unknown_sifs,
             "bad_sifs": self.bad_sifs,
+            "outage_lost_sifs": self.outage_lost_sifs,
             "clock_outliers": self.outliers,
             "host_time_clamps": self.host_time_clamps,
             "commands": self.commands,

@@ -159,6 +159,7 @@ class BoardRuntime:
         self._replies = []
         self._sifs = []
         self._sif_seq = 0
+        self._sif_total = 0  # SIFs queued since boot: the SIF seq, not wrapped
         self._debug = bytearray()
         self._last_byte_us = 0
         self._blobs = {}  # blob function name -> snapshot taken at offset 0
@@ -181,6 +182,7 @@ class BoardRuntime:
             self.add_function("a2jClock", self._clock)
             self._clock_op = self.index["a2jClock"]
             self.add_function("a2jHostMap", self._host_map_fn)
+            self.add_function("a2jSifCount", self._sif_count)
             self.set_property("j2a.version", J2A_VERSION)
         self.set_property("board.name", name)
         self.set_property("board.model", model)
@@ -263,6 +265,7 @@ class BoardRuntime:
         payload = transducer.encode_sif(now)
         frame = encode_frame(SOS, self._sif_seq, transducer.tid, payload)
         self._sif_seq = (self._sif_seq + 1) & 0xFF
+        self._sif_total += 1
         if len(self._sifs) >= SIF_QUEUE_LIMIT:
             self._sifs.pop(0)
             self.sifs_dropped += 1
@@ -398,6 +401,11 @@ class BoardRuntime:
         text = bytes(self._debug[:255])
         self._debug = bytearray()
         return 0, text
+
+    def _sif_count(self, payload):
+        # u64: SIFs queued since boot (the next SIF's seq, unwrapped), so a host that lost the
+        # link can count what it missed meanwhile exactly, not modulo 256.
+        return 0, struct.pack("<Q", self._sif_total)
 
     def _clock(self, payload):
         # Normally answered from _dispatch/take_output (t3 as late as possible); this path
