@@ -5,9 +5,19 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 NODE_STAMP := node_modules/.installed-stamp
+# Real ROS 2 (Kilted) from PyPI wheels, in a venv of its own (their .pth re-execs Python with the
+# library path set, which the project venv should not pay for); missing-link is installed into it
+# too, as a ROS 2 user would.  `make test` builds it once; the wheels come from pip's cache after.
+ROS2_VENV  ?= .venv-ros2
+ROS2_STAMP := $(ROS2_VENV)/.installed-stamp
+ROS2_WHEELS := ros-kilted-rclpy ros-kilted-std-msgs ros-kilted-sensor-msgs \
+	ros-kilted-diagnostic-msgs ros-kilted-rmw-fastrtps-cpp \
+	ros-kilted-rosidl-default-generators ros-kilted-rosidl-core-generators \
+	ros-kilted-ament-cmake ros-kilted-ament-package ros-kilted-ament-cmake-include-directories \
+	ros-kilted-ament-cmake-ros-core catkin-pkg cmake
 DURATION ?= 20
 
-.PHONY: demo test lint typecheck unit bench venv node clean system-deps
+.PHONY: demo test lint typecheck unit bench venv node ros2 clean system-deps
 
 venv: $(STAMP)
 
@@ -17,11 +27,19 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	@touch $@
 
+ros2: $(ROS2_STAMP)
+
+$(ROS2_STAMP): pyproject.toml
+	@test -x $(ROS2_VENV)/bin/python || $(PYTHON) -m venv $(ROS2_VENV)
+	$(ROS2_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(ROS2_VENV)/bin/python -m pip install --quiet $(ROS2_WHEELS) -e .
+	@touch $@
+
 # Node.js + npm come from Debian if missing (scripts/system-deps.sh is idempotent).
 node: $(NODE_STAMP)
 
 $(NODE_STAMP): package.json
-	@command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1 || bash scripts/system-deps.sh
+	@command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1 && command -v c++ >/dev/null 2>&1 || bash scripts/system-deps.sh
 	npm install --no-audit --no-fund --loglevel=error
 	@touch $@
 
@@ -38,8 +56,8 @@ lint: venv
 typecheck: venv
 	$(VENV)/bin/mypy
 
-unit: venv node
-	$(VENV)/bin/pytest -q
+unit: venv node ros2
+	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(VENV)/bin/pytest -q
 
 test: lint typecheck unit
 
@@ -51,4 +69,4 @@ bench: venv
 	$(PY) bench/bench_zenoh.py
 
 clean:
-	rm -rf $(VENV) node_modules .mypy_cache .ruff_cache .pytest_cache .hypothesis
+	rm -rf $(VENV) $(ROS2_VENV) node_modules .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -323,6 +323,9 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    if args.build and args.ros != 2:
+        print("missing-link: error: --build builds ROS 2 packages (--ros 2)", file=sys.stderr)
+        return EXIT_USAGE
     if os.path.exists(args.source):
         transducers = load_descriptor_file(args.source)
         origin = args.source
@@ -352,9 +355,27 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
         print(path)
     print(
         f"{len(transducers)} message type(s) from {origin} in ROS {args.ros} package "
-        f"{args.package} ({'colcon build' if args.ros == 2 else 'catkin_make'} to build it)",
+        f"{args.package}"
+        + (
+            ""
+            if args.build
+            else f" ({'colcon build' if args.ros == 2 else 'catkin_make'} to build it)"
+        ),
         file=sys.stderr,
     )
+    if args.build:
+        from .rosbuild import build_package
+
+        root = os.path.join(args.out, args.package)
+        log = build_package(
+            root, args.build, progress=lambda line: print(f"  {line}", file=sys.stderr, flush=True)
+        )
+        print(
+            f"built and installed into {args.build} (log {log}); the daemon finds it with "
+            f'[ros2] prefix = "{os.path.abspath(args.build)}" or '
+            f"MISSING_LINK_ROS2_PREFIX={os.path.abspath(args.build)}",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -709,6 +730,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--timeout", type=_positive, default=1.0)
     sp.add_argument(
         "--force", action="store_true", help="replace a package directory create-msgs did not write"
+    )
+    sp.add_argument(
+        "--build",
+        metavar="PREFIX",
+        help="build the ROS 2 package with the ROS 2 in this environment and install it there",
     )
     sp.set_defaults(func=cmd_create_msgs)
 

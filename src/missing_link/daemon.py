@@ -88,7 +88,7 @@ class Daemon:
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
         opts.setdefault("distro", self.config.distro)
-        if name in ("zenoh", "ros1"):
+        if name in ("zenoh", "ros1", "ros2"):
             opts.setdefault("node", self.config.node)
         return opts
 

@@ -134,6 +134,23 @@ rosidl_generate_interfaces(${{PROJECT_NAME}}
 )
 ament_export_dependencies(rosidl_default_runtime)
 ament_package()
+
+# ROS 2 wheels from PyPI export include directories of the machine they were built on
+# (/opt/python/cp311-cp311/include/...); drop those that do not exist here.  A no-op on an
+# apt or source install of ROS 2.
+get_property(_ml_targets DIRECTORY PROPERTY IMPORTED_TARGETS)
+foreach(_t IN LISTS _ml_targets)
+  get_target_property(_dirs ${{_t}} INTERFACE_INCLUDE_DIRECTORIES)
+  if(_dirs)
+    set(_kept "")
+    foreach(_d IN LISTS _dirs)
+      if(_d MATCHES "^\\\\$<" OR EXISTS "${{_d}}")
+        list(APPEND _kept "${{_d}}")
+      endif()
+    endforeach()
+    set_target_properties(${{_t}} PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${{_kept}}")
+  endif()
+endforeach()
 """
     else:
         files["package.xml"] = f"""<?xml version="1.0"?>

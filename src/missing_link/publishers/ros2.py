@@ -1,0 +1,245 @@
+"""``ros2``: every transducer on ROS 2 through rclpy, so whatever RMW the environment selects
+(Fast DDS, Cyclone DDS, Connext, Zenoh) carries it, with ``ROS_DOMAIN_ID``, the discovery range
+and ROS security settings taken from the environment as every ROS 2 node takes them.
+
+Theory of operation
+-------------------
+One node per daemon (``node``, default ``missing_link``), on a context of its own, spun by an
+executor thread (it only serves the actuator subscriptions).  Each topic gets an rclpy publisher
+of its message class, and every update is published as the CDR bytes the daemon already made
+(rclpy publishes serialized messages as they are): no message objects on the sample path.
+
+* Standard types (``sensor_msgs/msg/Range``, ``JointState``, ``diagnostic_msgs/msg/
+  DiagnosticArray`` on ``/diagnostics``) come with every ROS 2 install.
+* Thesis-format types (``missing_link_msgs/msg/DistIr``) need the package ``create-msgs`` writes,
+  built (``missing-link create-msgs URL --ros 2 --build PREFIX``): rclpy has no runtime types.
+  The daemon finds it on ``PYTHONPATH`` (a sourced ``PREFIX/setup`` or colcon workspace) or
+  through ``prefix`` (``[ros2] prefix = "PREFIX"`` or ``MISSING_LINK_ROS2_PREFIX``).  A type that
+  is not built is skipped with one line that says how to build it; standard types and
+  diagnostics still go out.  A built type whose fields differ from the board's descriptor
+  (the board changed since the build) is refused, never sent wrong.
+* Actuators: ``/<board>/<name>/cmd`` is subscribed with the thesis type (raw CDR, decoded with
+  rosbags) and goes through the daemon's latest-wins path.
+* QoS: reliable, volatile, keep last ``depth`` (10): a default subscriber and a sensor-data
+  (best-effort) subscriber both match.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import logging
+import os
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from ..msgs import ROS_TYPES, typestore_for
+from ..topics import Topic, Update
+from .base import Publisher, PublisherError, register_publisher
+from .mcap import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+
+log = logging.getLogger(__name__)
+
+#: how rosidl names our primitive types in get_fields_and_field_types()
+_IDL = {"float32": "float", "float64": "double", "bool": "boolean"}
+
+
+def expected_fields(t: Any) -> dict[str, str]:
+    ros = ROS_TYPES[t.dtype]
+    return {
+        "times": "sequence<builtin_interfaces/Time>",
+        "values": f"sequence<{_IDL.get(ros, ros)}>",
+    }
+
+
+def add_prefix(prefix: str) -> None:
+    """Make a package installed under ``prefix`` (cmake --install) importable in this process:
+    its Python path, and its C libraries loaded by absolute path (the dynamic loader's path was
+    fixed when the process started)."""
+    py = os.path.join(prefix, "lib", f"python{sys.version_info[0]}.{sys.version_info[1]}")
+    for site in (os.path.join(py, "site-packages"), os.path.join(py, "dist-packages")):
+        if os.path.isdir(site) and site not in sys.path:
+            sys.path.insert(0, site)
+    libs = sorted(glob.glob(os.path.join(prefix, "lib", "lib*__rosidl_*.so")))
+    # generator_c first: every other type-support library needs its symbols
+    libs.sort(key=lambda p: (0 if "rosidl_generator_c" in p else 1, p))
+    for lib in libs:
+        ctypes.CDLL(lib, mode=ctypes.RTLD_GLOBAL)
+
+
+class Ros2Publisher(Publisher):
+    name = "ros2"
+
+    def __init__(self, options: dict[str, Any] | None = None) -> None:
+        opts = options or {}
+        try:
+            import rclpy
+            from rclpy.executors import SingleThreadedExecutor
+            from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        except ImportError as e:
+            raise PublisherError(
+                "ros2 needs rclpy: source your ROS 2 installation (apt: /opt/ros/<distro>/"
+                "setup.bash) or pip install ros-kilted-rclpy ros-kilted-rmw-fastrtps-cpp "
+                f"ros-kilted-sensor-msgs ros-kilted-diagnostic-msgs ({e})"
+            ) from None
+        prefix = str(opts.get("prefix") or os.environ.get("MISSING_LINK_ROS2_PREFIX", ""))
+        for p in filter(None, prefix.split(os.pathsep)):
+            add_prefix(p)
+        self.rclpy = rclpy
+        distro = str(opts.get("distro") or os.environ.get("ROS_DISTRO") or "kilted")
+        self.typestore = typestore_for(
+            distro if distro in ("humble", "jazzy", "kilted") else "kilted"
+        )
+        self.qos = QoSProfile(
+            depth=int(opts.get("depth", 10)),
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        try:
+            self.node = rclpy.create_node(
+                str(opts.get("node", "missing_link")), context=self.context
+            )
+        except Exception:
+            rclpy.shutdown(context=self.context)
+            raise
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._lock = threading.Lock()
+        self._pubs: dict[str, Any] = {}
+        self._subs: dict[str, Any] = {}
+        self._closed = False
+        self.published = 0
+        self.dropped = 0
+        self.missing_types: dict[str, str] = {}  # type name -> why it is not published
+        self.error = ""
+        diag_cls = self._msg_class(DIAG_TYPE)
+        assert diag_cls is not None, "diagnostic_msgs is part of every ROS 2 install"
+        self._diag = self.node.create_publisher(diag_cls, DIAG_TOPIC, self.qos)
+        self._spin = threading.Thread(target=self._spin_executor, name="ros2-executor", daemon=True)
+        self._spin.start()
+
+    def _spin_executor(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception as e:
+            if not self._closed:
+                self.error = f"executor stopped: {e}"
+                log.exception("ros2 executor failed")
+
+    # ---- types -------------------------------------------------------------------------------
+    def _msg_class(self, type_name: str) -> Any | None:
+        pkg, _msg, name = type_name.split("/")
+        try:
+            module = __import__(f"{pkg}.msg", fromlist=[name])
+            return getattr(module, name)
+        except (ImportError, AttributeError):
+            return None
+
+    def _class_for(self, topic: Topic) -> Any | None:
+        cls = self._msg_class(topic.type_name)
+        if topic.standard:
+            if cls is None:
+                self._missing(topic.type_name, "its package is not installed")
+            return cls
+        if cls is None:
+            self._missing(
+                topic.type_name,
+                "not built: missing-link create-msgs <board URL> --ros 2 --build PREFIX, then "
+                "[ros2] prefix = PREFIX (or MISSING_LINK_ROS2_PREFIX)",
+            )
+            return None
+        want = expected_fields(topic.transducer)
+        have = dict(cls.get_fields_and_field_types())
+        if have != want:
+            self._missing(
+                topic.type_name,
+                f"the built type has {have}, the board describes {want}: rebuild it "
+                "(create-msgs --build) before publishing",
+            )
+            return None
+        return cls
+
+    def _missing(self, type_name: str, why: str) -> None:
+        if type_name not in self.missing_types:
+            self.missing_types[type_name] = why
+            log.warning("ros2: %s is not published: %s", type_name, why)
+
+    # ---- the publisher interface -------------------------------------------------------------
+    def add_topic(self, topic: Topic) -> None:
+        cls = self._class_for(topic)
+        if cls is None:
+            return
+        with self._lock:
+            if self._closed or topic.name in self._pubs:
+                return
+            self._pubs[topic.name] = self.node.create_publisher(cls, topic.name, self.qos)
+
+    def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        cls = self._class_for(topic)
+        if cls is None:
+            return
+        type_name = topic.type_name
+        topic.register_type(self.typestore)  # to decode commands
+
+        def on_command(raw: bytes) -> None:
+            try:
+                msg: Any = self.typestore.deserialize_cdr(raw, type_name)
+                deliver([v.item() if hasattr(v, "item") else v for v in msg.values])
+            except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
+                self.dropped += 1
+                log.warning("ros2: command on %s refused: %s", name, e)
+
+        with self._lock:
+            if self._closed or name in self._subs:
+                return
+            self._subs[name] = self.node.create_subscription(
+                cls, name, on_command, self.qos, raw=True
+            )
+
+    def publish(self, update: Update) -> None:
+        pub = self._pubs.get(update.topic.name)
+        if pub is None or self._closed:
+            return
+        try:
+            pub.publish(update.cdr)
+            self.published += 1
+        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): counted
+            self.dropped += 1
+
+    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        if self._closed:
+            return
+        try:
+            self._diag.publish(diagnostics_cdr(self.typestore, status, now_ns))
+        except Exception:  # noqa: BLE001
+            self.dropped += 1
+
+    def status(self) -> dict[str, Any]:
+        out = super().status()
+        out.update(published=self.published, topics=len(self._pubs))
+        if self.missing_types and not self.error:
+            out.update(
+                level=1,
+                message=f"{len(self.missing_types)} type(s) not published: "
+                + "; ".join(f"{k}: {v}" for k, v in self.missing_types.items()),
+            )
+        return out
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+        finally:
+            self.rclpy.shutdown(context=self.context)
+        self._spin.join(2.0)
+
+
+register_publisher("ros2", Ros2Publisher)
