@@ -1,4 +1,5 @@
-"""Publish -> remote subscriber through Zenoh (rmw_zenoh format), against the in-process bus.
+"""Publish -> remote subscriber through Zenoh (rmw_zenoh format) and through rclpy (ROS 2 Kilted,
+rmw_fastrtps_cpp, from the wheels in .venv-ros2), against the in-process bus.
 
 The daemon side is the real ``ZenohPublisher`` fed with thesis-format updates (8 x uint16, as
 the IR board sends); the subscriber is another process (plain zenoh, no missing_link code) on
@@ -8,6 +9,9 @@ Rate: a burst of messages, counted at the subscriber.  The publisher never block
 reader thread (zenoh's default congestion control drops), so a burst faster than the link
 shows up as "delivered" below 100 %.  Reference in the same run: the same
 updates delivered to a subscriber callback on the in-process bus.
+
+The ROS 2 row runs both ends in .venv-ros2 (bench/ros2_endpoint.py): missing-link's
+Ros2Publisher and a plain rclpy subscriber, Fast DDS on loopback only (tests/fastdds_loopback.xml).
 
     .venv/bin/python bench/bench_zenoh.py [--messages 20000]
 """
@@ -59,6 +63,16 @@ SUB = textwrap.dedent(
     print(json.dumps({"count": count[0], "lat": lat, "span": last[0] - first[0]}), flush=True)
     """
 )
+
+
+def pace(target: float) -> None:
+    """Wait until ``target`` (perf_counter): sleep most of it, so other threads run (a busy
+    loop would hold the GIL and delay them by the interpreter's switch interval), then spin."""
+    left = target - time.perf_counter()
+    if left > 2e-4:
+        time.sleep(left - 1.5e-4)
+    while time.perf_counter() < target:
+        pass
 
 
 def free_port() -> int:
@@ -117,8 +131,7 @@ def run_remote(n: int, paced_hz: float | None, via_router: bool) -> dict[str, fl
         for i, u in enumerate(updates):
             if paced_hz:
                 target = t0 + i / paced_hz
-                while time.perf_counter() < target:
-                    pass
+                pace(target)
             pub.publish(u)
         sent_s = time.perf_counter() - t0
         out, _ = sub.communicate(timeout=120)
@@ -140,21 +153,70 @@ def run_remote(n: int, paced_hz: float | None, via_router: bool) -> dict[str, fl
     }
 
 
-def run_bus(n: int, paced_hz: float | None) -> dict[str, float]:
+def run_ros2(n: int, paced_hz: float | None) -> dict[str, float]:
+    import json
+    import os
+    import random
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    py = os.environ.get("ML_ROS2_PYTHON") or str(root / ".venv-ros2" / "bin" / "python")
+    if not Path(py).exists():
+        raise SystemExit(f"{py} missing: make ros2")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "_ROS_WHEELS"))}
+    env.update(
+        ROS_DOMAIN_ID=str(random.randrange(1, 200)),
+        FASTDDS_DEFAULT_PROFILES_FILE=str(root / "tests" / "fastdds_loopback.xml"),
+    )
+    script = str(root / "bench" / "ros2_endpoint.py")
+    pub = subprocess.Popen(
+        [py, script, "pub", str(n), str(paced_hz or 0)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert pub.stdout is not None and pub.stdin is not None
+    assert pub.stdout.readline().startswith("READY")
+    sub = subprocess.Popen([py, script, "sub", str(n)], stdout=subprocess.PIPE, text=True, env=env)
+    assert sub.stdout is not None and sub.stdout.readline().startswith("READY")
+    time.sleep(1.0)  # let matching finish both ways
+    pub.stdin.write("go\n")
+    pub.stdin.flush()
+    out, _ = sub.communicate(timeout=180)
+    pout, _ = pub.communicate(timeout=60)
+    res = json.loads(out.strip().splitlines()[-1])
+    sent = json.loads(pout.strip().splitlines()[-1])
+    lat = np.array(res["lat"]) / 1000
+    return {
+        "received": res["count"],
+        "sent_per_s": sent["sent_per_s"],
+        "recv_per_s": res["count"] / res["span"] if res["span"] else 0.0,
+        "p50": float(np.percentile(lat, 50)),
+        "p99": float(np.percentile(lat, 99)),
+    }
+
+
+def run_bus(n: int, paced_hz: float | None, queue: int = 0) -> dict[str, float]:
     bus = Bus()
     tp = topic()
     bus.add_topic(tp)
     lat: list[int] = []
-    bus.subscribe("/bench/ir", lambda u: lat.append(time.monotonic_ns() - u.recv_ns))
+    sub = bus.subscribe(
+        "/bench/ir", lambda u: lat.append(time.monotonic_ns() - u.recv_ns), queue=queue
+    )
     t0 = time.perf_counter()
     now = time.time_ns()
     for i in range(n):
         if paced_hz:
             target = t0 + i / paced_hz
-            while time.perf_counter() < target:
-                pass
+            pace(target)
         bus.publish(Update(tp, [i] * 8, [now] * 8, [i] * 8, 0, 0, time.monotonic_ns()))
     span = time.perf_counter() - t0
+    deadline = time.monotonic() + 10
+    while len(lat) + sub.dropped < n and time.monotonic() < deadline:
+        time.sleep(0.01)  # the subscriber's own thread drains its queue
+    bus.close()
     a = np.array(lat) / 1000
     return {
         "received": len(lat),
@@ -173,9 +235,11 @@ def main() -> None:
     print("| path | latency p50 µs (1 kHz) | p99 µs | burst msgs/s received | delivered |")
     print("|---|---|---|---|---|")
     rows = [
-        ("in-process bus (reference)", lambda p, n: run_bus(n, p)),
+        ("in-process bus, inline callback (reference)", lambda p, n: run_bus(n, p)),
+        ("in-process bus, subscriber thread (default)", lambda p, n: run_bus(n, p, 10_000)),
         ("zenoh peer -> subscriber process", lambda p, n: run_remote(n, p, False)),
         ("zenoh via router process", lambda p, n: run_remote(n, p, True)),
+        ("ROS 2: rclpy publisher -> rclpy subscriber process", lambda p, n: run_ros2(n, p)),
     ]
     for name, fn in rows:
         lat = fn(1000.0, a.paced)
