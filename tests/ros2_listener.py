@@ -85,6 +85,7 @@ def main() -> int:
                 "seq": seq,
                 "source_ns": src_ns,
                 "gid_len": gid_len,
+                "gid": att[17:33].hex() if att else "",
                 "rx_ns": rx_ns,
             }
             print(json.dumps({"sample": out}), flush=True)

@@ -91,3 +91,59 @@ def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
     assert any(s > 1_600_000_000 for x in custom for s in x["secs"])  # synchronised host time
     assert all(0.2 <= r["range"] <= 1.5 and r["type"] == 1 for r in ranges)  # metres, INFRARED
     assert all(r["frame"].startswith("board_b/dist_ir/") for r in ranges)
+
+
+def test_ros1_node_drives_the_servo(tmp_path: Path) -> None:
+    """A real rospy node publishes on /board_a/servo/cmd; the board's servo moves, and the
+    daemon's /board_a/servo topic says so (ROS 1 actuators go the same latest-wins path)."""
+    port = free_port()
+    env = {
+        **os.environ,
+        "ROS_MASTER_URI": f"http://127.0.0.1:{port}",
+        "ROS_IP": "127.0.0.1",
+        "ROS_HOME": str(tmp_path / "ros"),
+    }
+    core = subprocess.Popen(
+        ["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    board, url = start_board_process("encoder_servo", 0, "pty")
+    daemon = None
+    try:
+        online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
+        deadline = time.monotonic() + 20
+        while subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode != 0:
+            assert time.monotonic() < deadline, "roscore did not come up"
+            time.sleep(0.3)
+        daemon = subprocess.Popen(
+            [sys.executable, "-m", "missing_link", "run", url, "-p", "ros1", "--duration", "40"],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        out = subprocess.run(
+            [
+                "/usr/bin/python3",
+                str(HERE / "ros1_listener.py"),
+                "--custom",
+                "/board_a/servo=missing_link_msgs/Servo=time[] times\\nint8[] values",
+                "--command",
+                "/board_a/servo/cmd=40",
+                "--expect",
+                "40",
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        if daemon is not None:
+            daemon.terminate()
+            daemon.wait(10)
+        stop_process(board)
+        core.terminate()
+        core.wait(15)
+    assert out.returncode == 0, out.stdout + out.stderr
+    (line,) = [json.loads(x) for x in out.stdout.splitlines()]
+    assert line["topic"] == "/board_a/servo" and 40 in line["values"]

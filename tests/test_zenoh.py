@@ -86,6 +86,17 @@ def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:
     )
     assert any("/MS/%/%/missing_link/%thesis%servo%cmd/" in k for k in graph)
     assert any("%diagnostics/diagnostic_msgs::msg::dds_::DiagnosticArray_" in k for k in graph)
+    # QoS with durability written out (volatile = 2), as rmw_zenoh reads it before and after
+    # its default changed (PR #521): reliable (default), volatile, keep last 10
+    (quad_token,) = [k for k in graph if "/MP/" in k and "%thesis%quad/" in k]
+    assert quad_token.endswith("/:2:,10:,:,:,,")
+    # the gid is XXH3-128 of the liveliness token, low 64 bits first (rmw_zenoh's Entity)
+    import xxhash
+
+    assert (
+        samples[0]["gid"]
+        == xxhash.xxh3_128(quad_token.encode()).intdigest().to_bytes(16, "little").hex()
+    )
     assert commands >= 1  # the consumer's command reached the board's a2j_set_servo
 
 

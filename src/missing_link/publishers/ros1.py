@@ -17,10 +17,11 @@ import logging
 import os
 import sys
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
-from ..msgs import ROS_TYPES, msg_name, typestore_for
+from ..msgs import ROS_TYPES, typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
@@ -66,6 +67,8 @@ class Ros1Publisher(Publisher):
         self.typestore = typestore_for(str(opts.get("distro", "jazzy")))
         self._lock = threading.Lock()
         self._pubs: dict[str, tuple[Any, Any, Topic]] = {}
+        self._subs: dict[str, Any] = {}
+        self.commands = 0
         self._closed = False
         self.published = 0
         diag = self._get_class("diagnostic_msgs/DiagnosticArray")
@@ -89,12 +92,33 @@ class Ros1Publisher(Publisher):
                     )
                     return
             else:
-                pkg = topic.type_name.split("/")[0]
-                t = topic.transducer
-                text = f"time[] times\n{ROS_TYPES[t.dtype]}[] values\n"
-                cls = self._dynamic(f"{pkg}/{msg_name(t)}", text)[f"{pkg}/{msg_name(t)}"]
+                cls = self._thesis_class(topic)
             pub = self.rospy.Publisher(topic.name, cls, queue_size=self.queue_size)
             self._pubs[topic.name] = (pub, cls, topic)
+
+    def _thesis_class(self, topic: Topic) -> Any:
+        """The thesis-format type, generated at runtime; its name is the daemon's (qualified
+        by board where two boards define it differently), so ROS 1 never sees a clash."""
+        pkg, _, name = topic.type_name.split("/")
+        text = f"time[] times\n{ROS_TYPES[topic.transducer.dtype]}[] values\n"
+        return self._dynamic(f"{pkg}/{name}", text)[f"{pkg}/{name}"]
+
+    def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        """``/<board>/<name>/cmd`` in the thesis type: a ROS 1 node drives the actuator."""
+        with self._lock:
+            if self._closed or name in self._subs:
+                return
+            cls = self._thesis_class(topic)
+
+            def on_command(msg: Any) -> None:  # rospy's thread: hand over, never raise
+                try:
+                    deliver(list(msg.values))
+                    self.commands += 1
+                except Exception as e:  # noqa: BLE001 - a bad command is counted, not fatal
+                    self.dropped += 1
+                    log.warning("ros1: command on %s refused: %s", name, e)
+
+            self._subs[name] = self.rospy.Subscriber(name, cls, on_command, queue_size=10)
 
     def publish(self, update: Update) -> None:
         entry = self._pubs.get(update.topic.name)
@@ -140,6 +164,8 @@ class Ros1Publisher(Publisher):
             self._closed = True
             for pub, _, _ in self._pubs.values():
                 pub.unregister()
+            for sub in self._subs.values():
+                sub.unregister()
             self._diag[0].unregister()
             self.rospy.signal_shutdown("missing-link daemon closed")
 

@@ -20,13 +20,15 @@ rmw_zenohd listens) with multicast scouting off; every endpoint is configurable.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
+import os
 import struct
 import threading
 from collections.abc import Callable
 from typing import Any
+
+import xxhash
 
 from ..msgs import typestore_for
 from ..topics import Topic, Update
@@ -35,7 +37,12 @@ from .base import Publisher, register_publisher
 log = logging.getLogger(__name__)
 
 DEFAULT_CONNECT = ["tcp/127.0.0.1:7447"]
-QOS = "::,10:,:,:,,"  # reliable, volatile, keep last 10 (empty fields: rmw_zenoh defaults)
+#: like rmw_zenoh's sessions: listen on a free loopback port so peers can dial this one
+DEFAULT_LISTEN = ["tcp/127.0.0.1:0"]
+#: <reliability>:<durability>:<history>,<depth>:<deadline>:<lifespan>:<liveliness>; empty means
+#: rmw_zenoh's default.  Reliable (default), volatile written out (2: the default durability
+#: changed from transient-local to volatile in rmw_zenoh PR #521, March 2025), keep last 10.
+QOS = ":2:,10:,:,:,,"
 DIAG_TOPIC = "/diagnostics"
 DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 
@@ -83,14 +90,15 @@ class ZenohPublisher(Publisher):
 
         opts = dict(options or {})
         self.distro = str(opts.get("distro", "jazzy"))
-        self.domain = int(opts.get("domain", 0))
+        # like rcl: the domain comes from ROS_DOMAIN_ID unless the config says otherwise
+        self.domain = int(opts.get("domain", os.environ.get("ROS_DOMAIN_ID") or 0))
         self.node = str(opts.get("node", "missing_link"))
         self.typestore = typestore_for(self.distro)
         mode = str(opts.get("mode", "peer"))
         if mode not in ("peer", "client"):
             raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
         connect = list(opts.get("connect", DEFAULT_CONNECT))
-        listen = list(opts.get("listen", []))
+        listen = list(opts.get("listen", DEFAULT_LISTEN))
         cfg = zenoh.Config()
         cfg.insert_json5("mode", json.dumps(mode))
         cfg.insert_json5("connect/endpoints", json.dumps(connect))
@@ -118,8 +126,10 @@ class ZenohPublisher(Publisher):
         log.info("zenoh: session %s (%s), connect %s, listen %s", self.zid, mode, connect, listen)
 
     # ---- graph ------------------------------------------------------------------------------
-    def _gid(self, entity_id: int) -> bytes:
-        return hashlib.blake2b(f"{self.zid}/{entity_id}".encode(), digest_size=16).digest()
+    @staticmethod
+    def _gid(token: str) -> bytes:
+        """rmw_zenoh's gid: XXH3-128 of the entity's liveliness token, low 64 bits first."""
+        return bytes(xxhash.xxh3_128(token.encode()).intdigest().to_bytes(16, "little"))
 
     def _token(self, kind: str, entity_id: int, topic: str, type_name: str, hash_: str) -> str:
         return (
@@ -138,11 +148,10 @@ class ZenohPublisher(Publisher):
         hash_ = type_hash(self.typestore, type_name, self.distro)
         eid = self._next_id
         self._next_id += 1
-        ent = _Entity(data_key(self.domain, name, type_name, hash_), self._gid(eid))
+        token = self._token("MP", eid, name, type_name, hash_)
+        ent = _Entity(data_key(self.domain, name, type_name, hash_), self._gid(token))
         ent.pub = self.session.declare_publisher(ent.key)
-        ent.token = self.session.liveliness().declare_token(
-            self._token("MP", eid, name, type_name, hash_)
-        )
+        ent.token = self.session.liveliness().declare_token(token)
         self._entities[name] = ent
         return ent
 
