@@ -57,3 +57,43 @@ def test_websocket_client_decodes_a_sample(serve) -> None:  # type: ignore[no-un
     msg = ts.deserialize_cdr(payload, ch["schemaName"])
     assert len(msg.values) == 8 and len(msg.times) == 8
     assert any(t.sec > 1_600_000_000 for t in msg.times)  # host time (CLOCK_REALTIME) stamps
+
+
+def test_official_foxglove_client_decodes_with_the_schema(serve) -> None:  # type: ignore[no-untyped-def]
+    """The official protocol client (@foxglove/ws-protocol, under node) subscribes and decodes a
+    DistIr message with the advertised ros2msg schema (@foxglove/rosmsg2-serialization)."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    node = shutil.which("node")
+    assert node, "node is installed by make test (scripts/system-deps.sh)"
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    cfg = Config(
+        boards=[BoardSpec(server.url)],
+        publishers=["bus", "foxglove"],
+        publisher_options={"foxglove": {"port": 0}},
+    )
+    with Daemon(cfg) as d:
+        assert d.wait_until_up(10)
+        fox = next(p for p in d.publishers if p.name == "foxglove")
+        here = Path(__file__).parent
+        r = subprocess.run(
+            [node, str(here / "foxglove_client.mjs"), fox.url, "/thesis/dist_ir"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=here.parent,
+        )
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["protocol"] == "foxglove.sdk.v1"
+    assert out["channel"] == {
+        "encoding": "cdr",
+        "schemaName": "missing_link_msgs/msg/DistIr",
+        "schemaEncoding": "ros2msg",
+    }
+    assert len(out["values"]) == 8 and len(out["times_sec"]) == 8
+    assert any(s > 1_600_000_000 for s in out["times_sec"])
+    assert int(out["log_time_ns"]) > 1_600_000_000 * 10**9
+    assert "/thesis/dist_ir/range" in out["topics"] and "/diagnostics" in out["topics"]
