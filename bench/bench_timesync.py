@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import random
 import statistics
@@ -37,7 +38,7 @@ from missing_link.errors import CallTimeout
 from missing_link.j2a import SifReceived
 from missing_link.timesync import sim
 from missing_link.topics import Update
-from missing_link.virtual.sims import AffineClock
+from missing_link.virtual.sims import AffineClock, DriftClock
 
 TARGETS = {"pty": (5, 15, 50), "usb": (20, 60, 200), "ftdi": (20, 80, 300), "tcp": (5, 15, 50)}
 
@@ -211,6 +212,95 @@ def real_daemon(link: str, seconds: float) -> str:
     )
 
 
+def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> dict[str, float]:
+    """The whole run as a user sees it: an independent check of every sample from 0.5 s after
+    the first one, against a board clock with a random offset, skew of +-50..200 ppm, a drift
+    of the skew, and one reset (100 ms boot gap) ``reset_s`` in; 500 Hz samples."""
+    rng = random.Random(seed)
+    offset = rng.uniform(1e6, 1e9)
+    skew = rng.choice((-1, 1)) * rng.uniform(50, 200)
+    drift = rng.uniform(-0.5, 0.5)
+    gap_ms = 100.0
+    ref = time.monotonic_ns()
+    extra = [
+        *("--clock-offset-us", repr(offset), "--clock-skew-ppm", repr(skew)),
+        *("--clock-drift-ppm-per-s", repr(drift), "--clock-ref-ns", str(ref)),
+        *("--reset-at", repr(reset_s), "--boot-gap-ms", repr(gap_ms), "--rate", "500"),
+    ]
+    listen = "pty" if link == "pty" else "tcp://127.0.0.1:0"
+    proc, url = start_board_process("rate", seed, listen, extra=extra, name="w")
+    truth = DriftClock(offset, skew, drift, ref, [reset_s])
+    answering_again = truth.reset_ns[0] + gap_ms * 1e6
+    rows: list[tuple[int, int, float, int, int]] = []  # recv, host, err, bound, flags
+    try:
+        with Daemon(Config(boards=[BoardSpec(url)])) as d:
+            off = d.realtime_offset_ns
+
+            def on_update(u: Update) -> None:
+                boot = 0 if u.recv_ns < answering_again else 1
+                true_ns = truth.host_ns(u.board_us[0], boot)
+                h = u.host_ns[0]
+                rows.append((u.recv_ns, h, h - off - true_ns, u.bound_ns, u.clock_flags))
+
+            d.subscribe("/w/signal", on_update, queue=0)
+            t_end = ref + seconds * 1e9
+            while time.monotonic_ns() < t_end:
+                time.sleep(0.2)
+            st = d.status()[0]
+    finally:
+        stop_process(proc)
+    first = rows[0][0]
+    hosts = [r[1] for r in rows]
+    not_increasing = sum(1 for a, b in itertools.pairwise(hosts) if b <= a)
+    counted = [r for r in rows if r[0] >= first + 5e8 and not r[4] & 6]  # synced, not outliers
+    err = np.abs(np.array([r[2] for r in counted])) / 1000
+    bounds = np.array([r[3] for r in counted]) / 1000
+    covered = float(np.mean(err <= bounds)) * 100
+    # recovery: from the board answering again to the first synced sample within 50 µs, after
+    # which none is worse
+    after = [r for r in rows if r[0] >= answering_again]
+    recovery = float("nan")
+    for i, r in enumerate(after):
+        if all(not x[4] & 6 and abs(x[2]) <= 50_000 for x in after[i:]):
+            recovery = (r[0] - answering_again) / 1e6
+            break
+    return {
+        "p50": float(np.percentile(err, 50)),
+        "p99": float(np.percentile(err, 99)),
+        "max": float(err.max()),
+        "bound_p50": float(np.percentile(bounds, 50)),
+        "covered": covered,
+        "not_increasing": not_increasing,
+        "recovery_ms": recovery,
+        "unsynced": sum(1 for r in rows if r[4] & 6),
+        "n": len(rows),
+        "probes_per_s": st["sync_exchanges"] / seconds,
+        "resets": st["sync_resets"],
+    }
+
+
+def whole_runs(seeds: int, seconds: float) -> None:
+    print(f"\n## Whole run (from 0.5 s after the first sample), {seeds} seeds x {seconds:.0f} s")
+    print("board clock: random offset, +-50..200 ppm, drift +-0.5 ppm/s, reset at 18 s (100 ms")
+    print("boot gap), 500 Hz; medians over seeds, worst = max over seeds\n")
+    print(
+        "| link | p50 µs | p99 µs | max µs (worst) | bound p50 µs | in bound | not increasing"
+        " | recovery ms (worst) | probes/s |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for link in ("pty", "tcp"):
+        rs = [whole_run(link, seconds, 100 + k) for k in range(seeds)]
+        med = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+        print(
+            f"| {link} | {med['p50']:.1f} | {med['p99']:.1f} | {med['max']:.1f}"
+            f" ({max(r['max'] for r in rs):.1f}) | {med['bound_p50']:.1f}"
+            f" | {min(r['covered'] for r in rs):.2f} % | {sum(r['not_increasing'] for r in rs)}"
+            f" | {med['recovery_ms']:.0f} ({max(r['recovery_ms'] for r in rs):.0f})"
+            f" | {med['probes_per_s']:.1f} |",
+            flush=True,
+        )
+
+
 def trigger(repeats: int) -> None:
     boards = [_board("pty", 21, 50.0, "rangers"), _board("pty", 22, -30.0, "rangers")]
     fired: dict[str, list[tuple[int, int]]] = {"b21": [], "b22": []}
@@ -267,9 +357,13 @@ def main() -> None:
     ap.add_argument("--sim-seconds", type=float, default=120.0)
     ap.add_argument("--seconds", type=float, default=60.0, help="each real-process run")
     ap.add_argument("--triggers", type=int, default=20)
-    ap.add_argument("--only", choices=["sim", "real", "trigger"], action="append")
+    ap.add_argument("--whole-seeds", type=int, default=5)
+    ap.add_argument("--whole-seconds", type=float, default=30.0)
+    ap.add_argument("--only", choices=["sim", "real", "whole", "trigger"], action="append")
     a = ap.parse_args()
-    parts = a.only or ["sim", "real", "trigger"]
+    parts = a.only or ["sim", "real", "whole", "trigger"]
+    if "whole" in parts:
+        whole_runs(a.whole_seeds, a.whole_seconds)
     if "sim" in parts:
         simulation(a.seeds, a.sim_seconds)
     if "real" in parts:

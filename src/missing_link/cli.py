@@ -564,7 +564,18 @@ def cmd_board(args: argparse.Namespace) -> int:
                 raise ValueError("--rate and --channels go with --sim rate")
             extra["rate_hz"] = args.rate or 100.0
             extra["channels"] = args.channels or 1
-        if args.clock_offset_us is not None or args.clock_skew_ppm is not None:
+        drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
+        if drifting:
+            from .virtual.sims import DriftClock
+
+            extra["clock"] = DriftClock(
+                args.clock_offset_us or 0.0,
+                args.clock_skew_ppm or 0.0,
+                args.clock_drift_ppm_per_s or 0.0,
+                args.clock_ref_ns,
+                args.reset_at,
+            )
+        elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
             from .virtual.sims import AffineClock
 
             extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
@@ -572,8 +583,17 @@ def cmd_board(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    resets = []
+    if args.reset_at:
+        clock = extra["clock"]
+        resets = [(r, round(args.boot_gap_ms * 1e6)) for r in clock.reset_ns]
     try:
-        server = BoardServer(runtime, args.listen)
+        server = BoardServer(
+            runtime,
+            args.listen,
+            resets=resets,
+            rebuild=lambda: make_sim(args.sim, seed=args.seed, **extra),
+        )
     except OSError as e:
         print(
             f"missing-link: error: cannot listen on {args.listen}: {e.strerror or e}",
@@ -789,6 +809,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="board clock = OFFSET + (1 + SKEW) * host CLOCK_MONOTONIC (default: the host's clock)",
     )
     sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
+    sp.add_argument(
+        "--clock-drift-ppm-per-s", type=float, help="the rate error changes this much per second"
+    )
+    sp.add_argument(
+        "--clock-ref-ns",
+        type=int,
+        help="host CLOCK_MONOTONIC ns the drift and --reset-at count from (default: now)",
+    )
+    sp.add_argument(
+        "--reset-at",
+        type=float,
+        action="append",
+        metavar="S",
+        help="the board resets S seconds after --clock-ref-ns (repeatable); the link stays",
+    )
+    sp.add_argument("--boot-gap-ms", type=float, default=100.0, help="silence after a reset (100)")
     sp.set_defaults(func=cmd_board)
 
     sp = sub.add_parser("relay", help="a fault-injecting relay in front of a board (tests)")

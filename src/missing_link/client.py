@@ -392,6 +392,10 @@ class Board:
                 data = self.transport.read(wait)
                 now_ns = time.monotonic_ns()
                 now = now_ns / 1e9
+                if data:  # when the bytes arrived (t4): the transport's stamp if it has one
+                    rx = self.transport.last_rx_ns
+                    if 0 < rx <= now_ns:
+                        now_ns = rx
                 with self._lock:
                     if data:
                         frames = self.conn.decoder.stats.frames
@@ -404,7 +408,7 @@ class Board:
                         events += self.conn.handle_timer(now)
                     self._flush()
                 if events:
-                    self._dispatch(events, now, now_ns)
+                    self._dispatch(events, now_ns / 1e9, now_ns)
         except (TransportBroken, TransportClosed) as e:
             error = e
         except BaseException as e:

@@ -31,6 +31,10 @@ class Transport(ABC):
     #: CLOCK_MONOTONIC ns just before the newest write reached the OS (clock sync's t1); 0
     #: when the transport does not stamp (the caller's stamp is used)
     last_write_ns: int = 0
+    #: CLOCK_MONOTONIC ns when the bytes of the newest read arrived, as close to the wire as the
+    #: transport can tell (the kernel's receive stamp on TCP; the moment select() returned on
+    #: fd links, before the read syscall); 0 when the transport does not stamp
+    last_rx_ns: int = 0
 
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
@@ -76,6 +80,7 @@ class FdTransport(Transport):
             ready, _, _ = select.select([self._fd], [], [], timeout)
             if not ready:
                 return b""
+            self.last_rx_ns = time.monotonic_ns()  # _recv may replace it with a kernel stamp
             data = self._recv(65536)
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()

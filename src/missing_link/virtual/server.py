@@ -17,8 +17,10 @@ import select
 import socket
 import stat
 import threading
+import time
 import tty
 from collections import deque
+from collections.abc import Callable
 from urllib.parse import urlsplit
 
 from ..board.runtime import BoardRuntime
@@ -112,9 +114,24 @@ class _Link:
 class BoardServer:
     """Runs ``runtime`` behind ``listen_url`` until ``stop()``; ``url`` is what hosts open."""
 
-    def __init__(self, runtime: BoardRuntime, listen_url: str) -> None:
+    def __init__(
+        self,
+        runtime: BoardRuntime,
+        listen_url: str,
+        *,
+        resets: list[tuple[int, int]] | None = None,
+        rebuild: Callable[[], BoardRuntime] | None = None,
+    ) -> None:
+        """``resets``: (CLOCK_MONOTONIC ns, boot gap ns) at which the board resets without
+        dropping the link (a watchdog behind a UART bridge): output in flight is lost, input
+        during the gap is ignored, then ``rebuild()`` is the freshly booted runtime (new epoch,
+        SIF seq from 0; its clock restarts on its own, see DriftClock)."""
         self.runtime = runtime
         self.listen_url = listen_url
+        self._resets = sorted(resets or [])
+        self._rebuild = rebuild
+        self._booting_until: int | None = None
+        self.boots = 0
         self._stop = threading.Event()
         self._listener: socket.socket | None = None
         self._memory: MemoryListener | None = None
@@ -179,10 +196,29 @@ class BoardServer:
     def _wait_time(self) -> float:
         rt = self.runtime
         due = rt.next_deadline_us()
-        if due is None:
-            return _MAX_WAIT
-        wait: float = (due - rt.clock()) / 1e6
+        wait: float = _MAX_WAIT if due is None else (due - rt.clock()) / 1e6
+        events = [t for t in (self._booting_until, *(r for r, _g in self._resets[:1])) if t]
+        if events:
+            wait = min(wait, (min(events) - time.monotonic_ns()) / 1e9)
         return min(_MAX_WAIT, max(0.0, wait))
+
+    def _lifecycle(self) -> bool:
+        """Run scheduled resets; True while the board is booting (deaf and mute)."""
+        now = time.monotonic_ns()
+        if self._resets and now >= self._resets[0][0]:
+            at, gap = self._resets.pop(0)
+            self._booting_until = at + gap
+            if self._link is not None:  # what the UART had not sent yet is gone
+                self._link.frames.clear()
+                self._link.queued = self._link.head_sent = 0
+        if self._booting_until is not None:
+            if now < self._booting_until:
+                return True
+            self._booting_until = None
+            if self._rebuild is not None:
+                self.runtime = self._rebuild()
+            self.boots += 1
+        return False
 
     def _turn(self, data: bytes, rx_us: int | None = None) -> tuple[bytes, list[bytes]]:
         """One turn of the board's process loop: feed input, run drivers, return output as
@@ -216,6 +252,8 @@ class BoardServer:
                         self._drop_link()
                     else:
                         data = received
+                if self._lifecycle():
+                    continue  # booting: input is lost, nothing is sent
                 replies, sifs = self._turn(data, rx_us)
                 if self._link is not None and not self._link.send(replies, sifs):
                     self._drop_link()
