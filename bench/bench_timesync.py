@@ -230,6 +230,7 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
     listen = "pty" if link == "pty" else "tcp://127.0.0.1:0"
     proc, url = start_board_process("rate", seed, listen, extra=extra, name="w")
     truth = DriftClock(offset, skew, drift, ref, [reset_s])
+    whole_run.truth = truth  # type: ignore[attr-defined]  # for diagnostics of a run
     answering_again = truth.reset_ns[0] + gap_ms * 1e6
     rows: list[tuple[int, int, float, int, int]] = []  # recv, host, err, bound, flags
     try:

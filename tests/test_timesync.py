@@ -3,6 +3,7 @@ the daemon end to end with a board clock whose truth is known."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import random
@@ -432,3 +433,100 @@ def test_glitch_stamps_never_map_into_the_future() -> None:
         back = 9_000_300 - 2_000_000 - (k % 2) * 5_000_000
         assert sync.map_many([back], 1.001 + k / 1000) == ([], -1, -1, OUTLIER)
     assert sync.resets == 0
+
+
+# ---- whole run: the first samples, repeated steers, adaptive probing, a reset ------------------
+def test_map_starts_from_the_bursts_best_estimate_not_its_first() -> None:
+    """Before any sample is mapped the map follows every new estimate (a step nobody saw costs
+    nothing); the first exchange of a burst is its slowest and must not stay in the map."""
+    sync = ClockSync(seed=4)
+    sync.start(0.0)
+    slow = Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_900_000)  # 900 µs round trip
+    sync.on_exchange(slow, 1.0)
+    first = sync._map.at(5_000_010)
+    fast = Exchange(1_010_000_000, 5_010_000, 5_010_010, 1_010_040_000)  # 40 µs
+    sync.on_exchange(fast, 1.01)
+    est = sync.estimate
+    assert est is not None
+    assert abs(sync._map.at(5_010_010) - est.host_at(5_010_010)) < 1.0  # on the new estimate
+    assert abs(first - est.host_at(5_000_010)) > 1000  # not where the first one put it
+    got = sync.map_many([5_010_020], 1.02)
+    assert got is not None and got[3] & STEP  # the first mapped sample is flagged STEP
+    assert sync._map.steps == 1  # only the step a sample saw counts
+
+
+def test_repeated_steers_reach_the_estimate_within_tau() -> None:
+    """Each steer keeps the slew's end: 200 µs of error is gone tau after it appeared, however
+    often the map is steered meanwhile (no exponential tail)."""
+    est = ClockEstimator()
+    for ex, _, _ in exchanges(0.0, 0.0, 5, 20):
+        est.add(ex)
+    e = est.estimate
+    assert e is not None
+    pm = PublishedMap(tau_s=0.5)
+    pm.start(e)
+    pm.map(e.b_ref)
+    moved = type(e)(**{**e.__dict__, "h_ref": e.h_ref + 200_000})
+    b = e.b_ref
+    for k in range(1, 10):  # an exchange every 50 ms, the same line each time
+        at = b + k * 50_000
+        same = type(moved)(**{**moved.__dict__, "b_ref": at, "h_ref": moved.host_at(at)})
+        pm.map(at)
+        pm.steer(same)
+    end = b + 50_000 + 500_000 + 1  # tau after the first steer (at b + 50 ms)
+    assert pm.at(end) == pytest.approx(moved.host_at(end), abs=1.0)
+
+
+def test_probing_slows_to_what_the_link_allows() -> None:
+    """A link whose round trip keeps the bound above the fixed target still slows down once the
+    bound is as good as that link allows (relative to its fastest round trip)."""
+    sync = ClockSync(SyncOptions(burst_count=5, target_us=5), seed=2)
+    sync.start(0.0)
+    now = 0.0
+    intervals = []
+    for _ in range(80):
+        now = max(now, sync.due())
+        t1 = int(now * 1e9)
+        b = 7_000_000 + int(now * 1e6)
+        ex = Exchange(t1, b + 30, b + 40, t1 + 80_000)  # 80 µs round trip, always
+        sync.on_exchange(ex, now + 80e-6)
+        intervals.append(sync.due() - now)
+    assert max(intervals[-10:]) > 1.0  # slowed far past the old 0.5 s ceiling
+    assert sync.state == TRACKING
+
+
+def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
+    """A board process whose clock drifts and that resets 3 s in (100 ms boot gap, link kept):
+    per topic, host times strictly increase through it, synced samples are within their bound,
+    and the reset is found and recovered from."""
+    ref = time.monotonic_ns()
+    extra = [
+        *("--clock-offset-us", "5e8", "--clock-skew-ppm", "120"),
+        *("--clock-drift-ppm-per-s", "0.3", "--clock-ref-ns", str(ref)),
+        *("--reset-at", "3", "--boot-gap-ms", "100", "--rate", "300"),
+    ]
+    proc, url = start_board_process("rate", 5, "pty", extra=extra, name="r")
+    from missing_link.virtual.sims import DriftClock
+
+    truth = DriftClock(5e8, 120.0, 0.3, ref, [3.0])
+    back_at = truth.reset_ns[0] + 100_000_000
+    got: list[Update] = []
+    try:
+        with Daemon(Config(boards=[BoardSpec(url)])) as d:
+            off = d.realtime_offset_ns
+            d.subscribe("/r/signal", got.append, queue=0)
+            while time.monotonic_ns() < ref + 6e9:
+                time.sleep(0.1)
+            st = d.status()[0]
+    finally:
+        stop_process(proc)
+    hosts = [u.host_ns[0] for u in got]
+    assert all(b > a for a, b in itertools.pairwise(hosts))
+    synced = [u for u in got if not u.clock_flags & (NOT_SYNCED | OUTLIER)]
+    inside = 0
+    for u in synced:
+        boot = 0 if u.recv_ns < back_at else 1
+        inside += abs(u.host_ns[0] - off - truth.host_ns(u.board_us[0], boot)) <= u.bound_ns
+    assert inside >= 0.999 * len(synced)
+    assert st["sync_resets"] == 1
+    assert any(u.recv_ns > back_at and not u.clock_flags & NOT_SYNCED for u in got)

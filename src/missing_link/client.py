@@ -62,7 +62,8 @@ MAX_PROPERTIES = 16 << 10
 MAX_TRANSDS = 64 << 10
 #: a read_many without a deadline of its own must end within this (s)
 TRANSFER_TIMEOUT = 120.0
-_TICK = 0.02  # longest the reader sleeps before looking at timers again
+_TICK = 0.02  # longest the reader sleeps before looking at timers again ...
+_IDLE = 1.0  # ... when none is pending and close() wakes the transport's read
 SifHandler = Callable[[SifReceived, float], None]
 ProgressFn = Callable[[int, "int | None"], None]
 
@@ -93,6 +94,8 @@ class Board:
         self._sif_handlers: dict[int, list[SifHandler]] = {}
         self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
         self._any_sif: list[SifHandler] = []
+        self._on_close: list[Callable[[], None]] = []
+        self._idle_until = 0.0  # the reader waits until then unless poked
         self._stopping = False
         self._closed_reason: BaseException | None = None
         self.functions: list[str] = []
@@ -354,6 +357,9 @@ class Board:
                 raise self._lost(label, e) from e
             # the transport's stamp is taken right before the write syscall: later, tighter
             self._sent[op] = max(sent, self.transport.last_write_ns)
+            timer = self.conn.get_timer()
+        if timer is not None and timer < self._idle_until:
+            self.transport.poke()  # the reader sleeps past this call's deadline: wake it
         return fut
 
     def _wait(self, fut: Future[T], timeout: float | None) -> T:
@@ -388,7 +394,11 @@ class Board:
                 with self._lock:  # callers add requests under the lock; never read it bare
                     timer = self.conn.get_timer()
                 now = time.monotonic()
-                wait = _TICK if timer is None else max(0.0, min(_TICK, timer - now))
+                if timer is None:
+                    wait = _IDLE if self.transport.wakes_on_close else _TICK
+                else:
+                    wait = max(0.0, min(_TICK, timer - now))
+                self._idle_until = now + wait
                 data = self.transport.read(wait)
                 now_ns = time.monotonic_ns()
                 now = now_ns / 1e9
@@ -423,6 +433,17 @@ class Board:
             )
             events = self.conn.close(reason, str(error))
         self._dispatch(events, time.monotonic(), time.monotonic_ns())
+        for fn in self._on_close:
+            try:
+                fn()
+            except Exception:
+                log.exception("close callback failed")
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` on the reader thread when the link ends (closed or broken)."""
+        self._on_close.append(fn)
+        if not self._thread.is_alive():
+            fn()
 
     def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
         for ev in events:

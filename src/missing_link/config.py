@@ -27,7 +27,7 @@ class BoardSpec:
     timeout: float = 1.0  #: s per call
     handshake_timeout: float = 5.0  #: s for mapping, properties and descriptors together
     #: s without an intact frame from the board before the link is declared stale (frozen
-    #: board, half-open link) and reconnected; heartbeats go out after a third of it
+    #: board, half-open link) and reconnected; heartbeats go out after half of it
     link_timeout: float = 1.5
     #: UART baud rate when the board is on a real UART (an FTDI-like bridge): the time its
     #: replies spend on the wire is then known to clock sync.  0: not a UART, or unknown.

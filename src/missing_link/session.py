@@ -26,7 +26,7 @@ type never share ``Temp`` (the second is qualified by its board: ``BoardBTemp``)
 ``_on_sif``); the supervisor runs actuator commands (latest wins), clock probes on the sync's
 schedule, and watches the link.  A link is *stale* when no intact frame arrived for
 ``link_timeout``: a frozen board, a half-open TCP connection or a pulled cable looks like that.
-Silence of a third of that sends a heartbeat (a clock probe or ``a2jEcho``), so a quiet but
+Silence of half of that sends a heartbeat (a clock probe or ``a2jEcho``), so a quiet but
 healthy board always answers in time; a stale link is closed, reported (state, error, ERROR in
 ``/diagnostics``) and reconnected.  Like a CANopen heartbeat consumer, the host decides from
 what it hears, not from what the transport claims.
@@ -268,9 +268,15 @@ class BoardSession:
         next_ping = time.monotonic()
         board = self.board
         assert board is not None
+        board.on_close(self._wake.set)  # a broken link wakes the supervisor at once
         while not self._stop.is_set() and board.alive:
-            due = next_ping if self.sync is None else min(next_ping, self.sync.due())
-            self._wake.wait(max(0.0, min(0.1, due - time.monotonic())))
+            # Sleep until the next thing to do (commands and a dying link wake it early): an
+            # idle board costs a few wake-ups a second, not a poll every 100 ms.
+            due = min(
+                next_ping if self.sync is None else min(next_ping, self.sync.due()),
+                board.last_frame + link_timeout / 2,  # heartbeat
+            )
+            self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
             self._run_commands(board)
             now = time.monotonic()
@@ -281,7 +287,7 @@ class BoardSession:
                     f"{self.name}: no frame from the board for {silent:.1f} s (frozen, "
                     "unplugged or a half-open link); reconnecting"
                 )
-            heartbeat = silent > link_timeout / 3
+            heartbeat = silent >= link_timeout / 2
             if self.sync is not None and (heartbeat or now >= self.sync.due()):
                 self._probe(board, now)
             elif now >= next_ping or heartbeat:

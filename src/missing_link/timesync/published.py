@@ -12,8 +12,9 @@ rate within ``max_slew`` of the estimator's (so it is always strictly increasing
                       it slews at ``-error / tau`` (at most ``max_slew``) until the error is gone,
                       then a second segment continues at the estimate's rate.
 
-So the published map reaches the estimate in ``tau`` (longer only when the slew limit binds),
-never overshoots even if no further exchange comes, and never steps.  Only
+A new steer while a slew is under way keeps that slew's end: the map reaches the estimate
+``tau`` after the error appeared however often it is steered (longer only when the slew limit
+binds), never overshoots even if no further exchange comes, and never steps.  Only
 ``start()`` steps: at the first estimate and after a board reset; the caller flags it.  Segments
 are anchored at or after every board time already mapped, so a value once published is never
 contradicted by a later segment.  A short history of segments maps samples that arrive late.
@@ -37,6 +38,7 @@ class PublishedMap:
         self._segs: list[tuple[int, float, float]] = []  # (board µs, host ns, ns per µs)
         self.newest_mapped: int | None = None
         self._floor = 0
+        self._slew_end: float = 0
         self.steps = 0
 
     @property
@@ -44,12 +46,15 @@ class PublishedMap:
         return bool(self._segs)
 
     def start(self, est: Estimate) -> None:
-        """Step to the estimate (start, or after a reset)."""
+        """Step to the estimate (start, or after a reset).  Before anything was mapped it may
+        be called again with every better estimate: a step nobody saw costs nothing."""
+        if not self._segs or self.newest_mapped is not None:
+            self.steps += 1
         self._segs = [(est.b_ref, est.h_ref, est.rate)]
         self._anchors = [est.b_ref]
         self._floor = est.b_ref
+        self._slew_end = est.b_ref
         self.newest_mapped = None
-        self.steps += 1
 
     def steer(self, est: Estimate) -> float:
         """Bend the map towards ``est``; returns the published-minus-estimate error (ns)."""
@@ -71,8 +76,12 @@ class PublishedMap:
         if self._anchors[-1] >= b:
             self._anchors.pop()
             self._segs.pop()
-        # Remove err within tau, or slower when the slew limit binds.
-        dur = max(self.tau_us, abs(err) / (self.max_slew * est.rate))
+        # Remove err by the end of the slew already under way (a fresh one: within tau), so
+        # the map reaches the estimate in tau however often it is steered; slower only when
+        # the slew limit binds.
+        remaining = self._slew_end - b if self._slew_end > b else self.tau_us
+        dur = max(remaining, 0.05 * self.tau_us, abs(err) / (self.max_slew * est.rate))
+        self._slew_end = b + dur
         self._segs.append((b, h, est.rate - err / dur))
         self._anchors.append(b)
         end = b + max(1, round(dur))

@@ -54,14 +54,14 @@ OUTLIER = 4  #: the board stamp was far from the map (a glitch): refused; host t
 class SyncOptions:
     burst_interval: float = 0.02  #: s between probes right after connecting or a reset
     burst_count: int = 25  #: exchanges in the burst
-    interval: float = 0.5  #: s between probes once tracking (reached by doubling)
+    interval: float = 2.0  #: s between probes once tracking (reached by doubling)
     fast_interval: float = 0.05  #: s between probes after a loss or a surprise
     fast_count: int = 10
     target_us: float = 20.0  #: bound under which probing slows down (above: speeds up)
     window_s: float = 30.0
     max_points: int = 128
     res_us: int = 1
-    tau_s: float = 2.0  #: time constant of the published map's slew
+    tau_s: float = 0.5  #: the published map reaches a new estimate this long after it appears
     max_slew: float = 500e-6
     #: a sample stamped this far behind the newest one mapped: the board may have restarted
     reset_backstep_us: int = 1_000_000
@@ -131,7 +131,10 @@ class ClockSync:
         o = self.opt
         self._count += 1
         est = self.estimator.estimate
-        good = est is not None and max(-est.lo_ns, est.hi_ns) <= o.target_us * 1000
+        # "Good" is relative to the link: no bound gets below half the fastest round trip, so
+        # a link slower than the target would otherwise be probed at the fastest rate for ever.
+        floor_ns = 1.5 * (self.min_rtt_ns or 0)
+        good = est is not None and max(-est.lo_ns, est.hi_ns) <= max(o.target_us * 1000, floor_ns)
         if self.state in (BURST, FAST):
             done = o.burst_count if self.state == BURST else o.fast_count
             if self._count >= done:
@@ -167,7 +170,9 @@ class ClockSync:
                 result = AddResult.RESET if result is AddResult.ACCEPTED else result
             est = self.estimator.estimate
             if est is not None and result is not AddResult.REJECTED:
-                if not self._map.started:
+                if not self._map.started or self._map.newest_mapped is None:
+                    # Nothing mapped yet: start from the newest (best) estimate, not the
+                    # burst's first and slowest exchange.
                     self._map.start(est)
                     self._step_pending = True
                 else:

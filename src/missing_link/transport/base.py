@@ -35,6 +35,11 @@ class Transport(ABC):
     #: transport can tell (the kernel's receive stamp on TCP; the moment select() returned on
     #: fd links, before the read syscall); 0 when the transport does not stamp
     last_rx_ns: int = 0
+    #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
+    wakes_on_close: bool = False
+
+    def poke(self) -> None:  # noqa: B027 - optional: transports that cannot wake a read skip it
+        """Make a waiting read() return b"" now (the caller has new timers for the reader)."""
 
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
@@ -58,11 +63,33 @@ class Transport(ABC):
 class FdTransport(Transport):
     """A transport over a readable/writable file descriptor (socket, pty, serial port)."""
 
+    wakes_on_close = True
+
     def __init__(self, url: str, fd: int) -> None:
         self.url = url
         self._fd = fd
         self._closed = False
         self._wlock = threading.Lock()
+        # close() writes here, so a reader blocked in select() returns at once
+        self._wake_r, self._wake_w = os.pipe()
+
+    def _wake_reader(self) -> None:
+        """Subclasses call this from close(), after marking the transport closed."""
+        self.poke()
+
+    def poke(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+
+    def __del__(self) -> None:
+        for fd in (getattr(self, "_wake_r", -1), getattr(self, "_wake_w", -1)):
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
 
     def _check(self) -> None:
         if self._closed:
@@ -77,8 +104,12 @@ class FdTransport(Transport):
     def read(self, timeout: float | None) -> bytes:
         self._check()
         try:
-            ready, _, _ = select.select([self._fd], [], [], timeout)
-            if not ready:
+            ready, _, _ = select.select([self._fd, self._wake_r], [], [], timeout)
+            if self._closed:
+                raise TransportClosed(f"{self.url}: transport closed on this side")
+            if self._wake_r in ready:
+                os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
+            if self._fd not in ready:
                 return b""
             self.last_rx_ns = time.monotonic_ns()  # _recv may replace it with a kernel stamp
             data = self._recv(65536)

@@ -28,6 +28,8 @@ class MemoryTransport(Transport):
         self._tx = tx
         self._closed = False
 
+    wakes_on_close = True
+
     def read(self, timeout: float | None) -> bytes:
         if self._closed:
             raise TransportClosed(f"{self.url}: transport closed on this side")
@@ -52,6 +54,10 @@ class MemoryTransport(Transport):
                 raise TransportBroken(f"{self.url}: the other side closed the link")
             self._tx.chunks.append(bytes(data))
             self._tx.cond.notify_all()
+
+    def poke(self) -> None:
+        with self._rx.cond:
+            self._rx.cond.notify_all()
 
     def close(self) -> None:
         if self._closed:

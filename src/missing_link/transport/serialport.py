@@ -29,6 +29,7 @@ class SerialTransport(FdTransport):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self._wake_reader()
             try:
                 self.port.close()
             except (OSError, serial.SerialException):

@@ -52,6 +52,7 @@ class SocketTransport(FdTransport):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self._wake_reader()
             try:
                 self.sock.shutdown(socket.SHUT_RDWR)
             except OSError:

@@ -50,5 +50,12 @@ class SpyTransport(Transport):
             self._dump("TX", f)
         self.inner.write_frames(frames)
 
+    @property
+    def wakes_on_close(self) -> bool:  # type: ignore[override]
+        return self.inner.wakes_on_close
+
+    def poke(self) -> None:
+        self.inner.poke()
+
     def close(self) -> None:
         self.inner.close()
