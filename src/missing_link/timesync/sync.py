@@ -54,7 +54,7 @@ OUTLIER = 4  #: the board stamp was far from the map (a glitch): refused; host t
 class SyncOptions:
     burst_interval: float = 0.02  #: s between probes right after connecting or a reset
     burst_count: int = 25  #: exchanges in the burst
-    interval: float = 2.0  #: s between probes once tracking (reached by doubling)
+    interval: float = 0.5  #: s between probes once tracking (reached by doubling)
     fast_interval: float = 0.05  #: s between probes after a loss or a surprise
     fast_count: int = 10
     target_us: float = 20.0  #: bound under which probing slows down (above: speeds up)
@@ -131,10 +131,7 @@ class ClockSync:
         o = self.opt
         self._count += 1
         est = self.estimator.estimate
-        # "Good" is relative to the link: no bound gets below half the fastest round trip, so
-        # a link slower than the target would otherwise be probed at the fastest rate for ever.
-        floor_ns = 1.5 * (self.min_rtt_ns or 0)
-        good = est is not None and max(-est.lo_ns, est.hi_ns) <= max(o.target_us * 1000, floor_ns)
+        good = est is not None and max(-est.lo_ns, est.hi_ns) <= o.target_us * 1000
         if self.state in (BURST, FAST):
             done = o.burst_count if self.state == BURST else o.fast_count
             if self._count >= done:

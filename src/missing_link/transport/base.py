@@ -31,9 +31,10 @@ class Transport(ABC):
     #: CLOCK_MONOTONIC ns just before the newest write reached the OS (clock sync's t1); 0
     #: when the transport does not stamp (the caller's stamp is used)
     last_write_ns: int = 0
-    #: CLOCK_MONOTONIC ns when the bytes of the newest read arrived, as close to the wire as the
-    #: transport can tell (the kernel's receive stamp on TCP; the moment select() returned on
-    #: fd links, before the read syscall); 0 when the transport does not stamp
+    #: CLOCK_MONOTONIC ns when the bytes of the newest read arrived: the moment select()
+    #: returned, before the read syscall (the same layer a board's shell stamps t2 at: stamping
+    #: one side in the kernel and the other in user space would bias clock sync by half the
+    #: difference); 0 when the transport does not stamp
     last_rx_ns: int = 0
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
@@ -111,7 +112,7 @@ class FdTransport(Transport):
                 os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
             if self._fd not in ready:
                 return b""
-            self.last_rx_ns = time.monotonic_ns()  # _recv may replace it with a kernel stamp
+            self.last_rx_ns = time.monotonic_ns()
             data = self._recv(65536)
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import socket
-import struct
-import time
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, TransportBroken
@@ -13,38 +11,17 @@ from .base import FdTransport, register_transport
 CONNECT_TIMEOUT = 5.0
 
 
-#: the kernel stamps received TCP data (Linux): clock sync's t4 without this process's wake-up
-SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
-_STAMP = struct.Struct("qq")
-
-
 class SocketTransport(FdTransport):
     def __init__(self, url: str, sock: socket.socket) -> None:
         sock.setblocking(True)
-        self._stamps = False
         if sock.family in (socket.AF_INET, socket.AF_INET6):
             # Frames are small and latency matters more than packet count.
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            try:
-                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-                self._stamps = True
-            except OSError:
-                pass
         super().__init__(url, sock.fileno())
         self.sock = sock
 
     def _recv(self, n: int) -> bytes:
-        if not self._stamps:
-            return self.sock.recv(n)
-        data, anc, _flags, _addr = self.sock.recvmsg(n, socket.CMSG_SPACE(_STAMP.size))
-        for level, kind, raw in anc:
-            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= 16:
-                sec, nsec = _STAMP.unpack_from(raw)
-                # kernel stamp (CLOCK_REALTIME) -> CLOCK_MONOTONIC: only the age matters
-                age = time.time_ns() - (sec * 1_000_000_000 + nsec)
-                if 0 <= age < 1_000_000_000:
-                    self.last_rx_ns = time.monotonic_ns() - age
-        return data
+        return self.sock.recv(n)
 
     def _send(self, data: memoryview) -> int:
         return self.sock.send(data)
