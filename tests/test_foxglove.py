@@ -35,16 +35,23 @@ async def _client(url: str, topic: str) -> tuple[dict, bytes, list[str]]:
                 return ch, msg[13:], sorted(channels)
 
 
-def test_websocket_client_decodes_a_sample(serve) -> None:  # type: ignore[no-untyped-def]
-    server = serve("thesis", "tcp://127.0.0.1:0")
+def foxglove_daemon(url: str) -> Daemon:
+    """A daemon with the Foxglove publisher on a free loopback port (its url: .foxglove.url)."""
     cfg = Config(
-        boards=[BoardSpec(server.url)],
+        boards=[BoardSpec(url)],
         publishers=["bus", "foxglove"],
         publisher_options={"foxglove": {"port": 0}},
     )
-    with Daemon(cfg) as d:
+    d = Daemon(cfg)
+    d.foxglove = next(p for p in d.publishers if p.name == "foxglove")  # type: ignore[attr-defined]
+    return d
+
+
+def test_websocket_client_decodes_a_sample(serve) -> None:  # type: ignore[no-untyped-def]
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    with foxglove_daemon(server.url) as d:
         assert d.wait_until_up(10)
-        fox = next(p for p in d.publishers if p.name == "foxglove")
+        fox = d.foxglove  # type: ignore[attr-defined]
         assert fox.url.startswith("ws://127.0.0.1:")
         ch, payload, topics = asyncio.run(_client(fox.url, "/thesis/dist_ir"))
     assert {"/thesis/quad", "/thesis/dist_ir", "/thesis/dist_ir/range", "/diagnostics"} <= set(
@@ -69,14 +76,9 @@ def test_official_foxglove_client_decodes_with_the_schema(serve) -> None:  # typ
     node = shutil.which("node")
     assert node, "node is installed by make test (scripts/system-deps.sh)"
     server = serve("thesis", "tcp://127.0.0.1:0")
-    cfg = Config(
-        boards=[BoardSpec(server.url)],
-        publishers=["bus", "foxglove"],
-        publisher_options={"foxglove": {"port": 0}},
-    )
-    with Daemon(cfg) as d:
+    with foxglove_daemon(server.url) as d:
         assert d.wait_until_up(10)
-        fox = next(p for p in d.publishers if p.name == "foxglove")
+        fox = d.foxglove  # type: ignore[attr-defined]
         here = Path(__file__).parent
         r = subprocess.run(
             [node, str(here / "foxglove_client.mjs"), fox.url, "/thesis/dist_ir"],

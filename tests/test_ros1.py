@@ -14,6 +14,8 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -33,7 +35,10 @@ if not HAVE_ROS1:
     pytestmark = pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")
 
 
-def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
+@contextmanager
+def ros1_graph(tmp_path: Path, sim: str) -> Iterator[tuple[dict[str, str], str]]:
+    """A real roscore on a free 127.0.0.1 port, a virtual board process (sim) over a pty, and the
+    daemon (``run -p ros1``) in its own process; yields the ROS environment and the board URL."""
     port = free_port()
     env = {
         **os.environ,
@@ -44,7 +49,7 @@ def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
     core = subprocess.Popen(
         ["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
-    board, url = start_board_process("rangers", 0, "pty")
+    board, url = start_board_process(sim, 0, "pty")
     daemon = None
     try:
         online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
@@ -59,22 +64,7 @@ def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
             stderr=subprocess.PIPE,
             text=True,
         )
-        out = subprocess.run(
-            [
-                "/usr/bin/python3",
-                str(HERE / "ros1_listener.py"),
-                "--custom",
-                "/board_b/dist_ir=missing_link_msgs/DistIr=time[] times\\nuint16[] values",
-                "--range",
-                "/board_b/dist_ir/range",
-                "--count",
-                "5",
-            ],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        yield env, url
     finally:
         if daemon is not None:
             daemon.terminate()
@@ -82,6 +72,29 @@ def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
         stop_process(board)
         core.terminate()
         core.wait(15)
+
+
+def listen(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        ["/usr/bin/python3", str(HERE / "ros1_listener.py"), *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
+    with ros1_graph(tmp_path, "rangers") as (env, _url):
+        out = listen(
+            env,
+            "--custom",
+            "/board_b/dist_ir=missing_link_msgs/DistIr=time[] times\\nuint16[] values",
+            "--range",
+            "/board_b/dist_ir/range",
+            "--count",
+            "5",
+        )
     assert out.returncode == 0, out.stdout + out.stderr
     lines = [json.loads(x) for x in out.stdout.splitlines()]
     custom = [x for x in lines if x["topic"] == "/board_b/dist_ir"]
@@ -96,54 +109,16 @@ def test_real_rospy_subscriber_receives(tmp_path: Path) -> None:
 def test_ros1_node_drives_the_servo(tmp_path: Path) -> None:
     """A real rospy node publishes on /board_a/servo/cmd; the board's servo moves, and the
     daemon's /board_a/servo topic says so (ROS 1 actuators go the same latest-wins path)."""
-    port = free_port()
-    env = {
-        **os.environ,
-        "ROS_MASTER_URI": f"http://127.0.0.1:{port}",
-        "ROS_IP": "127.0.0.1",
-        "ROS_HOME": str(tmp_path / "ros"),
-    }
-    core = subprocess.Popen(
-        ["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
-    board, url = start_board_process("encoder_servo", 0, "pty")
-    daemon = None
-    try:
-        online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
-        deadline = time.monotonic() + 20
-        while subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode != 0:
-            assert time.monotonic() < deadline, "roscore did not come up"
-            time.sleep(0.3)
-        daemon = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", url, "-p", "ros1", "--duration", "40"],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
+    with ros1_graph(tmp_path, "encoder_servo") as (env, _url):
+        out = listen(
+            env,
+            "--custom",
+            "/board_a/servo=missing_link_msgs/Servo=time[] times\\nint8[] values",
+            "--command",
+            "/board_a/servo/cmd=40",
+            "--expect",
+            "40",
         )
-        out = subprocess.run(
-            [
-                "/usr/bin/python3",
-                str(HERE / "ros1_listener.py"),
-                "--custom",
-                "/board_a/servo=missing_link_msgs/Servo=time[] times\\nint8[] values",
-                "--command",
-                "/board_a/servo/cmd=40",
-                "--expect",
-                "40",
-            ],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-    finally:
-        if daemon is not None:
-            daemon.terminate()
-            daemon.wait(10)
-        stop_process(board)
-        core.terminate()
-        core.wait(15)
     assert out.returncode == 0, out.stdout + out.stderr
     (line,) = [json.loads(x) for x in out.stdout.splitlines()]
     assert line["topic"] == "/board_a/servo" and 40 in line["values"]
