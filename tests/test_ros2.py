@@ -205,3 +205,35 @@ def test_thesis_types_after_create_msgs_build_and_ros2_commands(
     assert isinstance(topics, dict)
     assert topics["/thesis/dist_ir"] == ["missing_link_msgs/msg/DistIr"]
     assert "not published" not in err
+
+
+def test_a_built_type_that_differs_from_the_board_is_refused(
+    thesis_board: str, tmp_path: Path
+) -> None:
+    """The package was built when dist_ir was int32; the board now says uint16: the daemon
+    refuses to publish DistIr (never sent wrong), says why, and the rest still goes out."""
+    desc = tmp_path / "old.txt"
+    desc.write_text("transds/1\ndist_ir,1,sharp,GP2Y0A02YK,8,int32_t,0\n")
+    prefix = tmp_path / "install"
+    env = ros_env()
+    r = subprocess.run(
+        [
+            *(str(ROS2_PY), "-m", "missing_link", "create-msgs", str(desc)),
+            *("--out", str(tmp_path / "src"), "--build", str(prefix)),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    daemon = start_daemon(thesis_board, {**env, "MISSING_LINK_ROS2_PREFIX": str(prefix)})
+    try:
+        got = listen(env, "--seconds", "30", "--sub", "/thesis/dist_ir/range=sensor_msgs/msg/Range")
+    finally:
+        err = stop(daemon)
+    assert got["counts"]["/thesis/dist_ir/range"] >= 3  # type: ignore[index]
+    assert "missing_link_msgs/msg/DistIr is not published: the built type has" in err
+    assert "sequence<int32>" in err and "sequence<uint16>" in err
+    topics = got["topics"]
+    assert isinstance(topics, dict) and "/thesis/dist_ir" not in topics
