@@ -395,3 +395,10 @@ def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
 def test_open_board_still_works_alongside(board_url: str) -> None:
     with Board.open(board_url) as b:
         assert b.call("a2jEcho", b"hi").payload == b"hi"
+
+
+def test_bad_zenoh_endpoint_is_a_config_error(tmp_path: Path) -> None:
+    cfg = tmp_path / "z.toml"
+    cfg.write_text('[zenoh]\nconnect = ["tcp://127.0.0.1:7447"]\n')
+    r = ml("run", "tcp://127.0.0.1:1", "--config", str(cfg), "-p", "zenoh", "--duration", "1")
+    assert "not a Zenoh endpoint" in one_line_error(r, 2)

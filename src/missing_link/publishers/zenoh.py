@@ -30,6 +30,7 @@ from typing import Any
 
 import xxhash
 
+from ..config import ConfigError
 from ..msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
@@ -99,6 +100,12 @@ class ZenohPublisher(Publisher):
             raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
         connect = list(opts.get("connect", DEFAULT_CONNECT))
         listen = list(opts.get("listen", DEFAULT_LISTEN))
+        for key, endpoints in (("connect", connect), ("listen", listen)):
+            for ep in endpoints:
+                if not isinstance(ep, str) or "://" in ep or "/" not in ep:
+                    raise ConfigError(
+                        f"[zenoh] {key}: {ep!r} is not a Zenoh endpoint (e.g. tcp/127.0.0.1:7447)"
+                    )
         cfg = zenoh.Config()
         cfg.insert_json5("mode", json.dumps(mode))
         cfg.insert_json5("connect/endpoints", json.dumps(connect))
