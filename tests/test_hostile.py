@@ -203,7 +203,6 @@ def test_type_collisions_are_qualified_and_recordings_read_back(
     )
     with Daemon(cfg) as d:
         assert d.wait_until_up(10)
-        (rec,) = d.publishers[1].bags  # type: ignore[attr-defined]
         types = {s.name: s.topics[0].type_name for s in d.sessions}
         assert types["board_a"] != types["board_b"]
         assert sorted(types.values()) == [
@@ -214,6 +213,7 @@ def test_type_collisions_are_qualified_and_recordings_read_back(
             "missing_link_msgs/msg/Temp",
         ]
         time.sleep(0.5)
+        (rec,) = d.publishers[1].bags  # type: ignore[attr-defined]  # opened on the first message
     with AnyReader([rec]) as reader:
         counts: dict[str, int] = {}
         for conn, _t, raw in reader.messages():
