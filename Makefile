@@ -61,12 +61,14 @@ unit: venv node ros2
 
 test: lint typecheck unit
 
-bench: venv
+bench: venv ros2
 	$(PY) bench/bench_codec.py
 	$(PY) bench/bench_rpc.py
 	$(PY) bench/bench_daemon.py
 	$(PY) bench/bench_timesync.py
-	$(PY) bench/bench_zenoh.py
+	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(PY) bench/bench_zenoh.py
+	$(PY) bench/bench_idle.py
+	# the soak (minutes, not in make test): $(PY) bench/soak.py --boards 4 --minutes 3
 
 clean:
 	rm -rf $(VENV) $(ROS2_VENV) node_modules .mypy_cache .ruff_cache .pytest_cache .hypothesis
