@@ -189,3 +189,29 @@ def test_mapping_longer_than_one_frame_is_read_in_full(serve: Serve) -> None:
         assert len(board.functions) == 41  # 11 built-ins + 30
         assert board.functions[-1] == "function_with_a_long_name_29"
         assert board.call("function_with_a_long_name_29").code == 0
+
+
+def test_a_call_times_out_on_time_while_the_reader_idles() -> None:
+    """An idle reader waits up to a second in select(); a new call with a shorter timeout pokes
+    it, so the timeout fires when due, not when the idle wait ends."""
+    import socket
+    import time
+
+    from missing_link.errors import CallTimeout
+    from missing_link.transport import open_transport
+
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        url = f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+        board = Board(open_transport(url))  # a peer that never answers
+        conn, _ = srv.accept()
+        try:
+            time.sleep(0.05)  # the reader is in its 1 s idle wait by now
+            t0 = time.monotonic()
+            with pytest.raises(CallTimeout):
+                board.call_index(0, b"", "a2jGetMapping", timeout=0.1)
+            assert time.monotonic() - t0 < 0.5  # not the rest of the 1 s idle wait
+        finally:
+            board.close()
+            conn.close()

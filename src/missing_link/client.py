@@ -358,7 +358,8 @@ class Board:
             # the transport's stamp is taken right before the write syscall: later, tighter
             self._sent[op] = max(sent, self.transport.last_write_ns)
             timer = self.conn.get_timer()
-        if timer is not None and timer < self._idle_until:
+            idle_until = self._idle_until
+        if timer is not None and timer < idle_until:
             self.transport.poke()  # the reader sleeps past this call's deadline: wake it
         return fut
 
@@ -393,12 +394,13 @@ class Board:
             while not self._stopping:
                 with self._lock:  # callers add requests under the lock; never read it bare
                     timer = self.conn.get_timer()
-                now = time.monotonic()
-                if timer is None:
-                    wait = _IDLE if self.transport.wakes_on_close else _TICK
-                else:
-                    wait = max(0.0, min(_TICK, timer - now))
-                self._idle_until = now + wait
+                    now = time.monotonic()
+                    if timer is None:
+                        wait = _IDLE if self.transport.wakes_on_close else _TICK
+                    else:
+                        wait = max(0.0, min(_TICK, timer - now))
+                    # set under the lock: a caller that adds a timer after this sees it
+                    self._idle_until = now + wait
                 data = self.transport.read(wait)
                 now_ns = time.monotonic_ns()
                 now = now_ns / 1e9
