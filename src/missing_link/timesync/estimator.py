@@ -129,6 +129,7 @@ class ClockEstimator:
         min_points: int = 3,
         wander_per_s: float = 0.05e-6,
         floor_us: float = 1.0,
+        memory_s: float = 5.0,
     ) -> None:
         if max_points < min_points or min_points < 1:
             raise ValueError("need 1 <= min_points <= max_points")
@@ -138,6 +139,7 @@ class ClockEstimator:
         self.min_points = min_points
         self.wander_per_s = wander_per_s  #: assumed bound on how fast the rate can change
         self.floor_us = floor_us  #: delay noise floor in the weights (stamping jitter)
+        self.memory_us = memory_s * 1e6  #: skew-fit weights fall by e every memory_s of age
         self.points: deque[Exchange] = deque()
         # The same window as rows (t1, t2, t3, t4 - down_min) kept in step with ``points``:
         # the fit and the filter work on columns, without a Python pass over the exchanges.
@@ -217,6 +219,10 @@ class ClockEstimator:
         delay = (t4 - t1) / 1000.0 - (t3 - t2)
         dmin = float(delay.min())
         w = 1.0 / (self.floor_us**2 + (delay - dmin) ** 2)
+        # A crystal's rate wanders (temperature): recent exchanges count more in the skew fit,
+        # so it follows a drifting rate instead of averaging the whole window (measured: the
+        # whole-run bench's ramps and bound misses came from that lag).
+        w = w * np.exp(xm / self.memory_us)
 
         # hard skew range from pairs of constraints (later upper vs earlier lower and v.v.)
         kmin, kmax = -MAX_SKEW, MAX_SKEW
