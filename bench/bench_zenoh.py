@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from _pacing import pace  # bench/ is on sys.path when a script here runs
 from missing_link.descriptors import parse_transds
 from missing_link.publishers import Bus
 from missing_link.publishers.zenoh import ZenohPublisher
@@ -63,16 +64,6 @@ SUB = textwrap.dedent(
     print(json.dumps({"count": count[0], "lat": lat, "span": last[0] - first[0]}), flush=True)
     """
 )
-
-
-def pace(target: float) -> None:
-    """Wait until ``target`` (perf_counter): sleep most of it, so other threads run (a busy
-    loop would hold the GIL and delay them by the interpreter's switch interval), then spin."""
-    left = target - time.perf_counter()
-    if left > 2e-4:
-        time.sleep(left - 1.5e-4)
-    while time.perf_counter() < target:
-        pass
 
 
 def free_port() -> int:

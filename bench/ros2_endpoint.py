@@ -14,15 +14,7 @@ import struct
 import sys
 import time
 
-
-def pace(target: float) -> None:
-    """Wait until ``target`` (perf_counter): sleep most of it, so other threads run (a busy
-    loop would hold the GIL and delay them by the interpreter's switch interval), then spin."""
-    left = target - time.perf_counter()
-    if left > 2e-4:
-        time.sleep(left - 1.5e-4)
-    while time.perf_counter() < target:
-        pass
+from _pacing import pace  # bench/ is on sys.path when a script here runs
 
 
 def pub(n: int, hz: float) -> None:

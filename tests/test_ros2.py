@@ -94,6 +94,23 @@ def listen(env: dict[str, str], *args: str, timeout: float = 90) -> dict[str, ob
     return result
 
 
+def build_types(source: str, tmp_path: Path, env: dict[str, str]) -> Path:
+    """``create-msgs SOURCE --build PREFIX`` with the ROS 2 of .venv-ros2; returns PREFIX."""
+    prefix = tmp_path / "install"
+    r = subprocess.run(
+        [
+            *(str(ROS2_PY), "-m", "missing_link", "create-msgs", source),
+            *("--out", str(tmp_path / "src"), "--build", str(prefix)),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    return prefix
+
+
 def stop(p: subprocess.Popen[str]) -> str:
     p.terminate()
     _out, err = p.communicate(timeout=30)
@@ -149,26 +166,8 @@ def test_stock_rclpy_hears_standard_types_diagnostics_and_the_graph(thesis_board
 def test_thesis_types_after_create_msgs_build_and_ros2_commands(
     thesis_board: str, tmp_path: Path
 ) -> None:
-    prefix = tmp_path / "install"
     env = ros_env()
-    r = subprocess.run(
-        [
-            str(ROS2_PY),
-            "-m",
-            "missing_link",
-            "create-msgs",
-            thesis_board,
-            "--out",
-            str(tmp_path / "src"),
-            "--build",
-            str(prefix),
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
+    prefix = build_types(thesis_board, tmp_path, env)
     daemon = start_daemon(thesis_board, {**env, "MISSING_LINK_ROS2_PREFIX": str(prefix)})
     site = prefix / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
     listener_env = {**env, "PYTHONPATH": str(site), "LD_LIBRARY_PATH": str(prefix / "lib")}
@@ -214,19 +213,8 @@ def test_a_built_type_that_differs_from_the_board_is_refused(
     refuses to publish DistIr (never sent wrong), says why, and the rest still goes out."""
     desc = tmp_path / "old.txt"
     desc.write_text("transds/1\ndist_ir,1,sharp,GP2Y0A02YK,8,int32_t,0\n")
-    prefix = tmp_path / "install"
     env = ros_env()
-    r = subprocess.run(
-        [
-            *(str(ROS2_PY), "-m", "missing_link", "create-msgs", str(desc)),
-            *("--out", str(tmp_path / "src"), "--build", str(prefix)),
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
+    prefix = build_types(str(desc), tmp_path, env)
     daemon = start_daemon(thesis_board, {**env, "MISSING_LINK_ROS2_PREFIX": str(prefix)})
     try:
         got = listen(env, "--seconds", "30", "--sub", "/thesis/dist_ir/range=sensor_msgs/msg/Range")
