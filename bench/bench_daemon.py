@@ -29,11 +29,12 @@ from bench_rpc import raw_echo_rate
 from missing_link.board.runtime import BoardRuntime, Transducer
 from missing_link.config import BoardSpec, Config
 from missing_link.daemon import BoardSession, Daemon
-from missing_link.demo import percentile, start_board_process, stop_process
+from missing_link.demo import start_board_process, stop_process
 from missing_link.descriptors import parse_transds
 from missing_link.j2a import SOF, FrameDecoder, HostConnection, SifReceived, encode_frame
 from missing_link.publishers import McapPublisher
 from missing_link.topics import Topic, Update
+from missing_link.view import percentile
 
 
 def latency(rate_hz: float, seconds: float) -> tuple[int, float, float, float, int]:
@@ -46,7 +47,7 @@ def latency(rate_hz: float, seconds: float) -> tuple[int, float, float, float, i
             def on_update(u: Update) -> None:
                 lat.append(time.monotonic_ns() / 1000 - u.board_us[0])
 
-            d.subscribe("/rate/signal", on_update)
+            d.subscribe("/rate/signal", on_update, queue=0)  # inline, as the README rows
             time.sleep(seconds)
             lost = d.status()[0]["lost_sifs"]
     finally:
@@ -86,7 +87,7 @@ def sustained(rate_hz: float, channels: int, seconds: float) -> tuple[float, int
         with Daemon(Config(boards=[BoardSpec(url)])) as d:
             assert d.wait_until_up(10)
             time.sleep(0.5)
-            d.subscribe("/rate/signal", lambda u: seen.append(u.values[0]))
+            d.subscribe("/rate/signal", lambda u: seen.append(u.values[0]), queue=0)
             t0 = time.monotonic()
             time.sleep(seconds)
             n = len(seen)
@@ -109,7 +110,7 @@ def throughput(seconds: float) -> tuple[float, float]:
     session.topics = {t.id: topic}
     daemon._declare(topic)
     got = [0]
-    daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8))
+    daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8), queue=0)
 
     def full() -> int:
         conn = HostConnection()

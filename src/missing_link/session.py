@@ -472,7 +472,7 @@ class BoardSession:
                 newest += shift
                 self.host_time_clamps += 1
             self._last_host[sif.cmd] = newest
-            stamp = None
+            stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
             stamp = recv_ns + rt_off
         update = Update(

@@ -250,6 +250,7 @@ class ClockSync:
                 return None
             last = pm.newest_mapped
             reset = outlier = False
+            h = pm.at(newest)  # unrounded: for the future check and the bound
             if last is not None and newest < last - o.reset_backstep_us:
                 consistent = self._suspects and 0 <= newest - self._suspect_last <= o.glitch_us
                 self._suspects = self._suspects + 1 if consistent else 1
@@ -259,7 +260,7 @@ class ClockSync:
                     reset = True
                 else:
                     outlier = True
-            elif now is not None and pm.at(newest) > now * 1e9 + o.glitch_us * 1000:
+            elif now is not None and h > now * 1e9 + o.glitch_us * 1000:
                 outlier = True
             else:
                 self._suspects = 0
@@ -275,7 +276,6 @@ class ClockSync:
                 self.outliers += 1
             self._next = now or 0.0  # probe at once: confirm or refute
             return None if reset else ([], -1, -1, OUTLIER)
-        h = pm.at(newest)  # unrounded, for the bound
         lo, hi = est.interval(newest)
         dev = h - est.host_at(newest)
         sigma = math.sqrt(est.sigma_ns**2 + dev * dev)
