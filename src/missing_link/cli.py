@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import threading
@@ -34,19 +35,22 @@ def _parse_hex(text: str) -> bytes:
         ) from None
 
 
-def _positive(text: str) -> float:
+def _number(text: str, allow_zero: bool) -> float:
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0 or value != value or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        raise argparse.ArgumentTypeError(f"{text} must be a number {'>=' if allow_zero else '>'} 0")
     return value
+
+
+def _positive(text: str) -> float:
+    return _number(text, allow_zero=False)
 
 
 def _non_negative(text: str) -> float:
-    value = _positive(text) if text.strip() not in ("0", "0.0") else 0.0
-    return value
+    return _number(text, allow_zero=True)
 
 
 def _count(text: str) -> int:
