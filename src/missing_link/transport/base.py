@@ -31,10 +31,9 @@ class Transport(ABC):
     #: CLOCK_MONOTONIC ns just before the newest write reached the OS (clock sync's t1); 0
     #: when the transport does not stamp (the caller's stamp is used)
     last_write_ns: int = 0
-    #: CLOCK_MONOTONIC ns when the bytes of the newest read arrived: the moment select()
-    #: returned, before the read syscall (the same layer a board's shell stamps t2 at: stamping
-    #: one side in the kernel and the other in user space would bias clock sync by half the
-    #: difference); 0 when the transport does not stamp
+    #: CLOCK_MONOTONIC ns right after the newest read returned: never earlier than the bytes'
+    #: arrival, so clock sync's t4 is a valid upper constraint (the same user-space layer a
+    #: board's shell stamps t2 at); 0 when the transport does not stamp
     last_rx_ns: int = 0
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
@@ -112,8 +111,12 @@ class FdTransport(Transport):
                 os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
             if self._fd not in ready:
                 return b""
-            self.last_rx_ns = time.monotonic_ns()
             data = self._recv(65536)
+            # After the read, never before it: between select() returning and the read, this
+            # thread can wait for the interpreter lock while another writes a request whose
+            # reply then comes back in this same read; a stamp taken before would be earlier
+            # than the request (measured: 10 µs "round trips", clock-sync bounds broken).
+            self.last_rx_ns = time.monotonic_ns()
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()
             raise TransportBroken(f"{self.url}: read failed: {e}") from e
