@@ -211,6 +211,31 @@ def test_schedule_bursts_then_slows_and_speeds_up_on_loss() -> None:
     assert st_["sync_lost"] == 1 and st_["sync_state"] == FAST and "bound_us" in st_
 
 
+def _probe_loop(sync: ClockSync, now: float, n: int, rtt_ns: int, skew: float = 20e-6) -> float:
+    """Answer ``n`` probes when due, on a link with a fixed round trip; returns the time."""
+    for _ in range(n):
+        now = max(now, sync.due())
+        t1 = int(now * 1e9)
+        b2 = math.floor((1 + skew) * (t1 + rtt_ns / 2) / 1000)
+        sync.on_exchange(Exchange(t1, b2, b2 + 5, t1 + rtt_ns), now + rtt_ns / 1e9)
+        now += rtt_ns / 1e9
+    return now
+
+
+def test_probe_rate_adapts_down_on_a_wide_link_and_up_on_an_rtt_jump() -> None:
+    """A link whose band can never reach the absolute target (200 µs round trips) still slows
+    down to ``interval`` once the band is as narrow as that link allows; a round trip far above
+    the link's best makes it probe fast again."""
+    sync = ClockSync(SyncOptions(burst_count=10, interval=0.8, target_us=1.0), seed=3)
+    sync.start(0.0)
+    now = _probe_loop(sync, 0.0, 120, 200_000)
+    assert sync.state == TRACKING
+    assert sync.status()["sync_interval_ms"] == 800.0
+    assert 0.55 < sync.due() - now <= 0.8 * 1.25 + 1e-9
+    now = _probe_loop(sync, now, 1, 3_000_000)  # one 3 ms round trip: the link changed
+    assert sync.state == FAST and sync.due() - now <= 0.05 * 1.25 + 1e-9
+
+
 def test_reset_restarts_and_flags_a_step() -> None:
     sync = ClockSync(seed=2)
     sync.start(0.0)

@@ -11,10 +11,15 @@ States::
 
 The shell asks ``due()`` when to probe next, runs an ``a2jClock`` exchange and reports it with
 ``on_exchange`` (or ``on_lost`` after a timeout).  Probing is fast on connect (``burst``); while
-tracking, the interval doubles towards ``interval`` as long as the bound is within ``target``
-and halves towards ``fast_interval`` while it is not (a link with widely spread delays needs
-more exchanges to find the few fast ones); it goes fast at once when an exchange is lost or
-lands outside the band the estimate predicted for it (the clock rate moved).
+tracking, the probe rate adapts to what keeps the bound: the interval doubles towards
+``interval`` while the band is near the best this link has given (``floor``: the narrowest band
+at an exchange, relaxing slowly so a link that got slower is re-learnt) and will not grow by
+more than a quarter before the next probe; it halves towards ``fast_interval`` while the band
+is wider than that (a link with widely spread delays needs more exchanges to find the few fast
+ones).  It goes fast at once when an exchange is lost, lands outside the band the estimate
+predicted for it (the clock rate moved) or takes far longer than the link's best (an RTT
+jump); a reset restarts the burst.  An absolute ``target_us`` is always good enough, so a
+link whose floor is wide (TCP, a bridge's latency timer) still slows down.
 
 Glitches are outliers, not resets.  One stamp (in a sample or an exchange) that lands more than
 ``glitch_us`` away from where the estimate puts the board clock -- a byte flip that passed the
@@ -57,7 +62,10 @@ class SyncOptions:
     interval: float = 0.5  #: s between probes once tracking (reached by doubling)
     fast_interval: float = 0.05  #: s between probes after a loss or a surprise
     fast_count: int = 10
-    target_us: float = 20.0  #: bound under which probing slows down (above: speeds up)
+    target_us: float = 20.0  #: a bound under which probing may always slow down
+    floor_slack: float = 1.5  #: slow down while the bound is within this factor of the floor
+    floor_relax: float = 1.02  #: the floor widens by this factor per exchange (re-learning)
+    rtt_jump: float = 4.0  #: an exchange this many times slower than the best: go fast
     window_s: float = 30.0
     max_points: int = 128
     res_us: int = 1
@@ -107,6 +115,7 @@ class ClockSync:
         self.last_rtt_ns: int | None = None
         self.min_rtt_ns: int | None = None
         self.last_error_ns = 0.0  # published - estimate at the last steer
+        self._floor_ns: float | None = None  # narrowest band half-width at an exchange
         self.started_at: float | None = None
         self.first_bound_at: float | None = None  # s after start when the bound fell below 1 ms
 
@@ -130,8 +139,7 @@ class ClockSync:
     def _advance(self, now: float, ok: bool) -> None:
         o = self.opt
         self._count += 1
-        est = self.estimator.estimate
-        good = est is not None and max(-est.lo_ns, est.hi_ns) <= o.target_us * 1000
+        good = self._bound_good(ok)
         if self.state in (BURST, FAST):
             done = o.burst_count if self.state == BURST else o.fast_count
             if self._count >= done:
@@ -141,6 +149,21 @@ class ClockSync:
         elif not good:
             self._interval = max(o.fast_interval, self._interval / 2)  # a wide band: speed up
         self._next = now + self._interval * self._rng.uniform(0.75, 1.25)
+
+    def _bound_good(self, ok: bool) -> bool:
+        # Is the band as narrow as this link allows, and will it stay so until the next probe?
+        est = self.estimator.estimate
+        if est is None:
+            return False
+        o = self.opt
+        half = max(-est.lo_ns, est.hi_ns)
+        if ok:
+            floor = self._floor_ns
+            self._floor_ns = half if floor is None else min(floor * o.floor_relax, half)
+        floor = self._floor_ns if self._floor_ns is not None else half
+        growth = 2.0 * self._interval * 1e9 * est.dskew  # widening if the interval doubles
+        limit = max(o.target_us * 1000.0, o.floor_slack * floor)
+        return half <= limit and growth <= 0.25 * max(half, o.target_us * 1000.0)
 
     # ---- input -------------------------------------------------------------------------------
     def on_exchange(self, ex: Exchange, now: float) -> AddResult:
@@ -189,9 +212,12 @@ class ClockSync:
             and est.width_ns / 2 < 1e6
         ):
             self.first_bound_at = now - self.started_at
+        best = self.min_rtt_ns or rtt
+        jump = result is AddResult.ACCEPTED and rtt > self.opt.rtt_jump * best + 200_000
         if result is AddResult.RESET:
+            self._floor_ns = None
             self._enter(BURST, now)
-        elif surprise and self.state == TRACKING:
+        elif (surprise or jump) and self.state == TRACKING:
             self._enter(FAST, now)
         elif self.state == UNSYNCED:
             self._enter(BURST, now)
@@ -210,6 +236,7 @@ class ClockSync:
 
     def _reset_locked(self) -> None:
         self.resets += 1
+        self._floor_ns = None
         self._suspects = 0
         self._far_ex = None
         self.estimator.reset()
@@ -297,6 +324,7 @@ class ClockSync:
             "sync_surprises": self.surprises,
             "sync_outliers": self.outliers,
             "sync_interval_ms": round(self._interval * 1000, 1),
+            "sync_floor_us": None if self._floor_ns is None else round(self._floor_ns / 1000, 2),
             "sync_rtt_us": None if self.last_rtt_ns is None else round(self.last_rtt_ns / 1000, 1),
             "sync_min_rtt_us": None
             if self.min_rtt_ns is None
