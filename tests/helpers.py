@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import ast
+import json
 import queue
+import shutil
 import socket
 import subprocess
 import threading
+from pathlib import Path
+from typing import Any
 
 from missing_link.errors import TransportBroken, TransportClosed
 from missing_link.transport import Transport
@@ -92,3 +97,63 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+class FirmwareSim:
+    """The MicroPython firmware from a board file, under the real MicroPython interpreter (node,
+    WebAssembly port) with simulated peripherals (firmware/micropython/sim), its J2A link on a
+    TCP port.  ``ctl(code)`` runs Python against the simulated world and returns ``result``."""
+
+    ROOT = Path(__file__).resolve().parent.parent
+    HOST = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
+
+    def __init__(self, board_file: Path | str) -> None:
+        if shutil.which("node") is None:
+            raise RuntimeError("node is required: run `make node`")
+        self.proc = subprocess.Popen(
+            ["node", str(self.HOST), str(board_file)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=self.ROOT,
+        )
+        self._lines: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._pump, daemon=True).start()
+        first = self._lines.get(timeout=60)
+        if first is None or not first.startswith("LISTEN "):
+            err = self.proc.stderr.read() if self.proc.stderr else ""
+            raise RuntimeError(f"firmware simulator did not start: {first!r} {err[-2000:]}")
+        _, port, self.ident = first.split(" ", 2)
+        self.url = f"tcp://127.0.0.1:{port}"
+        self._lock = threading.Lock()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self._lines.put(line.rstrip("\n"))
+        self._lines.put(None)
+
+    def ctl(self, code: str, timeout: float = 10.0) -> Any:
+        """Run ``code`` in the simulator (WORLD, fw, rt, machine in scope); ``result`` comes
+        back through ast.literal_eval (repr of plain values)."""
+        assert self.proc.stdin is not None
+        with self._lock:
+            self.proc.stdin.write(json.dumps(code) + "\n")
+            self.proc.stdin.flush()
+            line = self._lines.get(timeout=timeout)
+        if line is None or not line.startswith("OK "):
+            raise RuntimeError(f"simulator: {line!r}")
+        text = line[3:]
+        return float("nan") if text == "nan" else ast.literal_eval(text)
+
+    def next_line(self, timeout: float = 10.0) -> str | None:
+        return self._lines.get(timeout=timeout)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(5)
+        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()

@@ -43,6 +43,31 @@ def default_clock():
     return _monotonic_us
 
 
+def _gcd(a, b):
+    while b:
+        a, b = b, a % b
+    return a
+
+
+def resolution_us(clock, steps=5, limit_us=100000):
+    # The clock's tick, measured: the gcd of a few observed steps (reads cost several µs on a
+    # microcontroller, so one step alone overstates it).  1 on RP2040/ESP32 timers; ports whose
+    # ticks_us counts in milliseconds (the WebAssembly port) say 1000, and the host's bound
+    # widens by it (property clock.res_us).
+    start = last = clock()
+    res = 0
+    seen = 0
+    while seen < steps:
+        now = clock()
+        if now != last:
+            res = _gcd(res, now - last)
+            last = now
+            seen += 1
+        elif now - start > limit_us:
+            break
+    return max(1, res)
+
+
 def new_epoch():
     # A value that differs at every boot, so the host can tell a reset (property clock.epoch).
     try:
@@ -50,5 +75,6 @@ def new_epoch():
 
         raw = os.urandom(4)
     except Exception:  # noqa: BLE001 - ports without urandom fall back to the tick counter
-        raw = bytes(((default_clock()() >> s) & 0xFF for s in (0, 8, 16, 24)))
+        t = time.ticks_us() if hasattr(time, "ticks_us") else time.monotonic_ns()
+        raw = bytes(((t >> s) & 0xFF for s in (0, 8, 16, 24)))
     return "".join("%02x" % b for b in raw)

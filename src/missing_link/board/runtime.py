@@ -16,7 +16,9 @@
 # attached) the oldest SIFs are dropped and counted, like a UART with nobody listening.
 #
 # Drivers follow the thesis rule: driver.set_cb(fn); the driver calls fn(channel, value) when it
-# has a new value.  The runtime stamps the value with the board clock at that moment.  A channel
+# has a new value.  The runtime stamps the value with the board clock at that moment, unless the
+# driver passes its own stamp (fn(channel, value, stamp_us): taken in an interrupt or computed
+# from the measurement, e.g. half an ultrasonic echo's flight after the ping).  A channel
 # that already holds an unsent value flushes the transducer's SIF first, so no value is lost.
 # Drivers that need CPU time implement poll(now_us) and next_due_us().
 #
@@ -236,8 +238,8 @@ class BoardRuntime:
             self.drivers.append(driver)
             if hasattr(driver, "set_cb"):
 
-                def cb(channel, value, _t=transducer):
-                    self.record(_t, channel, value)
+                def cb(channel, value, stamp_us=None, _t=transducer):
+                    self.record(_t, channel, value, stamp_us)
 
                 driver.set_cb(cb)
 
@@ -247,13 +249,16 @@ class BoardRuntime:
             self._debug = self._debug[-255:]
 
     # ---- samples -------------------------------------------------------------------------
-    def record(self, transducer, channel, value):
-        # Called by drivers (through set_cb): stamp now, keep until the next poll().
-        now = self.clock()
+    def record(self, transducer, channel, value, stamp_us=None):
+        # Called by drivers (through set_cb): stamp now, or at stamp_us when the driver took the
+        # stamp closer to the measurement (in an interrupt, at an echo); keep until poll().
+        now = self.clock() if stamp_us is None else stamp_us
         if not (0 <= channel < transducer.chan_count):
             self.debug("%s: no channel %d;" % (transducer.name, channel))
             return
-        if value is None or not transducer.legal(value):
+        if value is None:
+            value = transducer.na  # the driver says: no valid measurement
+        elif not transducer.legal(value):
             transducer.values_dropped += 1
             value = transducer.na
         if transducer._pending[channel] is not None:

@@ -1,0 +1,113 @@
+// Runs a missing-link MicroPython firmware under the real MicroPython interpreter (WebAssembly
+// port, from npm) with simulated peripherals, and serves its J2A link on a TCP port on 127.0.0.1.
+//
+//   node host.mjs BOARDFILE [--port N]
+//
+// Prints "LISTEN <port> <micropython version>" when ready.  Lines on stdin are control requests
+// for the simulated world: a JSON string of Python code (setting `result`); each gets one line
+// back, "OK <repr(result)>" or "ERR <message>".  The firmware stepping its own loop, the bytes
+// of the link moved between the socket and the firmware as they come.  "BREAK" is printed when the
+// firmware stops for the REPL (two Ctrl-C between frames); the process then exits 0.
+import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
+import { readFileSync, readdirSync, statSync } from "node:fs";
+import { createServer } from "node:net";
+import { createInterface } from "node:readline";
+import { dirname, join } from "node:path";
+import { fileURLToPath } from "node:url";
+
+const here = dirname(fileURLToPath(import.meta.url));
+const root = join(here, "..", "..", "..");
+const args = process.argv.slice(2);
+const boardFile = args[0];
+const portArg = args.indexOf("--port") >= 0 ? Number(args[args.indexOf("--port") + 1]) : 0;
+
+const mp = await loadMicroPython({
+  stdout: (line) => process.stderr.write("mpy: " + line + "\n"),
+  stderr: (line) => process.stderr.write("mpy! " + line + "\n"),
+});
+
+function copyTree(src, dst) {
+  mp.FS.mkdir(dst);
+  for (const name of readdirSync(src)) {
+    const p = join(src, name);
+    if (statSync(p).isDirectory()) {
+      if (name !== "__pycache__") copyTree(p, dst + "/" + name);
+    } else if (name.endsWith(".py")) {
+      mp.FS.writeFile(dst + "/" + name, readFileSync(p));
+    }
+  }
+}
+mp.FS.mkdir("/lib");
+copyTree(join(root, "src", "missing_link", "board"), "/lib/mlboard");
+mp.FS.writeFile("/lib/machine.py", readFileSync(join(here, "machine.py")));
+mp.FS.writeFile("/lib/simhost.py", readFileSync(join(here, "host.py")));
+mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
+mp.runPython("import sys\nsys.path.append('/lib')\nfrom simhost import _feed, _tick, _due_us, _ctl, _ident\n");
+const feed = mp.globals.get("_feed");
+const tick = mp.globals.get("_tick");
+const dueUs = mp.globals.get("_due_us");
+const ctl = mp.globals.get("_ctl");
+const ident = mp.globals.get("_ident")();
+
+let sock = null;
+let pending = null; // the next run(): { immediate } or { timeout }
+function cancel() {
+  if (pending === null) return;
+  if (pending.immediate) clearImmediate(pending.immediate);
+  else clearTimeout(pending.timeout);
+  pending = null;
+}
+function run() {
+  pending = null;
+  let out;
+  try {
+    out = tick();
+  } catch (e) {
+    process.stderr.write("firmware crashed: " + String(e) + "\n");
+    process.exit(3);
+  }
+  if (out === "BREAK") {
+    process.stdout.write("BREAK\n");
+    process.exit(0);
+  }
+  if (out && sock) sock.write(Buffer.from(out, "hex"));
+  schedule(Boolean(out));
+}
+// Step again at once after input or output (more may be queued), else at the drivers' next
+// deadline, at most 5 ms later (the firmware's own receive timeout needs a poll).
+function schedule(now) {
+  if (pending !== null && !now) return;
+  cancel();
+  const due = now ? 0 : dueUs();
+  const ms = due < 0 ? 5 : Math.min(5, Math.floor(due / 1000));
+  pending = ms <= 0 ? { immediate: setImmediate(run) } : { timeout: setTimeout(run, ms) };
+}
+
+const server = createServer((s) => {
+  if (sock) sock.destroy();
+  sock = s;
+  s.setNoDelay(true);
+  s.on("data", (d) => {
+    feed(d.toString("hex"));
+    schedule(true);
+  });
+  s.on("close", () => {
+    if (sock === s) sock = null;
+  });
+  s.on("error", () => {});
+});
+server.listen(portArg, "127.0.0.1", () => {
+  process.stdout.write(`LISTEN ${server.address().port} ${ident}\n`);
+  schedule(true);
+});
+
+const rl = createInterface({ input: process.stdin });
+rl.on("line", (line) => {
+  try {
+    process.stdout.write("OK " + ctl(JSON.parse(line)) + "\n");
+  } catch (e) {
+    process.stdout.write("ERR " + String(e).split("\n").join(" | ") + "\n");
+  }
+  schedule(true);
+});
+rl.on("close", () => process.exit(0));

@@ -1,0 +1,342 @@
+# A `machine` module for MicroPython's WebAssembly port whose peripherals are simulated at their
+# interfaces, so the firmware's drivers run byte for byte as on a board.
+#
+# Pins keep a level and an IRQ handler; a level change made by the world (an encoder phase, a
+# bouncing bumper) calls the handler at once, as an interrupt between two bytecodes would.
+# ADC.read_u16 converts the voltage the world puts on the pin as a 12-bit converter does (RP2040)
+# and scales it to 16 bit.  PWM keeps frequency and duty as set.  I2C dispatches to device models
+# by (bus, address); an absent or busy device does not acknowledge: OSError(EIO), as rp2.
+# The device models (SRF02, MPU-6050, the Sharp ranger's curve) follow their datasheets, with
+# their own tables: the drivers are checked against them, not against themselves.
+#
+# WORLD holds everything; a test drives it through the simulator host's control channel.
+
+import time
+
+EIO = 5
+VREF = 3.3
+
+
+class _PinState:
+    def __init__(self):
+        self.level = 0
+        self.handler = None
+        self.trigger = 0
+        self.pin = None
+        self.irqs = 0
+        self.driven = False  # the world has set this level (a pull-up no longer decides it)
+
+
+class World:
+    def __init__(self):
+        self.pins = {}
+        self.volts = {}  # pin -> volts at the ADC
+        self.sharp = {}  # pin -> distance in mm seen by a GP2Y0A02YK on that ADC pin
+        self.pwms = {}  # pin -> PWM
+        self.i2c = {}  # (bus, 7-bit address) -> device model
+        self.adc_reads = 0
+
+    def pin(self, pin_id):
+        st = self.pins.get(pin_id)
+        if st is None:
+            st = self.pins[pin_id] = _PinState()
+        return st
+
+    def set_level(self, pin_id, level):
+        st = self.pin(pin_id)
+        st.driven = True
+        level = 1 if level else 0
+        if st.level == level:
+            return
+        st.level = level
+        mask = Pin.IRQ_RISING if level else Pin.IRQ_FALLING
+        if st.handler is not None and st.trigger & mask:
+            st.irqs += 1
+            st.handler(st.pin)
+
+    # ---- encoder phases: Gray code A/B, one edge per step ----
+    def encoder_steps(self, pin_a, pin_b, steps):
+        seq = ((0, 0), (1, 0), (1, 1), (0, 1))  # A leads B: forward
+        for _ in range(abs(steps)):
+            a, b = self.pin(pin_a).level, self.pin(pin_b).level
+            i = seq.index((a, b))
+            na, nb = seq[(i + (1 if steps > 0 else -1)) % 4]
+            if na != a:
+                self.set_level(pin_a, na)
+            else:
+                self.set_level(pin_b, nb)
+
+    def encoder_glitch(self, pin_a, pin_b):
+        # both phases change between two interrupts: an edge the firmware cannot have seen
+        st_a, st_b = self.pin(pin_a), self.pin(pin_b)
+        st_a.level ^= 1
+        st_b.level ^= 1
+        if st_b.handler is not None:
+            st_b.handler(st_b.pin)
+
+    def bounce(self, pin_id, level, bounces=5):
+        for _ in range(bounces):
+            self.set_level(pin_id, level)
+            self.set_level(pin_id, 1 - level)
+        self.set_level(pin_id, level)
+
+    def adc_volts(self, pin_id):
+        if pin_id in self.sharp:
+            return sharp_volts(self.sharp[pin_id])
+        return self.volts.get(pin_id, 0.0)
+
+    def pulse_us(self, pin_id):
+        p = self.pwms.get(pin_id)
+        return None if p is None else p._duty_ns / 1000
+
+
+WORLD = World()
+
+
+# ---- the GP2Y0A02YK0F's output (datasheet fig. "analog output voltage vs distance", typical,
+# white paper): (cm, V), linear between points; closer than 15 cm the output falls again.
+_SHARP = (
+    (0, 0.0), (5, 1.6), (10, 2.35), (15, 2.75), (20, 2.5), (30, 2.0), (40, 1.55), (50, 1.25),
+    (60, 1.05), (70, 0.9), (80, 0.8), (90, 0.72), (100, 0.65), (120, 0.55), (150, 0.41),
+    (200, 0.35), (300, 0.3),
+)
+
+
+def sharp_volts(mm):
+    cm = mm / 10
+    for i in range(1, len(_SHARP)):
+        c1, v1 = _SHARP[i]
+        if cm <= c1:
+            c0, v0 = _SHARP[i - 1]
+            return v0 + (v1 - v0) * (cm - c0) / (c1 - c0)
+    return _SHARP[-1][1]
+
+
+class Pin:
+    IN = 0
+    OUT = 1
+    OPEN_DRAIN = 2
+    PULL_UP = 1
+    PULL_DOWN = 2
+    IRQ_FALLING = 4
+    IRQ_RISING = 8
+
+    def __init__(self, pin_id, mode=-1, pull=None, value=None):
+        self.id = pin_id
+        st = WORLD.pin(pin_id)
+        st.pin = self
+        if pull == Pin.PULL_UP and not st.driven:
+            st.level = 1
+        if value is not None:
+            st.level = 1 if value else 0
+
+    def value(self, v=None):
+        st = WORLD.pin(self.id)
+        if v is None:
+            return st.level
+        st.level = 1 if v else 0
+        return None
+
+    def irq(self, handler=None, trigger=IRQ_FALLING | IRQ_RISING, hard=False):
+        st = WORLD.pin(self.id)
+        st.handler = handler
+        st.trigger = trigger
+
+
+class ADC:
+    def __init__(self, pin):
+        self.id = pin.id if isinstance(pin, Pin) else pin
+
+    def read_u16(self):
+        WORLD.adc_reads += 1
+        v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
+        code12 = int(v / VREF * 4095 + 0.5)
+        return (code12 << 4) | (code12 >> 8)  # as rp2 scales 12 to 16 bit
+
+
+class PWM:
+    def __init__(self, pin, freq=None, duty_ns=None):
+        self.id = pin.id
+        self._freq = 0
+        self._duty_ns = 0
+        WORLD.pwms[self.id] = self
+        if freq is not None:
+            self.freq(freq)
+        if duty_ns is not None:
+            self.duty_ns(duty_ns)
+
+    def freq(self, f=None):
+        if f is None:
+            return self._freq
+        if not 8 <= f <= 62500000:
+            raise ValueError("freq out of range")
+        self._freq = f
+        return None
+
+    def duty_ns(self, ns=None):
+        if ns is None:
+            return self._duty_ns
+        if ns < 0:
+            raise ValueError("duty must be >= 0")
+        period = 1000000000 // self._freq if self._freq else 0
+        self._duty_ns = min(ns, period) if period else ns
+        return None
+
+    def duty_u16(self, d=None):
+        period = 1000000000 // self._freq
+        if d is None:
+            return self._duty_ns * 65535 // period
+        self._duty_ns = d * period // 65535
+        return None
+
+    def deinit(self):
+        WORLD.pwms.pop(self.id, None)
+
+
+class I2C:
+    def __init__(self, bus_id, scl=None, sda=None, freq=400000, timeout=50000):
+        self.id = bus_id
+        self.freq = freq
+
+    def _dev(self, addr):
+        dev = WORLD.i2c.get((self.id, addr))
+        if dev is None or not dev.ack():
+            raise OSError(EIO)
+        return dev
+
+    def scan(self):
+        return sorted(a for (b, a), d in WORLD.i2c.items() if b == self.id and d.ack())
+
+    def writeto_mem(self, addr, reg, buf):
+        self._dev(addr).write(reg, bytes(buf))
+
+    def readfrom_mem(self, addr, reg, n):
+        return bytes(self._dev(addr).read(reg, n))
+
+    def writeto(self, addr, buf, stop=True):
+        buf = bytes(buf)
+        dev = self._dev(addr)
+        if buf:
+            dev.write(buf[0], buf[1:])
+        return len(buf)
+
+    def readfrom(self, addr, n, stop=True):
+        return bytes(self._dev(addr).read(None, n))
+
+
+def _now_us():
+    return time.ticks_us()
+
+
+class SRF02:
+    # Devantech SRF02 (datasheet "SRF02 Ultrasonic range finder", I2C mode): 6 registers; a
+    # ranging takes 65 ms during which it does not acknowledge; range in the unit asked for.
+    REVISION = 6
+    BUSY_US = 65000
+
+    def __init__(self, bus, address=0x70):
+        self.bus = bus
+        self.address = address
+        self.distance_cm = 100.0
+        self.echo = True  # False: nothing in range (range reads 0)
+        self._busy_until = None
+        self._range = 0
+        self._min = 18
+        self._seq = []
+        self.rangings = 0
+        WORLD.i2c[(bus, address)] = self
+
+    def ack(self):
+        if self._busy_until is None:
+            return True
+        if time.ticks_diff(_now_us(), self._busy_until) >= 0:
+            self._busy_until = None
+            return True
+        return False
+
+    def write(self, reg, data):
+        if reg != 0 or len(data) != 1:
+            return
+        cmd = data[0]
+        if cmd in (0x50, 0x51, 0x52):
+            self._seq = []
+            self.rangings += 1
+            cm = self.distance_cm if self.echo else 0
+            self._range = {0x50: int(cm / 2.54), 0x51: int(cm), 0x52: int(cm * 58.3)}[cmd]
+            self._busy_until = time.ticks_add(_now_us(), self.BUSY_US)
+            return
+        self._seq.append(cmd)
+        if self._seq[:3] == [0xA0, 0xAA, 0xA5][: len(self._seq[:3])] and len(self._seq) == 4:
+            new = cmd >> 1
+            if cmd & 1 == 0 and 0x70 <= new <= 0x7F:
+                del WORLD.i2c[(self.bus, self.address)]
+                self.address = new
+                WORLD.i2c[(self.bus, new)] = self
+            self._seq = []
+        elif self._seq != [0xA0, 0xAA, 0xA5][: len(self._seq)]:
+            self._seq = []
+
+    def read(self, reg, n):
+        regs = [
+            self.REVISION,
+            0x80,
+            (self._range >> 8) & 0xFF,
+            self._range & 0xFF,
+            0,
+            self._min,
+        ]
+        reg = 0 if reg is None else reg
+        return [regs[r] if r < len(regs) else 0 for r in range(reg, reg + n)]
+
+
+class MPU6050:
+    # InvenSense MPU-6050 (register map rev 4.2): asleep at power-up (PWR_MGMT_1 = 0x40), data
+    # registers read 0 while asleep; scaled by GYRO_CONFIG / ACCEL_CONFIG's FS_SEL bits.
+    def __init__(self, bus, address=0x68):
+        self.regs = bytearray(128)
+        self.regs[0x6B] = 0x40
+        self.regs[0x75] = 0x68
+        self.accel_g = (0.0, 0.0, 1.0)
+        self.gyro_dps = (0.0, 0.0, 0.0)
+        self.temp_c = 25.0
+        WORLD.i2c[(bus, address)] = self
+
+    def ack(self):
+        return True
+
+    def write(self, reg, data):
+        for i, b in enumerate(data):
+            self.regs[reg + i] = b
+
+    def _sample(self):
+        if self.regs[0x6B] & 0x40:
+            return bytes(14)
+        afs = (self.regs[0x1C] >> 3) & 3
+        fs = (self.regs[0x1B] >> 3) & 3
+        a = [int(round(g * (16384 >> afs))) for g in self.accel_g]
+        w = [int(round(d * 131.0 / (1 << fs))) for d in self.gyro_dps]
+        t = int(round((self.temp_c - 36.53) * 340))
+        vals = a + [t] + w
+        out = bytearray()
+        for v in vals:
+            v = max(-32768, min(32767, v)) & 0xFFFF
+            out.append(v >> 8)
+            out.append(v & 0xFF)
+        return out
+
+    def read(self, reg, n):
+        if reg == 0x3B:
+            return self._sample()[:n]
+        return self.regs[reg : reg + n]
+
+
+def unique_id():
+    return b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"
+
+
+def freq():
+    return 125000000
+
+
+def reset():
+    raise SystemExit("machine.reset()")

@@ -1,0 +1,65 @@
+# Sensor and actuator drivers for MicroPython's `machine` API (the thesis rig and common parts).
+#
+# Every driver follows the board rule: set_cb(fn), then fn(channel, value[, stamp_us]) when it
+# has a measurement; drivers that need CPU time implement poll(now_us) and next_due_us().  A
+# driver gets the `machine` module and the board clock passed in, so nothing here imports a
+# port: the same code runs on RP2040, ESP32, CPython (host-side checks) and the simulator.
+#
+# A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS);
+# a board file entry may override any of them.  An actuator has command(payload) -> (code, reply),
+# registered as the J2A function named by the entry's `call`.
+#
+# DRIVERS maps the board file's `driver` names to module and class, imported only when used (RAM).
+
+DRIVERS = {
+    "quadrature": ("encoder", "Quadrature"),
+    "sharp_gp2y0a02": ("sharp", "SharpGP2Y0A02"),
+    "srf02": ("srf02", "SRF02"),
+    "servo": ("servo", "Servo"),
+    "digital": ("digital", "DigitalIn"),
+    "analog": ("analog", "AnalogIn"),
+    "mpu6050": ("mpu6050", "MPU6050"),
+}
+
+
+def driver_class(name):
+    if name not in DRIVERS:
+        raise ValueError("unknown driver %s (known: %s)" % (name, ", ".join(sorted(DRIVERS))))
+    module, cls = DRIVERS[name]
+    mod = __import__(__name__ + "." + module, None, None, [cls])
+    return getattr(mod, cls)
+
+
+class Periodic:
+    # A driver that measures every period: poll(now) calls measure(now) when due.  A late poll
+    # skips the missed slots instead of bursting to catch up (a stale burst measures nothing).
+    def __init__(self, clock, rate_hz):
+        if not rate_hz > 0:
+            raise ValueError("rate_hz must be > 0")
+        self.clock = clock
+        self.period_us = max(1, int(1000000 / rate_hz))
+        self._due = None
+        self._cb = None
+
+    def set_cb(self, fn):
+        self._cb = fn
+
+    def emit(self, channel, value, stamp_us=None):
+        if self._cb is not None:
+            self._cb(channel, value, stamp_us)
+
+    def next_due_us(self):
+        return self._due
+
+    def poll(self, now):
+        if self._due is None:
+            self._due = now
+        if now < self._due:
+            return
+        self._due += self.period_us
+        if self._due <= now:
+            self._due = now + self.period_us
+        self.measure(now)
+
+    def measure(self, now):
+        raise NotImplementedError

@@ -1,0 +1,76 @@
+# InvenSense MPU-6050 IMU on I2C (address 0x68, 0x69 with AD0 high): accelerometer, gyroscope
+# and die temperature.
+#
+# Start-up: WHO_AM_I (0x75) must read 0x68; PWR_MGMT_1 (0x6B) = 0x01 wakes the chip on the X gyro's
+# PLL (the datasheet's recommended clock); CONFIG (0x1A) sets the digital low-pass filter;
+# GYRO_CONFIG (0x1B) and ACCEL_CONFIG (0x1C) set the full-scale ranges.  Each sample is one
+# 14-byte burst read from ACCEL_XOUT_H (0x3B): ax ay az temp gx gy gz, big-endian int16, so all
+# seven come from the same instant.  Scaling (register map rev 4.2): accel 16384 LSB/g at +-2 g,
+# halving per range step; gyro 131 LSB/(deg/s) at +-250 deg/s, halving per step; temperature
+# raw / 340 + 36.53 degC.  Published as float: m/s^2, rad/s, degC.  A bus error gives N/A on all
+# channels; the chip is re-initialised on the next sample (it may have browned out).
+
+import struct
+
+from . import Periodic
+
+G = 9.80665
+DEG = 3.141592653589793 / 180
+ACCEL_RANGES = (2, 4, 8, 16)
+GYRO_RANGES = (250, 500, 1000, 2000)
+
+
+class MPU6050(Periodic):
+    PREFIX = "imu"
+    MODEL = "MPU-6050"
+    CHANNELS = 7
+    DTYPE = "float"
+    NA = float("nan")
+    # channels: ax ay az (m/s2), die temperature (degC), gx gy gz (rad/s)
+    OPTIONS = {"kind": "sensor", "unit": "SI"}
+
+    def __init__(
+        self, machine, clock, i2c, address=0x68, rate_hz=100, accel_g=2, gyro_dps=250, dlpf=3
+    ):
+        Periodic.__init__(self, clock, rate_hz)
+        if accel_g not in ACCEL_RANGES or gyro_dps not in GYRO_RANGES:
+            raise ValueError("mpu6050: accel_g in %s, gyro_dps in %s" % (ACCEL_RANGES, GYRO_RANGES))
+        self._i2c = i2c
+        self.address = address
+        self._afs = ACCEL_RANGES.index(accel_g)
+        self._fs = GYRO_RANGES.index(gyro_dps)
+        self._dlpf = dlpf & 7
+        self._accel = G / (16384 >> self._afs)
+        self._gyro = DEG / (131.0 / (1 << self._fs))
+        self._ok = False
+        self.bus_errors = 0
+
+    def init(self):
+        i2c, a = self._i2c, self.address
+        who = i2c.readfrom_mem(a, 0x75, 1)[0]
+        if who != 0x68:
+            raise OSError("mpu6050: WHO_AM_I is 0x%02x, expected 0x68" % who)
+        i2c.writeto_mem(a, 0x6B, b"\x01")
+        i2c.writeto_mem(a, 0x1A, bytes((self._dlpf,)))
+        i2c.writeto_mem(a, 0x1B, bytes((self._fs << 3,)))
+        i2c.writeto_mem(a, 0x1C, bytes((self._afs << 3,)))
+        self._ok = True
+
+    def measure(self, now):
+        try:
+            if not self._ok:
+                self.init()
+            stamp = self.clock()
+            ax, ay, az, t, gx, gy, gz = struct.unpack(
+                ">7h", self._i2c.readfrom_mem(self.address, 0x3B, 14)
+            )
+        except OSError:
+            self.bus_errors += 1
+            self._ok = False
+            for ch in range(7):
+                self.emit(ch, None, now)
+            return
+        k, w = self._accel, self._gyro
+        values = (ax * k, ay * k, az * k, t / 340.0 + 36.53, gx * w, gy * w, gz * w)
+        for ch in range(7):
+            self.emit(ch, values[ch], stamp)

@@ -1,0 +1,57 @@
+# Hobby servo (e.g. Hitec HS-645MG) on a PWM output: 50 Hz frame, the pulse width sets the angle.
+#
+# Commanded over J2A with one int8 (-127..127 = -range_deg..+range_deg, as the thesis's servo):
+# the pulse is centre_us + value / 127 * half_span_us, clamped to [min_us, max_us] so a wrong
+# command can never drive the horn into its end stop.  -128 is the N/A value and is refused.
+# The servo cannot report where it is, so the transducer reports the commanded value (stamped
+# when the new pulse width took effect); until the first command it outputs no pulse at all
+# (the servo stays limp) and reports nothing.
+
+import struct
+
+
+class Servo:
+    PREFIX = "servo"
+    MODEL = "HS-645MG"
+    CHANNELS = 1
+    DTYPE = "int8_t"
+    NA = -128
+    OPTIONS = {"unit": "deg", "kind": "actuator", "scale": "0.708661"}
+
+    def __init__(
+        self, machine, clock, pin, freq=50, min_us=900, max_us=2100, centre_us=1500, span_us=1200
+    ):
+        if not (min_us < centre_us < max_us):
+            raise ValueError("servo: need min_us < centre_us < max_us")
+        self.clock = clock
+        self._pwm = machine.PWM(machine.Pin(pin))
+        self._pwm.freq(freq)
+        self._pwm.duty_ns(0)
+        self._frame_ns = 1000000000 // freq
+        self.min_us = min_us
+        self.max_us = max_us
+        self.centre_us = centre_us
+        self.half_span_us = span_us / 2
+        self.pulse_us = None
+        self.commands = 0
+        self._cb = None
+
+    def set_cb(self, fn):
+        self._cb = fn
+
+    def pulse_for(self, value):
+        us = self.centre_us + value * self.half_span_us / 127
+        return max(self.min_us, min(self.max_us, int(us + 0.5)))
+
+    def command(self, payload):
+        if len(payload) != 1:
+            return 0xFF, b"expects one int8"
+        value = struct.unpack("<b", payload)[0]
+        if value == -128:
+            return 0xFF, b"-128 is N/A"
+        self.pulse_us = self.pulse_for(value)
+        self._pwm.duty_ns(self.pulse_us * 1000)
+        self.commands += 1
+        if self._cb is not None:
+            self._cb(0, value, self.clock())
+        return 0, struct.pack("<H", self.pulse_us)

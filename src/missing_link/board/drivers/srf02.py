@@ -1,0 +1,107 @@
+# Devantech SRF02 ultrasonic ranger on I2C (default address 0xE0 in the datasheet's 8-bit form,
+# 0x70 for machine.I2C).
+#
+# Registers: 0 = command (write) / software revision (read), 1 = unused (reads 0x80), 2-3 = range
+# high/low byte, 4-5 = autotune minimum range.  Writing 0x50/0x51/0x52 to register 0 starts a
+# ranging in inches/cm/µs; for up to 65 ms the SRF02 does not answer on the bus (reads NACK, or
+# 0xFF on some masters), so we poll register 0 from 65 ms on and give up (N/A) at 100 ms.
+# A range of 0 (no echo) or below the minimum range is N/A.  The sample is stamped when the echo
+# reflected: the ping's start plus half the echo's flight (µs mode gives it directly; in cm it is
+# range * 58.3 µs).  The address is changed with the sequence 0xA0, 0xAA, 0xA5, new address
+# written to register 0 in four transactions (change_address).
+
+from . import Periodic
+
+CMD_INCH = 0x50
+CMD_CM = 0x51
+CMD_US = 0x52
+RANGING_US = 65000
+GIVE_UP_US = 100000
+CHECK_US = 5000
+US_PER_CM = 58.3  # round trip of sound at 343 m/s over 1 cm
+
+
+class SRF02(Periodic):
+    PREFIX = "srf02"
+    MODEL = "SRF02"
+    CHANNELS = 1
+    DTYPE = "uint16_t"
+    NA = 0
+    OPTIONS = {"unit": "cm", "kind": "sensor", "ros": "sensor_msgs/msg/Range"}
+
+    def __init__(self, machine, clock, i2c, address=0x70, rate_hz=10, units="cm", min_range=16):
+        Periodic.__init__(self, clock, min(rate_hz, 1000000 / RANGING_US))
+        self._i2c = i2c
+        self.address = address
+        if units not in ("cm", "us", "inch"):
+            raise ValueError("srf02 units: cm, us or inch")
+        self._units = units
+        self._cmd = {"cm": CMD_CM, "us": CMD_US, "inch": CMD_INCH}[units]
+        self._min = min_range
+        self._ping_us = None  # when the running ranging started
+        self._check_us = None
+        self.timeouts = 0
+        self.bus_errors = 0
+
+    def next_due_us(self):
+        return self._check_us if self._ping_us is not None else self._due
+
+    def poll(self, now):
+        if self._ping_us is None:
+            Periodic.poll(self, now)
+            return
+        if now < self._check_us:
+            return
+        if self._ready():
+            self._finish(now)
+        elif now - self._ping_us >= GIVE_UP_US:
+            self.timeouts += 1
+            self._ping_us = None
+            self.emit(0, None, now)
+        else:
+            self._check_us = now + CHECK_US
+
+    def measure(self, now):
+        try:
+            self._i2c.writeto_mem(self.address, 0, bytes((self._cmd,)))
+        except OSError:
+            self.bus_errors += 1
+            self.emit(0, None, now)
+            return
+        self._ping_us = self.clock()
+        self._check_us = self._ping_us + RANGING_US
+
+    def _ready(self):
+        try:
+            return self._i2c.readfrom_mem(self.address, 0, 1)[0] != 0xFF
+        except OSError:
+            return False  # busy ranging: the SRF02 does not acknowledge
+
+    def _finish(self, now):
+        ping = self._ping_us
+        self._ping_us = None
+        try:
+            hi, lo = self._i2c.readfrom_mem(self.address, 2, 2)
+        except OSError:
+            self.bus_errors += 1
+            self.emit(0, None, now)
+            return
+        value = (hi << 8) | lo
+        if self._units == "us":
+            flight, too_close = value, value < self._min * US_PER_CM
+        elif self._units == "cm":
+            flight, too_close = value * US_PER_CM, value < self._min
+        else:
+            flight, too_close = value * 2.54 * US_PER_CM, value * 2.54 < self._min
+        if value == 0 or too_close:
+            self.emit(0, None, now)
+        else:
+            self.emit(0, value, ping + int(flight / 2))
+
+    def change_address(self, new_address):
+        # 7-bit address (0x70..0x7F); the datasheet lists 8-bit 0xE0..0xFE.
+        if not 0x70 <= new_address <= 0x7F:
+            raise ValueError("SRF02 addresses are 0x70..0x7F (8-bit 0xE0..0xFE)")
+        for b in (0xA0, 0xAA, 0xA5, new_address << 1):
+            self._i2c.writeto_mem(self.address, 0, bytes((b,)))
+        self.address = new_address

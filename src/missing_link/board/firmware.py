@@ -1,0 +1,157 @@
+# The firmware of a MicroPython sensor board: a board file in, a running J2A board out.
+#
+# Theory of operation
+# -------------------
+# The board file (board.py on the device, `BOARD = {...}`, the same file the host reads for
+# `missing-link flash` and `gen-firmware`) names the board, its link, its buses and its
+# transducers, each with a driver from mlboard.drivers and that driver's pins and options.
+# build() turns it into a BoardRuntime: one Transducer per entry, its descriptor fields from the
+# driver's defaults overridden by the entry, actuators registered as J2A functions.
+#
+# Firmware.step() is one turn of the board's loop: read what the link has, feed it to the runtime
+# (which answers requests at once), let the drivers run (poll), write replies then SIFs.
+# Firmware.run() repeats it for ever, sleeping on the link until input or the next driver
+# deadline.  The simulator calls step() itself.
+#
+# The way back to the REPL: main.py turns Ctrl-C off (a 0x03 inside a frame is data), so two
+# 0x03 bytes in a row *between* frames (where J2A never sends them) stop the firmware and give
+# the REPL back, with Ctrl-C re-enabled.  mpremote and pyboard.py send exactly "\r\x03\x03"
+# before they take over, so `mpremote` and `missing-link flash` work on a running board.
+
+from .clock import resolution_us
+from .drivers import driver_class
+from .runtime import BoardRuntime, Transducer
+
+RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options")
+BREAK = 0x03
+
+
+class BreakIn(Exception):
+    pass
+
+
+def _serial(machine):
+    try:
+        return "".join("%02x" % b for b in machine.unique_id())
+    except Exception:  # noqa: BLE001 - a port without unique_id: the board file must name it
+        return "unknown"
+
+
+def open_buses(board, machine):
+    buses = {}
+    for name, cfg in board.get("buses", {}).items():
+        cfg = dict(cfg)
+        kind = cfg.pop("kind", "i2c")
+        if kind != "i2c":
+            raise ValueError("bus %s: only i2c buses are supported" % name)
+        bus_id = cfg.pop("id", 0)
+        if "scl" in cfg:
+            cfg["scl"] = machine.Pin(cfg["scl"])
+        if "sda" in cfg:
+            cfg["sda"] = machine.Pin(cfg["sda"])
+        buses[name] = machine.I2C(bus_id, **cfg)
+    return buses
+
+
+def build(board, machine, clock=None):
+    # -> (runtime, {transducer name: driver})
+    name = board["name"]
+    rt = BoardRuntime(
+        name,
+        board.get("model", "missing-link micropython board"),
+        board.get("serial") or _serial(machine),
+        fw_version=board.get("fw_version", "0.2.0"),
+        clock=clock,
+    )
+    rt.set_property("clock.res_us", str(resolution_us(rt.clock)))
+    buses = open_buses(board, machine)
+    drivers = {}
+    for entry in board["transducers"]:
+        cls = driver_class(entry["driver"])
+        params = {}
+        for key in entry:
+            if key not in RESERVED:
+                params[key] = entry[key]
+        if "bus" in entry:
+            if entry["bus"] not in buses:
+                raise ValueError("%s: no bus %s in the board file" % (entry["name"], entry["bus"]))
+            params["i2c"] = buses[entry["bus"]]
+        drv = cls(machine, rt.clock, **params)
+        options = {}
+        for key in cls.OPTIONS:
+            options[key] = cls.OPTIONS[key]
+        for key in entry.get("options", {}):
+            options[key] = entry["options"][key]
+        if hasattr(drv, "command"):
+            call = entry.get("call", "a2j_set_" + entry["name"])
+            rt.add_function(call, drv.command)
+            options["kind"] = "actuator"
+            options["call"] = call
+        if "rate_hz" in entry:
+            options["rate_hz"] = entry["rate_hz"]
+        t = Transducer(
+            entry["name"],
+            entry["id"],
+            entry.get("prefix", cls.PREFIX),
+            entry.get("model", cls.MODEL),
+            cls.CHANNELS,
+            entry.get("dtype", cls.DTYPE),
+            entry.get("na", cls.NA),
+            **options,
+        )
+        rt.add_transducer(t, drv)
+        drivers[entry["name"]] = drv
+    return rt, drivers
+
+
+class Firmware:
+    def __init__(self, board, machine, link, clock=None):
+        self.board = board
+        self.runtime, self.drivers = build(board, machine, clock)
+        self.link = link
+        self._breaks = 0
+
+    def step(self):
+        rt = self.runtime
+        data = self.link.read()
+        if data:
+            self._check_break(data)
+            rt.feed(data)
+        rt.poll()
+        out = rt.take_output()
+        if out:
+            self.link.write(out)
+
+    def _check_break(self, data):
+        for b in data:
+            if b == BREAK and not self.runtime.parser.in_frame():
+                self._breaks += 1
+                if self._breaks >= 2:
+                    raise BreakIn()
+            else:
+                self._breaks = 0
+
+    def run(self):
+        rt = self.runtime
+        while True:
+            self.step()
+            due = rt.next_deadline_us()
+            wait = 10000 if due is None else due - rt.clock()
+            if wait > 0:
+                self.link.wait(min(wait, 10000))
+
+
+def main(board=None):
+    # main.py on the device: `from mlboard.firmware import main; main()`
+    import machine
+
+    from .link import open_link
+
+    if board is None:
+        from board import BOARD as board  # noqa: N811 - the board file on the device
+    link = open_link(board.get("link", {"kind": "usb"}), machine)
+    try:
+        Firmware(board, machine, link).run()
+    except BreakIn:
+        link.close()
+        print("missing-link firmware stopped: REPL")
