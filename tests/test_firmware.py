@@ -23,6 +23,7 @@ from .helpers import FirmwareSim
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
 pytestmark = pytest.mark.micropython
+Rig = tuple[Daemon, dict[str, list[Update]]]
 
 
 def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
@@ -44,7 +45,7 @@ def sim() -> Iterator[FirmwareSim]:
 
 
 @pytest.fixture
-def daemon(sim: FirmwareSim) -> Iterator[tuple[Daemon, dict[str, list[Update]]]]:
+def daemon(sim: FirmwareSim) -> Iterator[Rig]:
     got: dict[str, list[Update]] = {}
     with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0)])) as d:
         assert d.wait_until_up(30), d.failures()
@@ -80,12 +81,12 @@ def test_descriptors_come_from_the_board_file(sim: FirmwareSim) -> None:
         board.close()
 
 
-def test_sharp_ranger_follows_the_datasheet_curve(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
-    d, got = daemon
+def test_sharp_ranger_follows_the_datasheet_curve(daemon: Rig, sim: FirmwareSim) -> None:
+    _, got = daemon
     for mm in (300, 800, 1400):
         sim.ctl(f"WORLD.sharp[26] = {mm}")
         n = len(got["dist_ir"])
-        assert wait_for(lambda: len(got["dist_ir"]) > n + 3)
+        assert wait_for(lambda n=n: len(got["dist_ir"]) > n + 3)
         v = got["dist_ir"][-1].values[0]
         assert abs(v - mm) <= 0.06 * mm, (mm, v)
     # Above the curve's peak (15 cm: 2.75 V) and beyond 150 cm: N/A.  (Between 5 and 15 cm the
@@ -93,12 +94,12 @@ def test_sharp_ranger_follows_the_datasheet_curve(daemon, sim: FirmwareSim) -> N
     for mm in (150, 2500):
         sim.ctl(f"WORLD.sharp[26] = {mm}")
         n = len(got["dist_ir"])
-        assert wait_for(lambda: len(got["dist_ir"]) > n + 3)
+        assert wait_for(lambda n=n: len(got["dist_ir"]) > n + 3)
         assert got["dist_ir"][-1].values[0] is None, mm  # N/A
 
 
-def test_srf02_ranges_over_i2c_and_changes_address(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
-    d, got = daemon
+def test_srf02_ranges_over_i2c_and_changes_address(daemon: Rig, sim: FirmwareSim) -> None:
+    _, got = daemon
     sim.ctl("WORLD.i2c[(0, 0x70)].distance_cm = 123")
     n = len(got["sonar"])
     assert wait_for(lambda: len(got["sonar"]) > n + 2)
@@ -119,8 +120,8 @@ def test_srf02_ranges_over_i2c_and_changes_address(daemon, sim: FirmwareSim) -> 
     assert sim.ctl("result = fw.drivers['sonar'].timeouts") == 0
 
 
-def test_encoder_counts_edges_and_flags_a_missed_one(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
-    d, got = daemon
+def test_encoder_counts_edges_and_flags_a_missed_one(daemon: Rig, sim: FirmwareSim) -> None:
+    _, got = daemon
     base = sim.ctl("result = fw.drivers['wheel'].count")
     sim.ctl("WORLD.encoder_steps(2, 3, 400)")
     assert wait_for(lambda: got["wheel"] and got["wheel"][-1].values[0] == base + 400)
@@ -132,8 +133,8 @@ def test_encoder_counts_edges_and_flags_a_missed_one(daemon, sim: FirmwareSim) -
     assert sim.ctl("result = fw.drivers['wheel'].errors") == 1
 
 
-def test_bumper_is_debounced_and_stamped_at_the_first_edge(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
-    d, got = daemon
+def test_bumper_is_debounced_and_stamped_at_the_first_edge(daemon: Rig, sim: FirmwareSim) -> None:
+    _, got = daemon
     n = len(got["bumper"])
     # pressed: a switch to ground, bouncing 6 times
     t0 = sim.ctl("result = rt.clock(); WORLD.bounce(14, 0, 6)")
@@ -149,8 +150,8 @@ def test_bumper_is_debounced_and_stamped_at_the_first_edge(daemon, sim: Firmware
     assert got["bumper"][-1].values[0] == 0
 
 
-def test_imu_scaling_and_bus_loss(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
-    d, got = daemon
+def test_imu_scaling_and_bus_loss(daemon: Rig, sim: FirmwareSim) -> None:
+    _, got = daemon
     sim.ctl("m = WORLD.i2c[(0, 0x68)]; m.accel_g = (0.5, -1.0, 0.25); m.gyro_dps = (90, 0, -45)")
     sim.ctl("m = WORLD.i2c[(0, 0x68)]; m.temp_c = 31.5")
     n = len(got["imu"])
@@ -169,7 +170,7 @@ def test_imu_scaling_and_bus_loss(daemon, sim: FirmwareSim) -> None:  # type: ig
     assert wait_for(lambda: got["imu"][-1].values[2] == pytest.approx(9.80665, abs=0.01))
 
 
-def test_servo_command_sets_the_pulse_width(daemon, sim: FirmwareSim) -> None:  # type: ignore[no-untyped-def]
+def test_servo_command_sets_the_pulse_width(daemon: Rig, sim: FirmwareSim) -> None:
     d, got = daemon
     assert sim.ctl("result = WORLD.pulse_us(15)") == 0  # limp until the first command
     assert sim.ctl("result = WORLD.pwms[15].freq()") == 50
@@ -179,7 +180,7 @@ def test_servo_command_sets_the_pulse_width(daemon, sim: FirmwareSim) -> None:  
         assert sim.ctl("result = WORLD.pulse_us(15)") == pulse
 
 
-def test_values_are_mapped_into_host_time(daemon) -> None:  # type: ignore[no-untyped-def]
+def test_values_are_mapped_into_host_time(daemon: Rig) -> None:
     d, got = daemon
     assert wait_for(lambda: d.status()[0].get("sync_state") == "tracking", 15)
     u = got["imu"][-1]

@@ -6,7 +6,6 @@
 import machine
 from board import BOARD
 from machine import MPU6050, SRF02, WORLD
-
 from mlboard.firmware import BreakIn, Firmware
 
 
