@@ -557,6 +557,15 @@ def cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- flash ------------------------------------------------------------------------------------
+def cmd_flash(args: argparse.Namespace) -> int:
+    from .boardfile import load_board_file
+    from .flash import flash
+
+    bf = load_board_file(args.boardfile)
+    return flash(bf, args.port, dry_run=args.dry_run, check=not args.no_check)
+
+
 # ---- board ------------------------------------------------------------------------------------
 def cmd_board(args: argparse.Namespace) -> int:
     from .virtual import BoardServer, make_sim
@@ -792,6 +801,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--view", action="store_true", help="a live view of boards and topics")
     sp.set_defaults(func=cmd_run)
+
+    sp = sub.add_parser("flash", help="put the firmware for a board file on a board")
+    sp.add_argument("boardfile", help="board file (BOARD = {...}, see examples/boards/)")
+    sp.add_argument("--port", default="/dev/ttyACM0", help="serial port (/dev/ttyACM0)")
+    sp.add_argument("--dry-run", action="store_true", help="list files and commands, touch nothing")
+    sp.add_argument(
+        "--no-check", action="store_true", help="do not check the board answers J2A afterwards"
+    )
+    sp.set_defaults(func=cmd_flash)
 
     sp = sub.add_parser("recover", help="salvage a recording whose process died")
     sp.add_argument("path", help="bag directory or .mcap file")

@@ -1,0 +1,106 @@
+"""Board files and ``missing-link flash``: what would be copied, the checks on the board file,
+real mpremote at the port boundary, and the J2A check after flashing against the firmware
+running under real MicroPython."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from missing_link.boardfile import load_board_file
+from missing_link.config import ConfigError
+from missing_link.flash import FlashError, micropython_files, verify
+
+from .helpers import FirmwareSim
+
+ROOT = Path(__file__).resolve().parent.parent
+RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "missing_link", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def board_file(tmp_path: Path, body: str) -> Path:
+    p = tmp_path / "board.py"
+    p.write_text(body)
+    return p
+
+
+SERVO_ONLY = """BOARD = {"name": "arm", "transducers": [
+    {"name": "servo", "id": 3, "driver": "servo", "pin": 15}]}
+"""
+
+
+def test_only_the_drivers_the_board_uses_are_copied(tmp_path: Path) -> None:
+    bf = load_board_file(board_file(tmp_path, SERVO_ONLY))
+    remote = [c.remote for c in micropython_files(bf)]
+    assert "lib/mlboard/drivers/servo.py" in remote
+    assert not any(r.endswith(("srf02.py", "sharp.py", "mpu6050.py")) for r in remote)
+    assert remote[-2:] == ["board.py", "main.py"]  # main.py last: the board boots only complete
+    assert all(c.local.exists() for c in micropython_files(bf))
+
+
+def test_dry_run_lists_files_and_the_mpremote_command() -> None:
+    r = cli("flash", str(RIG), "--port", "/dev/ttyACM7", "--dry-run")
+    assert r.returncode == 0, r.stderr
+    assert ":lib/mlboard/drivers/srf02.py" in r.stdout and ":board.py" in r.stdout
+    assert "mpremote connect /dev/ttyACM7 fs cp -r" in r.stdout and "+ reset" in r.stdout
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ("BOARD = dict(name='x')", "BOARD must be a literal"),
+        ("X = 1", "no `BOARD = {...}` dict"),
+        ("BOARD = {'name': 'Front!', 'transducers': []}", "name must be a topic token"),
+        (
+            "BOARD = {'name': 'a', 'transducers': [{'name': 's', 'id': 1, 'driver': 'lidar'}]}",
+            "driver 'lidar' is not one of",
+        ),
+        (
+            "BOARD = {'name': 'a', 'transducers': [{'name': 's', 'id': 1, 'driver': 'servo'}]}",
+            "driver servo needs 'pin'",
+        ),
+        (
+            "BOARD = {'name': 'a', 'transducers': [{'name': 's', 'id': 1, 'driver': 'servo', "
+            "'pin': 1, 'speed': 3}]}",
+            "driver servo has no option 'speed'",
+        ),
+        (
+            "BOARD = {'name': 'a', 'transducers': [{'name': 's', 'id': 1, 'driver': 'srf02', "
+            "'bus': 'i2c1'}]}",
+            "bus 'i2c1' is not in buses",
+        ),
+        ("BOARD = {", "not Python"),
+    ],
+)
+def test_board_file_errors_are_one_line_exit_2(tmp_path: Path, body: str, message: str) -> None:
+    p = board_file(tmp_path, body)
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace("{", r"\{")):
+        load_board_file(p)
+    r = cli("flash", str(p), "--dry-run")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
+
+
+def test_real_mpremote_on_a_missing_port_is_one_line_exit_1(tmp_path: Path) -> None:
+    r = cli("flash", str(board_file(tmp_path, SERVO_ONLY)), "--port", str(tmp_path / "ttyACM9"))
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.startswith("missing-link: error: mpremote failed on ")
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
+    sim = FirmwareSim(RIG)
+    try:
+        assert "rig answers J2A with 6 transducers" in verify(sim.url, load_board_file(RIG))
+        other = board_file(tmp_path, RIG.read_text().replace('"name": "rig"', '"name": "rig2"'))
+        with pytest.raises(FlashError, match="the board file says 'rig2'"):
+            verify(sim.url, load_board_file(other))
+    finally:
+        sim.close()
