@@ -423,7 +423,7 @@ def write_package(out: str, package: str, files: dict[str, str], *, force: bool)
 
 # ---- run ----------------------------------------------------------------------------------------
 def build_config(args: argparse.Namespace) -> Any:
-    from .config import BoardSpec, Config, load_config
+    from .config import BoardSpec, Config, DiscoverSpec, load_config
     from .publishers import available_publishers
 
     cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
@@ -442,8 +442,13 @@ def build_config(args: argparse.Namespace) -> Any:
         if "mcap" not in cfg.publishers:
             cfg.publishers.append("mcap")
         cfg.publisher_options.setdefault("mcap", {})["path"] = args.record
-    if not cfg.boards:
-        raise BadURL("no boards: give URLs on the command line or [[board]] tables in --config")
+    if getattr(args, "auto", False) and cfg.discover is None:
+        cfg.discover = DiscoverSpec()
+    if not cfg.boards and cfg.discover is None:
+        raise BadURL(
+            "no boards: give URLs on the command line, [[board]] tables or [discover] in "
+            "--config, or --auto"
+        )
     return cfg
 
 
@@ -463,6 +468,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     code = 0
     with daemon:
+        if daemon.discovery is not None:
+            globs = " ".join(daemon.discovery.spec.ports)
+            print(f"missing-link: discovering boards on {globs}", file=sys.stderr)
         print(
             f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
             f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
@@ -800,6 +808,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="fail (exit 1) unless every board is up within S seconds",
     )
     sp.add_argument("--view", action="store_true", help="a live view of boards and topics")
+    sp.add_argument(
+        "--auto",
+        action="store_true",
+        help="find J2A boards on USB serial ports as they appear ([discover] in --config)",
+    )
     sp.set_defaults(func=cmd_run)
 
     sp = sub.add_parser("flash", help="put the firmware for a board file on a board")

@@ -5,6 +5,7 @@ See ``examples/missing-link.toml`` for a complete, commented example.
 
 from __future__ import annotations
 
+import fnmatch
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,38 @@ class BoardSpec:
         return 10e9 / self.uart_baud if self.uart_baud > 0 else 0.0
 
 
+@dataclass(frozen=True)
+class PortInfo:
+    device: str
+    vid: int | None = None
+    pid: int | None = None
+    serial_number: str | None = None
+    description: str = ""
+
+
+@dataclass
+class DiscoverSpec:
+    ports: list[str] = field(default_factory=lambda: ["/dev/ttyACM*", "/dev/ttyUSB*"])
+    vid: int | None = None
+    pid: int | None = None
+    serial: str | None = None  #: glob on the USB serial number
+    usb_only: bool = True  #: only ports with a USB VID (not on-board UARTs)
+    interval: float = 1.0  #: s between listings
+    probe_timeout: float = 3.0  #: s for a new port to answer the J2A handshake
+    uart_baud: int = 0  #: set when the boards sit behind UART bridges (see BoardSpec)
+
+    def matches(self, p: PortInfo) -> bool:
+        if not any(fnmatch.fnmatchcase(p.device, g) for g in self.ports):
+            return False
+        if self.usb_only and p.vid is None:
+            return False
+        if self.vid is not None and p.vid != self.vid:
+            return False
+        if self.pid is not None and p.pid != self.pid:
+            return False
+        return self.serial is None or fnmatch.fnmatchcase(p.serial_number or "", self.serial)
+
+
 @dataclass
 class Config:
     boards: list[BoardSpec] = field(default_factory=list)
@@ -52,6 +85,8 @@ class Config:
     #: about this plus its handshake
     backoff_max: float = 1.0
     diagnostics_period: float = 1.0
+    #: find boards as their serial ports appear ([discover]; ``run --auto``)
+    discover: DiscoverSpec | None = None
     source: str = "<defaults>"
 
 
@@ -110,7 +145,9 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
                 if not lo <= value <= hi:
                     raise fail(f"{where}.{key}", f"{value!r} is outside {lo:g}..{hi:g}")
 
-    known_tables = {"daemon", "board", "remap"}
+    known_tables = {"daemon", "board", "remap", "discover"}
+    if "discover" in doc:
+        cfg.discover = _parse_discover(doc["discover"], fail)
     daemon = doc.get("daemon", {})
     if not isinstance(daemon, dict):
         raise fail("daemon", "must be a table")
@@ -164,6 +201,32 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
             raise fail(table, "must be a table of publisher options")
         cfg.publisher_options[table] = dict(value)
     return cfg
+
+
+def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:
+    if not isinstance(table, dict):
+        raise fail("discover", "must be a table")
+    spec = DiscoverSpec()
+    types: dict[str, Any] = {
+        "ports": list, "vid": int, "pid": int, "serial": str, "usb_only": bool,
+        "interval": (int, float), "probe_timeout": (int, float), "uart_baud": int,
+    }  # fmt: skip
+    ranges = {"interval": (0.05, 60.0), "probe_timeout": (0.1, 60.0), "vid": (0, 0xFFFF),
+              "pid": (0, 0xFFFF), "uart_baud": (0, 100_000_000)}  # fmt: skip
+    for key, value in table.items():
+        if key not in types:
+            raise fail(f"discover.{key}", f"unknown key (known: {', '.join(types)})")
+        want = types[key]
+        if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):
+            raise fail(f"discover.{key}", f"expected {_type_name(want)}, got {value!r}")
+        if key in ranges and not ranges[key][0] <= value <= ranges[key][1]:
+            raise fail(
+                f"discover.{key}", f"{value!r} is outside {ranges[key][0]:g}..{ranges[key][1]:g}"
+            )
+        if key == "ports" and not all(isinstance(g, str) and g for g in value):
+            raise fail("discover.ports", "must be a list of device globs like '/dev/ttyACM*'")
+        setattr(spec, key, float(value) if key in ("interval", "probe_timeout") else value)
+    return spec
 
 
 def load_config(path: str) -> Config:

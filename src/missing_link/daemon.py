@@ -15,6 +15,9 @@ sessions must agree on:
   ever holds two layouts under one type name;
 * ``/diagnostics`` goes out every ``diagnostics_period`` with each session's status, level and
   counters;
+* boards can come and go while it runs: ``add_board`` / ``remove_board``, used by discovery
+  (``discovery.py``: serial ports appearing and vanishing); the session list is replaced, never
+  changed in place, so readers iterate a consistent list without a lock;
 * ``stop()`` asks every session to stop at once and returns within about a second whatever the
   boards do (a session stuck in a system call is left to its daemon thread).
 
@@ -33,6 +36,7 @@ from typing import Any
 
 from .config import BoardSpec, Config, ConfigError
 from .descriptors import Transducer, load_descriptor_file
+from .discovery import DiscoveryService, Enumerator, serial_ports
 from .errors import BadURL, BoardError, MissingLinkError
 from .msgs import msg_name, msgdef, type_name, typestore_for
 from .publishers import Bus, Publisher, make_publisher
@@ -50,7 +54,12 @@ __all__ = ["BoardSession", "Daemon", "connect"]
 class Daemon:
     """Connects every configured board and publishes its transducers.  Use as a context manager."""
 
-    def __init__(self, config: Config, extra_publishers: Iterable[Publisher] = ()) -> None:
+    def __init__(
+        self,
+        config: Config,
+        extra_publishers: Iterable[Publisher] = (),
+        enumerate_ports: Enumerator | None = None,
+    ) -> None:
         self.config = config
         self._started = self._stopped = False
         for spec in config.boards:  # what retrying cannot fix fails here, before any thread
@@ -84,6 +93,11 @@ class Daemon:
         self._claims_lock = threading.Lock()
         self._names: dict[str, BoardSession] = {}  # board topic name -> the session holding it
         self._types: dict[str, str] = {}  # message type name -> its definition
+        self._sessions_lock = threading.Lock()  # add/remove replace the list (copy on write)
+        self.discovery: DiscoveryService | None = None
+        if config.discover is not None:
+            ports = enumerate_ports or serial_ports
+            self.discovery = DiscoveryService(self, config.discover, ports)
 
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
@@ -100,7 +114,33 @@ class Daemon:
         for s in self.sessions:
             s.start()
         self._diag_thread.start()
+        if self.discovery is not None:
+            self.discovery.start()
         return self
+
+    def add_board(self, spec: BoardSpec) -> BoardSession:
+        """Start a session for one more board (discovery, hotplug); the others are untouched."""
+        check_url(spec.url)
+        session = BoardSession(self, spec)
+        with self._sessions_lock:
+            if self._stopped:
+                raise MissingLinkError("the daemon is stopped")
+            self.sessions = [*self.sessions, session]
+        session.start()
+        return session
+
+    def remove_board(self, url: str, timeout: float = 1.0) -> bool:
+        """End the session of the board at ``url`` (its device vanished) and free its name."""
+        with self._sessions_lock:
+            gone = [s for s in self.sessions if s.spec.url == url]
+            self.sessions = [s for s in self.sessions if s.spec.url != url]
+        for s in gone:
+            s.request_stop()
+            s.stop(timeout)
+            with self._claims_lock:
+                for held in [n for n, owner in self._names.items() if owner is s]:
+                    del self._names[held]
+        return bool(gone)
 
     def close(self) -> None:
         """Stop every board session and close every publisher (the same as ``stop()``)."""
@@ -109,8 +149,11 @@ class Daemon:
     def stop(self) -> None:
         if self._stopped:
             return
-        self._stopped = True
+        with self._sessions_lock:
+            self._stopped = True
         self._stop.set()
+        if self.discovery is not None:
+            self.discovery.stop()
         for s in self.sessions:
             s.request_stop()  # all at once: a stuck board costs its own time, not the others'
         deadline = time.monotonic() + 1.0

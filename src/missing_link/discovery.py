@@ -1,0 +1,144 @@
+"""Discovery and hotplug: boards are found as their serial ports appear and dropped when they
+vanish, without touching the other boards.
+
+Theory of operation
+-------------------
+An *enumerator* lists the serial ports now present (pyserial's ``list_ports``: device, USB
+VID/PID, serial number).  ``PortMatcher`` keeps the ports it has seen and, fed a new listing,
+says which matching ports appeared and which vanished (pure code: a listing in, changes out).
+A port matches when its device path matches one of ``ports`` (globs) and, where given, its
+VID, PID and serial number (glob) match; by default any USB serial port (one with a VID) whose
+device is ``/dev/ttyACM*`` or ``/dev/ttyUSB*``.
+
+``DiscoveryService`` (the shell) polls the enumerator every ``interval`` s.  A port that
+appears is *probed*: opened as a J2A link and handshaken within ``probe_timeout``; a board
+that answers gets a session of its own (named by its ``board.name``, as any board); a port
+that does not answer (a GPS, a modem) is remembered as "not J2A" and left alone until it
+vanishes.  A port that vanishes ends its session at once (the device file is gone; waiting
+for the link timeout would only log errors).  Polling (1 s) rather than udev events keeps one
+code path for every system; a board is up about a second after it enumerates.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
+
+from .client import Board
+from .config import BoardSpec, DiscoverSpec, PortInfo
+from .errors import MissingLinkError
+
+if TYPE_CHECKING:
+    from .daemon import Daemon
+
+log = logging.getLogger("missing_link.discovery")
+
+
+def serial_ports() -> list[PortInfo]:
+    """The serial ports present now (pyserial)."""
+    from serial.tools import list_ports
+
+    return [
+        PortInfo(p.device, p.vid, p.pid, p.serial_number, p.description or "")
+        for p in list_ports.comports()
+    ]
+
+
+class PortMatcher:
+    """Matching ports in, (appeared, vanished) out.  Pure."""
+
+    def __init__(self, spec: DiscoverSpec) -> None:
+        self.spec = spec
+        self.present: dict[str, PortInfo] = {}
+
+    def update(self, listing: Iterable[PortInfo]) -> tuple[list[PortInfo], list[PortInfo]]:
+        now = {p.device: p for p in listing if self.spec.matches(p)}
+        appeared = [p for d, p in now.items() if self.present.get(d) != p]
+        vanished = [p for d, p in self.present.items() if d not in now or now[d] != p]
+        self.present = now
+        return appeared, vanished
+
+
+Enumerator = Callable[[], list[PortInfo]]
+
+
+class DiscoveryService:
+    """Polls the enumerator and adds/removes the daemon's boards (one thread)."""
+
+    def __init__(self, daemon: Daemon, spec: DiscoverSpec, enumerate_ports: Enumerator) -> None:
+        self.daemon = daemon
+        self.spec = spec
+        self.enumerate = enumerate_ports
+        self.matcher = PortMatcher(spec)
+        self.not_j2a: dict[str, str] = {}  # device -> why the probe failed
+        self.boards: dict[str, str] = {}  # device -> URL of its session
+        self.appeared = self.vanished = self.scan_errors = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="discovery", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.scan()
+            except Exception as e:  # noqa: BLE001 - discovery must outlive any one listing
+                self.scan_errors += 1
+                log.warning("discovery: listing ports failed: %s", e)
+            self._stop.wait(self.spec.interval)
+
+    def scan(self) -> None:
+        appeared, vanished = self.matcher.update(self.enumerate())
+        for p in vanished:
+            self.vanished += 1
+            self.not_j2a.pop(p.device, None)
+            url = self.boards.pop(p.device, None)
+            if url is not None:
+                log.warning("discovery: %s vanished: its board session ends", p.device)
+                self.daemon.remove_board(url)
+        for p in appeared:
+            if self._stop.is_set():
+                return
+            self.appeared += 1
+            url = f"serial://{p.device}"
+            why = self.probe(url)
+            if why is not None:
+                self.not_j2a[p.device] = why
+                log.info("discovery: %s is not a J2A board (%s): left alone", p.device, why)
+                continue
+            self.boards[p.device] = url
+            log.warning("discovery: J2A board on %s (%s)", p.device, p.description or "serial")
+            self.daemon.add_board(BoardSpec(url, uart_baud=self.spec.uart_baud))
+
+    def probe(self, url: str) -> str | None:
+        """None when a J2A board answers on ``url``, else why not."""
+        try:
+            board = Board.open(url, timeout=min(1.0, self.spec.probe_timeout))
+        except MissingLinkError as e:
+            return str(e)
+        try:
+            board.handshake(deadline=time.monotonic() + self.spec.probe_timeout)
+        except MissingLinkError as e:
+            return str(e)
+        finally:
+            board.close()
+        return None
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "ports": sorted(self.matcher.present),
+            "boards": dict(self.boards),
+            "not_j2a": dict(self.not_j2a),
+            "appeared": self.appeared,
+            "vanished": self.vanished,
+            "scan_errors": self.scan_errors,
+        }

@@ -1,0 +1,133 @@
+"""Discovery and hotplug at the enumerator boundary: board processes on real pseudo-terminals
+appear in and vanish from a port listing; the daemon probes, starts and ends sessions, and
+never disturbs the boards that stay."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from missing_link.config import Config, ConfigError, DiscoverSpec, PortInfo, parse_config
+from missing_link.daemon import Daemon
+from missing_link.demo import start_board_process, stop_process
+from missing_link.discovery import PortMatcher
+
+PICO = 0x2E8A
+
+
+def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return bool(pred())
+
+
+def all_up(d: Daemon) -> bool:
+    return bool(d.sessions) and all(s.state == "up" for s in d.sessions)
+
+
+def test_matcher_reports_appeared_and_vanished_ports() -> None:
+    m = PortMatcher(DiscoverSpec(vid=PICO, serial="E66*"))
+    a = PortInfo("/dev/ttyACM0", PICO, 5, "E6605838")
+    other_vid = PortInfo("/dev/ttyACM1", 0x0403, 0x6001, "E66")
+    not_usb = PortInfo("/dev/ttyS0")
+    wrong_serial = PortInfo("/dev/ttyACM2", PICO, 5, "XYZ")
+    assert m.update([a, other_vid, not_usb, wrong_serial]) == ([a], [])
+    assert m.update([a]) == ([], [])
+    b = PortInfo("/dev/ttyACM0", PICO, 5, "E66ffff")  # another board on the same device path
+    assert m.update([b]) == ([b], [a])
+    assert m.update([]) == ([], [b])
+
+
+class Ports:
+    """What the enumerator lists now: the test plugs and unplugs."""
+
+    def __init__(self) -> None:
+        self.now: dict[str, PortInfo] = {}
+
+    def plug(self, device: str, vid: int = PICO, serial: str = "E660") -> None:
+        self.now[device] = PortInfo(device, vid, 5, serial, "Board in FS mode")
+
+    def unplug(self, device: str) -> None:
+        del self.now[device]
+
+    def __call__(self) -> list[PortInfo]:
+        return list(self.now.values())
+
+
+@pytest.fixture
+def boards() -> Iterator[Callable[[str], tuple[subprocess.Popen[str], str]]]:
+    procs: list[subprocess.Popen[str]] = []
+
+    def start(name: str) -> tuple[subprocess.Popen[str], str]:
+        proc, url = start_board_process("rate", len(procs), "pty", name=name)
+        procs.append(proc)
+        return proc, url[len("serial://") :]
+
+    yield start
+    for p in procs:
+        stop_process(p)
+
+
+def test_boards_appear_vanish_and_come_back(boards) -> None:  # type: ignore[no-untyped-def]
+    ports = Ports()
+    spec = DiscoverSpec(ports=["/dev/pts/*"], vid=PICO, interval=0.1, probe_timeout=1.0)
+    master, slave = os.openpty()  # a serial device that never answers (a GPS, a modem)
+    try:
+        with Daemon(Config(discover=spec), enumerate_ports=ports) as d:
+            assert d.discovery is not None
+            pa, dev_a = boards("left")
+            ports.plug(dev_a)
+            ports.plug("/dev/pts/9999", vid=0x0403)  # another vendor: never even probed
+            assert wait_for(lambda: [s.name for s in d.sessions] == ["left"] and all_up(d))
+            ports.plug(os.ttyname(slave))
+            assert wait_for(lambda: os.ttyname(slave) in d.discovery.not_j2a, 10)  # type: ignore[union-attr]
+            _pb, dev_b = boards("right")
+            ports.plug(dev_b)
+            assert wait_for(lambda: len(d.sessions) == 2 and all_up(d))
+            right = next(s for s in d.sessions if s.name == "right")
+            before = right.status()["samples"]
+            # unplug the left board: its session ends, the right one runs on untouched
+            ports.unplug(dev_a)
+            stop_process(pa)
+            assert wait_for(lambda: [s.name for s in d.sessions] == ["right"])
+            assert wait_for(lambda: right.status()["samples"] > before + 20)
+            assert right.status()["connects"] == 1 and right.state == "up"
+            # plugged in again (a new pty, as a re-enumerated device may get): up again, same name
+            _pa2, dev_a2 = boards("left")
+            ports.plug(dev_a2)
+            assert wait_for(lambda: sorted(s.name for s in d.sessions) == ["left", "right"])
+            assert wait_for(lambda: all_up(d))
+            st = d.discovery.status()
+            assert st["appeared"] == 4 and st["vanished"] == 1  # the other vendor never matched
+            assert "/dev/pts/9999" not in st["not_j2a"]
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_discover_table_in_the_config() -> None:
+    cfg = parse_config({"discover": {"ports": ["/dev/ttyACM*"], "vid": 0x2E8A, "interval": 2}})
+    assert cfg.discover is not None and cfg.discover.vid == PICO and cfg.discover.interval == 2.0
+    with pytest.raises(ConfigError, match=r"discover\.vid: 70000 is outside 0\.\.65535"):
+        parse_config({"discover": {"vid": 70000}})
+    with pytest.raises(ConfigError, match=r"discover\.pattern: unknown key"):
+        parse_config({"discover": {"pattern": "x"}})
+
+
+def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "missing_link", "run", "--auto", "--duration", "1.5"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "discovering boards on /dev/ttyACM* /dev/ttyUSB*" in r.stderr
