@@ -2,6 +2,8 @@
 // port, from npm) with simulated peripherals, and serves its J2A link on a TCP port on 127.0.0.1.
 //
 //   node host.mjs BOARDFILE [--port N]
+//   node host.mjs BOARDFILE --run SCRIPT.py   (run SCRIPT with the same files and sim, then exit:
+//                                            the firmware benchmark)
 //
 // Prints "LISTEN <port> <micropython version>" when ready.  Lines on stdin are control requests
 // for the simulated world: a JSON string of Python code (setting `result`); each gets one line
@@ -20,9 +22,10 @@ const root = join(here, "..", "..", "..");
 const args = process.argv.slice(2);
 const boardFile = args[0];
 const portArg = args.indexOf("--port") >= 0 ? Number(args[args.indexOf("--port") + 1]) : 0;
+const runArg = args.indexOf("--run") >= 0 ? args[args.indexOf("--run") + 1] : null;
 
 const mp = await loadMicroPython({
-  stdout: (line) => process.stderr.write("mpy: " + line + "\n"),
+  stdout: (line) => (runArg ? process.stdout : process.stderr).write((runArg ? "" : "mpy: ") + line + "\n"),
   stderr: (line) => process.stderr.write("mpy! " + line + "\n"),
 });
 
@@ -42,6 +45,10 @@ copyTree(join(root, "src", "missing_link", "board"), "/lib/mlboard");
 mp.FS.writeFile("/lib/machine.py", readFileSync(join(here, "machine.py")));
 mp.FS.writeFile("/lib/simhost.py", readFileSync(join(here, "host.py")));
 mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
+if (runArg) {
+  mp.runPython("import sys\nsys.path.append('/lib')\n" + readFileSync(runArg, "utf8"));
+  process.exit(0);
+}
 mp.runPython("import sys\nsys.path.append('/lib')\nfrom simhost import _feed, _tick, _due_us, _ctl, _ident\n");
 const feed = mp.globals.get("_feed");
 const tick = mp.globals.get("_tick");
