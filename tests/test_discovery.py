@@ -130,4 +130,19 @@ def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
         timeout=60,
     )
     assert r.returncode == 0, r.stderr
-    assert "discovering boards on /dev/ttyACM* /dev/ttyUSB*" in r.stderr
+    assert "discovering boards on /dev/ttyACM* /dev/ttyUSB* usb://*" in r.stderr
+
+
+def test_usb_devices_with_the_j2a_interface_are_listed() -> None:
+    from missing_link.discovery import usb_ports
+    from missing_link.virtual import make_sim
+
+    from .test_transports import FakeDevice, fake_usb
+
+    devs = [FakeDevice(make_sim("thesis"), "A1", 1, 7), FakeDevice(make_sim("rangers"), "B2", 2, 3)]
+    ports = usb_ports(fake_usb(devs))
+    assert [(p.device, p.vid, p.serial_number) for p in ports] == [
+        ("usb://1:7", 0x6666, "A1"),
+        ("usb://2:3", 0x6666, "B2"),
+    ]
+    assert PortMatcher(DiscoverSpec()).update(ports)[0] == ports  # matched by default

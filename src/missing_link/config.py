@@ -50,7 +50,9 @@ class PortInfo:
 
 @dataclass
 class DiscoverSpec:
-    ports: list[str] = field(default_factory=lambda: ["/dev/ttyACM*", "/dev/ttyUSB*"])
+    ports: list[str] = field(
+        default_factory=lambda: ["/dev/ttyACM*", "/dev/ttyUSB*", "usb://*"]
+    )  #: device globs; usb://* = USB devices with the J2A interface
     vid: int | None = None
     pid: int | None = None
     serial: str | None = None  #: glob on the USB serial number

@@ -36,7 +36,7 @@ from typing import Any
 
 from .config import BoardSpec, Config, ConfigError
 from .descriptors import Transducer, load_descriptor_file
-from .discovery import DiscoveryService, Enumerator, serial_ports
+from .discovery import DiscoveryService, Enumerator, all_ports
 from .errors import BadURL, BoardError, MissingLinkError
 from .msgs import msg_name, msgdef, type_name, typestore_for
 from .publishers import Bus, Publisher, make_publisher
@@ -96,7 +96,7 @@ class Daemon:
         self._sessions_lock = threading.Lock()  # add/remove replace the list (copy on write)
         self.discovery: DiscoveryService | None = None
         if config.discover is not None:
-            ports = enumerate_ports or serial_ports
+            ports = enumerate_ports or all_ports
             self.discovery = DiscoveryService(self, config.discover, ports)
 
     def _options(self, name: str) -> dict[str, Any]:

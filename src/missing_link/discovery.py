@@ -8,7 +8,8 @@ VID/PID, serial number).  ``PortMatcher`` keeps the ports it has seen and, fed a
 says which matching ports appeared and which vanished (pure code: a listing in, changes out).
 A port matches when its device path matches one of ``ports`` (globs) and, where given, its
 VID, PID and serial number (glob) match; by default any USB serial port (one with a VID) whose
-device is ``/dev/ttyACM*`` or ``/dev/ttyUSB*``.
+device is ``/dev/ttyACM*`` or ``/dev/ttyUSB*``, and any USB device with the J2A interface
+triple (listed as ``usb://BUS:ADDR``; original 2014 boards).
 
 ``DiscoveryService`` (the shell) polls the enumerator every ``interval`` s.  A port that
 appears is *probed*: opened as a J2A link and handshaken within ``probe_timeout``; a board
@@ -62,6 +63,31 @@ class PortMatcher:
         return appeared, vanished
 
 
+def usb_ports(usb: Any | None = None) -> list[PortInfo]:
+    """USB devices with a J2A interface (0xFF/0x12/0xEF: original 2014 boards), as
+    ``usb://BUS:ADDR`` "ports" (pyusb; needs libusb)."""
+    from .transport.usb import find_boards, usb_serial
+
+    return [
+        PortInfo(f"usb://{d.bus}:{d.address}", d.idVendor, d.idProduct, usb_serial(d), "J2A USB")
+        for d in find_boards(usb)
+    ]
+
+
+def all_ports() -> list[PortInfo]:
+    """Serial ports, and J2A USB devices where libusb is present."""
+    ports = serial_ports()
+    try:
+        ports += usb_ports()
+    except MissingLinkError as e:  # no libusb: serial ports only, said once
+        if not _said_no_usb:
+            _said_no_usb.append(True)
+            log.warning("discovery: not listing USB devices: %s", e)
+    return ports
+
+
+_said_no_usb: list[bool] = []
+
 Enumerator = Callable[[], list[PortInfo]]
 
 
@@ -109,7 +135,7 @@ class DiscoveryService:
             if self._stop.is_set():
                 return
             self.appeared += 1
-            url = f"serial://{p.device}"
+            url = p.device if "://" in p.device else f"serial://{p.device}"
             why = self.probe(url)
             if why is not None:
                 self.not_j2a[p.device] = why

@@ -150,19 +150,19 @@ def open_usb(url: str, query: dict[str, str], usb: Any | None = None) -> USBTran
             raise BadURL(f"{url!r}: expected usb://BUS:ADDR (decimal), got {where!r}") from e
         boards = [d for d in boards if d.bus == bus and d.address == addr]
     if "serial" in query:
-        boards = [d for d in boards if _serial(d) == query["serial"]]
+        boards = [d for d in boards if usb_serial(d) == query["serial"]]
     if not boards:
         raise TransportBroken(
             f"{url}: no USB device with a J2A interface (0xFF/0x12/0xEF) found"
             + (f" matching {where or ''} {query}" if where or query else "")
         )
     if len(boards) > 1:
-        names = "; ".join(f"{_describe(d)} serial={_serial(d)!r}" for d in boards)
+        names = "; ".join(f"{_describe(d)} serial={usb_serial(d)!r}" for d in boards)
         raise BadURL(f"{url}: {len(boards)} J2A boards match, pick one with ?serial=: {names}")
     return USBTransport(url, boards[0], usb)
 
 
-def _serial(dev: Any) -> str | None:
+def usb_serial(dev: Any) -> str | None:
     try:
         return str(dev.serial_number) if dev.serial_number is not None else None
     except Exception:  # noqa: BLE001 - string descriptors need permissions some users lack
