@@ -574,6 +574,18 @@ def cmd_flash(args: argparse.Namespace) -> int:
     return flash(bf, args.port, dry_run=args.dry_run, check=not args.no_check)
 
 
+def cmd_gen_firmware(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .avrgen import write_avr
+    from .boardfile import load_board_file
+
+    bf = load_board_file(args.boardfile)
+    for path in write_avr(bf, Path(args.out)):
+        print(f"wrote {path}")
+    return 0
+
+
 # ---- board ------------------------------------------------------------------------------------
 def cmd_board(args: argparse.Namespace) -> int:
     from .virtual import BoardServer, make_sim
@@ -823,6 +835,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-check", action="store_true", help="do not check the board answers J2A afterwards"
     )
     sp.set_defaults(func=cmd_flash)
+
+    sp = sub.add_parser("gen-firmware", help="C tables for an AVR board from its board file")
+    sp.add_argument("boardfile", help="board file with mcu = atmega328p, atmega2560 or atmega32u4")
+    sp.add_argument("--target", choices=["avr"], default="avr", help="firmware target (avr)")
+    sp.add_argument("--out", required=True, help="directory for board_gen.c and board.mk")
+    sp.set_defaults(func=cmd_gen_firmware)
 
     sp = sub.add_parser("recover", help="salvage a recording whose process died")
     sp.add_argument("path", help="bag directory or .mcap file")

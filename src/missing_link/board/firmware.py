@@ -53,6 +53,31 @@ def open_buses(board, machine):
     return buses
 
 
+def describe(entry, cls):
+    # The Transducer a board file entry declares: the driver's defaults, overridden by the entry
+    # (shared with the host's AVR generator, so both describe a board file alike).
+    options = {}
+    for key in cls.OPTIONS:
+        options[key] = cls.OPTIONS[key]
+    for key in entry.get("options", {}):
+        options[key] = entry["options"][key]
+    if hasattr(cls, "command"):
+        options["kind"] = "actuator"
+        options["call"] = entry.get("call", "a2j_set_" + entry["name"])
+    if "rate_hz" in entry:
+        options["rate_hz"] = entry["rate_hz"]
+    return Transducer(
+        entry["name"],
+        entry["id"],
+        entry.get("prefix", cls.PREFIX),
+        entry.get("model", cls.MODEL),
+        cls.CHANNELS,
+        entry.get("dtype", cls.DTYPE),
+        entry.get("na", cls.NA),
+        **options
+    )
+
+
 def build(board, machine, clock=None):
     # -> (runtime, {transducer name: driver})
     name = board["name"]
@@ -77,28 +102,9 @@ def build(board, machine, clock=None):
                 raise ValueError("%s: no bus %s in the board file" % (entry["name"], entry["bus"]))
             params["i2c"] = buses[entry["bus"]]
         drv = cls(machine, rt.clock, **params)
-        options = {}
-        for key in cls.OPTIONS:
-            options[key] = cls.OPTIONS[key]
-        for key in entry.get("options", {}):
-            options[key] = entry["options"][key]
+        t = describe(entry, cls)
         if hasattr(drv, "command"):
-            call = entry.get("call", "a2j_set_" + entry["name"])
-            rt.add_function(call, drv.command)
-            options["kind"] = "actuator"
-            options["call"] = call
-        if "rate_hz" in entry:
-            options["rate_hz"] = entry["rate_hz"]
-        t = Transducer(
-            entry["name"],
-            entry["id"],
-            entry.get("prefix", cls.PREFIX),
-            entry.get("model", cls.MODEL),
-            cls.CHANNELS,
-            entry.get("dtype", cls.DTYPE),
-            entry.get("na", cls.NA),
-            **options,
-        )
+            rt.add_function(t.options["call"], drv.command)
         rt.add_transducer(t, drv)
         drivers[entry["name"]] = drv
     return rt, drivers

@@ -1,0 +1,20 @@
+# The thesis's test rig on an Arduino Uno (ATmega328P) with our C firmware (firmware/avr):
+# encoder, Sharp IR ranger, SRF02 sonar and the servo it steers.  Build and flash with:
+#   make -C firmware/avr BOARD=../../examples/boards/thesis-rig-uno.py
+#   missing-link flash examples/boards/thesis-rig-uno.py --port /dev/ttyACM0
+# On AVR the encoder sits on INT0/INT1 (Uno D2/D3), the servo on OC1A (D9), the SRF02 on the
+# TWI pins (A4/A5), the Sharp on an ADC channel (pin = 0..7 for A0..A7).
+BOARD = {
+    "name": "uno_rig",
+    "model": "uno-thesis-rig",
+    "mcu": "atmega328p",
+    "link": {"kind": "uart", "baudrate": 115200},
+    "buses": {"twi": {"id": 0}},
+    "transducers": [
+        {"name": "wheel", "id": 0, "driver": "quadrature", "pin_a": 2, "pin_b": 3, "rate_hz": 50},
+        {"name": "dist_ir", "id": 1, "driver": "sharp_gp2y0a02", "pin": 0, "rate_hz": 25},
+        {"name": "sonar", "id": 2, "driver": "srf02", "bus": "twi", "address": 0x70,
+         "rate_hz": 10},
+        {"name": "servo", "id": 3, "driver": "servo", "pin": 9, "call": "a2j_set_servo"},
+    ],
+}

@@ -1,0 +1,302 @@
+/* The thesis rig around real AVR machine code: simavr runs the firmware's ELF, its UART is
+ * bridged to a pseudo-terminal (simavr's uart_pty part), and the rig is modelled at the pins and
+ * buses: a Sharp GP2Y0A02YK's voltage on an ADC input, an SRF02 as a TWI device (registers,
+ * no acknowledge while ranging, the address-change sequence), quadrature edges on INT0/INT1,
+ * and the servo's pulse width measured on OC1A.
+ *
+ *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P]
+ *
+ * Prints "PTY /dev/pts/N" when the board runs.  Simulated time is paced to the host's
+ * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
+ * sync must find.  Control lines on stdin (each answered with one line on stdout):
+ *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | quit
+ */
+#define _GNU_SOURCE
+#include <fcntl.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "avr_adc.h"
+#include "avr_ioport.h"
+#include "avr_twi.h"
+#include "parts/uart_pty.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_time.h"
+
+static avr_t *avr;
+static uart_pty_t uart;
+static double skew;
+static uint64_t start_ns;
+
+static uint64_t mono_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+}
+
+static uint64_t sim_us(void) { return avr->cycle / (avr->frequency / 1000000); }
+
+/* ---- Sharp: the datasheet curve (cm, V), linear between points (not the firmware's table) ---- */
+static const double sharp_curve[][2] = {
+    {0, 0.0},    {5, 1.6},     {10, 2.35},  {15, 2.75},  {20, 2.5},   {30, 2.0},
+    {40, 1.55},  {50, 1.25},   {60, 1.05},  {70, 0.9},   {80, 0.8},   {90, 0.72},
+    {100, 0.65}, {120, 0.55},  {150, 0.41}, {200, 0.35}, {300, 0.3},
+};
+static int sharp_mm = 800;
+
+static void sharp_update(void) {
+    double cm = sharp_mm / 10.0, v = 0.3;
+    size_t n = sizeof sharp_curve / sizeof sharp_curve[0];
+    for (size_t i = 1; i < n; i++) {
+        if (cm <= sharp_curve[i][0]) {
+            double c0 = sharp_curve[i - 1][0], v0 = sharp_curve[i - 1][1];
+            v = v0 + (sharp_curve[i][1] - v0) * (cm - c0) / (sharp_curve[i][0] - c0);
+            break;
+        }
+    }
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0), (uint32_t)lround(v * 1000));
+}
+
+/* ---- SRF02 on the TWI bus -------------------------------------------------------------------- */
+static struct {
+    avr_irq_t *irq;
+    uint8_t addr; /* 7 bit */
+    uint8_t selected, index, reg;
+    uint8_t seq[4], seq_n;
+    uint16_t range;
+    uint64_t busy_until_us;
+    int cm, echo;
+    unsigned rangings, msgs;
+    uint32_t last_msg;
+} srf = {.addr = 0x70, .cm = 100, .echo = 1};
+
+static void srf_write(uint8_t reg, uint8_t b) {
+    if (reg != 0) return;
+    if (b == 0x50 || b == 0x51 || b == 0x52) {
+        int cm = srf.echo ? srf.cm : 0;
+        srf.range = b == 0x50 ? (uint16_t)(cm / 2.54) : b == 0x51 ? (uint16_t)cm : (uint16_t)(cm * 58.3);
+        srf.busy_until_us = sim_us() + 65000;
+        srf.rangings++;
+        srf.seq_n = 0;
+        return;
+    }
+    static const uint8_t change[3] = {0xA0, 0xAA, 0xA5};
+    if (srf.seq_n < 3 && b == change[srf.seq_n]) {
+        srf.seq[srf.seq_n++] = b;
+    } else if (srf.seq_n == 3 && !(b & 1) && (b >> 1) >= 0x70 && (b >> 1) <= 0x7F) {
+        srf.addr = b >> 1;
+        srf.seq_n = 0;
+    } else {
+        srf.seq_n = 0;
+    }
+}
+
+static uint8_t srf_read(uint8_t reg) {
+    switch (reg) {
+    case 0: return 6; /* software revision */
+    case 1: return 0x80;
+    case 2: return (uint8_t)(srf.range >> 8);
+    case 3: return (uint8_t)srf.range;
+    case 5: return 18;
+    default: return 0;
+    }
+}
+
+static void srf_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)param;
+    avr_twi_msg_irq_t v;
+    v.u.v = value;
+    srf.msgs++;
+    srf.last_msg = value;
+    avr_irq_t *to_avr = avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT);
+    if (v.u.twi.msg & TWI_COND_STOP) srf.selected = 0;
+    if (v.u.twi.msg & TWI_COND_START) {
+        srf.selected = 0;
+        srf.index = 0;
+        int busy = sim_us() < srf.busy_until_us; /* ranging: no acknowledge at all */
+        if ((v.u.twi.addr >> 1) == srf.addr && !busy) {
+            srf.selected = v.u.twi.addr;
+            avr_raise_irq(to_avr, avr_twi_irq_msg(TWI_COND_ACK, srf.selected, 1));
+        }
+    }
+    if (!srf.selected) return;
+    if (v.u.twi.msg & TWI_COND_WRITE) {
+        avr_raise_irq(to_avr, avr_twi_irq_msg(TWI_COND_ACK, srf.selected, 1));
+        if (srf.index++ == 0) srf.reg = v.u.twi.data;
+        else srf_write(srf.reg++, v.u.twi.data);
+    }
+    if (v.u.twi.msg & TWI_COND_READ) {
+        avr_raise_irq(to_avr, avr_twi_irq_msg(TWI_COND_READ, srf.selected, srf_read(srf.reg++)));
+    }
+}
+
+/* ---- encoder: one edge every 100 µs of simulated time ----------------------------------------- */
+static int enc_pending, enc_a, enc_b;
+static uint8_t enc_port = 'D', enc_pin_a = 2, enc_pin_b = 3;
+
+static void enc_set(uint8_t pin, int level) {
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(enc_port), pin), level);
+}
+
+static avr_cycle_count_t enc_tick(avr_t *a, avr_cycle_count_t when, void *param) {
+    (void)a;
+    (void)param;
+    if (enc_pending == 0) return 0;
+    static const int seq[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    int i = 0;
+    while (seq[i][0] != enc_a || seq[i][1] != enc_b) i++;
+    int dir = enc_pending > 0 ? 1 : -1;
+    i = (i + dir + 4) % 4;
+    if (seq[i][0] != enc_a) enc_set(enc_pin_a, enc_a = seq[i][0]);
+    else enc_set(enc_pin_b, enc_b = seq[i][1]);
+    enc_pending -= dir;
+    return when + avr_usec_to_cycles(avr, 100);
+}
+
+/* ---- servo: the pulse width on OC1A ----------------------------------------------------------- */
+static uint8_t servo_port = 'B', servo_pin = 1;
+static avr_cycle_count_t servo_rise;
+static double servo_pulse_us;
+static unsigned servo_pulses;
+
+static void servo_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)param;
+    if (value) {
+        servo_rise = avr->cycle;
+    } else if (servo_rise) {
+        servo_pulse_us = (double)(avr->cycle - servo_rise) * 1e6 / avr->frequency;
+        servo_pulses++;
+    }
+}
+
+/* ---- control channel and pacing ---------------------------------------------------------------- */
+static char line[256];
+static size_t line_n;
+
+static void command(const char *cmd) {
+    int v;
+    if (sscanf(cmd, "sharp %d", &v) == 1) {
+        sharp_mm = v;
+        sharp_update();
+        printf("ok\n");
+    } else if (sscanf(cmd, "srf02 %d", &v) == 1) {
+        srf.cm = v;
+        printf("ok\n");
+    } else if (sscanf(cmd, "echo %d", &v) == 1) {
+        srf.echo = v;
+        printf("ok\n");
+    } else if (sscanf(cmd, "enc %d", &v) == 1) {
+        int idle = enc_pending == 0;
+        enc_pending += v;
+        if (idle) avr_cycle_timer_register_usec(avr, 100, enc_tick, NULL);
+        printf("ok\n");
+    } else if (strncmp(cmd, "glitch", 6) == 0) { /* both phases at once: an edge missed */
+        enc_a ^= 1;
+        enc_b ^= 1;
+        enc_set(enc_pin_a, enc_a);
+        enc_set(enc_pin_b, enc_b);
+        printf("ok\n");
+    } else if (strncmp(cmd, "pulse", 5) == 0) {
+        printf("pulse %.1f %u\n", servo_pulse_us, servo_pulses);
+    } else if (strncmp(cmd, "stats", 5) == 0) {
+        printf("stats sim_us %llu cycles %llu rangings %u srf02_addr 0x%02x pc 0x%x twi %u last 0x%08x\n",
+               (unsigned long long)sim_us(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
+    } else if (sscanf(cmd, "peek %x", (unsigned *)&v) == 1) {
+        printf("peek %02x %02x %02x %02x\n", avr->data[v], avr->data[v + 1], avr->data[v + 2], avr->data[v + 3]);
+    } else if (strncmp(cmd, "quit", 4) == 0) {
+        exit(0);
+    } else {
+        printf("error unknown command: %s\n", cmd);
+    }
+    fflush(stdout);
+}
+
+static void poll_stdin(void) {
+    char c;
+    ssize_t r;
+    while ((r = read(0, &c, 1)) == 1) {
+        if (c == '\n') {
+            line[line_n] = 0;
+            command(line);
+            line_n = 0;
+        } else if (line_n < sizeof line - 1) {
+            line[line_n++] = c;
+        }
+    }
+    if (r == 0) exit(0); /* stdin closed: the test is gone */
+}
+
+static void pace(void) {
+    /* simulated µs must not run ahead of host µs * (1 + skew) */
+    double host_us = (double)(mono_ns() - start_ns) / 1000.0 * (1.0 + skew);
+    double ahead = (double)sim_us() - host_us;
+    if (ahead > 200) usleep((useconds_t)(ahead / (1.0 + skew)));
+}
+
+int main(int argc, char **argv) {
+    const char *elf = NULL, *mcu = "atmega328p";
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--mcu") && i + 1 < argc) mcu = argv[++i];
+        else if (!strcmp(argv[i], "--skew-ppm") && i + 1 < argc) skew = atof(argv[++i]) * 1e-6;
+        else elf = argv[i];
+    }
+    if (!elf) {
+        fprintf(stderr, "usage: rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P]\n");
+        return 2;
+    }
+    elf_firmware_t f;
+    memset(&f, 0, sizeof f);
+    if (elf_read_firmware(elf, &f) != 0) {
+        fprintf(stderr, "rig_sim: cannot read %s\n", elf);
+        return 1;
+    }
+    strncpy(f.mmcu, mcu, sizeof f.mmcu - 1);
+    f.frequency = 16000000;
+    f.vcc = f.avcc = f.aref = 5000;
+    avr = avr_make_mcu_by_name(mcu);
+    if (!avr) {
+        fprintf(stderr, "rig_sim: simavr has no %s\n", mcu);
+        return 1;
+    }
+    avr_init(avr);
+    avr_load_firmware(avr, &f);
+    avr->log = 0;
+    if (strcmp(mcu, "atmega328p") != 0) { /* Mega/Leonardo: INT0/1 = PD0/PD1, OC1A = PB5 */
+        enc_pin_a = 0;
+        enc_pin_b = 1;
+        servo_pin = 5;
+    }
+    uart_pty_init(avr, &uart);
+    uart_pty_connect(&uart, strcmp(mcu, "atmega32u4") ? '0' : '1');
+    static const char *names[] = {"8<srf02.in"};
+    srf.irq = avr_alloc_irq(&avr->irq_pool, 0, 1, names);
+    avr_irq_register_notify(srf.irq, srf_hook, NULL);
+    avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), srf.irq);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(servo_port), servo_pin),
+                            servo_hook, NULL);
+    enc_set(enc_pin_a, 0);
+    enc_set(enc_pin_b, 0);
+    sharp_update();
+    fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+    printf("PTY %s\n", uart.port[0].slavename);
+    fflush(stdout);
+    start_ns = mono_ns();
+    for (unsigned long n = 0;; n++) {
+        int state = avr_run(avr);
+        if (state == cpu_Done || state == cpu_Crashed) {
+            fprintf(stderr, "rig_sim: the AVR stopped (state %d)\n", state);
+            return 1;
+        }
+        if ((n & 1023) == 0) {
+            pace();
+            poll_stdin();
+        }
+    }
+}

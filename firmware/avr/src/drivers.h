@@ -1,0 +1,24 @@
+/* Drivers for the thesis rig on AVR: the same names and behaviour as the MicroPython drivers
+ * (board/drivers/ (Python)).  One instance of each (they own fixed hardware: INT0/INT1, Timer1's
+ * OC1A, the TWI); the generator refuses a second. */
+#ifndef J2A_DRIVERS_H
+#define J2A_DRIVERS_H
+#include <stdint.h>
+
+#include "runtime.h"
+
+void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse);
+void quadrature_poll(uint64_t now);
+extern volatile uint16_t quadrature_errors;
+
+void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz);
+void sharp_poll(uint64_t now);
+
+void srf02_init(transducer_t *t, uint8_t address, uint16_t rate_hz, uint8_t min_range_cm);
+void srf02_poll(uint64_t now);
+extern uint16_t srf02_timeouts, srf02_bus_errors;
+
+void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t centre_us,
+                uint16_t span_us);
+uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+#endif

@@ -1,0 +1,296 @@
+/* The J2A board runtime for AVR: requests in, replies and sample SIFs out.
+ *
+ * Theory of operation
+ * -------------------
+ * The main loop hands every received byte to runtime_feed() with the board time the UART's
+ * interrupt stamped it at; the frame parser (wire.c) turns bytes into requests, and each complete
+ * request is answered at once: the reply is encoded straight into the UART's TX ring (waiting
+ * for room if a long reply needs it: the host is waiting for it anyway).  runtime_poll() lets the
+ * drivers run, then writes each transducer with new values as one sample SIF, but only when the
+ * TX ring has room for the SIF's worst case: a SIF never waits and never splits a reply.  A value
+ * that arrives on a channel that still holds an unsent one flushes that SIF first; if the ring
+ * is full then, the older value is dropped and counted (sifs_dropped): the newest value wins,
+ * every loss has a number.
+ *
+ * Function table order and every reply byte follow the Python runtime (board/runtime.py), so
+ * the host cannot tell the two apart: a2jGetMapping, a2jMany, a2jGetProperties, a2jDebug,
+ * a2jEcho, a2jEchoMany, then Part 2 (a2jGetMappingMany, a2jGetTransds, a2jClock, a2jHostMap,
+ * a2jSifCount), then the board's own functions.  a2jClock's t2 is the interrupt's stamp of the
+ * request's last byte, t3 is taken just before the reply's first byte enters the TX ring.
+ * No dynamic allocation; the one 255-byte scratch buffer is shared by replies and SIFs.
+ */
+#include "runtime.h"
+
+#include <avr/pgmspace.h>
+#include <string.h>
+
+#include "hal.h"
+#include "wire.h"
+
+static frame_parser_t parser;
+static uint8_t scratch[255];
+static uint64_t last_byte_us, request_us;
+static char debug_text[32];
+static uint8_t debug_len;
+static uint8_t host_map[20], host_map_set;
+static uint8_t sif_seq;
+uint32_t sifs_dropped, sifs_sent, sif_total, calls;
+char clock_epoch[9];
+
+static void tx(uint8_t b) { link_write(b); }
+
+void runtime_debug(const char *text) {
+    while (*text && debug_len < sizeof debug_text) debug_text[debug_len++] = *text++;
+}
+
+static void reply(uint8_t seq, uint8_t code, const uint8_t *payload, uint8_t n) {
+    encode_frame(tx, SOF, seq, code, payload, n);
+}
+
+static void error_frame(uint8_t seq, uint8_t code, uint16_t diag) {
+    uint8_t d[2] = {(uint8_t)(diag >> 8), (uint8_t)diag};
+    reply(seq, code, d, 2);
+}
+
+/* ---- blobs -------------------------------------------------------------------------------- */
+static uint16_t mapping_len(void) {
+    uint16_t n = 0;
+    for (uint8_t i = 0; i < board_function_count; i++)
+        n += strlen_P(board_functions[i].name) + 1;
+    return n;
+}
+
+static uint8_t mapping_at(uint16_t k) {
+    for (uint8_t i = 0; i < board_function_count; i++) {
+        uint16_t len = strlen_P(board_functions[i].name) + 1;
+        if (k < len) return k + 1 == len ? 0 : pgm_read_byte(board_functions[i].name + k);
+        k -= len;
+    }
+    return 0;
+}
+
+const blob_t mapping_blob = {mapping_len, mapping_at};
+
+uint8_t get_mapping(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    /* As much as fits in one reply, cut at a name boundary (the full table: GetMappingMany). */
+    (void)in;
+    (void)n;
+    uint16_t total = mapping_len(), cut = 0;
+    for (uint16_t k = 0; k < total && k < 255; k++) {
+        out[k] = mapping_at(k);
+        if (out[k] == 0) cut = k + 1;
+    }
+    *out_n = (uint8_t)(total <= 255 ? total : cut);
+    return 0;
+}
+
+/* ---- built-in plain functions -------------------------------------------------------------- */
+uint8_t get_debug(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    memcpy(out, debug_text, debug_len);
+    *out_n = debug_len;
+    debug_len = 0;
+    return 0;
+}
+
+uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    memmove(out, in, n);
+    *out_n = n;
+    return 0xBA;
+}
+
+uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    /* <Q board µs><q host ns><i rate - 1 in ppb>; empty payload reads it back. */
+    *out_n = 0;
+    if (n == 20) {
+        memcpy(host_map, in, 20);
+        host_map_set = 1;
+        return 0;
+    }
+    if (n == 0 && host_map_set) {
+        memcpy(out, host_map, 20);
+        *out_n = 20;
+        return 0;
+    }
+    return 0xFF;
+}
+
+static void put_u64(uint8_t *out, uint64_t v) {
+    for (uint8_t i = 0; i < 8; i++) out[i] = (uint8_t)(v >> (8 * i));
+}
+
+uint8_t sif_count(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    put_u64(out, sif_total);
+    *out_n = 8;
+    return 0;
+}
+
+static uint8_t not_plain(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    (void)out;
+    *out_n = 0;
+    return 0xFF;
+}
+
+const char n_get_mapping[] PROGMEM = "a2jGetMapping";
+const char n_many[] PROGMEM = "a2jMany";
+const char n_get_properties[] PROGMEM = "a2jGetProperties";
+const char n_debug[] PROGMEM = "a2jDebug";
+const char n_echo[] PROGMEM = "a2jEcho";
+const char n_echo_many[] PROGMEM = "a2jEchoMany";
+const char n_get_mapping_many[] PROGMEM = "a2jGetMappingMany";
+const char n_get_transds[] PROGMEM = "a2jGetTransds";
+const char n_clock[] PROGMEM = "a2jClock";
+const char n_host_map[] PROGMEM = "a2jHostMap";
+const char n_sif_count[] PROGMEM = "a2jSifCount";
+
+/* ---- a2jMany (spec 1.11) -------------------------------------------------------------------- */
+static void many(uint8_t seq, const uint8_t *in, uint8_t n) {
+    if (n < 6) { /* as the original: 0xFF, the request payload echoed */
+        memmove(scratch, in, n);
+        reply(seq, 0xFF, scratch, n);
+        return;
+    }
+    uint8_t target = in[0], flags = in[1];
+    uint32_t offset = (uint32_t)in[2] | ((uint32_t)in[3] << 8) | ((uint32_t)in[4] << 16) |
+                      ((uint32_t)in[5] << 24);
+    if (target >= board_function_count) {
+        error_frame(seq, ERR_INDEX, DIAG_INDEX);
+        return;
+    }
+    const function_t *f = &board_functions[target];
+    uint8_t ret = 0xFF, last = 1, len = 0;
+    uint8_t *data = scratch + 6;
+    if (f->kind == KIND_BLOB) {
+        if (flags & 2) { /* write to a read-only blob: flags byte 00, as the original */
+            last = 0;
+        } else {
+            uint16_t total = f->blob->len();
+            ret = 0;
+            while (offset + len < total && len < MANY_CHUNK) {
+                data[len] = f->blob->at((uint16_t)(offset + len));
+                len++;
+            }
+            last = offset + len >= total;
+        }
+    } else if (f->kind == KIND_ECHO_MANY) {
+        len = n - 6;
+        if (len > MANY_CHUNK) len = MANY_CHUNK;
+        memmove(data, in + 6, len);
+        ret = 0xBE;
+        last = flags & 1;
+    }
+    memmove(scratch + 2, in + 2, 4); /* the offset, echoed */
+    scratch[0] = ret;
+    scratch[1] = last ? 1 : 0;
+    reply(seq, 0, scratch, (uint8_t)(6 + len));
+}
+
+/* ---- requests ------------------------------------------------------------------------------- */
+static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
+    calls++;
+    if (op >= board_function_count) {
+        error_frame(seq, ERR_INDEX, DIAG_INDEX);
+        return;
+    }
+    const function_t *f = &board_functions[op];
+    if (op == 1) {
+        many(seq, in, n);
+        return;
+    }
+    if (f->kind == KIND_CLOCK && n == 0) {
+        /* t2: the stamp of the request's last byte; t3: now, as the reply enters the ring */
+        put_u64(scratch, request_us);
+        put_u64(scratch + 8, board_clock());
+        reply(seq, 0, scratch, 16);
+        return;
+    }
+    plain_fn_t fn = f->kind == KIND_PLAIN ? f->plain : not_plain;
+    uint8_t out_n = 0;
+    uint8_t code = fn(in, n, scratch, &out_n);
+    if (code >= 0xF0 && code <= 0xF4) {
+        runtime_debug("reserved code;");
+        code = 0xFF;
+    }
+    reply(seq, code, scratch, out_n);
+}
+
+void runtime_feed(uint8_t b, uint64_t rx_us) {
+    last_byte_us = rx_us;
+    uint8_t ev = frame_parser_feed(&parser, b);
+    if (ev == EV_NONE) return;
+    if (ev == EV_REQUEST) {
+        request_us = rx_us;
+        dispatch(parser.seq, parser.op, parser.buf, parser.n);
+    } else if (parser.has_seq) {
+        if (ev == EV_CUT) error_frame(parser.seq, ERR_TIMEOUT, DIAG_CUT);
+        else if (ev == EV_CHECKSUM) error_frame(parser.seq, ERR_CHECKSUM, DIAG_CHECKSUM);
+        else error_frame(parser.seq, ERR_ESCAPE, DIAG_ESCAPE);
+    }
+}
+
+/* ---- samples -------------------------------------------------------------------------------- */
+static uint8_t sif_payload(transducer_t *t, uint64_t now) {
+    /* [t0 v0 t1 v1 ...]; channels without a new value carry N/A, stamped now */
+    uint8_t k = 0;
+    for (uint8_t ch = 0; ch < t->chan_count; ch++) {
+        uint8_t has = t->pending & (1u << ch);
+        put_u64(scratch + k, has ? t->stamps[ch] : now);
+        k += 8;
+        uint32_t v = has ? t->values[ch] : t->na;
+        for (uint8_t i = 0; i < t->size; i++) scratch[k++] = (uint8_t)(v >> (8 * i));
+    }
+    t->pending = 0;
+    return k;
+}
+
+/* Write t's SIF if the ring has room for its worst case; 0 if it had to wait. */
+static uint8_t flush_sif(transducer_t *t, uint64_t now) {
+    uint8_t n = (uint8_t)(t->chan_count * (8 + t->size));
+    if (link_tx_free() < FRAME_MAX(n)) return 0;
+    n = sif_payload(t, now);
+    encode_frame(tx, SOS, sif_seq++, t->tid, scratch, n);
+    sif_total++;
+    sifs_sent++;
+    return 1;
+}
+
+static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
+    if (t->pending & (1u << ch)) {
+        if (!flush_sif(t, stamp)) { /* no room: the older value goes, counted */
+            sifs_dropped++;
+            t->pending &= (uint8_t)~(1u << ch);
+        }
+    }
+    t->stamps[ch] = stamp;
+    t->values[ch] = raw;
+    t->pending |= (uint8_t)(1u << ch);
+}
+
+void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us) {
+    if (channel >= t->chan_count) return;
+    keep(t, channel, raw, stamp_us);
+}
+
+void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
+    if (channel >= t->chan_count) return;
+    keep(t, channel, t->na, stamp_us);
+}
+
+void runtime_poll(void) {
+    uint64_t now = board_clock();
+    board_poll(now);
+    for (uint8_t i = 0; i < board_transducer_count; i++) {
+        if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);
+    }
+    if (frame_parser_in_frame(&parser) && now - last_byte_us > INTERBYTE_TIMEOUT_US) {
+        if (frame_parser_abort(&parser) == EV_CUT && parser.has_seq)
+            error_frame(parser.seq, ERR_TIMEOUT, DIAG_SILENCE);
+    }
+}
+
+void runtime_init(void) { frame_parser_init(&parser); }

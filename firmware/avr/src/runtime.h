@@ -1,0 +1,88 @@
+/* The J2A board runtime in C: the same concepts and names as the Python runtime
+ * (board/runtime.py): a function table, properties, transducers, feed / poll / output. */
+#ifndef J2A_RUNTIME_H
+#define J2A_RUNTIME_H
+#include <stdint.h>
+
+#define J2A_VERSION "2"
+#define ERR_INDEX 0xF0
+#define ERR_TIMEOUT 0xF2
+#define ERR_CHECKSUM 0xF3
+#define ERR_ESCAPE 0xF4
+#define MANY_CHUNK 249
+#define INTERBYTE_TIMEOUT_US 10000UL
+#define DIAG_CUT 1
+#define DIAG_SILENCE 2
+#define DIAG_CHECKSUM 3
+#define DIAG_ESCAPE 4
+#define DIAG_INDEX 5
+
+/* A plain function: payload in, return code out, reply in out[0..*out_n). */
+typedef uint8_t (*plain_fn_t)(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+/* A read-only blob served through a2jMany: its length and its byte at i. */
+typedef struct {
+    uint16_t (*len)(void);
+    uint8_t (*at)(uint16_t i);
+} blob_t;
+
+enum { KIND_PLAIN = 0, KIND_BLOB, KIND_ECHO_MANY, KIND_CLOCK };
+
+typedef struct {
+    const char *name; /* in flash (PROGMEM) */
+    uint8_t kind;
+    plain_fn_t plain;
+    const blob_t *blob;
+} function_t;
+
+/* Data types (spec 2.2), as board/dtypes.py */
+enum { DT_INT8 = 0, DT_UINT8, DT_INT16, DT_UINT16, DT_INT32, DT_UINT32, DT_FLOAT };
+
+typedef struct {
+    uint8_t tid;
+    uint8_t dtype;
+    uint8_t chan_count; /* at most 8 on AVR */
+    uint8_t size;       /* bytes per value */
+    uint32_t na;        /* N/A value, raw little-endian bits */
+    volatile uint8_t pending; /* bit per channel with an unsent value */
+    uint64_t *stamps;   /* chan_count stamps (board µs) */
+    uint32_t *values;   /* chan_count raw values */
+    uint16_t values_dropped;
+} transducer_t;
+
+/* The built-in functions: board_gen.c starts its table with BUILTIN_FUNCTIONS. */
+uint8_t get_mapping(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+uint8_t get_debug(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+uint8_t sif_count(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+extern const blob_t mapping_blob, board_properties_blob, board_transds_blob;
+extern const char n_get_mapping[], n_many[], n_get_properties[], n_debug[], n_echo[],
+    n_echo_many[], n_get_mapping_many[], n_get_transds[], n_clock[], n_host_map[], n_sif_count[];
+#define BUILTIN_COUNT 11
+#define BUILTIN_FUNCTIONS                                                                      \
+    {n_get_mapping, KIND_PLAIN, get_mapping, 0}, {n_many, KIND_PLAIN, 0, 0},                   \
+        {n_get_properties, KIND_BLOB, 0, &board_properties_blob},                             \
+        {n_debug, KIND_PLAIN, get_debug, 0}, {n_echo, KIND_PLAIN, echo, 0},                    \
+        {n_echo_many, KIND_ECHO_MANY, 0, 0}, {n_get_mapping_many, KIND_BLOB, 0, &mapping_blob}, \
+        {n_get_transds, KIND_BLOB, 0, &board_transds_blob}, {n_clock, KIND_CLOCK, 0, 0},      \
+        {n_host_map, KIND_PLAIN, host_map_fn, 0}, {n_sif_count, KIND_PLAIN, sif_count, 0}
+
+/* Board tables, generated from the board file (board_gen.c) */
+extern function_t board_functions[];
+extern const uint8_t board_function_count;
+extern transducer_t board_transducers[];
+extern const uint8_t board_transducer_count;
+void board_setup(void);              /* drivers and their pins */
+void board_poll(uint64_t now_us);    /* drivers that need CPU time */
+
+void runtime_init(void);
+void runtime_feed(uint8_t b, uint64_t rx_us);
+void runtime_poll(void);
+/* Drivers: a value (raw bits of the transducer's type) or N/A, stamped at stamp_us. */
+void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us);
+void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us);
+void runtime_debug(const char *text);
+
+extern uint32_t sifs_dropped, sifs_sent, sif_total, calls;
+extern char clock_epoch[9];
+#endif

@@ -1,0 +1,194 @@
+"""``missing-link gen-firmware BOARDFILE --target avr``: the C tables of an AVR board
+(``board_gen.c``) from the same board file a MicroPython board uses.
+
+The transducer descriptors are made by the same code as on MicroPython
+(``board.firmware.describe``), so both firmwares describe a board file byte for byte alike.  The
+C runtime (firmware/avr/src) owns the hardware, so each driver exists once and on fixed pins;
+what the board file asks that the hardware cannot do is refused here, naming the entry."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .board.drivers import driver_class
+from .board.dtypes import DTYPES
+from .board.firmware import describe
+from .boardfile import BoardFile
+from .config import ConfigError
+
+#: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo)
+PINS = {
+    "atmega328p": {"quad": (2, 3), "servo": 9, "board": "Uno/Nano"},
+    "atmega2560": {"quad": (21, 20), "servo": 11, "board": "Mega 2560"},
+    "atmega32u4": {"quad": (3, 2), "servo": 9, "board": "Leonardo"},
+}
+DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
+      "int32_t": "DT_INT32", "uint32_t": "DT_UINT32", "float": "DT_FLOAT"}  # fmt: skip
+AVR_DRIVERS = ("quadrature", "sharp_gp2y0a02", "srf02", "servo")
+MAX_SIF_PAYLOAD = 120  # the TX ring (256) must hold a SIF's worst-case escaping
+
+
+def _c_string(data: bytes) -> str:
+    """A C string literal for arbitrary bytes (NULs included), split into lines."""
+    parts, line = [], ""
+    for b in data:
+        ch = chr(b)
+        if ch == "\\" or ch == '"':
+            line += "\\" + ch
+        elif 32 <= b < 127 and not (line.endswith(("\\x", "\\0")) and ch in "0123456789abcdefABCDEF"):
+            line += ch
+        else:
+            line += f"\\{b:03o}"
+        if b in (0, 10) and len(line) > 60:
+            parts.append(f'"{line}"')
+            line = ""
+    parts.append(f'"{line}"')
+    return "\n    ".join(parts)
+
+
+def _props(pairs: list[tuple[str, str]]) -> bytes:
+    return b"".join(k.encode() + b"\0" + v.encode() + b"\0" for k, v in pairs)
+
+
+def _na_raw(dtype: str, na: float) -> str:
+    import struct
+
+    code, size = DTYPES[dtype][0], DTYPES[dtype][1]
+    raw = struct.pack("<" + code, na) + bytes(4 - size)
+    return f"0x{struct.unpack('<I', raw)[0]:08x}UL"
+
+
+def generate_avr(bf: BoardFile) -> str:
+    """The C source of board_gen.c for ``bf``; ConfigError for what an AVR cannot do."""
+    where = str(bf.path)
+    if not bf.is_avr:
+        raise ConfigError(f"{where}: mcu {bf.mcu!r} is not an AVR (atmega328p/2560/32u4)")
+    pins = PINS[bf.mcu]
+    board = bf.board
+    seen: set[str] = set()
+    decls, setup, polls, funcs, lines = [], [], [], [], ["transds/1"]
+    for k, e in enumerate(bf.transducers):
+        drv, name = e["driver"], e["name"]
+        at = f"{where}: {name}"
+        if drv not in AVR_DRIVERS:
+            raise ConfigError(f"{at}: driver {drv} is not in the AVR runtime ({', '.join(AVR_DRIVERS)})")
+        if drv in seen:
+            raise ConfigError(f"{at}: a second {drv}: the AVR runtime has one (fixed hardware)")
+        seen.add(drv)
+        t = describe(e, driver_class(drv))
+        if t.dtype not in DT:
+            raise ConfigError(f"{at}: type {t.dtype} is not supported on AVR")
+        if t.chan_count * (8 + DTYPES[t.dtype][1]) > MAX_SIF_PAYLOAD:
+            raise ConfigError(f"{at}: its SIF would exceed {MAX_SIF_PAYLOAD} bytes on AVR")
+        lines.append(t.descriptor_line())
+        size = DTYPES[t.dtype][1]
+        decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
+        decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
+        rate = int(e.get("rate_hz", 50 if drv == "quadrature" else 25 if drv == "sharp_gp2y0a02" else 10))
+        tref = f"&board_transducers[{k}]"
+        if drv == "quadrature":
+            if (e["pin_a"], e["pin_b"]) != pins["quad"]:
+                raise ConfigError(
+                    f"{at}: on the {pins['board']} the encoder is on pins {pins['quad'][0]} and "
+                    f"{pins['quad'][1]} (INT0/INT1), not {e['pin_a']} and {e['pin_b']}"
+                )
+            setup.append(f"quadrature_init({tref}, {rate}, {1 if e.get('reverse') else 0});")
+            polls.append("quadrature_poll(now);")
+        elif drv == "sharp_gp2y0a02":
+            if not 0 <= int(e["pin"]) <= 7:
+                raise ConfigError(f"{at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
+            setup.append(f"sharp_init({tref}, {int(e['pin'])}, {rate});")
+            polls.append("sharp_poll(now);")
+        elif drv == "srf02":
+            setup.append(
+                f"srf02_init({tref}, 0x{int(e.get('address', 0x70)):02x}, {rate}, "
+                f"{int(e.get('min_range', 16))});"
+            )
+            polls.append("srf02_poll(now);")
+        else:  # servo
+            if int(e["pin"]) != pins["servo"]:
+                raise ConfigError(
+                    f"{at}: on the {pins['board']} the servo is on pin {pins['servo']} (OC1A)"
+                )
+            span = int(e.get("span_us", 1200))
+            setup.append(
+                f"servo_init({tref}, {int(e.get('min_us', 900))}, {int(e.get('max_us', 2100))}, "
+                f"{int(e.get('centre_us', 1500))}, {span});"
+            )
+            funcs.append((t.options["call"], "servo_command"))
+        na = _na_raw(t.dtype, t.na)
+        decls.append(f"/* transducer {k}: {name} */")
+        decls.append(
+            f"#define T_{k} {{{t.tid}, {DT[t.dtype]}, {t.chan_count}, {size}, {na}, 0, "
+            f"stamps_{k}, values_{k}, 0}}"
+        )
+    transds = ("\n".join(lines) + "\n").encode()
+    head = _props(
+        [
+            ("j2a.version", "2"),
+            ("board.name", bf.name),
+            ("board.model", str(board.get("model", f"missing-link {bf.mcu} board"))),
+            ("board.serial", str(board.get("serial", f"avr-{bf.name}"))),
+        ]
+    ) + b"clock.epoch\0"
+    tail = b"\0" + _props([("clock.res_us", "1"), ("fw.version", str(board.get("fw_version", "0.2.0")))])
+    n = len(bf.transducers)
+    out = [
+        "/* Generated by `missing-link gen-firmware` from " + bf.path.name + ": do not edit. */",
+        '#include <avr/pgmspace.h>',
+        '#include <string.h>',
+        '#include "drivers.h"',
+        '#include "runtime.h"',
+        "",
+        *decls,
+        f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
+        f"const uint8_t board_transducer_count = {n};",
+        "",
+        f"static const char transds[] PROGMEM = {_c_string(transds)};",
+        f"static uint16_t transds_len(void) {{ return {len(transds)}; }}",
+        "static uint8_t transds_at(uint16_t i) { return pgm_read_byte(transds + i); }",
+        "const blob_t board_transds_blob = {transds_len, transds_at};",
+        "",
+        "/* properties: the fixed head and tail in flash, clock.epoch (per boot) in RAM between */",
+        f"static const char props_head[] PROGMEM = {_c_string(head)};",
+        f"static const char props_tail[] PROGMEM = {_c_string(tail)};",
+        f"#define HEAD {len(head)}",
+        f"#define TAIL {len(tail)}",
+        "static uint16_t props_len(void) { return HEAD + strlen(clock_epoch) + TAIL; }",
+        "static uint8_t props_at(uint16_t i) {",
+        "    if (i < HEAD) return pgm_read_byte(props_head + i);",
+        "    i -= HEAD;",
+        "    uint16_t e = strlen(clock_epoch);",
+        "    if (i < e) return (uint8_t)clock_epoch[i];",
+        "    return pgm_read_byte(props_tail + (i - e));",
+        "}",
+        "const blob_t board_properties_blob = {props_len, props_at};",
+        "",
+    ]
+    for j, (fname, _fn) in enumerate(funcs):
+        out.append(f'static const char fname_{j}[] PROGMEM = "{fname}";')
+    own = "".join(f", {{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs))
+    out += [
+        f"function_t board_functions[] = {{BUILTIN_FUNCTIONS{own}}};",
+        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs)};",
+        "",
+        "void board_setup(void) {",
+    ]
+    out += [f"    {line}" for line in setup]
+    out += ["}", "", "void board_poll(uint64_t now) {"]
+    out += [f"    {line}" for line in polls] or ["    (void)now;"]
+    out += ["}", ""]
+    return "\n".join(out)
+
+
+def write_avr(bf: BoardFile, out_dir: Path) -> list[Path]:
+    """Write board_gen.c and board.mk (MCU, baud) into out_dir; returns the files."""
+    src = generate_avr(bf)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    c = out_dir / "board_gen.c"
+    c.write_text(src)
+    link = bf.board.get("link", {})
+    baud = int(link.get("baudrate", 115200))
+    mk = out_dir / "board.mk"
+    mk.write_text(f"MCU = {bf.mcu}\nBAUD = {baud}\nNAME = {bf.name}\n")
+    return [c, mk]
