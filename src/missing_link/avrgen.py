@@ -8,6 +8,7 @@ what the board file asks that the hardware cannot do is refused here, naming the
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from .board.drivers import driver_class
@@ -16,11 +17,19 @@ from .board.firmware import describe
 from .boardfile import BoardFile
 from .config import ConfigError
 
+
 #: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo)
+@dataclass(frozen=True)
+class FixedPins:
+    quad: tuple[int, int]  #: INT0, INT1
+    servo: int  #: OC1A
+    board: str
+
+
 PINS = {
-    "atmega328p": {"quad": (2, 3), "servo": 9, "board": "Uno/Nano"},
-    "atmega2560": {"quad": (21, 20), "servo": 11, "board": "Mega 2560"},
-    "atmega32u4": {"quad": (3, 2), "servo": 9, "board": "Leonardo"},
+    "atmega328p": FixedPins((2, 3), 9, "Uno/Nano"),
+    "atmega2560": FixedPins((21, 20), 11, "Mega 2560"),
+    "atmega32u4": FixedPins((3, 2), 9, "Leonardo"),
 }
 DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
       "int32_t": "DT_INT32", "uint32_t": "DT_UINT32", "float": "DT_FLOAT"}  # fmt: skip
@@ -35,10 +44,10 @@ def _c_string(data: bytes) -> str:
         ch = chr(b)
         if ch == "\\" or ch == '"':
             line += "\\" + ch
-        elif 32 <= b < 127 and not (line.endswith(("\\x", "\\0")) and ch in "0123456789abcdefABCDEF"):
+        elif 32 <= b < 127:
             line += ch
         else:
-            line += f"\\{b:03o}"
+            line += f"\\{b:03o}"  # always 3 octal digits: a digit after it stays a digit
         if b in (0, 10) and len(line) > 60:
             parts.append(f'"{line}"')
             line = ""
@@ -71,7 +80,8 @@ def generate_avr(bf: BoardFile) -> str:
         drv, name = e["driver"], e["name"]
         at = f"{where}: {name}"
         if drv not in AVR_DRIVERS:
-            raise ConfigError(f"{at}: driver {drv} is not in the AVR runtime ({', '.join(AVR_DRIVERS)})")
+            known = ", ".join(AVR_DRIVERS)
+            raise ConfigError(f"{at}: driver {drv} is not in the AVR runtime ({known})")
         if drv in seen:
             raise ConfigError(f"{at}: a second {drv}: the AVR runtime has one (fixed hardware)")
         seen.add(drv)
@@ -84,13 +94,14 @@ def generate_avr(bf: BoardFile) -> str:
         size = DTYPES[t.dtype][1]
         decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
         decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
-        rate = int(e.get("rate_hz", 50 if drv == "quadrature" else 25 if drv == "sharp_gp2y0a02" else 10))
+        default_rate = {"quadrature": 50, "sharp_gp2y0a02": 25}.get(drv, 10)
+        rate = int(e.get("rate_hz", default_rate))
         tref = f"&board_transducers[{k}]"
         if drv == "quadrature":
-            if (e["pin_a"], e["pin_b"]) != pins["quad"]:
+            if (e["pin_a"], e["pin_b"]) != pins.quad:
                 raise ConfigError(
-                    f"{at}: on the {pins['board']} the encoder is on pins {pins['quad'][0]} and "
-                    f"{pins['quad'][1]} (INT0/INT1), not {e['pin_a']} and {e['pin_b']}"
+                    f"{at}: on the {pins.board} the encoder is on pins {pins.quad[0]} and "
+                    f"{pins.quad[1]} (INT0/INT1), not {e['pin_a']} and {e['pin_b']}"
                 )
             setup.append(f"quadrature_init({tref}, {rate}, {1 if e.get('reverse') else 0});")
             polls.append("quadrature_poll(now);")
@@ -106,9 +117,9 @@ def generate_avr(bf: BoardFile) -> str:
             )
             polls.append("srf02_poll(now);")
         else:  # servo
-            if int(e["pin"]) != pins["servo"]:
+            if int(e["pin"]) != pins.servo:
                 raise ConfigError(
-                    f"{at}: on the {pins['board']} the servo is on pin {pins['servo']} (OC1A)"
+                    f"{at}: on the {pins.board} the servo is on pin {pins.servo} (OC1A)"
                 )
             span = int(e.get("span_us", 1200))
             setup.append(
@@ -123,20 +134,24 @@ def generate_avr(bf: BoardFile) -> str:
             f"stamps_{k}, values_{k}, 0}}"
         )
     transds = ("\n".join(lines) + "\n").encode()
-    head = _props(
-        [
-            ("j2a.version", "2"),
-            ("board.name", bf.name),
-            ("board.model", str(board.get("model", f"missing-link {bf.mcu} board"))),
-            ("board.serial", str(board.get("serial", f"avr-{bf.name}"))),
-        ]
-    ) + b"clock.epoch\0"
-    tail = b"\0" + _props([("clock.res_us", "1"), ("fw.version", str(board.get("fw_version", "0.2.0")))])
+    head = (
+        _props(
+            [
+                ("j2a.version", "2"),
+                ("board.name", bf.name),
+                ("board.model", str(board.get("model", f"missing-link {bf.mcu} board"))),
+                ("board.serial", str(board.get("serial", f"avr-{bf.name}"))),
+            ]
+        )
+        + b"clock.epoch\0"
+    )
+    fw = str(board.get("fw_version", "0.2.0"))
+    tail = b"\0" + _props([("clock.res_us", "1"), ("fw.version", fw)])
     n = len(bf.transducers)
     out = [
         "/* Generated by `missing-link gen-firmware` from " + bf.path.name + ": do not edit. */",
-        '#include <avr/pgmspace.h>',
-        '#include <string.h>',
+        "#include <avr/pgmspace.h>",
+        "#include <string.h>",
         '#include "drivers.h"',
         '#include "runtime.h"',
         "",

@@ -2,14 +2,14 @@
  * bridged to a pseudo-terminal (simavr's uart_pty part), and the rig is modelled at the pins and
  * buses: a Sharp GP2Y0A02YK's voltage on an ADC input, an SRF02 as a TWI device (registers,
  * no acknowledge while ranging, the address-change sequence), quadrature edges on INT0/INT1,
- * and the servo's pulse width measured on OC1A.
+ * and the servo's frame on OC1A with its pulse width from the timer's registers.
  *
  *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P]
  *
  * Prints "PTY /dev/pts/N" when the board runs.  Simulated time is paced to the host's
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
- *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | quit
+ *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
  */
 #define _GNU_SOURCE
 #include <fcntl.h>
@@ -137,7 +137,7 @@ static void srf_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 }
 
 /* ---- encoder: one edge every 100 µs of simulated time ----------------------------------------- */
-static int enc_pending, enc_a, enc_b;
+static int enc_pending, enc_a = 1, enc_b = 1; /* both high: what the pull-ups read at rest */
 static uint8_t enc_port = 'D', enc_pin_a = 2, enc_pin_b = 3;
 
 static void enc_set(uint8_t pin, int level) {
@@ -159,21 +159,32 @@ static avr_cycle_count_t enc_tick(avr_t *a, avr_cycle_count_t when, void *param)
     return when + avr_usec_to_cycles(avr, 100);
 }
 
-/* ---- servo: the pulse width on OC1A ----------------------------------------------------------- */
+/* ---- servo: OC1A ---------------------------------------------------------------------------------
+ * The frame period is measured at the pin (rising edges).  The pulse width is read from the
+ * timer's registers as the hardware would produce it (OCR1A ticks at the prescaled clock, output
+ * enabled by COM1A1 and DDR): simavr 1.6 raises OC1A at each frame but drops it again within a
+ * few cycles whatever OCR1A holds, so the pin's high time says nothing about the width. */
 static uint8_t servo_port = 'B', servo_pin = 1;
-static avr_cycle_count_t servo_rise;
-static double servo_pulse_us;
-static unsigned servo_pulses;
+static avr_cycle_count_t servo_rise, servo_period;
+static unsigned servo_frames;
 
 static void servo_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     (void)irq;
     (void)param;
     if (value) {
+        if (servo_rise) servo_period = avr->cycle - servo_rise;
         servo_rise = avr->cycle;
-    } else if (servo_rise) {
-        servo_pulse_us = (double)(avr->cycle - servo_rise) * 1e6 / avr->frequency;
-        servo_pulses++;
+        servo_frames++;
     }
+}
+
+static double servo_pulse_us(void) {
+    enum { TCCR1A = 0x80, TCCR1B = 0x81, OCR1AL = 0x88, DDRB = 0x24 };
+    static const unsigned prescale[8] = {0, 1, 8, 64, 256, 1024, 0, 0};
+    unsigned ps = prescale[avr->data[TCCR1B] & 7];
+    if (!(avr->data[TCCR1A] & 0x80) || !(avr->data[DDRB] & (1u << servo_pin)) || !ps) return 0;
+    unsigned ocr = avr->data[OCR1AL] | (avr->data[OCR1AL + 1] << 8);
+    return (double)ocr * ps * 1e6 / avr->frequency;
 }
 
 /* ---- control channel and pacing ---------------------------------------------------------------- */
@@ -204,10 +215,11 @@ static void command(const char *cmd) {
         enc_set(enc_pin_b, enc_b);
         printf("ok\n");
     } else if (strncmp(cmd, "pulse", 5) == 0) {
-        printf("pulse %.1f %u\n", servo_pulse_us, servo_pulses);
+        printf("pulse %.1f period %.1f frames %u\n", servo_pulse_us(),
+               (double)servo_period * 1e6 / avr->frequency, servo_frames);
     } else if (strncmp(cmd, "stats", 5) == 0) {
-        printf("stats sim_us %llu cycles %llu rangings %u srf02_addr 0x%02x pc 0x%x twi %u last 0x%08x\n",
-               (unsigned long long)sim_us(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
+        printf("stats sim_us %llu host_ns %llu cycles %llu rangings %u srf02_addr 0x%02x pc 0x%x twi %u last 0x%08x\n",
+               (unsigned long long)sim_us(), (unsigned long long)mono_ns(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
     } else if (sscanf(cmd, "peek %x", (unsigned *)&v) == 1) {
         printf("peek %02x %02x %02x %02x\n", avr->data[v], avr->data[v + 1], avr->data[v + 2], avr->data[v + 3]);
     } else if (strncmp(cmd, "quit", 4) == 0) {
@@ -237,7 +249,7 @@ static void pace(void) {
     /* simulated µs must not run ahead of host µs * (1 + skew) */
     double host_us = (double)(mono_ns() - start_ns) / 1000.0 * (1.0 + skew);
     double ahead = (double)sim_us() - host_us;
-    if (ahead > 200) usleep((useconds_t)(ahead / (1.0 + skew)));
+    if (ahead > 50) usleep((useconds_t)(ahead / (1.0 + skew)));
 }
 
 int main(int argc, char **argv) {
@@ -281,8 +293,8 @@ int main(int argc, char **argv) {
     avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), srf.irq);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(servo_port), servo_pin),
                             servo_hook, NULL);
-    enc_set(enc_pin_a, 0);
-    enc_set(enc_pin_b, 0);
+    enc_set(enc_pin_a, enc_a);
+    enc_set(enc_pin_b, enc_b);
     sharp_update();
     fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
     printf("PTY %s\n", uart.port[0].slavename);

@@ -74,7 +74,7 @@ def describe(entry, cls):
         cls.CHANNELS,
         entry.get("dtype", cls.DTYPE),
         entry.get("na", cls.NA),
-        **options
+        **options,
     )
 
 
