@@ -104,3 +104,35 @@ def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
             verify(sim.url, load_board_file(other))
     finally:
         sim.close()
+
+
+UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
+
+
+def test_avr_dry_run_shows_the_build_and_avrdude() -> None:
+    r = cli("flash", str(UNO), "--port", "/dev/ttyACM3", "--dry-run")
+    assert r.returncode == 0, r.stderr
+    assert "make -C" in r.stdout and "firmware/avr BOARD=" in r.stdout
+    assert "avrdude -p m328p -c arduino -P /dev/ttyACM3 -b 115200 -D -U flash:w:" in r.stdout
+
+
+@pytest.mark.avr
+def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Path) -> None:
+    r = cli("flash", str(UNO), "--port", str(tmp_path / "ttyACM9"))
+    assert "atmega328p: flash" in r.stdout  # built for real, size printed
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.startswith("missing-link: error: avrdude on ")
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
+    from missing_link.avrgen import generate_avr
+
+    body = UNO.read_text().replace('"pin_a": 2, "pin_b": 3', '"pin_a": 4, "pin_b": 5')
+    with pytest.raises(ConfigError, match="on the Uno/Nano the encoder is on pins 2 and 3"):
+        generate_avr(load_board_file(board_file(tmp_path, body)))
+    body = UNO.read_text().replace('"pin": 9,', '"pin": 10,')
+    with pytest.raises(ConfigError, match=r"the servo is on pin 9 \(OC1A\)"):
+        generate_avr(load_board_file(board_file(tmp_path, body)))
+    r = cli("gen-firmware", str(RIG), "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "is not an AVR" in r.stderr

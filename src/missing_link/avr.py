@@ -1,14 +1,21 @@
-"""AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file and write it with
-avrdude.  The C runtime and its generator live in firmware/avr (see docs/hardware.md)."""
+"""AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file
+(``make -C firmware/avr``, which runs ``gen-firmware``) and write it with avrdude through the
+Arduino bootloader; then ``flash`` checks the board answers J2A as the board file says."""
 
 from __future__ import annotations
 
 import shlex
+import subprocess
+import sys
+import tempfile
 from collections.abc import Callable
+from pathlib import Path
 
 from .boardfile import BoardFile
 
-#: avrdude part names and the programmer/baud of the usual Arduino bootloader per MCU
+#: firmware/avr of the source checkout this package runs from (an editable install)
+AVR_DIR = Path(__file__).resolve().parents[2] / "firmware" / "avr"
+#: avrdude part, programmer and baud of the usual Arduino bootloader per MCU
 AVRDUDE = {
     "atmega328p": ("m328p", "arduino", 115200),  # Uno, Nano (new bootloader)
     "atmega2560": ("m2560", "wiring", 115200),  # Mega 2560
@@ -16,7 +23,7 @@ AVRDUDE = {
 }
 
 
-def avrdude_command(mcu: str, port: str, hex_path: str) -> list[str]:
+def avrdude_command(mcu: str, port: str, hex_path: str | Path) -> list[str]:
     part, programmer, baud = AVRDUDE[mcu]
     return [
         "avrdude", "-p", part, "-c", programmer, "-P", port, "-b", str(baud), "-D",
@@ -24,15 +31,54 @@ def avrdude_command(mcu: str, port: str, hex_path: str) -> list[str]:
     ]  # fmt: skip
 
 
+def make_command(bf: BoardFile, build: Path) -> list[str]:
+    return [
+        "make", "-C", str(AVR_DIR), f"BOARD={bf.path.resolve()}", f"BUILD={build}",
+        f"PYTHON={sys.executable}",
+    ]  # fmt: skip
+
+
+def _run(cmd: list[str], what: str, timeout: float) -> str:
+    from .flash import FlashError
+
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except FileNotFoundError:
+        raise FlashError(
+            f"cannot run {cmd[0]}: run scripts/system-deps.sh (Debian packages)"
+        ) from None
+    except subprocess.TimeoutExpired:
+        raise FlashError(f"{what} took over {timeout:g} s") from None
+    if r.returncode != 0:
+        lines = [ln for ln in (r.stderr + r.stdout).strip().splitlines() if ln.strip()]
+        raise FlashError(f"{what} failed: {lines[-1] if lines else r.returncode}")
+    return r.stdout
+
+
 def flash_avr(
     bf: BoardFile, port: str, *, dry_run: bool, say: Callable[[str], None], check: bool
 ) -> int:
-    hex_path = f"build/avr/{bf.name}/firmware.hex"
-    cmd = avrdude_command(bf.mcu, port, hex_path)
-    if dry_run:
-        say(f"would build {hex_path} for {bf.mcu}: make -C firmware/avr BOARD={bf.path}")
-        say("would run: " + shlex.join(cmd))
-        return 0
-    from .flash import FlashError
+    from .flash import FlashError, verify
 
-    raise FlashError("AVR flashing needs the C firmware build (firmware/avr)")
+    with tempfile.TemporaryDirectory(prefix="missing-link-avr-") as tmp:
+        build = Path(tmp)
+        hex_path = build / bf.name / "firmware.hex"
+        make = make_command(bf, build)
+        dude = avrdude_command(bf.mcu, port, hex_path)
+        if dry_run:
+            say(f"would build the C firmware for {bf.mcu}: " + shlex.join(make))
+            say("would run: " + shlex.join(dude))
+            say(f"then check that serial://{port} answers J2A as {bf.name!r}")
+            return 0
+        if not AVR_DIR.is_dir():
+            raise FlashError(f"AVR flashing needs the missing-link source checkout ({AVR_DIR})")
+        out = _run(make, "building the AVR firmware", 300)
+        for line in out.splitlines():
+            if ": flash " in line:
+                say(line)  # the size line
+        say(f"writing {hex_path.name} to {port} with avrdude ...")
+        _run(dude, f"avrdude on {port}", 300)
+    if check:
+        baud = int(bf.board.get("link", {}).get("baudrate", 115200))
+        say(verify(f"serial://{port}?baud={baud}", bf))
+    return 0
