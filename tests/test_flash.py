@@ -122,6 +122,7 @@ def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Pa
     assert "atmega328p: flash" in r.stdout  # built for real, size printed
     assert r.returncode == 1, r.stderr
     assert r.stderr.startswith("missing-link: error: avrdude on ")
+    assert "cannot open port" in r.stderr
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
 
 

@@ -50,8 +50,10 @@ def _run(cmd: list[str], what: str, timeout: float) -> str:
     except subprocess.TimeoutExpired:
         raise FlashError(f"{what} took over {timeout:g} s") from None
     if r.returncode != 0:
-        lines = [ln for ln in (r.stderr + r.stdout).strip().splitlines() if ln.strip()]
-        raise FlashError(f"{what} failed: {lines[-1] if lines else r.returncode}")
+        lines = [ln.strip() for ln in (r.stderr + r.stdout).splitlines() if ln.strip()]
+        # the first line that says what went wrong (avrdude ends with "avrdude done. Thank you.")
+        errors = [ln for ln in lines if "error" in ln.lower()] or lines[-1:]
+        raise FlashError(f"{what} failed: {errors[0] if errors else r.returncode}")
     return r.stdout
 
 
