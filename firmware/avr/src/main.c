@@ -1,6 +1,7 @@
 /* missing-link AVR board: J2A over the UART, the board file's transducers (board_gen.c). */
 #include <avr/eeprom.h>
 #include <avr/interrupt.h>
+#include <avr/io.h>
 
 #include "hal.h"
 #include "runtime.h"
@@ -20,6 +21,16 @@ static void epoch_init(void) {
     clock_epoch[8] = 0;
 }
 
+#ifdef J2A_PROFILE
+/* bench/bench_avr.py reads these (simavr): Timer1 ticks (0.5 µs = 8 cycles) spent in
+ * runtime_feed per received byte, and in writing sample SIFs (runtime.c). */
+volatile uint32_t prof_feed_ticks, prof_feed_bytes;
+static uint16_t ticks_since(uint16_t t0) {
+    uint16_t t1 = TCNT1;
+    return t1 >= t0 ? t1 - t0 : (uint16_t)(t1 + 40000u - t0);
+}
+#endif
+
 int main(void) {
     board_clock_init();
     link_init(BOARD_BAUD);
@@ -30,7 +41,16 @@ int main(void) {
     for (;;) {
         uint8_t b;
         uint64_t rx_us;
-        while (link_read(&b, &rx_us)) runtime_feed(b, rx_us);
+        while (link_read(&b, &rx_us)) {
+#ifdef J2A_PROFILE
+            uint16_t t0 = TCNT1;
+            runtime_feed(b, rx_us);
+            prof_feed_ticks += ticks_since(t0);
+            prof_feed_bytes++;
+#else
+            runtime_feed(b, rx_us);
+#endif
+        }
         runtime_poll();
     }
 }

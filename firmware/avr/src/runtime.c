@@ -248,14 +248,27 @@ static uint8_t sif_payload(transducer_t *t, uint64_t now) {
     return k;
 }
 
+#ifdef J2A_PROFILE
+#include <avr/io.h>
+volatile uint32_t prof_sif_ticks, prof_sifs; /* see main.c */
+#endif
+
 /* Write t's SIF if the ring has room for its worst case; 0 if it had to wait. */
 static uint8_t flush_sif(transducer_t *t, uint64_t now) {
     uint8_t n = (uint8_t)(t->chan_count * (8 + t->size));
     if (link_tx_free() < FRAME_MAX(n)) return 0;
+#ifdef J2A_PROFILE
+    uint16_t t0 = TCNT1;
+#endif
     n = sif_payload(t, now);
     encode_frame(tx, SOS, sif_seq++, t->tid, scratch, n);
     sif_total++;
     sifs_sent++;
+#ifdef J2A_PROFILE
+    uint16_t t1 = TCNT1;
+    prof_sif_ticks += t1 >= t0 ? t1 - t0 : (uint16_t)(t1 + 40000u - t0);
+    prof_sifs++;
+#endif
     return 1;
 }
 
