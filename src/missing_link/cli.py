@@ -620,6 +620,8 @@ def cmd_board(args: argparse.Namespace) -> int:
     if args.reset_at:
         clock = extra["clock"]
         resets = [(r, round(args.boot_gap_ms * 1e6)) for r in clock.reset_ns]
+    if args.count > 1:
+        return _serve_many(args, extra)
     try:
         server = BoardServer(
             runtime,
@@ -641,6 +643,42 @@ def cmd_board(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, stop)
     print(f"LISTENING {server.url}", flush=True)
     server.serve_forever()
+    return 0
+
+
+def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
+    """``board --count N``: N boards in this one process (a thread each), named NAME_0.. and
+    seeded SEED.., one LISTENING line each: benchmarks load the host, not N board processes."""
+    from .virtual import BoardServer, make_sim
+
+    if not args.listen.startswith("tcp://") or not args.listen.endswith(":0"):
+        print("missing-link: error: --count needs --listen tcp://HOST:0", file=sys.stderr)
+        return EXIT_USAGE
+    base = extra.pop("name", None) or args.sim
+    servers = []
+    for k in range(args.count):
+        runtime = make_sim(args.sim, seed=args.seed + k, name=f"{base}_{k}", **extra)
+        servers.append(BoardServer(runtime, args.listen))
+    threads = [
+        threading.Thread(target=s.serve_forever, name=f"board:{s.url}", daemon=True)
+        for s in servers
+    ]
+    for t in threads:
+        t.start()
+    done = threading.Event()
+
+    def stop(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    for s in servers:
+        print(f"LISTENING {s.url}", flush=True)
+    done.wait()
+    for s in servers:
+        s.stop()
+    for t in threads:
+        t.join(2)
     return 0
 
 
@@ -854,6 +892,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
     sp.add_argument("--name", help="board.name property (default: the sim's)")
+    sp.add_argument(
+        "--count",
+        type=int,
+        default=1,
+        help="serve N boards from this process (NAME_0 .. NAME_N-1, tcp only; benchmarks)",
+    )
     sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
     sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")
     sp.add_argument(

@@ -17,8 +17,9 @@ at an exchange, relaxing slowly so a link that got slower is re-learnt) and will
 more than a quarter before the next probe; it halves towards ``fast_interval`` while the band
 is wider than that (a link with widely spread delays needs more exchanges to find the few fast
 ones).  It goes fast at once when an exchange is lost, lands outside the band the estimate
-predicted for it (the clock rate moved) or takes far longer than the link's best (an RTT
-jump); a reset restarts the burst.  An absolute ``target_us`` is always good enough, so a
+predicted for it (the clock rate moved) or when three in a row take far longer than the link's
+best (an RTT jump; at most every 10 s, so a loaded host does not probe faster the slower it
+gets); a reset restarts the burst.  An absolute ``target_us`` is always good enough, so a
 link whose floor is wide (TCP, a bridge's latency timer) still slows down.
 
 Glitches are outliers, not resets.  One stamp (in a sample or an exchange) that lands more than
@@ -65,7 +66,8 @@ class SyncOptions:
     target_us: float = 20.0  #: a bound under which probing may always slow down
     floor_slack: float = 1.5  #: slow down while the bound is within this factor of the floor
     floor_relax: float = 1.02  #: the floor widens by this factor per exchange (re-learning)
-    rtt_jump: float = 4.0  #: an exchange this many times slower than the best: go fast
+    rtt_jump: float = 4.0  #: 3 exchanges in a row this many times slower than the best: go fast
+    rtt_cooldown_s: float = 10.0  #: ... at most this often
     window_s: float = 30.0
     max_points: int = 128
     res_us: int = 1
@@ -116,6 +118,8 @@ class ClockSync:
         self.min_rtt_ns: int | None = None
         self.last_error_ns = 0.0  # published - estimate at the last steer
         self._floor_ns: float | None = None  # narrowest band half-width at an exchange
+        self._slow_run = 0  # exchanges in a row far slower than the link's best
+        self._last_jump = -math.inf
         self.started_at: float | None = None
         self.first_bound_at: float | None = None  # s after start when the bound fell below 1 ms
 
@@ -149,6 +153,18 @@ class ClockSync:
         elif not good:
             self._interval = max(o.fast_interval, self._interval / 2)  # a wide band: speed up
         self._next = now + self._interval * self._rng.uniform(0.75, 1.25)
+
+    def _rtt_jumped(self, rtt: int, now: float) -> bool:
+        # The link got slower: three round trips in a row far above its best.  One slow
+        # exchange is the host being busy; and at most once per rtt_cooldown_s, or a loaded
+        # host (many boards, one interpreter) would probe faster the slower it gets.
+        best = self.min_rtt_ns or rtt
+        self._slow_run = self._slow_run + 1 if rtt > self.opt.rtt_jump * best + 200_000 else 0
+        if self._slow_run < 3 or now - self._last_jump < self.opt.rtt_cooldown_s:
+            return False
+        self._slow_run = 0
+        self._last_jump = now
+        return True
 
     def _bound_good(self, ok: bool) -> bool:
         # Is the band as narrow as this link allows, and will it stay so until the next probe?
@@ -212,8 +228,7 @@ class ClockSync:
             and est.width_ns / 2 < 1e6
         ):
             self.first_bound_at = now - self.started_at
-        best = self.min_rtt_ns or rtt
-        jump = result is AddResult.ACCEPTED and rtt > self.opt.rtt_jump * best + 200_000
+        jump = self._rtt_jumped(rtt, now) if result is AddResult.ACCEPTED else False
         if result is AddResult.RESET:
             self._floor_ns = None
             self._enter(BURST, now)

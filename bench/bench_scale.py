@@ -1,0 +1,170 @@
+"""What the daemon costs as boards and rates grow: boards served by ONE other process (``board
+--count N``, so on a 2-core machine the host side is what is measured), the daemon in this one
+with the bus publisher only and one inline subscriber, 8 int32 channels per update.
+
+    .venv/bin/python bench/bench_scale.py [--seconds 5] [--quick]
+
+Per scenario: the daemon's CPU (getrusage of this process) per update and in % of a core, the
+same in multiples of the bare J2A frame decode of the same frames (the reference, measured in the
+same run), latency from the board's stamp to the subscriber (the virtual boards' clock is the
+host's CLOCK_MONOTONIC) p50/p99, and lost updates checked by their numbers (every update carries
+its counter) plus what the daemon itself counted.  Idle boards: 1 update/s.  RSS per board: the
+daemon's RSS with N boards up minus with none, / N."""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from missing_link.board.runtime import BoardRuntime, Transducer
+from missing_link.config import BoardSpec, Config
+from missing_link.daemon import Daemon
+from missing_link.j2a import FrameDecoder
+from missing_link.topics import Update
+
+CHANNELS = 8
+
+
+def cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def rss_kib() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def bare_decode_us(n: int = 20000) -> float:
+    """µs per update to decode the same SIF frames with the bare frame decoder."""
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    t = Transducer("signal", 0, "counter", "COUNTER", CHANNELS, "int32_t", -1)
+    rt.add_transducer(t)
+    frames = []
+    for i in range(n):
+        for ch in range(CHANNELS):
+            rt.record(t, ch, i)
+        rt.poll()
+        frames.append(rt.take_output())
+    data = b"".join(frames)
+    chunks = [data[k : k + 4096] for k in range(0, len(data), 4096)]
+    best = float("inf")
+    for _ in range(5):
+        dec = FrameDecoder()
+        t0 = time.perf_counter()
+        for c in chunks:
+            dec.feed(c)
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e6
+
+
+def start_boards(n: int, rate: float) -> tuple[subprocess.Popen[str], list[str]]:
+    cmd = [sys.executable, "-m", "missing_link", "board", "--sim", "rate", "--count", str(n)]
+    cmd += ["--rate", str(rate), "--channels", str(CHANNELS), "--listen", "tcp://127.0.0.1:0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    urls = [proc.stdout.readline().split()[1] for _ in range(n)]
+    return proc, urls
+
+
+class Watch:
+    """The one subscriber: counts, checks numbering, samples latency (cheap, inline)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.gaps = 0
+        self.last: dict[str, int] = {}
+        self.lat: list[float] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, u: Update) -> None:
+        name = u.topic.name
+        v = u.values[0]
+        with self.lock:
+            self.count += 1
+            prev = self.last.get(name)
+            if prev is not None and v != prev + 1:
+                self.gaps += max(0, v - prev - 1) if v > prev else 1
+            self.last[name] = v
+            if self.count % 8 == 0:
+                self.lat.append(time.monotonic_ns() / 1000 - u.board_us[0])
+
+
+def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
+    proc, urls = start_boards(n, rate)
+    try:
+        rss0 = rss_kib()
+        cfg = Config(boards=[BoardSpec(u) for u in urls], publishers=["bus"])
+        with Daemon(cfg) as d:
+            assert d.wait_until_up(60), [s["error"] for s in d.status() if s["state"] != "up"]
+            w = Watch()
+            d.subscribe("/**", w, queue=0)
+            time.sleep(2.0)  # bursts after connecting settle
+            with w.lock:
+                w.gaps, w.lat, c0 = 0, [], w.count
+            lost0 = sum(s["lost_sifs"] for s in d.status())
+            cpu0, t0 = cpu_s(), time.monotonic()
+            time.sleep(seconds)
+            cpu1, t1 = cpu_s(), time.monotonic()
+            with w.lock:
+                updates, gaps, lat = w.count - c0, w.gaps, sorted(w.lat)
+            lost = sum(s["lost_sifs"] for s in d.status()) - lost0
+            rss = rss_kib() - rss0
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    wall = t1 - t0
+    cpu = cpu1 - cpu0
+    pct = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] if lat else float("nan")  # noqa: E731
+    return {
+        "boards": n,
+        "rate": rate,
+        "updates_s": updates / wall,
+        "asked_s": n * rate,
+        "core_pct": cpu / wall * 100,
+        "us_per_update": cpu / max(1, updates) * 1e6,
+        "p50": pct(0.5),
+        "p99": pct(0.99),
+        "lost": gaps,
+        "lost_counted": lost,
+        "rss_kib_per_board": rss / n,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--quick", action="store_true", help="fewer scenarios")
+    a = ap.parse_args()
+    bare = bare_decode_us()
+    runs = [(1, 4000.0), (64, 100.0), (16, 1.0), (64, 1.0)]
+    if not a.quick:
+        runs = [(1, 500.0), (1, 4000.0), (4, 500.0), (16, 500.0), (64, 100.0), (64, 200.0)] + runs[2:]
+    print(f"bare J2A frame decode (reference, same run): {bare:.2f} µs per update\n")
+    print(
+        "| boards | updates/s asked | received | daemon % of a core | µs per update | × bare "
+        "decode | latency p50 / p99 ms | lost (numbered / counted) | RSS per board |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for n, rate in runs:
+        r = scenario(n, rate, a.seconds)
+        idle = rate <= 1.0
+        per = f"{r['core_pct'] / n:.2f} % per board" if idle else f"{r['us_per_update']:.1f}"
+        mult = "-" if idle else f"{r['us_per_update'] / bare:.1f}"
+        print(
+            f"| {n} | {r['asked_s']:,.0f} | {r['updates_s']:,.0f} | {r['core_pct']:.1f} | {per} "
+            f"| {mult} | {r['p50'] / 1000:.2f} / {r['p99'] / 1000:.2f} | {r['lost']} / "
+            f"{r['lost_counted']} | {r['rss_kib_per_board']:.0f} KiB |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
