@@ -201,7 +201,7 @@ def test_clock_sync_finds_the_crystals_skew(build: Path) -> None:
                 d.status()[0]
             )
             st = d.status()[0]
-            assert 0 < st["bound_us"] < 3000 and st["sync_state"] in ("tracking", "fast")
+            assert 0 < st["bound_us"] < 3000 and st["sync_resets"] == 0, st
     finally:
         sim.close()
 

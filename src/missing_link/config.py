@@ -33,6 +33,9 @@ class BoardSpec:
     #: UART baud rate when the board is on a real UART (an FTDI-like bridge): the time its
     #: replies spend on the wire is then known to clock sync.  0: not a UART, or unknown.
     uart_baud: int = 0
+    #: ms the reader gathers SIFs while they stream in, to read several per wake-up (host CPU
+    #: per update falls; sample latency grows by at most this; replies are never delayed)
+    batch_ms: float = 0.5
 
     @property
     def byte_ns(self) -> float:
@@ -109,6 +112,7 @@ _BOARD_KEYS = {
     "handshake_timeout": (int, float),
     "link_timeout": (int, float),
     "uart_baud": int,
+    "batch_ms": (int, float),
 }
 #: (low, high) for numbers: a value outside is refused with the file, table and key
 _RANGES: dict[str, tuple[float, float]] = {
@@ -119,6 +123,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "handshake_timeout": (0.1, 600.0),
     "link_timeout": (0.05, 3600.0),
     "uart_baud": (0, 100_000_000),
+    "batch_ms": (0.0, 100.0),
 }
 
 
