@@ -24,7 +24,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from tests.test_avr import AvrSim  # noqa: E402  (the harness driver the tests use)
+from tests.helpers import AvrSim  # noqa: E402  (the harness driver the tests use)
 
 from missing_link.client import Board  # noqa: E402
 from missing_link.config import BoardSpec, Config  # noqa: E402

@@ -9,6 +9,8 @@ import shutil
 import socket
 import subprocess
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,19 +29,13 @@ class HexLinePipe(Transport):
         )
         self._lines: queue.Queue[str | None] = queue.Queue()
         self._closed = False
-        threading.Thread(target=self._pump, daemon=True).start()
+        pump_lines(self.proc, self._lines)
         first = self._lines.get(timeout=timeout)
         if first is None or not first.startswith(ready_prefix):
             err = self.proc.stderr.read() if self.proc.stderr else ""
             raise RuntimeError(f"board process did not start: {first!r} {err}")
         self.ident = first[len(ready_prefix) :].strip()
         self._lock = threading.Lock()
-
-    def _pump(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._lines.put(line.rstrip("\n"))
-        self._lines.put(None)
 
     def send_line(self, line: str) -> None:
         assert self.proc.stdin is not None
@@ -88,6 +84,28 @@ class HexLinePipe(Transport):
         self._lines.put(None)
 
 
+def pump_lines(proc: subprocess.Popen[str], into: queue.Queue[str | None]) -> None:
+    """Start a thread that puts each stdout line of ``proc`` into ``into`` (None at EOF)."""
+
+    def run() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            into.put(line.rstrip("\n"))
+        into.put(None)
+
+    threading.Thread(target=run, daemon=True).start()
+
+
+def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
+    """Poll ``pred`` until it is true or ``timeout`` s passed (tests only: no thresholds)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return bool(pred())
+
+
 def j2a_threads() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name.startswith(("j2a:", "board:"))]
 
@@ -119,7 +137,7 @@ class FirmwareSim:
             cwd=self.ROOT,
         )
         self._lines: queue.Queue[str | None] = queue.Queue()
-        threading.Thread(target=self._pump, daemon=True).start()
+        pump_lines(self.proc, self._lines)
         first = self._lines.get(timeout=60)
         if first is None or not first.startswith("LISTEN "):
             err = self.proc.stderr.read() if self.proc.stderr else ""
@@ -127,12 +145,6 @@ class FirmwareSim:
         _, port, self.ident = first.split(" ", 2)
         self.url = f"tcp://127.0.0.1:{port}"
         self._lock = threading.Lock()
-
-    def _pump(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._lines.put(line.rstrip("\n"))
-        self._lines.put(None)
 
     def ctl(self, code: str, timeout: float = 10.0) -> Any:
         """Run ``code`` in the simulator (WORLD, fw, rt, machine in scope); ``result`` comes
@@ -153,6 +165,46 @@ class FirmwareSim:
     def close(self) -> None:
         if self.proc.poll() is None:
             self.proc.kill()
+        self.proc.wait(5)
+        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+
+
+class AvrSim:
+    """rig_sim running an ELF; ``ctl(line)`` talks to the simulated rig."""
+
+    def __init__(self, build: Path, elf: Path, skew_ppm: float = 0.0) -> None:
+        self.proc = subprocess.Popen(
+            [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: queue.Queue[str | None] = queue.Queue()
+        pump_lines(self.proc, self.lines)
+        while True:
+            line = self.lines.get(timeout=20)
+            if line is None:
+                raise RuntimeError(
+                    f"rig_sim ended: {self.proc.stderr.read() if self.proc.stderr else ''}"
+                )
+            if line.startswith("PTY "):
+                self.url = "serial://" + line.split()[1]
+                break
+
+    def ctl(self, line: str) -> str:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        line = self.lines.get(timeout=10)
+        if line is None:
+            raise RuntimeError("rig_sim ended")
+        return line
+
+    def close(self) -> None:
+        self.proc.kill()
         self.proc.wait(5)
         for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if f is not None:

@@ -4,14 +4,12 @@ ATmega328P from the board file, run in simavr with the thesis rig modelled at it
 
 from __future__ import annotations
 
-import queue
 import shutil
 import struct
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,21 +24,13 @@ from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
+from .helpers import AvrSim, wait_for
 from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
 
 ROOT = Path(__file__).resolve().parent.parent
 AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 pytestmark = pytest.mark.avr
-
-
-def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return bool(pred())
 
 
 @pytest.fixture(scope="module")
@@ -70,44 +60,6 @@ def build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert r.returncode == 0, r.stdout + r.stderr
     assert "atmega328p: flash" in r.stdout  # the size line, budgets checked by make
     return out
-
-
-class AvrSim:
-    """rig_sim running an ELF; ``ctl(line)`` talks to the simulated rig."""
-
-    def __init__(self, build: Path, elf: Path, skew_ppm: float = 0.0) -> None:
-        self.proc = subprocess.Popen(
-            [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self.lines: queue.Queue[str] = queue.Queue()
-        threading.Thread(target=self._pump, daemon=True).start()
-        while True:
-            line = self.lines.get(timeout=20)
-            if line.startswith("PTY "):
-                self.url = "serial://" + line.split()[1]
-                break
-
-    def _pump(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.put(line.strip())
-
-    def ctl(self, line: str) -> str:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(line + "\n")
-        self.proc.stdin.flush()
-        return self.lines.get(timeout=10)
-
-    def close(self) -> None:
-        self.proc.kill()
-        self.proc.wait(5)
-        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
-            if f is not None:
-                f.close()
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -17,16 +16,9 @@ from missing_link.daemon import Daemon
 from missing_link.demo import start_board_process, stop_process
 from missing_link.discovery import PortMatcher
 
+from .helpers import wait_for
+
 PICO = 0x2E8A
-
-
-def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return bool(pred())
 
 
 def all_up(d: Daemon) -> bool:

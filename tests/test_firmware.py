@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import socket
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -18,21 +18,12 @@ from missing_link.daemon import Daemon
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import FirmwareSim
+from .helpers import FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
 pytestmark = pytest.mark.micropython
 Rig = tuple[Daemon, dict[str, list[Update]]]
-
-
-def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return bool(pred())
 
 
 @pytest.fixture(scope="module")
