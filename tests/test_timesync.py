@@ -170,6 +170,25 @@ def test_published_map_is_continuous_strictly_increasing_and_slew_limited(seed: 
     assert pm.steps == 1
 
 
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.integers(0, 3_000_000), min_size=1, max_size=16), st.integers(0, 5))
+def test_published_map_at_many_is_at_for_each_stamp(stamps: list[int], steers: int) -> None:
+    """The one-lookup path for an update's stamps gives exactly what at() gives per stamp,
+    also when the stamps straddle a segment anchor."""
+    pm = PublishedMap(max_slew=500e-6, tau_s=0.5)
+    for k in range(steers + 1):
+        est = ClockEstimator()
+        for ex, _, _ in exchanges(1000.0 * k, 30e-6 * (k % 3), k, 12, spacing_s=0.1):
+            est.add(ex)
+        assert est.estimate is not None
+        pm.steer(est.estimate) if pm.started else pm.start(est.estimate)
+    anchors = pm._anchors
+    base, span = anchors[0] - 500_000, anchors[-1] - anchors[0] + 1_000_000
+    stamps = [base + s * span // 3_000_000 for s in stamps]  # spread over every segment
+    got = pm.at_many(stamps, min(stamps), max(stamps))
+    assert got == [round(pm.at(b)) for b in stamps]
+
+
 def test_published_map_reaches_the_estimate_without_overshoot() -> None:
     est = ClockEstimator()
     for ex, _, _ in exchanges(0.0, 0.0, 5, 20):

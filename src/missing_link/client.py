@@ -20,7 +20,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from .descriptors import Transducer, parse_transds
 from .errors import (
@@ -49,6 +49,9 @@ from .j2a import (
 from .j2a.blobs import mapping_index
 from .timesync import Exchange
 from .transport import Transport, open_transport
+
+if TYPE_CHECKING:
+    from .reactor import Reactor
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -83,7 +86,17 @@ class CallResult:
 class Board:
     """A connected J2A board (blocking API).  Use :func:`open_board` or ``Board.open(url)``."""
 
-    def __init__(self, transport: Transport, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1):
+    def __init__(
+        self,
+        transport: Transport,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        window: int = 1,
+        reactor: Reactor | None = None,
+    ):
+        """``reactor``: read this board in a shared I/O loop (the daemon's, for many boards)
+        instead of a reader thread of its own; transports without a descriptor (memory, USB)
+        always get their own thread."""
         self.transport = transport
         self.url = transport.url
         self.timeout = timeout
@@ -111,8 +124,18 @@ class Board:
         self.transds_text: str | None = None
         #: CLOCK_MONOTONIC s when the last intact frame (reply or SIF) arrived: link liveness
         self.last_frame = time.monotonic()
-        self._thread = threading.Thread(target=self._reader, name=f"j2a:{self.url}", daemon=True)
-        self._thread.start()
+        self._done = threading.Event()  # set when the link has ended and calls were failed
+        self._finishing = threading.Lock()
+        fileno = getattr(transport, "fileno", None)
+        self._reactor = reactor if reactor is not None and fileno is not None else None
+        self._thread: threading.Thread | None = None
+        if self._reactor is not None:
+            self._reactor.add(self)
+        else:
+            self._thread = threading.Thread(
+                target=self._reader, name=f"j2a:{self.url}", daemon=True
+            )
+            self._thread.start()
 
     # ---- opening ---------------------------------------------------------------------------
     @classmethod
@@ -366,11 +389,18 @@ class Board:
             timer = self.conn.get_timer()
             idle_until = self._idle_until
         self._batch_wake.set()  # a reader gathering SIFs reads the reply at once
-        if timer is not None and timer < idle_until:
+        if self._reactor is not None:
+            self._reactor.poke()  # new timers, and no gathering while a reply is due
+        elif timer is not None and timer < idle_until:
             self.transport.poke()  # the reader sleeps past this call's deadline: wake it
         return fut
 
     def _wait(self, fut: Future[T], timeout: float | None) -> T:
+        if self._reactor is not None and self._reactor.is_loop_thread():
+            raise RuntimeError(
+                f"{self.url}: a blocking call from the I/O loop (a SIF handler) would wait for a "
+                "reply only this thread can read: use call_future() or another thread"
+            )
         # The connection always resolves the future (reply, timeout or close); the extra margin
         # only guards against a reader thread that died of a bug.
         limit = (timeout or self.timeout) * 4 + 5.0 if timeout is not None else None
@@ -396,6 +426,7 @@ class Board:
 
     # ---- the reader thread -----------------------------------------------------------------
     def _reader(self) -> None:
+        """The board's own reader thread (when no shared I/O loop reads it)."""
         error: BaseException | None = None
         last_data = 0.0
         try:
@@ -410,25 +441,7 @@ class Board:
                     # set under the lock: a caller that adds a timer after this sees it
                     self._idle_until = now + wait
                 data = self.transport.read(wait)
-                now_ns = time.monotonic_ns()
-                now = now_ns / 1e9
-                if data:  # when the bytes arrived (t4): the transport's stamp if it has one
-                    rx = self.transport.last_rx_ns
-                    if 0 < rx <= now_ns:
-                        now_ns = rx
-                with self._lock:
-                    if data:
-                        frames = self.conn.decoder.stats.frames
-                        events = self.conn.receive_data(data, now)
-                        if self.conn.decoder.stats.frames != frames:
-                            self.last_frame = now
-                    else:
-                        events = []
-                    if timer is not None and now >= timer:
-                        events += self.conn.handle_timer(now)
-                    self._flush()
-                if events:
-                    self._dispatch(events, now_ns / 1e9, now_ns)
+                now = self._step(data, time.monotonic_ns(), self.transport.last_rx_ns)
                 if data and self.batch_s > 0:
                     # Streaming (data twice within the window) and no call waiting: gather.
                     if now - last_data < 2 * self.batch_s and not self._futures:
@@ -441,15 +454,53 @@ class Board:
         except BaseException as e:
             log.exception("%s: reader thread failed", self.url)
             error = TransportBroken(f"{self.url}: reader failed: {e!r}")
-        if error is None:
-            error = TransportClosed(f"{self.url}: closed on this side")
+        self._finish(error)
+
+    def _step(self, data: bytes, now_ns: int, rx_ns: int) -> float:
+        """One turn of reading: the bytes read (maybe none) at ``now_ns`` (monotonic, right
+        after the read; ``rx_ns`` is the transport's own stamp if it has one), then whatever
+        timers are due.  Returns ``now`` in seconds.  Called by the reader thread or the
+        shared I/O loop, never both."""
+        now = now_ns / 1e9
+        if data and 0 < rx_ns <= now_ns:  # when the bytes arrived (t4): the transport's stamp
+            now_ns = rx_ns
         with self._lock:
-            self._closed_reason = error
-            reason = (
-                FailureReason.CLOSED if isinstance(error, TransportClosed) else FailureReason.BROKEN
-            )
-            events = self.conn.close(reason, str(error))
-        self._dispatch(events, time.monotonic(), time.monotonic_ns())
+            timer = self.conn.get_timer()
+            if data:
+                frames = self.conn.decoder.stats.frames
+                events = self.conn.receive_data(data, now)
+                if self.conn.decoder.stats.frames != frames:
+                    self.last_frame = now
+            else:
+                events = []
+            if timer is not None and now >= timer:
+                events += self.conn.handle_timer(now)
+            self._flush()
+        if events:
+            self._dispatch(events, now_ns / 1e9, now_ns)
+        return now
+
+    def _next_timer(self) -> float | None:
+        with self._lock:
+            return self.conn.get_timer()
+
+    def _finish(self, error: BaseException | None) -> None:
+        """The link ended: fail what is pending, tell the close callbacks.  Once."""
+        with self._finishing:
+            if self._done.is_set():
+                return
+            if error is None:
+                error = TransportClosed(f"{self.url}: closed on this side")
+            with self._lock:
+                self._closed_reason = error
+                reason = (
+                    FailureReason.CLOSED
+                    if isinstance(error, TransportClosed)
+                    else FailureReason.BROKEN
+                )
+                events = self.conn.close(reason, str(error))
+            self._dispatch(events, time.monotonic(), time.monotonic_ns())
+            self._done.set()
         for fn in self._on_close:
             try:
                 fn()
@@ -459,7 +510,7 @@ class Board:
     def on_close(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` on the reader thread when the link ends (closed or broken)."""
         self._on_close.append(fn)
-        if not self._thread.is_alive():
+        if self._done.is_set():
             fn()
 
     def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
@@ -516,13 +567,18 @@ class Board:
     # ---- closing ---------------------------------------------------------------------------
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return not self._done.is_set()
 
     def close(self) -> None:
         """Close the link, fail pending calls, and join the reader thread.  Idempotent."""
         self._stopping = True
+        if self._reactor is not None:
+            self._reactor.remove(self)  # the loop no longer touches this board when it returns
+            self.transport.close()
+            self._finish(None)
+            return
         self.transport.close()
-        if threading.current_thread() is not self._thread:
+        if self._thread is not None and threading.current_thread() is not self._thread:
             self._thread.join(timeout=5.0)
 
     def __enter__(self) -> Board:

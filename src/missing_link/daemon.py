@@ -15,6 +15,8 @@ sessions must agree on:
   ever holds two layouts under one type name;
 * ``/diagnostics`` goes out every ``diagnostics_period`` with each session's status, level and
   counters;
+* one I/O loop (``reactor.py``) reads every board on a descriptor, rather than a reader thread
+  per board; each session keeps its own supervisor thread (handshake, probes, commands);
 * boards can come and go while it runs: ``add_board`` / ``remove_board``, used by discovery
   (``discovery.py``: serial ports appearing and vanishing); the session list is replaced, never
   changed in place, so readers iterate a consistent list without a lock;
@@ -42,6 +44,7 @@ from .msgs import msg_name, msgdef, type_name, typestore_for
 from .publishers import Bus, Publisher, make_publisher
 from .publishers.base import PublisherError
 from .publishers.bus import Callback, Subscription
+from .reactor import Reactor
 from .session import UP, BoardSession
 from .topics import Topic, Update
 from .transport import check_url
@@ -82,6 +85,10 @@ class Daemon:
                 p.close()
             raise
         self.publishers.extend(extra_publishers)
+        # one I/O loop reads every board on a descriptor (see reactor.py); it gathers streaming
+        # SIFs for the smallest batch_ms any board asks for
+        batch_ms = min((b.batch_ms for b in config.boards), default=BoardSpec.batch_ms)
+        self.reactor = Reactor(batch_s=batch_ms / 1000)
         self.sessions = [BoardSession(self, spec) for spec in config.boards]
         self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
         self.typestore = typestore_for(config.distro)
@@ -111,6 +118,7 @@ class Daemon:
         if self._started:
             return self
         self._started = True
+        self.reactor.start()
         for s in self.sessions:
             s.start()
         self._diag_thread.start()
@@ -161,6 +169,7 @@ class Daemon:
             s.stop(max(0.0, deadline - time.monotonic()))
         if self._diag_thread.is_alive():
             self._diag_thread.join(max(0.05, deadline - time.monotonic()))
+        self.reactor.stop(max(0.05, deadline - time.monotonic()))
         for p in self.publishers:
             try:
                 p.close()

@@ -166,8 +166,9 @@ class BoardSession:
 
     def _connect(self) -> None:
         spec = self.spec
-        board = Board(open_transport(spec.url), timeout=spec.timeout)
-        board.batch_s = spec.batch_ms / 1000
+        reactor = self.daemon.reactor
+        board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=reactor)
+        board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         self.board = board  # owned before the handshake: stop() closes it at once
         if self._stop.is_set():
             raise BoardError(spec.url, "stopping")

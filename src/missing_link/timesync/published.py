@@ -23,6 +23,7 @@ contradicted by a later segment.  A short history of segments maps samples that 
 from __future__ import annotations
 
 from bisect import bisect_right
+from collections.abc import Sequence
 
 from .estimator import Estimate
 
@@ -100,6 +101,19 @@ class PublishedMap:
             i = bisect_right(self._anchors, board_us) - 1
             b0, h0, rate = segs[max(i, 0)]
         return h0 + (board_us - b0) * rate
+
+    def at_many(self, stamps: Sequence[int], lo: int, hi: int) -> list[int]:
+        """Published host ns (rounded) for the stamps of one update, ``lo``/``hi`` their
+        smallest and largest: one segment lookup when they share a segment (almost always:
+        they were taken within one sample period)."""
+        segs, anchors = self._segs, self._anchors
+        i = len(segs) - 1
+        if lo < anchors[i]:
+            i = max(bisect_right(anchors, lo) - 1, 0)
+        if i + 1 < len(segs) and hi >= anchors[i + 1]:
+            return [round(self.at(b)) for b in stamps]  # the update spans an anchor
+        b0, h0, rate = segs[i]
+        return [round(h0 + (b - b0) * rate) for b in stamps]
 
     def map(self, board_us: int) -> float:
         """Published host ns for a sample's board time; remembers the newest one mapped."""

@@ -306,7 +306,8 @@ class ClockSync:
                 outlier = True
             else:
                 self._suspects = 0
-                hosts = [round(pm.map(b)) for b in board_us]
+                pm.map(newest)  # remembers the newest mapped
+                hosts = pm.at_many(board_us, min(board_us), newest)
                 flags = 0
                 if self._step_pending:
                     flags = STEP

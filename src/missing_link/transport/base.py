@@ -101,16 +101,29 @@ class FdTransport(Transport):
     def _send(self, data: memoryview) -> int:
         return os.write(self._fd, data)
 
+    def fileno(self) -> int:
+        """The descriptor a shared I/O loop (missing_link.reactor) waits on."""
+        return self._fd
+
     def read(self, timeout: float | None) -> bytes:
         self._check()
         try:
             ready, _, _ = select.select([self._fd, self._wake_r], [], [], timeout)
-            if self._closed:
-                raise TransportClosed(f"{self.url}: transport closed on this side")
-            if self._wake_r in ready:
-                os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
-            if self._fd not in ready:
-                return b""
+        except (OSError, ValueError, TypeError) as e:
+            self._check()
+            raise TransportBroken(f"{self.url}: read failed: {e}") from e
+        if self._closed:
+            raise TransportClosed(f"{self.url}: transport closed on this side")
+        if self._wake_r in ready:
+            os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
+        if self._fd not in ready:
+            return b""
+        return self.read_ready()
+
+    def read_ready(self) -> bytes:
+        """Read what arrived on a descriptor that select() said is readable (never blocks)."""
+        self._check()
+        try:
             data = self._recv(65536)
             # After the read, never before it: between select() returning and the read, this
             # thread can wait for the interpreter lock while another writes a request whose

@@ -1,0 +1,203 @@
+"""One I/O loop for many boards: the daemon's boards are read by one thread instead of one
+reader thread each.
+
+Theory of operation
+-------------------
+Each :class:`~missing_link.client.Board` on a descriptor (socket, pty, serial port) registers
+its transport's fd here.  The loop waits in one ``select`` for any board's bytes, the wake pipe,
+or the soonest call timer of any board.  A round then
+
+1. reads every ready descriptor first (each read stamped right after it: clock sync's t4), so a
+   board's stamp does not wait for another board's processing;
+2. runs each board's ``_step`` with its bytes (decode, replies to futures, SIFs to the sample
+   path), then ``_step`` with no bytes for boards whose call timer is due;
+3. ends boards whose link broke (``_finish``: pending calls fail, close callbacks run).
+
+Why: with a thread per board, every frame cost a wake-up, a select, a lock and an interpreter-lock
+hand-off between dozens of threads (the per-update cost grew with the number of boards); one loop
+pays a select per round for all boards, and rounds carry several frames.  While samples stream in
+and no call waits for a reply, a round is followed by a short gather (``batch_s``) so the next
+one carries more; any request written ends it at once (``poke``), so replies and t4 are never
+read late.
+
+Blocking calls must not be made on this thread (a SIF handler calling ``board.call``): the reply
+could only be read by the thread that waits for it; ``Board`` raises instead of deadlocking.
+Registration is under a lock the loop holds while it processes a round, so when ``remove()``
+returns the loop no longer touches that board.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import selectors
+import threading
+import time
+from typing import TYPE_CHECKING
+
+from .errors import TransportBroken, TransportClosed
+
+if TYPE_CHECKING:
+    from .client import Board
+
+log = logging.getLogger(__name__)
+
+_IDLE = 1.0  # longest wait with no timer pending (new timers poke the loop anyway)
+
+
+class Reactor:
+    def __init__(self, batch_s: float = 0.0) -> None:
+        self.batch_s = batch_s
+        self._sel = selectors.DefaultSelector()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        self._lock = threading.RLock()
+        self._boards: dict[int, Board] = {}
+        self._poked = threading.Event()
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name="j2a:reactor", daemon=True)
+        self.rounds = 0
+        self.loop_errors = 0
+
+    def start(self) -> Reactor:
+        if not self._thread.is_alive():
+            self._thread.start()
+        return self
+
+    def is_loop_thread(self) -> bool:
+        return threading.current_thread() is self._thread
+
+    def add(self, board: Board) -> None:
+        with self._lock:
+            fd = board.transport.fileno()  # type: ignore[attr-defined]
+            self._sel.register(fd, selectors.EVENT_READ, board)
+            self._boards[fd] = board
+        self.poke()
+
+    def remove(self, board: Board) -> None:
+        with self._lock:
+            for fd, b in list(self._boards.items()):
+                if b is board:
+                    del self._boards[fd]
+                    try:
+                        self._sel.unregister(fd)
+                    except (KeyError, ValueError, OSError):
+                        pass
+        self.poke()
+
+    def poke(self) -> None:
+        self._poked.set()
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:  # full (already poked) or closed
+            pass
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self._stopping = True
+        self.poke()
+        if self._thread.is_alive() and not self.is_loop_thread():
+            self._thread.join(timeout)
+
+    def __len__(self) -> int:
+        return len(self._boards)
+
+    # ---- the loop ------------------------------------------------------------------------------
+    def _timeout(self) -> float:
+        soonest = None
+        for b in list(self._boards.values()):
+            t = b._next_timer()
+            if t is not None and (soonest is None or t < soonest):
+                soonest = t
+        if soonest is None:
+            return _IDLE
+        return max(0.0, min(_IDLE, soonest - time.monotonic()))
+
+    def _run(self) -> None:
+        last_data = 0.0
+        while not self._stopping:
+            try:
+                ready = self._sel.select(self._timeout())
+            except (OSError, ValueError) as e:  # a descriptor closed under us: next round
+                log.debug("reactor: select: %s", e)
+                ready = []
+            try:
+                had_data = self._round(ready)
+            except Exception:  # a bug here must not end every board's reading
+                self.loop_errors += 1
+                log.exception("reactor: round failed")
+                had_data = False
+            now = time.monotonic()
+            if had_data and self.batch_s > 0:
+                if now - last_data < 2 * self.batch_s and not self._calls_waiting():
+                    self._poked.clear()
+                    if not self._calls_waiting():
+                        self._poked.wait(self.batch_s)
+                last_data = now
+        with self._lock:
+            self._boards.clear()
+        self._sel.close()
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def _calls_waiting(self) -> bool:
+        return any(b._futures for b in list(self._boards.values()))
+
+    def _round(self, ready: list[tuple[selectors.SelectorKey, int]]) -> bool:
+        self.rounds += 1
+        with self._lock:
+            reads: list[tuple[Board, bytes]] = []
+            broken: list[tuple[Board, BaseException]] = []
+            for key, _ in ready:
+                if key.fd == self._wake_r:
+                    try:
+                        while os.read(self._wake_r, 4096):
+                            pass
+                    except (BlockingIOError, OSError):
+                        pass
+                    continue
+                board: Board = key.data
+                if self._boards.get(key.fd) is not board:
+                    continue  # removed meanwhile
+                try:
+                    reads.append((board, board.transport.read_ready()))  # type: ignore[attr-defined]
+                except (TransportBroken, TransportClosed) as exc:
+                    broken.append((board, exc))
+            now_ns = time.monotonic_ns()
+            stepped = set()
+            for board, data in reads:
+                self._step(board, data, now_ns, broken)
+                stepped.add(id(board))
+            now = now_ns / 1e9
+            for board in list(self._boards.values()):
+                if id(board) in stepped:
+                    continue
+                t = board._next_timer()
+                if t is not None and now >= t:
+                    self._step(board, b"", now_ns, broken)
+            for board, why in broken:
+                for fd, b in list(self._boards.items()):
+                    if b is board:
+                        del self._boards[fd]
+                        try:
+                            self._sel.unregister(fd)
+                        except (KeyError, ValueError, OSError):
+                            pass
+                board._finish(why)
+        return bool(reads)
+
+    @staticmethod
+    def _step(
+        board: Board, data: bytes, now_ns: int, broken: list[tuple[Board, BaseException]]
+    ) -> None:
+        try:
+            board._step(data, now_ns, board.transport.last_rx_ns)
+        except (TransportBroken, TransportClosed) as e:  # a write in _flush failed
+            broken.append((board, e))
+        except Exception as e:  # a bug in one board's path must not stop the others
+            log.exception("%s: reading failed", board.url)
+            broken.append((board, TransportBroken(f"{board.url}: reader failed: {e!r}")))
