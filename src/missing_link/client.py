@@ -501,6 +501,11 @@ class Board:
                 events = self.conn.close(reason, str(error))
             self._dispatch(events, time.monotonic(), time.monotonic_ns())
             self._done.set()
+        if self._stopping or isinstance(error, TransportBroken):
+            self.transport.close()  # idempotent; the link is over either way
+            release = getattr(self.transport, "release", None)
+            if release is not None:
+                release()  # nothing reads it any more: its wake pipe can go now
         for fn in self._on_close:
             try:
                 fn()

@@ -83,13 +83,20 @@ class FdTransport(Transport):
         except OSError:
             pass
 
-    def __del__(self) -> None:
-        for fd in (getattr(self, "_wake_r", -1), getattr(self, "_wake_w", -1)):
+    def release(self) -> None:
+        """Close the wake pipe once nothing reads this transport any more (its reader ended):
+        not in close(), where a reader may still be waiting on the pipe."""
+        for name in ("_wake_r", "_wake_w"):
+            fd = getattr(self, name, -1)
             if fd >= 0:
+                setattr(self, name, -1)
                 try:
                     os.close(fd)
                 except OSError:
                     pass
+
+    def __del__(self) -> None:
+        self.release()
 
     def _check(self) -> None:
         if self._closed:
