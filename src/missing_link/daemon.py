@@ -185,7 +185,8 @@ class Daemon:
     # ---- for applications (the thesis's Listing 8.4) -----------------------------------------
     def subscribe(self, topic: str, callback: Callback, *, queue: int = 10_000) -> Subscription:
         """``callback(update)`` for every update on ``topic`` (patterns: ``*``, ``**``), on a
-        thread of its own behind a bounded queue (``queue=0``: inline on the reader thread)."""
+        thread of its own behind a bounded queue (``queue=0``: inline in the I/O loop that
+        reads the boards)."""
         return self.bus.subscribe(topic, callback, queue=queue)
 
     def send(self, topic: str, value: Any) -> None:

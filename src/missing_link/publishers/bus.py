@@ -59,7 +59,7 @@ class Subscription:
             self._thread.start()
 
     def deliver(self, update: Update) -> None:
-        """Called by the bus on a board's reader thread."""
+        """Called by the bus on the thread that reads the board (the daemon's I/O loop)."""
         if self._thread is None:
             self._call(update)
             return
@@ -122,7 +122,7 @@ class Bus(Publisher):
         """Call ``callback(update)`` for every update on ``topic``.  Patterns: ``*`` and ``?``
         match within one level (``/board/*``), ``**`` across levels (``/board/**``).
         ``queue``: updates held for a slow callback before the oldest are dropped (counted);
-        0 calls it inline on the board's reader thread."""
+        0 calls it inline on the thread that reads the board."""
         if queue < 0:
             raise ValueError(f"queue = {queue}: 0 (inline) or a positive number of updates")
         sub = Subscription(self, topic, callback, queue)
