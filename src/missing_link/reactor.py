@@ -78,14 +78,18 @@ class Reactor:
 
     def remove(self, board: Board) -> None:
         with self._lock:
-            for fd, b in list(self._boards.items()):
-                if b is board:
-                    del self._boards[fd]
-                    try:
-                        self._sel.unregister(fd)
-                    except (KeyError, ValueError, OSError):
-                        pass
+            self._unregister(board)
         self.poke()
+
+    def _unregister(self, board: Board) -> None:
+        # (under the lock)
+        for fd, b in list(self._boards.items()):
+            if b is board:
+                del self._boards[fd]
+                try:
+                    self._sel.unregister(fd)
+                except (KeyError, ValueError, OSError):
+                    pass
 
     def poke(self) -> None:
         self._poked.set()
@@ -180,13 +184,7 @@ class Reactor:
                 if t is not None and now >= t:
                     self._step(board, b"", now_ns, broken)
             for board, why in broken:
-                for fd, b in list(self._boards.items()):
-                    if b is board:
-                        del self._boards[fd]
-                        try:
-                            self._sel.unregister(fd)
-                        except (KeyError, ValueError, OSError):
-                            pass
+                self._unregister(board)
                 board._finish(why)
         return bool(reads)
 
