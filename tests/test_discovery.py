@@ -138,3 +138,18 @@ def test_usb_devices_with_the_j2a_interface_are_listed() -> None:
         ("usb://2:3", 0x6666, "B2"),
     ]
     assert PortMatcher(DiscoverSpec()).update(ports)[0] == ports  # matched by default
+
+
+def test_a_kick_lists_at_once_and_udev_events_are_watched(boards) -> None:  # type: ignore[no-untyped-def]
+    """With a 30 s listing interval a board still comes up at once when something kicks the
+    loop (what udev's add/remove events do through pyudev; a container sends none, so the kick
+    is driven here and the observer is only checked to be running)."""
+    ports = Ports()
+    spec = DiscoverSpec(ports=["/dev/pts/*"], vid=PICO, interval=30.0, probe_timeout=1.0)
+    with Daemon(Config(discover=spec), enumerate_ports=ports) as d:
+        assert d.discovery is not None
+        assert d.discovery.status()["events"] == "udev"  # pyudev and libudev are installed
+        _p, dev = boards("kicked")
+        ports.plug(dev)
+        d.discovery.kick()
+        assert wait_for(lambda: all_up(d), 10)

@@ -16,8 +16,10 @@ appears is *probed*: opened as a J2A link and handshaken within ``probe_timeout`
 that answers gets a session of its own (named by its ``board.name``, as any board); a port
 that does not answer (a GPS, a modem) is remembered as "not J2A" and left alone until it
 vanishes.  A port that vanishes ends its session at once (the device file is gone; waiting
-for the link timeout would only log errors).  Polling (1 s) rather than udev events keeps one
-code path for every system; a board is up about a second after it enumerates.
+for the link timeout would only log errors).  The listing (every ``interval``, 1 s) is the one
+source of truth, the same on every system; where pyudev works, udev's events (a tty or USB
+device added or removed) only *kick* the loop to list at once, so a board is up as soon as it
+enumerates.
 """
 
 from __future__ import annotations
@@ -103,13 +105,40 @@ class DiscoveryService:
         self.boards: dict[str, str] = {}  # device -> URL of its session
         self.appeared = self.vanished = self.scan_errors = 0
         self._stop = threading.Event()
+        self._kick = threading.Event()
         self._thread = threading.Thread(target=self._run, name="discovery", daemon=True)
+        self._observer: Any = None
+        self.events = "polling"  #: "udev" when udev events kick the listing
 
     def start(self) -> None:
+        self._watch_udev()
         self._thread.start()
+
+    def kick(self) -> None:
+        """List the ports now (a device was added or removed)."""
+        self._kick.set()
+
+    def _watch_udev(self) -> None:
+        try:
+            import pyudev  # type: ignore[import-untyped]
+
+            monitor = pyudev.Monitor.from_netlink(pyudev.Context())
+            monitor.filter_by("tty")
+            monitor.filter_by("usb")
+            self._observer = pyudev.MonitorObserver(monitor, callback=lambda _dev: self.kick())
+            self._observer.start()
+            self.events = "udev"
+        except Exception as e:  # noqa: BLE001 - no pyudev / no libudev / no netlink: poll
+            log.info("discovery: no udev events (%s): listing every %g s", e, self.spec.interval)
 
     def stop(self, timeout: float = 1.0) -> None:
         self._stop.set()
+        self._kick.set()
+        if self._observer is not None:
+            try:
+                self._observer.stop()
+            except Exception as e:  # noqa: BLE001 - stopping must not fail the daemon's stop
+                log.debug("discovery: stopping the udev observer: %s", e)
         if self._thread.is_alive():
             self._thread.join(timeout)
 
@@ -120,7 +149,8 @@ class DiscoveryService:
             except Exception as e:  # noqa: BLE001 - discovery must outlive any one listing
                 self.scan_errors += 1
                 log.warning("discovery: listing ports failed: %s", e)
-            self._stop.wait(self.spec.interval)
+            self._kick.wait(self.spec.interval)
+            self._kick.clear()
 
     def scan(self) -> None:
         appeared, vanished = self.matcher.update(self.enumerate())
@@ -161,6 +191,7 @@ class DiscoveryService:
 
     def status(self) -> dict[str, Any]:
         return {
+            "events": self.events,
             "ports": sorted(self.matcher.present),
             "boards": dict(self.boards),
             "not_j2a": dict(self.not_j2a),
