@@ -171,25 +171,32 @@ def test_malformed_frames_get_the_right_error_frames(rig: AvrSim) -> None:
     t = open_transport(rig.url)
     try:
 
-        def ask(raw: bytes) -> list[tuple[int, int, bytes]]:
+        def ask(raw: bytes, *want: tuple[int, int, bytes]) -> list[tuple[int, int, bytes]]:
+            """Send ``raw``; the replies seen until all of ``want`` came (or 3 s passed)."""
             t.write(raw)
             out = b""
             end = time.monotonic() + 3
             while time.monotonic() < end:
                 out += t.read(0.1)
-                replies = [f for f in _frames(out) if f[1] >= 0xF0 or f[0] in (7, 8, 9, 10)]
-                if replies:
-                    return replies
-            return []
+                if all(w in _frames(out) for w in want):
+                    break
+            return _frames(out)
 
         good = encode_frame(SOF, 7, 4, b"abc")
         bad_csum = good[:-1] + bytes([good[-1] ^ 1])
-        assert (7, 0xF3, b"\x00\x03") in ask(bad_csum)
-        assert (8, 0xF4, b"\x00\x04") in ask(bytes.fromhex("12 08 04 01 7d 00 00"))
-        assert (9, 0xF2, b"\x00\x01") in ask(bytes.fromhex("12 09 04 05 01") + good)  # cut
-        assert (10, 0xF0, b"\x00\x05") in ask(encode_frame(SOF, 10, 200, b""))  # no function 200
+        want = (7, 0xF3, b"\x00\x03")
+        assert want in ask(bad_csum, want)
+        want = (8, 0xF4, b"\x00\x04")
+        assert want in ask(bytes.fromhex("12 08 04 01 7d 00 00"), want)
+        # cut by the next frame's start: F2 for the cut one, then the next one is answered
+        cut, echo = (9, 0xF2, b"\x00\x01"), (7, 0xBA, b"abc")
+        got = ask(bytes.fromhex("12 09 04 05 01") + good, cut, echo)
+        assert cut in got and echo in got
+        want = (10, 0xF0, b"\x00\x05")  # no function 200
+        assert want in ask(encode_frame(SOF, 10, 200, b""), want)
         # silence inside a frame: the 10 ms receive timeout answers F2 on its own
-        assert (9, 0xF2, b"\x00\x02") in ask(bytes.fromhex("12 09 04 05 01"))
+        want = (9, 0xF2, b"\x00\x02")
+        assert want in ask(bytes.fromhex("12 09 04 05 01"), want)
     finally:
         t.close()
 
