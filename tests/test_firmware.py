@@ -46,10 +46,6 @@ def daemon(sim: FirmwareSim) -> Iterator[Rig]:
         yield d, got
 
 
-def latest(got: dict[str, list[Update]], name: str, since: int) -> list[Update]:
-    return got[name][since:]
-
-
 def test_descriptors_come_from_the_board_file(sim: FirmwareSim) -> None:
     board = Board(open_transport(sim.url), timeout=5.0)
     try:

@@ -366,6 +366,7 @@ def test_daemon_maps_samples_within_their_bound(serve) -> None:  # type: ignore[
     for u in updates:
         assert u.bound_ns > 0 and not (u.clock_flags & NOT_SYNCED)
         assert u.host_ns[0] > prev  # strictly increasing
+        assert u.host_ns[0] <= u.recv_ns + off + 100  # never after its receipt (+ 1 ns nudges)
         prev = u.host_ns[0]
         err = u.host_ns[0] - off - clock.host_ns(u.board_us[0])
         inside += abs(err) <= u.bound_ns + 1_000  # + the tick

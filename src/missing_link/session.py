@@ -33,8 +33,10 @@ what it hears, not from what the transport claims.
 
 Host times: every sample goes through the board's :class:`~missing_link.timesync.ClockSync`.
 Stamps far from the map are outliers (published at the receive time, flagged ``OUTLIER`` and
-counted), never host times in the future.  Per topic, host times are made strictly increasing
-(``host_time_clamps`` counts the nudges, e.g. several samples read in one go while unsynced).
+counted), never host times in the future: a mapped time later than the sample's own receipt (the
+map's error, a few µs) is set to the receipt (``future_clamps``).  Per topic, host times are made
+strictly increasing (``host_time_clamps`` counts the nudges, e.g. several samples read in one go
+while unsynced).
 """
 
 from __future__ import annotations
@@ -90,6 +92,7 @@ class BoardSession:
         self.bad_sifs = 0
         self.outliers = 0
         self.host_time_clamps = 0
+        self.future_clamps = 0  # mapped after their own receipt (map error): set to the receipt
         self.commands = 0
         self.command_errors = 0
         self.rtt_us: float | None = None
@@ -456,6 +459,11 @@ class BoardSession:
                 log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
         if got is not None and not got[3] & OUTLIER:
             hosts, sigma, bound, flags = got
+            # Measured before it arrived: a map error never puts a sample after its receipt
+            # (the host times are monotonic ns here; the published ones realtime).
+            if max(hosts) > recv_ns:
+                self.future_clamps += 1
+                hosts = [min(h, recv_ns) for h in hosts]
             host_ns = [0 if v is None else h + rt_off for h, v in zip(hosts, values, strict=True)]
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             sigma, bound, flags = -1, -1, NOT_SYNCED
@@ -552,6 +560,7 @@ class BoardSession:
             "outage_lost_sifs": self.outage_lost_sifs,
             "clock_outliers": self.outliers,
             "host_time_clamps": self.host_time_clamps,
+            "future_clamps": self.future_clamps,
             "commands": self.commands,
             "command_errors": self.command_errors,
             "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,

@@ -36,8 +36,7 @@ class DigitalIn:
 
     def set_cb(self, fn):
         self._cb = fn
-        if self._cb is not None:
-            self._cb(0, self.level, self.clock())  # the level at start-up
+        fn(0, self.level, self.clock())  # the level at start-up
 
     def _edge(self, _pin):
         now = self.clock()
