@@ -29,6 +29,7 @@ from .errors import (
     CallTimeout,
     FunctionFailed,
     LinkLost,
+    MissingLinkError,
     TransportBroken,
     TransportClosed,
     UnknownFunction,
@@ -109,6 +110,11 @@ class Board:
         self._any_sif: list[SifHandler] = []
         self._on_close: list[Callable[[], None]] = []
         self._idle_until = 0.0  # the reader waits until then unless poked
+        # Periodic work on the reading thread (clock-sync probes): (due() -> s or None, tick)
+        self._ticker: tuple[Callable[[], float | None], Callable[[float], None]] | None = None
+        #: CLOCK_MONOTONIC s of the next call deadline or tick, kept up to date under the lock
+        #: (a shared I/O loop reads it for its timeout without calling into each board)
+        self.next_due: float | None = None
         #: s the reader waits after a read while SIFs stream in, to take several frames per
         #: read (fewer wake-ups and syscalls per update; latency grows by at most this).  A
         #: request written meanwhile ends the wait at once, so replies (and clock sync's t4)
@@ -260,8 +266,37 @@ class Board:
         Boards without ``a2jClock`` but with the thesis firmware's ``getTime`` (u64 µs) give a
         one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
         time on the wire is known (0: not a byte-serial link, or unknown)."""
-        name = "a2jClock" if "a2jClock" in self.index else "getTime"
-        result = self.call(name, b"", timeout)
+        name = self._clock_function()
+        return self._exchange(name, self.call(name, b"", timeout), byte_ns)
+
+    def clock_exchange_async(
+        self,
+        callback: Callable[[Exchange | BaseException], None],
+        timeout: float | None = None,
+        *,
+        byte_ns: float = 0.0,
+    ) -> None:
+        """Start a :meth:`clock_exchange`; ``callback`` gets the exchange or the error
+        (``MissingLinkError``) on the thread that reads the board.  Raises ``LinkLost`` at
+        once when the link is gone."""
+        name = self._clock_function()
+
+        def done(fut: Future[CallResult]) -> None:
+            try:
+                got: Exchange | BaseException = self._exchange(name, fut.result(), byte_ns)
+            except MissingLinkError as e:
+                got = e
+            try:
+                callback(got)
+            except Exception:
+                log.exception("%s: clock exchange callback failed", self.url)
+
+        self.call_future(name, b"", timeout).add_done_callback(done)
+
+    def _clock_function(self) -> str:
+        return "a2jClock" if "a2jClock" in self.index else "getTime"
+
+    def _exchange(self, name: str, result: CallResult, byte_ns: float) -> Exchange:
         p = result.payload
         if result.code != 0 or len(p) not in (8, 16):
             raise FunctionFailed(self.name, name, result.code, p)
@@ -388,12 +423,20 @@ class Board:
             self._sent[op] = max(sent, self.transport.last_write_ns)
             timer = self.conn.get_timer()
             idle_until = self._idle_until
+            self._update_due()
+        if self._on_reading_thread():
+            return fut  # (a tick) the reader looks at its timers and futures next anyway
         self._batch_wake.set()  # a reader gathering SIFs reads the reply at once
         if self._reactor is not None:
             self._reactor.poke()  # new timers, and no gathering while a reply is due
         elif timer is not None and timer < idle_until:
             self.transport.poke()  # the reader sleeps past this call's deadline: wake it
         return fut
+
+    def _on_reading_thread(self) -> bool:
+        if self._reactor is not None:
+            return self._reactor.is_loop_thread()
+        return threading.current_thread() is self._thread
 
     def _wait(self, fut: Future[T], timeout: float | None) -> T:
         if self._reactor is not None and self._reactor.is_loop_thread():
@@ -432,7 +475,7 @@ class Board:
         try:
             while not self._stopping:
                 with self._lock:  # callers add requests under the lock; never read it bare
-                    timer = self.conn.get_timer()
+                    timer = self.next_due
                     now = time.monotonic()
                     if timer is None:
                         wait = _IDLE if self.transport.wakes_on_close else _TICK
@@ -478,11 +521,49 @@ class Board:
             self._flush()
         if events:
             self._dispatch(events, now_ns / 1e9, now_ns)
+        ticker = self._ticker
+        if ticker is not None:
+            due = ticker[0]()
+            if due is not None and now >= due:
+                try:
+                    ticker[1](now)
+                except Exception:  # a bug in the periodic work must not end the reading
+                    log.exception("%s: tick failed", self.url)
+        with self._lock:
+            self._update_due()
         return now
 
-    def _next_timer(self) -> float | None:
+    def _update_due(self) -> None:
+        # (under the lock)
+        due = self.conn.get_timer()
+        ticker = self._ticker
+        if ticker is not None:
+            t = ticker[0]()
+            if t is not None and (due is None or t < due):
+                due = t
+        self.next_due = due
+
+    def set_ticker(
+        self, due: Callable[[], float | None] | None, tick: Callable[[float], None] | None = None
+    ) -> None:
+        """Run ``tick(now)`` on the thread that reads this board (its own, or the shared I/O
+        loop) whenever ``due()`` (CLOCK_MONOTONIC s, None: nothing due) has passed: periodic
+        work that sends requests with ``call_future`` and handles the replies in callbacks,
+        without a thread hand-off per request (the clock-sync probes).  ``tick`` must not
+        block; ``due`` is called often and must be cheap.  ``set_ticker(None)`` removes it."""
         with self._lock:
-            return self.conn.get_timer()
+            self._ticker = None if due is None or tick is None else (due, tick)
+        self.reschedule()
+
+    def reschedule(self) -> None:
+        """The ticker's ``due()`` moved (from another thread): look at it again."""
+        with self._lock:
+            self._update_due()
+        if not self._on_reading_thread():
+            if self._reactor is not None:
+                self._reactor.poke()
+            else:
+                self.transport.poke()
 
     def _finish(self, error: BaseException | None) -> None:
         """The link ended: fail what is pending, tell the close callbacks.  Once."""
@@ -519,12 +600,14 @@ class Board:
             fn()
 
     def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
+        by_cmd, any_sif = self._sif_handlers, self._any_sif
         for ev in events:
-            if isinstance(ev, SifReceived):
-                for h in self._sif_handlers.get(ev.cmd, ()):
-                    self._run_handler(h, ev, now)
-                for h in self._any_sif:
-                    self._run_handler(h, ev, now)
+            if type(ev) is SifReceived:  # the sample path: handlers called inline
+                for h in (*by_cmd.get(ev.cmd, ()), *any_sif):
+                    try:
+                        h(ev, now)
+                    except Exception:
+                        log.exception("SIF handler %r failed", h)
             elif isinstance(ev, TransferProgress):
                 entry = self._futures.get(ev.op)
                 if entry and entry[2]:
@@ -561,13 +644,6 @@ class Board:
         if ev.reason in (FailureReason.CLOSED, FailureReason.BROKEN):
             return LinkLost(self.name, label, ev.detail, ev.reason is FailureReason.BROKEN)
         return CallError(self.name, label, ev.detail, ev.code)
-
-    @staticmethod
-    def _run_handler(h: SifHandler, ev: SifReceived, now: float) -> None:
-        try:
-            h(ev, now)
-        except Exception:
-            log.exception("SIF handler %r failed", h)
 
     # ---- closing ---------------------------------------------------------------------------
     @property

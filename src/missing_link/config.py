@@ -35,7 +35,7 @@ class BoardSpec:
     uart_baud: int = 0
     #: ms the reader gathers SIFs while they stream in, to read several per wake-up (host CPU
     #: per update falls; sample latency grows by at most this; replies are never delayed)
-    batch_ms: float = 0.5
+    batch_ms: float = 2.0
 
     @property
     def byte_ns(self) -> float:
@@ -90,6 +90,10 @@ class Config:
     #: about this plus its handshake
     backoff_max: float = 1.0
     diagnostics_period: float = 1.0
+    #: clock exchanges per second for all boards together once their maps are tracking (each
+    #: board probes at most every boards / probe_budget s; bursts after a connect, a reset or
+    #: a surprise are not limited): bounds the sync's CPU with many boards
+    probe_budget: float = 100.0
     #: find boards as their serial ports appear ([discover]; ``run --auto``)
     discover: DiscoverSpec | None = None
     source: str = "<defaults>"
@@ -103,6 +107,7 @@ _DAEMON_KEYS = {
     "backoff_min": (int, float),
     "backoff_max": (int, float),
     "diagnostics_period": (int, float),
+    "probe_budget": (int, float),
 }
 _BOARD_KEYS = {
     "url": str,
@@ -119,6 +124,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "backoff_min": (0.01, 60.0),
     "backoff_max": (0.01, 3600.0),
     "diagnostics_period": (0.05, 3600.0),
+    "probe_budget": (1.0, 100_000.0),
     "timeout": (0.001, 60.0),
     "handshake_timeout": (0.1, 600.0),
     "link_timeout": (0.05, 3600.0),

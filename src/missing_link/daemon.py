@@ -126,6 +126,12 @@ class Daemon:
             self.discovery.start()
         return self
 
+    @property
+    def probe_gap(self) -> float:
+        """s between one board's clock probes while tracking, so that all boards together
+        stay within ``probe_budget`` exchanges per second."""
+        return len(self.sessions) / self.config.probe_budget
+
     def add_board(self, spec: BoardSpec) -> BoardSession:
         """Start a session for one more board (discovery, hotplug); the others are untouched."""
         check_url(spec.url)
@@ -202,12 +208,12 @@ class Daemon:
         wanted = set(boards) if boards is not None else None
         ticks: dict[str, int] = {}
         for s in self.sessions:
-            b, sync = s.board, s.sync
+            b, prober = s.board, s.prober
             if wanted is not None and s.name not in wanted:
                 continue
-            if s.state != UP or b is None or sync is None:
+            if s.state != UP or b is None or prober is None:
                 raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
-            s._push_map(b, sync)
+            prober.push_map()
             reply = b.call_ok(function, struct.pack("<q", host_ns))
             ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
         return ticks

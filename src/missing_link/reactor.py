@@ -109,11 +109,9 @@ class Reactor:
 
     # ---- the loop ------------------------------------------------------------------------------
     def _timeout(self) -> float:
-        soonest = None
-        for b in list(self._boards.values()):
-            t = b._next_timer()
-            if t is not None and (soonest is None or t < soonest):
-                soonest = t
+        soonest = min(
+            (t for b in list(self._boards.values()) if (t := b.next_due) is not None), default=None
+        )
         if soonest is None:
             return _IDLE
         return max(0.0, min(_IDLE, soonest - time.monotonic()))
@@ -180,7 +178,7 @@ class Reactor:
             for board in list(self._boards.values()):
                 if id(board) in stepped:
                     continue
-                t = board._next_timer()
+                t = board.next_due
                 if t is not None and now >= t:
                     self._step(board, b"", now_ns, broken)
             for board, why in broken:

@@ -22,11 +22,12 @@ warnings) and must not be taken by another board (a second ``robot`` becomes ``r
 loudly); message type names are claimed daemon-wide, so two boards whose ``temp`` differ in data
 type never share ``Temp`` (the second is qualified by its board: ``BoardBTemp``).
 
-``up``: the board's reader thread decodes sample SIFs into ``Update`` objects (the sample path,
-``_on_sif``); the supervisor runs actuator commands (latest wins), clock probes on the sync's
-schedule, and watches the link.  A link is *stale* when no intact frame arrived for
-``link_timeout``: a frozen board, a half-open TCP connection or a pulled cable looks like that.
-Silence of half of that sends a heartbeat (a clock probe or ``a2jEcho``), so a quiet but
+``up``: the board's reading thread (the daemon's I/O loop) decodes sample SIFs into ``Update``
+objects (the sample path, ``_on_sif``) and runs the clock probes on the sync's schedule
+(``prober.py``); the supervisor runs actuator commands (latest wins) and watches the link.  A
+link is *stale* when no intact frame arrived for ``link_timeout``: a frozen board, a half-open
+TCP connection or a pulled cable looks like that.
+Silence of half of that sends a heartbeat (a clock probe at once, or ``a2jEcho``), so a quiet but
 healthy board always answers in time; a stale link is closed, reported (state, error, ERROR in
 ``/diagnostics``) and reconnected.  Like a CANopen heartbeat consumer, the host decides from
 what it hears, not from what the transport claims.
@@ -50,11 +51,12 @@ from typing import TYPE_CHECKING, Any
 from .client import Board
 from .config import BoardSpec
 from .descriptors import Transducer, load_descriptor_file
-from .errors import BoardError, CallTimeout, MissingLinkError
+from .errors import BoardError, MissingLinkError
 from .j2a import SifReceived
+from .prober import ClockProber
 from .standard import StandardMapping, mapping_for
 from .text import slug
-from .timesync import NOT_SYNCED, OUTLIER, AddResult, ClockSync, SyncOptions
+from .timesync import NOT_SYNCED, OUTLIER, ClockSync, SyncOptions
 from .topics import Topic, Update
 from .transport import open_transport
 
@@ -99,7 +101,7 @@ class BoardSession:
         self.sync: ClockSync | None = None
         self.epoch = ""
         self.map_pushes = 0
-        self._next_push = 0.0
+        self.prober: ClockProber | None = None
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
         self._next_sif_seq: int | None = None  # after the last SIF seen on this board boot
         self._sif_total: int | None = None  # the next SIF's number since boot (unwrapped seq)
@@ -271,16 +273,14 @@ class BoardSession:
         period = self.daemon.config.diagnostics_period
         link_timeout = self.spec.link_timeout
         next_ping = time.monotonic()
+        next_beat = 0.0
         board = self.board
         assert board is not None
         board.on_close(self._wake.set)  # a broken link wakes the supervisor at once
         while not self._stop.is_set() and board.alive:
             # Sleep until the next thing to do (commands and a dying link wake it early): an
-            # idle board costs a few wake-ups a second, not a poll every 100 ms.
-            due = min(
-                next_ping if self.sync is None else min(next_ping, self.sync.due()),
-                board.last_frame + link_timeout / 2,  # heartbeat
-            )
+            # idle board costs a wake-up a second; clock probes run on the reading thread.
+            due = min(next_ping, max(board.last_frame + link_timeout / 2, next_beat))
             self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
             self._run_commands(board)
@@ -292,78 +292,38 @@ class BoardSession:
                     f"{self.name}: no frame from the board for {silent:.1f} s (frozen, "
                     "unplugged or a half-open link); reconnecting"
                 )
-            heartbeat = silent >= link_timeout / 2
-            if self.sync is not None and (heartbeat or now >= self.sync.due()):
-                self._probe(board, now)
-            elif now >= next_ping or heartbeat:
+            heartbeat = silent >= link_timeout / 2 and now >= next_beat
+            if heartbeat:
+                next_beat = now + link_timeout / 4
+            ping = now >= next_ping
+            if ping:
                 next_ping = now + period
-                if self.sync is None:  # no clock exchanges to measure the round trip with
-                    try:
-                        t0 = time.perf_counter()
-                        board.call("a2jEcho", b"", timeout=min(self.spec.timeout, link_timeout / 3))
-                        self.rtt_us = (time.perf_counter() - t0) * 1e6
-                    except MissingLinkError as e:
-                        self.error = str(e)
+            if self.prober is not None:
+                if heartbeat:
+                    self.prober.probe_now()  # answered (or timed out) on the reading thread
+            elif ping or heartbeat:
+                try:  # no clock exchanges to measure the round trip with
+                    t0 = time.perf_counter()
+                    board.call("a2jEcho", b"", timeout=min(self.spec.timeout, link_timeout / 3))
+                    self.rtt_us = (time.perf_counter() - t0) * 1e6
+                except MissingLinkError as e:
+                    self.error = str(e)
         if not board.alive and not self._stop.is_set():
             self.error = f"link lost: {board.transport.url}"
 
     # ---- clock synchronisation ---------------------------------------------------------------
     def _start_sync(self, board: Board) -> None:
-        self.sync = None
+        self.sync = self.prober = None
         if "a2jClock" not in board.index and "getTime" not in board.index:
             self.warn("no a2jClock or getTime: host times are receive times, without a bound")
             return
         res = int(board.properties.get("clock.res_us", "1"))  # range-checked by the handshake
         sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
         sync.start(time.monotonic())
-        # A first estimate before any sample is published: a few back-to-back exchanges.
-        for _ in range(8):
-            self._probe(board, time.monotonic(), sync)
-        self.sync = sync
-        self._next_push = 0.0
-
-    def _probe_timeout(self, sync: ClockSync) -> float:
-        # A probe that is far slower than the link's best is lost anyway (useless to the
-        # estimator): do not wait a whole call timeout for it, e.g. in a board's boot gap.
-        t = self.spec.timeout
-        if sync.min_rtt_ns is not None:
-            t = min(t, max(0.05, 20 * sync.min_rtt_ns / 1e9))
-        return min(t, self.spec.link_timeout / 3)
-
-    def _probe(self, board: Board, now: float, sync: ClockSync | None = None) -> None:
-        sync = sync or self.sync
-        assert sync is not None
-        try:
-            ex = board.clock_exchange(self._probe_timeout(sync), byte_ns=self.spec.byte_ns)
-        except CallTimeout:
-            sync.on_lost(time.monotonic())
-            return
-        except MissingLinkError as e:
-            self.error = str(e)
-            sync.on_lost(time.monotonic())
-            return
-        result = sync.on_exchange(ex, time.monotonic())
-        self.rtt_us = ex.rtt_ns / 1000
-        if result is AddResult.RESET:
-            log.warning(
-                "%s: board clock went backwards: board reset, clock map restarted", self.name
-            )
-        if "a2jHostMap" in board.index and time.monotonic() >= self._next_push:
-            self._push_map(board, sync)
-
-    def _push_map(self, board: Board, sync: ClockSync) -> None:
-        got = sync.host_map()
-        if got is None:
-            return
-        b, h, rate = got
-        ppb = round((rate / 1000.0 - 1.0) * 1e9)
-        payload = struct.pack("<Qqi", b, round(h) + self.daemon.realtime_offset_ns, ppb)
-        try:
-            board.call_ok("a2jHostMap", payload, timeout=self.spec.timeout)
-            self.map_pushes += 1
-            self._next_push = time.monotonic() + 1.0
-        except MissingLinkError as e:
-            self.error = str(e)
+        prober = ClockProber(self, board, sync)
+        prober.first_estimate()  # a map before any sample is published
+        self.sync, self.prober = sync, prober
+        prober.start()  # from now on on the board's reading thread (prober.py)
 
     def _disconnect(self) -> None:
         try:
@@ -447,31 +407,31 @@ class BoardSession:
         except ValueError:
             self.bad_sifs += 1
             return
-        recv_ns = int(now_mono * 1e9)
         rt_off = self.daemon.realtime_offset_ns
+        recv_ns = int(now_mono * 1e9)
+        arrived = recv_ns + rt_off  # the receipt, as a published (realtime) host time
         missing = values.count(None)
         sync = self.sync
         got = None
         if sync is not None:
             resets = sync.resets
-            got = sync.map_many(board_us, now_mono)
+            got = sync.map_many(board_us, now_mono, rt_off)
             if sync.resets != resets:
                 log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
         if got is not None and not got[3] & OUTLIER:
-            hosts, sigma, bound, flags = got
-            # Measured before it arrived: a map error never puts a sample after its receipt
-            # (the host times are monotonic ns here; the published ones realtime).
-            if max(hosts) > recv_ns:
+            host_ns, sigma, bound, flags = got
+            # Measured before it arrived: a map error never puts a sample after its receipt.
+            if max(host_ns) > arrived:
                 self.future_clamps += 1
-                hosts = [min(h, recv_ns) for h in hosts]
-            host_ns = [0 if v is None else h + rt_off for h, v in zip(hosts, values, strict=True)]
+                host_ns = [min(h, arrived) for h in host_ns]
+            if missing:
+                host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             sigma, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:
                 flags |= OUTLIER
-                self.outliers += 1
-                self._wake.set()  # the sync wants a probe now, to confirm or refute
-            host_ns = [0 if v is None else recv_ns + rt_off for v in values]
+                self.outliers += 1  # (the sync wants a probe now: the ticker sends it)
+            host_ns = [0 if v is None else arrived for v in values]
         if missing < len(values):
             newest = max(host_ns)
             last = self._last_host.get(sif.cmd)
@@ -484,7 +444,7 @@ class BoardSession:
             self._last_host[sif.cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
-            stamp = recv_ns + rt_off
+            stamp = arrived
         update = Update(
             topic,
             board_us,

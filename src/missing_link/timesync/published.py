@@ -102,18 +102,18 @@ class PublishedMap:
             b0, h0, rate = segs[max(i, 0)]
         return h0 + (board_us - b0) * rate
 
-    def at_many(self, stamps: Sequence[int], lo: int, hi: int) -> list[int]:
-        """Published host ns (rounded) for the stamps of one update, ``lo``/``hi`` their
-        smallest and largest: one segment lookup when they share a segment (almost always:
-        they were taken within one sample period)."""
+    def at_many(self, stamps: Sequence[int], lo: int, hi: int, offset_ns: int = 0) -> list[int]:
+        """Published host ns (rounded, plus ``offset_ns``) for the stamps of one update,
+        ``lo``/``hi`` their smallest and largest: one segment lookup when they share a segment
+        (almost always: they were taken within one sample period)."""
         segs, anchors = self._segs, self._anchors
         i = len(segs) - 1
         if lo < anchors[i]:
             i = max(bisect_right(anchors, lo) - 1, 0)
         if i + 1 < len(segs) and hi >= anchors[i + 1]:
-            return [round(self.at(b)) for b in stamps]  # the update spans an anchor
+            return [round(self.at(b)) + offset_ns for b in stamps]  # the update spans an anchor
         b0, h0, rate = segs[i]
-        return [round(h0 + (b - b0) * rate) for b in stamps]
+        return [round(h0 + (b - b0) * rate) + offset_ns for b in stamps]
 
     def map(self, board_us: int) -> float:
         """Published host ns for a sample's board time; remembers the newest one mapped."""

@@ -272,17 +272,19 @@ class ClockSync:
         return Mapped(hosts[0], sigma, bound, flags)
 
     def map_many(
-        self, board_us: Sequence[int], now: float | None = None
+        self, board_us: Sequence[int], now: float | None = None, offset_ns: int = 0
     ) -> tuple[list[int], int, int, int] | None:
-        """Host ns (CLOCK_MONOTONIC) for each stamp of one update, plus the 1-sigma estimate,
-        the hard bound (both for the newest stamp) and flags; None before the first estimate.
-        ``now``: the host's receive time (monotonic s), to refuse stamps from the future.
+        """Host ns (CLOCK_MONOTONIC, plus ``offset_ns``: the caller's realtime offset, added
+        here rather than in another pass) for each stamp of one update, plus the 1-sigma
+        estimate, the hard bound (both for the newest stamp) and flags; None before the first
+        estimate.  ``now``: the host's receive time (monotonic s), to refuse stamps from the
+        future.
 
         An outlier gives ``([], -1, -1, OUTLIER)``: the caller uses its receive time, flagged.
         ``reset_confirm`` updates in a row stamped more than ``reset_backstep_us`` behind the
         newest one mapped (and consistent with each other) mean the board restarted without the
         link dropping: the sync restarts (``resets`` counts it) and this update gets None, like
-        every one until the next estimate."""
+        every one until the next estimate.  The sample path: one lock, one segment lookup."""
         newest = max(board_us)
         o = self.opt
         with self._lock:
@@ -291,38 +293,40 @@ class ClockSync:
             if est is None or not pm.started:
                 return None
             last = pm.newest_mapped
-            reset = outlier = False
             h = pm.at(newest)  # unrounded: for the future check and the bound
             if last is not None and newest < last - o.reset_backstep_us:
                 consistent = self._suspects and 0 <= newest - self._suspect_last <= o.glitch_us
                 self._suspects = self._suspects + 1 if consistent else 1
                 self._suspect_last = newest
-                if self._suspects >= o.reset_confirm:
+                reset = self._suspects >= o.reset_confirm
+                if reset:
                     self._reset_locked()
-                    reset = True
-                else:
-                    outlier = True
             elif now is not None and h > now * 1e9 + o.glitch_us * 1000:
-                outlier = True
+                reset = False
             else:
                 self._suspects = 0
-                pm.map(newest)  # remembers the newest mapped
-                hosts = pm.at_many(board_us, min(board_us), newest)
+                if last is None or newest > last:
+                    pm.newest_mapped = newest
+                hosts = pm.at_many(board_us, min(board_us), newest, offset_ns)
                 flags = 0
                 if self._step_pending:
                     flags = STEP
                     self._step_pending = False
-        if reset or outlier:
-            if reset:
-                self._enter(BURST, now or 0.0)
-            else:
-                self.outliers += 1
-            self._next = now or 0.0  # probe at once: confirm or refute
-            return None if reset else ([], -1, -1, OUTLIER)
-        lo, hi = est.interval(newest)
-        dev = h - est.host_at(newest)
-        sigma = math.sqrt(est.sigma_ns**2 + dev * dev)
-        return hosts, round(sigma), math.ceil(max(h - lo, hi - h)), flags
+                # The hard band at the newest stamp (est.interval, inlined: this runs per
+                # update) and how far the published map is from the estimate there.
+                d = newest - est.b_ref
+                dev = h - (est.h_ref + d * est.rate)
+                widen = abs(d) * 1000.0 * est.dskew
+                bound = math.ceil(max(dev - est.lo_ns, est.hi_ns - dev) + widen)
+                sigma = est.sigma_ns
+                return hosts, round(math.sqrt(sigma * sigma + dev * dev)), bound, flags
+        # a reset, or an outlier: probe at once to confirm or refute
+        if reset:
+            self._enter(BURST, now or 0.0)
+        else:
+            self.outliers += 1
+        self._next = now or 0.0
+        return None if reset else ([], -1, -1, OUTLIER)
 
     def host_map(self) -> tuple[int, float, float] | None:
         """The current estimate as (board µs, host ns, ns per µs), to hand to the board for
