@@ -8,8 +8,14 @@ Per scenario: the daemon's CPU (getrusage of this process) per update and in % o
 same in multiples of the bare J2A frame decode of the same frames (the reference, measured in the
 same run), latency from the board's stamp to the subscriber (the virtual boards' clock is the
 host's CLOCK_MONOTONIC) p50/p99, and lost updates checked by their numbers (every update carries
-its counter) plus what the daemon itself counted.  Idle boards: 1 update/s.  RSS per board: the
-daemon's RSS with N boards up minus with none, / N."""
+its counter) plus what the daemon itself counted.  Idle boards: 1 update/s, measured once their
+clock sync has settled (12 s after connecting; the probe rate adapts down).  RSS per board: the
+daemon's RSS with N boards up minus with none, / N.  Clock exchanges per second per board from
+the sessions' counters.
+
+A second reference, also measured in this run: the daemon's sample path alone (the same frames
+handed to a connected board's reading step, no I/O and no waiting), which shows how much of the
+end-to-end cost is the loop's waking and reading rather than the per-update work."""
 
 from __future__ import annotations
 
@@ -65,6 +71,38 @@ def bare_decode_us(n: int = 20000) -> float:
     return best / n * 1e6
 
 
+def sample_path_us(n: int = 20000) -> float:
+    """µs per update of the daemon's own sample path with real objects and no I/O: frames of a
+    counting board handed straight to a connected board's reading step (decode, clock map,
+    Update, bus, one inline subscriber), 4 frames per read."""
+    proc, urls = start_boards(1, 1.0)
+    try:
+        with Daemon(Config(boards=[BoardSpec(urls[0])], publishers=["bus"])) as d:
+            assert d.wait_until_up(30)
+            time.sleep(1.0)
+            d.subscribe("/**", Watch(), queue=0)
+            board = d.sessions[0].board
+            assert board is not None
+            rt = BoardRuntime("b", "m", "s", epoch="e")
+            t = Transducer("signal", 0, "counter", "COUNTER", CHANNELS, "int32_t", -1)
+            rt.add_transducer(t)
+            base = time.monotonic_ns() // 1000 - n * 10  # stamps in the past, 10 µs apart
+            frames = []
+            for i in range(n):
+                for ch in range(CHANNELS):
+                    rt.record(t, ch, i, stamp_us=base + i * 10)
+                rt.poll()
+                frames.append(rt.take_output())
+            reads = [b"".join(frames[k : k + 4]) for k in range(0, n, 4)]
+            t0 = time.thread_time()
+            for data in reads:
+                board._step(data, time.monotonic_ns(), 0)
+            return (time.thread_time() - t0) / n * 1e6
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
 def start_boards(n: int, rate: float) -> tuple[subprocess.Popen[str], list[str]]:
     cmd = [sys.executable, "-m", "missing_link", "board", "--sim", "rate", "--count", str(n)]
     cmd += ["--rate", str(rate), "--channels", str(CHANNELS), "--listen", "tcp://127.0.0.1:0"]
@@ -106,7 +144,8 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
             assert d.wait_until_up(60), [s["error"] for s in d.status() if s["state"] != "up"]
             w = Watch()
             d.subscribe("/**", w, queue=0)
-            time.sleep(2.0)  # bursts after connecting settle
+            time.sleep(12.0 if rate <= 1.0 else 2.0)  # bursts after connecting settle
+            ex0 = sum(s["sync_exchanges"] for s in d.status())
             with w.lock:
                 w.gaps, w.lat, c0 = 0, [], w.count
             lost0 = sum(s["lost_sifs"] for s in d.status())
@@ -115,7 +154,9 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
             cpu1, t1 = cpu_s(), time.monotonic()
             with w.lock:
                 updates, gaps, lat = w.count - c0, w.gaps, sorted(w.lat)
-            lost = sum(s["lost_sifs"] for s in d.status()) - lost0
+            status = d.status()
+            lost = sum(s["lost_sifs"] for s in status) - lost0
+            exchanges = sum(s["sync_exchanges"] for s in status) - ex0
             rss = rss_kib() - rss0
     finally:
         proc.terminate()
@@ -135,6 +176,7 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
         "lost": gaps,
         "lost_counted": lost,
         "rss_kib_per_board": rss / n,
+        "probes_s": exchanges / wall / n,
     }
 
 
@@ -144,16 +186,20 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="fewer scenarios")
     a = ap.parse_args()
     bare = bare_decode_us()
+    path = sample_path_us()
     runs = [(1, 4000.0), (64, 100.0), (16, 1.0), (64, 1.0)]
     if not a.quick:
         busy = [(1, 500.0), (1, 4000.0), (4, 500.0), (16, 500.0), (64, 100.0), (64, 200.0)]
         runs = [*busy, *runs[2:]]
-    print(f"bare J2A frame decode (reference, same run): {bare:.2f} µs per update\n")
+    print(f"bare J2A frame decode (reference, same run): {bare:.2f} µs per update")
+    print(f"daemon sample path, no I/O (same run): {path:.2f} µs per update ({path / bare:.1f}x)")
+    print()
     print(
         "| boards | updates/s asked | received | daemon % of a core | µs per update | x bare "
-        "decode | latency p50 / p99 ms | lost (numbered / counted) | RSS per board |"
+        "decode | latency p50 / p99 ms | lost (numbered / counted) | RSS per board | "
+        "probes/s per board |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n, rate in runs:
         r = scenario(n, rate, a.seconds)
         idle = rate <= 1.0
@@ -162,7 +208,7 @@ def main() -> None:
         print(
             f"| {n} | {r['asked_s']:,.0f} | {r['updates_s']:,.0f} | {r['core_pct']:.1f} | {per} "
             f"| {mult} | {r['p50'] / 1000:.2f} / {r['p99'] / 1000:.2f} | {r['lost']} / "
-            f"{r['lost_counted']} | {r['rss_kib_per_board']:.0f} KiB |",
+            f"{r['lost_counted']} | {r['rss_kib_per_board']:.0f} KiB | {r['probes_s']:.1f} |",
             flush=True,
         )
 

@@ -474,6 +474,7 @@ class Board:
         last_data = 0.0
         try:
             while not self._stopping:
+                self._tick(time.monotonic())
                 with self._lock:  # callers add requests under the lock; never read it bare
                     timer = self.next_due
                     now = time.monotonic()
@@ -521,17 +522,26 @@ class Board:
             self._flush()
         if events:
             self._dispatch(events, now_ns / 1e9, now_ns)
-        ticker = self._ticker
-        if ticker is not None:
-            due = ticker[0]()
-            if due is not None and now >= due:
-                try:
-                    ticker[1](now)
-                except Exception:  # a bug in the periodic work must not end the reading
-                    log.exception("%s: tick failed", self.url)
         with self._lock:
             self._update_due()
         return now
+
+    def _tick(self, now: float) -> None:
+        """Run the ticker if it is due.  The reading thread calls this last before it waits
+        for bytes, so a request sent here has its reply read (and stamped) at once, not after
+        other work: a clock probe's return trip is not lengthened by the host."""
+        ticker = self._ticker
+        if ticker is None:
+            return
+        due = ticker[0]()
+        if due is None or now < due:
+            return
+        try:
+            ticker[1](now)
+        except Exception:  # a bug in the periodic work must not end the reading
+            log.exception("%s: tick failed", self.url)
+        with self._lock:
+            self._update_due()
 
     def _update_due(self) -> None:
         # (under the lock)

@@ -11,7 +11,10 @@ or the soonest call timer of any board.  A round then
    board's stamp does not wait for another board's processing;
 2. runs each board's ``_step`` with its bytes (decode, replies to futures, SIFs to the sample
    path), then ``_step`` with no bytes for boards whose call timer is due;
-3. ends boards whose link broke (``_finish``: pending calls fail, close callbacks run).
+3. ends boards whose link broke (``_finish``: pending calls fail, close callbacks run);
+4. last, right before the next wait, runs the boards' due *tickers* (``Board.set_ticker``: the
+   clock probes), so a probe's reply is read the moment it arrives, not after a round's work
+   (which would lengthen every return trip alike: a bias no estimator can see).
 
 Why: with a thread per board, every frame cost a wake-up, a select, a lock and an interpreter-lock
 hand-off between dozens of threads (the per-update cost grew with the number of boards); one loop
@@ -119,6 +122,7 @@ class Reactor:
     def _run(self) -> None:
         last_data = 0.0
         while not self._stopping:
+            self._tick()
             try:
                 ready = self._sel.select(self._timeout())
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
@@ -145,6 +149,14 @@ class Reactor:
                 os.close(fd)
             except OSError:
                 pass
+
+    def _tick(self) -> None:
+        # Last before the wait: a probe sent here has its reply read as soon as it arrives.
+        now = time.monotonic()
+        for board in list(self._boards.values()):
+            due = board.next_due
+            if due is not None and now >= due:
+                board._tick(now)
 
     def _calls_waiting(self) -> bool:
         return any(b._futures for b in list(self._boards.values()))
