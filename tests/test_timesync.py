@@ -7,6 +7,7 @@ import itertools
 import json
 import math
 import random
+import statistics
 import struct
 import subprocess
 import sys
@@ -564,3 +565,66 @@ def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
     assert inside >= 0.999 * len(synced), (inside, len(synced))
     assert st["sync_resets"] >= 1, st
     assert any(u.recv_ns > back_at and not u.clock_flags & NOT_SYNCED for u in got)
+
+
+# ---- a board reset keeps the crystal's skew ----------------------------------------------------
+def _exchanges(
+    rng: random.Random, skew: float, start_ns: int, boot_ns: int, n: int
+) -> list[Exchange]:
+    """Exchanges every ~20 ms with heavy-tailed delays (40 µs + exponential 200 µs) against a
+    board whose counter started at host ``boot_ns`` and runs ``1 + skew`` fast."""
+    out = []
+    for k in range(n):
+        t1 = start_ns + k * 20_000_000 + rng.randint(0, 3_000_000)
+        fwd = 40_000 + rng.expovariate(1 / 200_000)
+        back = 40_000 + rng.expovariate(1 / 200_000)
+        b2 = int((t1 + fwd - boot_ns) / 1000 * (1 + skew))
+        t4 = int(t1 + fwd + 15_000 + back)
+        out.append(Exchange(t1, b2, b2 + 15, t4))
+    return out
+
+
+def _map_error_us(est: ClockEstimator, skew: float, boot_ns: int) -> float:
+    b = est.estimate.b_ref + 10_000 if est.estimate else 0
+    assert est.estimate is not None
+    return abs(est.estimate.host_at(b) - (boot_ns + b / (1 + skew) * 1000)) / 1000
+
+
+def test_after_a_reset_the_skew_measured_before_it_is_a_prior() -> None:
+    # Deterministic data: the same exchanges after the reset, with and without the prior.
+    skew = 180e-6
+    errors_with: list[float] = []
+    errors_without: list[float] = []
+    for seed in range(20):
+        rng = random.Random(seed)
+        sync = ClockSync(SyncOptions(), seed=1)
+        sync.start(0.0)
+        for ex in _exchanges(rng, skew, 10**12, 10**12 - 5 * 10**9, 200):
+            sync.on_exchange(ex, ex.t4 / 1e9)
+        before = sync.estimator.estimate
+        assert before is not None and abs(before.skew + skew) < 20e-6  # host per board: -skew
+        boot = 10**12 + 5 * 10**9
+        after = _exchanges(rng, skew, boot + 200_000_000, boot, 11)
+        # one far exchange is a glitch; the second that agrees with it is the reset
+        assert sync.on_exchange(after[0], after[0].t4 / 1e9) is AddResult.REJECTED
+        assert sync.on_exchange(after[1], after[1].t4 / 1e9) is AddResult.RESET
+        fresh = ClockEstimator()
+        fresh.add(after[1])
+        for ex in after[2:]:
+            sync.on_exchange(ex, ex.t4 / 1e9)
+            fresh.add(ex)
+            errors_with.append(_map_error_us(sync.estimator, skew, boot))
+            errors_without.append(_map_error_us(fresh, skew, boot))
+        # the hard band holds either way
+        est = sync.estimator.estimate
+        assert est is not None
+        b = est.b_ref + 10_000
+        lo, hi = est.interval(b)
+        assert lo <= boot + b / (1 + skew) * 1000 <= hi
+    # the first 9 exchanges after the reset, 20 resets: a much better start
+    print(
+        f"mean error with the prior {statistics.mean(errors_with):.1f} µs, without "
+        f"{statistics.mean(errors_without):.1f} µs"
+    )
+    assert statistics.mean(errors_with) < statistics.mean(errors_without) / 2
+    assert statistics.median(errors_with) < statistics.median(errors_without)

@@ -102,6 +102,8 @@ class BoardSession:
         self.epoch = ""
         self.map_pushes = 0
         self.prober: ClockProber | None = None
+        self._serial = ""  # board.serial of the board this session last connected to
+        self._skew_memory: tuple[str, float, float] | None = None  # (serial, skew, host ns)
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
         self._next_sif_seq: int | None = None  # after the last SIF seen on this board boot
         self._sif_total: int | None = None  # the next SIF's number since boot (unwrapped seq)
@@ -313,12 +315,21 @@ class BoardSession:
 
     # ---- clock synchronisation ---------------------------------------------------------------
     def _start_sync(self, board: Board) -> None:
-        self.sync = self.prober = None
+        old, self.sync, self.prober = self.sync, None, None
+        serial = board.properties.get("board.serial", "")
+        if old is not None and old.estimate is not None:
+            # The same board again (a link outage): its crystal's skew is a prior, like
+            # ntpd's drift file; a different board (another serial) starts from nothing.
+            self._skew_memory = (self._serial, old.estimate.skew, old.estimate.h_ref)
+        self._serial = serial
         if "a2jClock" not in board.index and "getTime" not in board.index:
             self.warn("no a2jClock or getTime: host times are receive times, without a bound")
             return
         res = int(board.properties.get("clock.res_us", "1"))  # range-checked by the handshake
         sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
+        memory = self._skew_memory
+        if memory is not None and memory[0] == serial:
+            sync.estimator.set_prior(memory[1], memory[2])
         sync.start(time.monotonic())
         prober = ClockProber(self, board, sync)
         prober.first_estimate()  # a map before any sample is published

@@ -254,7 +254,10 @@ class ClockSync:
         self._floor_ns = None
         self._suspects = 0
         self._far_ex = None
+        prior = self.estimator.estimate
         self.estimator.reset()
+        if prior is not None:  # the counter restarted, not the crystal: keep its skew
+            self.estimator.set_prior(prior.skew, prior.h_ref)
         self._map = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
         self.state = UNSYNCED
 
