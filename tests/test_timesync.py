@@ -258,8 +258,12 @@ def test_probe_rate_adapts_down_on_a_wide_link_and_up_on_an_rtt_jump() -> None:
     assert sync.state == FAST and sync.due() - now <= 0.05 * 1.25 + 1e-9
 
 
+#: these tests build a map from single exchanges (the daemon waits for map_min_points)
+ONE_EXCHANGE = SyncOptions(map_min_points=1)
+
+
 def test_reset_restarts_and_flags_a_step() -> None:
-    sync = ClockSync(seed=2)
+    sync = ClockSync(ONE_EXCHANGE, seed=2)  # (a map from one exchange)
     sync.start(0.0)
     assert sync.map(123) is None  # nothing before the first estimate
     sync.on_exchange(Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_050_000), 1.0)
@@ -284,7 +288,7 @@ def test_reset_restarts_and_flags_a_step() -> None:
 
 
 def test_one_far_exchange_is_an_outlier_not_a_reset() -> None:
-    sync = ClockSync(seed=2)
+    sync = ClockSync(ONE_EXCHANGE, seed=2)  # (a map from one exchange)
     sync.start(0.0)
     sync.on_exchange(Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_050_000), 1.0)
     before = sync.map(5_000_020)
@@ -455,7 +459,7 @@ def test_cli_sync_reports_the_board_clock() -> None:
 def test_samples_stamped_far_back_restart_the_sync() -> None:
     """A reset seen in the samples first (before any exchange): the update gets no host time
     from the old map, the sync restarts and probes at once."""
-    sync = ClockSync(seed=3)
+    sync = ClockSync(ONE_EXCHANGE, seed=3)  # (a map from one exchange)
     sync.start(0.0)
     sync.on_exchange(Exchange(1_000_000_000, 9_000_000, 9_000_010, 1_000_050_000), 1.0)
     assert sync.map_many([9_000_100], 1.1) is not None
@@ -472,7 +476,7 @@ def test_samples_stamped_far_back_restart_the_sync() -> None:
 def test_glitch_stamps_never_map_into_the_future() -> None:
     """A far-future stamp (a byte flip the 8-bit checksum let through) is an outlier; the map
     and later samples are untouched (no reset, no step)."""
-    sync = ClockSync(seed=3)
+    sync = ClockSync(ONE_EXCHANGE, seed=3)  # (a map from one exchange)
     sync.start(0.0)
     sync.on_exchange(Exchange(1_000_000_000, 9_000_000, 9_000_010, 1_000_050_000), 1.0)
     first = sync.map_many([9_000_100], 1.0002)
@@ -492,7 +496,7 @@ def test_glitch_stamps_never_map_into_the_future() -> None:
 def test_map_starts_from_the_bursts_best_estimate_not_its_first() -> None:
     """Before any sample is mapped the map follows every new estimate (a step nobody saw costs
     nothing); the first exchange of a burst is its slowest and must not stay in the map."""
-    sync = ClockSync(seed=4)
+    sync = ClockSync(ONE_EXCHANGE, seed=4)  # (a map from one exchange)
     sync.start(0.0)
     slow = Exchange(1_000_000_000, 5_000_000, 5_000_010, 1_000_900_000)  # 900 µs round trip
     sync.on_exchange(slow, 1.0)
@@ -628,3 +632,21 @@ def test_after_a_reset_the_skew_measured_before_it_is_a_prior() -> None:
     )
     assert statistics.mean(errors_with) < statistics.mean(errors_without) / 2
     assert statistics.median(errors_with) < statistics.median(errors_without)
+
+
+def test_after_a_reset_samples_wait_for_a_few_exchanges() -> None:
+    """One or two exchanges give an offset off by up to half a round trip; the map (and so every
+    sample's host time) starts only from an estimate of ``map_min_points`` exchanges.  Until
+    then, samples get no host time from the map (the session stamps them NOT_SYNCED)."""
+    sync = ClockSync(SyncOptions(map_min_points=4), seed=5)
+    sync.start(0.0)
+    for k in range(3):
+        t1 = 1_000_000_000 + k * 20_000_000
+        sync.on_exchange(
+            Exchange(t1, 5_000_000 + k * 20_000, 5_000_010 + k * 20_000, t1 + 50_000), t1 / 1e9
+        )
+        assert sync.map_many([5_000_020 + k * 20_000], t1 / 1e9) is None
+    t1 = 1_060_000_000
+    sync.on_exchange(Exchange(t1, 5_060_000, 5_060_010, t1 + 50_000), t1 / 1e9)
+    got = sync.map_many([5_060_020], t1 / 1e9 + 0.001)
+    assert got is not None and got[3] & STEP

@@ -452,6 +452,8 @@ class BoardSession:
                 host_ns = [h + shift if h else 0 for h in host_ns]
                 newest += shift
                 self.host_time_clamps += 1
+                if bound >= 0:
+                    bound += shift  # moved off the map by shift: the bound says so
             self._last_host[sif.cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)

@@ -79,6 +79,10 @@ class SyncOptions:
     reset_confirm: int = 3
     #: a stamp this far from the map (in a sample: beyond now + this) is an outlier
     glitch_us: int = 1_000_000
+    #: exchanges an estimate needs before samples are mapped with it (after a reset, samples
+    #: meanwhile get their receive time, flagged NOT_SYNCED): one or two exchanges give an
+    #: offset off by up to half a round trip, which the map then takes tau to slew away
+    map_min_points: int = 4
 
 
 @dataclass(frozen=True)
@@ -208,9 +212,10 @@ class ClockSync:
             if est is not None and result is not AddResult.REJECTED:
                 if not self._map.started or self._map.newest_mapped is None:
                     # Nothing mapped yet: start from the newest (best) estimate, not the
-                    # burst's first and slowest exchange.
-                    self._map.start(est)
-                    self._step_pending = True
+                    # burst's first and slowest exchange; and only once it has a few.
+                    if est.points >= self.opt.map_min_points:
+                        self._map.start(est)
+                        self._step_pending = True
                 else:
                     self.last_error_ns = self._map.steer(est)
         surprise = False
