@@ -10,11 +10,13 @@ or the soonest call timer of any board.  A round then
 1. reads every ready descriptor first (each read stamped right after it: clock sync's t4), so a
    board's stamp does not wait for another board's processing;
 2. runs each board's ``_step`` with its bytes (decode, replies to futures, SIFs to the sample
-   path), then ``_step`` with no bytes for boards whose call timer is due;
+   path, its due call timers);
 3. ends boards whose link broke (``_finish``: pending calls fail, close callbacks run);
-4. last, right before the next wait, runs the boards' due *tickers* (``Board.set_ticker``: the
-   clock probes), so a probe's reply is read the moment it arrives, not after a round's work
-   (which would lengthen every return trip alike: a bias no estimator can see).
+4. last, right before the next wait, in one pass over the boards (``_due_work``): due call
+   timers of boards that had no bytes, then due *tickers* (``Board.set_ticker``: the clock
+   probes), so a probe's reply is read the moment it arrives, not after a round's work (which
+   would lengthen every return trip alike: a bias no estimator can see); the same pass finds
+   the soonest due time, the wait's timeout.
 
 Why: with a thread per board, every frame cost a wake-up, a select, a lock and an interpreter-lock
 hand-off between dozens of threads (the per-update cost grew with the number of boards); one loop
@@ -111,20 +113,17 @@ class Reactor:
         return len(self._boards)
 
     # ---- the loop ------------------------------------------------------------------------------
-    def _timeout(self) -> float:
-        soonest = min(
-            (t for b in list(self._boards.values()) if (t := b.next_due) is not None), default=None
-        )
-        if soonest is None:
-            return _IDLE
-        return max(0.0, min(_IDLE, soonest - time.monotonic()))
-
     def _run(self) -> None:
         last_data = 0.0
         while not self._stopping:
-            self._tick()
             try:
-                ready = self._sel.select(self._timeout())
+                timeout = self._due_work()
+            except Exception:  # a bug here must not end every board's reading
+                self.loop_errors += 1
+                log.exception("reactor: timers failed")
+                timeout = _IDLE
+            try:
+                ready = self._sel.select(timeout)
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
                 log.debug("reactor: select: %s", e)
                 ready = []
@@ -150,13 +149,29 @@ class Reactor:
             except OSError:
                 pass
 
-    def _tick(self) -> None:
-        # Last before the wait: a probe sent here has its reply read as soon as it arrives.
-        now = time.monotonic()
-        for board in list(self._boards.values()):
-            due = board.next_due
-            if due is not None and now >= due:
-                board._tick(now)
+    def _due_work(self) -> float:
+        """Last before the wait, in one pass over the boards: call timeouts that are due, then
+        tickers that are due (a probe sent here has its reply read the moment it arrives);
+        returns how long the wait may be."""
+        now_ns = time.monotonic_ns()
+        now = now_ns / 1e9
+        soonest = None
+        broken: list[tuple[Board, BaseException]] = []
+        with self._lock:
+            for board in list(self._boards.values()):
+                due = board.next_due
+                if due is not None and now >= due:
+                    self._step(board, b"", now_ns, broken)  # call timers (none due: cheap)
+                    board._tick(now)
+                    due = board.next_due
+                if due is not None and (soonest is None or due < soonest):
+                    soonest = due
+            for board, why in broken:
+                self._unregister(board)
+                board._finish(why)
+        if soonest is None:
+            return _IDLE
+        return max(0.0, min(_IDLE, soonest - time.monotonic()))
 
     def _calls_waiting(self) -> bool:
         return any(b._futures for b in list(self._boards.values()))
@@ -182,17 +197,8 @@ class Reactor:
                 except (TransportBroken, TransportClosed) as exc:
                     broken.append((board, exc))
             now_ns = time.monotonic_ns()
-            stepped = set()
             for board, data in reads:
-                self._step(board, data, now_ns, broken)
-                stepped.add(id(board))
-            now = now_ns / 1e9
-            for board in list(self._boards.values()):
-                if id(board) in stepped:
-                    continue
-                t = board.next_due
-                if t is not None and now >= t:
-                    self._step(board, b"", now_ns, broken)
+                self._step(board, data, now_ns, broken)  # (its due call timers too)
             for board, why in broken:
                 self._unregister(board)
                 board._finish(why)
