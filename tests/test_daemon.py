@@ -261,6 +261,7 @@ def test_example_config_is_valid() -> None:
     cfg = load_config("examples/missing-link.toml")
     assert [b.url for b in cfg.boards][1] == "usb://?serial=J2A-0001"
     assert cfg.publisher_options["mcap"]["rotate_mb"] == 1024
+    assert cfg.probe_budget == 100.0 and cfg.boards[0].batch_ms == 2.0  # the defaults, said
     assert parse_config({}).publishers == ["bus"]
 
 

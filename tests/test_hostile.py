@@ -162,6 +162,7 @@ def test_timeout_zero_and_bad_ranges_are_config_errors() -> None:
         ('[[board]]\nurl = "tcp://127.0.0.1:1"\ntimeout = 0', "timeout"),
         ("[daemon]\ndiagnostics_period = 0", "diagnostics_period"),
         ("[daemon]\nbackoff_min = 0", "backoff_min"),
+        ("[daemon]\nprobe_budget = 0", "probe_budget"),
         ('[[board]]\nurl = "tcp://127.0.0.1:1"\nname = "board-a"', "name"),
     ]:
         import tomllib
