@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import io
 import os
+import socket
+import sys
+import time
 import types
 from typing import Any
 
@@ -218,3 +221,26 @@ def test_pty_raw_mode_keeps_special_bytes(serve: Serve) -> None:
     with open_board(server.url) as board:
         tricky = b"\x11\x12\x13\x03\x04\x1a\x7d\xed\r\n\x00\xff"
         assert board.call("a2jEcho", tricky).payload == tricky
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="SO_TIMESTAMPNS is Linux's")
+def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
+    """The kernel's receive stamp is clock sync's t4 over TCP: after the bytes were sent (causal)
+    and before the read that took them (the reader's wake-up is not in it)."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    t = open_transport(f"tcp://127.0.0.1:{listener.getsockname()[1]}")
+    peer, _ = listener.accept()
+    try:
+        for _ in range(3):
+            sent = time.monotonic_ns()
+            peer.sendall(b"\x7e" * 40)
+            time.sleep(0.02)  # the reader is late
+            before_read = time.monotonic_ns()
+            assert t.read(1.0) == b"\x7e" * 40
+            assert sent <= t.last_rx_ns < before_read
+    finally:
+        t.close()
+        peer.close()
+        listener.close()

@@ -35,6 +35,8 @@ class Transport(ABC):
     #: arrival, so clock sync's t4 is a valid upper constraint (the same user-space layer a
     #: board's shell stamps t2 at); 0 when the transport does not stamp
     last_rx_ns: int = 0
+    #: set by a transport whose kernel stamps arriving bytes (``_recv``), for ``last_rx_ns``
+    kernel_rx_ns: int = 0
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
 
@@ -136,7 +138,12 @@ class FdTransport(Transport):
             # thread can wait for the interpreter lock while another writes a request whose
             # reply then comes back in this same read; a stamp taken before would be earlier
             # than the request (measured: 10 µs "round trips", clock-sync bounds broken).
-            self.last_rx_ns = time.monotonic_ns()
+            now = time.monotonic_ns()
+            # A kernel stamp (TCP: when the last segment read arrived) is tighter and still
+            # after every byte of this read arrived; never trust it beyond our own stamp.
+            kernel = self.kernel_rx_ns
+            self.last_rx_ns = kernel if 0 < kernel <= now else now
+            self.kernel_rx_ns = 0
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()
             raise TransportBroken(f"{self.url}: read failed: {e}") from e

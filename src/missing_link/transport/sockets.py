@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import socket
+import struct
+import sys
+import time
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, TransportBroken
@@ -11,17 +14,42 @@ from .base import FdTransport, register_transport
 CONNECT_TIMEOUT = 5.0
 
 
+#: Linux SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; Python's socket module does not name it): the kernel
+#: stamps each arriving segment (CLOCK_REALTIME), and recvmsg hands back the stamp of the last
+#: segment a read consumed
+_SO_TIMESTAMPNS = 35
+_CMSG_SPACE = socket.CMSG_SPACE(16) if hasattr(socket, "CMSG_SPACE") else 0
+
+
 class SocketTransport(FdTransport):
     def __init__(self, url: str, sock: socket.socket) -> None:
         sock.setblocking(True)
+        self._kernel_stamps = False
         if sock.family in (socket.AF_INET, socket.AF_INET6):
             # Frames are small and latency matters more than packet count.
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            if sys.platform == "linux" and _CMSG_SPACE:
+                try:
+                    sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+                    self._kernel_stamps = True
+                except OSError:
+                    pass
         super().__init__(url, sock.fileno())
         self.sock = sock
 
     def _recv(self, n: int) -> bytes:
-        return self.sock.recv(n)
+        if not self._kernel_stamps:
+            return self.sock.recv(n)
+        # When the bytes arrived, not when this thread got round to reading them: clock sync's
+        # t4 without the host's wake-up and scheduling delay (the return trip's host share).
+        data, ancillary, _flags, _addr = self.sock.recvmsg(n, _CMSG_SPACE)
+        for level, kind, raw in ancillary:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= 16:
+                sec, nsec = struct.unpack("qq", raw[:16])
+                # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
+                offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
+                self.kernel_rx_ns = sec * 1_000_000_000 + nsec - offset
+        return data
 
     def _send(self, data: memoryview) -> int:
         return self.sock.send(data)
