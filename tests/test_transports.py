@@ -233,13 +233,18 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
     t = open_transport(f"tcp://127.0.0.1:{listener.getsockname()[1]}")
     peer, _ = listener.accept()
     try:
-        for _ in range(3):
+        early = 0
+        for _ in range(5):
             sent = time.monotonic_ns()
             peer.sendall(b"\x7e" * 40)
             time.sleep(0.02)  # the reader is late
             before_read = time.monotonic_ns()
             assert t.read(1.0) == b"\x7e" * 40
-            assert sent <= t.last_rx_ns < before_read
+            assert sent <= t.last_rx_ns  # causal, kernel stamp or not
+            early += t.last_rx_ns < before_read
+        # The kernel turns receive stamping on a little after the first socket asks (a deferred
+        # static key): the first segments may come unstamped, and then our own stamp is used.
+        assert early >= 3
     finally:
         t.close()
         peer.close()
