@@ -23,7 +23,8 @@ hand-off between dozens of threads (the per-update cost grew with the number of 
 pays a select per round for all boards, and rounds carry several frames.  While samples stream in
 and no call waits for a reply, a round is followed by a short gather (``batch_s``) so the next
 one carries more; any request written ends it at once (``poke``), so replies and t4 are never
-read late.
+read late.  A gather that brought fewer than two SIFs (a stream slower than the window) only
+added a wake-up; the next 100 data rounds then go without one.
 
 Blocking calls must not be made on this thread (a SIF handler calling ``board.call``): the reply
 could only be read by the thread that waits for it; ``Board`` raises instead of deadlocking.
@@ -48,6 +49,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _IDLE = 1.0  # longest wait with no timer pending (new timers poke the loop anyway)
+_SKIP_GATHERS = 100  # data rounds without gathering after a gather that brought < 2 SIFs
 
 
 class Reactor:
@@ -115,6 +117,8 @@ class Reactor:
     # ---- the loop ------------------------------------------------------------------------------
     def _run(self) -> None:
         last_data = 0.0
+        gathered = False  # the last wait was a gather
+        skip = 0  # data rounds to come without a gather
         while not self._stopping:
             try:
                 timeout = self._due_work()
@@ -128,17 +132,25 @@ class Reactor:
                 log.debug("reactor: select: %s", e)
                 ready = []
             try:
-                had_data = self._round(ready)
+                sifs = self._round(ready)
             except Exception:  # a bug here must not end every board's reading
                 self.loop_errors += 1
                 log.exception("reactor: round failed")
-                had_data = False
+                sifs = 0
+            if gathered and sifs < 2:
+                # The gather brought one sample or none: the stream is slower than the window
+                # (one board at 500/s), so it only added a wake-up; skip it for a while.
+                skip = _SKIP_GATHERS
+            gathered = False
             now = time.monotonic()
-            if had_data and self.batch_s > 0:
-                if now - last_data < 2 * self.batch_s and not self._calls_waiting():
+            if sifs and self.batch_s > 0:
+                if skip > 0:
+                    skip -= 1
+                elif now - last_data < 2 * self.batch_s and not self._calls_waiting():
                     self._poked.clear()
                     if not self._calls_waiting():
-                        self._poked.wait(self.batch_s)
+                        # (a poke ends it early: a request; that gather is not judged)
+                        gathered = not self._poked.wait(self.batch_s)
                 last_data = now
         with self._lock:
             self._boards.clear()
@@ -176,7 +188,8 @@ class Reactor:
     def _calls_waiting(self) -> bool:
         return any(b._futures for b in list(self._boards.values()))
 
-    def _round(self, ready: list[tuple[selectors.SelectorKey, int]]) -> bool:
+    def _round(self, ready: list[tuple[selectors.SelectorKey, int]]) -> int:
+        """One round of reads and steps; returns the SIFs it decoded (0: no data)."""
         self.rounds += 1
         with self._lock:
             reads: list[tuple[Board, bytes]] = []
@@ -197,12 +210,15 @@ class Reactor:
                 except (TransportBroken, TransportClosed) as exc:
                     broken.append((board, exc))
             now_ns = time.monotonic_ns()
+            sifs = 0
             for board, data in reads:
+                before = board.conn.stats.sifs
                 self._step(board, data, now_ns, broken)  # (its due call timers too)
+                sifs += board.conn.stats.sifs - before or 1  # (bytes without a whole SIF: 1)
             for board, why in broken:
                 self._unregister(board)
                 board._finish(why)
-        return bool(reads)
+        return sifs
 
     @staticmethod
     def _step(
