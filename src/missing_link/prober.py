@@ -33,10 +33,10 @@ from __future__ import annotations
 import logging
 import struct
 import time
-from collections.abc import Callable
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
-from .client import Board
+from .client import Board, CallResult
 from .errors import CallTimeout, LinkLost, MissingLinkError
 from .timesync import AddResult, ClockSync, Exchange
 from .timesync.sync import TRACKING
@@ -86,7 +86,8 @@ class ClockProber:
         payload = self._map_payload()
         if payload is not None:
             self.board.call_ok("a2jHostMap", payload, timeout=self.session.spec.timeout)
-            self._pushed(time.monotonic())
+            self.session.map_pushes += 1
+            self._next_push = time.monotonic() + MAP_PUSH_PERIOD
 
     # ---- on the board's reading thread --------------------------------------------------------
     def due(self) -> float | None:
@@ -130,21 +131,18 @@ class ClockProber:
                 except MissingLinkError as e:
                     self._report(e)
                     return
-                fut.add_done_callback(self._map_pushed(time.monotonic()))
+                fut.add_done_callback(self._map_pushed)
 
-    def _map_pushed(self, sent: float) -> Callable[[object], None]:
-        def done(fut: object) -> None:
-            try:
-                result = fut.result()  # type: ignore[attr-defined]
-            except MissingLinkError as e:
-                self._report(e)
-                return
-            if result.code == 0:
-                self._pushed(sent)
-            else:
-                self.session.error = f"{self.session.name}: a2jHostMap returned {result.code}"
-
-        return done
+    def _map_pushed(self, fut: Future[CallResult]) -> None:
+        try:
+            result = fut.result()
+        except MissingLinkError as e:
+            self._report(e)
+            return
+        if result.code == 0:
+            self.session.map_pushes += 1
+        else:
+            self.session.error = f"{self.session.name}: a2jHostMap returned {result.code}"
 
     # ---- both ---------------------------------------------------------------------------------
     def timeout_for(self) -> float:
@@ -182,7 +180,3 @@ class ClockProber:
         b, h, rate = got
         ppb = round((rate / 1000.0 - 1.0) * 1e9)
         return struct.pack("<Qqi", b, round(h) + self.session.daemon.realtime_offset_ns, ppb)
-
-    def _pushed(self, when: float) -> None:
-        self.session.map_pushes += 1
-        self._next_push = when + MAP_PUSH_PERIOD
