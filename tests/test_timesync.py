@@ -62,6 +62,36 @@ def truth_ns(offset_us: float, skew: float, board_us: float) -> float:
     return (board_us - offset_us) / (1 + skew) * 1000
 
 
+def test_uart_wire_time_is_a_known_delay_not_a_bias() -> None:
+    """On a 115,200 Bd UART the request (5 bytes) is on the wire for 434 µs before t2 and the
+    reply (21 bytes) for 1,823 µs after t3.  Told both, the estimate is centred on the truth;
+    told only the reply's, it is off by half the request's time, inside a band that still holds
+    the truth (hard either way)."""
+    byte_ns = 10e9 / 115_200
+    offset, skew = 5_000_000.0, 40e-6
+    rng = random.Random(7)
+    told, half_told = ClockEstimator(), ClockEstimator()
+    t = 1e12
+    for _ in range(200):
+        t += 0.05e9 * rng.uniform(0.5, 1.5)
+        t2h = t + 5 * byte_ns + rng.expovariate(1 / 20_000) + 3_000  # bytes, then the ISR
+        t3h = t2h + rng.uniform(2_000, 30_000)
+        t4 = t3h + 21 * byte_ns + rng.expovariate(1 / 20_000) + 3_000
+        b = lambda h: math.floor(offset + (1 + skew) * h / 1000)  # noqa: E731
+        t1, t2, t3 = int(t), b(t2h), b(t3h)
+        told.add(Exchange(t1, t2, t3, math.ceil(t4), int(21 * byte_ns), int(5 * byte_ns)))
+        half_told.add(Exchange(t1, t2, t3, math.ceil(t4), int(21 * byte_ns)))
+    errors = []
+    for est in (told, half_told):
+        e = est.estimate
+        assert e is not None and e.consistent
+        err = e.host_at(e.b_ref) - truth_ns(offset, skew, e.b_ref)
+        assert e.lo_ns - 1_100 <= err <= e.hi_ns + 1_100  # the truth is inside the hard band
+        errors.append(err)
+    assert abs(errors[0]) < 10_000
+    assert abs(errors[1] - (-5 * byte_ns / 2)) < 10_000  # 217 µs early
+
+
 # ---- estimator ---------------------------------------------------------------------------------
 @settings(max_examples=40, deadline=None)
 @given(

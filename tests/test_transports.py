@@ -249,3 +249,31 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
         t.close()
         peer.close()
         listener.close()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="a pty")
+def test_serial_reads_are_stamped_when_the_driver_counted_the_bytes() -> None:
+    """Over a serial port (here a pty), t4 is taken when the driver reported the bytes waiting,
+    before pyserial's read (a select and a read in Python), and after they were written."""
+    master, slave = os.openpty()
+    t = open_transport(f"serial://{os.ttyname(slave)}")
+    port = t.port  # type: ignore[attr-defined]
+    plain_read = port.read
+    read_started: list[int] = []
+
+    def slow_read(n: int) -> bytes:
+        read_started.append(time.monotonic_ns())
+        return plain_read(n)
+
+    port.read = slow_read
+    try:
+        for _ in range(3):
+            sent = time.monotonic_ns()
+            os.write(master, b"\x7e" * 40)
+            time.sleep(0.02)
+            assert t.read(1.0) == b"\x7e" * 40
+            assert sent <= t.last_rx_ns < read_started[-1]
+    finally:
+        t.close()
+        os.close(master)
+        os.close(slave)

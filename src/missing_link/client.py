@@ -305,8 +305,12 @@ class Board:
         else:
             (t2,) = struct.unpack("<Q", p)
             t3 = t2
-        # The reply's bytes after t3: at least SOF, seq, code, len, payload, checksum.
-        return Exchange(result.sent_ns, t2, t3, result.recv_ns, int((5 + len(p)) * byte_ns))
+        # On a byte-serial link, the request's bytes before t2 (SOF, seq, op, len, checksum)
+        # and the reply's after t3 (SOF, seq, code, len, payload, checksum) are on the wire in
+        # every exchange: known delays, not uncertainty.
+        return Exchange(
+            result.sent_ns, t2, t3, result.recv_ns, int((5 + len(p)) * byte_ns), int(5 * byte_ns)
+        )
 
     def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Call and require return code 0; returns the reply payload."""

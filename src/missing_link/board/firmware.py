@@ -121,8 +121,9 @@ class Firmware:
         rt = self.runtime
         data = self.link.read()
         if data:
+            rx_us = rt.clock()  # a2jClock's t2: before the break check's pass over the bytes
             self._check_break(data)
-            rt.feed(data)
+            rt.feed(data, rx_us)
         rt.poll()
         out = rt.take_output()
         if out:

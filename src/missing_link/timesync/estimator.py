@@ -11,7 +11,9 @@ the true map ``H`` (board µs -> host ns)::
     H(t3)         <= t4 - down_min      the reply was sent before it was read
 
 (``res``: the board tick, since a stamp is the tick *before* the event; ``up_min``/``down_min``:
-delays known to be in every exchange, e.g. the reply's bytes on a UART after the first one.)
+delays known to be in every exchange: on a UART the request's bytes before its last one arrives,
+the reply's bytes after t3.  Left out, the request's time on the wire shifts the band's middle by
+half of it: 22 µs at 921,600 Bd, 217 µs at 115,200.)
 
 Model: ``H(b) = h_ref + (b - b_ref) * 1000 * (1 + k)`` over a window of recent exchanges, in
 residual coordinates ``r = host_us - board_us`` relative to the newest exchange, where the
@@ -73,6 +75,7 @@ class Exchange:
     t3: int  #: board µs, just before the reply's first byte
     t4: int  #: host ns, when the reply had been read
     down_min_ns: int = 0  #: delay every reply has after t3 (its bytes on a slow link)
+    up_min_ns: int = 0  #: delay every request has between t1 and t2 (its bytes on a slow link)
 
     @property
     def rtt_ns(self) -> int:
@@ -153,7 +156,7 @@ class ClockEstimator:
         self.floor_us = floor_us  #: delay noise floor in the weights (stamping jitter)
         self.memory_us = memory_s * 1e6  #: skew-fit weights fall by e every memory_s of age
         self.points: deque[Exchange] = deque()
-        # The same window as rows (t1, t2, t3, t4 - down_min) kept in step with ``points``:
+        # The same window as rows (t1 + up_min, t2, t3, t4 - down_min) kept in step with ``points``:
         # the fit and the filter work on columns, without a Python pass over the exchanges.
         self._rows = np.empty((0, 4))
         self.estimate: Estimate | None = None
@@ -196,7 +199,7 @@ class ClockEstimator:
         if self.points and ex.t2 < self.points[-1].t3:
             return AddResult.RESET
         self.points.append(ex)
-        row = np.array([[ex.t1, ex.t2, ex.t3, ex.t4 - ex.down_min_ns]], dtype=float)
+        row = np.array([[ex.t1 + ex.up_min_ns, ex.t2, ex.t3, ex.t4 - ex.down_min_ns]], dtype=float)
         self._rows = np.concatenate((self._rows, row))
         self.accepted += 1
         while (

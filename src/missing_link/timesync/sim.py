@@ -411,6 +411,7 @@ def run(
             clock.us(t3_true),
             int(t4),
             down_min_ns=int(nbytes * lk.byte_ns),
+            up_min_ns=int(5 * lk.byte_ns),  # the request frame (as the daemon assumes it)
         )
         samples_until(t4)
         now = t4 / S

@@ -223,7 +223,7 @@ class ClockSync:
             _, hi2 = prior.interval(ex.t2 + self.opt.res_us)
             lo3, _ = prior.interval(ex.t3)
             # The exchange proves the truth lies outside the band predicted for it: the rate moved.
-            surprise = ex.t1 > hi2 or ex.t4 - ex.down_min_ns < lo3
+            surprise = ex.t1 + ex.up_min_ns > hi2 or ex.t4 - ex.down_min_ns < lo3
             if surprise:
                 self.surprises += 1
         if (

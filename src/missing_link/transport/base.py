@@ -35,8 +35,9 @@ class Transport(ABC):
     #: arrival, so clock sync's t4 is a valid upper constraint (the same user-space layer a
     #: board's shell stamps t2 at); 0 when the transport does not stamp
     last_rx_ns: int = 0
-    #: set by a transport whose kernel stamps arriving bytes (``_recv``), for ``last_rx_ns``
-    kernel_rx_ns: int = 0
+    #: set by ``_recv`` when it knows an earlier time by which every byte it read had arrived
+    #: (the kernel's receive stamp; the moment the driver counted them), for ``last_rx_ns``
+    arrived_ns: int = 0
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
 
@@ -139,11 +140,12 @@ class FdTransport(Transport):
             # reply then comes back in this same read; a stamp taken before would be earlier
             # than the request (measured: 10 µs "round trips", clock-sync bounds broken).
             now = time.monotonic_ns()
-            # A kernel stamp (TCP: when the last segment read arrived) is tighter and still
-            # after every byte of this read arrived; never trust it beyond our own stamp.
-            kernel = self.kernel_rx_ns
-            self.last_rx_ns = kernel if 0 < kernel <= now else now
-            self.kernel_rx_ns = 0
+            # An earlier stamp by which every byte of this read had arrived (TCP: the kernel's
+            # stamp of the last segment; a serial port: when the driver counted the bytes) is
+            # tighter and still valid; never trust it beyond our own stamp.
+            arrived = self.arrived_ns
+            self.last_rx_ns = arrived if 0 < arrived <= now else now
+            self.arrived_ns = 0
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()
             raise TransportBroken(f"{self.url}: read failed: {e}") from e

@@ -48,7 +48,7 @@ class SocketTransport(FdTransport):
                 sec, nsec = struct.unpack("qq", raw[:16])
                 # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
                 offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
-                self.kernel_rx_ns = sec * 1_000_000_000 + nsec - offset
+                self.arrived_ns = sec * 1_000_000_000 + nsec - offset
         return data
 
     def _send(self, data: memoryview) -> int:
