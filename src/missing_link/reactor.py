@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import logging
 import os
-import selectors
+import select
 import threading
 import time
 from typing import TYPE_CHECKING
@@ -52,16 +52,55 @@ _IDLE = 1.0  # longest wait with no timer pending (new timers poke the loop anyw
 _SKIP_GATHERS = 100  # data rounds without gathering after a gather that brought < 2 SIFs
 
 
+class _Poller:
+    """Readable descriptors: epoll where there is one (Linux), else poll.  Plain descriptors in
+    and out: the selectors module's keys cost a lookup and an object per ready descriptor per
+    round, and its Python work between the kernel's return and the read lengthens t4."""
+
+    def __init__(self) -> None:
+        self._epoll = select.epoll() if hasattr(select, "epoll") else None
+        self._poll = None if self._epoll is not None else select.poll()
+
+    def register(self, fd: int) -> None:
+        if self._epoll is not None:
+            self._epoll.register(fd, select.EPOLLIN)
+        else:
+            assert self._poll is not None
+            self._poll.register(fd, select.POLLIN)
+
+    def unregister(self, fd: int) -> None:
+        if self._epoll is not None:
+            self._epoll.unregister(fd)
+        else:
+            assert self._poll is not None
+            self._poll.unregister(fd)
+
+    def wait(self, timeout: float) -> list[int]:
+        # (error and hang-up events count as readable: the read then reports the broken link)
+        if self._epoll is not None:
+            return [fd for fd, _ in self._epoll.poll(timeout)]
+        assert self._poll is not None
+        return [fd for fd, _ in self._poll.poll(timeout * 1000.0)]
+
+    def close(self) -> None:
+        if self._epoll is not None:
+            self._epoll.close()
+
+
 class Reactor:
     def __init__(self, batch_s: float = 0.0) -> None:
         self.batch_s = batch_s
-        self._sel = selectors.DefaultSelector()
+        self._sel = _Poller()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
-        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        self._sel.register(self._wake_r)
         self._lock = threading.RLock()
         self._boards: dict[int, Board] = {}
+        # registrations counted, and the count at each board's: a descriptor number reused by a
+        # board added while the loop waited is not read on the old one's readiness
+        self._registrations = 0
+        self._registered_at: dict[int, int] = {}
         self._poked = threading.Event()
         self._stopping = False
         self._thread = threading.Thread(target=self._run, name="j2a:reactor", daemon=True)
@@ -79,8 +118,10 @@ class Reactor:
     def add(self, board: Board) -> None:
         with self._lock:
             fd = board.transport.fileno()  # type: ignore[attr-defined]
-            self._sel.register(fd, selectors.EVENT_READ, board)
+            self._sel.register(fd)
             self._boards[fd] = board
+            self._registrations += 1
+            self._registered_at[fd] = self._registrations
         self.poke()
 
     def remove(self, board: Board) -> None:
@@ -93,6 +134,7 @@ class Reactor:
         for fd, b in list(self._boards.items()):
             if b is board:
                 del self._boards[fd]
+                self._registered_at.pop(fd, None)
                 try:
                     self._sel.unregister(fd)
                 except (KeyError, ValueError, OSError):
@@ -126,13 +168,14 @@ class Reactor:
                 self.loop_errors += 1
                 log.exception("reactor: timers failed")
                 timeout = _IDLE
+            waited_after = self._registrations
             try:
-                ready = self._sel.select(timeout)
+                ready = self._sel.wait(timeout)
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
-                log.debug("reactor: select: %s", e)
+                log.debug("reactor: wait: %s", e)
                 ready = []
             try:
-                sifs = self._round(ready)
+                sifs = self._round(ready, waited_after)
             except Exception:  # a bug here must not end every board's reading
                 self.loop_errors += 1
                 log.exception("reactor: round failed")
@@ -188,23 +231,24 @@ class Reactor:
     def _calls_waiting(self) -> bool:
         return any(b._futures for b in list(self._boards.values()))
 
-    def _round(self, ready: list[tuple[selectors.SelectorKey, int]]) -> int:
-        """One round of reads and steps; returns the SIFs it decoded (0: no data)."""
+    def _round(self, ready: list[int], waited_after: int) -> int:
+        """One round of reads and steps; returns the SIFs it decoded (0: no data).
+        ``waited_after``: the registrations counted when the wait began."""
         self.rounds += 1
         with self._lock:
             reads: list[tuple[Board, bytes]] = []
             broken: list[tuple[Board, BaseException]] = []
-            for key, _ in ready:
-                if key.fd == self._wake_r:
+            for fd in ready:
+                if fd == self._wake_r:
                     try:
                         while os.read(self._wake_r, 4096):
                             pass
                     except (BlockingIOError, OSError):
                         pass
                     continue
-                board: Board = key.data
-                if self._boards.get(key.fd) is not board:
-                    continue  # removed meanwhile
+                board = self._boards.get(fd)
+                if board is None or self._registered_at[fd] > waited_after:
+                    continue  # removed meanwhile, or its number reused by a new board
                 try:
                     reads.append((board, board.transport.read_ready()))  # type: ignore[attr-defined]
                 except (TransportBroken, TransportClosed) as exc:
