@@ -261,11 +261,11 @@ def test_serial_reads_are_stamped_when_the_driver_counted_the_bytes() -> None:
     plain_read = port.read
     read_started: list[int] = []
 
-    def slow_read(n: int) -> bytes:
+    def recording_read(n: int) -> bytes:
         read_started.append(time.monotonic_ns())
         return plain_read(n)
 
-    port.read = slow_read
+    port.read = recording_read
     try:
         for _ in range(3):
             sent = time.monotonic_ns()
