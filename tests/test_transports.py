@@ -277,3 +277,29 @@ def test_serial_reads_are_stamped_when_the_driver_counted_the_bytes() -> None:
         t.close()
         os.close(master)
         os.close(slave)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="a pty")
+def test_bytes_counted_at_the_wake_are_stamped_then_and_only_they() -> None:
+    """While a clock exchange is in flight the reader counts the bytes waiting as its wait
+    returns: those get that moment as t4, and the read takes exactly them; bytes that came
+    after the count are read next, with a stamp after they were written."""
+    master, slave = os.openpty()
+    t = open_transport(f"serial://{os.ttyname(slave)}")
+    try:
+        os.write(master, b"\x7e" * 10)
+        time.sleep(0.02)
+        t.count_arrivals = True
+        t.count_arrived()  # type: ignore[attr-defined]
+        counted_by = time.monotonic_ns()
+        os.write(master, b"\x7f" * 5)  # arrives after the count
+        second_sent = time.monotonic_ns()
+        time.sleep(0.02)
+        assert t.read_ready() == b"\x7e" * 10  # type: ignore[attr-defined]
+        assert t.last_rx_ns <= counted_by  # stamped at the count, before the second write
+        assert t.read(1.0) == b"\x7f" * 5
+        assert t.last_rx_ns >= second_sent
+    finally:
+        t.close()
+        os.close(master)
+        os.close(slave)

@@ -267,7 +267,11 @@ class Board:
         one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
         time on the wire is known (0: not a byte-serial link, or unknown)."""
         name = self._clock_function()
-        return self._exchange(name, self.call(name, b"", timeout), byte_ns)
+        self.transport.count_arrivals = True
+        try:
+            return self._exchange(name, self.call(name, b"", timeout), byte_ns)
+        finally:
+            self.transport.count_arrivals = False
 
     def clock_exchange_async(
         self,
@@ -282,6 +286,7 @@ class Board:
         name = self._clock_function()
 
         def done(fut: Future[CallResult]) -> None:
+            self.transport.count_arrivals = False
             try:
                 got: Exchange | BaseException = self._exchange(name, fut.result(), byte_ns)
             except MissingLinkError as e:
@@ -291,7 +296,13 @@ class Board:
             except Exception:
                 log.exception("%s: clock exchange callback failed", self.url)
 
-        self.call_future(name, b"", timeout).add_done_callback(done)
+        self.transport.count_arrivals = True
+        try:
+            fut = self.call_future(name, b"", timeout)
+        except BaseException:
+            self.transport.count_arrivals = False
+            raise
+        fut.add_done_callback(done)
 
     def _clock_function(self) -> str:
         return "a2jClock" if "a2jClock" in self.index else "getTime"

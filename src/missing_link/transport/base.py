@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
+import struct
+import termios
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -38,6 +41,9 @@ class Transport(ABC):
     #: set by ``_recv`` when it knows an earlier time by which every byte it read had arrived
     #: (the kernel's receive stamp; the moment the driver counted them), for ``last_rx_ns``
     arrived_ns: int = 0
+    #: set by the board while a clock exchange is in flight: the reader then counts the bytes
+    #: waiting the moment its wait returns (``count_arrived``), for a tighter t4
+    count_arrivals: bool = False
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
 
@@ -72,6 +78,7 @@ class FdTransport(Transport):
         self.url = url
         self._fd = fd
         self._closed = False
+        self._counted: tuple[int, int] | None = None  # (bytes, when): see count_arrived
         self._wlock = threading.Lock()
         # close() writes here, so a reader blocked in select() returns at once
         self._wake_r, self._wake_w = os.pipe()
@@ -108,6 +115,19 @@ class FdTransport(Transport):
     def _recv(self, n: int) -> bytes:
         return os.read(self._fd, n)
 
+    def count_arrived(self) -> None:
+        """Called the moment a wait said this descriptor is readable, while a clock exchange is
+        in flight: the bytes waiting now (FIONREAD) had all arrived by now, so the next
+        ``read_ready`` takes exactly those and stamps them with this moment (t4), not with the
+        end of the loop's work and the read that follow."""
+        try:
+            raw = fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0")
+        except (OSError, ValueError):  # closed meanwhile: the read reports it
+            return
+        n = struct.unpack("i", raw)[0]
+        if n > 0:
+            self._counted = (n, time.monotonic_ns())
+
     def _send(self, data: memoryview) -> int:
         return os.write(self._fd, data)
 
@@ -128,13 +148,16 @@ class FdTransport(Transport):
             os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
         if self._fd not in ready:
             return b""
+        if self.count_arrivals:
+            self.count_arrived()
         return self.read_ready()
 
     def read_ready(self) -> bytes:
         """Read what arrived on a descriptor that select() said is readable (never blocks)."""
         self._check()
+        counted, self._counted = self._counted, None
         try:
-            data = self._recv(65536)
+            data = self._recv(65536 if counted is None else counted[0])
             # After the read, never before it: between select() returning and the read, this
             # thread can wait for the interpreter lock while another writes a request whose
             # reply then comes back in this same read; a stamp taken before would be earlier
@@ -144,6 +167,8 @@ class FdTransport(Transport):
             # stamp of the last segment; a serial port: when the driver counted the bytes) is
             # tighter and still valid; never trust it beyond our own stamp.
             arrived = self.arrived_ns
+            if counted is not None and (arrived <= 0 or counted[1] < arrived):
+                arrived = counted[1]  # (the read took at most the bytes counted then)
             self.last_rx_ns = arrived if 0 < arrived <= now else now
             self.arrived_ns = 0
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()

@@ -37,6 +37,10 @@ class SocketTransport(FdTransport):
         super().__init__(url, sock.fileno())
         self.sock = sock
 
+    def count_arrived(self) -> None:
+        if not self._kernel_stamps:  # (with them, the kernel's stamp is earlier still)
+            super().count_arrived()
+
     def _recv(self, n: int) -> bytes:
         if not self._kernel_stamps:
             return self.sock.recv(n)
