@@ -36,9 +36,10 @@ Each ``add``:
      with the prior, under 10 µs.  (No prior at the first connect: a guess of 0 ppm measured
      worse than the burst's own fit for crystals 150-200 ppm off);
   5. offset: the middle between the tightest lower and the tightest upper constraint at the
-     fitted skew; hard band at the newest exchange: every constraint, moved to ``b_ref`` along
-     the fitted skew and widened by the skew uncertainty (plus an allowance for frequency
-     wander over the window); the offset is clamped into the band;
+     fitted skew, each loosened by the skew's sigma times its age; hard band at the newest
+     exchange: every constraint, moved to ``b_ref`` along the fitted skew and widened by the
+     skew uncertainty (plus an allowance for frequency wander over the window); the offset is
+     clamped into the band;
   6. an empty band (the window no longer fits one line: the clock's rate wandered) drops the
      oldest exchanges until it fits again - this is what makes the window adaptive.
 
@@ -293,11 +294,20 @@ class ClockEstimator:
         dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
         lo = float((rl - k * xl - dk * np.abs(xl)).max())
         hi = float((ru - k * xu + dk * np.abs(xu)).min())
-        # Offset: the middle of the band at the fitted skew (no widening).  Each side is set by
-        # its own tightest exchanges, so a link whose two directions are slow at different times
+        # Offset: the middle between each side's tightest constraint.  Each side is set by its
+        # own tightest exchanges, so a link whose two directions are slow at different times
         # (a host busy with samples when the reply arrives) does not bias it, as a midpoint
-        # fit of whole exchanges would.
-        c = (float((rl - k * xl).max()) + float((ru - k * xu).min())) / 2.0
+        # fit of whole exchanges would.  "Tightest" counts the skew's uncertainty (its sigma,
+        # taken as a quarter of the hard range, as for the prior) times the exchange's age, as
+        # NTP's dispersion does: an old exchange that is tight only under the fitted skew does
+        # not win over a recent one almost as tight.  Replayed on 12 recorded pty runs: p50
+        # 8.0/7.3 -> 5.8/6.3 µs, worst max 25.8/28.4 -> 17.0/21.3 µs; simulated USB and FTDI
+        # worst max 233/281 -> 158/231 µs.
+        sk = (kmax - kmin) / 4.0 if consistent else 0.0
+        c = (
+            float((rl - k * xl - sk * np.abs(xl)).max())
+            + float((ru - k * xu + sk * np.abs(xu)).min())
+        ) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0
