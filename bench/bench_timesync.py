@@ -18,18 +18,23 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import itertools
 import os
 import random
 import statistics
 import sys
+import tempfile
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+import replay_timesync  # (bench/, next to this file)
 from missing_link.client import Board
 from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
@@ -251,6 +256,8 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
     finally:
         stop_process(proc)
     first = rows[0][0]
+    whole_run.first_sample_ns = first  # type: ignore[attr-defined]  # (replay_timesync.py)
+    whole_run.answering_again_ns = answering_again  # type: ignore[attr-defined]
     hosts = [r[1] for r in rows]
     not_increasing = sum(1 for a, b in itertools.pairwise(hosts) if b <= a)
     counted = [r for r in rows if r[0] >= first + 5e8 and not r[4] & 6]  # synced, not outliers
@@ -300,6 +307,15 @@ def whole_runs(seeds: int, seconds: float) -> None:
             f" | {med['probes_per_s']:.1f} |",
             flush=True,
         )
+    # The anchors on the same scenario: their fixed schedules need exchanges at their own
+    # rates, so the runs are recorded with 50 Hz probing and every method (ours on its own
+    # schedule too) is replayed on the very same exchanges.
+    print(f"\nThe same scenario recorded with 50 Hz probes ({seeds} runs), every method replayed")
+    print("on the same exchanges at its own probe rate (bench/replay_timesync.py):\n")
+    with tempfile.TemporaryDirectory() as where:
+        with contextlib.redirect_stdout(io.StringIO()):
+            replay_timesync.record(seeds, seconds, Path(where))
+        replay_timesync.replay(Path(where), ["default"], anchors=True)
 
 
 def trigger(repeats: int) -> None:

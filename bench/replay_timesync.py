@@ -1,0 +1,248 @@
+"""Record real clock exchanges once, replay them through the clock sync offline: a paired
+comparison of probe schedules (and, across two checkouts, of estimator code) on the very same
+link behaviour, which repeated real runs on a noisy machine cannot give (the same code's
+whole-run p50 moves by 4 µs or more between runs here).
+
+    .venv/bin/python bench/replay_timesync.py record [--runs 6] [--seconds 30] [--out DIR]
+    .venv/bin/python bench/replay_timesync.py replay [--in DIR] [--set key=value,...]...
+
+``record`` runs the whole-run scenario of ``bench_timesync.py`` (a board process whose clock has
+a random offset, ±50-200 ppm skew, a drifting skew and a reset 18 s in, over a pty) with the
+daemon probing at a fixed 50 Hz, and writes every exchange with the board clock's parameters
+(one JSON file per run).  ``replay`` feeds each recording to a fresh ``ClockSync``: whenever
+the sync asks for a probe, it gets the first recorded exchange sent at or after that moment
+(so any schedule slower than 50 Hz can be replayed), and every 2 ms from 0.5 s after the first
+sample it maps the board's true reading and compares with the truth, as the whole-run bench
+does.  Each ``--set`` is one variant of ``SyncOptions`` (``default`` = none); ``--anchors`` adds
+the anchors' methods of ``timesync/sim.py`` (Cristian/micro-ROS, rosserial, PX4) on the same
+exchanges at their own probe rates.  Medians over the recordings; error bins by time since the
+first sample; "before the reset" counts only up to the board's reset (the anchor models, like
+the originals they stand for, have no reset detection beyond re-syncing)."""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import math
+import sys
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from missing_link.timesync import ClockSync, Exchange, SyncOptions, sim
+from missing_link.virtual.sims import DriftClock
+
+BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
+
+
+def record(runs: int, seconds: float, out: Path) -> None:
+    import bench_timesync as bt
+    import missing_link.session as session
+    from missing_link.timesync import sync
+
+    # The sessions build their SyncOptions; the recorder gives them a fixed 50 Hz probe (a
+    # burst that never ends), so that any slower schedule can be replayed from the recording.
+    def fixed_50hz(**kw: Any) -> SyncOptions:
+        return SyncOptions(**kw, burst_interval=0.02, interval=0.02, burst_count=10**9)
+
+    seen: list[Exchange] = []
+    on_exchange = sync.ClockSync.on_exchange
+
+    def keep(self: ClockSync, ex: Exchange, now: float) -> Any:
+        seen.append(ex)
+        return on_exchange(self, ex, now)
+
+    setattr(session, "SyncOptions", fixed_50hz)  # noqa: B010 - (a module's global, on purpose)
+    sync.ClockSync.on_exchange = keep  # type: ignore[method-assign]
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for k in range(runs):
+            seen.clear()
+            got = bt.whole_run("pty", seconds, 100 + k)
+            _save(out / f"run{100 + k}.json", vars(bt.whole_run), seen)
+            print(f"run {k + 1}/{runs}: {len(seen)} exchanges (live p50 {got['p50']:.1f} µs)")
+    finally:
+        setattr(session, "SyncOptions", SyncOptions)  # noqa: B010
+        sync.ClockSync.on_exchange = on_exchange  # type: ignore[method-assign]
+
+
+def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
+    """One recording: the exchanges, the board clock's parameters and the run's moments (kept
+    on ``whole_run`` by the bench)."""
+    truth = run["truth"]
+    doc = {
+        "truth": {
+            "offset_us": truth.offset_us,
+            "skew_ppm": truth.skew * 1e6,
+            "drift_ppm_per_s": truth.drift * 1e12,
+            "ref_ns": truth.ref_ns,
+            "resets_ns": truth.reset_ns,
+        },
+        "first_sample_ns": run["first_sample_ns"],
+        "answering_again_ns": run["answering_again_ns"],
+        "exchanges": [[e.t1, e.t2, e.t3, e.t4, e.down_min_ns, e.up_min_ns] for e in seen],
+    }
+    path.write_text(json.dumps(doc))
+
+
+class Ours:
+    """The daemon's clock sync behind the anchors' interface, mapping as the sample path does."""
+
+    def __init__(self, opts: SyncOptions) -> None:
+        self.sync = ClockSync(opts, seed=1)
+
+    def start(self, now: float) -> None:
+        self.sync.start(now)
+
+    def due(self) -> float:
+        return self.sync.due()
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self.sync.on_exchange(ex, now)
+
+    def map_at(self, board_us: int, now: float) -> tuple[float, float] | None:
+        got = self.sync.map_many((board_us,), now)
+        return None if got is None or got[2] < 0 else (got[0][0], float(got[2]))
+
+
+class Anchor:
+    """One of ``sim.METHODS``' anchors, started at the recording's first exchange."""
+
+    def __init__(self, name: str) -> None:
+        self.method: Any = sim.METHODS[name]()
+
+    def start(self, now: float) -> None:
+        self.method._next = now  # (the models start probing at their own 0 s)
+
+    def due(self) -> float:
+        return float(self.method.due())
+
+    def on_exchange(self, ex: Exchange, now: float) -> None:
+        self.method.on_exchange(ex, now)
+
+    def map_at(self, board_us: int, now: float) -> tuple[float, float] | None:
+        got = self.method.map(board_us)
+        return None if got is None else (got[0], math.inf)  # (no bound)
+
+
+def replay_one(doc: dict[str, Any], method: Ours | Anchor) -> dict[str, Any]:
+    tr = doc["truth"]
+    truth = DriftClock(tr["offset_us"], tr["skew_ppm"], tr["drift_ppm_per_s"], tr["ref_ns"], [])
+    truth.reset_ns = list(tr["resets_ns"])
+    exs = [Exchange(*row) for row in doc["exchanges"]]
+    sent = [e.t1 for e in exs]
+    first, again = doc["first_sample_ns"], doc["answering_again_ns"]
+    method.start(exs[0].t1 / 1e9)
+    rows: list[tuple[float, float, float]] = []  # (s since first sample, error µs, bound ns)
+    h, i, used = first, 0, 0
+    while True:
+        k = bisect.bisect_left(sent, method.due() * 1e9, lo=i)
+        if k >= len(exs):
+            break
+        ex = exs[k]
+        while h < ex.t4:  # the samples measured before this reply came back
+            if h >= first + 5e8 and not truth.reset_ns[0] <= h < again:
+                got = method.map_at(math.floor(truth.board_us_at(h)), h / 1e9)
+                if got is not None:
+                    rows.append(((h - first) / 1e9, (got[0] - h) / 1000, got[1] / 1000))
+            h += 2_000_000
+        method.on_exchange(ex, ex.t4 / 1e9)
+        used, i = used + 1, k + 1
+    a = np.array(rows)
+    t, err, bound = a[:, 0], np.abs(a[:, 1]), a[:, 2]
+    before = t < (truth.reset_ns[0] - first) / 1e9
+    bins = {}
+    for lo, hi in BINS:
+        m = (t >= lo) & (t < hi)
+        bins[lo] = float(np.median(err[m])) if m.any() else math.nan
+    return {
+        "p50": float(np.percentile(err, 50)),
+        "p99": float(np.percentile(err, 99)),
+        "max": float(err.max()),
+        "p99_before": float(np.percentile(err[before], 99)),
+        "max_before": float(err[before].max()),
+        "covered": float(np.mean(err <= bound)) * 100,
+        "bound": float(np.median(bound)),
+        "probes": used / ((exs[-1].t4 - exs[0].t1) / 1e9),
+        "bins": bins,
+    }
+
+
+def variant(spec: str) -> SyncOptions:
+    if spec == "default":
+        return SyncOptions()
+    base = SyncOptions()
+    kw: dict[str, Any] = {}
+    for item in spec.split(","):
+        key, _, value = item.partition("=")
+        if not hasattr(base, key):
+            raise SystemExit(f"replay_timesync: no SyncOptions field {key!r}")
+        kw[key] = type(getattr(base, key))(float(value))
+    return SyncOptions(**kw)
+
+
+def _us(x: float) -> str:
+    """µs, or whole seconds for the errors of a map still on the board's previous boot."""
+    return f"{x / 1e6:,.0f} s" if x >= 1e6 else f"{x:.1f}"
+
+
+def replay(where: Path, specs: list[str], anchors: bool) -> None:
+    options = {s: variant(s) for s in specs}  # (a bad --set fails before any output)
+    docs = [json.loads(p.read_text()) for p in sorted(where.glob("run*.json"))]
+    if not docs:
+        raise SystemExit(f"replay_timesync: no recordings in {where} (run `record` first)")
+    print(f"{len(docs)} recordings from {where}; medians over them, worst = the worst run\n")
+    bins = " | ".join(f"p50 {lo:g}-{hi:g} s" if hi < 1e9 else f"p50 {lo:g} s-" for lo, hi in BINS)
+    print(
+        "| method | p50 µs | p99 µs | max µs (worst) | before the reset: p99 / max µs | in bound"
+        f" | bound p50 µs | probes/s | {bins} |"
+    )
+    print("|---" * (8 + len(BINS)) + "|")
+    runs: list[tuple[str, Callable[[], Ours | Anchor]]] = [
+        (f"missing-link ({s})", partial(Ours, o)) for s, o in options.items()
+    ]
+    if anchors:
+        runs += [(n, partial(Anchor, n)) for n in ("cristian", "px4", "rosserial")]
+    for label, make in runs:
+        rs = [replay_one(d, make()) for d in docs]
+
+        def med(key: str, rs: list[dict[str, Any]] = rs) -> float:
+            return float(np.median([r[key] for r in rs]))
+
+        per_bin = " | ".join(_us(float(np.median([r["bins"][lo] for r in rs]))) for lo, _ in BINS)
+        bounded = not math.isinf(med("bound"))
+        covered = f"{min(r['covered'] for r in rs):.2f} %" if bounded else "-"
+        bound = f"{med('bound'):.1f}" if bounded else "-"
+        worst = max(r["max"] for r in rs)
+        print(
+            f"| {label} | {_us(med('p50'))} | {_us(med('p99'))} | {_us(med('max'))}"
+            f" ({_us(worst)}) | {_us(med('p99_before'))} / {_us(med('max_before'))}"
+            f" | {covered} | {bound} | {med('probes'):.1f} | {per_bin} |"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    rec = sub.add_parser("record")
+    rec.add_argument("--runs", type=int, default=6)
+    rec.add_argument("--seconds", type=float, default=30.0)
+    rec.add_argument("--out", type=Path, default=Path("recordings/timesync"))
+    rep = sub.add_parser("replay")
+    rep.add_argument("--in", dest="where", type=Path, default=Path("recordings/timesync"))
+    rep.add_argument("--set", dest="specs", action="append", default=None)
+    rep.add_argument("--anchors", action="store_true", help="the anchors' methods too")
+    a = ap.parse_args()
+    if a.cmd == "record":
+        sys.path.insert(0, str(Path(__file__).parent))
+        record(a.runs, a.seconds, a.out)
+    else:
+        replay(a.where, a.specs or ["default"], a.anchors)
+
+
+if __name__ == "__main__":
+    main()
