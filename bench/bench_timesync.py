@@ -11,6 +11,10 @@
    b) the daemon itself (its own probe schedule), error of every published sample.
 3. Synchronised action: two virtual boards (separate processes, clocks +50 ppm and -30 ppm),
    ``Daemon.trigger_at(T)``; the true host time each board's trigger fired.
+4. Whole run (``--only whole``): a board process whose clock has a random offset, ±50-200 ppm,
+   a drifting skew and a reset 18 s in; every sample the daemon publishes from 0.5 s after the
+   first one, against the truth.  Then the same scenario recorded with 50 Hz probes and replayed
+   through our sync and the anchors' methods on the same exchanges (``replay_timesync.py``).
 
     .venv/bin/python bench/bench_timesync.py [--seeds 20] [--sim-seconds 120] [--seconds 60]
 """
