@@ -370,12 +370,12 @@ def test_all_na_update_is_logged_at_host_realtime() -> None:
     session = BoardSession(d, BoardSpec("memory://unused"))
     (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
     topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
-    session.topics = {1: topic}
+    session.path.topics[1] = topic
     d.bus.add_topic(topic)
     got: list[Update] = []
-    d.subscribe("/b/x", got.append, queue=0)  # inline: the update is there when _on_sif returns
+    d.subscribe("/b/x", got.append, queue=0)  # inline: the update is there when on_sif returns
     before = time.time_ns()
-    session._on_sif(SifReceived(1, 0, struct.pack("<QhQh", 5, -1, 6, -1), 0), time.monotonic())
+    session.path.on_sif(SifReceived(1, 0, struct.pack("<QhQh", 5, -1, 6, -1), 0), time.monotonic())
     after = time.time_ns()
     (u,) = got
     assert u.values == [None, None] and u.host_ns == [0, 0]

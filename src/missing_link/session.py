@@ -23,21 +23,17 @@ loudly); message type names are claimed daemon-wide, so two boards whose ``temp`
 type never share ``Temp`` (the second is qualified by its board: ``BoardBTemp``).
 
 ``up``: the board's reading thread (the daemon's I/O loop) decodes sample SIFs into ``Update``
-objects (the sample path, ``_on_sif``) and runs the clock probes on the sync's schedule
-(``prober.py``); the supervisor runs actuator commands (latest wins) and watches the link.  A
-link is *stale* when no intact frame arrived for ``link_timeout``: a frozen board, a half-open
-TCP connection or a pulled cable looks like that.
-Silence of half of that sends a heartbeat (a clock probe at once, or ``a2jEcho``), so a quiet but
-healthy board always answers in time; a stale link is closed, reported (state, error, ERROR in
-``/diagnostics``) and reconnected.  Like a CANopen heartbeat consumer, the host decides from
-what it hears, not from what the transport claims.
+objects (the sample path: ``SamplePath`` in ``sample_path.py``) and runs the clock probes on the
+sync's schedule (``prober.py``); the supervisor runs actuator commands (latest wins) and watches
+the link.  A link is *stale* when no intact frame arrived for ``link_timeout``: a frozen board, a
+half-open TCP connection or a pulled cable looks like that.  Silence of half of that sends a
+heartbeat (a clock probe at once, or ``a2jEcho``), so a quiet but healthy board always answers in
+time; a stale link is closed, reported (state, error, ERROR in ``/diagnostics``) and reconnected.
+Like a CANopen heartbeat consumer, the host decides from what it hears, not from what the
+transport claims.
 
-Host times: every sample goes through the board's :class:`~missing_link.timesync.ClockSync`.
-Stamps far from the map are outliers (published at the receive time, flagged ``OUTLIER`` and
-counted), never host times in the future: a mapped time later than the sample's own receipt (the
-map's error, a few µs) is set to the receipt (``future_clamps``).  Per topic, host times are made
-strictly increasing (``host_time_clamps`` counts the nudges, e.g. several samples read in one go
-while unsynced).
+The session builds the clock sync (``_start_sync``: the board's ``ClockSync`` and its prober)
+and, at each handshake, the topics; the sample path maps and publishes each sample with them.
 """
 
 from __future__ import annotations
@@ -52,11 +48,11 @@ from .client import Board
 from .config import BoardSpec
 from .descriptors import Transducer, load_descriptor_file
 from .errors import BoardError, MissingLinkError
-from .j2a import SifReceived
 from .prober import ClockProber
-from .standard import StandardMapping, mapping_for
+from .sample_path import SamplePath
+from .standard import mapping_for
 from .text import slug
-from .timesync import NOT_SYNCED, OUTLIER, ClockSync, SyncOptions
+from .timesync import ClockSync, SyncOptions
 from .topics import Topic, Update
 from .transport import open_transport
 
@@ -82,19 +78,11 @@ class BoardSession:
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
-        self.topics: dict[int, Topic] = {}  # transducer id -> topic
-        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        self.path = SamplePath(self)  # what happens to each sample (sample_path.py)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
         self.stale_links = 0
-        self.samples = 0
-        self.updates = 0
-        self.unknown_sifs = 0
-        self.bad_sifs = 0
-        self.outliers = 0
-        self.host_time_clamps = 0
-        self.future_clamps = 0  # mapped after their own receipt (map error): set to the receipt
         self.commands = 0
         self.command_errors = 0
         self.rtt_us: float | None = None
@@ -104,11 +92,6 @@ class BoardSession:
         self.prober: ClockProber | None = None
         self._serial = ""  # board.serial of the board this session last connected to
         self._skew_memory: tuple[str, float, float] | None = None  # (serial, skew, host ns)
-        self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
-        self._next_sif_seq: int | None = None  # after the last SIF seen on this board boot
-        self._sif_total: int | None = None  # the next SIF's number since boot (unwrapped seq)
-        self._outage_count: int | None = None  # a2jSifCount read after an outage
-        self.outage_lost_sifs = 0  #: SIFs lost while the link was down (included in lost_sifs)
         self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
@@ -118,6 +101,11 @@ class BoardSession:
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
         )
+
+    @property
+    def topics(self) -> dict[int, Topic]:
+        """Transducer id -> topic, as of the latest handshake."""
+        return self.path.topics
 
     def start(self) -> None:
         self._thread.start()
@@ -196,13 +184,14 @@ class BoardSession:
         self.name = self.daemon._claim_name(self, self._board_name(board))
         cfg = self.daemon.config
         self._start_sync(board)
-        self.topics = {}
-        self.standard = {}
+        topics, standard = self.path.topics, self.path.standard
+        topics.clear()
+        standard.clear()
         for t in transducers:
             topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
             type_name = self.daemon._claim_type(self, t)
             topic = Topic.for_transducer(topic_name, self.name, t, cfg.package, type_name)
-            self.topics[t.id] = topic
+            topics[t.id] = topic
             self.daemon._declare(topic)
             try:
                 mapping = mapping_for(t, self.name, self.daemon.typestore)
@@ -217,7 +206,7 @@ class BoardSession:
                     mapping.type_name,
                     self.daemon.typestore,
                 )
-                self.standard[t.id] = (std, mapping)
+                standard[t.id] = (std, mapping)
                 self.daemon._declare(std)
             if t.is_actuator:
                 if t.call not in board.index:
@@ -229,21 +218,13 @@ class BoardSession:
                 for p in self.daemon.publishers:
                     p.add_command_topic(f"{topic_name}/cmd", topic, handler)
         epoch = board.properties.get("clock.epoch", "")
-        count = self._sif_count(board)
-        if self._next_sif_seq is not None and epoch and epoch == self.epoch:
-            # The same boot as before the outage: SIFs it sent meanwhile count as lost, modulo
-            # 256 from the seq; exactly when the board can tell how many it has sent.
-            board.conn.expect_sif_seq(self._next_sif_seq)
-            self._outage_count = count
-        else:
-            self._sif_total = count
-            self._outage_count = None
+        self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
-        board.on_sif(None, self._on_sif)
+        board.on_sif(None, self.path.on_sif)
         self.connects += 1
         self.error = ""
         self.state = UP
-        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(self.topics))
+        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(topics))
 
     def _board_name(self, board: Board) -> str:
         """The topic token this board publishes under (config name, else board.name)."""
@@ -338,7 +319,7 @@ class BoardSession:
 
     def _disconnect(self) -> None:
         try:
-            for topic in self.topics.values():
+            for topic in self.path.topics.values():
                 self.daemon.bus.remove_command(f"{topic.name}/cmd")
         finally:
             board, self.board = self.board, None
@@ -392,116 +373,6 @@ class BoardSession:
             return None
         return int.from_bytes(payload[:8], "little") if len(payload) >= 8 else None
 
-    def _on_sif(self, sif: SifReceived, now_mono: float) -> None:
-        self._next_sif_seq = sif.seq + 1
-        total = self._sif_total
-        if self._outage_count is not None and total is not None:
-            # First SIF after an outage: the seq gives the loss modulo 256; the board's count
-            # of SIFs sent (read at the handshake, just before this one) gives the wraps.
-            mod = sif.lost
-            wraps = max(0, round((self._outage_count - (total + mod)) / 256))
-            if wraps:
-                sif = sif._replace(lost=mod + 256 * wraps)
-                board = self.board
-                if board is not None:
-                    board.conn.stats.sifs_lost += 256 * wraps
-            self.outage_lost_sifs += sif.lost
-            self._outage_count = None
-        if total is not None:
-            self._sif_total = total + 1 + sif.lost
-        topic = self.topics.get(sif.cmd)
-        if topic is None:
-            self.unknown_sifs += 1
-            return
-        try:
-            board_us, values = topic.transducer.decode_columns(sif.payload)
-        except ValueError:
-            self.bad_sifs += 1
-            return
-        rt_off = self.daemon.realtime_offset_ns
-        recv_ns = int(now_mono * 1e9)
-        arrived = recv_ns + rt_off  # the receipt, as a published (realtime) host time
-        missing = values.count(None)
-        sync = self.sync
-        got = None
-        if sync is not None:
-            resets = sync.resets
-            got = sync.map_many(board_us, now_mono, rt_off)
-            if sync.resets != resets:
-                log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
-        if got is not None and not got[3] & OUTLIER:
-            host_ns, sigma, bound, flags = got
-            # Measured before it arrived: a map error never puts a sample after its receipt.
-            if max(host_ns) > arrived:
-                self.future_clamps += 1
-                host_ns = [min(h, arrived) for h in host_ns]
-            if missing:
-                host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
-        else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
-            sigma, bound, flags = -1, -1, NOT_SYNCED
-            if got is not None:
-                flags |= OUTLIER
-                self.outliers += 1  # (the sync wants a probe now: the ticker sends it)
-            host_ns = [0 if v is None else arrived for v in values]
-        if missing < len(values):
-            newest = max(host_ns)
-            last = self._last_host.get(sif.cmd)
-            if last is not None and newest <= last:
-                # Host times per topic are strictly increasing, whatever the board's stamps.
-                shift = last + 1 - newest
-                host_ns = [h + shift if h else 0 for h in host_ns]
-                newest += shift
-                self.host_time_clamps += 1
-                if bound >= 0:
-                    bound += shift  # moved off the map by shift: the bound says so
-            self._last_host[sif.cmd] = newest
-            stamp = newest  # the log time: the newest measurement (Update would take max again)
-        else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
-            stamp = arrived
-        update = Update(
-            topic,
-            board_us,
-            host_ns,
-            values,
-            sif.seq,
-            sif.lost,
-            recv_ns,
-            None,
-            stamp,
-            bound,
-            sigma,
-            flags,
-        )
-        self.updates += 1
-        self.samples += len(values) - missing
-        self.daemon._publish(update)
-        std = self.standard.get(sif.cmd)
-        if std is not None:
-            std_topic, mapping = std
-            for ch, v in enumerate(values):
-                if v is not None:
-                    try:
-                        cdr = mapping.build(ch, host_ns[ch], v)
-                    except (ValueError, OverflowError, struct.error):
-                        self.bad_sifs += 1  # a value the standard type cannot carry
-                        continue
-                    self.daemon._publish(
-                        Update(
-                            std_topic,
-                            [board_us[ch]],
-                            [host_ns[ch]],
-                            [v],
-                            sif.seq,
-                            0,
-                            recv_ns,
-                            cdr,
-                            None,
-                            bound,
-                            sigma,
-                            flags,
-                        )
-                    )
-
     def level(self) -> tuple[int, str]:
         """Diagnostic level and message: ERROR when not up, WARN when up with warnings."""
         if self.state != UP:
@@ -526,14 +397,8 @@ class BoardSession:
             "connects": self.connects,
             "failures": self.failures,
             "stale_links": self.stale_links,
-            "samples": self.samples,
             **{k: self._past.get(k, 0) + link.get(k, 0) for k in _LINK_COUNTERS},
-            "unknown_sifs": self.unknown_sifs,
-            "bad_sifs": self.bad_sifs,
-            "outage_lost_sifs": self.outage_lost_sifs,
-            "clock_outliers": self.outliers,
-            "host_time_clamps": self.host_time_clamps,
-            "future_clamps": self.future_clamps,
+            **self.path.counters(),
             "commands": self.commands,
             "command_errors": self.command_errors,
             "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,

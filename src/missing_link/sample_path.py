@@ -1,0 +1,197 @@
+"""One board's sample path: a sample SIF in, host-timed ``Update`` objects out to the daemon's
+publishers.  It runs on the board's reading thread (the daemon's I/O loop) for every SIF.
+
+Theory of operation
+-------------------
+Per SIF:
+
+1. loss: the SIF's seq gives the SIFs lost since the previous one, modulo 256; after an outage
+   of the same board boot, the board's own count of SIFs sent (``a2jSifCount``, read at the
+   handshake: ``resume``) gives the wraps, so a long outage is counted exactly
+   (``outage_lost_sifs``, part of the link's ``lost_sifs``);
+2. the payload is decoded with the transducer's descriptor; an unknown transducer or a payload
+   that does not fit it is counted (``unknown_sifs``, ``bad_sifs``), never raised;
+3. host times: the session's :class:`~missing_link.timesync.ClockSync` maps every stamp.  Before
+   the first estimate, and for a stamp far from the map (an outlier: ``clock_outliers``), the
+   receive time is used and flagged (``NOT_SYNCED``, ``OUTLIER``).  Nothing is measured after it
+   arrived: a mapped time later than the receipt (the map's error, a few µs) is set to the
+   receipt (``future_clamps``).  Per topic, host times are strictly increasing
+   (``host_time_clamps`` counts the nudges, e.g. several samples read in one go while unsynced);
+4. one ``Update`` to every publisher, and per channel one on the standard-type topic when the
+   transducer has one (``standard.py``).
+
+The session owns the supervision (connect, serve, reconnect) and builds ``topics`` and
+``standard`` at each handshake; this class owns what happens to each sample.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from typing import TYPE_CHECKING, Any
+
+from .j2a import SifReceived
+from .standard import StandardMapping
+from .timesync import NOT_SYNCED, OUTLIER
+from .topics import Topic, Update
+
+if TYPE_CHECKING:
+    from .client import Board
+    from .session import BoardSession
+
+log = logging.getLogger("missing_link.session")
+
+
+class SamplePath:
+    def __init__(self, session: BoardSession) -> None:
+        self.session = session
+        self.daemon = session.daemon
+        self.topics: dict[int, Topic] = {}  # transducer id -> topic
+        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        self.samples = 0
+        self.updates = 0
+        self.unknown_sifs = 0
+        self.bad_sifs = 0
+        self.outliers = 0
+        self.host_time_clamps = 0
+        self.future_clamps = 0  # mapped after their own receipt (map error): set to the receipt
+        self.outage_lost_sifs = 0  #: SIFs lost while the link was down (included in lost_sifs)
+        self.next_seq: int | None = None  # after the last SIF seen on this board boot
+        self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
+        self._outage_count: int | None = None  # a2jSifCount read after an outage
+        self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
+
+    def resume(self, board: Board, same_boot: bool, count: int | None) -> None:
+        """At a handshake: ``same_boot`` (the board's clock epoch is the one before an outage)
+        means the SIFs it sent meanwhile count as lost, modulo 256 from the seq, exactly when
+        the board can tell how many it has sent (``count``, from ``a2jSifCount``)."""
+        if self.next_seq is not None and same_boot:
+            board.conn.expect_sif_seq(self.next_seq)
+            self._outage_count = count
+        else:
+            self._total = count
+            self._outage_count = None
+
+    def counters(self) -> dict[str, Any]:
+        return {
+            "samples": self.samples,
+            "unknown_sifs": self.unknown_sifs,
+            "bad_sifs": self.bad_sifs,
+            "outage_lost_sifs": self.outage_lost_sifs,
+            "clock_outliers": self.outliers,
+            "host_time_clamps": self.host_time_clamps,
+            "future_clamps": self.future_clamps,
+        }
+
+    def on_sif(self, sif: SifReceived, now_mono: float) -> None:
+        """The SIF handler (the board's reading thread)."""
+        self.next_seq = sif.seq + 1
+        total = self._total
+        if self._outage_count is not None and total is not None:
+            # First SIF after an outage: the seq gives the loss modulo 256; the board's count
+            # of SIFs sent (read at the handshake, just before this one) gives the wraps.
+            mod = sif.lost
+            wraps = max(0, round((self._outage_count - (total + mod)) / 256))
+            if wraps:
+                sif = sif._replace(lost=mod + 256 * wraps)
+                board = self.session.board
+                if board is not None:
+                    board.conn.stats.sifs_lost += 256 * wraps
+            self.outage_lost_sifs += sif.lost
+            self._outage_count = None
+        if total is not None:
+            self._total = total + 1 + sif.lost
+        topic = self.topics.get(sif.cmd)
+        if topic is None:
+            self.unknown_sifs += 1
+            return
+        try:
+            board_us, values = topic.transducer.decode_columns(sif.payload)
+        except ValueError:
+            self.bad_sifs += 1
+            return
+        rt_off = self.daemon.realtime_offset_ns
+        recv_ns = int(now_mono * 1e9)
+        arrived = recv_ns + rt_off  # the receipt, as a published (realtime) host time
+        missing = values.count(None)
+        sync = self.session.sync
+        got = None
+        if sync is not None:
+            resets = sync.resets
+            got = sync.map_many(board_us, now_mono, rt_off)
+            if sync.resets != resets:
+                log.warning(
+                    "%s: sample stamps went back: board reset, map restarted", self.session.name
+                )
+        if got is not None and not got[3] & OUTLIER:
+            host_ns, sigma, bound, flags = got
+            # Measured before it arrived: a map error never puts a sample after its receipt.
+            if max(host_ns) > arrived:
+                self.future_clamps += 1
+                host_ns = [min(h, arrived) for h in host_ns]
+            if missing:
+                host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
+        else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
+            sigma, bound, flags = -1, -1, NOT_SYNCED
+            if got is not None:
+                flags |= OUTLIER
+                self.outliers += 1  # (the sync wants a probe now: the ticker sends it)
+            host_ns = [0 if v is None else arrived for v in values]
+        if missing < len(values):
+            newest = max(host_ns)
+            last = self._last_host.get(sif.cmd)
+            if last is not None and newest <= last:
+                # Host times per topic are strictly increasing, whatever the board's stamps.
+                shift = last + 1 - newest
+                host_ns = [h + shift if h else 0 for h in host_ns]
+                newest += shift
+                self.host_time_clamps += 1
+                if bound >= 0:
+                    bound += shift  # moved off the map by shift: the bound says so
+            self._last_host[sif.cmd] = newest
+            stamp = newest  # the log time: the newest measurement (Update would take max again)
+        else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
+            stamp = arrived
+        update = Update(
+            topic,
+            board_us,
+            host_ns,
+            values,
+            sif.seq,
+            sif.lost,
+            recv_ns,
+            None,
+            stamp,
+            bound,
+            sigma,
+            flags,
+        )
+        self.updates += 1
+        self.samples += len(values) - missing
+        self.daemon._publish(update)
+        std = self.standard.get(sif.cmd)
+        if std is not None:
+            std_topic, mapping = std
+            for ch, v in enumerate(values):
+                if v is not None:
+                    try:
+                        cdr = mapping.build(ch, host_ns[ch], v)
+                    except (ValueError, OverflowError, struct.error):
+                        self.bad_sifs += 1  # a value the standard type cannot carry
+                        continue
+                    self.daemon._publish(
+                        Update(
+                            std_topic,
+                            [board_us[ch]],
+                            [host_ns[ch]],
+                            [v],
+                            sif.seq,
+                            0,
+                            recv_ns,
+                            cdr,
+                            None,
+                            bound,
+                            sigma,
+                            flags,
+                        )
+                    )
