@@ -174,12 +174,12 @@ class Reactor:
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
                 log.debug("reactor: wait: %s", e)
                 ready = []
-            boards = self._boards
-            for fd in ready:  # first, before any other work: a clock reply's t4
-                board = boards.get(fd)
-                if board is not None and board.transport.count_arrivals:
-                    board.transport.count_arrived()  # type: ignore[attr-defined]
             try:
+                boards = self._boards
+                for fd in ready:  # first, before any other work: a clock reply's t4
+                    board = boards.get(fd)
+                    if board is not None and board.transport.count_arrivals:
+                        board.transport.count_arrived()
                 sifs = self._round(ready, waited_after)
             except Exception:  # a bug here must not end every board's reading
                 self.loop_errors += 1

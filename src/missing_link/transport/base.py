@@ -50,6 +50,9 @@ class Transport(ABC):
     def poke(self) -> None:  # noqa: B027 - optional: transports that cannot wake a read skip it
         """Make a waiting read() return b"" now (the caller has new timers for the reader)."""
 
+    def count_arrived(self) -> None:  # noqa: B027 - optional: descriptor transports do it
+        """Right after a wait said bytes are there: note how many, and when (see FdTransport)."""
+
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
         if frames:
@@ -125,8 +128,8 @@ class FdTransport(Transport):
         except (OSError, ValueError):  # closed meanwhile: the read reports it
             return
         n = struct.unpack("i", raw)[0]
-        if n > 0:
-            self._counted = (n, time.monotonic_ns())
+        if n > 0:  # (the first 64 KiB of many were there too: one read's worth)
+            self._counted = (min(n, 65536), time.monotonic_ns())
 
     def _send(self, data: memoryview) -> int:
         return os.write(self._fd, data)
