@@ -7,7 +7,9 @@ Each :class:`~missing_link.client.Board` on a descriptor (socket, pty, serial po
 its transport's fd here.  The loop waits in one ``select`` for any board's bytes, the wake pipe,
 or the soonest call timer of any board.  A round then
 
-1. reads every ready descriptor first (each read stamped right after it: clock sync's t4), so a
+1. for a board with a clock probe in flight, counts the bytes waiting the moment the wait
+   returns (``count_arrived``: clock sync's t4, before any other work of the round); then
+   reads every ready descriptor (each read stamped right after it, or at that count), so a
    board's stamp does not wait for another board's processing;
 2. runs each board's ``_step`` with its bytes (decode, replies to futures, SIFs to the sample
    path, its due call timers);
