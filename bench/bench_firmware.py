@@ -6,6 +6,8 @@ with CPython running the same code as the reference in the same run.
 
 Per-sample cost: record a value, poll (assemble the SIF), take the bytes (one int32 channel;
 seven floats as the MPU-6050 sends).  Per received byte: an a2jClock request fed and answered.
+After t3: from a2jClock's t3 stamp to the reply's bytes in hand (the board's share of the return
+trip, which clock sync cannot see).
 Heap: gc.mem_free() before and after building the thesis rig's firmware from its board file.
 Flash: the bytes `missing-link flash` copies for that board file (.py sources).
 These are interpreter figures on this machine's CPU, not a microcontroller's: an RP2040 at
@@ -42,6 +44,7 @@ def main() -> None:
         ("us_per_sif_1ch", "µs per sample SIF, 1 x int32"),
         ("us_per_sif_7ch", "µs per sample SIF, 7 x float (IMU)"),
         ("us_per_rx_byte", "µs per received byte (a2jClock request)"),
+        ("us_after_t3", "µs from a2jClock's t3 stamp to its reply's bytes"),
     ):
         print(f"| {label} | {mpy[key]:.2f} | {ref[key]:.2f} |")
     rate, ref_rate = 1e6 / mpy["us_per_sif_1ch"], 1e6 / ref["us_per_sif_1ch"]

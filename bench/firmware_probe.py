@@ -62,7 +62,30 @@ def per_byte(n):
     return diff(ticks(), t0) / (n * len(req))
 
 
+def after_t3(n):
+    # From a2jClock's t3 stamp (the runtime's clock() call in take_output) to the reply's bytes
+    # in hand: work that lengthens the return trip the host sees, a bias clock sync cannot see.
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    req = encode_frame(SOF, 1, rt.index["a2jClock"], b"")
+    clock = rt.clock
+    stamped = [0]
+
+    def stamping_clock():
+        stamped[0] = ticks()
+        return clock()
+
+    total = 0
+    for _ in range(n):
+        rt.feed(req)
+        rt.clock = stamping_clock
+        rt.take_output()
+        total += diff(ticks(), stamped[0])
+        rt.clock = clock
+    return total / n
+
+
 N = 20000 if MPY else 50000
 print("us_per_sif_1ch", per_sample(1, "int32_t", 0, N))
 print("us_per_sif_7ch", per_sample(7, "float", 1.5, N // 4))
 print("us_per_rx_byte", per_byte(N // 4))
+print("us_after_t3", after_t3(N // 4))

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import struct
+
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from missing_link.board.clock import WrappingClock
 from missing_link.board.runtime import INTERBYTE_TIMEOUT_US, BoardRuntime, Transducer
+from missing_link.board.wire import encode_frame as board_encode_frame
+from missing_link.board.wire import encode_frame_head, encode_frame_tail
 from missing_link.j2a import SOF, Frame, FrameDecoder, encode_frame, parse_mapping
 from missing_link.virtual.sims import original
 
@@ -209,3 +215,17 @@ def test_silence_after_sof_gets_f2_over_a_real_pty() -> None:
         os.close(fd)
         server.stop()
         thread.join(5)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seq=st.integers(0, 255), t2=st.integers(0, 2**64 - 1), t3=st.integers(0, 2**64 - 1))
+def test_clock_reply_encoded_in_two_parts_is_the_whole_frame(seq: int, t2: int, t3: int) -> None:
+    """a2jClock's reply is encoded up to t2 when the request arrives and finished with t3 at the
+    hand-off: byte for byte the frame a single encode gives, which the host decodes (stamps with
+    escaped bytes included)."""
+    head, c = encode_frame_head(SOF, seq, 0, 16, struct.pack("<Q", t2))
+    got = bytes(encode_frame_tail(head, c, struct.pack("<Q", t3)))
+    assert got == board_encode_frame(SOF, seq, 0, struct.pack("<QQ", t2, t3))
+    (frame,) = FrameDecoder().feed(got)
+    assert isinstance(frame, Frame) and frame.seq == seq and frame.opcode == 0
+    assert struct.unpack("<QQ", frame.payload) == (t2, t3)

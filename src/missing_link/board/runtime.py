@@ -37,6 +37,8 @@ from .wire import (
     SOS,
     FrameParser,
     encode_frame,
+    encode_frame_head,
+    encode_frame_tail,
 )
 
 J2A_VERSION = "2"
@@ -316,8 +318,9 @@ class BoardRuntime:
         for i in range(len(replies)):
             r = replies[i]
             if isinstance(r, tuple):
-                # a2jClock: t3 is stamped here, as the reply is handed to the link.
-                replies[i] = encode_frame(SOF, r[0], 0, struct.pack("<QQ", r[1], self.clock()))
+                # a2jClock: t3 is stamped here, as the reply is handed to the link; only its 8
+                # bytes and the checksum are encoded after the stamp (the rest was, at the call).
+                replies[i] = encode_frame_tail(r[0], r[1], struct.pack("<Q", self.clock()))
         sifs = self._sifs
         self.sifs_sent += len(sifs)
         self._replies = []
@@ -358,7 +361,8 @@ class BoardRuntime:
             return
         _name, kind, handler = self.functions[opcode]
         if opcode == self._clock_op and not payload:
-            self._replies.append((seq, self._request_us))  # t3 stamped in take_output
+            t2 = struct.pack("<Q", self._request_us)
+            self._replies.append(encode_frame_head(SOF, seq, 0, 16, t2))  # t3: take_frames
             return
         if kind != _PLAIN:
             self._reply(seq, 0xFF, b"")  # many-functions are reached through a2jMany only

@@ -49,15 +49,32 @@ def encode_frame(start, seq, opcode, payload):
     n = len(payload)
     if n > 255:
         raise ValueError("J2A payload longer than 255 bytes")
+    out, c = encode_frame_head(start, seq, opcode, n, payload)
+    escape_into(out, bytes((c,)))
+    return bytes(out)
+
+
+def encode_frame_head(start, seq, opcode, n, head):
+    # A frame with an n-byte payload, up to its first len(head) payload bytes: (the encoded
+    # bytes so far, the checksum so far).  encode_frame_tail adds the rest.  For a2jClock's
+    # reply: t3 is stamped as late as possible and only its 8 bytes are encoded after it.
     c = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF)
-    for b in payload:
+    for b in head:
         c ^= b
     out = bytearray()
     out.append(start)
     escape_into(out, bytes((seq, opcode, n)))
-    escape_into(out, payload)
+    escape_into(out, head)
+    return out, c
+
+
+def encode_frame_tail(out, c, tail):
+    # The frame begun by encode_frame_head, finished with its last payload bytes (a bytearray).
+    for b in tail:
+        c ^= b
+    escape_into(out, tail)
     escape_into(out, bytes((c,)))
-    return bytes(out)
+    return out
 
 
 class FrameParser:
