@@ -20,7 +20,9 @@ end-to-end cost is the loop's waking and reading rather than the per-update work
 from __future__ import annotations
 
 import argparse
+import os
 import resource
+import signal
 import subprocess
 import sys
 import threading
@@ -74,7 +76,9 @@ def bare_decode_us(n: int = 20000) -> float:
 def sample_path_us(n: int = 20000) -> float:
     """µs per update of the daemon's own sample path with real objects and no I/O: frames of a
     counting board handed straight to a connected board's reading step (decode, clock map,
-    Update, bus, one inline subscriber), 4 frames per read."""
+    Update, bus, one inline subscriber), 4 frames per read.  The board process is paused
+    meanwhile: a sample of its own, stamped later than the frames, would make every frame after
+    it take the per-topic increasing-time nudge (a branch the real stream never takes)."""
     proc, urls = start_boards(1, 1.0)
     try:
         with Daemon(Config(boards=[BoardSpec(urls[0])], publishers=["bus"])) as d:
@@ -86,18 +90,27 @@ def sample_path_us(n: int = 20000) -> float:
             rt = BoardRuntime("b", "m", "s", epoch="e")
             t = Transducer("signal", 0, "counter", "COUNTER", CHANNELS, "int32_t", -1)
             rt.add_transducer(t)
-            base = time.monotonic_ns() // 1000 - n * 10  # stamps in the past, 10 µs apart
-            frames = []
-            for i in range(n):
-                for ch in range(CHANNELS):
-                    rt.record(t, ch, i, stamp_us=base + i * 10)
-                rt.poll()
-                frames.append(rt.take_output())
-            reads = [b"".join(frames[k : k + 4]) for k in range(0, n, 4)]
-            t0 = time.thread_time()
-            for data in reads:
-                board._step(data, time.monotonic_ns(), 0)
-            return (time.thread_time() - t0) / n * 1e6
+            os.kill(proc.pid, signal.SIGSTOP)
+            try:
+                # Stamps after the board's last sample, 10 µs apart, in the past by the time
+                # they are read (building the frames takes longer than they span).
+                base = time.monotonic_ns() // 1000
+                frames = []
+                for i in range(n):
+                    for ch in range(CHANNELS):
+                        rt.record(t, ch, i, stamp_us=base + i * 10)
+                    rt.poll()
+                    frames.append(rt.take_output())
+                reads = [b"".join(frames[k : k + 4]) for k in range(0, n, 4)]
+                clamps = d.sessions[0].path.host_time_clamps
+                t0 = time.thread_time()
+                for data in reads:
+                    board._step(data, time.monotonic_ns(), 0)
+                spent = time.thread_time() - t0
+                assert d.sessions[0].path.host_time_clamps == clamps, "nudged: not the real path"
+            finally:
+                os.kill(proc.pid, signal.SIGCONT)
+            return spent / n * 1e6
     finally:
         proc.terminate()
         proc.wait(10)
