@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from .client import Board
     from .session import BoardSession
 
-log = logging.getLogger("missing_link.session")
+log = logging.getLogger(__name__)
 
 
 class SamplePath:
@@ -49,7 +49,6 @@ class SamplePath:
         self.topics: dict[int, Topic] = {}  # transducer id -> topic
         self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
         self.samples = 0
-        self.updates = 0
         self.unknown_sifs = 0
         self.bad_sifs = 0
         self.outliers = 0
@@ -166,7 +165,6 @@ class SamplePath:
             sigma,
             flags,
         )
-        self.updates += 1
         self.samples += len(values) - missing
         self.daemon._publish(update)
         std = self.standard.get(sif.cmd)

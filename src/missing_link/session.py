@@ -50,7 +50,7 @@ from .descriptors import Transducer, load_descriptor_file
 from .errors import BoardError, MissingLinkError
 from .prober import ClockProber
 from .sample_path import SamplePath
-from .standard import mapping_for
+from .standard import StandardMapping, mapping_for
 from .text import slug
 from .timesync import ClockSync, SyncOptions
 from .topics import Topic, Update
@@ -184,9 +184,11 @@ class BoardSession:
         self.name = self.daemon._claim_name(self, self._board_name(board))
         cfg = self.daemon.config
         self._start_sync(board)
-        topics, standard = self.path.topics, self.path.standard
-        topics.clear()
-        standard.clear()
+        # New tables, filled as they are declared (a failure half-way leaves _disconnect the
+        # command topics added so far to remove)
+        topics: dict[int, Topic] = {}
+        standard: dict[int, tuple[Topic, StandardMapping]] = {}
+        self.path.topics, self.path.standard = topics, standard
         for t in transducers:
             topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
             type_name = self.daemon._claim_type(self, t)
@@ -319,7 +321,7 @@ class BoardSession:
 
     def _disconnect(self) -> None:
         try:
-            for topic in self.path.topics.values():
+            for topic in self.topics.values():
                 self.daemon.bus.remove_command(f"{topic.name}/cmd")
         finally:
             board, self.board = self.board, None
