@@ -92,8 +92,7 @@ def sample_path_us(n: int = 20000) -> float:
             rt.add_transducer(t)
             os.kill(proc.pid, signal.SIGSTOP)
             try:
-                # Stamps after the board's last sample, 10 µs apart, in the past by the time
-                # they are read (building the frames takes longer than they span).
+                # Stamps after the board's last sample, 10 µs apart, all in the past when read.
                 base = time.monotonic_ns() // 1000
                 frames = []
                 for i in range(n):
@@ -102,12 +101,15 @@ def sample_path_us(n: int = 20000) -> float:
                     rt.poll()
                     frames.append(rt.take_output())
                 reads = [b"".join(frames[k : k + 4]) for k in range(0, n, 4)]
-                clamps = d.sessions[0].path.host_time_clamps
+                time.sleep(max(0.0, (base + n * 10) / 1e6 - time.monotonic()))
+                path = d.sessions[0].path
+                clamps = (path.host_time_clamps, path.future_clamps)
                 t0 = time.thread_time()
                 for data in reads:
                     board._step(data, time.monotonic_ns(), 0)
                 spent = time.thread_time() - t0
-                assert d.sessions[0].path.host_time_clamps == clamps, "nudged: not the real path"
+                # (a clamp is a branch the real stream does not take: not the path measured)
+                assert (path.host_time_clamps, path.future_clamps) == clamps, "frames clamped"
             finally:
                 os.kill(proc.pid, signal.SIGCONT)
             return spent / n * 1e6

@@ -290,7 +290,7 @@ def test_bytes_counted_at_the_wake_are_stamped_then_and_only_they() -> None:
         os.write(master, b"\x7e" * 10)
         time.sleep(0.02)
         t.count_arrivals = True
-        t.count_arrived()  # type: ignore[attr-defined]
+        t.count_arrived()
         counted_by = time.monotonic_ns()
         os.write(master, b"\x7f" * 5)  # arrives after the count
         second_sent = time.monotonic_ns()
