@@ -89,54 +89,25 @@ def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
     path.write_text(json.dumps(doc))
 
 
-class Ours:
-    """The daemon's clock sync behind the anchors' interface, mapping as the sample path does."""
-
-    def __init__(self, opts: SyncOptions) -> None:
-        self.sync = ClockSync(opts, seed=1)
-
-    def start(self, now: float) -> None:
-        self.sync.start(now)
-
-    def due(self) -> float:
-        return self.sync.due()
-
-    def on_exchange(self, ex: Exchange, now: float) -> None:
-        self.sync.on_exchange(ex, now)
-
-    def map_at(self, board_us: int, now: float) -> tuple[float, float] | None:
-        got = self.sync.map_many((board_us,), now)
+def _map_at(method: Any, board_us: int, now: float) -> tuple[float, float] | None:
+    """(host ns, bound ns) as published: ours as the daemon's sample path maps (with ``now``,
+    refusing stamps from the future); an anchor by its own map, without a bound."""
+    if isinstance(method, sim.Ours):
+        got = method.sync.map_many((board_us,), now)
         return None if got is None or got[2] < 0 else (got[0][0], float(got[2]))
+    mapped = method.map(board_us)
+    return None if mapped is None else (mapped[0], math.inf)
 
 
-class Anchor:
-    """One of ``sim.METHODS``' anchors, started at the recording's first exchange."""
-
-    def __init__(self, name: str) -> None:
-        self.method: Any = sim.METHODS[name]()
-
-    def start(self, now: float) -> None:
-        self.method._next = now  # (the models start probing at their own 0 s)
-
-    def due(self) -> float:
-        return float(self.method.due())
-
-    def on_exchange(self, ex: Exchange, now: float) -> None:
-        self.method.on_exchange(ex, now)
-
-    def map_at(self, board_us: int, now: float) -> tuple[float, float] | None:
-        got = self.method.map(board_us)
-        return None if got is None else (got[0], math.inf)  # (no bound)
-
-
-def replay_one(doc: dict[str, Any], method: Ours | Anchor) -> dict[str, Any]:
+def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
+    """``method``: one of ``sim.METHODS`` (ours: ``sim.Ours``); it asks for its first probe at 0 s,
+    which is the recording's first exchange."""
     tr = doc["truth"]
     truth = DriftClock(tr["offset_us"], tr["skew_ppm"], tr["drift_ppm_per_s"], tr["ref_ns"], [])
     truth.reset_ns = list(tr["resets_ns"])
     exs = [Exchange(*row) for row in doc["exchanges"]]
     sent = [e.t1 for e in exs]
     first, again = doc["first_sample_ns"], doc["answering_again_ns"]
-    method.start(exs[0].t1 / 1e9)
     rows: list[tuple[float, float, float]] = []  # (s since first sample, error µs, bound ns)
     h, i, used = first, 0, 0
     while True:
@@ -146,7 +117,7 @@ def replay_one(doc: dict[str, Any], method: Ours | Anchor) -> dict[str, Any]:
         ex = exs[k]
         while h < ex.t4:  # the samples measured before this reply came back
             if h >= first + 5e8 and not truth.reset_ns[0] <= h < again:
-                got = method.map_at(math.floor(truth.board_us_at(h)), h / 1e9)
+                got = _map_at(method, math.floor(truth.board_us_at(h)), h / 1e9)
                 if got is not None:
                     rows.append(((h - first) / 1e9, (got[0] - h) / 1000, got[1] / 1000))
             h += 2_000_000
@@ -202,11 +173,11 @@ def replay(where: Path, specs: list[str], anchors: bool) -> None:
         f" | bound p50 µs | probes/s | {bins} |"
     )
     print("|---" * (8 + len(BINS)) + "|")
-    runs: list[tuple[str, Callable[[], Ours | Anchor]]] = [
-        (f"missing-link ({s})", partial(Ours, o)) for s, o in options.items()
+    runs: list[tuple[str, Callable[[], Any]]] = [
+        (f"missing-link ({s})", partial(sim.Ours, o)) for s, o in options.items()
     ]
     if anchors:
-        runs += [(n, partial(Anchor, n)) for n in ("cristian", "px4", "rosserial")]
+        runs += [(n, sim.METHODS[n]) for n in ("cristian", "px4", "rosserial")]
     for label, make in runs:
         rs = [replay_one(d, make()) for d in docs]
 
