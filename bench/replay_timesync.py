@@ -156,6 +156,17 @@ def variant(spec: str) -> SyncOptions:
     return SyncOptions(**kw)
 
 
+def _load(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"replay_timesync: {path}: not a recording ({e})") from None
+    keys = ("truth", "exchanges", "first_sample_ns", "answering_again_ns")
+    if not isinstance(doc, dict) or any(k not in doc for k in keys):
+        raise SystemExit(f"replay_timesync: {path}: not a recording (needs {', '.join(keys)})")
+    return doc
+
+
 def _us(x: float) -> str:
     """µs, or whole seconds for the errors of a map still on the board's previous boot."""
     return f"{x / 1e6:,.0f} s" if x >= 1e6 else f"{x:.1f}"
@@ -163,7 +174,7 @@ def _us(x: float) -> str:
 
 def replay(where: Path, specs: list[str], anchors: bool) -> None:
     options = {s: variant(s) for s in specs}  # (a bad --set fails before any output)
-    docs = [json.loads(p.read_text()) for p in sorted(where.glob("run*.json"))]
+    docs = [_load(p) for p in sorted(where.glob("run*.json"))]
     if not docs:
         raise SystemExit(f"replay_timesync: no recordings in {where} (run `record` first)")
     print(f"{len(docs)} recordings from {where}; medians over them, worst = the worst run\n")
