@@ -226,7 +226,8 @@ def test_pty_raw_mode_keeps_special_bytes(serve: Serve) -> None:
 @pytest.mark.skipif(sys.platform != "linux", reason="SO_TIMESTAMPNS is Linux's")
 def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
     """The kernel's receive stamp is clock sync's t4 over TCP: after the bytes were sent (causal)
-    and before the read that took them (the reader's wake-up is not in it)."""
+    and before the read that took them (the reader's wake-up is not in it), while a clock
+    exchange is in flight; other reads take the cheaper plain recv and are stamped after it."""
     listener = socket.socket()
     listener.bind(("127.0.0.1", 0))
     listener.listen(1)
@@ -234,6 +235,7 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
     peer, _ = listener.accept()
     try:
         early = 0
+        t.count_arrivals = True  # a clock exchange in flight
         for _ in range(5):
             sent = time.monotonic_ns()
             peer.sendall(b"\x7e" * 40)
@@ -245,6 +247,13 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
         # The kernel turns receive stamping on a little after the first socket asks (a deferred
         # static key): the first segments may come unstamped, and then our own stamp is used.
         assert early >= 3
+        t.count_arrivals = False  # no exchange in flight: stamped after the read
+        sent = time.monotonic_ns()
+        peer.sendall(b"\x7e" * 40)
+        time.sleep(0.02)
+        before_read = time.monotonic_ns()
+        assert t.read(1.0) == b"\x7e" * 40
+        assert t.last_rx_ns >= before_read
     finally:
         t.close()
         peer.close()

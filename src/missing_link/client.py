@@ -628,7 +628,8 @@ class Board:
         by_cmd, any_sif = self._sif_handlers, self._any_sif
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
-                for h in (*by_cmd.get(ev.cmd, ()), *any_sif):
+                by = by_cmd.get(ev.cmd)
+                for h in any_sif if by is None else (*by, *any_sif):
                     try:
                         h(ev, now)
                     except Exception:

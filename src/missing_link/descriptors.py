@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import struct
@@ -54,9 +55,13 @@ class Transducer:
     def sif_size(self) -> int:
         return self.chan_count * (8 + int(DTYPES[self.dtype][1]))
 
-    @property
+    @functools.cached_property
     def sif_struct(self) -> struct.Struct:
         return _sif_struct(self.dtype, self.chan_count)
+
+    @functools.cached_property
+    def _na_is_nan(self) -> bool:
+        return isinstance(self.na, float) and math.isnan(self.na)
 
     def legal(self, value: object) -> bool:
         """Is ``value`` in the data type's domain and not the N/A value?"""
@@ -82,7 +87,7 @@ class Transducer:
         flat = st.unpack(payload)
         na = self.na
         raw = flat[1::2]
-        if isinstance(na, float) and math.isnan(na):
+        if self._na_is_nan:
             values: list[int | float | None] = [None if v != v else v for v in raw]
         elif na in raw:
             values = [None if v == na else v for v in raw]

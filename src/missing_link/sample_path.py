@@ -71,6 +71,21 @@ class SamplePath:
             self._total = count
             self._outage_count = None
 
+    def _outage_loss(self, mod: int, total: int) -> int:
+        """The first SIF after an outage: the seq gives the loss modulo 256 (``mod``); the
+        board's count of SIFs sent (read at the handshake, just before this one) gives the
+        wraps."""
+        assert self._outage_count is not None
+        wraps = max(0, round((self._outage_count - (total + mod)) / 256))
+        lost = mod + 256 * wraps
+        if wraps:
+            board = self.session.board
+            if board is not None:
+                board.conn.stats.sifs_lost += 256 * wraps
+        self.outage_lost_sifs += lost
+        self._outage_count = None
+        return lost
+
     def counters(self) -> dict[str, Any]:
         return {
             "samples": self.samples,
@@ -83,29 +98,21 @@ class SamplePath:
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
-        """The SIF handler (the board's reading thread)."""
-        self.next_seq = sif.seq + 1
+        """The SIF handler (the board's reading thread), for every sample: locals, not
+        attributes, and as few passes over the channels as the rare cases allow."""
+        cmd, seq, payload, lost = sif
+        self.next_seq = seq + 1
         total = self._total
-        if self._outage_count is not None and total is not None:
-            # First SIF after an outage: the seq gives the loss modulo 256; the board's count
-            # of SIFs sent (read at the handshake, just before this one) gives the wraps.
-            mod = sif.lost
-            wraps = max(0, round((self._outage_count - (total + mod)) / 256))
-            if wraps:
-                sif = sif._replace(lost=mod + 256 * wraps)
-                board = self.session.board
-                if board is not None:
-                    board.conn.stats.sifs_lost += 256 * wraps
-            self.outage_lost_sifs += sif.lost
-            self._outage_count = None
         if total is not None:
-            self._total = total + 1 + sif.lost
-        topic = self.topics.get(sif.cmd)
+            if self._outage_count is not None:
+                lost = self._outage_loss(lost, total)
+            self._total = total + 1 + lost
+        topic = self.topics.get(cmd)
         if topic is None:
             self.unknown_sifs += 1
             return
         try:
-            board_us, values = topic.transducer.decode_columns(sif.payload)
+            board_us, values = topic.transducer.decode_columns(payload)
         except ValueError:
             self.bad_sifs += 1
             return
@@ -124,21 +131,24 @@ class SamplePath:
                 )
         if got is not None and not got[3] & OUTLIER:
             host_ns, sigma, bound, flags = got
+            newest = max(host_ns)
             # Measured before it arrived: a map error never puts a sample after its receipt.
-            if max(host_ns) > arrived:
+            if newest > arrived:
                 self.future_clamps += 1
                 host_ns = [min(h, arrived) for h in host_ns]
+                newest = arrived
             if missing:
                 host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
+                newest = max(host_ns)  # (0 when every channel is N/A)
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             sigma, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:
                 flags |= OUTLIER
                 self.outliers += 1  # (the sync wants a probe now: the ticker sends it)
             host_ns = [0 if v is None else arrived for v in values]
+            newest = arrived
         if missing < len(values):
-            newest = max(host_ns)
-            last = self._last_host.get(sif.cmd)
+            last = self._last_host.get(cmd)
             if last is not None and newest <= last:
                 # Host times per topic are strictly increasing, whatever the board's stamps.
                 shift = last + 1 - newest
@@ -147,7 +157,7 @@ class SamplePath:
                 self.host_time_clamps += 1
                 if bound >= 0:
                     bound += shift  # moved off the map by shift: the bound says so
-            self._last_host[sif.cmd] = newest
+            self._last_host[cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
             stamp = arrived
@@ -156,8 +166,8 @@ class SamplePath:
             board_us,
             host_ns,
             values,
-            sif.seq,
-            sif.lost,
+            seq,
+            lost,
             recv_ns,
             None,
             stamp,
@@ -167,7 +177,7 @@ class SamplePath:
         )
         self.samples += len(values) - missing
         self.daemon._publish(update)
-        std = self.standard.get(sif.cmd)
+        std = self.standard.get(cmd)
         if std is not None:
             std_topic, mapping = std
             for ch, v in enumerate(values):
@@ -183,7 +193,7 @@ class SamplePath:
                             [board_us[ch]],
                             [host_ns[ch]],
                             [v],
-                            sif.seq,
+                            seq,
                             0,
                             recv_ns,
                             cdr,

@@ -22,6 +22,7 @@ contradicted by a later segment.  A short history of segments maps samples that 
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from collections.abc import Sequence
 
@@ -41,6 +42,9 @@ class PublishedMap:
         self._floor = 0
         self._slew_end: float = 0
         self.steps = 0
+        #: the segment the sample path used last, as (from, until, b0, h0, rate): it asks for the
+        #: same one for seconds; None once the segments change
+        self.hot: tuple[float, float, int, float, float] | None = None
 
     @property
     def started(self) -> bool:
@@ -53,6 +57,7 @@ class PublishedMap:
             self.steps += 1
         self._segs = [(est.b_ref, est.h_ref, est.rate)]
         self._anchors = [est.b_ref]
+        self.hot = None
         self._floor = est.b_ref
         self._slew_end = est.b_ref
         self.newest_mapped = None
@@ -68,6 +73,7 @@ class PublishedMap:
         if self.newest_mapped is not None and self.newest_mapped > b:
             b = self.newest_mapped
         self._floor = b
+        self.hot = None
         h = self.at(b)
         err = h - est.host_at(b)
         # Segments anchored after b lie in the future (nothing was mapped with them): replace.
@@ -102,17 +108,28 @@ class PublishedMap:
             b0, h0, rate = segs[max(i, 0)]
         return h0 + (board_us - b0) * rate
 
+    def segment(self, board_us: int) -> tuple[float, float, int, float, float]:
+        """The segment that maps ``board_us``, as (from, until, b0, h0, rate): it maps every
+        board time in [from, until) as ``h0 + (b - b0) * rate`` (the first one also maps times
+        before it, the last one times after it).  Remembered as ``hot``."""
+        anchors = self._anchors
+        i = max(bisect_right(anchors, board_us) - 1, 0)
+        start = anchors[i] if i > 0 else -math.inf
+        until = anchors[i + 1] if i + 1 < len(anchors) else math.inf
+        b0, h0, rate = self._segs[i]
+        self.hot = hot = (start, until, b0, h0, rate)
+        return hot
+
     def at_many(self, stamps: Sequence[int], lo: int, hi: int, offset_ns: int = 0) -> list[int]:
         """Published host ns (rounded, plus ``offset_ns``) for the stamps of one update,
-        ``lo``/``hi`` their smallest and largest: one segment lookup when they share a segment
-        (almost always: they were taken within one sample period)."""
-        segs, anchors = self._segs, self._anchors
-        i = len(segs) - 1
-        if lo < anchors[i]:
-            i = max(bisect_right(anchors, lo) - 1, 0)
-        if i + 1 < len(segs) and hi >= anchors[i + 1]:
-            return [round(self.at(b)) + offset_ns for b in stamps]  # the update spans an anchor
-        b0, h0, rate = segs[i]
+        ``lo``/``hi`` their smallest and largest: one segment for all when they share one
+        (almost always: they were taken within one sample period), else ``at`` per stamp."""
+        hot = self.hot
+        if hot is None or not hot[0] <= hi < hot[1]:
+            hot = self.segment(hi)
+        start, _, b0, h0, rate = hot
+        if lo < start:  # the update spans an anchor
+            return [round(self.at(b)) + offset_ns for b in stamps]
         return [round(h0 + (b - b0) * rate) + offset_ns for b in stamps]
 
     def map(self, board_us: int) -> float:
