@@ -220,6 +220,23 @@ def test_published_map_at_many_is_at_for_each_stamp(stamps: list[int], steers: i
     assert got == [round(pm.at(b)) for b in stamps]
 
 
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.integers(0, 2_000_000), min_size=1, max_size=8), st.integers(1, 6))
+def test_published_map_segment_cache_never_goes_stale(stamps: list[int], steers: int) -> None:
+    """The sample path's cached segment (``hot``), filled before each steer, never maps with a
+    segment a steer replaced or trimmed: after every steer the cached path equals at()."""
+    pm = PublishedMap(max_slew=500e-6, tau_s=0.5, history=4)
+    for k in range(steers + 1):
+        est = ClockEstimator()
+        for ex, _, _ in exchanges(1000.0 * k, 40e-6 * (k % 2), k, 12, spacing_s=0.1):
+            est.add(ex)
+        assert est.estimate is not None
+        pm.steer(est.estimate) if pm.started else pm.start(est.estimate)
+        near = [est.estimate.b_ref + s - 1_000_000 for s in stamps]
+        assert pm.at_many(near, min(near), max(near)) == [round(pm.at(b)) for b in near]
+        assert pm.hot is not None  # filled: the next steer must drop it
+
+
 def test_published_map_reaches_the_estimate_without_overshoot() -> None:
     est = ClockEstimator()
     for ex, _, _ in exchanges(0.0, 0.0, 5, 20):
