@@ -13,16 +13,23 @@ clock sync has settled (12 s after connecting; the probe rate adapts down).  RSS
 daemon's RSS with N boards up minus with none, / N.  Clock exchanges per second per board from
 the sessions' counters.
 
-A second reference, also measured in this run: the daemon's sample path alone (the same frames
-handed to a connected board's reading step, no I/O and no waiting), which shows how much of the
-end-to-end cost is the loop's waking and reading rather than the per-update work."""
+More references, also measured in this run: the daemon's sample path alone (the same frames
+handed to connected boards' reading steps, no I/O and no waiting: 1 board with 4 frames per read,
+and 64 boards in turn with 1 frame per read, as at 64 x 100/s), which shows how much of the
+end-to-end cost is the loop's waking and reading rather than the per-update work; one recv of one
+frame from a loopback socket (each update pays it when every read carries one frame); and the
+CPU of one timed 2 ms wait (each round of the loop pays it)."""
 
 from __future__ import annotations
 
 import argparse
+import ctypes
+import gc
 import os
 import resource
+import select
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -44,6 +51,14 @@ def cpu_s() -> float:
 
 
 def rss_kib() -> int:
+    """This process's resident memory after a collection, with the C allocator's free memory
+    handed back first (glibc), so what an earlier scenario freed does not count against the
+    next one's baseline (measured: -860 KiB "per board" with one board without it)."""
+    gc.collect()
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: the figure is noisier, not wrong
+        pass
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
@@ -73,26 +88,29 @@ def bare_decode_us(n: int = 20000) -> float:
     return best / n * 1e6
 
 
-def sample_path_us(n: int = 20000) -> float:
+def sample_path_us(boards: int = 1, per_read: int = 4, n: int = 20000) -> float:
     """µs per update of the daemon's own sample path with real objects and no I/O: frames of a
-    counting board handed straight to a connected board's reading step (decode, clock map,
-    Update, bus, one inline subscriber), 4 frames per read.  The board process is paused
-    meanwhile: a sample of its own, stamped later than the frames, would make every frame after
-    it take the per-topic increasing-time nudge (a branch the real stream never takes)."""
-    proc, urls = start_boards(1, 1.0)
+    counting board handed straight to connected boards' reading steps (decode, clock map,
+    Update, bus, one inline subscriber), ``per_read`` frames per read, the boards in turn.  The
+    board process is paused meanwhile: a sample of its own, stamped later than the frames,
+    would make every frame after it take the per-topic increasing-time nudge (a branch the real
+    stream never takes)."""
+    proc, urls = start_boards(boards, 1.0)
     try:
-        with Daemon(Config(boards=[BoardSpec(urls[0])], publishers=["bus"])) as d:
-            assert d.wait_until_up(30)
+        with Daemon(Config(boards=[BoardSpec(u) for u in urls], publishers=["bus"])) as d:
+            assert d.wait_until_up(60)
             time.sleep(1.0)
             d.subscribe("/**", Watch(), queue=0)
-            board = d.sessions[0].board
-            assert board is not None
+            readers = []
+            for session in d.sessions:
+                assert session.board is not None
+                readers.append(session.board)
             rt = BoardRuntime("b", "m", "s", epoch="e")
             t = Transducer("signal", 0, "counter", "COUNTER", CHANNELS, "int32_t", -1)
             rt.add_transducer(t)
             os.kill(proc.pid, signal.SIGSTOP)
             try:
-                # Stamps after the board's last sample, 10 µs apart, all in the past when read.
+                # Stamps after the boards' last samples, 10 µs apart, all in the past when read.
                 base = time.monotonic_ns() // 1000
                 frames = []
                 for i in range(n):
@@ -100,22 +118,68 @@ def sample_path_us(n: int = 20000) -> float:
                         rt.record(t, ch, i, stamp_us=base + i * 10)
                     rt.poll()
                     frames.append(rt.take_output())
-                reads = [b"".join(frames[k : k + 4]) for k in range(0, n, 4)]
+                reads = [b"".join(frames[k : k + per_read]) for k in range(0, n, per_read)]
+                turns = [(readers[k % boards], data) for k, data in enumerate(reads)]
                 time.sleep(max(0.0, (base + n * 10) / 1e6 - time.monotonic()))
-                path = d.sessions[0].path
-                clamps = (path.host_time_clamps, path.future_clamps)
+                paths = [s.path for s in d.sessions]
+                clamps = sum(p.host_time_clamps + p.future_clamps for p in paths)
                 t0 = time.thread_time()
-                for data in reads:
+                for board, data in turns:
                     board._step(data, time.monotonic_ns(), 0)
                 spent = time.thread_time() - t0
                 # (a clamp is a branch the real stream does not take: not the path measured)
-                assert (path.host_time_clamps, path.future_clamps) == clamps, "frames clamped"
+                assert sum(p.host_time_clamps + p.future_clamps for p in paths) == clamps
             finally:
                 os.kill(proc.pid, signal.SIGCONT)
             return spent / n * 1e6
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def one_frame() -> bytes:
+    rt = BoardRuntime("b", "m", "s", epoch="e")
+    t = Transducer("signal", 0, "counter", "COUNTER", CHANNELS, "int32_t", -1)
+    rt.add_transducer(t)
+    for ch in range(CHANNELS):
+        rt.record(t, ch, 1)
+    rt.poll()
+    return bytes(rt.take_output())
+
+
+def recv_floor_us(n: int = 20000) -> float:
+    """µs for one recv of one update's frame on a loopback TCP socket (the median): what the
+    kernel alone costs per update when each read carries one frame, as with many boards at a
+    low rate each (64 x 100/s: ~1 frame per board per gathering window)."""
+    frame = one_frame()
+    times = []
+    with (
+        socket.create_server(("127.0.0.1", 0)) as srv,
+        socket.create_connection(srv.getsockname()) as tx,
+        srv.accept()[0] as rx,
+    ):
+        for _ in range(n):
+            tx.send(frame)
+            while not select.select([rx], [], [], 1.0)[0]:
+                pass
+            t0 = time.perf_counter_ns()
+            got = rx.recv(65536)
+            times.append(time.perf_counter_ns() - t0)
+            assert got == frame
+    return sorted(times)[n // 2] / 1000
+
+
+def wake_floor_us(n: int = 500, wait_s: float = 0.002) -> float:
+    """CPU µs (this thread's) of one timed wait of the gathering window's length that ends
+    by its timeout: what every round of the I/O loop pays to sleep, before any work."""
+    ep = select.epoll()
+    try:
+        t0 = time.thread_time()
+        for _ in range(n):
+            ep.poll(wait_s)
+        return (time.thread_time() - t0) / n * 1e6
+    finally:
+        ep.close()
 
 
 def start_boards(n: int, rate: float) -> tuple[subprocess.Popen[str], list[str]]:
@@ -202,12 +266,28 @@ def main() -> None:
     a = ap.parse_args()
     bare = bare_decode_us()
     path = sample_path_us()
+    path64 = sample_path_us(64, 1)
+    recv = recv_floor_us()
+    wake = wake_floor_us()
     runs = [(1, 4000.0), (64, 100.0), (16, 1.0), (64, 1.0)]
     if not a.quick:
         busy = [(1, 500.0), (1, 4000.0), (4, 500.0), (16, 500.0), (64, 100.0), (64, 200.0)]
         runs = [*busy, *runs[2:]]
-    print(f"bare J2A frame decode (reference, same run): {bare:.2f} µs per update")
-    print(f"daemon sample path, no I/O (same run): {path:.2f} µs per update ({path / bare:.1f}x)")
+    print("references and floors, measured in this run:")
+    print(f"- bare J2A frame decode: {bare:.2f} µs per update (the reference)")
+    print(
+        f"- daemon sample path, no I/O, 1 board, 4 frames per read: {path:.2f} µs "
+        f"({path / bare:.1f}x)"
+    )
+    print(
+        f"- the same, 64 boards in turn, 1 frame per read: {path64:.2f} µs ({path64 / bare:.1f}x)"
+    )
+    print(f"- one recv of one frame: {recv:.2f} µs ({recv / bare:.1f}x)")
+    print(f"- one 2 ms timed wait, CPU: {wake:.2f} µs ({wake / bare:.1f}x)")
+    print(
+        f"- floor at 64 boards, 1 frame per read (sample path + recv): {path64 + recv:.2f} µs "
+        f"({(path64 + recv) / bare:.1f}x), before any loop work or wake-up"
+    )
     print()
     print(
         "| boards | updates/s asked | received | daemon % of a core | µs per update | x bare "
