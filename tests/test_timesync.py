@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 
 import pytest
 from hypothesis import given, settings
@@ -29,6 +30,7 @@ from missing_link.timesync import (
     AddResult,
     ClockEstimator,
     ClockSync,
+    Estimate,
     Exchange,
     PublishedMap,
     SyncOptions,
@@ -201,18 +203,25 @@ def test_published_map_is_continuous_strictly_increasing_and_slew_limited(seed: 
     assert pm.steps == 1
 
 
+def moving_estimates(count: int, skews: list[float]) -> Iterator[Estimate]:
+    """``count`` estimates, each from its own 12 exchanges, the k-th with the offset 1 ms * k
+    and the skew ``skews[k % len(skews)]``: a map steered by them has a segment per steer."""
+    for k in range(count):
+        est = ClockEstimator()
+        for ex, _, _ in exchanges(1000.0 * k, skews[k % len(skews)], k, 12, spacing_s=0.1):
+            est.add(ex)
+        assert est.estimate is not None
+        yield est.estimate
+
+
 @settings(max_examples=50, deadline=None)
 @given(st.lists(st.integers(0, 3_000_000), min_size=1, max_size=16), st.integers(0, 5))
 def test_published_map_at_many_is_at_for_each_stamp(stamps: list[int], steers: int) -> None:
     """The one-lookup path for an update's stamps gives exactly what at() gives per stamp,
     also when the stamps straddle a segment anchor."""
     pm = PublishedMap(max_slew=500e-6, tau_s=0.5)
-    for k in range(steers + 1):
-        est = ClockEstimator()
-        for ex, _, _ in exchanges(1000.0 * k, 30e-6 * (k % 3), k, 12, spacing_s=0.1):
-            est.add(ex)
-        assert est.estimate is not None
-        pm.steer(est.estimate) if pm.started else pm.start(est.estimate)
+    for est in moving_estimates(steers + 1, [0.0, 30e-6, 60e-6]):
+        pm.steer(est) if pm.started else pm.start(est)
     anchors = pm._anchors
     base, span = anchors[0] - 500_000, anchors[-1] - anchors[0] + 1_000_000
     stamps = [base + s * span // 3_000_000 for s in stamps]  # spread over every segment
@@ -226,13 +235,9 @@ def test_published_map_segment_cache_never_goes_stale(stamps: list[int], steers:
     """The sample path's cached segment (``hot``), filled before each steer, never maps with a
     segment a steer replaced or trimmed: after every steer the cached path equals at()."""
     pm = PublishedMap(max_slew=500e-6, tau_s=0.5, history=4)
-    for k in range(steers + 1):
-        est = ClockEstimator()
-        for ex, _, _ in exchanges(1000.0 * k, 40e-6 * (k % 2), k, 12, spacing_s=0.1):
-            est.add(ex)
-        assert est.estimate is not None
-        pm.steer(est.estimate) if pm.started else pm.start(est.estimate)
-        near = [est.estimate.b_ref + s - 1_000_000 for s in stamps]
+    for est in moving_estimates(steers + 1, [0.0, 40e-6]):
+        pm.steer(est) if pm.started else pm.start(est)
+        near = [est.b_ref + s - 1_000_000 for s in stamps]
         assert pm.at_many(near, min(near), max(near)) == [round(pm.at(b)) for b in near]
         assert pm.hot is not None  # filled: the next steer must drop it
 
