@@ -3,6 +3,7 @@
 with the bus publisher only and one inline subscriber, 8 int32 channels per update.
 
     .venv/bin/python bench/bench_scale.py [--seconds 5] [--quick]
+    .venv/bin/python bench/bench_scale.py --knee     # where one core stops keeping up
 
 Per scenario: the daemon's CPU (getrusage of this process) per update and in % of a core, the
 same in multiples of the bare J2A frame decode of the same frames (the reference, measured in the
@@ -18,7 +19,13 @@ handed to connected boards' reading steps, no I/O and no waiting: 1 board with 4
 and 64 boards in turn with 1 frame per read, as at 64 x 100/s), which shows how much of the
 end-to-end cost is the loop's waking and reading rather than the per-update work; one recv of one
 frame from a loopback socket (each update pays it when every read carries one frame); and the
-CPU of one timed 2 ms wait (each round of the loop pays it)."""
+CPU of one timed 2 ms wait (each round of the loop pays it).
+
+``--knee``: only where one core stops keeping up.  The daemon (this process, every thread) is
+pinned to one CPU and 64 boards come from ``_blaster.py`` on the other (``board --count`` cannot
+make enough); the rate per board rises until fewer updates arrive than were asked, one is lost,
+or latency p99 passes 100 ms.  The board process's own CPU is shown, so a row where it, not the
+daemon, was the limit would be seen."""
 
 from __future__ import annotations
 
@@ -48,6 +55,12 @@ CHANNELS = 8
 def cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
+
+
+def proc_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) another process has used so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def rss_kib() -> int:
@@ -182,9 +195,19 @@ def wake_floor_us(n: int = 500, wait_s: float = 0.002) -> float:
         ep.close()
 
 
-def start_boards(n: int, rate: float) -> tuple[subprocess.Popen[str], list[str]]:
-    cmd = [sys.executable, "-m", "missing_link", "board", "--sim", "rate", "--count", str(n)]
-    cmd += ["--rate", str(rate), "--channels", str(CHANNELS), "--listen", "tcp://127.0.0.1:0"]
+def start_boards(
+    n: int, rate: float, blaster_cpu: int | None = None
+) -> tuple[subprocess.Popen[str], list[str]]:
+    """``n`` virtual rate boards in one other process: ``board --count`` (a runtime pass per
+    sample, ~13,000-16,000 updates/s at most here), or with ``blaster_cpu`` the load generator
+    ``_blaster.py`` on that CPU (the same runtime for the handshake and calls, samples framed
+    in bulk: far more than one daemon core takes)."""
+    if blaster_cpu is None:
+        cmd = [sys.executable, "-m", "missing_link", "board", "--sim", "rate", "--count", str(n)]
+        cmd += ["--rate", str(rate), "--channels", str(CHANNELS), "--listen", "tcp://127.0.0.1:0"]
+    else:
+        cmd = [sys.executable, str(Path(__file__).with_name("_blaster.py")), "--count", str(n)]
+        cmd += ["--rate", str(rate), "--channels", str(CHANNELS), "--cpu", str(blaster_cpu)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     urls = [proc.stdout.readline().split()[1] for _ in range(n)]
@@ -214,8 +237,10 @@ class Watch:
                 self.lat.append(time.monotonic_ns() / 1000 - u.board_us[0])
 
 
-def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
-    proc, urls = start_boards(n, rate)
+def scenario(
+    n: int, rate: float, seconds: float, blaster_cpu: int | None = None
+) -> dict[str, float]:
+    proc, urls = start_boards(n, rate, blaster_cpu)
     try:
         rss0 = rss_kib()
         cfg = Config(boards=[BoardSpec(u) for u in urls], publishers=["bus"])
@@ -228,9 +253,9 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
             with w.lock:
                 w.gaps, w.lat, c0 = 0, [], w.count
             lost0 = sum(s["lost_sifs"] for s in d.status())
-            cpu0, t0 = cpu_s(), time.monotonic()
+            cpu0, t0, boards0 = cpu_s(), time.monotonic(), proc_cpu_s(proc.pid)
             time.sleep(seconds)
-            cpu1, t1 = cpu_s(), time.monotonic()
+            cpu1, t1, boards1 = cpu_s(), time.monotonic(), proc_cpu_s(proc.pid)
             with w.lock:
                 updates, gaps, lat = w.count - c0, w.gaps, sorted(w.lat)
             status = d.status()
@@ -242,13 +267,17 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
         proc.wait(10)
     wall = t1 - t0
     cpu = cpu1 - cpu0
-    pct = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] if lat else float("nan")  # noqa: E731
+
+    def pct(q: float) -> float:
+        return lat[min(len(lat) - 1, int(q * len(lat)))] if lat else float("nan")
+
     return {
         "boards": n,
         "rate": rate,
         "updates_s": updates / wall,
         "asked_s": n * rate,
         "core_pct": cpu / wall * 100,
+        "boards_core_pct": (boards1 - boards0) / wall * 100,  # the board process's
         "us_per_update": cpu / max(1, updates) * 1e6,
         "p50": pct(0.5),
         "p99": pct(0.99),
@@ -259,11 +288,67 @@ def scenario(n: int, rate: float, seconds: float) -> dict[str, float]:
     }
 
 
+KNEE_RATES = (100.0, 400.0, 800.0, 1200.0, 1600.0, 2000.0, 2500.0)
+
+
+def knee(seconds: float) -> None:
+    """64 boards from the load generator on one CPU, the daemon (this process, every thread)
+    on another, the rate per board raised until the daemon's one core no longer keeps up: less
+    received than asked, a lost update, or latency p99 over 100 ms (a backlog growing)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        sys.exit("bench_scale: --knee needs two CPUs (the daemon on one, the boards on another)")
+    os.sched_setaffinity(0, {cpus[0]})  # threads started from now on inherit it
+    bare = bare_decode_us()
+    print(f"bare J2A frame decode (reference, same run): {bare:.2f} µs per update")
+    print(f"daemon on CPU {cpus[0]} only; 64 boards from bench/_blaster.py on CPU {cpus[1]}")
+    print()
+    print(
+        "| updates/s asked | received | daemon % of its core | µs per update | x bare decode | "
+        "latency p50 / p99 ms | lost (numbered / counted) | board process % of its core | "
+        "keeps up |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    best = 0.0
+    kept = 0.0
+    for rate in KNEE_RATES:
+        r = scenario(64, rate, seconds, blaster_cpu=cpus[1])
+        ok = (
+            r["updates_s"] >= 0.99 * r["asked_s"]
+            and r["lost"] == 0
+            and r["lost_counted"] == 0
+            and r["p99"] < 100_000
+        )
+        best = max(best, r["updates_s"])
+        if ok:
+            kept = r["updates_s"]
+        print(
+            f"| {r['asked_s']:,.0f} | {r['updates_s']:,.0f} | {r['core_pct']:.1f} | "
+            f"{r['us_per_update']:.1f} | {r['us_per_update'] / bare:.1f} | {r['p50'] / 1000:.2f} / "
+            f"{r['p99'] / 1000:.2f} | {r['lost']} / {r['lost_counted']} | "
+            f"{r['boards_core_pct']:.0f} | {'yes' if ok else 'no'} |",
+            flush=True,
+        )
+        if not ok:
+            break
+    print()
+    print(
+        f"knee: {kept:,.0f} updates/s kept up with on one core; at most {best:,.0f}/s received "
+        f"past it (64 boards, {CHANNELS} channels per update)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--quick", action="store_true", help="fewer scenarios")
+    ap.add_argument(
+        "--knee", action="store_true", help="only: 64 boards, the daemon on one core, rising rates"
+    )
     a = ap.parse_args()
+    if a.knee:
+        knee(a.seconds)
+        return
     bare = bare_decode_us()
     path = sample_path_us()
     path64 = sample_path_us(64, 1)
