@@ -23,6 +23,7 @@ import select
 import signal
 import socket
 import struct
+import sys
 import time
 
 from missing_link.j2a import SOS, encode_frame
@@ -50,10 +51,9 @@ class Board:
         return f"tcp://127.0.0.1:{self.listener.getsockname()[1]}"
 
     def accept(self, now_us: int) -> None:
+        # (one host at a time, like every virtual board: the listener is not watched while a
+        # host is connected, so a second one waits in the backlog)
         conn, _ = self.listener.accept()
-        if self.conn is not None:  # one host at a time, like every virtual board
-            conn.close()
-            return
         conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.conn, self.out = conn, bytearray()
@@ -142,6 +142,9 @@ def main() -> None:
             if b.conn is not None:
                 b.make_samples(now_us)
                 b.flush()
+    dropped = sum(b.dropped for b in boards)
+    if dropped:
+        print(f"_blaster: {dropped} samples dropped (a host did not read)", file=sys.stderr)
     for b in boards:
         if b.conn is not None:
             b.conn.close()
