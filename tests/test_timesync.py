@@ -225,7 +225,7 @@ def test_published_map_at_many_is_at_for_each_stamp(stamps: list[int], steers: i
     anchors = pm._anchors
     base, span = anchors[0] - 500_000, anchors[-1] - anchors[0] + 1_000_000
     stamps = [base + s * span // 3_000_000 for s in stamps]  # spread over every segment
-    got = pm.at_many(stamps, min(stamps), max(stamps))
+    got = pm.at_many(stamps, min(stamps), pm.segment(max(stamps)))
     assert got == [round(pm.at(b)) for b in stamps]
 
 
@@ -238,7 +238,8 @@ def test_published_map_segment_cache_never_goes_stale(stamps: list[int], steers:
     for est in moving_estimates(steers + 1, [0.0, 40e-6]):
         pm.steer(est) if pm.started else pm.start(est)
         near = [est.b_ref + s - 1_000_000 for s in stamps]
-        assert pm.at_many(near, min(near), max(near)) == [round(pm.at(b)) for b in near]
+        got = pm.at_many(near, min(near), pm.segment(max(near)))
+        assert got == [round(pm.at(b)) for b in near]
         assert pm.hot is not None  # filled: the next steer must drop it
 
 

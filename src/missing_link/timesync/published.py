@@ -111,7 +111,11 @@ class PublishedMap:
     def segment(self, board_us: int) -> tuple[float, float, int, float, float]:
         """The segment that maps ``board_us``, as (from, until, b0, h0, rate): it maps every
         board time in [from, until) as ``h0 + (b - b0) * rate`` (the first one also maps times
-        before it, the last one times after it).  Remembered as ``hot``."""
+        before it, the last one times after it).  The sample path asks for the same one for
+        seconds: the last one found is kept (``hot``) until the segments change."""
+        hot = self.hot
+        if hot is not None and hot[0] <= board_us < hot[1]:
+            return hot
         anchors = self._anchors
         i = max(bisect_right(anchors, board_us) - 1, 0)
         start = anchors[i] if i > 0 else -math.inf
@@ -120,14 +124,18 @@ class PublishedMap:
         self.hot = hot = (start, until, b0, h0, rate)
         return hot
 
-    def at_many(self, stamps: Sequence[int], lo: int, hi: int, offset_ns: int = 0) -> list[int]:
-        """Published host ns (rounded, plus ``offset_ns``) for the stamps of one update,
-        ``lo``/``hi`` their smallest and largest: one segment for all when they share one
-        (almost always: they were taken within one sample period), else ``at`` per stamp."""
-        hot = self.hot
-        if hot is None or not hot[0] <= hi < hot[1]:
-            hot = self.segment(hi)
-        start, _, b0, h0, rate = hot
+    def at_many(
+        self,
+        stamps: Sequence[int],
+        lo: int,
+        seg: tuple[float, float, int, float, float],
+        offset_ns: int = 0,
+    ) -> list[int]:
+        """Published host ns (rounded, plus ``offset_ns``) for the stamps of one update: ``lo``
+        their smallest, ``seg`` the segment of their largest (``segment``).  One segment for all
+        when they share it (almost always: they were taken within one sample period), else
+        ``at`` per stamp."""
+        start, _, b0, h0, rate = seg
         if lo < start:  # the update spans an anchor
             return [round(self.at(b)) + offset_ns for b in stamps]
         return [round(h0 + (b - b0) * rate) + offset_ns for b in stamps]

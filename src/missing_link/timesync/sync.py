@@ -309,14 +309,10 @@ class ClockSync:
                 )  # fmt: skip
             _, b_ref, h_ref, e_rate, lo_ns, hi_ns, widen_per_us, sigma2 = c
             pm = self._map
-            # unrounded, for the future check and the bound: pm.at(newest) on the segment the
-            # previous updates used, while it still holds (a lookup otherwise)
-            hot = pm.hot
-            if hot is None or not hot[0] <= newest < hot[1]:
-                if not pm.started:
-                    return None
-                hot = pm.segment(newest)
-            h = hot[3] + (newest - hot[2]) * hot[4]
+            if not pm.started:
+                return None
+            seg = pm.segment(newest)
+            h = seg[3] + (newest - seg[2]) * seg[4]  # pm.at(newest), unrounded: checks, bound
             last = pm.newest_mapped
             if last is not None and newest < last - o.reset_backstep_us:
                 consistent = self._suspects and 0 <= newest - self._suspect_last <= o.glitch_us
@@ -331,7 +327,7 @@ class ClockSync:
                 self._suspects = 0
                 if last is None or newest > last:
                     pm.newest_mapped = newest
-                hosts = pm.at_many(board_us, min(board_us), newest, offset_ns)
+                hosts = pm.at_many(board_us, min(board_us), seg, offset_ns)
                 flags = 0
                 if self._step_pending:
                     flags = STEP
