@@ -262,10 +262,12 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
 
 @pytest.mark.skipif(sys.platform != "linux", reason="a pty")
 def test_serial_reads_are_stamped_when_the_driver_counted_the_bytes() -> None:
-    """Over a serial port (here a pty), t4 is taken when the driver reported the bytes waiting,
-    before pyserial's read (a select and a read in Python), and after they were written."""
+    """Over a serial port (here a pty), while a clock exchange is in flight, t4 is taken when
+    the driver reported the bytes waiting, before pyserial's read (a select and a read in
+    Python), and after they were written."""
     master, slave = os.openpty()
     t = open_transport(f"serial://{os.ttyname(slave)}")
+    t.count_arrivals = True
     port = t.port  # type: ignore[attr-defined]
     plain_read = port.read
     read_started: list[int] = []

@@ -267,11 +267,7 @@ class Board:
         one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
         time on the wire is known (0: not a byte-serial link, or unknown)."""
         name = self._clock_function()
-        self.transport.count_arrivals = True
-        try:
-            return self._exchange(name, self.call(name, b"", timeout), byte_ns)
-        finally:
-            self.transport.count_arrivals = False
+        return self._exchange(name, self._wait(self._clock_call(name, timeout), timeout), byte_ns)
 
     def clock_exchange_async(
         self,
@@ -286,7 +282,6 @@ class Board:
         name = self._clock_function()
 
         def done(fut: Future[CallResult]) -> None:
-            self.transport.count_arrivals = False
             try:
                 got: Exchange | BaseException = self._exchange(name, fut.result(), byte_ns)
             except MissingLinkError as e:
@@ -296,13 +291,22 @@ class Board:
             except Exception:
                 log.exception("%s: clock exchange callback failed", self.url)
 
+        self._clock_call(name, timeout).add_done_callback(done)
+
+    def _clock_call(self, name: str, timeout: float | None) -> Future[CallResult]:
+        """The clock request, with the transport counting arrivals (a tighter t4) from before
+        the request is written until its reply, error or timeout resolves it."""
         self.transport.count_arrivals = True
         try:
             fut = self.call_future(name, b"", timeout)
         except BaseException:
             self.transport.count_arrivals = False
             raise
-        fut.add_done_callback(done)
+        fut.add_done_callback(self._stop_counting)  # (first: before the caller's callbacks)
+        return fut
+
+    def _stop_counting(self, _fut: Future[CallResult]) -> None:
+        self.transport.count_arrivals = False
 
     def _clock_function(self) -> str:
         return "a2jClock" if "a2jClock" in self.index else "getTime"

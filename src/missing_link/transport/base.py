@@ -39,7 +39,7 @@ class Transport(ABC):
     #: board's shell stamps t2 at); 0 when the transport does not stamp
     last_rx_ns: int = 0
     #: set by ``_recv`` when it knows an earlier time by which every byte it read had arrived
-    #: (the kernel's receive stamp; the moment the driver counted them), for ``last_rx_ns``
+    #: (TCP: the kernel's receive stamp), for ``last_rx_ns``
     arrived_ns: int = 0
     #: set by the board while a clock exchange is in flight: the reader then counts the bytes
     #: waiting the moment its wait returns (``count_arrived``), for a tighter t4
@@ -167,8 +167,8 @@ class FdTransport(Transport):
             # than the request (measured: 10 µs "round trips", clock-sync bounds broken).
             now = time.monotonic_ns()
             # An earlier stamp by which every byte of this read had arrived (TCP: the kernel's
-            # stamp of the last segment; a serial port: when the driver counted the bytes) is
-            # tighter and still valid; never trust it beyond our own stamp.
+            # stamp of the last segment; else when count_arrived counted the bytes) is tighter
+            # and still valid; never trust it beyond our own stamp.
             arrived = self.arrived_ns
             if counted is not None and (arrived <= 0 or counted[1] < arrived):
                 arrived = counted[1]  # (the read took at most the bytes counted then)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from urllib.parse import unquote, urlsplit
 
 import serial
@@ -20,12 +19,7 @@ class SerialTransport(FdTransport):
 
     def _recv(self, n: int) -> bytes:
         try:
-            waiting = self.port.in_waiting  # (an ioctl: the bytes the driver holds by now)
-            if 0 < waiting <= n:
-                # Every byte read below had arrived by now: clock sync's t4 without pyserial's
-                # read (a select and a read in Python), which the return trip would carry.
-                self.arrived_ns = time.monotonic_ns()
-            data: bytes = self.port.read(max(1, min(n, waiting)))
+            data: bytes = self.port.read(max(1, min(n, self.port.in_waiting)))
         except serial.SerialException as e:
             # pyserial says "device reports readiness to read but returned no data" when the
             # other end of a pty or an unplugged USB serial device is gone.
