@@ -118,8 +118,6 @@ class ClockSync:
         self._far_ex: Exchange | None = None  # an exchange far from the map, awaiting a second
         self._suspects = 0  # samples in a row stamped far behind the newest mapped
         self._suspect_last = 0
-        # the estimate the sample path last used, with what it needs from it (map_many)
-        self._est_consts: tuple[Any, ...] = (None,)
         self.last_rtt_ns: int | None = None
         self.min_rtt_ns: int | None = None
         self.last_error_ns = 0.0  # published - estimate at the last steer
@@ -299,17 +297,8 @@ class ClockSync:
         o = self.opt
         with self._lock:
             est = self.estimator.estimate
-            if est is None:
-                return None
-            c = self._est_consts
-            if c[0] is not est:  # a new estimate: what the bound needs from it, once
-                c = self._est_consts = (
-                    est, est.b_ref, est.h_ref, est.rate, est.lo_ns, est.hi_ns,
-                    est.dskew * 1000.0, est.sigma_ns**2,
-                )  # fmt: skip
-            _, b_ref, h_ref, e_rate, lo_ns, hi_ns, widen_per_us, sigma2 = c
             pm = self._map
-            if not pm.started:
+            if est is None or not pm.started:
                 return None
             seg = pm.segment(newest)
             h = seg[3] + (newest - seg[2]) * seg[4]  # pm.at(newest), unrounded: checks, bound
@@ -334,10 +323,12 @@ class ClockSync:
                     self._step_pending = False
                 # The hard band at the newest stamp (est.interval, inlined: this runs per
                 # update) and how far the published map is from the estimate there.
-                d = newest - b_ref
-                dev = h - (h_ref + d * e_rate)
-                bound = math.ceil(max(dev - lo_ns, hi_ns - dev) + abs(d) * widen_per_us)
-                return hosts, round(math.sqrt(sigma2 + dev * dev)), bound, flags
+                d = newest - est.b_ref
+                dev = h - (est.h_ref + d * est.rate)
+                widen = abs(d) * 1000.0 * est.dskew
+                bound = math.ceil(max(dev - est.lo_ns, est.hi_ns - dev) + widen)
+                sigma = est.sigma_ns
+                return hosts, round(math.sqrt(sigma * sigma + dev * dev)), bound, flags
         # a reset, or an outlier: probe at once to confirm or refute
         if reset:
             self._enter(BURST, now or 0.0)
