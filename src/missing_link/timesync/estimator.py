@@ -292,8 +292,10 @@ class ClockEstimator:
 
         span_s = (t3.max() - t2.min()) / 1e6
         dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
-        lo = float((rl - k * xl - dk * np.abs(xl)).max())
-        hi = float((ru - k * xu + dk * np.abs(xu)).min())
+        # each constraint moved to b_ref along the fitted skew, and its distance from b_ref
+        at_l, at_u, ax_l, ax_u = rl - k * xl, ru - k * xu, np.abs(xl), np.abs(xu)
+        lo = float((at_l - dk * ax_l).max())
+        hi = float((at_u + dk * ax_u).min())
         # Offset: the middle between each side's tightest constraint.  Each side is set by its
         # own tightest exchanges, so a link whose two directions are slow at different times
         # (a host busy with samples when the reply arrives) does not bias it, as a midpoint
@@ -304,10 +306,7 @@ class ClockEstimator:
         # 8.0/7.3 -> 5.8/6.3 µs, worst max 25.8/28.4 -> 17.0/21.3 µs; simulated USB and FTDI
         # worst max 233/281 -> 158/231 µs.
         sk = (kmax - kmin) / 4.0 if consistent else 0.0
-        c = (
-            float((rl - k * xl - sk * np.abs(xl)).max())
-            + float((ru - k * xu + sk * np.abs(xu)).min())
-        ) / 2.0
+        c = (float((at_l - sk * ax_l).max()) + float((at_u + sk * ax_u).min())) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0
