@@ -8,7 +8,7 @@ handshake, descriptors, clock exchanges and every call are answered by it.  Only
 made here instead of by its driver: a counter per board at an exact rate, stamped with the
 board clock (the host's CLOCK_MONOTONIC, as for every virtual board) at its scheduled time, and
 framed by the host's J2A encoder (C-level bytes work) rather than the runtime's byte-at-a-time
-one.  The runtime's SIF numbering (seq, ``a2jSifCount``) advances with every sample made.
+one.  The runtime numbers every sample made (``next_sif_seq``: the seq and ``a2jSifCount``).
 
 ``board --sim rate --count N`` tops out at ~13,000-16,000 updates/s here (a thread and a
 runtime pass per sample); this makes well over 100,000/s on one core.  Like a real board, when
@@ -82,9 +82,7 @@ class Board:
         for i in range(self.made, due):
             n = (i + 1) & 0x7FFFFFFF
             stamp = self.start_us + int(i * period_us)
-            seq = rt._sif_seq
-            rt._sif_seq = (seq + 1) & 0xFF
-            rt._sif_total += 1
+            seq = rt.next_sif_seq()
             if len(self.out) > QUEUE_LIMIT:
                 self.dropped += 1  # (the host sees the gap in the seq)
                 continue

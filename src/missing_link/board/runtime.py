@@ -268,11 +268,17 @@ class BoardRuntime:
         transducer._pending[channel] = (now, value)
         transducer._dirty = True
 
+    def next_sif_seq(self):
+        # The next SIF's seq, counted as sent since boot (a2jSifCount): for this runtime's own
+        # SIFs, and for a shell that frames samples itself (bench/_blaster.py).
+        seq = self._sif_seq
+        self._sif_seq = (seq + 1) & 0xFF
+        self._sif_total += 1
+        return seq
+
     def _queue_sif(self, transducer, now):
         payload = transducer.encode_sif(now)
-        frame = encode_frame(SOS, self._sif_seq, transducer.tid, payload)
-        self._sif_seq = (self._sif_seq + 1) & 0xFF
-        self._sif_total += 1
+        frame = encode_frame(SOS, self.next_sif_seq(), transducer.tid, payload)
         if len(self._sifs) >= SIF_QUEUE_LIMIT:
             self._sifs.pop(0)
             self.sifs_dropped += 1
