@@ -13,7 +13,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from missing_link.board.dtypes import DTYPES
 from missing_link.descriptors import Transducer, parse_transds
-from missing_link.msgs import (
+from missing_link.ros.msgs import (
     ROS_TYPES,
     CdrEncoder,
     msg_name,

@@ -157,8 +157,8 @@ def test_three_processes_through_a_router(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("distro", ["humble", "kilted"])
 def test_distro_sets_the_type_hash_slot(distro: str) -> None:
-    from missing_link.msgs import typestore_for
     from missing_link.publishers.zenoh import type_hash
+    from missing_link.ros.msgs import typestore_for
 
     ts = typestore_for(distro)
     h = type_hash(ts, "sensor_msgs/msg/Range", distro)

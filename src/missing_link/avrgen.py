@@ -15,7 +15,7 @@ from .board.drivers import driver_class
 from .board.dtypes import DTYPES
 from .board.firmware import describe
 from .boardfile import BoardFile
-from .config import ConfigError
+from .errors import ConfigError
 
 
 #: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo)

@@ -11,13 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .msgs import DISTROS, check_package
+from .errors import ConfigError
+from .ros.msgs import DISTROS, check_package
 from .text import is_token
 from .topics import check_topic
-
-
-class ConfigError(ValueError):
-    """The configuration is invalid (the user's input): the message says where and why."""
 
 
 @dataclass

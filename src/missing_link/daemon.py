@@ -36,15 +36,15 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from .config import BoardSpec, Config, ConfigError
+from .config import BoardSpec, Config
 from .descriptors import Transducer, load_descriptor_file
 from .discovery import DiscoveryService, Enumerator, all_ports
-from .errors import BadURL, BoardError, MissingLinkError
-from .msgs import msg_name, msgdef, type_name, typestore_for
+from .errors import BadURL, BoardError, ConfigError, MissingLinkError
 from .publishers import Bus, Publisher, make_publisher
 from .publishers.base import PublisherError
 from .publishers.bus import Callback, Subscription
 from .reactor import Reactor
+from .ros.msgs import msg_name, msgdef, type_name, typestore_for
 from .session import UP, BoardSession
 from .topics import Topic, Update
 from .transport import check_url

@@ -23,6 +23,11 @@ class BadURL(MissingLinkError, ValueError):
     """A board URL cannot be understood (the caller's input)."""
 
 
+class ConfigError(ValueError):
+    """A configuration, board file or option is invalid (the user's input): the message says
+    where and why."""
+
+
 class BoardError(MissingLinkError):
     """Something went wrong talking to a board; ``board`` names it."""
 

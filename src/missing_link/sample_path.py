@@ -31,7 +31,7 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from .j2a import SifReceived
-from .standard import StandardMapping
+from .ros.standard import StandardMapping
 from .timesync import NOT_SYNCED, OUTLIER
 from .topics import Topic, Update
 

@@ -49,8 +49,8 @@ from .config import BoardSpec
 from .descriptors import Transducer, load_descriptor_file
 from .errors import BoardError, MissingLinkError
 from .prober import ClockProber
+from .ros.standard import StandardMapping, mapping_for
 from .sample_path import SamplePath
-from .standard import StandardMapping, mapping_for
 from .text import slug
 from .timesync import ClockSync, SyncOptions
 from .topics import Topic, Update

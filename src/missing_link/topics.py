@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .descriptors import Transducer
-from .msgs import CdrEncoder, msgdef, type_name
+from .ros.msgs import CdrEncoder, msgdef, type_name
 
 TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
 

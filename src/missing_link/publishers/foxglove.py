@@ -11,10 +11,10 @@ import logging
 import threading
 from typing import Any
 
-from ..msgs import typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+from ..ros.msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
-from .mcap import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
 
 log = logging.getLogger(__name__)
 

@@ -37,14 +37,13 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError
-from ..msgs import typestore_for
+from ..errors import ConfigError
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+from ..ros.msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError, register_publisher
 
 log = logging.getLogger(__name__)
-DIAG_TOPIC = "/diagnostics"
-DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -259,37 +258,6 @@ def _describe(e: BaseException, base: Path) -> str:
     if isinstance(e, OSError) and e.strerror:
         return f"{e.strerror} ({base})"
     return f"{type(e).__name__}: {e}"
-
-
-def diagnostics_cdr(typestore: Any, status: list[dict[str, Any]], now_ns: int) -> bytes:
-    """Per-board status as a ``diagnostic_msgs/msg/DiagnosticArray`` (CDR)."""
-    ts = typestore
-    T = ts.types
-    sec, nsec = divmod(now_ns, 1_000_000_000)
-    header = T["std_msgs/msg/Header"](
-        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""
-    )
-    Status, KV = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
-    items = []
-    for s in status:
-        level = int(s.get("level", 0 if s.get("state") == "up" else 2))
-        label = (
-            f"missing_link: {s['board']}"
-            if "board" in s
-            else f"missing_link publisher: {s.get('publisher')}"
-        )
-        values = [KV(key=str(k), value=str(v)) for k, v in s.items() if k not in ("board",)]
-        items.append(
-            Status(
-                level=level,
-                name=label,
-                message=str(s.get("message") or s.get("state", "")),
-                hardware_id=str(s.get("serial", "")),
-                values=values,
-            )
-        )
-    msg = T[DIAG_TYPE](header=header, status=items)
-    return bytes(ts.serialize_cdr(msg, DIAG_TYPE))
 
 
 def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:

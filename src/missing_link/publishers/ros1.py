@@ -21,7 +21,8 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
-from ..msgs import ROS_TYPES, typestore_for
+from ..ros.diagnostics import status_label, status_level, status_message
+from ..ros.msgs import ROS_TYPES, typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
@@ -146,11 +147,9 @@ class Ros1Publisher(Publisher):
         for s in status:
             msg.status.append(
                 DS(
-                    level=int(s.get("level", 0 if s.get("state") == "up" else 2)),
-                    name=f"missing_link: {s['board']}"
-                    if "board" in s
-                    else f"missing_link publisher: {s.get('publisher')}",
-                    message=str(s.get("message") or s.get("state", "")),
+                    level=status_level(s),
+                    name=status_label(s),
+                    message=status_message(s),
                     hardware_id=str(s.get("serial", "")),
                     values=[KV(key=str(k), value=str(v)) for k, v in s.items() if k != "board"],
                 )

@@ -35,10 +35,10 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ..msgs import ROS_TYPES, typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+from ..ros.msgs import ROS_TYPES, typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError, register_publisher
-from .mcap import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
 
 log = logging.getLogger(__name__)
 

@@ -30,8 +30,9 @@ from typing import Any
 
 import xxhash
 
-from ..config import ConfigError
-from ..msgs import typestore_for
+from ..errors import ConfigError
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
+from ..ros.msgs import typestore_for
 from ..topics import Topic, Update
 from .base import Publisher, register_publisher
 
@@ -44,8 +45,6 @@ DEFAULT_LISTEN = ["tcp/127.0.0.1:0"]
 #: rmw_zenoh's default.  Reliable (default), volatile written out (2: the default durability
 #: changed from transient-local to volatile in rmw_zenoh PR #521, March 2025), keep last 10.
 QOS = ":2:,10:,:,:,,"
-DIAG_TOPIC = "/diagnostics"
-DIAG_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 
 
 def dds_type(type_name: str) -> str:
@@ -204,8 +203,6 @@ class ZenohPublisher(Publisher):
         self.published += 1
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        from .mcap import diagnostics_cdr
-
         with self._lock:
             if self._closed:
                 return

@@ -21,8 +21,8 @@ import struct
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
-from .descriptors import Transducer
-from .descriptors import msg_name as _camel
+from ..descriptors import Transducer
+from ..descriptors import msg_name as _camel
 
 if TYPE_CHECKING:  # rosbags is only needed where types are registered
     from rosbags.typesys.store import Typestore

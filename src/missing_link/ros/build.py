@@ -19,7 +19,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from .errors import MissingLinkError
+from ..errors import MissingLinkError
 
 
 class BuildError(MissingLinkError):

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .descriptors import Transducer
+from ..descriptors import Transducer
 
 RANGE = "sensor_msgs/msg/Range"
 JOINT_STATE = "sensor_msgs/msg/JointState"
