@@ -21,7 +21,7 @@ from missing_link import (
     open_board,
 )
 from missing_link.j2a import SifReceived
-from missing_link.transport import memory_pair
+from missing_link.transport.memory import memory_pair
 
 Serve = Any
 

@@ -14,8 +14,9 @@ import pytest
 
 from missing_link import BadURL, Board, LinkLost, TransportBroken, TransportClosed, open_board
 from missing_link.board.runtime import BoardRuntime
-from missing_link.transport import SpyTransport, open_transport
+from missing_link.transport import open_transport
 from missing_link.transport import usb as usb_transport
+from missing_link.transport.spy import SpyTransport
 from missing_link.virtual import make_sim
 
 Serve = Any

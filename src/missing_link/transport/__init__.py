@@ -1,18 +1,12 @@
-"""Byte links to boards, opened by URL: tcp, unix, serial, usb, memory; ``spy+`` dumps traffic."""
+"""Byte links to boards, opened by URL: tcp, unix, serial, usb, memory; ``spy+`` dumps traffic.
 
-from . import memory, serialport, sockets, usb  # noqa: F401 - register the URL schemes
-from .base import FdTransport, Transport, check_url, open_transport, register_transport
-from .memory import MemoryListener, MemoryTransport, memory_pair
-from .spy import SpyTransport
+- :mod:`.base` - the :class:`Transport` interface and :class:`FdTransport` (descriptor links)
+- :mod:`.registry` - schemes -> the module that opens them, imported on first use
+- :mod:`.sockets` (tcp, unix), :mod:`.serialport`, :mod:`.usb` (original 2014 boards),
+  :mod:`.memory` (in-process), :mod:`.spy` (hex dump of any of them)
+"""
 
-__all__ = [
-    "FdTransport",
-    "MemoryListener",
-    "MemoryTransport",
-    "SpyTransport",
-    "Transport",
-    "check_url",
-    "memory_pair",
-    "open_transport",
-    "register_transport",
-]
+from .base import FdTransport, Transport
+from .registry import check_url, open_transport, register_transport
+
+__all__ = ["FdTransport", "Transport", "check_url", "open_transport", "register_transport"]

@@ -1,4 +1,5 @@
-"""The transport interface and the URL registry (one bus interface, plugins by name)."""
+"""The transport interface: a byte link to one board, and the base of every link that is a file
+descriptor (socket, pty, serial port).  URLs are resolved by :mod:`.registry`."""
 
 from __future__ import annotations
 
@@ -10,11 +11,8 @@ import termios
 import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
-from importlib.metadata import entry_points
-from urllib.parse import parse_qs, urlsplit
 
-from ..errors import BadURL, TransportBroken, TransportClosed
+from ..errors import TransportBroken, TransportClosed
 
 
 class Transport(ABC):
@@ -193,60 +191,3 @@ class FdTransport(Transport):
             except (OSError, ValueError) as e:
                 self._check()
                 raise TransportBroken(f"{self.url}: write failed: {e}") from e
-
-
-Factory = Callable[[str, dict[str, str]], Transport]
-_REGISTRY: dict[str, Factory] = {}
-
-
-def register_transport(scheme: str, factory: Factory) -> None:
-    """Make ``scheme://`` URLs open with ``factory(url, query)``."""
-    _REGISTRY[scheme] = factory
-
-
-def query_dict(url: str) -> dict[str, str]:
-    q = parse_qs(urlsplit(url).query, keep_blank_values=True)
-    return {k: v[-1] for k, v in q.items()}
-
-
-def check_url(url: str) -> str:
-    """The URL's scheme if a transport for it exists; ``BadURL`` (a usage error) otherwise.
-    Errors that retrying cannot fix are found here, before any connection attempt."""
-    if url.startswith("spy+"):
-        return check_url(url[4:])
-    scheme = url.split("://", 1)[0] if "://" in url else ""
-    if not scheme:
-        raise BadURL(
-            f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)"
-        )
-    if scheme not in _REGISTRY and not any(
-        ep.name == scheme for ep in entry_points(group="missing_link.transports")
-    ):
-        known = ", ".join(sorted(_REGISTRY))
-        raise BadURL(f"{url!r}: unknown transport {scheme!r} (known: {known}, and spy+ prefix)")
-    return scheme
-
-
-def open_transport(url: str) -> Transport:
-    """Open a board link by URL: ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
-    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to dump traffic."""
-    if url.startswith("spy+"):
-        from .spy import SpyTransport
-
-        return SpyTransport(open_transport(url[4:]))
-    scheme = url.split("://", 1)[0] if "://" in url else ""
-    if not scheme:
-        raise BadURL(
-            f"{url!r} is not a board URL (expected e.g. tcp://HOST:PORT or serial:///dev/X)"
-        )
-    factory = _REGISTRY.get(scheme)
-    if factory is None:
-        for ep in entry_points(group="missing_link.transports"):
-            if ep.name == scheme:
-                factory = ep.load()
-                register_transport(scheme, factory)
-                break
-    if factory is None:
-        known = ", ".join(sorted(_REGISTRY))
-        raise BadURL(f"{url!r}: unknown transport {scheme!r} (known: {known}, and spy+ prefix)")
-    return factory(url, query_dict(url))

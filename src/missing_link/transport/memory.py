@@ -11,7 +11,7 @@ from collections import deque
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, TransportBroken, TransportClosed
-from .base import Transport, register_transport
+from .base import Transport
 
 
 class _Pipe:
@@ -120,6 +120,3 @@ class MemoryListener:
 
 def open_memory(url: str, query: dict[str, str]) -> MemoryTransport:
     return MemoryListener.connect(url)
-
-
-register_transport("memory", open_memory)

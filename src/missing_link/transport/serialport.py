@@ -7,7 +7,7 @@ from urllib.parse import unquote, urlsplit
 import serial
 
 from ..errors import BadURL, TransportBroken
-from .base import FdTransport, register_transport
+from .base import FdTransport
 
 DEFAULT_BAUD = 115200
 
@@ -51,6 +51,3 @@ def open_serial(url: str, query: dict[str, str]) -> SerialTransport:
     # Whatever the board sent before we opened the port (samples nobody read) is stale.
     port.reset_input_buffer()
     return SerialTransport(url, port)
-
-
-register_transport("serial", open_serial)

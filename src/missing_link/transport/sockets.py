@@ -9,7 +9,7 @@ import time
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, TransportBroken
-from .base import FdTransport, register_transport
+from .base import FdTransport
 
 CONNECT_TIMEOUT = 5.0
 
@@ -103,7 +103,3 @@ def open_unix(url: str, query: dict[str, str]) -> SocketTransport:
         sock.close()
         raise TransportBroken(f"{url}: cannot connect: {e}") from e
     return SocketTransport(url, sock)
-
-
-register_transport("tcp", open_tcp)
-register_transport("unix", open_unix)

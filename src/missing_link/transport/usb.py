@@ -15,7 +15,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, TransportBroken, TransportClosed
-from .base import Transport, register_transport
+from .base import Transport
 
 J2A_CLASS = (0xFF, 0x12, 0xEF)
 EP_IN = 0x81
@@ -167,6 +167,3 @@ def usb_serial(dev: Any) -> str | None:
         return str(dev.serial_number) if dev.serial_number is not None else None
     except Exception:  # noqa: BLE001 - string descriptors need permissions some users lack
         return None
-
-
-register_transport("usb", open_usb)
