@@ -39,11 +39,11 @@ from typing import Any
 import numpy as np
 
 import replay_timesync  # (bench/, next to this file)
-from missing_link.client import Board
 from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
 from missing_link.demo import start_board_process, stop_process
 from missing_link.errors import CallTimeout
+from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
 from missing_link.timesync import sim
 from missing_link.topics import Update

@@ -19,11 +19,11 @@ from typing import Any
 import pytest
 from rosbags.highlevel import AnyReader
 
-from missing_link.client import Board
 from missing_link.config import BoardSpec, Config, ConfigError, parse_config
 from missing_link.daemon import Daemon
 from missing_link.errors import BoardError, CallError, DescriptorError
 from missing_link.faults import FaultRelay, Faults
+from missing_link.host.board import Board
 from missing_link.timesync import OUTLIER
 from missing_link.topics import Update
 from missing_link.virtual import make_sim

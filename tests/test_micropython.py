@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.client import Board
+from missing_link.host.board import Board
 from missing_link.j2a import Frame, FrameDecoder, FrameKind
 
 from .helpers import HexLinePipe

@@ -25,7 +25,8 @@ import pytest
 from mcap.reader import make_reader
 
 import missing_link
-from missing_link.client import AsyncBoard, Board
+from missing_link.host.aio import AsyncBoard
+from missing_link.host.board import Board
 from missing_link.virtual import make_sim
 
 from .helpers import free_port

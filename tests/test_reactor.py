@@ -13,12 +13,12 @@ from typing import Any
 
 import pytest
 
-from missing_link.client import Board
 from missing_link.config import BoardSpec
 from missing_link.errors import CallTimeout
+from missing_link.host.board import Board
+from missing_link.host.reactor import Reactor
 from missing_link.j2a import SifReceived
 from missing_link.prober import ClockProber
-from missing_link.reactor import Reactor
 from missing_link.timesync import ClockSync, Exchange, SyncOptions
 from missing_link.timesync.sync import BURST, TRACKING
 from missing_link.transport import open_transport

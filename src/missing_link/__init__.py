@@ -7,29 +7,89 @@ Two lines give an application its boards, every transducer a topic::
     robot.subscribe("/thesis/dist_ir", print)
 
 or one board, its functions by name: ``board = missing_link.open_board(url)``.
+
+The house, from the ground up (each room imports only from rooms below it):
+
+- core: :mod:`.errors`, :mod:`.text`, :mod:`.descriptors`, :mod:`.j2a` (the wire),
+  :mod:`.timesync` (clock sync), :mod:`.board` (the board runtime, also on MicroPython);
+- :mod:`.transport` (bytes by URL), :mod:`.ros` (ROS vocabulary without I/O);
+- :mod:`.host` (one board from the host: link, reactor, ``Board``, ``AsyncBoard``),
+  :mod:`.topics` (what the daemon hands publishers);
+- :mod:`.publishers` (bus, MCAP, Zenoh, ROS 2, ROS 1, Foxglove, console);
+- :mod:`.daemon` (many boards -> topics);
+- :mod:`.virtual` (simulated boards, links, clocks), :mod:`.deploy` (board files, flashing);
+- :mod:`.cli` (the ``missing-link`` command).
+
+Each public name is imported on first use, so ``import missing_link`` costs next to nothing and
+a one-off ``missing-link call`` loads only what it uses.
 """
 
-from .client import AsyncBoard, Board, CallResult, open_board, open_board_async
-from .daemon import Daemon, connect
-from .descriptors import Transducer, parse_transds
-from .errors import (
-    BadURL,
-    BoardError,
-    CallError,
-    CallTimeout,
-    DescriptorError,
-    FunctionFailed,
-    LinkLost,
-    MissingLinkError,
-    TransportBroken,
-    TransportClosed,
-    TransportError,
-    UnknownFunction,
-)
-from .samples import Sample, SampleDecoder
-from .transport import Transport, open_transport
+from __future__ import annotations
 
-__version__ = "0.1.0"
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # (for type checkers and readers; at run time see __getattr__)
+    from .daemon import Daemon, connect
+    from .descriptors import Transducer, parse_transds
+    from .errors import (
+        BadURL,
+        BoardError,
+        CallError,
+        CallTimeout,
+        ConfigError,
+        DescriptorError,
+        FunctionFailed,
+        LinkLost,
+        MissingLinkError,
+        TransportBroken,
+        TransportClosed,
+        TransportError,
+        UnknownFunction,
+    )
+    from .host.aio import AsyncBoard, open_board_async
+    from .host.board import Board, open_board
+    from .host.link import CallResult
+    from .host.samples import Sample, SampleDecoder
+    from .transport.base import Transport
+    from .transport.registry import open_transport
+    from .version import __version__
+
+#: public name -> the module that defines it
+_WHERE = {
+    "__version__": "version",
+    "AsyncBoard": "host.aio",
+    "open_board_async": "host.aio",
+    "Board": "host.board",
+    "open_board": "host.board",
+    "CallResult": "host.link",
+    "Sample": "host.samples",
+    "SampleDecoder": "host.samples",
+    "Daemon": "daemon",
+    "connect": "daemon",
+    "Transducer": "descriptors",
+    "parse_transds": "descriptors",
+    "Transport": "transport.base",
+    "open_transport": "transport.registry",
+    **{
+        name: "errors"
+        for name in (
+            "BadURL",
+            "BoardError",
+            "CallError",
+            "CallTimeout",
+            "ConfigError",
+            "DescriptorError",
+            "FunctionFailed",
+            "LinkLost",
+            "MissingLinkError",
+            "TransportBroken",
+            "TransportClosed",
+            "TransportError",
+            "UnknownFunction",
+        )
+    },
+}
 
 __all__ = [
     "AsyncBoard",
@@ -39,6 +99,7 @@ __all__ = [
     "CallError",
     "CallResult",
     "CallTimeout",
+    "ConfigError",
     "Daemon",
     "DescriptorError",
     "FunctionFailed",
@@ -59,3 +120,16 @@ __all__ = [
     "open_transport",
     "parse_transds",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # once: later look-ups are plain attribute reads
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__

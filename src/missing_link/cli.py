@@ -13,11 +13,11 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from . import __version__
-from .client import Board
 from .errors import BadURL, ConfigError, DescriptorError, MissingLinkError
+from .host.board import Board
+from .host.samples import Sample, SampleDecoder
 from .j2a import SifReceived
-from .samples import Sample, SampleDecoder
+from .version import __version__
 
 EXIT_FAIL = 1
 EXIT_USAGE = 2

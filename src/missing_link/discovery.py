@@ -30,9 +30,9 @@ import time
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
-from .client import Board
 from .config import BoardSpec, DiscoverSpec, PortInfo
 from .errors import MissingLinkError
+from .host.board import Board
 
 if TYPE_CHECKING:
     from .daemon import Daemon

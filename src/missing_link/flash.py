@@ -23,8 +23,8 @@ from pathlib import Path
 
 from .board import drivers as drivers_pkg
 from .boardfile import BoardFile
-from .client import Board
 from .errors import MissingLinkError
+from .host.board import Board
 
 BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)

@@ -36,8 +36,9 @@ import time
 from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
-from .client import Board, CallResult
 from .errors import CallTimeout, LinkLost, MissingLinkError
+from .host.board import Board
+from .host.link import CallResult
 from .timesync import AddResult, ClockSync, Exchange
 from .timesync.sync import TRACKING
 

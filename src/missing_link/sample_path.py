@@ -36,7 +36,7 @@ from .timesync import NOT_SYNCED, OUTLIER
 from .topics import Topic, Update
 
 if TYPE_CHECKING:
-    from .client import Board
+    from .host.board import Board
     from .session import BoardSession
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ happens its traceback is logged (a bug of ours shows once, not every backoff), `
 line, and the session backs off (``backoff_min`` doubling to ``backoff_max``) and tries again.
 Nothing a board sends can end the thread.
 
-``connecting`` opens the transport and owns the :class:`~missing_link.client.Board` *before* the
+``connecting`` opens the transport and owns the :class:`~missing_link.host.board.Board` *before* the
 handshake, so ``stop()`` can close it at once.  The handshake has one overall deadline
 (``handshake_timeout``) and small caps on the mapping, properties and descriptors (see
 ``client.handshake``).  Then everything the board said is validated, with errors that name the
@@ -44,10 +44,10 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from .client import Board
 from .config import BoardSpec
 from .descriptors import Transducer, load_descriptor_file
 from .errors import BoardError, MissingLinkError
+from .host.board import Board
 from .prober import ClockProber
 from .ros.standard import StandardMapping, mapping_for
 from .sample_path import SamplePath

@@ -1,14 +1,39 @@
 """Clock synchronisation: every board timestamp in host time, monotonic, with an error bound.
 
-- :mod:`.estimator`: offset and skew from ``a2jClock`` exchanges, with a hard band (pure);
+- :mod:`.exchange`: one ``a2jClock`` round trip (pure, light: what a board hands the sync);
+- :mod:`.estimator`: offset and skew from exchanges, with a hard band (pure; numpy);
 - :mod:`.published`: the continuous, strictly increasing map samples are stamped with (pure);
-- :mod:`.sync`: one board's state machine - estimator, map, probe schedule (pure);
-- :mod:`.sim`: clock and link models and the anchor methods, for benchmarks and tests (pure).
+- :mod:`.sync`: one board's state machine - estimator, map, probe schedule (pure).
+
+The clock and link simulations (benchmarks, tests) live in :mod:`missing_link.virtual.syncsim`.
+Names are loaded on first use, so ``from missing_link.timesync.exchange import Exchange`` does
+not import numpy.
 """
 
-from .estimator import AddResult, ClockEstimator, Estimate, Exchange
-from .published import PublishedMap
-from .sync import NOT_SYNCED, OUTLIER, STEP, ClockSync, Mapped, SyncOptions
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .estimator import AddResult, ClockEstimator, Estimate
+    from .exchange import Exchange
+    from .published import PublishedMap
+    from .sync import NOT_SYNCED, OUTLIER, STEP, ClockSync, Mapped, SyncOptions
+
+_WHERE = {
+    "AddResult": "estimator",
+    "ClockEstimator": "estimator",
+    "Estimate": "estimator",
+    "Exchange": "exchange",
+    "PublishedMap": "published",
+    "NOT_SYNCED": "sync",
+    "OUTLIER": "sync",
+    "STEP": "sync",
+    "ClockSync": "sync",
+    "Mapped": "sync",
+    "SyncOptions": "sync",
+}
 
 __all__ = [
     "NOT_SYNCED",
@@ -23,3 +48,10 @@ __all__ = [
     "PublishedMap",
     "SyncOptions",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)

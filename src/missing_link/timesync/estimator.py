@@ -57,6 +57,8 @@ from enum import Enum
 
 import numpy as np
 
+from .exchange import Exchange
+
 #: The skew range assumed before two exchanges are far enough apart to bound it.  Ceramic
 #: resonators are within ±0.5 %; crystals are far better.
 MAX_SKEW = 5000e-6
@@ -65,27 +67,6 @@ MAX_SKEW = 5000e-6
 PRIOR_SIGMA = 2e-6
 PRIOR_WANDER = 0.5e-6
 PRIOR_LIFE_S = 60.0
-
-
-@dataclass(frozen=True)
-class Exchange:
-    """One ``a2jClock`` round trip."""
-
-    t1: int  #: host ns (CLOCK_MONOTONIC), just before the request was written
-    t2: int  #: board µs, when the request's last byte arrived
-    t3: int  #: board µs, just before the reply's first byte
-    t4: int  #: host ns, when the reply had been read
-    down_min_ns: int = 0  #: delay every reply has after t3 (its bytes on a slow link)
-    up_min_ns: int = 0  #: delay every request has between t1 and t2 (its bytes on a slow link)
-
-    @property
-    def rtt_ns(self) -> int:
-        return self.t4 - self.t1
-
-    @property
-    def delay_ns(self) -> float:
-        """Round trip minus the board's own time between t2 and t3."""
-        return (self.t4 - self.t1) - (self.t3 - self.t2) * 1000.0
 
 
 class AddResult(Enum):

@@ -36,7 +36,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .estimator import Exchange
+from .exchange import Exchange
 from .sync import ClockSync, SyncOptions
 
 NS = 1_000

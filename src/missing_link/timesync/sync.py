@@ -45,7 +45,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from .estimator import AddResult, ClockEstimator, Estimate, Exchange
+from .estimator import AddResult, ClockEstimator, Estimate
+from .exchange import Exchange
 from .published import PublishedMap
 
 UNSYNCED, BURST, TRACKING, FAST = "unsynced", "burst", "tracking", "fast"

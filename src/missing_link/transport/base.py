@@ -133,7 +133,7 @@ class FdTransport(Transport):
         return os.write(self._fd, data)
 
     def fileno(self) -> int:
-        """The descriptor a shared I/O loop (missing_link.reactor) waits on."""
+        """The descriptor a shared I/O loop (missing_link.host.reactor) waits on."""
         return self._fd
 
     def read(self, timeout: float | None) -> bytes:

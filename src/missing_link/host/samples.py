@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from .descriptors import Transducer
-from .j2a import SifReceived
+from ..descriptors import Transducer
+from ..j2a import SifReceived
 
 
 class Sample(NamedTuple):

@@ -3,19 +3,21 @@ reader thread each.
 
 Theory of operation
 -------------------
-Each :class:`~missing_link.client.Board` on a descriptor (socket, pty, serial port) registers
-its transport's fd here.  The loop waits in one ``select`` for any board's bytes, the wake pipe,
-or the soonest call timer of any board.  A round then
+Each board link (:class:`~missing_link.host.link.DrivenLink`) on a descriptor (socket, pty, serial
+port) registers its transport's fd here; the loop drives it only through its public verbs
+(``step``, ``tick``, ``finish``, ``next_due``, ``calls_waiting``: the :class:`Driven` protocol),
+as aioquic's loop drives a QUIC connection.  The loop waits in one ``select`` for any board's
+bytes, the wake pipe, or the soonest call timer of any board.  A round then
 
 1. for a board with a clock probe in flight, counts the bytes waiting the moment the wait
    returns (``count_arrived``: clock sync's t4, before any other work of the round); then
    reads every ready descriptor (each read stamped right after it, or at that count), so a
    board's stamp does not wait for another board's processing;
-2. runs each board's ``_step`` with its bytes (decode, replies to futures, SIFs to the sample
+2. runs each board's ``step`` with its bytes (decode, replies to futures, SIFs to the sample
    path, its due call timers);
-3. ends boards whose link broke (``_finish``: pending calls fail, close callbacks run);
+3. ends boards whose link broke (``finish``: pending calls fail, close callbacks run);
 4. last, right before the next wait, in one pass over the boards (``_due_work``): due call
-   timers of boards that had no bytes, then due *tickers* (``Board.set_ticker``: the clock
+   timers of boards that had no bytes, then due *tickers* (``BoardLink.set_ticker``: the clock
    probes), so a probe's reply is read the moment it arrives, not after a round's work (which
    would lengthen every return trip alike: a bias no estimator can see); the same pass finds
    the soonest due time, the wait's timeout.
@@ -29,7 +31,7 @@ read late.  A gather that brought fewer than two SIFs (a stream slower than the 
 added a wake-up; the next 100 data rounds then go without one.
 
 Blocking calls must not be made on this thread (a SIF handler calling ``board.call``): the reply
-could only be read by the thread that waits for it; ``Board`` raises instead of deadlocking.
+could only be read by the thread that waits for it; the link raises instead of deadlocking.
 Registration is under a lock the loop holds while it processes a round, so when ``remove()``
 returns the loop no longer touches that board.
 """
@@ -41,17 +43,34 @@ import os
 import select
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from .errors import TransportBroken, TransportClosed
-
-if TYPE_CHECKING:
-    from .client import Board
+from ..errors import TransportBroken, TransportClosed
+from ..j2a import HostConnection
+from ..transport import Transport
 
 log = logging.getLogger(__name__)
 
 _IDLE = 1.0  # longest wait with no timer pending (new timers poke the loop anyway)
 _SKIP_GATHERS = 100  # data rounds without gathering after a gather that brought < 2 SIFs
+
+
+class Driven(Protocol):
+    """What the loop drives: a board link, through its public verbs only."""
+
+    url: str
+    transport: Transport
+    conn: HostConnection
+    next_due: float | None
+
+    @property
+    def calls_waiting(self) -> bool: ...
+
+    def step(self, data: bytes, now_ns: int, rx_ns: int) -> float: ...
+
+    def tick(self, now: float) -> None: ...
+
+    def finish(self, error: BaseException | None) -> None: ...
 
 
 class _Poller:
@@ -98,7 +117,7 @@ class Reactor:
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r)
         self._lock = threading.RLock()
-        self._boards: dict[int, Board] = {}
+        self._boards: dict[int, Driven] = {}
         # registrations counted, and the count at each board's: a descriptor number reused by a
         # board added while the loop waited is not read on the old one's readiness
         self._registrations = 0
@@ -117,7 +136,7 @@ class Reactor:
     def is_loop_thread(self) -> bool:
         return threading.current_thread() is self._thread
 
-    def add(self, board: Board) -> None:
+    def add(self, board: Driven) -> None:
         with self._lock:
             fd = board.transport.fileno()  # type: ignore[attr-defined]
             self._sel.register(fd)
@@ -126,12 +145,12 @@ class Reactor:
             self._registered_at[fd] = self._registrations
         self.poke()
 
-    def remove(self, board: Board) -> None:
+    def remove(self, board: Driven) -> None:
         with self._lock:
             self._unregister(board)
         self.poke()
 
-    def _unregister(self, board: Board) -> None:
+    def _unregister(self, board: Driven) -> None:
         # (under the lock)
         for fd, b in list(self._boards.items()):
             if b is board:
@@ -218,33 +237,33 @@ class Reactor:
         now_ns = time.monotonic_ns()
         now = now_ns / 1e9
         soonest = None
-        broken: list[tuple[Board, BaseException]] = []
+        broken: list[tuple[Driven, BaseException]] = []
         with self._lock:
             for board in list(self._boards.values()):
                 due = board.next_due
                 if due is not None and now >= due:
                     self._step(board, b"", now_ns, broken)  # call timers (none due: cheap)
-                    board._tick(now)
+                    board.tick(now)
                     due = board.next_due
                 if due is not None and (soonest is None or due < soonest):
                     soonest = due
             for board, why in broken:
                 self._unregister(board)
-                board._finish(why)
+                board.finish(why)
         if soonest is None:
             return _IDLE
         return max(0.0, min(_IDLE, soonest - time.monotonic()))
 
     def _calls_waiting(self) -> bool:
-        return any(b._futures for b in list(self._boards.values()))
+        return any(b.calls_waiting for b in list(self._boards.values()))
 
     def _round(self, ready: list[int], waited_after: int) -> int:
         """One round of reads and steps; returns the SIFs it decoded (0: no data).
         ``waited_after``: the registrations counted when the wait began."""
         self.rounds += 1
         with self._lock:
-            reads: list[tuple[Board, bytes]] = []
-            broken: list[tuple[Board, BaseException]] = []
+            reads: list[tuple[Driven, bytes]] = []
+            broken: list[tuple[Driven, BaseException]] = []
             for fd in ready:
                 if fd == self._wake_r:
                     try:
@@ -268,15 +287,15 @@ class Reactor:
                 sifs += board.conn.stats.sifs - before or 1  # (bytes without a whole SIF: 1)
             for board, why in broken:
                 self._unregister(board)
-                board._finish(why)
+                board.finish(why)
         return sifs
 
     @staticmethod
     def _step(
-        board: Board, data: bytes, now_ns: int, broken: list[tuple[Board, BaseException]]
+        board: Driven, data: bytes, now_ns: int, broken: list[tuple[Driven, BaseException]]
     ) -> None:
         try:
-            board._step(data, now_ns, board.transport.last_rx_ns)
+            board.step(data, now_ns, board.transport.last_rx_ns)
         except (TransportBroken, TransportClosed) as e:  # a write in _flush failed
             broken.append((board, e))
         except Exception as e:  # a bug in one board's path must not stop the others

@@ -1,0 +1,368 @@
+"""The host's view of one board: open it by URL, call its functions by name, read its blobs,
+exchange clock stamps, get its SIFs (blocking API; :mod:`.aio` awaits the same engine).
+
+``Board.open(url)`` reads the board's description in one handshake with one deadline and caps on
+every size (a board is untrusted): the function mapping (opcode 0, or ``a2jGetMappingMany`` when
+it does not fit a frame), the properties and the transducer descriptors.  Every call goes
+through the link engine (:mod:`.link`): blocking calls wait on its futures, and
+``call_future`` / ``clock_exchange_async`` hand the reply to a callback instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+
+from ..descriptors import Transducer, parse_transds
+from ..errors import (
+    BoardError,
+    CallTimeout,
+    FunctionFailed,
+    MissingLinkError,
+    UnknownFunction,
+)
+from ..j2a import BlobError, parse_mapping, parse_properties
+from ..j2a.blobs import mapping_index
+from ..timesync.exchange import Exchange
+from ..transport import Transport, open_transport
+from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
+from .reactor import Reactor
+
+#: the whole handshake (mapping, properties, descriptors) must end within this (s)
+HANDSHAKE_TIMEOUT = 5.0
+#: caps on what a board may send during the handshake (bytes): a board is untrusted
+MAX_MAPPING = 16 << 10
+MAX_PROPERTIES = 16 << 10
+MAX_TRANSDS = 64 << 10
+#: a read_many without a deadline of its own must end within this (s)
+TRANSFER_TIMEOUT = 120.0
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Board", "CallResult", "open_board"]
+
+
+class Board(BoardLink):
+    """A connected J2A board (blocking API).  Use :func:`open_board` or ``Board.open(url)``."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        window: int = 1,
+        reactor: Reactor | None = None,
+    ):
+        """``reactor``: read this board in a shared I/O loop (the daemon's, for many boards)
+        instead of a reader thread of its own; transports without a descriptor (memory, USB)
+        always get their own thread."""
+        self.functions: list[str] = []
+        self.index: dict[str, int] = {}
+        self.properties: dict[str, str] = {}
+        self.transducers: list[Transducer] | None = None
+        self.transds_text: str | None = None
+        super().__init__(transport, timeout=timeout, window=window, reactor=reactor)
+
+    # ---- opening ---------------------------------------------------------------------------
+    @classmethod
+    def open(
+        cls,
+        url: str,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        window: int = 1,
+        describe: bool = True,
+        handshake_timeout: float = HANDSHAKE_TIMEOUT,
+    ) -> Board:
+        """Open ``url`` and read the board's mapping, properties and transducer descriptors."""
+        board = cls(open_transport(url), timeout=timeout, window=window)
+        try:
+            board.handshake(describe=describe, deadline=time.monotonic() + handshake_timeout)
+        except BaseException:
+            board.close()
+            raise
+        return board
+
+    @property
+    def name(self) -> str:
+        return self.properties.get("board.name") or self.url
+
+    @property
+    def is_original(self) -> bool:
+        """True for a Part 1 (2014 firmware) board: no ``j2a.version`` property."""
+        return "j2a.version" not in self.properties
+
+    def handshake(self, *, describe: bool = True, deadline: float | None = None) -> None:
+        """Read the mapping, properties and descriptors, all by ``deadline`` (monotonic s;
+        default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap.  What the board
+        sends is validated here: errors name the board and the field."""
+        if deadline is None:
+            deadline = time.monotonic() + HANDSHAKE_TIMEOUT
+        total = deadline - time.monotonic()
+
+        def left(what: str) -> float:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise CallTimeout(self.name, what, f"handshake not done within {total:.1f} s")
+            return remaining
+
+        # First contact: ask again on a timeout (a board still booting, stale bytes in a pty).
+        while True:
+            try:
+                first = self.call_index(
+                    0, b"", "a2jGetMapping", min(self.timeout, left("a2jGetMapping"))
+                )
+                break
+            except CallTimeout:
+                left("a2jGetMapping")
+        blob = first.payload
+        # An original board wraps past 255 bytes; a new one stops at a name boundary and offers
+        # the full table through a2jGetMappingMany.
+        head = blob[: blob.rfind(b"\0") + 1] if b"\0" in blob else b""
+        try:
+            names = parse_mapping(head)
+            if "a2jGetMappingMany" in names:
+                full = self._wait(
+                    self._read_future(
+                        names.index("a2jGetMappingMany"),
+                        "a2jGetMappingMany",
+                        max_bytes=MAX_MAPPING,
+                        timeout=min(self.timeout, left("a2jGetMappingMany")),
+                        deadline=deadline,
+                    ),
+                    None,
+                )
+                names = parse_mapping(full)
+            self.functions = names
+            self.index = mapping_index(names)
+        except BlobError as e:
+            raise BoardError(self.url, f"bad function mapping: {e}") from e
+        if "a2jGetProperties" in self.index:
+            raw = self.read_many(
+                "a2jGetProperties",
+                max_bytes=MAX_PROPERTIES,
+                timeout=min(self.timeout, left("a2jGetProperties")),
+                deadline=deadline,
+            )
+            try:
+                self.properties = parse_properties(raw)
+            except BlobError as e:
+                raise BoardError(self.url, f"bad properties: {e}") from e
+            _check_properties(self.name, self.properties)
+        if describe and "a2jGetTransds" in self.index:
+            raw = self.read_many(
+                "a2jGetTransds",
+                max_bytes=MAX_TRANSDS,
+                timeout=min(self.timeout, left("a2jGetTransds")),
+                deadline=deadline,
+            )
+            try:
+                self.transds_text = raw.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise BoardError(self.name, f"transducer descriptors are not UTF-8: {e}") from e
+            self.transducers = parse_transds(self.transds_text, self.name)
+
+    # ---- calls -----------------------------------------------------------------------------
+    def _lookup(self, name: str) -> int:
+        try:
+            return self.index[name]
+        except KeyError:
+            raise UnknownFunction(self.name, name, self.functions) from None
+
+    def call_future(
+        self, name: str, payload: bytes = b"", timeout: float | None = None
+    ) -> Future[CallResult]:
+        return self._start(
+            name, lambda now, t: self.conn.call(self._lookup(name), payload, now, t), timeout
+        )
+
+    def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
+        """Call a function by name; returns its return code and reply payload."""
+        return self._wait(self.call_future(name, payload, timeout), timeout)
+
+    def clock_exchange(self, timeout: float | None = None, *, byte_ns: float = 0.0) -> Exchange:
+        """One ``a2jClock`` round trip: host send/receive stamps and the board's two stamps.
+
+        Boards without ``a2jClock`` but with the thesis firmware's ``getTime`` (u64 µs) give a
+        one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
+        time on the wire is known (0: not a byte-serial link, or unknown)."""
+        name = self._clock_function()
+        return self._exchange(name, self._wait(self._clock_call(name, timeout), timeout), byte_ns)
+
+    def clock_exchange_async(
+        self,
+        callback: Callable[[Exchange | BaseException], None],
+        timeout: float | None = None,
+        *,
+        byte_ns: float = 0.0,
+    ) -> None:
+        """Start a :meth:`clock_exchange`; ``callback`` gets the exchange or the error
+        (``MissingLinkError``) on the thread that reads the board.  Raises ``LinkLost`` at
+        once when the link is gone."""
+        name = self._clock_function()
+
+        def done(fut: Future[CallResult]) -> None:
+            try:
+                got: Exchange | BaseException = self._exchange(name, fut.result(), byte_ns)
+            except MissingLinkError as e:
+                got = e
+            try:
+                callback(got)
+            except Exception:
+                log.exception("%s: clock exchange callback failed", self.url)
+
+        self._clock_call(name, timeout).add_done_callback(done)
+
+    def _clock_call(self, name: str, timeout: float | None) -> Future[CallResult]:
+        """The clock request, with the transport counting arrivals (a tighter t4) from before
+        the request is written until its reply, error or timeout resolves it."""
+        self.transport.count_arrivals = True
+        try:
+            fut = self.call_future(name, b"", timeout)
+        except BaseException:
+            self.transport.count_arrivals = False
+            raise
+        fut.add_done_callback(self._stop_counting)  # (first: before the caller's callbacks)
+        return fut
+
+    def _stop_counting(self, _fut: Future[CallResult]) -> None:
+        self.transport.count_arrivals = False
+
+    def _clock_function(self) -> str:
+        return "a2jClock" if "a2jClock" in self.index else "getTime"
+
+    def _exchange(self, name: str, result: CallResult, byte_ns: float) -> Exchange:
+        p = result.payload
+        if result.code != 0 or len(p) not in (8, 16):
+            raise FunctionFailed(self.name, name, result.code, p)
+        if len(p) == 16:
+            t2, t3 = struct.unpack("<QQ", p)
+        else:
+            (t2,) = struct.unpack("<Q", p)
+            t3 = t2
+        # On a byte-serial link, the request's bytes before t2 (SOF, seq, op, len, checksum)
+        # and the reply's after t3 (SOF, seq, code, len, payload, checksum) are on the wire in
+        # every exchange: known delays, not uncertainty.
+        return Exchange(
+            result.sent_ns, t2, t3, result.recv_ns, int((5 + len(p)) * byte_ns), int(5 * byte_ns)
+        )
+
+    def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
+        """Call and require return code 0; returns the reply payload."""
+        result = self.call(name, payload, timeout)
+        if result.code != 0:
+            raise FunctionFailed(self.name, name, result.code, result.payload)
+        return result.payload
+
+    def call_index(
+        self, index: int, payload: bytes, label: str, timeout: float | None = None
+    ) -> CallResult:
+        fut: Future[CallResult] = self._start(
+            label, lambda now, t: self.conn.call(index, payload, now, t), timeout
+        )
+        return self._wait(fut, timeout)
+
+    def read_many_future(
+        self,
+        name: str,
+        *,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+        deadline: float | None = None,
+    ) -> Future[bytes]:
+        return self._read_future(self._lookup(name), name, progress, max_bytes, timeout, deadline)
+
+    def _read_future(
+        self,
+        target: int,
+        label: str,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+        deadline: float | None = None,
+    ) -> Future[bytes]:
+        return self._start(
+            label,
+            lambda now, t: self.conn.read_many(
+                target,
+                now,
+                t,
+                max_bytes=max_bytes,
+                progress=progress is not None,
+                deadline=deadline if deadline is not None else now + TRANSFER_TIMEOUT,
+                detect_offset_bug=self.is_original,
+            ),
+            timeout,
+            progress,
+        )
+
+    def read_many(
+        self,
+        name: str,
+        *,
+        progress: ProgressFn | None = None,
+        max_bytes: int = 64 << 20,
+        timeout: float | None = None,
+        deadline: float | None = None,
+    ) -> bytes:
+        """Read a many-function's whole blob (a2jMany), chunk by chunk.  ``timeout`` is per
+        chunk; ``deadline`` (CLOCK_MONOTONIC s) bounds the whole transfer."""
+        return self._wait(
+            self.read_many_future(
+                name, progress=progress, max_bytes=max_bytes, timeout=timeout, deadline=deadline
+            ),
+            None,
+        )
+
+    def write_many(
+        self,
+        name: str,
+        data: bytes,
+        *,
+        progress: ProgressFn | None = None,
+        timeout: float | None = None,
+    ) -> int:
+        """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
+        target = self._lookup(name)
+        fut: Future[int] = self._start(
+            name,
+            lambda now, t: self.conn.write_many(
+                target, data, now, t, progress=progress is not None
+            ),
+            timeout,
+            progress,
+            write=True,
+        )
+        return self._wait(fut, None)
+
+    def __enter__(self) -> Board:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<Board {self.name} at {self.url}>"
+
+
+def _check_properties(board: str, props: dict[str, str]) -> None:
+    """Range-check the numbers a board states about itself (they steer the host)."""
+    res = props.get("clock.res_us")
+    if res is not None:
+        try:
+            value = int(res)
+        except ValueError:
+            value = 0
+        if not 1 <= value <= 1_000_000:
+            raise BoardError(
+                board, f"property clock.res_us = {res!r}: expected whole µs in 1..1000000"
+            )
+
+
+def open_board(url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> Board:
+    """Open a board by URL and read its description (blocking)."""
+    return Board.open(url, timeout=timeout, window=window)

@@ -1,0 +1,417 @@
+"""The link engine: one board's J2A connection, its pending calls and its SIF handlers, driven
+by whoever reads its transport.
+
+Theory of operation
+-------------------
+The sans-I/O :class:`~missing_link.j2a.HostConnection` turns bytes and timer ticks into events;
+this engine turns requests into ``concurrent.futures.Future`` objects and events into results:
+replies resolve their futures, SIFs go to their handlers, progress to its callback.  The
+connection state and the writes share one lock, so frames go out in seq order.
+
+Something must read the transport and drive the engine.  Either a reader thread of the link's
+own (``_reader``: a board opened on its own), or a shared I/O loop
+(:class:`~missing_link.host.reactor.Reactor`, the daemon's, for many boards).  A driver uses
+only the public verbs:
+
+* ``step(data, now_ns, rx_ns)`` - the bytes one read brought (maybe none), then due timers;
+* ``tick(now)`` - the periodic work (the clock probes) when ``next_due`` has passed;
+* ``finish(error)`` - the link ended: fail what is pending, run the close callbacks (once);
+* ``next_due`` and ``calls_waiting`` - when to come back, and whether a reply is awaited.
+
+Every error path fails the pending futures and lets the reading end: nothing is left holding a
+lock or running.  SIF handlers run on the reading thread; keep them short.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from ..errors import (
+    BoardError,
+    CallError,
+    CallTimeout,
+    FunctionFailed,
+    LinkLost,
+    TransportBroken,
+    TransportClosed,
+)
+from ..j2a import (
+    CallCompleted,
+    CallFailed,
+    FailureReason,
+    FrameDamaged,
+    HostConnection,
+    SifReceived,
+    TransferCompleted,
+    TransferProgress,
+)
+from ..transport import Transport
+from .reactor import Reactor
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+DEFAULT_TIMEOUT = 1.0
+_TICK = 0.02  # longest the reader sleeps before looking at timers again ...
+_IDLE = 1.0  # ... when none is pending and close() wakes the transport's read
+SifHandler = Callable[[SifReceived, float], None]
+ProgressFn = Callable[[int, "int | None"], None]
+
+
+@dataclass(frozen=True)
+class CallResult:
+    code: int
+    payload: bytes
+    sent_ns: int = 0  #: CLOCK_MONOTONIC ns just before the request was written
+    recv_ns: int = 0  #: CLOCK_MONOTONIC ns when the read that completed the reply returned
+
+    @property
+    def ok(self) -> bool:
+        return self.code == 0
+
+
+class BoardLink:
+    """One board's link: the engine under :class:`~missing_link.host.board.Board`."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        window: int = 1,
+        reactor: Reactor | None = None,
+    ):
+        """``reactor``: read this link in a shared I/O loop (the daemon's, for many boards)
+        instead of a reader thread of its own; transports without a descriptor (memory, USB)
+        always get their own thread."""
+        self.transport = transport
+        self.url = transport.url
+        self.timeout = timeout
+        self.conn = HostConnection(window=window)
+        self._lock = threading.Lock()
+        # op -> (future, label for errors, progress callback, is a many-write)
+        self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
+        self._sif_handlers: dict[int, list[SifHandler]] = {}
+        self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
+        self._any_sif: list[SifHandler] = []
+        self._on_close: list[Callable[[], None]] = []
+        self._idle_until = 0.0  # the reader waits until then unless poked
+        # Periodic work on the reading thread (clock-sync probes): (due() -> s or None, tick)
+        self._ticker: tuple[Callable[[], float | None], Callable[[float], None]] | None = None
+        #: CLOCK_MONOTONIC s of the next call deadline or tick, kept up to date under the lock
+        #: (a shared I/O loop reads it for its timeout without calling into each board)
+        self.next_due: float | None = None
+        #: s the reader waits after a read while SIFs stream in, to take several frames per
+        #: read (fewer wake-ups and syscalls per update; latency grows by at most this).  A
+        #: request written meanwhile ends the wait at once, so replies (and clock sync's t4)
+        #: are never read late.  0: read every frame as it comes.
+        self.batch_s = 0.0
+        self._batch_wake = threading.Event()
+        self._stopping = False
+        self._closed_reason: BaseException | None = None
+        #: CLOCK_MONOTONIC s when the last intact frame (reply or SIF) arrived: link liveness
+        self.last_frame = time.monotonic()
+        self._done = threading.Event()  # set when the link has ended and calls were failed
+        self._finishing = threading.Lock()
+        fileno = getattr(transport, "fileno", None)
+        self._reactor = reactor if reactor is not None and fileno is not None else None
+        self._thread: threading.Thread | None = None
+        if self._reactor is not None:
+            self._reactor.add(self)
+        else:
+            self._thread = threading.Thread(
+                target=self._reader, name=f"j2a:{self.url}", daemon=True
+            )
+            self._thread.start()
+
+    @property
+    def name(self) -> str:
+        """What errors call this board (:class:`~missing_link.host.board.Board` says more)."""
+        return self.url
+
+    # ---- requests (for the calls a subclass offers) -----------------------------------------
+    def _start(
+        self,
+        label: str,
+        begin: Callable[[float, float], int],
+        timeout: float | None,
+        progress: ProgressFn | None = None,
+        *,
+        write: bool = False,
+    ) -> Future[Any]:
+        fut: Future[Any] = Future()
+        with self._lock:
+            if self._closed_reason is not None:
+                raise self._lost(label, self._closed_reason)
+            op = begin(time.monotonic(), timeout or self.timeout)
+            self._futures[op] = (fut, label, progress, write)
+            sent = time.monotonic_ns()
+            try:
+                self._flush()
+            except (TransportBroken, TransportClosed) as e:
+                # The reader thread sees the same failure and fails the rest; this call is ours.
+                self._futures.pop(op, None)
+                raise self._lost(label, e) from e
+            # the transport's stamp is taken right before the write syscall: later, tighter
+            self._sent[op] = max(sent, self.transport.last_write_ns)
+            timer = self.conn.get_timer()
+            idle_until = self._idle_until
+            self._update_due()
+        if self._on_reading_thread():
+            return fut  # (a tick) the reader looks at its timers and futures next anyway
+        self._batch_wake.set()  # a reader gathering SIFs reads the reply at once
+        if self._reactor is not None:
+            self._reactor.poke()  # new timers, and no gathering while a reply is due
+        elif timer is not None and timer < idle_until:
+            self.transport.poke()  # the reader sleeps past this call's deadline: wake it
+        return fut
+
+    def _on_reading_thread(self) -> bool:
+        if self._reactor is not None:
+            return self._reactor.is_loop_thread()
+        return threading.current_thread() is self._thread
+
+    def _wait(self, fut: Future[T], timeout: float | None) -> T:
+        if self._reactor is not None and self._reactor.is_loop_thread():
+            raise RuntimeError(
+                f"{self.url}: a blocking call from the I/O loop (a SIF handler) would wait for a "
+                "reply only this thread can read: use call_future() or another thread"
+            )
+        # The connection always resolves the future (reply, timeout or close); the extra margin
+        # only guards against a reader thread that died of a bug.
+        limit = (timeout or self.timeout) * 4 + 5.0 if timeout is not None else None
+        return fut.result(limit)
+
+    def _flush(self) -> None:
+        frames = self.conn.data_to_send()
+        if frames:
+            self.transport.write_frames(frames)
+
+    def _lost(self, label: str, reason: BaseException) -> LinkLost:
+        broken = not isinstance(reason, TransportClosed)
+        return LinkLost(self.name, label, str(reason), broken)
+
+    # ---- SIFs ------------------------------------------------------------------------------
+    def on_sif(self, cmd: int | None, handler: SifHandler) -> None:
+        """Call ``handler(sif, host_receive_time)`` for SIFs with ``cmd`` (None: every SIF)."""
+        with self._lock:
+            if cmd is None:
+                self._any_sif.append(handler)
+            else:
+                self._sif_handlers.setdefault(cmd, []).append(handler)
+
+    # ---- the reader thread -----------------------------------------------------------------
+    def _reader(self) -> None:
+        """The board's own reader thread (when no shared I/O loop reads it)."""
+        error: BaseException | None = None
+        last_data = 0.0
+        try:
+            while not self._stopping:
+                self.tick(time.monotonic())
+                with self._lock:  # callers add requests under the lock; never read it bare
+                    timer = self.next_due
+                    now = time.monotonic()
+                    if timer is None:
+                        wait = _IDLE if self.transport.wakes_on_close else _TICK
+                    else:
+                        wait = max(0.0, min(_TICK, timer - now))
+                    # set under the lock: a caller that adds a timer after this sees it
+                    self._idle_until = now + wait
+                data = self.transport.read(wait)
+                now = self.step(data, time.monotonic_ns(), self.transport.last_rx_ns)
+                if data and self.batch_s > 0:
+                    # Streaming (data twice within the window) and no call waiting: gather.
+                    if now - last_data < 2 * self.batch_s and not self._futures:
+                        self._batch_wake.clear()
+                        if not self._futures:
+                            self._batch_wake.wait(self.batch_s)
+                    last_data = now
+        except (TransportBroken, TransportClosed) as e:
+            error = e
+        except BaseException as e:
+            log.exception("%s: reader thread failed", self.url)
+            error = TransportBroken(f"{self.url}: reader failed: {e!r}")
+        self.finish(error)
+
+    def step(self, data: bytes, now_ns: int, rx_ns: int) -> float:
+        """One turn of reading: the bytes read (maybe none) at ``now_ns`` (monotonic, right
+        after the read; ``rx_ns`` is the transport's own stamp if it has one), then whatever
+        timers are due.  Returns ``now`` in seconds.  Called by the reader thread or the
+        shared I/O loop, never both."""
+        now = now_ns / 1e9
+        if data and 0 < rx_ns <= now_ns:  # when the bytes arrived (t4): the transport's stamp
+            now_ns = rx_ns
+        with self._lock:
+            timer = self.conn.get_timer()
+            if data:
+                frames = self.conn.decoder.stats.frames
+                events = self.conn.receive_data(data, now)
+                if self.conn.decoder.stats.frames != frames:
+                    self.last_frame = now
+            else:
+                events = []
+            if timer is not None and now >= timer:
+                events += self.conn.handle_timer(now)
+            self._flush()
+        if events:
+            self._dispatch(events, now_ns / 1e9, now_ns)
+        with self._lock:
+            self._update_due()
+        return now
+
+    def tick(self, now: float) -> None:
+        """Run the ticker if it is due.  The reading thread calls this last before it waits
+        for bytes, so a request sent here has its reply read (and stamped) at once, not after
+        other work: a clock probe's return trip is not lengthened by the host."""
+        ticker = self._ticker
+        if ticker is None:
+            return
+        due = ticker[0]()
+        if due is None or now < due:
+            return
+        try:
+            ticker[1](now)
+        except Exception:  # a bug in the periodic work must not end the reading
+            log.exception("%s: tick failed", self.url)
+        with self._lock:
+            self._update_due()
+
+    def _update_due(self) -> None:
+        # (under the lock)
+        due = self.conn.get_timer()
+        ticker = self._ticker
+        if ticker is not None:
+            t = ticker[0]()
+            if t is not None and (due is None or t < due):
+                due = t
+        self.next_due = due
+
+    def set_ticker(
+        self, due: Callable[[], float | None] | None, tick: Callable[[float], None] | None = None
+    ) -> None:
+        """Run ``tick(now)`` on the thread that reads this board (its own, or the shared I/O
+        loop) whenever ``due()`` (CLOCK_MONOTONIC s, None: nothing due) has passed: periodic
+        work that sends requests with ``call_future`` and handles the replies in callbacks,
+        without a thread hand-off per request (the clock-sync probes).  ``tick`` must not
+        block; ``due`` is called often and must be cheap.  ``set_ticker(None)`` removes it."""
+        with self._lock:
+            self._ticker = None if due is None or tick is None else (due, tick)
+        self.reschedule()
+
+    def reschedule(self) -> None:
+        """The ticker's ``due()`` moved (from another thread): look at it again."""
+        with self._lock:
+            self._update_due()
+        if not self._on_reading_thread():
+            if self._reactor is not None:
+                self._reactor.poke()
+            else:
+                self.transport.poke()
+
+    def finish(self, error: BaseException | None) -> None:
+        """The link ended: fail what is pending, tell the close callbacks.  Once."""
+        with self._finishing:
+            if self._done.is_set():
+                return
+            if error is None:
+                error = TransportClosed(f"{self.url}: closed on this side")
+            with self._lock:
+                self._closed_reason = error
+                reason = (
+                    FailureReason.CLOSED
+                    if isinstance(error, TransportClosed)
+                    else FailureReason.BROKEN
+                )
+                events = self.conn.close(reason, str(error))
+            self._dispatch(events, time.monotonic(), time.monotonic_ns())
+            self._done.set()
+        if self._stopping or isinstance(error, TransportBroken):
+            self.transport.close()  # idempotent; the link is over either way
+            release = getattr(self.transport, "release", None)
+            if release is not None:
+                release()  # nothing reads it any more: its wake pipe can go now
+        for fn in self._on_close:
+            try:
+                fn()
+            except Exception:
+                log.exception("close callback failed")
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` on the reader thread when the link ends (closed or broken)."""
+        self._on_close.append(fn)
+        if self._done.is_set():
+            fn()
+
+    def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
+        by_cmd, any_sif = self._sif_handlers, self._any_sif
+        for ev in events:
+            if type(ev) is SifReceived:  # the sample path: handlers called inline
+                by = by_cmd.get(ev.cmd)
+                for h in any_sif if by is None else (*by, *any_sif):
+                    try:
+                        h(ev, now)
+                    except Exception:
+                        log.exception("SIF handler %r failed", h)
+            elif isinstance(ev, TransferProgress):
+                entry = self._futures.get(ev.op)
+                if entry and entry[2]:
+                    try:
+                        entry[2](ev.done, ev.total)
+                    except Exception:
+                        log.exception("progress callback failed")
+            elif isinstance(ev, FrameDamaged):
+                log.debug("%s: damaged frame: %s", self.url, ev.error)
+            else:
+                self._resolve(ev, now_ns)
+
+    def _resolve(self, ev: CallCompleted | CallFailed | TransferCompleted, now_ns: int) -> None:
+        entry = self._futures.pop(ev.op, None)
+        sent = self._sent.pop(ev.op, 0)
+        if entry is None:
+            return
+        fut, label, _, is_write = entry
+        if isinstance(ev, CallCompleted):
+            fut.set_result(CallResult(ev.code, ev.payload, sent, now_ns))
+        elif isinstance(ev, TransferCompleted):
+            if is_write:
+                fut.set_result(ev.status)  # a write reports the function's status
+            elif ev.status == 0:
+                fut.set_result(ev.data)
+            else:
+                fut.set_exception(FunctionFailed(self.name, label, ev.status, ev.data))
+        else:
+            fut.set_exception(self._failure(label, ev))
+
+    def _failure(self, label: str, ev: CallFailed) -> BoardError:
+        if ev.reason is FailureReason.TIMEOUT:
+            return CallTimeout(self.name, label, ev.detail)
+        if ev.reason in (FailureReason.CLOSED, FailureReason.BROKEN):
+            return LinkLost(self.name, label, ev.detail, ev.reason is FailureReason.BROKEN)
+        return CallError(self.name, label, ev.detail, ev.code)
+
+    @property
+    def alive(self) -> bool:
+        return not self._done.is_set()
+
+    @property
+    def calls_waiting(self) -> bool:
+        """A request awaits its reply (a shared loop does not gather SIFs meanwhile)."""
+        return bool(self._futures)
+
+    def close(self) -> None:
+        """Close the link, fail pending calls, and join the reader thread.  Idempotent."""
+        self._stopping = True
+        if self._reactor is not None:
+            self._reactor.remove(self)  # the loop no longer touches this board when it returns
+            self.transport.close()
+            self.finish(None)
+            return
+        self.transport.close()
+        if self._thread is not None and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
