@@ -32,7 +32,7 @@ from missing_link.daemon import BoardSession, Daemon
 from missing_link.demo import start_board_process, stop_process
 from missing_link.descriptors import parse_transds
 from missing_link.j2a import SOF, FrameDecoder, HostConnection, SifReceived, encode_frame
-from missing_link.publishers import McapPublisher
+from missing_link.publishers.mcap import McapPublisher
 from missing_link.topics import Topic, Update
 from missing_link.view import percentile
 

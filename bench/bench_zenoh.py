@@ -29,7 +29,7 @@ import numpy as np
 
 from _pacing import pace  # bench/ is on sys.path when a script here runs
 from missing_link.descriptors import parse_transds
-from missing_link.publishers import Bus
+from missing_link.publishers.bus import Bus
 from missing_link.publishers.zenoh import ZenohPublisher
 from missing_link.topics import Topic, Update
 

@@ -69,6 +69,27 @@ def _port(text: str) -> int:
     return value
 
 
+class _PublisherArg(argparse.Action):
+    """``-p NAME`` (repeatable); its help lists the publishers this environment has, found only
+    when the help is shown (finding them costs a look at the installed packages)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kw: Any) -> None:
+        super().__init__(option_strings, dest, metavar="NAME", **kw)
+
+    @property
+    def help(self) -> str:
+        from .publishers.registry import available_publishers
+
+        return f"add a publisher ({', '.join(available_publishers())} here)"
+
+    @help.setter
+    def help(self, value: str | None) -> None:
+        pass  # (argparse sets it; the property above answers)
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), values])
+
+
 def _open(args: argparse.Namespace) -> Board:
     return Board.open(args.url, timeout=args.timeout)
 
@@ -386,14 +407,14 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
 # ---- run ----------------------------------------------------------------------------------------
 def build_config(args: argparse.Namespace) -> Any:
     from .config import BoardSpec, Config, DiscoverSpec, load_config
-    from .publishers import available_publishers
+    from .publishers.registry import unavailable
 
     cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
     cfg.boards.extend(BoardSpec(url=u) for u in args.url)
-    known = available_publishers()
     for name in args.publisher or []:
-        if name not in known:
-            raise ConfigError(f"--publisher {name!r}: unknown (available: {', '.join(known)})")
+        why = unavailable(name)
+        if why is not None:
+            raise ConfigError(f"--publisher {name!r}: {why}")
         if name not in cfg.publishers:
             cfg.publishers.append(name)
     if args.foxglove is not None:
@@ -513,7 +534,7 @@ def print_summary(daemon: Any, out: Any) -> None:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from .publishers import recover_bag
+    from .publishers.recover import recover_bag
 
     try:
         dest, count = recover_bag(args.path, args.out)
@@ -794,12 +815,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("run", help="the daemon: every board's transducers as topics")
     sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
     sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
-    sp.add_argument(
-        "--publisher",
-        "-p",
-        action="append",
-        help="add a publisher (bus, console, mcap, zenoh, foxglove, ros1)",
-    )
+    sp.add_argument("--publisher", "-p", action=_PublisherArg)
     sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
     sp.add_argument(
         "--foxglove",

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
+from .publishers.registry import known_publishers
 from .ros.msgs import DISTROS, check_package
 from .text import is_token
 from .topics import check_topic
@@ -172,9 +173,7 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
         check_package(cfg.package)
     except ValueError as e:
         raise fail("daemon.package", str(e)) from None
-    from .publishers import available_publishers
-
-    known_pubs = available_publishers()
+    known_pubs = known_publishers()
     for name in cfg.publishers:
         if name not in known_pubs:
             raise fail(

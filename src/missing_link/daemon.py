@@ -41,9 +41,9 @@ from .descriptors import Transducer, load_descriptor_file
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .errors import BadURL, BoardError, ConfigError, MissingLinkError
 from .host.reactor import Reactor
-from .publishers import Bus, Publisher, make_publisher
-from .publishers.base import PublisherError
-from .publishers.bus import Callback, Subscription
+from .publishers.base import Publisher, PublisherError
+from .publishers.bus import Bus, Callback, Subscription
+from .publishers.registry import make_publisher
 from .ros.msgs import msg_name, msgdef, type_name, typestore_for
 from .session import UP, BoardSession
 from .topics import Topic, Update

@@ -1,21 +1,29 @@
-"""Publishers, chosen by name: ``bus`` (in-process), ``mcap`` (rosbag2 + MCAP), ``console``,
-``zenoh`` (ROS 2 via rmw_zenoh's wire format), ``foxglove`` (live WebSocket), ``ros1`` (rospy).
-More arrive as plugins through the ``missing_link.publishers`` entry-point group."""
+"""Publishers: the faces every transducer's topic is published on, chosen by name.
 
-from . import bus, console, foxglove, mcap, ros1, ros2, zenoh  # noqa: F401 - register the built-in publishers
-from .base import Publisher, available_publishers, make_publisher, register_publisher
-from .bus import Bus, Subscription
-from .console import ConsolePublisher
-from .mcap import McapPublisher, recover_bag
+- :mod:`.base` - the :class:`Publisher` interface; :mod:`.rosbase` - the ROS-flavoured ones' base
+- :mod:`.registry` - names -> module and class, imported on first use; what each needs
+- :mod:`.bus` (in-process), :mod:`.console`, :mod:`.mcap` (rosbag2 + MCAP; :mod:`.recover`
+  salvages a dead recording), :mod:`.zenoh` (ROS 2 via rmw_zenoh's wire format), :mod:`.ros2`
+  (rclpy), :mod:`.ros1` (rospy), :mod:`.foxglove` (live WebSocket)
+
+More arrive as plugins through the ``missing_link.publishers`` entry-point group.
+"""
+
+from .base import Publisher, PublisherError
+from .registry import (
+    available_publishers,
+    known_publishers,
+    make_publisher,
+    register_publisher,
+    unavailable,
+)
 
 __all__ = [
-    "Bus",
-    "ConsolePublisher",
-    "McapPublisher",
     "Publisher",
-    "Subscription",
+    "PublisherError",
     "available_publishers",
+    "known_publishers",
     "make_publisher",
-    "recover_bag",
     "register_publisher",
+    "unavailable",
 ]

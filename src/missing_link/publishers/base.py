@@ -1,13 +1,11 @@
-"""The publisher interface and the registry of publishers by name (plugins, like transports).
-
-A publisher receives topic declarations, updates and diagnostics from the daemon.  ``publish``
-runs on a board's reader thread: it must not block (queue work to a thread of your own).
+"""The publisher interface: what the daemon hands every face (topics, updates, command topics,
+diagnostics).  ``publish`` runs on a board's reading thread: it must not block (queue work to a
+thread of your own).  Publishers are found by name through :mod:`.registry`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from importlib.metadata import entry_points
 from typing import Any
 
 from ..errors import MissingLinkError
@@ -53,31 +51,3 @@ class Publisher:
 
 class PublisherError(MissingLinkError):
     """A publisher cannot start (e.g. a recording directory that cannot be written)."""
-
-
-Factory = Callable[[dict[str, Any]], Publisher]
-_REGISTRY: dict[str, Factory] = {}
-
-
-def register_publisher(name: str, factory: Factory) -> None:
-    _REGISTRY[name] = factory
-
-
-def available_publishers() -> list[str]:
-    names = set(_REGISTRY)
-    names |= {ep.name for ep in entry_points(group="missing_link.publishers")}
-    return sorted(names)
-
-
-def make_publisher(name: str, options: dict[str, Any]) -> Publisher:
-    factory = _REGISTRY.get(name)
-    if factory is None:
-        for ep in entry_points(group="missing_link.publishers"):
-            if ep.name == name:
-                factory = ep.load()
-                break
-    if factory is None:
-        raise ValueError(
-            f"unknown publisher {name!r}; available: {', '.join(available_publishers())}"
-        )
-    return factory(options)

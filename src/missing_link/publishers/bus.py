@@ -19,7 +19,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..topics import Topic, Update
-from .base import Publisher, register_publisher
+from .base import Publisher
 
 log = logging.getLogger(__name__)
 Callback = Callable[[Update], None]
@@ -212,6 +212,3 @@ class Bus(Publisher):
                     subs.remove(sub)
             if sub in self._patterns:
                 self._patterns.remove(sub)
-
-
-register_publisher("bus", Bus)

@@ -8,7 +8,7 @@ import time
 from typing import Any, TextIO
 
 from ..topics import Update
-from .base import Publisher, register_publisher
+from .base import Publisher
 
 
 class ConsolePublisher(Publisher):
@@ -46,6 +46,3 @@ class ConsolePublisher(Publisher):
                         file=self.out,
                         flush=True,
                     )
-
-
-register_publisher("console", ConsolePublisher)

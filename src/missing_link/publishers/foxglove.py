@@ -8,26 +8,23 @@ logged at the sample's host time (clock sync), so plots line up across boards.
 from __future__ import annotations
 
 import logging
-import threading
 from typing import Any
 
-from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
-from ..ros.msgs import typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
-from .base import Publisher, register_publisher
+from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
 
 
-class FoxglovePublisher(Publisher):
+class FoxglovePublisher(RosPublisher):
     name = "foxglove"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         import foxglove
 
         opts = dict(options or {})
-        self.distro = str(opts.get("distro", "jazzy"))
-        self.typestore = typestore_for(self.distro)
+        super().__init__(str(opts.get("distro", "jazzy")))
         self._fg = foxglove
         self.context = foxglove.Context()
         self.server = foxglove.start_server(
@@ -38,9 +35,7 @@ class FoxglovePublisher(Publisher):
         )
         self.port = int(self.server.port)
         self.url = f"ws://{opts.get('host', '127.0.0.1')}:{self.port}"
-        self._lock = threading.Lock()
         self._channels: dict[str, Any] = {}
-        self._closed = False
         self.logged = 0
         with self._lock:
             self._channel(DIAG_TOPIC, DIAG_TYPE)
@@ -67,19 +62,10 @@ class FoxglovePublisher(Publisher):
         ch.log(update.cdr, log_time=update.stamp_ns)
         self.logged += 1
 
-    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        if not self._closed:
-            cdr = diagnostics_cdr(self.typestore, status, now_ns)
-            self._channels[DIAG_TOPIC].log(cdr, log_time=now_ns)
+    def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
+        self._channels[DIAG_TOPIC].log(cdr, log_time=now_ns)
 
-    def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            for ch in self._channels.values():
-                ch.close()
-            self.server.stop()
-
-
-register_publisher("foxglove", FoxglovePublisher)
+    def shutdown(self) -> None:
+        for ch in self._channels.values():
+            ch.close()
+        self.server.stop()

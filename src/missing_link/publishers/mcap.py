@@ -28,8 +28,6 @@ from __future__ import annotations
 import logging
 import os
 import queue
-import shutil
-import struct
 import tempfile
 import threading
 import time
@@ -38,10 +36,10 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
-from ..ros.msgs import typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
-from .base import Publisher, PublisherError, register_publisher
+from .base import PublisherError
+from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -57,7 +55,7 @@ def _option(opts: dict[str, Any], key: str, default: float, lo: float, hi: float
     return value
 
 
-class McapPublisher(Publisher):
+class McapPublisher(RosPublisher):
     name = "mcap"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
@@ -68,9 +66,8 @@ class McapPublisher(Publisher):
         self.chunk_s = _option(opts, "chunk_s", 1.0, 0.01, 3600)
         self.close_timeout = _option(opts, "close_timeout", 10.0, 0.1, 3600)
         size = _option(opts, "queue", 200_000, 1, 1e9)
-        self.distro = str(opts.get("distro", "jazzy"))
+        super().__init__(str(opts.get("distro", "jazzy")))
         self.prefix = str(opts.get("prefix", "missing_link"))
-        self.typestore = typestore_for(self.distro)
         _check_writable(self.base)
         self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(size))
         self.bags: list[Path] = []
@@ -84,7 +81,6 @@ class McapPublisher(Publisher):
         self._bytes = 0
         self._opened = 0.0
         self._chunk_since: float | None = None  # when the open chunk got its first message
-        self._closed = False
         self._closing = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._thread.start()
@@ -96,8 +92,8 @@ class McapPublisher(Publisher):
     def publish(self, update: Update) -> None:
         self._put(("msg", update.topic.name, update.stamp_ns, update.cdr))
 
-    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        self._put(("diag", now_ns, diagnostics_cdr(self.typestore, status, now_ns)))
+    def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
+        self._put(("diag", now_ns, cdr))
 
     def _put(self, item: tuple[Any, ...]) -> None:
         if self._closed:
@@ -107,10 +103,7 @@ class McapPublisher(Publisher):
         except queue.Full:
             self.dropped += 1
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def shutdown(self) -> None:
         self._closing.set()
         try:
             self._q.put_nowait(None)
@@ -258,86 +251,3 @@ def _describe(e: BaseException, base: Path) -> str:
     if isinstance(e, OSError) and e.strerror:
         return f"{e.strerror} ({base})"
     return f"{type(e).__name__}: {e}"
-
-
-def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:
-    """Salvage a recording whose writer died: read every complete record of its MCAP file(s) with
-    a streaming reader, and write them to a new, valid bag.  Returns (new bag, messages)."""
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    src = Path(path)
-    files = sorted(src.glob("*.mcap")) if src.is_dir() else [src]
-    if not files:
-        raise FileNotFoundError(f"{src}: no .mcap file to recover")
-    if not src.exists():
-        raise FileNotFoundError(f"{src}: no such file or directory")
-    for f in files:
-        with open(f, "rb") as stream:
-            if stream.read(8) != MCAP_MAGIC:
-                raise ValueError(f"{f}: not an MCAP file (no MCAP magic at its start)")
-    dest = Path(out) if out else src.with_name(src.name.removesuffix(".mcap") + "_recovered")
-    if dest.exists():
-        raise FileExistsError(f"{dest} exists already; give another --out")
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    conns: dict[int, Any] = {}
-    count = 0
-    writer = Writer(dest, version=9, storage_plugin=StoragePlugin.MCAP)
-    writer.open()
-    ok = False
-    try:
-        for f in files:
-            with open(f, "rb") as stream:
-                try:
-                    for record in StreamReader(stream, skip_magic=False).records:
-                        if isinstance(record, Schema):
-                            schemas[record.id] = record
-                        elif isinstance(record, Channel):
-                            channels[record.id] = record
-                        elif isinstance(record, Message) and record.channel_id in channels:
-                            if record.channel_id not in conns:
-                                ch = channels[record.channel_id]
-                                schema = schemas[ch.schema_id]
-                                text = schema.data.decode()
-                                _register_msgdef(ts, schema.name, text, get_types_from_msg)
-                                conns[record.channel_id] = writer.add_connection(
-                                    ch.topic,
-                                    schema.name,
-                                    msgdef=text,
-                                    rihs01=ts.hash_rihs01(schema.name),
-                                )
-                            writer.write(conns[record.channel_id], record.log_time, record.data)
-                            count += 1
-                except (McapError, EOFError, ValueError, OSError, struct.error) as e:
-                    log.info("%s: stopped at a damaged or missing record: %s", f, e)
-        ok = count > 0
-    finally:
-        writer.close()
-        if not ok:
-            shutil.rmtree(dest, ignore_errors=True)  # leave nothing half-made behind
-    if not count:
-        raise ValueError(f"{src}: no complete message in it; nothing to recover")
-    return dest, count
-
-
-def _register_msgdef(ts: Any, name: str, text: str, parse: Any) -> None:
-    """Register a ros2msg definition with its embedded dependencies (``MSG: pkg/Type`` parts)."""
-    sep = "=" * 80 + "\n"
-    parts = text.split(sep)
-    types = dict(parse(parts[0], name))
-    for part in parts[1:]:
-        header, _, body = part.partition("\n")
-        dep = header.removeprefix("MSG: ").strip()
-        if "/msg/" not in dep:
-            dep = dep.replace("/", "/msg/", 1)
-        if dep not in ts.types:
-            types.update(parse(body, dep))
-    ts.register({k: v for k, v in types.items() if k not in ts.types})
-
-
-register_publisher("mcap", McapPublisher)

@@ -16,25 +16,24 @@ from __future__ import annotations
 import logging
 import os
 import sys
-import threading
 from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
 from ..ros.diagnostics import status_label, status_level, status_message
-from ..ros.msgs import ROS_TYPES, typestore_for
+from ..ros.msgs import ROS_TYPES
 from ..topics import Topic, Update
-from .base import Publisher, register_publisher
+from .registry import DEBIAN_DIST, debian_rospy
+from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
-DEBIAN_DIST = "/usr/lib/python3/dist-packages"
 
 
 def import_rospy() -> Any:
     try:
         import rospy
     except ImportError:
-        if sys.version_info[:2] != (3, 11) or not os.path.isdir(f"{DEBIAN_DIST}/rospy"):
+        if not debian_rospy():
             raise MissingLinkError(
                 "the ros1 publisher needs rospy: run scripts/system-deps.sh --ros1 "
                 "(Debian's ros-core and python3-rospy)"
@@ -44,7 +43,7 @@ def import_rospy() -> Any:
     return rospy
 
 
-class Ros1Publisher(Publisher):
+class Ros1Publisher(RosPublisher):
     name = "ros1"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
@@ -65,12 +64,10 @@ class Ros1Publisher(Publisher):
             raise MissingLinkError(f"ros1: no ROS master at {master} (start roscore)")
         rospy.init_node(str(opts.get("node", "missing_link")), disable_signals=True)
         self.queue_size = int(opts.get("queue_size", 100))
-        self.typestore = typestore_for(str(opts.get("distro", "jazzy")))
-        self._lock = threading.Lock()
+        super().__init__(str(opts.get("distro", "jazzy")))
         self._pubs: dict[str, tuple[Any, Any, Topic]] = {}
         self._subs: dict[str, Any] = {}
         self.commands = 0
-        self._closed = False
         self.published = 0
         diag = self._get_class("diagnostic_msgs/DiagnosticArray")
         if diag is None:
@@ -156,17 +153,13 @@ class Ros1Publisher(Publisher):
             )
         pub.publish(msg)
 
-    def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            for pub, _, _ in self._pubs.values():
-                pub.unregister()
-            for sub in self._subs.values():
-                sub.unregister()
-            self._diag[0].unregister()
-            self.rospy.signal_shutdown("missing-link daemon closed")
+    def shutdown(self) -> None:
+        for pub, _, _ in self._pubs.values():
+            pub.unregister()
+        for sub in self._subs.values():
+            sub.unregister()
+        self._diag[0].unregister()
+        self.rospy.signal_shutdown("missing-link daemon closed")
 
 
 def _to_ros1(src: Any, cls: Any, Time: Any) -> Any:
@@ -184,6 +177,3 @@ def _to_ros1(src: Any, cls: Any, Time: Any) -> Any:
             value = value.tolist()
         setattr(msg, slot, value)
     return msg
-
-
-register_publisher("ros1", Ros1Publisher)

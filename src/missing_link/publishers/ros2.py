@@ -35,10 +35,11 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
-from ..ros.msgs import ROS_TYPES, typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
+from ..ros.msgs import ROS_TYPES
 from ..topics import Topic, Update
-from .base import Publisher, PublisherError, register_publisher
+from .base import PublisherError
+from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +70,7 @@ def add_prefix(prefix: str) -> None:
         ctypes.CDLL(lib, mode=ctypes.RTLD_GLOBAL)
 
 
-class Ros2Publisher(Publisher):
+class Ros2Publisher(RosPublisher):
     name = "ros2"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
@@ -89,9 +90,7 @@ class Ros2Publisher(Publisher):
             add_prefix(p)
         self.rclpy = rclpy
         distro = str(opts.get("distro") or os.environ.get("ROS_DISTRO") or "kilted")
-        self.typestore = typestore_for(
-            distro if distro in ("humble", "jazzy", "kilted") else "kilted"
-        )
+        super().__init__(distro if distro in ("humble", "jazzy", "kilted") else "kilted")
         self.qos = QoSProfile(
             depth=int(opts.get("depth", 10)),
             reliability=ReliabilityPolicy.RELIABLE,
@@ -108,10 +107,8 @@ class Ros2Publisher(Publisher):
             raise
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._lock = threading.Lock()
         self._pubs: dict[str, Any] = {}
         self._subs: dict[str, Any] = {}
-        self._closed = False
         self.published = 0
         self.dropped = 0
         self.missing_types: dict[str, str] = {}  # type name -> why it is not published
@@ -210,12 +207,10 @@ class Ros2Publisher(Publisher):
         except Exception:  # noqa: BLE001 - rclpy refused (shutting down): counted
             self.dropped += 1
 
-    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        if self._closed:
-            return
+    def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         try:
-            self._diag.publish(diagnostics_cdr(self.typestore, status, now_ns))
-        except Exception:  # noqa: BLE001
+            self._diag.publish(cdr)
+        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): counted
             self.dropped += 1
 
     def status(self) -> dict[str, Any]:
@@ -229,17 +224,10 @@ class Ros2Publisher(Publisher):
             )
         return out
 
-    def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
+    def shutdown(self) -> None:
         try:
             self.executor.shutdown(timeout_sec=1.0)
             self.node.destroy_node()
         finally:
             self.rclpy.shutdown(context=self.context)
         self._spin.join(2.0)
-
-
-register_publisher("ros2", Ros2Publisher)

@@ -24,17 +24,15 @@ import json
 import logging
 import os
 import struct
-import threading
 from collections.abc import Callable
 from typing import Any
 
 import xxhash
 
 from ..errors import ConfigError
-from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE, diagnostics_cdr
-from ..ros.msgs import typestore_for
+from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
-from .base import Publisher, register_publisher
+from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
 
@@ -82,18 +80,17 @@ class _Entity:
         self.token: Any = None
 
 
-class ZenohPublisher(Publisher):
+class ZenohPublisher(RosPublisher):
     name = "zenoh"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         import zenoh
 
         opts = dict(options or {})
-        self.distro = str(opts.get("distro", "jazzy"))
+        super().__init__(str(opts.get("distro", "jazzy")))
         # like rcl: the domain comes from ROS_DOMAIN_ID unless the config says otherwise
         self.domain = int(opts.get("domain", os.environ.get("ROS_DOMAIN_ID") or 0))
         self.node = str(opts.get("node", "missing_link"))
-        self.typestore = typestore_for(self.distro)
         mode = str(opts.get("mode", "peer"))
         if mode not in ("peer", "client"):
             raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
@@ -115,7 +112,6 @@ class ZenohPublisher(Publisher):
             cfg.insert_json5("scouting/gossip/enabled", "true")
         self.session: Any = zenoh.open(cfg)
         self.zid = str(self.session.info.zid())
-        self._lock = threading.Lock()
         self._entities: dict[str, _Entity] = {}
         self._subs: dict[str, tuple[Any, Any]] = {}
         self._next_id = 1
@@ -123,7 +119,6 @@ class ZenohPublisher(Publisher):
         self.published = 0
         self.commands = 0
         self.command_errors = 0
-        self._closed = False
         self._node_token: Any = self.session.liveliness().declare_token(
             f"@ros2_lv/{self.domain}/{self.zid}/{self._node_id}/{self._node_id}/NN/%/%/{self.node}"
         )
@@ -202,30 +197,17 @@ class ZenohPublisher(Publisher):
             return
         self.published += 1
 
-    def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            ent = self._entities[DIAG_TOPIC]
+    def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
+        ent = self._entities[DIAG_TOPIC]
         ent.seq += 1
-        ent.pub.put(
-            diagnostics_cdr(self.typestore, status, now_ns),
-            attachment=attachment(ent.seq, now_ns, ent.gid),
-        )
+        ent.pub.put(cdr, attachment=attachment(ent.seq, now_ns, ent.gid))
 
-    def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            for sub, token in self._subs.values():
-                token.undeclare()
-                sub.undeclare()
-            for ent in self._entities.values():
-                ent.token.undeclare()
-                ent.pub.undeclare()
-            self._node_token.undeclare()
-            self.session.close()
-
-
-register_publisher("zenoh", ZenohPublisher)
+    def shutdown(self) -> None:
+        for sub, token in self._subs.values():
+            token.undeclare()
+            sub.undeclare()
+        for ent in self._entities.values():
+            ent.token.undeclare()
+            ent.pub.undeclare()
+        self._node_token.undeclare()
+        self.session.close()

@@ -1,0 +1,141 @@
+"""Publishers by name: a table naming each built-in publisher's module and class, imported on
+first use (as python-can names its back ends), with what each needs from the environment.
+
+``available_publishers()`` lists exactly the publishers that can start here, without importing
+the heavy libraries to find out (``importlib.util.find_spec`` only looks): ``ros2`` where rclpy
+is installed, ``ros1`` where rospy is, ``zenoh`` where eclipse-zenoh is.  ``make_publisher``
+imports the one asked for; a missing library or a failed import is one line naming the
+publisher and what to install.  Third-party publishers register through the
+``missing_link.publishers`` entry-point group or :func:`register_publisher`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from .base import Publisher, PublisherError
+
+Factory = Callable[[dict[str, Any]], Publisher]
+
+#: where Debian's ROS 1 (python3-rospy) puts rospy; a 3.11 venv can use it (see ros1.py)
+DEBIAN_DIST = "/usr/lib/python3/dist-packages"
+
+
+@dataclass(frozen=True)
+class Entry:
+    module: str
+    cls: str
+    needs: tuple[str, ...] = ()  #: top-level modules that must be importable
+    hint: str = ""  #: how to get them
+
+
+BUILTIN: dict[str, Entry] = {
+    "bus": Entry("missing_link.publishers.bus", "Bus"),
+    "console": Entry("missing_link.publishers.console", "ConsolePublisher"),
+    "mcap": Entry(
+        "missing_link.publishers.mcap", "McapPublisher", ("rosbags", "mcap"), "pip install mcap"
+    ),
+    "zenoh": Entry(
+        "missing_link.publishers.zenoh",
+        "ZenohPublisher",
+        ("zenoh", "xxhash", "rosbags"),
+        "pip install eclipse-zenoh xxhash",
+    ),
+    "foxglove": Entry(
+        "missing_link.publishers.foxglove",
+        "FoxglovePublisher",
+        ("foxglove", "rosbags"),
+        "pip install foxglove-sdk",
+    ),
+    "ros1": Entry(
+        "missing_link.publishers.ros1",
+        "Ros1Publisher",
+        ("rospy",),
+        "scripts/system-deps.sh --ros1 (Debian's ros-core and python3-rospy)",
+    ),
+    "ros2": Entry(
+        "missing_link.publishers.ros2",
+        "Ros2Publisher",
+        ("rclpy",),
+        "source your ROS 2 installation, or pip install ros-kilted-rclpy "
+        "ros-kilted-rmw-fastrtps-cpp ros-kilted-sensor-msgs ros-kilted-diagnostic-msgs",
+    ),
+}
+_REGISTERED: dict[str, Factory] = {}
+
+
+def register_publisher(name: str, factory: Factory) -> None:
+    """Make ``name`` start ``factory(options)`` (a plugin that is not an entry point)."""
+    _REGISTERED[name] = factory
+
+
+def _importable(module: str) -> bool:
+    if module == "rospy" and debian_rospy():
+        return True
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def debian_rospy() -> bool:
+    """Debian's rospy is usable from this Python (the same minor version as the system's)."""
+    return sys.version_info[:2] == (3, 11) and os.path.isdir(f"{DEBIAN_DIST}/rospy")
+
+
+def missing(name: str) -> list[str]:
+    """What built-in publisher ``name`` needs and this environment lacks ([]: nothing)."""
+    entry = BUILTIN.get(name)
+    return [] if entry is None else [m for m in entry.needs if not _importable(m)]
+
+
+def _entry_points() -> dict[str, Any]:
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group="missing_link.publishers")}
+
+
+def known_publishers() -> list[str]:
+    """Every publisher name this installation knows, available here or not (a config file may
+    name ``ros2`` on a machine without rclpy: the daemon then says what is missing)."""
+    return sorted({*BUILTIN, *_REGISTERED, *_entry_points()})
+
+
+def available_publishers() -> list[str]:
+    """The publishers that can start in this environment, by name."""
+    names = {n for n in BUILTIN if not missing(n)} | set(_REGISTERED) | set(_entry_points())
+    return sorted(names)
+
+
+def unavailable(name: str) -> str | None:
+    """Why ``name`` cannot start here (one line), or None when it can."""
+    if name in _REGISTERED or (name in BUILTIN and not missing(name)):
+        return None
+    if name in BUILTIN:
+        lacking = ", ".join(missing(name))
+        return f"needs {lacking}, which is not installed here ({BUILTIN[name].hint})"
+    if name in _entry_points():
+        return None
+    return f"unknown (available here: {', '.join(available_publishers())})"
+
+
+def make_publisher(name: str, options: dict[str, Any]) -> Publisher:
+    """Start publisher ``name`` with ``options``; ``PublisherError`` when it cannot be had."""
+    factory = _REGISTERED.get(name)
+    if factory is None:
+        why = unavailable(name)
+        if why is not None:
+            raise PublisherError(f"publisher {name}: {why}")
+        entry = BUILTIN.get(name)
+        if entry is not None:
+            factory = getattr(importlib.import_module(entry.module), entry.cls)
+        else:
+            factory = _entry_points()[name].load()
+    assert factory is not None
+    return factory(options)
