@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from tests.helpers import AvrSim  # noqa: E402  (the harness driver the tests use)
 
-from missing_link.config import BoardSpec, Config  # noqa: E402
 from missing_link.daemon import Daemon  # noqa: E402
+from missing_link.daemon.config import BoardSpec, Config  # noqa: E402
 from missing_link.host.board import Board  # noqa: E402
 from missing_link.transport import open_transport  # noqa: E402
 

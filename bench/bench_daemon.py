@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_rpc import raw_echo_rate
 from missing_link.board.runtime import BoardRuntime, Transducer
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import BoardSession, Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.demo import start_board_process, stop_process
 from missing_link.descriptors import parse_transds
 from missing_link.j2a import SOF, FrameDecoder, HostConnection, SifReceived, encode_frame
@@ -105,9 +105,9 @@ def throughput(seconds: float) -> tuple[float, float]:
     (t,) = parse_transds("transds/1\n" + bt.descriptor_line() + "\n")
     pieces = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
     daemon = Daemon(Config())
-    session = BoardSession(daemon, BoardSpec("memory://bench"))
+    session = BoardSession(daemon.session_context(), BoardSpec("memory://bench"))
     topic = Topic.for_transducer("/b/dist_ir", "b", t, "missing_link_msgs")
-    session.topics = {t.id: topic}
+    session.path.topics = {t.id: topic}
     daemon._declare(topic)
     got = [0]
     daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8), queue=0)
@@ -118,7 +118,7 @@ def throughput(seconds: float) -> tuple[float, float]:
         for p in pieces:
             for ev in conn.receive_data(p, now):
                 if isinstance(ev, SifReceived):
-                    session._on_sif(ev, now)
+                    session.path.on_sif(ev, now)
         return 20_000 * 8
 
     def bare() -> int:

@@ -11,8 +11,8 @@ import argparse
 import resource
 import time
 
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.demo import start_board_process, stop_process
 
 

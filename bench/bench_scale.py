@@ -44,8 +44,8 @@ import time
 from pathlib import Path
 
 from missing_link.board.runtime import BoardRuntime, Transducer
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.j2a import FrameDecoder
 from missing_link.topics import Update
 

@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 
 import replay_timesync  # (bench/, next to this file)
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.demo import start_board_process, stop_process
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board

@@ -40,8 +40,9 @@ BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
 
 
 def record(runs: int, seconds: float, out: Path) -> None:
-    import bench_timesync as bt
     import missing_link.session as session
+
+    import bench_timesync as bt
     from missing_link.timesync import sync
 
     # The sessions build their SyncOptions; the recorder gives them a fixed 50 Hz probe (a

@@ -32,8 +32,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.faults import FaultRelay
 from missing_link.topics import Update
 

@@ -16,8 +16,8 @@ from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from missing_link.config import BoardSpec, Config, ConfigError, load_config, parse_config
 from missing_link.daemon import Daemon, connect
+from missing_link.daemon.config import BoardSpec, Config, ConfigError, load_config, parse_config
 from missing_link.demo import start_board_process, stop_process
 from missing_link.topics import Update
 
@@ -367,7 +367,7 @@ def test_all_na_update_is_logged_at_host_realtime() -> None:
     from missing_link.topics import Topic
 
     d = Daemon(Config())
-    session = BoardSession(d, BoardSpec("memory://unused"))
+    session = BoardSession(d.session_context(), BoardSpec("memory://unused"))
     (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
     topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
     session.path.topics[1] = topic

@@ -11,10 +11,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from missing_link.config import Config, ConfigError, DiscoverSpec, PortInfo, parse_config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import Config, ConfigError, DiscoverSpec, PortInfo, parse_config
+from missing_link.daemon.discovery import PortMatcher
 from missing_link.demo import start_board_process, stop_process
-from missing_link.discovery import PortMatcher
 
 from .helpers import wait_for
 
@@ -126,7 +126,7 @@ def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
 
 
 def test_usb_devices_with_the_j2a_interface_are_listed() -> None:
-    from missing_link.discovery import usb_ports
+    from missing_link.daemon.discovery import usb_ports
     from missing_link.virtual import make_sim
 
     from .test_transports import FakeDevice, fake_usb

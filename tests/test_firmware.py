@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.host.board import Board
 from missing_link.topics import Update
 from missing_link.transport import open_transport

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from missing_link.boardfile import load_board_file
-from missing_link.config import ConfigError
+from missing_link.daemon.config import ConfigError
 from missing_link.flash import FlashError, micropython_files, verify
 
 from .helpers import FirmwareSim

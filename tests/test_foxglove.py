@@ -10,8 +10,8 @@ import struct
 import websockets
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 
 
 async def _client(url: str, topic: str) -> tuple[dict, bytes, list[str]]:

@@ -19,8 +19,8 @@ from typing import Any
 import pytest
 from rosbags.highlevel import AnyReader
 
-from missing_link.config import BoardSpec, Config, ConfigError, parse_config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_config
 from missing_link.errors import BoardError, CallError, DescriptorError
 from missing_link.faults import FaultRelay, Faults
 from missing_link.host.board import Board

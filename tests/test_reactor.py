@@ -13,12 +13,12 @@ from typing import Any
 
 import pytest
 
-from missing_link.config import BoardSpec
+from missing_link.daemon.config import BoardSpec
+from missing_link.daemon.prober import ClockProber, ProbeContext
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board
 from missing_link.host.reactor import Reactor
 from missing_link.j2a import SifReceived
-from missing_link.prober import ClockProber
 from missing_link.timesync import ClockSync, Exchange, SyncOptions
 from missing_link.timesync.sync import BURST, TRACKING
 from missing_link.transport import open_transport
@@ -160,27 +160,32 @@ def test_async_clock_exchange_reports_a_timeout_to_its_callback(reactor: Reactor
 
 
 # ---- the probe budget (pure: fakes for the session, daemon and board) -------------------------
-class _FakeDaemon:
-    realtime_offset_ns = 0
+class _FakeSession:
+    """What the prober reports to: a plain holder, through the context's callables."""
 
     def __init__(self, boards: int, budget: float) -> None:
-        self.sessions = [object()] * boards
-        self.budget = budget
-
-    @property
-    def probe_gap(self) -> float:
-        return len(self.sessions) / self.budget
-
-
-class _FakeSession:
-    def __init__(self, daemon: _FakeDaemon) -> None:
-        self.daemon = daemon
         self.spec = BoardSpec("tcp://127.0.0.1:1")
         self.name = "fake"
         self.error = ""
         self.rtt_us: float | None = None
         self.map_pushes = 0
-        self.board: object | None = None
+        self.gap = boards / budget
+
+    def context(self) -> ProbeContext:
+        def push() -> None:
+            self.map_pushes += 1
+
+        return ProbeContext(
+            name=self.name,
+            timeout=self.spec.timeout,
+            link_timeout=self.spec.link_timeout,
+            byte_ns=self.spec.byte_ns,
+            realtime_offset_ns=0,
+            probe_gap=lambda: self.gap,
+            on_rtt=lambda us: setattr(self, "rtt_us", us),
+            on_error=lambda text: setattr(self, "error", text),
+            on_map_pushed=push,
+        )
 
 
 class _FakeBoard:
@@ -197,14 +202,12 @@ class _FakeBoard:
 
 
 def test_probe_budget_rations_tracking_probes_but_not_bursts() -> None:
-    daemon = _FakeDaemon(boards=50, budget=100.0)  # each board: at most every 0.5 s
-    session = _FakeSession(daemon)
+    session = _FakeSession(boards=50, budget=100.0)  # each board: at most every 0.5 s
     board = _FakeBoard()
-    session.board = board
     now = time.monotonic()  # (the prober reads the clock for lost probes)
     sync = ClockSync(SyncOptions(), seed=1)
     sync.start(now)
-    prober = ClockProber(session, board, sync)  # type: ignore[arg-type]
+    prober = ClockProber(session.context(), board, sync)  # type: ignore[arg-type]
     assert sync.state == BURST
     prober.tick(now)
     assert prober.due() is None  # one probe in flight at a time

@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from missing_link.board.runtime import BoardRuntime
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.demo import start_board_process, stop_process
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.timesync import (

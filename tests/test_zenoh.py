@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.config import BoardSpec, Config
 from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.demo import start_board_process, stop_process
 from missing_link.publishers.zenoh import attachment, data_key, dds_type
 

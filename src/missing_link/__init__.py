@@ -30,7 +30,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # (for type checkers and readers; at run time see __getattr__)
-    from .daemon import Daemon, connect
+    from .daemon.service import Daemon, connect
     from .descriptors import Transducer, parse_transds
     from .errors import (
         BadURL,
@@ -65,8 +65,8 @@ _WHERE = {
     "CallResult": "host.link",
     "Sample": "host.samples",
     "SampleDecoder": "host.samples",
-    "Daemon": "daemon",
-    "connect": "daemon",
+    "Daemon": "daemon.service",
+    "connect": "daemon.service",
     "Transducer": "descriptors",
     "parse_transds": "descriptors",
     "Transport": "transport.base",

@@ -406,7 +406,7 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
 
 # ---- run ----------------------------------------------------------------------------------------
 def build_config(args: argparse.Namespace) -> Any:
-    from .config import BoardSpec, Config, DiscoverSpec, load_config
+    from .daemon.config import BoardSpec, Config, DiscoverSpec, load_config
     from .publishers.registry import unavailable
 
     cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])

@@ -19,8 +19,8 @@ import sys
 import threading
 from typing import Any, TextIO
 
-from .config import BoardSpec, Config
 from .daemon import Daemon
+from .daemon.config import BoardSpec, Config
 from .errors import MissingLinkError
 from .topics import Update
 from .view import LiveView

@@ -2,20 +2,22 @@
 
 Theory of operation
 -------------------
-The daemon owns the publishers and one :class:`~missing_link.session.BoardSession` per
+The daemon owns the publishers and one :class:`~missing_link.daemon.session.BoardSession` per
 configured board; the session module says how a board is connected, validated, served and
-reconnected, and how its host times are made.  The daemon's own job is the fan-out and what
-sessions must agree on:
+reconnected, and how its host times are made.  A session is handed a
+:class:`~missing_link.daemon.context.SessionContext` (``session_context()``: values and
+callables), never the daemon.  The daemon's own job is the fan-out and what sessions must agree
+on:
 
 * every ``Update`` a session makes goes to every publisher; a publisher that raises is counted
   (``publish_errors``) and logged, never allowed to stop the sample path of any board;
-* names are claimed daemon-wide: a board name is held by one session (a second board that
-  calls itself ``robot`` publishes as ``robot_2``, with a warning), and a message type name by
-  one definition (a second board whose ``temp`` differs gets ``<Board>Temp``), so no recording
-  ever holds two layouts under one type name;
+* names are claimed daemon-wide (``claims.py``): a board name is held by one session (a second
+  board that calls itself ``robot`` publishes as ``robot_2``, with a warning), and a message type
+  name by one definition (a second board whose ``temp`` differs gets ``<Board>Temp``), so no
+  recording ever holds two layouts under one type name;
 * ``/diagnostics`` goes out every ``diagnostics_period`` with each session's status, level and
   counters;
-* one I/O loop (``reactor.py``) reads every board on a descriptor, rather than a reader thread
+* one I/O loop (``host/reactor.py``) reads every board on a descriptor, rather than a reader thread
   per board; each session keeps its own supervisor thread (handshake, probes, commands);
 * boards can come and go while it runs: ``add_board`` / ``remove_board``, used by discovery
   (``discovery.py``: serial ports appearing and vanishing); the session list is replaced, never
@@ -36,18 +38,20 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
+from ..descriptors import load_descriptor_file
+from ..errors import BadURL, BoardError, ConfigError, MissingLinkError
+from ..host.reactor import Reactor
+from ..publishers.base import Publisher, PublisherError
+from ..publishers.bus import Bus, Callback, Subscription
+from ..publishers.registry import make_publisher
+from ..ros.msgs import typestore_for
+from ..topics import Topic, Update
+from ..transport import check_url
+from .claims import Claims
 from .config import BoardSpec, Config
-from .descriptors import Transducer, load_descriptor_file
+from .context import CommandHandler, SessionContext
 from .discovery import DiscoveryService, Enumerator, all_ports
-from .errors import BadURL, BoardError, ConfigError, MissingLinkError
-from .host.reactor import Reactor
-from .publishers.base import Publisher, PublisherError
-from .publishers.bus import Bus, Callback, Subscription
-from .publishers.registry import make_publisher
-from .ros.msgs import msg_name, msgdef, type_name, typestore_for
 from .session import UP, BoardSession
-from .topics import Topic, Update
-from .transport import check_url
 
 log = logging.getLogger(__name__)
 
@@ -89,22 +93,23 @@ class Daemon:
         # SIFs for the smallest batch_ms any board asks for
         batch_ms = min((b.batch_ms for b in config.boards), default=BoardSpec.batch_ms)
         self.reactor = Reactor(batch_s=batch_ms / 1000)
-        self.sessions = [BoardSession(self, spec) for spec in config.boards]
         self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
         self.typestore = typestore_for(config.distro)
+        self.claims = Claims(config.package)
+        self._context = self.session_context()
+        self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
         self._stop = threading.Event()
         self._diag_thread = threading.Thread(
             target=self._diagnostics, name="diagnostics", daemon=True
         )
         self.publish_errors = 0
-        self._claims_lock = threading.Lock()
-        self._names: dict[str, BoardSession] = {}  # board topic name -> the session holding it
-        self._types: dict[str, str] = {}  # message type name -> its definition
         self._sessions_lock = threading.Lock()  # add/remove replace the list (copy on write)
         self.discovery: DiscoveryService | None = None
         if config.discover is not None:
             ports = enumerate_ports or all_ports
-            self.discovery = DiscoveryService(self, config.discover, ports)
+            self.discovery = DiscoveryService(
+                config.discover, ports, self.add_board, self.remove_board
+            )
 
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
@@ -135,7 +140,7 @@ class Daemon:
     def add_board(self, spec: BoardSpec) -> BoardSession:
         """Start a session for one more board (discovery, hotplug); the others are untouched."""
         check_url(spec.url)
-        session = BoardSession(self, spec)
+        session = BoardSession(self._context, spec)
         with self._sessions_lock:
             if self._stopped:
                 raise MissingLinkError("the daemon is stopped")
@@ -151,9 +156,7 @@ class Daemon:
         for s in gone:
             s.request_stop()
             s.stop(timeout)
-            with self._claims_lock:
-                for held in [n for n, owner in self._names.items() if owner is s]:
-                    del self._names[held]
+            self.claims.release(s)
         return bool(gone)
 
     def close(self) -> None:
@@ -244,46 +247,22 @@ class Daemon:
         """One line per publisher that failed for good (a recording that stopped writing)."""
         return [f"{p.name}: {p.error}" for p in self.publishers if p.error]
 
-    # ---- internals -------------------------------------------------------------------------
-    def _claim_name(self, session: BoardSession, name: str) -> str:
-        """The topic name ``session`` publishes under: ``name``, or ``name_2``, ... when another
-        board holds it (said loudly: two boards must not merge into one set of topics)."""
-        with self._claims_lock:
-            # A session keeps its name while it reconnects; it gives it up only for a new one.
-            for held in [n for n, owner in self._names.items() if owner is session]:
-                del self._names[held]
-            candidate, k = name, 1
-            while candidate in self._names:
-                k += 1
-                candidate = f"{name}_{k}"
-            self._names[candidate] = session
-        if candidate != name:
-            session.warn(
-                f"board name {name!r} is taken by {self._names[name].spec.url}: "
-                f"published as {candidate!r}"
-            )
-        return candidate
-
-    def _claim_type(self, session: BoardSession, t: Transducer) -> str:
-        """The message type for ``t``: its plain name unless another definition holds that,
-        then qualified by the board (``BoardBTemp``): one name, one layout, everywhere."""
-        pkg = self.config.package
-        definition = msgdef(t, 2)
-        plain = type_name(t, pkg)
-        with self._claims_lock:
-            held = self._types.setdefault(plain, definition)
-            if held == definition:
-                return plain
-            base = f"{pkg}/msg/{msg_name(session.name)}{msg_name(t)}"
-            candidate, k = base, 1
-            while self._types.setdefault(candidate, definition) != definition:
-                k += 1
-                candidate = f"{base}{k}"
-        session.warn(
-            f"{t.name}: type {plain} is already defined differently by another board: "
-            f"published as {candidate}"
+    # ---- what sessions are handed ------------------------------------------------------------
+    def session_context(self) -> SessionContext:
+        """The values and callables a board session gets instead of the daemon."""
+        return SessionContext(
+            config=self.config,
+            reactor=self.reactor,
+            typestore=self.typestore,
+            realtime_offset_ns=self.realtime_offset_ns,
+            claim_name=self.claims.name,
+            claim_type=self.claims.type,
+            declare=self._declare,
+            publish=self._publish,
+            add_command=self._add_command,
+            remove_command=self.bus.remove_command,
+            probe_gap=lambda: self.probe_gap,
         )
-        return candidate
 
     def _declare(self, topic: Topic) -> None:
         for p in self.publishers:
@@ -296,6 +275,11 @@ class Daemon:
             except Exception:
                 self.publish_errors += 1
                 log.exception("publisher %s failed", p.name)
+
+    def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
+        self.bus.add_command(name, handler)
+        for p in self.publishers:
+            p.add_command_topic(name, topic, handler)
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):

@@ -6,7 +6,7 @@ Theory of operation
 The schedule is the sync's (``ClockSync.due``); this is the shell that runs it.  After a few
 back-to-back exchanges on the session's thread (``first_estimate``: a map before the first
 sample is published), probing moves to the thread that reads the board, as its *ticker*
-(``Board.set_ticker``): when a probe is due, the request is written with ``call_future`` and
+(``BoardLink.set_ticker``): when a probe is due, the request is written with ``call_future`` and
 the reply is handled by a callback on that same thread.  One probe is in flight at a time.
 
 Why: on the daemon's shared I/O loop a probe then costs no thread hand-off at all (the loop
@@ -33,26 +33,40 @@ from __future__ import annotations
 import logging
 import struct
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
-from .errors import CallTimeout, LinkLost, MissingLinkError
-from .host.board import Board
-from .host.link import CallResult
-from .timesync import AddResult, ClockSync, Exchange
-from .timesync.sync import TRACKING
-
-if TYPE_CHECKING:
-    from .session import BoardSession
+from ..errors import CallTimeout, LinkLost, MissingLinkError
+from ..host.board import Board
+from ..host.link import CallResult
+from ..timesync.estimator import AddResult
+from ..timesync.exchange import Exchange
+from ..timesync.sync import TRACKING, ClockSync
 
 log = logging.getLogger(__name__)
 
 MAP_PUSH_PERIOD = 1.0  #: s between a2jHostMap calls (boards that act at host times)
 
 
+@dataclass(frozen=True)
+class ProbeContext:
+    """What the prober needs of its session and daemon: values and callables."""
+
+    name: str  #: the board's topic name (for log lines)
+    timeout: float  #: s per call (the board spec's)
+    link_timeout: float  #: s without a frame before the link is stale (the board spec's)
+    byte_ns: float  #: ns per byte on a UART link (0: not a UART)
+    realtime_offset_ns: int  #: CLOCK_REALTIME - CLOCK_MONOTONIC (host maps are in realtime)
+    probe_gap: Callable[[], float]  #: s between a tracking board's probes (the daemon's budget)
+    on_rtt: Callable[[float], None]  #: each exchange's round trip, µs
+    on_error: Callable[[str], None]  #: a failure that is neither a timeout nor a lost link
+    on_map_pushed: Callable[[], None]  #: the board took a clock map (a2jHostMap)
+
+
 class ClockProber:
-    def __init__(self, session: BoardSession, board: Board, sync: ClockSync) -> None:
-        self.session = session
+    def __init__(self, ctx: ProbeContext, board: Board, sync: ClockSync) -> None:
+        self.ctx = ctx
         self.board = board
         self.sync = sync
         self._in_flight = False
@@ -64,7 +78,7 @@ class ClockProber:
     # ---- on the session's thread --------------------------------------------------------------
     def first_estimate(self, exchanges: int = 8) -> None:
         """Back-to-back blocking exchanges: an estimate before any sample is mapped."""
-        byte_ns = self.session.spec.byte_ns
+        byte_ns = self.ctx.byte_ns
         for _ in range(exchanges):
             try:
                 ex = self.board.clock_exchange(self.timeout_for(), byte_ns=byte_ns)
@@ -86,8 +100,8 @@ class ClockProber:
         """Hand the board the current clock map now (blocking; before a trigger)."""
         payload = self._map_payload()
         if payload is not None:
-            self.board.call_ok("a2jHostMap", payload, timeout=self.session.spec.timeout)
-            self.session.map_pushes += 1
+            self.board.call_ok("a2jHostMap", payload, timeout=self.ctx.timeout)
+            self.ctx.on_map_pushed()
             self._next_push = time.monotonic() + MAP_PUSH_PERIOD
 
     # ---- on the board's reading thread --------------------------------------------------------
@@ -106,10 +120,10 @@ class ClockProber:
             return
         self._in_flight = True
         self._asap = False
-        self._not_before = now + self.session.daemon.probe_gap
+        self._not_before = now + self.ctx.probe_gap()
         try:
             self.board.clock_exchange_async(
-                self._on_reply, self.timeout_for(), byte_ns=self.session.spec.byte_ns
+                self._on_reply, self.timeout_for(), byte_ns=self.ctx.byte_ns
             )
         except MissingLinkError as e:  # the link is gone; the session notices and reconnects
             self._in_flight = False
@@ -126,9 +140,7 @@ class ClockProber:
             if payload is not None:
                 self._next_push = time.monotonic() + MAP_PUSH_PERIOD  # one in flight at most
                 try:
-                    fut = self.board.call_future(
-                        "a2jHostMap", payload, timeout=self.session.spec.timeout
-                    )
+                    fut = self.board.call_future("a2jHostMap", payload, timeout=self.ctx.timeout)
                 except MissingLinkError as e:
                     self._report(e)
                     return
@@ -141,27 +153,25 @@ class ClockProber:
             self._report(e)
             return
         if result.code == 0:
-            self.session.map_pushes += 1
+            self.ctx.on_map_pushed()
         else:
-            self.session.error = f"{self.session.name}: a2jHostMap returned {result.code}"
+            self.ctx.on_error(f"{self.ctx.name}: a2jHostMap returned {result.code}")
 
     # ---- both ---------------------------------------------------------------------------------
     def timeout_for(self) -> float:
         # A probe far slower than the link's best is lost anyway (useless to the estimator):
         # do not wait a whole call timeout for it, e.g. in a board's boot gap.
-        spec = self.session.spec
-        t = spec.timeout
+        t = self.ctx.timeout
         if self.sync.min_rtt_ns is not None:
             t = min(t, max(0.05, 20 * self.sync.min_rtt_ns / 1e9))
-        return min(t, spec.link_timeout / 3)
+        return min(t, self.ctx.link_timeout / 3)
 
     def _exchanged(self, ex: Exchange) -> None:
         result = self.sync.on_exchange(ex, time.monotonic())
-        self.session.rtt_us = ex.rtt_ns / 1000
+        self.ctx.on_rtt(ex.rtt_ns / 1000)
         if result is AddResult.RESET:
             log.warning(
-                "%s: board clock went backwards: board reset, clock map restarted",
-                self.session.name,
+                "%s: board clock went backwards: board reset, clock map restarted", self.ctx.name
             )
 
     def _lost(self, e: BaseException) -> None:
@@ -171,8 +181,8 @@ class ClockProber:
     def _report(self, e: BaseException) -> None:
         # A timeout is the sync's business; a lost link is the session's (it says why, e.g.
         # stale, and closing fails this call after that: it must not overwrite the reason).
-        if not isinstance(e, (CallTimeout, LinkLost)) and self.session.board is self.board:
-            self.session.error = str(e)
+        if not isinstance(e, (CallTimeout, LinkLost)):
+            self.ctx.on_error(str(e))
 
     def _map_payload(self) -> bytes | None:
         got = self.sync.host_map()
@@ -180,4 +190,4 @@ class ClockProber:
             return None
         b, h, rate = got
         ppb = round((rate / 1000.0 - 1.0) * 1e9)
-        return struct.pack("<Qqi", b, round(h) + self.session.daemon.realtime_offset_ns, ppb)
+        return struct.pack("<Qqi", b, round(h) + self.ctx.realtime_offset_ns, ppb)

@@ -28,14 +28,11 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from ..errors import MissingLinkError
+from ..host.board import Board
 from .config import BoardSpec, DiscoverSpec, PortInfo
-from .errors import MissingLinkError
-from .host.board import Board
-
-if TYPE_CHECKING:
-    from .daemon import Daemon
 
 log = logging.getLogger("missing_link.discovery")
 
@@ -68,7 +65,7 @@ class PortMatcher:
 def usb_ports(usb: Any | None = None) -> list[PortInfo]:
     """USB devices with a J2A interface (0xFF/0x12/0xEF: original 2014 boards), as
     ``usb://BUS:ADDR`` "ports" (pyusb; needs libusb)."""
-    from .transport.usb import find_boards, usb_serial
+    from ..transport.usb import find_boards, usb_serial
 
     return [
         PortInfo(f"usb://{d.bus}:{d.address}", d.idVendor, d.idProduct, usb_serial(d), "J2A USB")
@@ -94,10 +91,18 @@ Enumerator = Callable[[], list[PortInfo]]
 
 
 class DiscoveryService:
-    """Polls the enumerator and adds/removes the daemon's boards (one thread)."""
+    """Polls the enumerator and adds/removes the daemon's boards (one thread), through the two
+    callables it is handed (``Daemon.add_board`` and ``Daemon.remove_board``)."""
 
-    def __init__(self, daemon: Daemon, spec: DiscoverSpec, enumerate_ports: Enumerator) -> None:
-        self.daemon = daemon
+    def __init__(
+        self,
+        spec: DiscoverSpec,
+        enumerate_ports: Enumerator,
+        add_board: Callable[[BoardSpec], object],
+        remove_board: Callable[[str], object],
+    ) -> None:
+        self.add_board = add_board
+        self.remove_board = remove_board
         self.spec = spec
         self.enumerate = enumerate_ports
         self.matcher = PortMatcher(spec)
@@ -160,7 +165,7 @@ class DiscoveryService:
             url = self.boards.pop(p.device, None)
             if url is not None:
                 log.warning("discovery: %s vanished: its board session ends", p.device)
-                self.daemon.remove_board(url)
+                self.remove_board(url)
         for p in appeared:
             if self._stop.is_set():
                 return
@@ -173,7 +178,7 @@ class DiscoveryService:
                 continue
             self.boards[p.device] = url
             log.warning("discovery: J2A board on %s (%s)", p.device, p.description or "serial")
-            self.daemon.add_board(BoardSpec(url, uart_baud=self.spec.uart_baud))
+            self.add_board(BoardSpec(url, uart_baud=self.spec.uart_baud))
 
     def probe(self, url: str) -> str | None:
         """None when a J2A board answers on ``url``, else why not."""

@@ -20,32 +20,35 @@ Per SIF:
 4. one ``Update`` to every publisher, and per channel one on the standard-type topic when the
    transducer has one (``standard.py``).
 
-The session owns the supervision (connect, serve, reconnect) and builds ``topics`` and
-``standard`` at each handshake; this class owns what happens to each sample.
+The session owns the supervision (connect, serve, reconnect) and sets ``topics``,
+``standard`` and ``sync`` at each handshake; this class owns what happens to each sample.  It
+knows nothing of the daemon: it is handed ``publish`` (every update goes there) and the offset
+from the monotonic clock to the published (realtime) one.
 """
 
 from __future__ import annotations
 
 import logging
 import struct
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import Any
 
-from .j2a import SifReceived
-from .ros.standard import StandardMapping
-from .timesync import NOT_SYNCED, OUTLIER
-from .topics import Topic, Update
-
-if TYPE_CHECKING:
-    from .host.board import Board
-    from .session import BoardSession
+from ..host.board import Board
+from ..j2a import SifReceived
+from ..ros.standard import StandardMapping
+from ..timesync.sync import NOT_SYNCED, OUTLIER, ClockSync
+from ..topics import Topic, Update
 
 log = logging.getLogger(__name__)
 
 
 class SamplePath:
-    def __init__(self, session: BoardSession) -> None:
-        self.session = session
-        self.daemon = session.daemon
+    def __init__(self, publish: Callable[[Update], None], realtime_offset_ns: int) -> None:
+        self.publish = publish
+        self.realtime_offset_ns = realtime_offset_ns
+        self.name = ""  #: the board's topic name (for log lines)
+        self.sync: ClockSync | None = None  #: the board's clock sync (None: none, receive times)
+        self.board: Board | None = None  #: the board of the current connection
         self.topics: dict[int, Topic] = {}  # transducer id -> topic
         self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
         self.samples = 0
@@ -64,6 +67,7 @@ class SamplePath:
         """At a handshake: ``same_boot`` (the board's clock epoch is the one before an outage)
         means the SIFs it sent meanwhile count as lost, modulo 256 from the seq, exactly when
         the board can tell how many it has sent (``count``, from ``a2jSifCount``)."""
+        self.board = board
         if self.next_seq is not None and same_boot:
             board.conn.expect_sif_seq(self.next_seq)
             self._outage_count = count
@@ -79,7 +83,7 @@ class SamplePath:
         wraps = max(0, round((self._outage_count - (total + mod)) / 256))
         lost = mod + 256 * wraps
         if wraps:
-            board = self.session.board
+            board = self.board
             if board is not None:
                 board.conn.stats.sifs_lost += 256 * wraps
         self.outage_lost_sifs += lost
@@ -116,19 +120,17 @@ class SamplePath:
         except ValueError:
             self.bad_sifs += 1
             return
-        rt_off = self.daemon.realtime_offset_ns
+        rt_off = self.realtime_offset_ns
         recv_ns = int(now_mono * 1e9)
         arrived = recv_ns + rt_off  # the receipt, as a published (realtime) host time
         missing = values.count(None)
-        sync = self.session.sync
+        sync = self.sync
         got = None
         if sync is not None:
             resets = sync.resets
             got = sync.map_many(board_us, now_mono, rt_off)
             if sync.resets != resets:
-                log.warning(
-                    "%s: sample stamps went back: board reset, map restarted", self.session.name
-                )
+                log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
         if got is not None and not got[3] & OUTLIER:
             host_ns, sigma, bound, flags = got
             newest = max(host_ns)
@@ -176,7 +178,7 @@ class SamplePath:
             flags,
         )
         self.samples += len(values) - missing
-        self.daemon._publish(update)
+        self.publish(update)
         std = self.standard.get(cmd)
         if std is not None:
             std_topic, mapping = std
@@ -187,7 +189,7 @@ class SamplePath:
                     except (ValueError, OverflowError, struct.error):
                         self.bad_sifs += 1  # a value the standard type cannot carry
                         continue
-                    self.daemon._publish(
+                    self.publish(
                         Update(
                             std_topic,
                             [board_us[ch]],

@@ -34,30 +34,33 @@ transport claims.
 
 The session builds the clock sync (``_start_sync``: the board's ``ClockSync`` and its prober)
 and, at each handshake, the topics; the sample path maps and publishes each sample with them.
+Actuator commands arrive through :class:`~missing_link.daemon.actuators.Actuators`.
+
+The session never holds the daemon: it is handed a :class:`SessionContext` of values and
+callables (claims, declare, publish, command topics, the probe budget), and hands its own
+children (sample path, prober, actuators) narrower ones still.
 """
 
 from __future__ import annotations
 
 import logging
-import struct
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from ..descriptors import load_descriptor_file
+from ..errors import BoardError, MissingLinkError
+from ..host.board import Board
+from ..ros.standard import StandardMapping, mapping_for
+from ..text import slug
+from ..timesync.sync import ClockSync, SyncOptions
+from ..topics import Topic
+from ..transport import open_transport
+from .actuators import Actuators
 from .config import BoardSpec
-from .descriptors import Transducer, load_descriptor_file
-from .errors import BoardError, MissingLinkError
-from .host.board import Board
-from .prober import ClockProber
-from .ros.standard import StandardMapping, mapping_for
+from .context import SessionContext
+from .prober import ClockProber, ProbeContext
 from .sample_path import SamplePath
-from .text import slug
-from .timesync import ClockSync, SyncOptions
-from .topics import Topic, Update
-from .transport import open_transport
-
-if TYPE_CHECKING:
-    from .daemon import Daemon
 
 log = logging.getLogger(__name__)
 
@@ -71,20 +74,19 @@ class LinkStale(MissingLinkError):
 
 
 class BoardSession:
-    def __init__(self, daemon: Daemon, spec: BoardSpec) -> None:
-        self.daemon = daemon
+    def __init__(self, ctx: SessionContext, spec: BoardSpec) -> None:
+        self.ctx = ctx
         self.spec = spec
         self.state = CONNECTING
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
-        self.path = SamplePath(self)  # what happens to each sample (sample_path.py)
+        # what happens to each sample (sample_path.py)
+        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
         self.stale_links = 0
-        self.commands = 0
-        self.command_errors = 0
         self.rtt_us: float | None = None
         self.sync: ClockSync | None = None
         self.epoch = ""
@@ -96,11 +98,19 @@ class BoardSession:
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
-        self._pending_lock = threading.Lock()
+        self.actuators = Actuators(self._wake.set, self._set_error)
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
         )
+
+    @property
+    def commands(self) -> int:
+        """Actuator commands the board took (cumulative)."""
+        return self.actuators.commands
+
+    @property
+    def command_errors(self) -> int:
+        return self.actuators.command_errors
 
     @property
     def topics(self) -> dict[int, Topic]:
@@ -126,12 +136,12 @@ class BoardSession:
 
     # ---- supervisor thread -------------------------------------------------------------------
     def _supervise(self) -> None:
-        delay = self.daemon.config.backoff_min
+        delay = self.ctx.config.backoff_min
         while not self._stop.is_set():
             self.state = CONNECTING
             try:
                 self._connect()
-                delay = self.daemon.config.backoff_min
+                delay = self.ctx.config.backoff_min
                 self._serve()
             except Exception as e:  # noqa: BLE001 - nothing a board does may end this thread
                 self._failed(e)
@@ -141,7 +151,7 @@ class BoardSession:
                 break
             self.state = BACKOFF
             self._stop.wait(delay)
-            delay = min(delay * 2, self.daemon.config.backoff_max)
+            delay = min(delay * 2, self.ctx.config.backoff_max)
         self.state = STOPPED
 
     def _failed(self, e: Exception) -> None:
@@ -161,7 +171,7 @@ class BoardSession:
 
     def _connect(self) -> None:
         spec = self.spec
-        reactor = self.daemon.reactor
+        reactor = self.ctx.reactor
         board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=reactor)
         board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         self.board = board  # owned before the handshake: stop() closes it at once
@@ -181,8 +191,11 @@ class BoardSession:
         else:
             transducers = board.transducers
         self.warnings = []
-        self.name = self.daemon._claim_name(self, self._board_name(board))
-        cfg = self.daemon.config
+        self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url)
+        if taken:
+            self.warn(taken)
+        self.path.name = self.name
+        cfg = self.ctx.config
         self._start_sync(board)
         # New tables, filled as they are declared (a failure half-way leaves _disconnect the
         # command topics added so far to remove)
@@ -191,12 +204,14 @@ class BoardSession:
         self.path.topics, self.path.standard = topics, standard
         for t in transducers:
             topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
-            type_name = self.daemon._claim_type(self, t)
+            type_name, clash = self.ctx.claim_type(self.name, t)
+            if clash:
+                self.warn(clash)
             topic = Topic.for_transducer(topic_name, self.name, t, cfg.package, type_name)
             topics[t.id] = topic
-            self.daemon._declare(topic)
+            self.ctx.declare(topic)
             try:
-                mapping = mapping_for(t, self.name, self.daemon.typestore)
+                mapping = mapping_for(t, self.name, self.ctx.typestore)
             except ValueError as e:
                 self.warn(str(e))
                 mapping = None
@@ -206,19 +221,16 @@ class BoardSession:
                     self.name,
                     t,
                     mapping.type_name,
-                    self.daemon.typestore,
+                    self.ctx.typestore,
                 )
                 standard[t.id] = (std, mapping)
-                self.daemon._declare(std)
+                self.ctx.declare(std)
             if t.is_actuator:
                 if t.call not in board.index:
                     raise BoardError(
                         self.name, f"actuator {t.name} names call={t.call}, which the board lacks"
                     )
-                handler = self._command_handler(t)
-                self.daemon.bus.add_command(f"{topic_name}/cmd", handler)
-                for p in self.daemon.publishers:
-                    p.add_command_topic(f"{topic_name}/cmd", topic, handler)
+                self.ctx.add_command(f"{topic_name}/cmd", topic, self.actuators.handler(t))
         epoch = board.properties.get("clock.epoch", "")
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
@@ -255,7 +267,7 @@ class BoardSession:
             log.warning("%s: %s", self.spec.url, text)
 
     def _serve(self) -> None:
-        period = self.daemon.config.diagnostics_period
+        period = self.ctx.config.diagnostics_period
         link_timeout = self.spec.link_timeout
         next_ping = time.monotonic()
         next_beat = 0.0
@@ -268,7 +280,7 @@ class BoardSession:
             due = min(next_ping, max(board.last_frame + link_timeout / 2, next_beat))
             self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
-            self._run_commands(board)
+            self.actuators.run(board, self._stop.is_set)
             now = time.monotonic()
             silent = now - board.last_frame
             if silent > link_timeout:
@@ -299,6 +311,7 @@ class BoardSession:
     # ---- clock synchronisation ---------------------------------------------------------------
     def _start_sync(self, board: Board) -> None:
         old, self.sync, self.prober = self.sync, None, None
+        self.path.sync = None
         serial = board.properties.get("board.serial", "")
         if old is not None and old.estimate is not None:
             # The same board again (a link outage): its crystal's skew is a prior, like
@@ -314,56 +327,50 @@ class BoardSession:
         if memory is not None and memory[0] == serial:
             sync.estimator.set_prior(memory[1], memory[2])
         sync.start(time.monotonic())
-        prober = ClockProber(self, board, sync)
+        prober = ClockProber(self._probe_context(board), board, sync)
         prober.first_estimate()  # a map before any sample is published
         self.sync, self.prober = sync, prober
+        self.path.sync = sync
         prober.start()  # from now on on the board's reading thread (prober.py)
+
+    def _probe_context(self, board: Board) -> ProbeContext:
+        spec = self.spec
+
+        def on_error(text: str) -> None:
+            if self.board is board:  # (a late reply of an earlier link says nothing now)
+                self.error = text
+
+        def on_map_pushed() -> None:
+            self.map_pushes += 1
+
+        def on_rtt(us: float) -> None:
+            self.rtt_us = us
+
+        return ProbeContext(
+            name=self.name,
+            timeout=spec.timeout,
+            link_timeout=spec.link_timeout,
+            byte_ns=spec.byte_ns,
+            realtime_offset_ns=self.ctx.realtime_offset_ns,
+            probe_gap=self.ctx.probe_gap,
+            on_rtt=on_rtt,
+            on_error=on_error,
+            on_map_pushed=on_map_pushed,
+        )
+
+    def _set_error(self, text: str) -> None:
+        self.error = text
 
     def _disconnect(self) -> None:
         try:
             for topic in self.topics.values():
-                self.daemon.bus.remove_command(f"{topic.name}/cmd")
+                self.ctx.remove_command(f"{topic.name}/cmd")
         finally:
             board, self.board = self.board, None
             if board is not None:
                 board.close()
                 for key, value in _link_counters(board).items():
                     self._past[key] = self._past.get(key, 0) + value
-
-    # ---- actuators ---------------------------------------------------------------------------
-    def _command_handler(self, t: Transducer) -> Any:
-        def handler(value: Any) -> None:
-            if isinstance(value, Update):
-                present = [v for v in value.values if v is not None]
-                if not present:
-                    raise ValueError(f"{t.name}: the update on {value.topic.name} has no value")
-                value = present[0]
-            elif isinstance(value, (list, tuple)):
-                value = value[0]
-            if not t.legal(value):
-                raise ValueError(f"{t.name}: {value!r} is not a legal {t.dtype} command")
-            with self._pending_lock:
-                self._pending[t.name] = (t, value)
-            self._wake.set()
-
-        return handler
-
-    def _run_commands(self, board: Board) -> None:
-        with self._pending_lock:
-            pending, self._pending = self._pending, {}
-        for t, value in pending.values():
-            try:
-                board.call_ok(str(t.call), t.value_struct().pack(value))
-                self.commands += 1
-            except MissingLinkError as e:
-                if self._stop.is_set():
-                    return  # closing: a command cut short is not an error worth a line
-                self.command_errors += 1
-                self.error = str(e)
-                log.warning("%s", e)
-            except struct.error as e:
-                self.command_errors += 1
-                log.warning("%s: bad command value %r: %s", t.name, value, e)
 
     # ---- the sample path (board reader thread) -----------------------------------------------
     def _sif_count(self, board: Board) -> int | None:

@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .publishers.registry import known_publishers
-from .ros.msgs import DISTROS, check_package
-from .text import is_token
-from .topics import check_topic
+from ..errors import ConfigError
+from ..publishers.registry import known_publishers
+from ..ros.msgs import DISTROS, check_package
+from ..text import is_token
+from ..topics import check_topic
 
 
 @dataclass

@@ -1,0 +1,67 @@
+"""Names the daemon's boards must agree on: one board per topic name, one layout per type name.
+
+* A board name is held by one owner (a session): a second board that calls itself ``robot``
+  publishes as ``robot_2``, and the warning says who holds ``robot``.  An owner keeps its name
+  while it reconnects and gives it up only for a new one, or with :meth:`Claims.release`.
+* A message type name is held by one definition: a second board whose ``temp`` differs gets
+  ``<Board>Temp`` (``BoardBTemp``), so no recording ever holds two layouts under one name.
+
+Thread-safe; every claim returns ``(granted, warning or None)``.
+"""
+
+from __future__ import annotations
+
+import threading
+
+from ..descriptors import Transducer
+from ..ros.msgs import msg_name, msgdef, type_name
+
+
+class Claims:
+    def __init__(self, package: str) -> None:
+        self.package = package
+        self._lock = threading.Lock()
+        self._names: dict[str, tuple[object, str]] = {}  # name -> (owner, owner's URL)
+        self._types: dict[str, str] = {}  # message type name -> its definition
+
+    def name(self, owner: object, wanted: str, url: str) -> tuple[str, str | None]:
+        """The topic name ``owner`` publishes under: ``wanted``, or ``wanted_2``, ... when
+        another board holds it (said loudly: two boards must not merge into one set of
+        topics)."""
+        with self._lock:
+            for held in [n for n, (o, _) in self._names.items() if o is owner]:
+                del self._names[held]
+            candidate, k = wanted, 1
+            while candidate in self._names:
+                k += 1
+                candidate = f"{wanted}_{k}"
+            self._names[candidate] = (owner, url)
+            holder = self._names[wanted][1] if candidate != wanted else ""
+        if candidate == wanted:
+            return candidate, None
+        return candidate, f"board name {wanted!r} is taken by {holder}: published as {candidate!r}"
+
+    def release(self, owner: object) -> None:
+        """``owner`` is gone (its board was removed): its name is free again."""
+        with self._lock:
+            for held in [n for n, (o, _) in self._names.items() if o is owner]:
+                del self._names[held]
+
+    def type(self, board: str, t: Transducer) -> tuple[str, str | None]:
+        """The message type for ``t``: its plain name unless another definition holds that,
+        then qualified by the board (``BoardBTemp``): one name, one layout, everywhere."""
+        definition = msgdef(t, 2)
+        plain = type_name(t, self.package)
+        with self._lock:
+            held = self._types.setdefault(plain, definition)
+            if held == definition:
+                return plain, None
+            base = f"{self.package}/msg/{msg_name(board)}{msg_name(t)}"
+            candidate, k = base, 1
+            while self._types.setdefault(candidate, definition) != definition:
+                k += 1
+                candidate = f"{base}{k}"
+        return candidate, (
+            f"{t.name}: type {plain} is already defined differently by another board: "
+            f"published as {candidate}"
+        )

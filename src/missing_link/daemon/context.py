@@ -1,0 +1,42 @@
+"""What a board session may know of the daemon: plain values and callables, never the daemon.
+
+A :class:`~missing_link.daemon.session.BoardSession` is handed one ``SessionContext`` (as
+httpcore hands a connection a callback, never its pool).  Everything a session does to the rest
+of the daemon goes through it: claiming its board name and its message type names (daemon-wide,
+so two boards never merge or clash), declaring topics to every publisher, publishing updates,
+offering and withdrawing actuator command topics.  Tests build one from lists and fakes
+(``tests/test_daemon_parts.py``); the daemon builds one from itself
+(:meth:`~missing_link.daemon.service.Daemon.session_context`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from ..descriptors import Transducer
+from ..host.reactor import Reactor
+from ..topics import Topic, Update
+from .config import Config
+
+#: a command for an actuator: the value (or an Update, or a list whose first item is the value)
+CommandHandler = Callable[[Any], None]
+
+
+@dataclass(frozen=True)
+class SessionContext:
+    config: Config  #: daemon-wide settings (backoff, diagnostics period, package, remap)
+    reactor: Reactor | None  #: the loop that reads the boards (None: a reader thread each)
+    typestore: Any  #: rosbags typestore of the configured distro (standard types)
+    realtime_offset_ns: int  #: CLOCK_REALTIME - CLOCK_MONOTONIC at start (published host times)
+    #: (owner, wanted name, owner's URL) -> (granted name, warning or None)
+    claim_name: Callable[[object, str, str], tuple[str, str | None]]
+    #: (board name, transducer) -> (message type name, warning or None)
+    claim_type: Callable[[str, Transducer], tuple[str, str | None]]
+    declare: Callable[[Topic], None]  #: a topic to every publisher
+    publish: Callable[[Update], None]  #: an update to every publisher (the sample path)
+    #: (command topic name, the actuator's topic, handler): offered on every face
+    add_command: Callable[[str, Topic, CommandHandler], None]
+    remove_command: Callable[[str], None]
+    probe_gap: Callable[[], float]  #: s between a tracking board's clock probes (the budget)

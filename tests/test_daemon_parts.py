@@ -1,0 +1,153 @@
+"""The daemon's parts without a daemon: a board session, its sample path and its clock prober,
+each built from a plain context (a list for published updates, a dict for claims, lists for
+declared topics) against a real virtual board."""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable
+from typing import Any
+
+from missing_link.daemon.claims import Claims
+from missing_link.daemon.config import BoardSpec, Config
+from missing_link.daemon.context import CommandHandler, SessionContext
+from missing_link.daemon.prober import ClockProber, ProbeContext
+from missing_link.daemon.sample_path import SamplePath
+from missing_link.daemon.session import UP, BoardSession
+from missing_link.descriptors import Transducer, parse_transds
+from missing_link.host.board import Board
+from missing_link.j2a import SifReceived
+from missing_link.ros.msgs import typestore_for
+from missing_link.timesync.sync import NOT_SYNCED, ClockSync, SyncOptions
+from missing_link.topics import Topic, Update
+from missing_link.virtual import make_sim
+
+from .helpers import wait_for
+
+Serve = Callable[..., Any]
+
+
+class PlainContext:
+    """A session's whole world, in lists and dicts."""
+
+    def __init__(self, taken: dict[str, str] | None = None) -> None:
+        self.published: list[Update] = []
+        self.declared: list[Topic] = []
+        self.commands: dict[str, CommandHandler] = {}
+        self.removed: list[str] = []
+        self.names: list[tuple[str, str]] = []
+        self.taken = taken or {}  # board name -> URL of the board that holds it
+
+    def claim_name(self, owner: object, wanted: str, url: str) -> tuple[str, str | None]:
+        self.names.append((wanted, url))
+        if wanted in self.taken:
+            return f"{wanted}_2", f"board name {wanted!r} is taken by {self.taken[wanted]}"
+        return wanted, None
+
+    def claim_type(self, board: str, t: Transducer) -> tuple[str, str | None]:
+        return f"missing_link_msgs/msg/T{t.id}", None
+
+    def add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
+        self.commands[name] = handler
+
+    def build(self) -> SessionContext:
+        return SessionContext(
+            config=Config(backoff_min=0.05, backoff_max=0.1),
+            reactor=None,  # each board on a reader thread of its own
+            typestore=typestore_for("jazzy"),
+            realtime_offset_ns=0,
+            claim_name=self.claim_name,
+            claim_type=self.claim_type,
+            declare=self.declared.append,
+            publish=self.published.append,
+            add_command=self.add_command,
+            remove_command=self.removed.append,
+            probe_gap=lambda: 0.05,
+        )
+
+
+def test_a_session_runs_on_a_plain_context(serve: Serve) -> None:
+    server = serve(make_sim("thesis", seed=3, name="thesis"))
+    plain = PlainContext(taken={"thesis": "memory://elsewhere"})
+    session = BoardSession(plain.build(), BoardSpec(server.url))
+    session.start()
+    try:
+        assert wait_for(lambda: session.state == UP)
+        assert plain.names == [("thesis", server.url)]
+        assert session.name == "thesis_2"  # the claim said so, and the session said why
+        assert any("taken by memory://elsewhere" in w for w in session.warnings)
+        names = {t.name for t in plain.declared}
+        assert {"/thesis_2/quad", "/thesis_2/dist_ir", "/thesis_2/servo"} <= names
+        assert wait_for(lambda: any(u.topic.name == "/thesis_2/quad" for u in plain.published))
+        plain.commands["/thesis_2/servo/cmd"](12)  # a face hands a command over
+        assert wait_for(lambda: session.commands == 1)
+        assert session.status()["sync_state"] != "none"
+    finally:
+        session.stop(2.0)
+    assert "/thesis_2/servo/cmd" in plain.removed  # its command topic withdrawn on the way out
+
+
+def test_the_sample_path_publishes_into_a_list() -> None:
+    published: list[Update] = []
+    path = SamplePath(published.append, realtime_offset_ns=1_000_000_000)
+    (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
+    path.topics[1] = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    now = time.monotonic()
+    path.on_sif(SifReceived(1, 0, struct.pack("<QhQh", 5, 7, 6, -1), 0), now)
+    path.on_sif(SifReceived(1, 1, struct.pack("<QhQh", 8, 9, 9, 10), 0), now)  # same receipt
+    path.on_sif(SifReceived(9, 2, b"", 0), now)  # no such transducer
+    path.on_sif(SifReceived(1, 3, b"\x01", 0), now)  # does not fit the descriptor
+    first, second = published
+    assert first.values == [7, None] and first.host_ns[1] == 0  # N/A keeps its slot, no time
+    assert first.clock_flags & NOT_SYNCED  # no sync handed to it: receive times, flagged
+    assert first.host_ns[0] == int(now * 1e9) + 1_000_000_000  # in the published time base
+    assert min(second.host_ns) > max(first.host_ns)  # strictly increasing per topic
+    counters = path.counters()
+    assert counters["unknown_sifs"] == 1 and counters["bad_sifs"] == 1
+    assert counters["host_time_clamps"] == 1 and counters["samples"] == 3
+
+
+def test_a_prober_reports_through_its_context(serve: Serve) -> None:
+    server = serve(make_sim("thesis", seed=4))
+    rtts: list[float] = []
+    errors: list[str] = []
+    pushes: list[int] = []
+    ctx = ProbeContext(
+        name="thesis",
+        timeout=1.0,
+        link_timeout=1.5,
+        byte_ns=0.0,
+        realtime_offset_ns=0,
+        probe_gap=lambda: 0.0,
+        on_rtt=rtts.append,
+        on_error=errors.append,
+        on_map_pushed=lambda: pushes.append(1),
+    )
+    with Board.open(server.url) as board:
+        sync = ClockSync(SyncOptions(), seed=1)
+        sync.start(time.monotonic())
+        prober = ClockProber(ctx, board, sync)
+        prober.first_estimate()
+        assert len(rtts) == 8 and all(r > 0 for r in rtts)
+        assert sync.estimate is not None
+        prober.push_map()  # the thesis board acts at host times: it takes the map
+        prober.start()
+        assert wait_for(lambda: len(rtts) > 12)  # probes go on, on the board's reading thread
+        board.set_ticker(None)
+    assert pushes == [1] and errors == []
+
+
+def test_claims_name_and_type_without_a_daemon() -> None:
+    claims = Claims("missing_link_msgs")
+    a, b = object(), object()
+    assert claims.name(a, "robot", "tcp://a") == ("robot", None)
+    granted, warning = claims.name(b, "robot", "tcp://b")
+    assert granted == "robot_2" and warning is not None and "tcp://a" in warning
+    claims.release(a)
+    assert claims.name(object(), "robot", "tcp://c") == ("robot", None)
+    (i16,) = parse_transds("transds/1\ntemp,1,p,M,1,int16_t,-1\n")
+    (f32,) = parse_transds("transds/1\ntemp,1,p,M,1,float,-1\n")
+    assert claims.type("board_a", i16) == ("missing_link_msgs/msg/Temp", None)
+    name, clash = claims.type("board_b", f32)
+    assert name == "missing_link_msgs/msg/BoardBTemp" and clash is not None
