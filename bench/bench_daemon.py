@@ -25,16 +25,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from missing_link.view import percentile
+
 from bench_rpc import raw_echo_rate
 from missing_link.board.runtime import BoardRuntime, Transducer
 from missing_link.daemon import BoardSession, Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.demo import start_board_process, stop_process
 from missing_link.descriptors import parse_transds
 from missing_link.j2a import SOF, FrameDecoder, HostConnection, SifReceived, encode_frame
 from missing_link.publishers.mcap import McapPublisher
 from missing_link.topics import Topic, Update
-from missing_link.view import percentile
+from missing_link.virtual.process import start_board_process, stop_process
 
 
 def latency(rate_hz: float, seconds: float) -> tuple[int, float, float, float, int]:

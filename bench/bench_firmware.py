@@ -30,8 +30,8 @@ def run(cmd: list[str]) -> dict[str, float]:
 
 
 def main() -> None:
-    from missing_link.boardfile import load_board_file
-    from missing_link.flash import micropython_files
+    from missing_link.deploy.boardfile import load_board_file
+    from missing_link.deploy.flash import micropython_files
 
     host = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
     mpy = run(["node", str(host), str(RIG), "--run", str(PROBE)])

@@ -13,7 +13,7 @@ import time
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.demo import start_board_process, stop_process
+from missing_link.virtual.process import start_board_process, stop_process
 
 
 def cpu_s() -> float:

@@ -19,8 +19,8 @@ import time
 import tty
 
 from missing_link import open_board
-from missing_link.demo import start_board_process, stop_process
 from missing_link.j2a import SOF, encode_frame
+from missing_link.virtual.process import start_board_process, stop_process
 
 ECHO_PEER = r"""
 import os, select, socket, sys, tty

@@ -1,6 +1,6 @@
 """Clock synchronisation, measured against the methods of the anchors in the same run.
 
-1. Simulation (``missing_link.timesync.sim``): board clocks with offset, 100 ppm skew, rate
+1. Simulation (``missing_link.virtual.syncsim``): board clocks with offset, 100 ppm skew, rate
    random walk and a slow sinusoid, 1 µs ticks; links ``pty`` (heavy tails, bursts, loss),
    ``usb`` (full speed, 1 ms frames) and ``ftdi`` (921600 Bd UART behind a 1 ms latency timer).
    Every method runs on every (link, seed); errors are taken at 100 Hz sample stamps after a
@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import itertools
 import os
 import random
 import statistics
@@ -39,15 +38,16 @@ from typing import Any
 import numpy as np
 
 import replay_timesync  # (bench/, next to this file)
+from _whole_run import whole_run
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.demo import start_board_process, stop_process
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
-from missing_link.timesync import sim
 from missing_link.topics import Update
-from missing_link.virtual.sims import AffineClock, DriftClock
+from missing_link.virtual import syncsim as sim
+from missing_link.virtual.clocks import AffineClock
+from missing_link.virtual.process import start_board_process, stop_process
 
 TARGETS = {"pty": (5, 15, 50), "usb": (20, 60, 200), "ftdi": (20, 80, 300), "tcp": (5, 15, 50)}
 
@@ -219,76 +219,6 @@ def real_daemon(link: str, seconds: float) -> str:
         f" probes {st['sync_exchanges']} in {seconds:.0f} s, bound now ±{st.get('bound_us')} µs,"
         f" min RTT {st['sync_min_rtt_us']} µs"
     )
-
-
-def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> dict[str, float]:
-    """The whole run as a user sees it: an independent check of every sample from 0.5 s after
-    the first one, against a board clock with a random offset, skew of +-50..200 ppm, a drift
-    of the skew, and one reset (100 ms boot gap) ``reset_s`` in; 500 Hz samples."""
-    rng = random.Random(seed)
-    offset = rng.uniform(1e6, 1e9)
-    skew = rng.choice((-1, 1)) * rng.uniform(50, 200)
-    drift = rng.uniform(-0.5, 0.5)
-    gap_ms = 100.0
-    ref = time.monotonic_ns()
-    extra = [
-        *("--clock-offset-us", repr(offset), "--clock-skew-ppm", repr(skew)),
-        *("--clock-drift-ppm-per-s", repr(drift), "--clock-ref-ns", str(ref)),
-        *("--reset-at", repr(reset_s), "--boot-gap-ms", repr(gap_ms), "--rate", "500"),
-    ]
-    listen = "pty" if link == "pty" else "tcp://127.0.0.1:0"
-    proc, url = start_board_process("rate", seed, listen, extra=extra, name="w")
-    truth = DriftClock(offset, skew, drift, ref, [reset_s])
-    whole_run.truth = truth  # type: ignore[attr-defined]  # for diagnostics of a run
-    answering_again = truth.reset_ns[0] + gap_ms * 1e6
-    rows: list[tuple[int, int, float, int, int]] = []  # recv, host, err, bound, flags
-    try:
-        with Daemon(Config(boards=[BoardSpec(url)])) as d:
-            off = d.realtime_offset_ns
-
-            def on_update(u: Update) -> None:
-                boot = 0 if u.recv_ns < answering_again else 1
-                true_ns = truth.host_ns(u.board_us[0], boot)
-                h = u.host_ns[0]
-                rows.append((u.recv_ns, h, h - off - true_ns, u.bound_ns, u.clock_flags))
-
-            d.subscribe("/w/signal", on_update, queue=0)
-            t_end = ref + seconds * 1e9
-            while time.monotonic_ns() < t_end:
-                time.sleep(0.2)
-            st = d.status()[0]
-    finally:
-        stop_process(proc)
-    first = rows[0][0]
-    whole_run.first_sample_ns = first  # type: ignore[attr-defined]  # (replay_timesync.py)
-    whole_run.answering_again_ns = answering_again  # type: ignore[attr-defined]
-    hosts = [r[1] for r in rows]
-    not_increasing = sum(1 for a, b in itertools.pairwise(hosts) if b <= a)
-    counted = [r for r in rows if r[0] >= first + 5e8 and not r[4] & 6]  # synced, not outliers
-    err = np.abs(np.array([r[2] for r in counted])) / 1000
-    bounds = np.array([r[3] for r in counted]) / 1000
-    covered = float(np.mean(err <= bounds)) * 100
-    # recovery: from the board answering again to the first synced sample within 50 µs, after
-    # which none is worse
-    after = [r for r in rows if r[0] >= answering_again]
-    recovery = float("nan")
-    for i, r in enumerate(after):
-        if all(not x[4] & 6 and abs(x[2]) <= 50_000 for x in after[i:]):
-            recovery = (r[0] - answering_again) / 1e6
-            break
-    return {
-        "p50": float(np.percentile(err, 50)),
-        "p99": float(np.percentile(err, 99)),
-        "max": float(err.max()),
-        "bound_p50": float(np.percentile(bounds, 50)),
-        "covered": covered,
-        "not_increasing": not_increasing,
-        "recovery_ms": recovery,
-        "unsynced": sum(1 for r in rows if r[4] & 6),
-        "n": len(rows),
-        "probes_per_s": st["sync_exchanges"] / seconds,
-        "resets": st["sync_resets"],
-    }
 
 
 def whole_runs(seeds: int, seconds: float) -> None:

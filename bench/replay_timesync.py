@@ -14,7 +14,7 @@ the sync asks for a probe, it gets the first recorded exchange sent at or after 
 (so any schedule slower than 50 Hz can be replayed), and every 2 ms from 0.5 s after the first
 sample it maps the board's true reading and compares with the truth, as the whole-run bench
 does.  Each ``--set`` is one variant of ``SyncOptions`` (``default`` = none); ``--anchors`` adds
-the anchors' methods of ``timesync/sim.py`` (Cristian/micro-ROS, rosserial, PX4) on the same
+the anchors' methods of ``virtual/syncsim.py`` (Cristian/micro-ROS, rosserial, PX4) on the same
 exchanges at their own probe rates.  Medians over the recordings; error bins by time since the
 first sample; "before the reset" counts only up to the board's reset (the anchor models, like
 the originals they stand for, have no reset detection beyond re-syncing)."""
@@ -33,16 +33,16 @@ from typing import Any
 
 import numpy as np
 
-from missing_link.timesync import ClockSync, Exchange, SyncOptions, sim
-from missing_link.virtual.sims import DriftClock
+from missing_link.timesync import ClockSync, Exchange, SyncOptions
+from missing_link.virtual import syncsim as sim
+from missing_link.virtual.clocks import DriftClock
 
 BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
 
 
 def record(runs: int, seconds: float, out: Path) -> None:
-    import missing_link.session as session
-
-    import bench_timesync as bt
+    import missing_link.daemon.session as session
+    from _whole_run import whole_run
     from missing_link.timesync import sync
 
     # The sessions build their SyncOptions; the recorder gives them a fixed 50 Hz probe (a
@@ -63,8 +63,8 @@ def record(runs: int, seconds: float, out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
         for k in range(runs):
             seen.clear()
-            got = bt.whole_run("pty", seconds, 100 + k)
-            _save(out / f"run{100 + k}.json", vars(bt.whole_run), seen)
+            got = whole_run("pty", seconds, 100 + k)
+            _save(out / f"run{100 + k}.json", vars(whole_run), seen)
             print(f"run {k + 1}/{runs}: {len(seen)} exchanges (live p50 {got['p50']:.1f} µs)")
     finally:
         setattr(session, "SyncOptions", SyncOptions)  # noqa: B010

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.faults import FaultRelay
 from missing_link.topics import Update
+from missing_link.virtual.faults import FaultRelay
 
 FAULTS = ("freeze", "blackhole", "corrupt", "kill")
 

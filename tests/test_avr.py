@@ -16,9 +16,9 @@ import pytest
 
 from missing_link.board.drivers import driver_class
 from missing_link.board.firmware import describe
-from missing_link.boardfile import load_board_file
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.host.board import Board
 from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame
 from missing_link.topics import Update

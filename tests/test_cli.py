@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.demo import start_board_process, stop_process
+from missing_link.virtual.process import start_board_process, stop_process
 
 pytestmark = pytest.mark.slow
 

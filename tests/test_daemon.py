@@ -18,8 +18,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from missing_link.daemon import Daemon, connect
 from missing_link.daemon.config import BoardSpec, Config, ConfigError, load_config, parse_config
-from missing_link.demo import start_board_process, stop_process
 from missing_link.topics import Update
+from missing_link.virtual.process import start_board_process, stop_process
 
 Serve = Any
 

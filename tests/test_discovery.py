@@ -14,7 +14,7 @@ import pytest
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import Config, ConfigError, DiscoverSpec, PortInfo, parse_config
 from missing_link.daemon.discovery import PortMatcher
-from missing_link.demo import start_board_process, stop_process
+from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import wait_for
 

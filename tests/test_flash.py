@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.boardfile import load_board_file
 from missing_link.daemon.config import ConfigError
-from missing_link.flash import FlashError, micropython_files, verify
+from missing_link.deploy.boardfile import load_board_file
+from missing_link.deploy.check import FlashError, verify
+from missing_link.deploy.flash import micropython_files
 
 from .helpers import FirmwareSim
 
@@ -127,7 +128,7 @@ def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Pa
 
 
 def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
-    from missing_link.avrgen import generate_avr
+    from missing_link.deploy.avrgen import generate_avr
 
     body = UNO.read_text().replace('"pin_a": 2, "pin_b": 3', '"pin_a": 4, "pin_b": 5')
     with pytest.raises(ConfigError, match="on the Uno/Nano the encoder is on pins 2 and 3"):

@@ -1,9 +1,9 @@
 """Hostile boards and injected faults: no session dies, no daemon hangs, nothing is lost silently.
 
 Boards here are real runtimes with one thing wrong (missing_link.virtual.hostile), served over
-real links; faults come from the fault relay (missing_link.faults) or from signals to real board
-processes (SIGSTOP/SIGCONT/SIGKILL).  Waits are bounded but generous: these tests check what
-happens, the soak bench measures how fast."""
+real links; faults come from the fault relay (missing_link.virtual.faults) or from signals to
+real board processes (SIGSTOP/SIGCONT/SIGKILL).  Waits are bounded but generous: these tests
+check what happens, the soak bench measures how fast."""
 
 from __future__ import annotations
 
@@ -22,11 +22,11 @@ from rosbags.highlevel import AnyReader
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_config
 from missing_link.errors import BoardError, CallError, DescriptorError
-from missing_link.faults import FaultRelay, Faults
 from missing_link.host.board import Board
 from missing_link.timesync import OUTLIER
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
+from missing_link.virtual.faults import FaultRelay, Faults
 
 Serve = Callable[..., Any]
 ML = [sys.executable, "-m", "missing_link"]

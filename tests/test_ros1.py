@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.demo import start_board_process, stop_process
+from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import free_port
 

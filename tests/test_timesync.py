@@ -21,7 +21,6 @@ from hypothesis import strategies as st
 from missing_link.board.runtime import BoardRuntime
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.demo import start_board_process, stop_process
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.timesync import (
     NOT_SYNCED,
@@ -34,12 +33,13 @@ from missing_link.timesync import (
     Exchange,
     PublishedMap,
     SyncOptions,
-    sim,
 )
 from missing_link.timesync.sync import BURST, FAST, TRACKING
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
-from missing_link.virtual.sims import AffineClock
+from missing_link.virtual import syncsim as sim
+from missing_link.virtual.clocks import AffineClock
+from missing_link.virtual.process import start_board_process, stop_process
 
 
 def exchanges(offset_us: float, skew: float, seed: int, n: int, spacing_s: float = 0.05):
@@ -598,7 +598,7 @@ def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
         *("--reset-at", "3", "--boot-gap-ms", "100", "--rate", "300"),
     ]
     proc, url = start_board_process("rate", 5, "pty", extra=extra, name="r")
-    from missing_link.virtual.sims import DriftClock
+    from missing_link.virtual.clocks import DriftClock
 
     truth = DriftClock(5e8, 120.0, 0.3, ref, [3.0])
     back_at = truth.reset_ns[0] + 100_000_000

@@ -14,8 +14,8 @@ import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.demo import start_board_process, stop_process
 from missing_link.publishers.zenoh import attachment, data_key, dds_type
+from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import free_port
 

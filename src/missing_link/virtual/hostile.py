@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 
 from ..board.runtime import BoardRuntime, Transducer, read_blob
-from .sims import Counter, _rng
+from .drivers import Counter, rng_for
 
 
 def _board(name: str, seed: int, **kw: object) -> BoardRuntime:
@@ -33,7 +33,7 @@ def _board(name: str, seed: int, **kw: object) -> BoardRuntime:
 
 
 def _signal(rt: BoardRuntime, seed: int, rate_hz: float = 200.0) -> Counter:
-    counter = Counter(_rng(seed, "counter"), rate_hz, 1)
+    counter = Counter(rng_for(seed, "counter"), rate_hz, 1)
     rt.add_transducer(Transducer("signal", 0, "counter", "COUNTER", 1, "int32_t", -1), counter)
     return counter
 
@@ -116,7 +116,7 @@ def strings(seed: int = 0, name: str = "strings", **kw: object) -> BoardRuntime:
             0,
             unit="mm\x1b]0;pwned\x07\u2028",
         ),
-        Counter(_rng(seed, "c"), 100.0, 1),
+        Counter(rng_for(seed, "c"), 100.0, 1),
     )
     rt.set_property("board.model", "evil\x1b[2J\r\nmodel")
     return rt
@@ -147,7 +147,7 @@ def glitch(
 ) -> BoardRuntime:
     rt = _board(name, seed, **kw)
     t = _GlitchTransducer(every, "signal", 0, "counter", "COUNTER", 1, "int32_t", -1)
-    rt.add_transducer(t, Counter(_rng(seed, "counter"), rate_hz, 1))
+    rt.add_transducer(t, Counter(rng_for(seed, "counter"), rate_hz, 1))
     return rt
 
 
@@ -155,11 +155,11 @@ def clash(seed: int = 0, name: str = "clash", **kw: object) -> BoardRuntime:
     rt = _board(name, seed, **kw)
     rt.add_transducer(
         Transducer("sonar_1", 0, "srf02", "SRF02", 1, "uint16_t", 0),
-        Counter(_rng(seed, "a"), 50.0, 1),
+        Counter(rng_for(seed, "a"), 50.0, 1),
     )
     rt.add_transducer(
         Transducer("sonar1", 1, "srf02", "SRF02", 1, "uint16_t", 0),
-        Counter(_rng(seed, "b"), 50.0, 1),
+        Counter(rng_for(seed, "b"), 50.0, 1),
     )
     return rt
 
@@ -168,7 +168,7 @@ def dtype(seed: int = 0, name: str = "dtype", dtype: str = "int16_t", **kw: obje
     rt = _board(name, seed, **kw)
     na = -1.0 if dtype in ("float", "double") else 0
     rt.add_transducer(
-        Transducer("temp", 0, "tmp", "TMP36", 1, dtype, na), Counter(_rng(seed, "t"), 100.0, 1)
+        Transducer("temp", 0, "tmp", "TMP36", 1, dtype, na), Counter(rng_for(seed, "t"), 100.0, 1)
     )
     return rt
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from .board.drivers import driver_class
-from .board.dtypes import DTYPES
-from .board.firmware import describe
+from ..board.drivers import driver_class
+from ..board.dtypes import DTYPES
+from ..board.firmware import describe
+from ..errors import ConfigError
 from .boardfile import BoardFile
-from .errors import ConfigError
 
 
 #: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo)

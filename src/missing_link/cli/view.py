@@ -16,7 +16,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-from .topics import Update
+from ..topics import Update
 
 
 @dataclass

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .board.drivers import DRIVERS, driver_class
-from .board.dtypes import DTYPES
-from .board.firmware import RESERVED
-from .errors import ConfigError
-from .text import is_token
+from ..board.drivers import DRIVERS, driver_class
+from ..board.dtypes import DTYPES
+from ..board.firmware import RESERVED
+from ..errors import ConfigError
+from ..text import is_token
 
 MCUS = ("rp2040", "esp32", "esp32s3", "atmega328p", "atmega2560", "atmega32u4")
 AVR_MCUS = ("atmega328p", "atmega2560", "atmega32u4")

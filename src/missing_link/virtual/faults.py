@@ -32,9 +32,9 @@ from collections import deque
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
-from .errors import BadURL, TransportBroken, TransportClosed
-from .transport import Transport, open_transport
-from .transport.sockets import parse_host_port
+from ..errors import BadURL, TransportBroken, TransportClosed
+from ..transport import Transport, open_transport
+from ..transport.sockets import parse_host_port
 
 _TICK = 0.01
 

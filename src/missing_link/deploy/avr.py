@@ -12,9 +12,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .boardfile import BoardFile
+from .check import FlashError, verify
 
 #: firmware/avr of the source checkout this package runs from (an editable install)
-AVR_DIR = Path(__file__).resolve().parents[2] / "firmware" / "avr"
+AVR_DIR = Path(__file__).resolve().parents[3] / "firmware" / "avr"
 #: avrdude part, programmer and baud of the usual Arduino bootloader per MCU
 AVRDUDE = {
     "atmega328p": ("m328p", "arduino", 115200),  # Uno, Nano (new bootloader)
@@ -39,8 +40,6 @@ def make_command(bf: BoardFile, build: Path) -> list[str]:
 
 
 def _run(cmd: list[str], what: str, timeout: float) -> str:
-    from .flash import FlashError
-
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except FileNotFoundError:
@@ -60,8 +59,6 @@ def _run(cmd: list[str], what: str, timeout: float) -> str:
 def flash_avr(
     bf: BoardFile, port: str, *, dry_run: bool, say: Callable[[str], None], check: bool
 ) -> int:
-    from .flash import FlashError, verify
-
     with tempfile.TemporaryDirectory(prefix="missing-link-avr-") as tmp:
         build = Path(tmp)
         hex_path = build / bf.name / "firmware.hex"

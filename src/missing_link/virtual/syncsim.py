@@ -1,4 +1,6 @@
-"""Clock and link models, the anchor methods, and a scenario runner.  Pure, seeded, no I/O.
+"""The clock-sync simulation: clock and link models, the anchor methods, a scenario runner.
+Pure, seeded, no I/O (a bench and test harness; it lives with the virtual boards, not in the
+core).
 
 Used by ``bench/bench_timesync.py`` and the tests.  Host time is the truth (ns from 0); a board
 clock is a function of it; a link turns a send time into an arrival time (or a loss).
@@ -36,8 +38,8 @@ from typing import Protocol
 
 import numpy as np
 
-from .exchange import Exchange
-from .sync import ClockSync, SyncOptions
+from ..timesync.exchange import Exchange
+from ..timesync.sync import ClockSync, SyncOptions
 
 NS = 1_000
 MS = 1_000_000

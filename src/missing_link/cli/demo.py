@@ -14,15 +14,18 @@ moment of measurement -> host subscriber callback) is exact, not estimated.
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 import threading
 from typing import Any, TextIO
 
-from .daemon import Daemon
-from .daemon.config import BoardSpec, Config
-from .errors import MissingLinkError
-from .topics import Update
+from ..daemon import Daemon
+from ..daemon.config import BoardSpec, Config
+from ..errors import MissingLinkError
+from ..topics import Update
+from ..virtual.process import start_board_process, stop_process
+from .common import EXIT_USAGE
 from .view import LiveView
 
 ENCODER_TOPIC = "/board_a/quad"
@@ -30,47 +33,11 @@ SERVO_CMD = "/board_a/servo/cmd"
 COUNTS_PER_STEP = 64  # encoder counts per servo step (2000 counts = one wheel turn)
 
 
-def start_board_process(
-    sim: str,
-    seed: int,
-    listen: str = "pty",
-    name: str | None = None,
-    timeout: float = 10.0,
-    extra: list[str] | None = None,
-) -> tuple[subprocess.Popen[str], str]:
-    """Start ``missing-link board`` in a child process; return it and the URL it printed."""
-    cmd = [sys.executable, "-m", "missing_link", "board", "--sim", sim, "--seed", str(seed)]
-    cmd += ["--listen", listen] + (["--name", name] if name else []) + (extra or [])
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(
-        target=lambda: lines.append(proc.stdout.readline() if proc.stdout else ""), daemon=True
-    )
-    reader.start()
-    reader.join(timeout)
-    line = lines[0] if lines else ""
-    if not line.startswith("LISTENING "):
-        proc.kill()
-        err = proc.stderr.read() if proc.stderr else ""
-        raise MissingLinkError(f"virtual board did not start (got {line!r}); stderr: {err.strip()}")
-    return proc, line.split(" ", 1)[1].strip()
-
-
-def stop_process(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-
-
 def _foxglove(port: int | None) -> Any:
     """The Foxglove live view on ``port`` (another free port if that one is taken)."""
     if port is None:
         return None
-    from .publishers.foxglove import FoxglovePublisher
+    from ..publishers.foxglove import FoxglovePublisher
 
     try:
         return FoxglovePublisher({"port": port})
@@ -193,3 +160,18 @@ def run_demo(
         return 130
     print("demo " + ("finished OK" if ok else "FAILED"), file=out)
     return 0 if ok else 1
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    if args.duration < 1:
+        print("missing-link: error: --duration must be at least 1 s", file=sys.stderr)
+        return EXIT_USAGE
+    return run_demo(duration=args.duration, seed=args.seed, record=args.record)
+
+
+def add_parsers(sub: Any) -> None:
+    sp = sub.add_parser("demo", help="the thesis test rig on two virtual boards, recorded")
+    sp.add_argument("--duration", type=float, default=20.0, help="seconds to run (20)")
+    sp.add_argument("--record", default="recordings", help="recording directory (recordings)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.set_defaults(func=cmd_demo)

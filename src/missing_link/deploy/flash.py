@@ -16,25 +16,20 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from .board import drivers as drivers_pkg
+from ..board import drivers as drivers_pkg
+from .avr import flash_avr
 from .boardfile import BoardFile
-from .errors import MissingLinkError
-from .host.board import Board
+from .check import FlashError, verify
 
 BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "runtime.py", "wire.py", "firmware.py", "link.py",
 )  # fmt: skip
-
-
-class FlashError(MissingLinkError):
-    """Copying, building or verifying the firmware failed."""
 
 
 @dataclass(frozen=True)
@@ -70,39 +65,6 @@ def stage_files(files: list[Copy], stage: Path) -> None:
         shutil.copyfile(c.local, dst)
 
 
-def verify(url: str, bf: BoardFile, timeout: float = 15.0) -> str:
-    """Open the board as J2A (waiting for it to come back after the reset) and compare name and
-    transducers with the board file.  Returns a one-line summary; raises FlashError."""
-    deadline = time.monotonic() + timeout
-    last: Exception | None = None
-    while time.monotonic() < deadline:
-        try:
-            board = Board.open(url, timeout=2.0)
-        except MissingLinkError as e:
-            last = e
-            time.sleep(0.5)
-            continue
-        try:
-            board.handshake()
-            name = board.properties.get("board.name")
-            got = {(t.name, t.id) for t in board.transducers or []}
-            want = {(t["name"], t["id"]) for t in bf.transducers}
-            if name != bf.name or got != want:
-                raise FlashError(
-                    f"{url}: the board answers as {name!r} with {sorted(got)}, "
-                    f"the board file says {bf.name!r} with {sorted(want)}"
-                )
-            return f"{url}: {name} answers J2A with {len(got)} transducers as the board file says"
-        except FlashError:
-            raise
-        except MissingLinkError as e:
-            last = e
-            time.sleep(0.5)
-        finally:
-            board.close()
-    raise FlashError(f"{url}: no J2A answer within {timeout:g} s after flashing: {last}")
-
-
 def flash(
     bf: BoardFile,
     port: str,
@@ -113,8 +75,6 @@ def flash(
     check: bool = True,
 ) -> int:
     if bf.is_avr:
-        from .avr import flash_avr
-
         return flash_avr(bf, port, dry_run=dry_run, say=say, check=check)
     files = micropython_files(bf)
     mp = mpremote or [sys.executable, "-m", "mpremote"]

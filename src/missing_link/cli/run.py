@@ -1,0 +1,215 @@
+"""``run`` (the daemon) and ``recover`` (a recording whose process died)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from ..errors import BadURL, ConfigError
+from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE, non_negative, port_arg
+
+
+class _PublisherArg(argparse.Action):
+    """``-p NAME`` (repeatable); its help lists the publishers this environment has, found only
+    when the help is shown (finding them costs a look at the installed packages)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kw: Any) -> None:
+        super().__init__(option_strings, dest, metavar="NAME", **kw)
+
+    @property
+    def help(self) -> str:
+        from ..publishers.registry import available_publishers
+
+        return f"add a publisher ({', '.join(available_publishers())} here)"
+
+    @help.setter
+    def help(self, value: str | None) -> None:
+        pass  # (argparse sets it; the property above answers)
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), values])
+
+
+def build_config(args: argparse.Namespace) -> Any:
+    from ..daemon.config import BoardSpec, Config, DiscoverSpec, load_config
+    from ..publishers.registry import unavailable
+
+    cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
+    cfg.boards.extend(BoardSpec(url=u) for u in args.url)
+    for name in args.publisher or []:
+        why = unavailable(name)
+        if why is not None:
+            raise ConfigError(f"--publisher {name!r}: {why}")
+        if name not in cfg.publishers:
+            cfg.publishers.append(name)
+    if args.foxglove is not None:
+        if "foxglove" not in cfg.publishers:
+            cfg.publishers.append("foxglove")
+        cfg.publisher_options.setdefault("foxglove", {})["port"] = args.foxglove
+    if args.record:
+        if "mcap" not in cfg.publishers:
+            cfg.publishers.append("mcap")
+        cfg.publisher_options.setdefault("mcap", {})["path"] = args.record
+    if getattr(args, "auto", False) and cfg.discover is None:
+        cfg.discover = DiscoverSpec()
+    if not cfg.boards and cfg.discover is None:
+        raise BadURL(
+            "no boards: give URLs on the command line, [[board]] tables or [discover] in "
+            "--config, or --auto"
+        )
+    return cfg
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from ..daemon import Daemon
+
+    daemon = Daemon(build_config(args))  # config, URL and descriptor errors: exit 2, at once
+    stop = threading.Event()
+    interrupted = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        if signum == signal.SIGINT:
+            interrupted.append(signum)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    code = 0
+    with daemon:
+        if daemon.discovery is not None:
+            globs = " ".join(daemon.discovery.spec.ports)
+            print(f"missing-link: discovering boards on {globs}", file=sys.stderr)
+        print(
+            f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
+            f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
+            file=sys.stderr,
+        )
+        for p in daemon.publishers:
+            url = getattr(p, "url", None)
+            if url:
+                print(f"missing-link: {p.name} at {url}", file=sys.stderr)
+        if args.wait_up and not daemon.wait_until_up(args.wait_up):
+            for s in daemon.sessions:
+                if s.state != "up":
+                    print(
+                        f"missing-link: error: {s.spec.url}: not up within {args.wait_up:g} s: "
+                        f"{s.error or s.state}",
+                        file=sys.stderr,
+                    )
+            code = EXIT_FAIL
+        elif args.view:
+            from .view import LiveView
+
+            LiveView(daemon).run(stop, args.duration or None)
+        else:
+            _wait_watching(daemon, stop, args.duration or None)
+    print_summary(daemon, sys.stderr)
+    failures = daemon.failures()
+    for line in failures:
+        print(f"missing-link: error: {line}", file=sys.stderr)
+    if interrupted:
+        return EXIT_INTERRUPTED
+    return EXIT_FAIL if failures else code
+
+
+def _wait_watching(daemon: Any, stop: threading.Event, duration: float | None) -> None:
+    """Wait for the end; a publisher that fails for good (a recording that cannot write) ends
+    the run at once, loudly, rather than running on without it."""
+    deadline = None if duration is None else time.monotonic() + duration
+    while not stop.wait(0.2):
+        if daemon.failures():
+            return
+        if deadline is not None and time.monotonic() >= deadline:
+            return
+
+
+def print_summary(daemon: Any, out: Any) -> None:
+    """What happened, with a number next to every loss: per board, then per publisher."""
+    for s in daemon.status():
+        extra = [
+            f"{s[k]} {label}"
+            for k, label in (
+                ("lost_sifs", "lost SIFs"),
+                ("bad_sifs", "bad SIFs"),
+                ("unknown_sifs", "unknown SIFs"),
+                ("clock_outliers", "clock outliers"),
+                ("bad_checksums", "bad checksums"),
+                ("stale_links", "stale links"),
+            )
+            if s.get(k)
+        ]
+        print(
+            f"missing-link: {s['board']}: {s['samples']} samples"
+            + "".join(f", {e}" for e in extra)
+            + f", {s['connects']} connect(s), state {s['state']}"
+            + (f" ({s['error']})" if s["error"] and s["state"] != "up" else ""),
+            file=out,
+        )
+    for p in daemon.publishers:
+        st = p.status()
+        bits = []
+        if "messages" in st:
+            bits.append(f"{st['messages']} messages")
+        bits.append(f"{st.get('dropped', 0)} dropped")
+        bags = getattr(p, "bags", None)
+        if bags:
+            bits.append("recorded " + ", ".join(str(b) for b in bags))
+        if p.name != "bus" or st.get("dropped"):
+            print(f"missing-link: publisher {p.name}: {', '.join(bits)}", file=out)
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from ..publishers.recover import recover_bag
+
+    try:
+        dest, count = recover_bag(args.path, args.out)
+    except (FileNotFoundError, FileExistsError, ValueError) as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as e:
+        print(f"missing-link: error: cannot recover {args.path}: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    print(f"recovered {count} messages into {dest}")
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    sp = sub.add_parser("run", help="the daemon: every board's transducers as topics")
+    sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
+    sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
+    sp.add_argument("--publisher", "-p", action=_PublisherArg)
+    sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
+    sp.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=port_arg,
+        const=8765,
+        metavar="PORT",
+        help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
+    )
+    sp.add_argument(
+        "--duration", type=non_negative, default=0, help="stop after S seconds (0 = run)"
+    )
+    sp.add_argument(
+        "--wait-up",
+        type=non_negative,
+        default=0,
+        metavar="S",
+        help="fail (exit 1) unless every board is up within S seconds",
+    )
+    sp.add_argument("--view", action="store_true", help="a live view of boards and topics")
+    sp.add_argument(
+        "--auto",
+        action="store_true",
+        help="find J2A boards on USB serial ports as they appear ([discover] in --config)",
+    )
+    sp.set_defaults(func=cmd_run)
+
+    sp = sub.add_parser("recover", help="salvage a recording whose process died")
+    sp.add_argument("path", help="bag directory or .mcap file")
+    sp.add_argument("--out", help="new bag directory (default: PATH_recovered)")
+    sp.set_defaults(func=cmd_recover)

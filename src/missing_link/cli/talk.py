@@ -1,0 +1,296 @@
+"""``info``, ``call``, ``listen``, ``sync``: one board, talked to directly."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+from ..host.board import Board
+from ..host.samples import Sample, SampleDecoder
+from ..j2a import SifReceived
+from .common import (
+    EXIT_FAIL,
+    EXIT_USAGE,
+    count_arg,
+    emit_json,
+    non_negative,
+    open_url,
+    parse_hex,
+    positive,
+    with_url,
+)
+
+
+def info_dict(board: Board) -> dict[str, Any]:
+    return {
+        "url": board.url,
+        "original": board.is_original,
+        "functions": [{"index": i, "name": n} for i, n in enumerate(board.functions)],
+        "properties": dict(board.properties),
+        "transducers": None
+        if board.transducers is None
+        else [t.to_json() for t in board.transducers],
+    }
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    with open_url(args) as board:
+        if args.json:
+            emit_json(info_dict(board))
+            return 0
+        kind = (
+            "original (Part 1) board"
+            if board.is_original
+            else f"J2A {board.properties['j2a.version']} board"
+        )
+        print(f"{board.name} at {board.url}: {kind}")
+        print("functions:")
+        for i, name in enumerate(board.functions):
+            print(f"  {i:3d}  {name}")
+        print("properties:")
+        width = max((len(k) for k in board.properties), default=0)
+        for k, v in board.properties.items():
+            print(f"  {k:<{width}}  {v}")
+        print("transducers:")
+        if board.transducers is None:
+            print("  (none described: an original board; give descriptors on the host side)")
+        for t in board.transducers or []:
+            opts = " ".join(f"{k}={v}" for k, v in t.options.items())
+            print(
+                f"  {t.id:3d}  {t.name:<12} {t.model:<12} {t.chan_count:3d} x {t.dtype:<9} "
+                f"N/A={t.na}  {opts}"
+            )
+            if t.unknown:
+                print(f"       unknown keys (ignored): {', '.join(t.unknown)}")
+    return 0
+
+
+#: return values that mean success for built-ins whose OK is not 0 (spec 1.6)
+SUCCESS_CODES = {"a2jEcho": 0xBA}
+
+
+def cmd_call(args: argparse.Namespace) -> int:
+    if len(args.hex) > 255:
+        print(
+            f"missing-link: error: --hex has {len(args.hex)} bytes; one J2A frame carries at "
+            "most 255 (larger transfers go through a many-function)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    with open_url(args) as board:
+        result = board.call(args.name, args.hex, timeout=args.timeout)
+    if args.json:
+        emit_json(
+            {
+                "function": args.name,
+                "code": result.code,
+                "ok": result.ok,
+                "payload": result.payload.hex(),
+            }
+        )
+    else:
+        text = result.payload.decode("ascii", "replace") if result.payload.isascii() else ""
+        print(f"return {result.code:#04x} ({result.code})  payload {len(result.payload)} bytes")
+        if result.payload:
+            print(f"  hex   {result.payload.hex(' ')}")
+            if text.isprintable():
+                print(f"  ascii {text}")
+    if result.code != SUCCESS_CODES.get(args.name, 0) and not args.any_code:
+        print(
+            f"missing-link: error: {args.name} returned {result.code:#04x} (not OK; "
+            "--any-code accepts every return value)",
+            file=sys.stderr,
+        )
+        return EXIT_FAIL
+    return 0
+
+
+def format_sample(s: Sample, unit: str | None) -> str:
+    value = "N/A" if s.value is None else f"{s.value}{(' ' + unit) if unit else ''}"
+    lost = f"  (lost {s.lost} SIFs before)" if s.lost else ""
+    where = f"{s.board}/{s.transducer}[{s.channel}]"
+    return f"{s.host_rx:14.6f}  {where} = {value}  @board {s.board_us} us{lost}"
+
+
+def cmd_listen(args: argparse.Namespace) -> int:
+    done = threading.Event()
+    count = 0
+    lock = threading.Lock()
+    with open_url(args) as board:
+        transducers = board.transducers or []
+        decoder = SampleDecoder(board.name, transducers)
+        units = {t.name: t.unit for t in transducers}
+        wanted = set(args.transducer or [])
+        unknown = wanted - set(units)
+        if unknown:
+            have = ", ".join(units) or "none (an original board without descriptors)"
+            print(
+                f"missing-link: error: {board.name} has no transducer "
+                f"{', '.join(sorted(unknown))} (it has: {have})",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
+
+        def on_sif(sif: SifReceived, now: float) -> None:
+            nonlocal count
+            with lock:
+                if done.is_set():
+                    return
+                if not transducers:
+                    lines = [
+                        f"{now:14.6f}  sif cmd={sif.cmd} seq={sif.seq} lost={sif.lost}"
+                        f" {sif.payload.hex()}"
+                    ]
+                    objs: list[dict[str, object]] = [
+                        {
+                            "cmd": sif.cmd,
+                            "seq": sif.seq,
+                            "lost": sif.lost,
+                            "payload": sif.payload.hex(),
+                            "host_rx": now,
+                        }
+                    ]
+                else:
+                    samples = [
+                        s
+                        for s in decoder.decode(sif, now, keep_missing=args.missing)
+                        if not wanted or s.transducer in wanted
+                    ]
+                    lines = [format_sample(s, units.get(s.transducer)) for s in samples]
+                    objs = [s.to_json() for s in samples]
+                for line, obj in zip(lines, objs, strict=True):
+                    if args.count and count >= args.count:
+                        done.set()
+                        return
+                    if args.json:
+                        print(json.dumps(obj), flush=False)
+                    else:
+                        print(line, flush=False)
+                    count += 1
+                sys.stdout.flush()
+                if args.count and count >= args.count:
+                    done.set()
+
+        board.on_sif(None, on_sif)
+        deadline = time.monotonic() + args.duration if args.duration else None
+        while not done.is_set() and board.alive:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            done.wait(0.1)
+        done.set()
+        if not board.alive:
+            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
+            return EXIT_FAIL
+    return 0
+
+
+def cmd_sync(args: argparse.Namespace) -> int:
+    from ..errors import CallTimeout
+    from ..timesync.sync import ClockSync, SyncOptions
+
+    if args.period <= 0:
+        print("missing-link: error: --period must be > 0", file=sys.stderr)
+        return EXIT_USAGE
+    if args.uart_baud and not args.url.removeprefix("spy+").startswith("serial://"):
+        print(
+            "missing-link: error: --uart-baud describes a UART link (serial://); "
+            f"{args.url} is not one, and its bytes do not take UART time",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    byte_ns = 10e9 / args.uart_baud if args.uart_baud else 0.0
+    with open_url(args) as board:
+        if "a2jClock" not in board.index and "getTime" not in board.index:
+            print(
+                f"missing-link: error: {board.name} has neither a2jClock nor getTime",
+                file=sys.stderr,
+            )
+            return EXIT_FAIL
+        res = board.properties.get("clock.res_us", "1")
+        sync = ClockSync(SyncOptions(res_us=int(res) if res.isdigit() else 1))
+        start = time.monotonic()
+        sync.start(start)
+        next_print = start + args.period
+        end = start + args.duration if args.duration else None
+        if not args.json:
+            print(f"clock sync with {board.name} at {board.url} (Ctrl-C to stop)", flush=True)
+        while board.alive:
+            now = time.monotonic()
+            if end is not None and now >= end:
+                break
+            wait = min(sync.due(), next_print) - now
+            if wait > 0:
+                time.sleep(wait)
+                continue
+            if now >= sync.due():
+                try:
+                    sync.on_exchange(board.clock_exchange(args.timeout, byte_ns=byte_ns), now)
+                except CallTimeout:
+                    sync.on_lost(time.monotonic())
+            if now >= next_print:
+                next_print += args.period
+                st = sync.status()
+                st["t_s"] = round(now - start, 3)
+                if args.json:
+                    emit_json(st)
+                else:
+                    print(format_sync(st), flush=True)
+        if not board.alive:
+            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
+            return EXIT_FAIL
+    return 0
+
+
+def format_sync(st: dict[str, Any]) -> str:
+    head = f"{st['t_s']:7.1f}s {st['sync_state']:<9}"
+    if "offset_us" not in st:
+        return f"{head} no estimate yet (exchanges {st['sync_exchanges']}, lost {st['sync_lost']})"
+    return (
+        f"{head} offset {st['offset_us']:+.3f} µs  skew {st['skew_ppm']:+8.3f} ppm"
+        f"  bound ±{st['bound_us']:.1f} µs  sigma {st['sigma_us']:.1f} µs"
+        f"  rtt {st['sync_rtt_us']:.0f} µs (min {st['sync_min_rtt_us']:.0f})"
+        f"  every {st['sync_interval_ms']:.0f} ms  exchanges {st['sync_exchanges']}"
+        f" lost {st['sync_lost']}"
+    )
+
+
+def add_parsers(sub: Any) -> None:
+    sp = sub.add_parser("info", help="functions, properties and transducers of a board")
+    with_url(sp)
+    sp.add_argument("--json", action="store_true", help="machine-readable output (docs/cli.md)")
+    sp.set_defaults(func=cmd_info)
+
+    sp = sub.add_parser("call", help="call a board function by name")
+    with_url(sp)
+    sp.add_argument("name", help="function name, e.g. a2jEcho")
+    sp.add_argument("--hex", type=parse_hex, default=b"", help="request payload as hex")
+    sp.add_argument("--json", action="store_true")
+    sp.add_argument(
+        "--any-code",
+        action="store_true",
+        help="exit 0 whatever the function returns (default: 1 unless it returns OK)",
+    )
+    sp.set_defaults(func=cmd_call)
+
+    sp = sub.add_parser("listen", help="print decoded samples live, one line each")
+    with_url(sp)
+    sp.add_argument("--count", type=count_arg, default=0, help="stop after N samples")
+    sp.add_argument("--duration", type=non_negative, default=0, help="stop after S seconds")
+    sp.add_argument("--transducer", "-t", action="append", help="only this transducer (repeatable)")
+    sp.add_argument("--missing", action="store_true", help="also print N/A channels")
+    sp.add_argument("--json", action="store_true", help="one JSON object per line")
+    sp.set_defaults(func=cmd_listen)
+
+    sp = sub.add_parser("sync", help="clock synchronisation with a board, live")
+    with_url(sp)
+    sp.add_argument("--duration", type=non_negative, default=0, help="stop after S seconds")
+    sp.add_argument("--period", type=positive, default=1.0, help="seconds between lines (1.0)")
+    sp.add_argument(
+        "--uart-baud", type=count_arg, default=0, help="baud rate if the link is a UART"
+    )
+    sp.add_argument("--json", action="store_true", help="one JSON object per line")
+    sp.set_defaults(func=cmd_sync)

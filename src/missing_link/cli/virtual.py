@@ -1,0 +1,196 @@
+"""``board`` (a virtual board) and ``relay`` (a fault-injecting relay): boards to test with."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from typing import Any
+
+from .common import EXIT_FAIL, EXIT_USAGE, non_negative
+
+
+def cmd_board(args: argparse.Namespace) -> int:
+    from ..virtual import BoardServer, make_sim
+
+    try:
+        extra: dict[str, Any] = {"name": args.name} if args.name else {}
+        if args.rate or args.channels:
+            if args.sim != "rate":
+                raise ValueError("--rate and --channels go with --sim rate")
+            extra["rate_hz"] = args.rate or 100.0
+            extra["channels"] = args.channels or 1
+        drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
+        if drifting:
+            from ..virtual.clocks import DriftClock
+
+            extra["clock"] = DriftClock(
+                args.clock_offset_us or 0.0,
+                args.clock_skew_ppm or 0.0,
+                args.clock_drift_ppm_per_s or 0.0,
+                args.clock_ref_ns,
+                args.reset_at,
+            )
+        elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
+            from ..virtual.clocks import AffineClock
+
+            extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
+        runtime = make_sim(args.sim, seed=args.seed, **extra)
+    except ValueError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    resets = []
+    if args.reset_at:
+        clock = extra["clock"]
+        resets = [(r, round(args.boot_gap_ms * 1e6)) for r in clock.reset_ns]
+    if args.count > 1:
+        return _serve_many(args, extra)
+    try:
+        server = BoardServer(
+            runtime,
+            args.listen,
+            resets=resets,
+            rebuild=lambda: make_sim(args.sim, seed=args.seed, **extra),
+        )
+    except OSError as e:
+        print(
+            f"missing-link: error: cannot listen on {args.listen}: {e.strerror or e}",
+            file=sys.stderr,
+        )
+        return EXIT_FAIL
+
+    def stop(signum: int, frame: object) -> None:
+        server.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    print(f"LISTENING {server.url}", flush=True)
+    server.serve_forever()
+    return 0
+
+
+def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
+    """``board --count N``: N boards in this one process (a thread each), named NAME_0.. and
+    seeded SEED.., one LISTENING line each: benchmarks load the host, not N board processes."""
+    from ..virtual import BoardServer, make_sim
+
+    if not args.listen.startswith("tcp://") or not args.listen.endswith(":0"):
+        print("missing-link: error: --count needs --listen tcp://HOST:0", file=sys.stderr)
+        return EXIT_USAGE
+    base = extra.pop("name", None) or args.sim
+    servers = []
+    for k in range(args.count):
+        runtime = make_sim(args.sim, seed=args.seed + k, name=f"{base}_{k}", **extra)
+        servers.append(BoardServer(runtime, args.listen))
+    threads = [
+        threading.Thread(target=s.serve_forever, name=f"board:{s.url}", daemon=True)
+        for s in servers
+    ]
+    for t in threads:
+        t.start()
+    done = threading.Event()
+
+    def stop(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    for s in servers:
+        print(f"LISTENING {s.url}", flush=True)
+    done.wait()
+    for s in servers:
+        s.stop()
+    for t in threads:
+        t.join(2)
+    return 0
+
+
+def cmd_relay(args: argparse.Namespace) -> int:
+    """A fault-injecting relay in front of a board (see missing_link.virtual.faults)."""
+    from ..virtual.faults import FaultRelay, Faults
+
+    try:
+        faults = Faults(
+            corrupt=args.corrupt,
+            drop=args.drop,
+            delay_s=args.delay_ms / 1000.0,
+            blackhole_after=args.blackhole_after,
+            blackhole_for=args.blackhole_for,
+            seed=args.seed,
+        ).check()
+    except ValueError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    relay = FaultRelay(args.url, faults, args.listen)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    relay.start()
+    print(f"LISTENING {relay.url}", flush=True)
+    stop.wait(args.duration or None)
+    relay.stop()
+    counts = ", ".join(f"{k} {v}" for k, v in relay.counters().items())
+    print(f"relay: {counts}", file=sys.stderr)
+    for line in relay.errors[-5:]:
+        print(f"relay: {line}", file=sys.stderr)
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    sp = sub.add_parser("board", help="run a virtual board")
+    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers, original or rate")
+    sp.add_argument(
+        "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
+    )
+    sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
+    sp.add_argument("--name", help="board.name property (default: the sim's)")
+    sp.add_argument(
+        "--count",
+        type=int,
+        default=1,
+        help="serve N boards from this process (NAME_0 .. NAME_N-1, tcp only; benchmarks)",
+    )
+    sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
+    sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")
+    sp.add_argument(
+        "--clock-offset-us",
+        type=float,
+        help="board clock = OFFSET + (1 + SKEW) * host CLOCK_MONOTONIC (default: the host's clock)",
+    )
+    sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
+    sp.add_argument(
+        "--clock-drift-ppm-per-s", type=float, help="the rate error changes this much per second"
+    )
+    sp.add_argument(
+        "--clock-ref-ns",
+        type=int,
+        help="host CLOCK_MONOTONIC ns the drift and --reset-at count from (default: now)",
+    )
+    sp.add_argument(
+        "--reset-at",
+        type=float,
+        action="append",
+        metavar="S",
+        help="the board resets S seconds after --clock-ref-ns (repeatable); the link stays",
+    )
+    sp.add_argument("--boot-gap-ms", type=float, default=100.0, help="silence after a reset (100)")
+    sp.set_defaults(func=cmd_board)
+
+    sp = sub.add_parser("relay", help="a fault-injecting relay in front of a board (tests)")
+    sp.add_argument("url", help="the board's URL (tcp, unix, serial, ...)")
+    sp.add_argument(
+        "--listen", default="tcp://127.0.0.1:0", help="tcp://127.0.0.1:PORT or unix:///PATH"
+    )
+    sp.add_argument("--corrupt", type=float, default=0.0, help="per-byte bit-flip probability")
+    sp.add_argument("--drop", type=float, default=0.0, help="per-chunk loss probability")
+    sp.add_argument("--delay-ms", type=float, default=0.0, help="hold every chunk this long")
+    sp.add_argument(
+        "--blackhole-after", type=float, help="forward nothing after S s of a connection"
+    )
+    sp.add_argument("--blackhole-for", type=float, help="... for S s (default: for ever)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument(
+        "--duration", type=non_negative, default=0, help="stop after S seconds (0 = run)"
+    )
+    sp.set_defaults(func=cmd_relay)
