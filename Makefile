@@ -35,16 +35,17 @@ $(ROS2_STAMP): pyproject.toml
 	$(ROS2_VENV)/bin/python -m pip install --quiet $(ROS2_WHEELS) -e .
 	@touch $@
 
-# Node.js + npm come from Debian if missing (scripts/system-deps.sh is idempotent).
+# What `make test` uses from the system (Node.js and npm, a C++ compiler, the AVR toolchain,
+# simavr) comes from Debian through scripts/system-deps.sh, run on every `make test`: it installs
+# whatever is missing and is quiet and quick when nothing is.  `make demo` needs none of it.
+system-deps:
+	@bash scripts/system-deps.sh
+
 node: $(NODE_STAMP)
 
-$(NODE_STAMP): package.json
-	@command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1 && command -v c++ >/dev/null 2>&1 || bash scripts/system-deps.sh
+$(NODE_STAMP): package.json | system-deps
 	npm install --no-audit --no-fund --loglevel=error
 	@touch $@
-
-system-deps:
-	bash scripts/system-deps.sh
 
 demo: venv
 	$(VENV)/bin/missing-link demo --duration $(DURATION)
@@ -56,7 +57,7 @@ lint: venv
 typecheck: venv
 	$(VENV)/bin/mypy
 
-unit: venv node ros2
+unit: venv system-deps node ros2
 	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(VENV)/bin/pytest -q
 
 test: lint typecheck unit

@@ -263,3 +263,61 @@ def test_the_walk_sees_every_kind_of_import() -> None:
     known = {"p.q.b", "p.c", "p.q.d", "p.q"}
     assert imports_of("p.q.a", path, known) == {"p.q.b", "p.c", "p.q.d"}
     assert circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+#: imported where the environment provides them (ROS installs), never installed by pip
+PROVIDED_BY_ROS = {"rclpy", "rospy", "genpy", "rosgraph", "roslib"}
+
+
+def test_every_imported_package_is_declared() -> None:
+    """What the package imports from outside the standard library is a declared dependency."""
+    import tomllib
+    from importlib.metadata import packages_distributions, requires
+
+    declared = {
+        r.split(";")[0].split("[")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
+        for r in requires("missing-link") or []
+        if "extra ==" not in r
+    }
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert declared == {
+        d.split(";")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
+        for d in project["dependencies"]
+    }, "the installed metadata is stale: reinstall (make venv)"
+    dists = packages_distributions()
+    missing = {}
+    for path in SRC.rglob("*.py"):
+        if "board" in path.relative_to(SRC).parts[:1]:
+            continue  # the board runtime runs on MicroPython: only its own and built-in modules
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names: list[str] = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            for name in names:
+                top = name.split(".")[0]
+                if (
+                    top in sys.stdlib_module_names
+                    or top in PROVIDED_BY_ROS
+                    or top == "missing_link"
+                ):
+                    continue
+                owners = {d.lower() for d in dists.get(top, [])}
+                if not owners & declared:
+                    missing[top] = str(path.relative_to(ROOT))
+    assert not missing, f"imported but not declared in pyproject.toml: {missing}"
+
+
+def test_every_module_says_what_it_owns() -> None:
+    """A docstring at the top of every module; the board runtime (MicroPython, where a docstring
+    costs RAM) opens with a comment instead."""
+    silent = []
+    for path in SRC.rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        if path.relative_to(SRC).parts[0] == "board":
+            if not text.startswith("#"):
+                silent.append(str(path.relative_to(ROOT)))
+        elif not ast.get_docstring(ast.parse(text)):
+            silent.append(str(path.relative_to(ROOT)))
+    assert not silent, f"modules that do not say what they own: {silent}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import signal
 import subprocess
@@ -147,3 +148,40 @@ def test_run_and_recover_input_errors(tmp_path: Path) -> None:
     assert r.returncode == 2 and "exists already" in r.stderr
     r = ml("recover", "examples/original-board.toml", "--out", str(tmp_path / "new"))
     assert r.returncode == 2 and "not an MCAP file" in r.stderr
+
+
+def test_run_help_lists_exactly_the_publishers_available_here() -> None:
+    """Without importing the heavy ones to find out (rclpy, zenoh, foxglove)."""
+    probe = (
+        "import sys, contextlib, io\n"
+        "from missing_link.cli.main import build_parser\n"
+        "from missing_link.publishers.registry import available_publishers\n"
+        "buf = io.StringIO()\n"
+        "with contextlib.redirect_stdout(buf), contextlib.suppress(SystemExit):\n"
+        "    build_parser().parse_args(['run', '--help'])\n"
+        "print(repr(buf.getvalue()))\n"
+        "print(','.join(available_publishers()))\n"
+        "print(','.join(m for m in ('zenoh', 'rclpy', 'foxglove', 'rospy') if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True
+    ).stdout.splitlines()
+    help_text, available, heavy = " ".join(ast.literal_eval(out[0]).split()), out[1], out[2]
+    assert f"add a publisher ({available.replace(',', ', ')} here)" in help_text
+    assert heavy == ""  # nothing heavy was imported to list them
+    import importlib.util
+
+    assert ("ros2" in available.split(",")) == (importlib.util.find_spec("rclpy") is not None)
+
+
+def test_a_publisher_this_environment_lacks_is_one_line_naming_what_it_needs() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("rclpy") is not None:
+        pytest.skip("rclpy is installed here: ros2 is available")
+    r = ml("run", "tcp://127.0.0.1:1", "-p", "ros2", "--duration", "1")
+    assert r.returncode == 2
+    (line,) = r.stderr.strip().splitlines()
+    assert "--publisher 'ros2': needs rclpy" in line
+    r = ml("run", "tcp://127.0.0.1:1", "-p", "zenohh")
+    assert r.returncode == 2 and "unknown (available here: " in r.stderr

@@ -225,3 +225,16 @@ def test_a_built_type_that_differs_from_the_board_is_refused(
     assert "sequence<int32>" in err and "sequence<uint16>" in err
     topics = got["topics"]
     assert isinstance(topics, dict) and "/thesis/dist_ir" not in topics
+
+
+def test_run_help_names_ros2_where_rclpy_is() -> None:
+    """In the ROS 2 environment the help names every publisher available there, ros2 too."""
+    out = subprocess.run(
+        [str(ROS2_PY), "-m", "missing_link", "run", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ros_env(),
+    ).stdout
+    listed = " ".join(out.split()).split("add a publisher (")[1].split(" here)")[0].split(", ")
+    assert "ros2" in listed and "zenoh" in listed

@@ -1,3 +1,5 @@
+"""``python -m missing_link``: the command line (:mod:`missing_link.cli`)."""
+
 import sys
 
 from .cli import main

@@ -1,0 +1,160 @@
+"""The thesis test rig on virtual boards (``missing-link demo`` runs it).
+
+Board A (encoder + servo) and board B (IR and ultrasonic rangers) each run in their own process
+behind a real pseudo-terminal.  The daemon connects both, publishes every transducer and records
+everything to a rosbag2/MCAP directory.  The thesis test application closes the loop: each
+encoder update becomes a proportional servo deflection, sent back to board A through the
+actuator topic ``/board_a/servo/cmd`` (an RPC of ``a2j_set_servo``).  A live terminal view shows
+per topic rate, latency and last value, per board link state and errors; at the end (``duration``
+or Ctrl-C) a summary.  Exit code 0 when both boards stayed up, samples flowed and the servo moved.
+
+The virtual boards' clocks are this machine's CLOCK_MONOTONIC, so the latency shown (board's
+moment of measurement -> host subscriber callback) is exact, not estimated.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+from typing import Any, TextIO
+
+from ..daemon import Daemon
+from ..daemon.config import BoardSpec, Config
+from ..errors import MissingLinkError
+from ..topics import Update
+from ..virtual.process import start_board_process, stop_process
+from .view import LiveView
+
+ENCODER_TOPIC = "/board_a/quad"
+SERVO_CMD = "/board_a/servo/cmd"
+COUNTS_PER_STEP = 64  # encoder counts per servo step (2000 counts = one wheel turn)
+
+
+def _foxglove(port: int | None) -> Any:
+    """The Foxglove live view on ``port`` (another free port if that one is taken)."""
+    if port is None:
+        return None
+    from ..publishers.foxglove import FoxglovePublisher
+
+    try:
+        return FoxglovePublisher({"port": port})
+    except Exception:  # noqa: BLE001 - port taken: any free one will do for a demo
+        return FoxglovePublisher({"port": 0})
+
+
+def run_demo(
+    duration: float = 20.0,
+    seed: int = 0,
+    record: str = "recordings",
+    out: TextIO = sys.stdout,
+    foxglove_port: int | None = 8765,
+) -> int:
+    print(
+        "missing-link demo: the thesis test rig on two virtual boards (own processes, ptys)",
+        file=out,
+    )
+    procs: list[subprocess.Popen[str]] = []
+    interrupted = False
+    try:
+        proc_a, url_a = start_board_process("encoder_servo", seed, "pty", name="board_a")
+        procs.append(proc_a)
+        proc_b, url_b = start_board_process("rangers", seed, "pty", name="board_b")
+        procs.append(proc_b)
+        print(
+            f"  board A (encoder + servo) at {url_a}\n  board B (IR + sonar) at {url_b}", file=out
+        )
+        cfg = Config(
+            boards=[BoardSpec(url_a), BoardSpec(url_b)],
+            publishers=["bus", "mcap"],
+            publisher_options={"mcap": {"path": record, "prefix": "demo"}},
+        )
+        fox = _foxglove(foxglove_port)
+        with Daemon(cfg, [fox] if fox is not None else []) as daemon:
+            if fox is not None:
+                print(f"  live view for Foxglove: open connection {fox.url}", file=out)
+            if not daemon.wait_until_up(10.0):
+                raise MissingLinkError(f"boards did not come up: {daemon.status()}")
+            view = LiveView(daemon, out, title="missing-link demo")
+
+            def steer(u: Update) -> None:
+                # The thesis test application: encoder count -> proportional servo deflection.
+                count = u.values[0]
+                if count is not None:
+                    step = max(-127, min(127, int(count) // COUNTS_PER_STEP))
+                    daemon.send(SERVO_CMD, step)
+
+            steering = daemon.subscribe(ENCODER_TOPIC, steer)
+            stop = threading.Event()
+            try:
+                view.run(stop, duration)
+            except KeyboardInterrupt:
+                interrupted = True
+            steering.cancel()  # no commands into boards that are closing
+            view.close()
+            status = daemon.status()
+            pub_status = daemon.publisher_status()
+            failures = daemon.failures()
+            mcap = next(p for p in daemon.publishers if p.name == "mcap")
+        bags = [str(b) for b in getattr(mcap, "bags", [])]
+        print("\nsummary", file=out)
+        for line in view.summary():
+            print(line, file=out)
+        for s in status:
+            print(
+                f"  board {s['board']}: {s['state']}, {s['frames']} frames, "
+                f"{s['bad_checksums']} bad checksums, {s['lost_sifs']} SIFs lost, "
+                f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} µs",
+                file=out,
+            )
+        for s in status:
+            if "bound_us" in s:
+                print(
+                    f"  clock {s['board']}: {s['sync_state']},"
+                    f" board clock {s['skew_ppm']:+.2f} ppm,"
+                    f" bound ±{s['bound_us']} µs, {s['sync_exchanges']} exchanges,"
+                    f" min RTT {s['sync_min_rtt_us']} µs",
+                    file=out,
+                )
+        servo_cmds = sum(s["commands"] for s in status)
+        dropped = getattr(mcap, "dropped", 0)
+        print(f"  servo commands sent: {servo_cmds}", file=out)
+        print(
+            f"  recording: {', '.join(bags) or 'nothing'} ({getattr(mcap, 'messages', 0)} "
+            f"messages, {dropped} dropped)",
+            file=out,
+        )
+        losses = {
+            k: sum(s.get(k, 0) for s in status)
+            for k in ("lost_sifs", "bad_sifs", "unknown_sifs", "clock_outliers")
+        }
+        print(
+            "  losses: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in losses.items()),
+            file=out,
+        )
+        print(
+            "  publishers: "
+            + ", ".join(f"{p['publisher']} {p.get('dropped', 0)} dropped" for p in pub_status),
+            file=out,
+        )
+        for line in failures:
+            print(f"  ERROR {line}", file=out)
+        expected = ["/board_a/quad", "/board_a/servo", "/board_b/dist_ir", "/board_b/dist_us"]
+        ok = (
+            not failures
+            and bool(bags)
+            and all(s["state"] == "up" for s in status)
+            and servo_cmds > 0
+            and all(n in view.stats and view.stats[n].count > 0 for n in expected)
+        )
+    except MissingLinkError as e:
+        print(f"demo FAILED: {e}", file=out)
+        return 1
+    finally:
+        for p in procs:
+            stop_process(p)
+    if interrupted:
+        print("demo interrupted", file=out)
+        return 130
+    print("demo " + ("finished OK" if ok else "FAILED"), file=out)
+    return 0 if ok else 1
