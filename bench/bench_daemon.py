@@ -106,10 +106,11 @@ def throughput(seconds: float) -> tuple[float, float]:
     (t,) = parse_transds("transds/1\n" + bt.descriptor_line() + "\n")
     pieces = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
     daemon = Daemon(Config())
-    session = BoardSession(daemon.session_context(), BoardSpec("memory://bench"))
+    ctx = daemon.session_context()
+    session = BoardSession(ctx, BoardSpec("memory://bench"))
     topic = Topic.for_transducer("/b/dist_ir", "b", t, "missing_link_msgs")
     session.path.topics = {t.id: topic}
-    daemon._declare(topic)
+    ctx.declare(topic)
     got = [0]
     daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8), queue=0)
 
