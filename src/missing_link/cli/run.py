@@ -152,7 +152,9 @@ def print_summary(daemon: Any, out: Any) -> None:
     for p in daemon.publishers:
         st = p.status()
         bits = []
-        if "messages" in st:
+        if "recorded" in st:  # a recording: what is in its files (recover restores as many)
+            bits.append(f"{st['recorded']} messages")
+        elif "messages" in st:
             bits.append(f"{st['messages']} messages")
         bits.append(f"{st.get('dropped', 0)} dropped")
         bags = getattr(p, "bags", None)

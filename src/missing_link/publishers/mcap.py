@@ -21,6 +21,13 @@ write that fails (ENOSPC, EACCES, EIO) sets ``error``; the daemon reports it as 
 ``/diagnostics`` and ``publisher_status()``, ``run`` exits 1 and the demo fails.  After a failure
 the thread keeps draining the queue and counts what it could not write as dropped, so
 publishers never block; ``close()`` returns within ``close_timeout`` whatever the writer is doing.
+
+Every message has a number.  ``messages`` counts what was handed to the writer, ``recorded``
+what is in the file: a bag's messages once its chunk is flushed (or the bag closed).  When a
+write fails, the bag is abandoned and its file read back with the streaming reader ``recover``
+uses: ``recorded`` becomes what the file holds, the rest of the bag's messages (the open chunk
+that never reached the disk, ~``chunk_s`` of data) go to ``dropped``.  So after a full disk,
+``recover`` restores exactly ``recorded`` messages, and ``messages - recorded`` are in ``dropped``.
 """
 
 from __future__ import annotations
@@ -39,10 +46,10 @@ from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
 from .base import PublisherError
+from .recover import count_complete
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _option(opts: dict[str, Any], key: str, default: float, lo: float, hi: float) -> float:
@@ -71,8 +78,12 @@ class McapPublisher(RosPublisher):
         _check_writable(self.base)
         self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(size))
         self.bags: list[Path] = []
-        self.messages = 0
+        self.messages = 0  #: handed to the writer
+        self.recorded = 0  #: known to be in the files (flushed chunks, closed bags)
         self.messages_by_topic: dict[str, int] = {}
+        self._bag_messages = 0  # handed to the writer of the current bag
+        self._bag_recorded = 0  # of those, flushed to its file
+        self._pending = 0  # of those, not flushed yet
         self.dropped = 0
         self.error = ""
         self._topics: dict[str, Topic] = {}
@@ -119,6 +130,7 @@ class McapPublisher(RosPublisher):
         out = super().status()
         out.update(
             messages=self.messages,
+            recorded=self.recorded,
             queued=self._q.qsize(),
             path=str(self.bags[-1]) if self.bags else str(self.base),
         )
@@ -143,13 +155,14 @@ class McapPublisher(RosPublisher):
                         self._handle(item)
                     self._maybe_close_chunk()
                 except Exception as e:  # noqa: BLE001 - any write failure is loud and counted
-                    self.dropped += 1 if item and item[0] != "topic" else 0
                     self._fail(_describe(e, self.base))
+                    self._abandon_bag()
         finally:
             try:
                 self._close_bag()
             except Exception as e:  # noqa: BLE001
                 self._fail(f"closing the bag failed: {_describe(e, self.base)}")
+                self._abandon_bag()
 
     def _wait(self) -> float:
         if self._chunk_since is None:
@@ -169,7 +182,34 @@ class McapPublisher(RosPublisher):
         if storage is not None and hasattr(storage, "close_chunk") and storage.chunk.bio.tell():
             storage.close_chunk()  # rosbags' MCAP storage: write the chunk and its indexes
             storage.bio.flush()
+        self._flushed()
         self._chunk_since = None
+
+    def _flushed(self) -> None:
+        """Everything handed to the writer so far is in the file."""
+        self.recorded += self._pending
+        self._bag_recorded += self._pending
+        self._pending = 0
+
+    def _abandon_bag(self) -> None:
+        """A write failed: close the file as it stands and count what it holds, exactly as
+        ``recover`` will find it; the bag's other messages are dropped."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.abort()  # (closes the file; what its buffer still held may fail too)
+            except Exception as e:  # noqa: BLE001 - the count below says what is there
+                log.debug("mcap: closing the failed bag: %s", e)
+        if not self._bag_messages or not self.bags:
+            return
+        try:
+            in_file = count_complete(self.bags[-1])
+        except OSError as e:
+            log.warning("mcap: cannot read back %s: %s", self.bags[-1], e)
+            in_file = self._bag_recorded  # what was flushed before the failure
+        self.recorded += in_file - self._bag_recorded
+        self.dropped += self._bag_messages - in_file
+        self._bag_messages = self._bag_recorded = self._pending = 0
 
     def _handle(self, item: tuple[Any, ...]) -> None:
         kind = item[0]
@@ -186,15 +226,20 @@ class McapPublisher(RosPublisher):
             conn = self._conns.get(name)
             if conn is None:
                 return
-            self._writer.write(conn, stamp, data)
-            self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
         else:
             _, stamp, data = item
-            self._writer.write(self._conns[DIAG_TOPIC], stamp, data)
+            name, conn = DIAG_TOPIC, self._conns[DIAG_TOPIC]
+        # counted before the write: a write that fails may still have put it in the file
+        # (the read-back after a failure says; see _abandon_bag)
+        self.messages += 1
+        self._bag_messages += 1
+        self._pending += 1
+        self._writer.write(conn, stamp, data)
+        if kind == "msg":
+            self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
         if self._chunk_since is None:
             self._chunk_since = time.monotonic()
         self._bytes += len(data) + 32
-        self.messages += 1
 
     def _due_rotation(self) -> bool:
         if self.rotate_bytes and self._bytes >= self.rotate_bytes:
@@ -231,9 +276,15 @@ class McapPublisher(RosPublisher):
         )
 
     def _close_bag(self) -> None:
-        writer, self._writer = self._writer, None
-        if writer is not None:
-            writer.close()
+        """Close the bag (its last chunk, indexes, footer): every message is in the file.  When
+        this raises, the writer is still set, so ``_abandon_bag`` closes and counts the file."""
+        writer = self._writer
+        if writer is None:
+            return
+        writer.close()
+        self._writer = None
+        self._flushed()
+        self._bag_messages = self._bag_recorded = 0
 
 
 def _check_writable(base: Path) -> None:

@@ -9,20 +9,48 @@ from __future__ import annotations
 import logging
 import shutil
 import struct
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .mcap import MCAP_MAGIC
-
 log = logging.getLogger(__name__)
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def complete_messages(files: list[Path]) -> Iterator[tuple[Any, Any, Any]]:
+    """Every complete message of the MCAP file(s), as ``(schema, channel, message)`` records,
+    with a streaming reader that stops at the first damaged or missing record of each file:
+    exactly what a recording that died holds (``recover``), and what a failed recording
+    counts as recorded."""
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    for f in files:
+        schemas: dict[int, Any] = {}
+        channels: dict[int, Any] = {}
+        with open(f, "rb") as stream:
+            try:
+                for record in StreamReader(stream, skip_magic=False).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif isinstance(record, Message) and record.channel_id in channels:
+                        ch = channels[record.channel_id]
+                        yield schemas[ch.schema_id], ch, record
+            except (McapError, EOFError, ValueError, OSError, struct.error) as e:
+                log.info("%s: stopped at a damaged or missing record: %s", f, e)
+
+
+def count_complete(path: Path) -> int:
+    """The complete messages in a bag directory's MCAP file(s)."""
+    return sum(1 for _ in complete_messages(sorted(path.glob("*.mcap"))))
 
 
 def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, int]:
     """Salvage a recording whose writer died: read every complete record of its MCAP file(s) with
     a streaming reader, and write them to a new, valid bag.  Returns (new bag, messages)."""
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -40,38 +68,23 @@ def recover_bag(path: str | Path, out: str | Path | None = None) -> tuple[Path, 
     if dest.exists():
         raise FileExistsError(f"{dest} exists already; give another --out")
     ts = get_typestore(Stores.ROS2_JAZZY)
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    conns: dict[int, Any] = {}
+    conns: dict[tuple[str, str], Any] = {}
     count = 0
     writer = Writer(dest, version=9, storage_plugin=StoragePlugin.MCAP)
     writer.open()
     ok = False
     try:
-        for f in files:
-            with open(f, "rb") as stream:
-                try:
-                    for record in StreamReader(stream, skip_magic=False).records:
-                        if isinstance(record, Schema):
-                            schemas[record.id] = record
-                        elif isinstance(record, Channel):
-                            channels[record.id] = record
-                        elif isinstance(record, Message) and record.channel_id in channels:
-                            if record.channel_id not in conns:
-                                ch = channels[record.channel_id]
-                                schema = schemas[ch.schema_id]
-                                text = schema.data.decode()
-                                _register_msgdef(ts, schema.name, text, get_types_from_msg)
-                                conns[record.channel_id] = writer.add_connection(
-                                    ch.topic,
-                                    schema.name,
-                                    msgdef=text,
-                                    rihs01=ts.hash_rihs01(schema.name),
-                                )
-                            writer.write(conns[record.channel_id], record.log_time, record.data)
-                            count += 1
-                except (McapError, EOFError, ValueError, OSError, struct.error) as e:
-                    log.info("%s: stopped at a damaged or missing record: %s", f, e)
+        for schema, ch, record in complete_messages(files):
+            key = (ch.topic, schema.name)
+            conn = conns.get(key)
+            if conn is None:
+                text = schema.data.decode()
+                _register_msgdef(ts, schema.name, text, get_types_from_msg)
+                conn = conns[key] = writer.add_connection(
+                    ch.topic, schema.name, msgdef=text, rihs01=ts.hash_rihs01(schema.name)
+                )
+            writer.write(conn, record.log_time, record.data)
+            count += 1
         ok = count > 0
     finally:
         writer.close()
