@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import os
 import re
+import signal
+import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -74,3 +77,65 @@ def test_a_full_disk_counts_every_message_it_could_not_keep(tmp_path: Path) -> N
         rec = ml("recover", str(bag), "--out", str(out))
     assert rec.returncode == 0, rec.stderr
     assert rec.stdout.strip() == f"recovered {recorded} messages into {out}"
+
+
+# ---- 2. run's exit codes, one test each (docs/cli.md) -------------------------------------------
+def free_tcp_url() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+
+
+def test_run_exits_0_when_its_boards_ran() -> None:
+    with board_process("--sim", "rangers") as url:
+        r = ml("run", url, "--duration", "2", "-p", "bus")
+    assert r.returncode == 0, r.stderr
+    assert "never up" not in r.stderr
+
+
+def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
+    url = free_tcp_url()
+    with board_process("--sim", "rangers") as good:
+        r = ml("run", good, url, "--duration", "2", "-p", "bus")
+    assert r.returncode == 1, r.stderr
+    (line,) = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert line.startswith(f"missing-link: error: {url}: never up: ")
+    assert "Connection refused" in line and "Traceback" not in r.stderr
+
+
+def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
+    board = subprocess.Popen(
+        [*ML, "board", "--sim", "rangers", "--listen", "pty"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert board.stdout is not None
+        url = board.stdout.readline().split()[1]
+        first = subprocess.Popen(
+            [*ML, "run", url, "--duration", "8", "-p", "bus", "--wait-up", "5"],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            time.sleep(2.5)  # the first daemon has the port (serial ports are locked exclusively)
+            r = ml("run", url, "--duration", "2", "-p", "bus")
+        finally:
+            first.terminate()
+            first.wait(10)
+    finally:
+        board.terminate()
+        board.wait(10)
+    assert r.returncode == 1, r.stderr
+    (line,) = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert line.startswith(f"missing-link: error: {url}: never up: ") and "lock" in line
+
+
+def test_run_exits_2_on_bad_input_and_130_on_ctrl_c() -> None:
+    r = ml("run", "bogus://x", "--duration", "1")
+    assert r.returncode == 2 and "unknown transport 'bogus'" in r.stderr
+    with board_process("--sim", "rangers") as url:
+        p = subprocess.Popen([*ML, "run", url, "-p", "bus"], stderr=subprocess.PIPE, text=True)
+        time.sleep(2.0)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=20)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err

@@ -38,7 +38,9 @@ def build_config(args: argparse.Namespace) -> Any:
     from ..daemon.config import BoardSpec, Config, DiscoverSpec, load_config
     from ..publishers.registry import unavailable
 
-    cfg = load_config(args.config) if args.config else Config(publishers=["bus", "console"])
+    # the console's sample lines would scroll through the live view: --view shows them itself
+    default = ["bus"] if args.view else ["bus", "console"]
+    cfg = load_config(args.config) if args.config else Config(publishers=default)
     cfg.boards.extend(BoardSpec(url=u) for u in args.url)
     for name in args.publisher or []:
         why = unavailable(name)
@@ -68,6 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..daemon import Daemon
 
     daemon = Daemon(build_config(args))  # config, URL and descriptor errors: exit 2, at once
+    given = list(daemon.sessions)  # (boards found by --auto come and go; these were asked for)
     stop = threading.Event()
     interrupted = []
 
@@ -111,6 +114,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     failures = daemon.failures()
     for line in failures:
         print(f"missing-link: error: {line}", file=sys.stderr)
+    if code == 0:
+        # A board it was given that never came up (nothing listening, the port taken by
+        # another daemon, descriptors refused) fails the run: the user asked for that board.
+        for s in given:
+            if s.connects == 0:
+                print(
+                    f"missing-link: error: {s.spec.url}: never up: {s.error or s.state}",
+                    file=sys.stderr,
+                )
+                code = EXIT_FAIL
     if interrupted:
         return EXIT_INTERRUPTED
     return EXIT_FAIL if failures else code
