@@ -139,3 +139,73 @@ def test_run_exits_2_on_bad_input_and_130_on_ctrl_c() -> None:
         _, err = p.communicate(timeout=20)
     assert p.returncode == 130, err
     assert "Traceback" not in err
+
+
+# ---- 3. create-msgs for a daemon with several boards --------------------------------------------
+def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
+    tmp_path: Path,
+) -> None:
+    """Two boards whose ``temp`` differ, and a thesis board: one package with all of them, the
+    names the daemon publishes under (board a first, as the daemon meets them here)."""
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+    from missing_link.ros.package import read_manifest
+
+    from .helpers import wait_for
+
+    out = tmp_path / "ws"
+    with (
+        board_process("--sim", "hostile_dtype", "--name", "board_a") as a,
+        board_process("--sim", "hostile_dtype", "--name", "board_b") as b,
+        board_process("--sim", "rangers", "--name", "rangers") as c,
+    ):
+        cfg = tmp_path / "ml.toml"  # the daemon's config: board_a and rangers
+        cfg.write_text(f'[[board]]\nurl = "{a}"\n[[board]]\nurl = "{c}"\n')
+        r = ml("create-msgs", "--config", str(cfg), "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        first = read_manifest(str(out / "missing_link_msgs"))
+        assert first is not None
+        assert {"Temp", "DistIr", "DistUs"} <= set(first[1])
+        assert first[1]["Temp"].boards == ("board_a",) and first[1]["DistIr"].boards == ("rangers",)
+        # Later, for board_b alone: board_a's and rangers' types stay, said in one line
+        r = ml("create-msgs", b, "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        assert "1 message type(s) from board_b" in r.stderr  # its Temp, the same as board_a's
+        assert "kept 3 type(s) of rangers from the earlier run" in r.stderr
+        second = read_manifest(str(out / "missing_link_msgs"))
+        assert second is not None and set(first[1]) <= set(second[1])
+        assert second[1]["Temp"].boards == ("board_a", "board_b")
+        # and the daemon, meeting board_a then board_b, publishes under the same type names
+        with Daemon(Config(boards=[BoardSpec(a)])) as d:
+            assert d.wait_until_up(10)
+            d.add_board(BoardSpec(b))
+            assert wait_for(lambda: len(d.bus.topics) >= 2)
+            daemon_types = {t.type_name.rsplit("/", 1)[1] for t in d.bus.topics.values()}
+    assert daemon_types <= set(second[1])
+
+
+def test_create_msgs_qualifies_a_differing_type_like_the_daemon(tmp_path: Path, serve: Any) -> None:
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+    from missing_link.ros.package import read_manifest
+    from missing_link.virtual import make_sim
+
+    from .helpers import wait_for
+
+    out = tmp_path / "ws"
+    a = serve(make_sim("hostile_dtype", name="board_a"), "tcp://127.0.0.1:0").url
+    b = serve(make_sim("hostile_dtype", name="board_b", dtype="float"), "tcp://127.0.0.1:0").url
+    r = ml("create-msgs", a, b, "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "type missing_link_msgs/msg/Temp is already defined differently" in r.stderr
+    manifest = read_manifest(str(out / "missing_link_msgs"))
+    assert manifest is not None
+    assert manifest[1]["Temp"].definition.endswith("int16[] values\n")
+    assert manifest[1]["BoardBTemp"].definition.endswith("float32[] values\n")
+    with Daemon(Config(boards=[BoardSpec(a)])) as d:
+        assert d.wait_until_up(10)
+        d.add_board(BoardSpec(b))
+        assert wait_for(lambda: "/board_b/temp" in d.bus.topics)
+        names = {n: t.type_name for n, t in d.bus.topics.items()}
+    assert names["/board_a/temp"] == "missing_link_msgs/msg/Temp"
+    assert names["/board_b/temp"] == "missing_link_msgs/msg/BoardBTemp"

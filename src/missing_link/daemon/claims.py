@@ -1,4 +1,5 @@
 """Names the daemon's boards must agree on: one board per topic name, one layout per type name.
+(``create-msgs`` names a package's types with the same claims, so they match.)
 
 * A board name is held by one owner (a session): a second board that calls itself ``robot``
   publishes as ``robot_2``, and the warning says who holds ``robot``.  An owner keeps its name
@@ -14,7 +15,34 @@ from __future__ import annotations
 import threading
 
 from ..descriptors import Transducer
+from ..errors import BoardError
 from ..ros.msgs import msg_name, msgdef, type_name
+from ..text import slug
+
+
+def board_token(
+    configured: str | None, properties: dict[str, str], url: str
+) -> tuple[str, str | None]:
+    """The topic token a board publishes under: its configured name, else its ``board.name``
+    made a token (``board-a`` -> ``board_a``, with a warning).  ``BoardError`` when it has
+    none that can be one."""
+    if configured:
+        return configured, None  # validated by the config
+    raw = properties.get("board.name", "")
+    if not raw:
+        raise BoardError(
+            url, 'the board states no board.name; name it with name = "..." in its [[board]] table'
+        )
+    token = slug(raw)
+    if not token:
+        raise BoardError(
+            url,
+            f"board.name {raw!r} gives no topic name (no ASCII letters or digits); name it "
+            'with name = "..." in its [[board]] table',
+        )
+    if token != raw:
+        return token, f"board.name {raw!r} is not a topic token: published as {token!r}"
+    return token, None
 
 
 class Claims:
@@ -46,6 +74,11 @@ class Claims:
         with self._lock:
             for held in [n for n, (o, _) in self._names.items() if o is owner]:
                 del self._names[held]
+
+    def hold(self, type_name: str, definition: str) -> None:
+        """``type_name`` is taken by ``definition`` already (a package built earlier)."""
+        with self._lock:
+            self._types.setdefault(type_name, definition)
 
     def type(self, board: str, t: Transducer) -> tuple[str, str | None]:
         """The message type for ``t``: its plain name unless another definition holds that,

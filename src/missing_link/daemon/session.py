@@ -52,11 +52,11 @@ from ..descriptors import load_descriptor_file
 from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
 from ..ros.standard import StandardMapping, mapping_for
-from ..text import slug
 from ..timesync.sync import ClockSync, SyncOptions
 from ..topics import Topic
 from ..transport import open_transport
 from .actuators import Actuators
+from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
 from .prober import ClockProber, ProbeContext
@@ -242,23 +242,9 @@ class BoardSession:
 
     def _board_name(self, board: Board) -> str:
         """The topic token this board publishes under (config name, else board.name)."""
-        if self.spec.name:
-            return self.spec.name  # validated by the config
-        raw = board.properties.get("board.name", "")
-        if not raw:
-            raise BoardError(
-                board.url,
-                'the board states no board.name; name it with name = "..." in its [[board]] table',
-            )
-        token = slug(raw)
-        if not token:
-            raise BoardError(
-                board.url,
-                f"board.name {raw!r} gives no topic name (no ASCII letters or digits); name it "
-                'with name = "..." in its [[board]] table',
-            )
-        if token != raw:
-            self.warn(f"board.name {raw!r} is not a topic token: published as {token!r}")
+        token, warning = board_token(self.spec.name, board.properties, board.url)
+        if warning:
+            self.warn(warning)
         return token
 
     def warn(self, text: str) -> None:
