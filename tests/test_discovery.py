@@ -12,7 +12,14 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.config import Config, ConfigError, DiscoverSpec, PortInfo, parse_config
+from missing_link.daemon.config import (
+    Config,
+    ConfigError,
+    DiscoverSpec,
+    PortInfo,
+    parse_config,
+    parse_usb_id,
+)
 from missing_link.daemon.discovery import PortMatcher
 from missing_link.virtual.process import start_board_process, stop_process
 
@@ -153,3 +160,58 @@ def test_a_kick_lists_at_once_and_udev_events_are_watched(boards) -> None:  # ty
         ports.plug(dev)
         d.discovery.kick()
         assert wait_for(lambda: all_up(d), 10)
+
+
+def test_by_default_only_known_j2a_boards_are_probed() -> None:
+    """A motor controller, a GPS or a 3D printer behind a USB-UART bridge is left alone unless
+    the user lists its USB id; our firmware's boards and 2014 boards are probed."""
+    pico = PortInfo("/dev/ttyACM0", 0x2E8A, 0x0005, "E660")
+    esp32s3 = PortInfo("/dev/ttyACM1", 0x303A, 0x4001, "F1")
+    ftdi = PortInfo("/dev/ttyUSB0", 0x0403, 0x6001, "A9")
+    arduino = PortInfo("/dev/ttyACM2", 0x2341, 0x0043, "85")
+    original = PortInfo("usb://1:7", 0x6666, 0xCAFE, "X")
+    everything = [pico, esp32s3, ftdi, arduino, original]
+    assert PortMatcher(DiscoverSpec()).update(everything)[0] == [pico, esp32s3, original]
+    listed = DiscoverSpec(ids=[parse_usb_id("2341:*")])
+    assert PortMatcher(listed).update(everything)[0] == [arduino, original]
+    assert PortMatcher(DiscoverSpec(any_usb=True)).update(everything)[0] == everything
+    cfg = parse_config({"discover": {"ids": ["0403:6001", "2341:*"]}})
+    assert cfg.discover is not None and cfg.discover.ids == [(0x0403, 0x6001), (0x2341, None)]
+    with pytest.raises(ConfigError, match=r"discover\.ids: 'nope' is not a USB id"):
+        parse_config({"discover": {"ids": ["nope"]}})
+
+
+def test_run_auto_takes_the_filters_and_says_what_it_probes() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "2341:*",
+         "--port", "/dev/ttyACM*", "--duration", "0.5"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "discovering boards on /dev/ttyACM* (USB 2341:*)" in r.stderr
+    r = subprocess.run(
+        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "zz",
+         "--duration", "1"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert r.returncode == 2 and "--usb-id 'zz' is not a USB id" in r.stderr
+
+
+def test_opening_a_serial_port_keeps_dtr_when_it_closes(boards) -> None:  # type: ignore[no-untyped-def]
+    """HUPCL is cleared on open, so closing (a probe, a reconnect) leaves DTR as it is and the
+    next open makes no edge (a pty carries no DTR line: the flag is what can be checked here)."""
+    import termios
+
+    from missing_link.transport import open_transport
+
+    _p, dev = boards("dtr")
+    t = open_transport(f"serial://{dev}")
+    try:
+        assert not termios.tcgetattr(t.fileno())[2] & termios.HUPCL  # type: ignore[attr-defined]
+    finally:
+        t.close()
+    fd = os.open(dev, os.O_RDWR | os.O_NOCTTY)
+    try:
+        assert not termios.tcgetattr(fd)[2] & termios.HUPCL  # still clear after our close
+    finally:
+        os.close(fd)

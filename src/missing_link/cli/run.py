@@ -35,7 +35,7 @@ class _PublisherArg(argparse.Action):
 
 
 def build_config(args: argparse.Namespace) -> Any:
-    from ..daemon.config import BoardSpec, Config, DiscoverSpec, load_config
+    from ..daemon.config import BoardSpec, Config, DiscoverSpec, load_config, parse_usb_id
     from ..publishers.registry import unavailable
 
     # the console's sample lines would scroll through the live view: --view shows them itself
@@ -56,8 +56,21 @@ def build_config(args: argparse.Namespace) -> Any:
         if "mcap" not in cfg.publishers:
             cfg.publishers.append("mcap")
         cfg.publisher_options.setdefault("mcap", {})["path"] = args.record
-    if getattr(args, "auto", False) and cfg.discover is None:
-        cfg.discover = DiscoverSpec()
+    if args.auto or args.port or args.usb_id or args.serial or args.any_usb:
+        spec = cfg.discover or DiscoverSpec()
+        if args.port:
+            spec.ports = list(args.port)
+        if args.usb_id:
+            try:
+                spec.ids = [parse_usb_id(i) for i in args.usb_id]
+            except ValueError as e:
+                raise ConfigError(f"--usb-id {e}") from None
+            spec.vid = spec.pid = None
+        if args.serial:
+            spec.serial = args.serial
+        if args.any_usb:
+            spec.any_usb, spec.vid, spec.pid = True, None, None
+        cfg.discover = spec
     if not cfg.boards and cfg.discover is None:
         raise BadURL(
             "no boards: give URLs on the command line, [[board]] tables or [discover] in "
@@ -84,8 +97,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     code = 0
     with daemon:
         if daemon.discovery is not None:
-            globs = " ".join(daemon.discovery.spec.ports)
-            print(f"missing-link: discovering boards on {globs}", file=sys.stderr)
+            what = daemon.discovery.spec.describe()
+            print(f"missing-link: discovering boards on {what}", file=sys.stderr)
         print(
             f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
             f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
@@ -220,7 +233,22 @@ def add_parsers(sub: Any) -> None:
     sp.add_argument(
         "--auto",
         action="store_true",
-        help="find J2A boards on USB serial ports as they appear ([discover] in --config)",
+        help="find J2A boards as they plug in ([discover] in --config): by default only USB "
+        "devices known to be J2A boards are probed (docs/hardware.md)",
+    )
+    sp.add_argument(
+        "--usb-id",
+        action="append",
+        metavar="VID:PID",
+        help="--auto probes ports with this USB id (hex, PID may be *; repeatable), instead of "
+        "the known J2A boards' (e.g. 2341:* for Arduinos running our firmware)",
+    )
+    sp.add_argument("--port", action="append", metavar="GLOB", help="--auto looks at these devices")
+    sp.add_argument("--serial", metavar="GLOB", help="--auto: only this USB serial number")
+    sp.add_argument(
+        "--any-usb",
+        action="store_true",
+        help="--auto probes every USB serial port (writes J2A bytes to whatever is there)",
     )
     sp.set_defaults(func=cmd_run)
 

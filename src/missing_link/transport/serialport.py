@@ -1,7 +1,17 @@
-"""``serial:///dev/ttyACM0?baud=115200``: UARTs, USB CDC-ACM boards, pseudo-terminals (pyserial)."""
+"""``serial:///dev/ttyACM0?baud=115200``: UARTs, USB CDC-ACM boards, pseudo-terminals (pyserial).
+
+DTR: an Arduino-class board resets when DTR is asserted (its auto-reset capacitor).  Linux
+asserts DTR when a port is opened, before any program can say otherwise, and drops it on close
+when HUPCL is set (the default).  The port is opened with DTR asserted as the kernel leaves it
+(pyserial's default, no extra toggle) and HUPCL is cleared at once: closing the port leaves DTR
+where it is, so the next open (a reconnect, or the daemon after discovery's probe) makes no edge
+and resets nothing.  The first open of a freshly plugged board still resets it; that one the OS
+does not let a program keep.
+"""
 
 from __future__ import annotations
 
+import termios
 from urllib.parse import unquote, urlsplit
 
 import serial
@@ -48,6 +58,18 @@ def open_serial(url: str, query: dict[str, str]) -> SerialTransport:
         port = serial.Serial(path, baudrate=baud, timeout=0, write_timeout=2.0, exclusive=True)
     except (serial.SerialException, OSError, ValueError) as e:
         raise TransportBroken(f"{url}: cannot open: {e}") from e
+    keep_dtr(port.fileno())
     # Whatever the board sent before we opened the port (samples nobody read) is stale.
     port.reset_input_buffer()
     return SerialTransport(url, port)
+
+
+def keep_dtr(fd: int) -> None:
+    """Clear HUPCL: closing the port then leaves DTR (and RTS) as they are (see above)."""
+    try:
+        attrs = termios.tcgetattr(fd)
+        if attrs[2] & termios.HUPCL:
+            attrs[2] &= ~termios.HUPCL
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    except termios.error:  # not a tty after all (a test double): nothing to keep
+        pass
