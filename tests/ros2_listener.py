@@ -2,7 +2,9 @@
 
 Prints one JSON object per line: {"sample": ...} for each message on --topic, then {"graph":
 [liveliness keys]}, then {"done": true}.  With --command it also publishes that message type's
-values on a command topic, as a ROS 2 node would.
+values on a command topic, as a ROS 2 node would.  With --history it subscribes as a
+transient-local rmw_zenoh subscriber does (zenoh's AdvancedSubscriber asking late-detected
+publishers for their cached samples), so it gets a state published before it started.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ def main() -> int:
     ap.add_argument("--command-type")
     ap.add_argument("--command-msgdef")
     ap.add_argument("--command-value", type=int)
+    ap.add_argument("--history", action="store_true", help="get cached samples (late joiner)")
     a = ap.parse_args()
 
     ts = get_typestore(Stores.ROS2_JAZZY)
@@ -45,17 +48,19 @@ def main() -> int:
     cfg.insert_json5("scouting/multicast/enabled", "false")
     got: queue.Queue[tuple[str, bytes, bytes | None, int]] = queue.Queue()
     with zenoh.open(cfg) as session:
-        sub = session.declare_subscriber(
-            "0/**",
-            lambda s: got.put(
-                (
-                    str(s.key_expr),
-                    bytes(s.payload),
-                    bytes(s.attachment) if s.attachment is not None else None,
-                    time.time_ns(),
-                )
-            ),
-        )
+
+        def on_sample(s: zenoh.Sample) -> None:
+            att = bytes(s.attachment) if s.attachment is not None else None
+            got.put((str(s.key_expr), bytes(s.payload), att, time.time_ns()))
+
+        if a.history:
+            from zenoh.ext import HistoryConfig, declare_advanced_subscriber
+
+            sub = declare_advanced_subscriber(
+                session, key, on_sample, history=HistoryConfig(detect_late_publishers=True)
+            )
+        else:
+            sub = session.declare_subscriber("0/**", on_sample)
         cmd_pub = None
         if a.command:
             ts.register(get_types_from_msg(a.command_msgdef.replace("\\n", "\n"), a.command_type))

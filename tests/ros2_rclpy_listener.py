@@ -17,7 +17,7 @@ import time
 from typing import Any
 
 import rclpy
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 
 def msg_class(type_name: str) -> Any:
@@ -59,6 +59,9 @@ def main() -> None:
     ap.add_argument("--sub", action="append", default=[])
     ap.add_argument("--cmd", action="append", default=[])
     ap.add_argument("--sensor-qos", action="store_true")
+    ap.add_argument(
+        "--transient-local", action="store_true", help="ask for what was published before"
+    )
     ap.add_argument("--until-value", help="TOPIC=VALUE: also wait until TOPIC carries VALUE")
     a = ap.parse_args()
     rclpy.init()
@@ -67,7 +70,13 @@ def main() -> None:
     for spec in a.sub:
         topic, type_name = spec.split("=")
         got[topic] = []
-        qos = qos_profile_sensor_data if a.sensor_qos else 10
+        qos: Any = qos_profile_sensor_data if a.sensor_qos else 10
+        if a.transient_local:
+            qos = QoSProfile(
+                depth=1,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            )
         node.create_subscription(
             msg_class(type_name), topic, lambda m, t=topic: got[t].append(summarise(m)), qos
         )

@@ -209,3 +209,34 @@ def test_create_msgs_qualifies_a_differing_type_like_the_daemon(tmp_path: Path, 
         names = {n: t.type_name for n, t in d.bus.topics.items()}
     assert names["/board_a/temp"] == "missing_link_msgs/msg/Temp"
     assert names["/board_b/temp"] == "missing_link_msgs/msg/BoardBTemp"
+
+
+# ---- 5. late joiners in-process; 6. subscribe() to a topic that does not exist ---------------
+def test_a_late_bus_subscriber_asks_for_the_latest_state(serve: Any) -> None:
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+    from missing_link.topics import Update
+    from missing_link.virtual import make_sim
+
+    from .helpers import wait_for
+
+    server = serve(make_sim("thesis", seed=2))
+    with Daemon(Config(boards=[BoardSpec(server.url)])) as d:
+        assert d.wait_until_up(10)
+        d.send("/thesis/servo/cmd", 21)
+        assert wait_for(lambda: (u := d.bus.last("/thesis/servo")) is not None and u.values == [21])
+        late: list[Update] = []
+        d.subscribe("/thesis/servo", late.append, queue=0, latest=True)
+        assert [u.values for u in late] == [[21]]  # at once, before any new state
+        with pytest.raises(KeyError, match=r"no topic '/thesis/sevro'.*/thesis/servo"):
+            d.subscribe("/thesis/sevro", late.append)
+        d.subscribe("/thesis/*", late.append)  # patterns may match later topics
+
+
+def test_subscribing_before_the_board_is_up_is_fine(serve: Any) -> None:
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+
+    url = free_tcp_url()  # nothing there yet
+    with Daemon(Config(boards=[BoardSpec(url)])) as d:
+        d.subscribe("/thesis/quad", lambda u: None)  # the board may come up later

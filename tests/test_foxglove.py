@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
+from typing import Any
 
 import websockets
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -99,3 +100,24 @@ def test_official_foxglove_client_decodes_with_the_schema(serve) -> None:  # typ
     assert any(s > 1_600_000_000 for s in out["times_sec"])
     assert int(out["log_time_ns"]) > 1_600_000_000 * 10**9
     assert "/thesis/dist_ir/range" in out["topics"] and "/diagnostics" in out["topics"]
+
+
+def test_a_late_client_gets_the_actuators_state(serve) -> None:  # type: ignore[no-untyped-def]
+    """The servo reports its state only when it changes; a client that connects after it
+    settled still gets it (sent again with every /diagnostics round)."""
+    import time
+
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    with foxglove_daemon(server.url) as d:
+        assert d.wait_until_up(10)
+        states: list[Any] = []
+        d.subscribe("/thesis/servo", states.append, queue=0)
+        d.send("/thesis/servo/cmd", 25)
+        deadline = time.monotonic() + 10
+        while not (states and states[-1].values == [25]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        ch, payload, _topics = asyncio.run(_client(d.foxglove.url, "/thesis/servo"))  # type: ignore[attr-defined]
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    ts.register(get_types_from_msg(ch["schema"].split("=" * 80)[0], ch["schemaName"]))
+    assert list(ts.deserialize_cdr(payload, ch["schemaName"]).values) == [25]

@@ -119,6 +119,15 @@ def test_ros1_node_drives_the_servo(tmp_path: Path) -> None:
             "--expect",
             "40",
         )
+        time.sleep(1.0)  # settled: the servo's state goes out no more
+        late = listen(  # a node that starts now gets the current state: the topic is latched
+            env,
+            "--custom",
+            "/board_a/servo=missing_link_msgs/Servo=time[] times\\nint8[] values",
+            *("--expect", "40", "--timeout", "15"),
+        )
     assert out.returncode == 0, out.stdout + out.stderr
     (line,) = [json.loads(x) for x in out.stdout.splitlines()]
     assert line["topic"] == "/board_a/servo" and 40 in line["values"]
+    assert late.returncode == 0, late.stdout + late.stderr
+    assert 40 in json.loads(late.stdout.splitlines()[0])["values"]

@@ -189,8 +189,17 @@ def test_thesis_types_after_create_msgs_build_and_ros2_commands(
             "--until-value",
             "/thesis/servo=40",
         )
+        time.sleep(1.0)  # the servo has settled: its state goes out no more
+        late = listen(
+            listener_env,
+            *("--seconds", "20", "--min", "1", "--transient-local"),
+            *("--sub", "/thesis/servo=missing_link_msgs/msg/Servo"),
+        )
     finally:
         err = stop(daemon)
+    # a late transient-local subscriber gets the servo's current state all the same
+    late_values = [v for m in late["received"]["/thesis/servo"] for v in m["values"]]  # type: ignore[index]
+    assert late_values == [40], (late_values, err[-2000:])
     received = got["received"]
     assert isinstance(received, dict), err[-2000:]
     dist = received["/thesis/dist_ir"]

@@ -15,6 +15,7 @@ import pytest
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.publishers.zenoh import attachment, data_key, dds_type
+from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import free_port
@@ -98,6 +99,38 @@ def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:
         == xxhash.xxh3_128(quad_token.encode()).intdigest().to_bytes(16, "little").hex()
     )
     assert commands >= 1  # the consumer's command reached the board's a2j_set_servo
+
+
+def test_a_late_subscriber_gets_the_actuators_state(serve) -> None:  # type: ignore[no-untyped-def]
+    """The servo reports its state only when it changes; a transient-local subscriber that
+    joins later still gets it (rmw_zenoh's way: an advanced publisher's cache)."""
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    port = free_port()
+    cfg = Config(
+        boards=[BoardSpec(server.url)],
+        publishers=["bus", "zenoh"],
+        publisher_options={"zenoh": {"listen": [f"tcp/127.0.0.1:{port}"], "connect": []}},
+    )
+    with Daemon(cfg) as d:
+        assert d.wait_until_up(10)
+        states: list[Update] = []
+        d.subscribe("/thesis/servo", states.append, queue=0)
+        d.send("/thesis/servo/cmd", 37)
+        deadline = time.monotonic() + 10  # (the virtual servo moves there step by step)
+        while not (states and states[-1].values == [37]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert states and states[-1].values == [37]
+        time.sleep(0.5)  # well after the state went out: only a cache can give it now
+        lines = run_listener(
+            f"tcp/127.0.0.1:{port}",
+            *("--topic", "/thesis/servo", "--type", "missing_link_msgs/msg/Servo"),
+            *("--msgdef", SERVO, "--count", "1", "--timeout", "10", "--history"),
+        )
+        graph = next(x["graph"] for x in lines if "graph" in x)
+    samples = [x["sample"] for x in lines if "sample" in x]
+    assert [s["values"] for s in samples] == [[37]]
+    (token,) = [k for k in graph if "/MP/" in k and "%thesis%servo/" in k]
+    assert token.endswith("/:1:,1:,:,:,,")  # transient local, keep last 1
 
 
 def test_three_processes_through_a_router(tmp_path: Path) -> None:

@@ -192,11 +192,29 @@ class Daemon:
         self.stop()
 
     # ---- for applications (the thesis's Listing 8.4) -----------------------------------------
-    def subscribe(self, topic: str, callback: Callback, *, queue: int = 10_000) -> Subscription:
+    def subscribe(
+        self, topic: str, callback: Callback, *, queue: int = 10_000, latest: bool = False
+    ) -> Subscription:
         """``callback(update)`` for every update on ``topic`` (patterns: ``*``, ``**``), on a
         thread of its own behind a bounded queue (``queue=0``: inline in the I/O loop that
-        reads the boards)."""
-        return self.bus.subscribe(topic, callback, queue=queue)
+        reads the boards); ``latest=True`` first hands over the newest update the topic
+        already had (an actuator's state: the board reports it only when it changes).
+
+        A topic may be subscribed before its board is up; once every board is up, a name that
+        none of them has is a ``KeyError`` listing the topics there are (a typo, not a wait)."""
+        pattern = "*" in topic or "?" in topic
+        if not pattern and topic not in self.bus.topics and self._all_boards_known():
+            known = ", ".join(sorted(self.bus.topics)) or "none"
+            raise KeyError(
+                f"no topic {topic!r}: every board is up and none has it (topics: {known})"
+            )
+        return self.bus.subscribe(topic, callback, queue=queue, latest=latest)
+
+    def _all_boards_known(self) -> bool:
+        """Every board there will be is up (no discovery adding more): a topic that none has
+        now will not appear."""
+        sessions = self.sessions
+        return self.discovery is None and bool(sessions) and all(s.state == UP for s in sessions)
 
     def send(self, topic: str, value: Any) -> None:
         self.bus.send(topic, value)
@@ -266,7 +284,11 @@ class Daemon:
 
     def _declare(self, topic: Topic) -> None:
         for p in self.publishers:
-            p.add_topic(topic)
+            try:
+                p.add_topic(topic)
+            except Exception:  # one face that cannot carry a topic must not stop the board
+                self.publish_errors += 1
+                log.exception("publisher %s cannot declare %s", p.name, topic.name)
 
     def _publish(self, update: Update) -> None:
         for p in self.publishers:
@@ -279,7 +301,11 @@ class Daemon:
     def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
         self.bus.add_command(name, handler)
         for p in self.publishers:
-            p.add_command_topic(name, topic, handler)
+            try:
+                p.add_command_topic(name, topic, handler)
+            except Exception:  # (as _declare)
+                self.publish_errors += 1
+                log.exception("publisher %s cannot take commands on %s", p.name, name)
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):

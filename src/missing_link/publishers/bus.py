@@ -118,22 +118,32 @@ class Bus(Publisher):
         self.topics: dict[str, Topic] = {}
 
     # ---- for applications ---------------------------------------------------------------------
-    def subscribe(self, topic: str, callback: Callback, *, queue: int = 10_000) -> Subscription:
+    def subscribe(
+        self, topic: str, callback: Callback, *, queue: int = 10_000, latest: bool = False
+    ) -> Subscription:
         """Call ``callback(update)`` for every update on ``topic``.  Patterns: ``*`` and ``?``
         match within one level (``/board/*``), ``**`` across levels (``/board/**``).
         ``queue``: updates held for a slow callback before the oldest are dropped (counted);
-        0 calls it inline on the thread that reads the board."""
+        0 calls it inline on the thread that reads the board.  ``latest``: first the newest
+        update each matching topic already had (an actuator's state, which the board reports
+        only when it changes)."""
         if queue < 0:
             raise ValueError(f"queue = {queue}: 0 (inline) or a positive number of updates")
         sub = Subscription(self, topic, callback, queue)
         with self._lock:
             if "*" in topic or "?" in topic:
                 self._patterns.append(sub)
-                for name in self.topics:  # topics that already exist match at once
-                    if topic_pattern(topic).match(name):
-                        self._exact.setdefault(name, []).append(sub)
+                matching = [n for n in self.topics if topic_pattern(topic).match(n)]
+                for name in matching:  # topics that already exist match at once
+                    self._exact.setdefault(name, []).append(sub)
             else:
+                matching = [topic]
                 self._exact.setdefault(topic, []).append(sub)
+            if latest:
+                for name in matching:
+                    last = self._last.get(name)
+                    if last is not None:
+                        sub.deliver(last)
         return sub
 
     def last(self, topic: str) -> Update | None:

@@ -3,6 +3,11 @@ channel, plus ``/diagnostics``.  Open Foxglove, "Open connection", ``ws://127.0.
 
 Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  Messages are
 logged at the sample's host time (clock sync), so plots line up across boards.
+
+The WebSocket protocol has no latching: a client that connects after an actuator last moved
+would not see its state (the board reports it only when it changes).  So the latest state of
+every actuator is sent again with each ``/diagnostics`` round (once a second), at its own log
+time: a late client has it within a second.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ class FoxglovePublisher(RosPublisher):
         self.port = int(self.server.port)
         self.url = f"ws://{opts.get('host', '127.0.0.1')}:{self.port}"
         self._channels: dict[str, Any] = {}
+        self._states: dict[str, Update] = {}  # an actuator's topic -> its latest update
         self.logged = 0
         with self._lock:
             self._channel(DIAG_TOPIC, DIAG_TYPE)
@@ -61,9 +67,13 @@ class FoxglovePublisher(RosPublisher):
             return
         ch.log(update.cdr, log_time=update.stamp_ns)
         self.logged += 1
+        if update.topic.transducer.is_actuator:
+            self._states[update.topic.name] = update
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         self._channels[DIAG_TOPIC].log(cdr, log_time=now_ns)
+        for name, update in list(self._states.items()):  # (see the module's docstring)
+            self._channels[name].log(update.cdr, log_time=update.stamp_ns)
 
     def shutdown(self) -> None:
         for ch in self._channels.values():

@@ -91,7 +91,10 @@ class Ros1Publisher(RosPublisher):
                     return
             else:
                 cls = self._thesis_class(topic)
-            pub = self.rospy.Publisher(topic.name, cls, queue_size=self.queue_size)
+            # an actuator's state is latched: the board reports it only when it changes, and a
+            # late subscriber gets the current one
+            latch = topic.transducer.is_actuator
+            pub = self.rospy.Publisher(topic.name, cls, queue_size=self.queue_size, latch=latch)
             self._pubs[topic.name] = (pub, cls, topic)
 
     def _thesis_class(self, topic: Topic) -> Any:

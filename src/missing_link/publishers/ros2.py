@@ -21,7 +21,9 @@ of its message class, and every update is published as the CDR bytes the daemon 
 * Actuators: ``/<board>/<name>/cmd`` is subscribed with the thesis type (raw CDR, decoded with
   rosbags) and goes through the daemon's latest-wins path.
 * QoS: reliable, volatile, keep last ``depth`` (10): a default subscriber and a sensor-data
-  (best-effort) subscriber both match.
+  (best-effort) subscriber both match.  An actuator's state topics are transient local, keep
+  last 1: a late subscriber that asks for transient local gets the current state (the board
+  reports it only when it changes); a volatile one matches too.
 """
 
 from __future__ import annotations
@@ -95,6 +97,13 @@ class Ros2Publisher(RosPublisher):
             depth=int(opts.get("depth", 10)),
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
+        )
+        # an actuator's state: the board reports it only when it changes, so it is kept for
+        # late subscribers (a volatile subscriber matches too)
+        self.state_qos = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -173,7 +182,8 @@ class Ros2Publisher(RosPublisher):
         with self._lock:
             if self._closed or topic.name in self._pubs:
                 return
-            self._pubs[topic.name] = self.node.create_publisher(cls, topic.name, self.qos)
+            qos = self.state_qos if topic.transducer.is_actuator else self.qos
+            self._pubs[topic.name] = self.node.create_publisher(cls, topic.name, qos)
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
         cls = self._class_for(topic)

@@ -11,7 +11,11 @@ sees from this publisher:
   rmw_zenoh drops the sample silently; the source timestamp is the sample's host time from
   clock sync (when the board measured, not when the message was sent);
 * per actuator a subscription token (``MS``) on ``/<board>/<name>/cmd``: a ROS 2 node
-  publishing the transducer's message type there drives the board.
+  publishing the transducer's message type there drives the board;
+* an actuator's state topic (``/<board>/<name>``) is transient local, keep last 1, as
+  rmw_zenoh makes one: an advanced publisher with a cache and publisher detection, so a late
+  subscriber with history (rmw_zenoh's transient local, or zenoh's ``AdvancedSubscriber``)
+  gets the current state although the board reports it only when it changes.
 
 The type hash is RIHS01 from the configured distro's typestore; Humble has none
 (``TypeHashNotSupported``).  Sessions are peers that connect to ``tcp/127.0.0.1:7447`` (where
@@ -43,6 +47,9 @@ DEFAULT_LISTEN = ["tcp/127.0.0.1:0"]
 #: rmw_zenoh's default.  Reliable (default), volatile written out (2: the default durability
 #: changed from transient-local to volatile in rmw_zenoh PR #521, March 2025), keep last 10.
 QOS = ":2:,10:,:,:,,"
+#: an actuator's state: transient local (1), keep last 1, so a late subscriber gets the current
+#: state (the board reports it only when it changes)
+QOS_STATE = ":1:,1:,:,:,,"
 
 
 def dds_type(type_name: str) -> str:
@@ -110,6 +117,9 @@ class ZenohPublisher(RosPublisher):
         cfg.insert_json5("scouting/multicast/enabled", "false")
         if mode == "peer":
             cfg.insert_json5("scouting/gossip/enabled", "true")
+        # as rmw_zenoh's default config: samples carry HLC timestamps (the actuators' state
+        # cache needs them to sequence its samples)
+        cfg.insert_json5("timestamping/enabled", "true")
         self.session: Any = zenoh.open(cfg)
         self.zid = str(self.session.info.zid())
         self._entities: dict[str, _Entity] = {}
@@ -132,10 +142,12 @@ class ZenohPublisher(RosPublisher):
         """rmw_zenoh's gid: XXH3-128 of the entity's liveliness token, low 64 bits first."""
         return bytes(xxhash.xxh3_128(token.encode()).intdigest().to_bytes(16, "little"))
 
-    def _token(self, kind: str, entity_id: int, topic: str, type_name: str, hash_: str) -> str:
+    def _token(
+        self, kind: str, entity_id: int, topic: str, type_name: str, hash_: str, qos: str = QOS
+    ) -> str:
         return (
             f"@ros2_lv/{self.domain}/{self.zid}/{self._node_id}/{entity_id}/{kind}/%/%/{self.node}"
-            f"/{mangle(topic)}/{dds_type(type_name)}/{hash_}/{QOS}"
+            f"/{mangle(topic)}/{dds_type(type_name)}/{hash_}/{qos}"
         )
 
     def add_topic(self, topic: Topic) -> None:
@@ -143,15 +155,25 @@ class ZenohPublisher(RosPublisher):
             if self._closed or topic.name in self._entities:
                 return
             topic.register_type(self.typestore)
-            self._declare_publisher(topic.name, topic.type_name)
+            self._declare_publisher(topic.name, topic.type_name, state=topic.transducer.is_actuator)
 
-    def _declare_publisher(self, name: str, type_name: str) -> _Entity:
+    def _declare_publisher(self, name: str, type_name: str, *, state: bool = False) -> _Entity:
         hash_ = type_hash(self.typestore, type_name, self.distro)
         eid = self._next_id
         self._next_id += 1
-        token = self._token("MP", eid, name, type_name, hash_)
+        token = self._token("MP", eid, name, type_name, hash_, QOS_STATE if state else QOS)
         ent = _Entity(data_key(self.domain, name, type_name, hash_), self._gid(token))
-        ent.pub = self.session.declare_publisher(ent.key)
+        if state:
+            # as rmw_zenoh makes a transient-local publisher: a cache of the last sample that
+            # late subscribers with history (rmw_zenoh's transient local) query when they
+            # detect this publisher
+            from zenoh.ext import CacheConfig, declare_advanced_publisher
+
+            ent.pub = declare_advanced_publisher(
+                self.session, ent.key, cache=CacheConfig(1), publisher_detection=True
+            )
+        else:
+            ent.pub = self.session.declare_publisher(ent.key)
         ent.token = self.session.liveliness().declare_token(token)
         self._entities[name] = ent
         return ent
