@@ -240,3 +240,70 @@ def test_subscribing_before_the_board_is_up_is_fine(serve: Any) -> None:
     url = free_tcp_url()  # nothing there yet
     with Daemon(Config(boards=[BoardSpec(url)])) as d:
         d.subscribe("/thesis/quad", lambda u: None)  # the board may come up later
+
+
+def test_call_value_is_what_send_sends_and_board_text_is_text(serve: Any) -> None:
+    """``call --value 40`` packs 40 as the servo's int8 (``--hex 40`` is 0x40 = 64); a
+    board's error text is shown as text, in the one error line too."""
+    from missing_link.virtual import make_sim
+
+    url = serve(make_sim("thesis", seed=3), "tcp://127.0.0.1:0").url
+    r = ml("call", url, "a2j_set_servo", "--value", "40", "--json")
+    assert r.returncode == 0, r.stderr
+    r = ml("call", url, "a2j_set_servo", "--value", "300")
+    assert r.returncode == 2 and "--value '300' is not a legal int8_t for servo" in r.stderr
+    r = ml("call", url, "a2jEcho", "--value", "1")
+    assert r.returncode == 2 and "no actuator of thesis is called through a2jEcho" in r.stderr
+    r = ml("call", url, "setTriggerAt", "--hex", "0000000000000000")  # before any host map
+    assert r.returncode == 1
+    assert "  text  no host map yet (a2jHostMap)" in r.stdout
+    (line,) = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert "setTriggerAt returned 0xff: no host map yet (a2jHostMap)" in line
+
+
+def test_console_shows_scaled_values_in_their_unit() -> None:
+    import io
+
+    from missing_link.descriptors import parse_transds
+    from missing_link.publishers.console import ConsolePublisher
+    from missing_link.topics import Topic, Update
+
+    (servo,) = parse_transds(
+        "transds/1\nservo,3,hs645,HS-645MG,1,int8_t,-128,unit=deg,scale=0.708661\n"
+    )
+    out = io.StringIO()
+    topic = Topic.for_transducer("/b/servo", "b", servo, "missing_link_msgs")
+    ConsolePublisher({}, out=out).publish(Update(topic, [1], [5], [20], 0, 0, 0))
+    assert out.getvalue().rstrip().endswith("/b/servo [14.17] deg (raw [20])")
+
+
+def test_a_failed_connect_names_its_board_once_and_prints_nothing_else() -> None:
+    probe = (
+        "import missing_link\n"
+        "try:\n"
+        f"    missing_link.connect({free_tcp_url()!r}, wait=1.5)\n"
+        "except missing_link.BoardError as e:\n"
+        "    print(e)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert r.stderr == ""  # a library prints no retry lines of its own
+    (line,) = r.stdout.splitlines()
+    url = line.split(": ", 1)[0]
+    assert line.count(url) == 1 and "not up within 1.5 s: cannot connect" in line
+
+
+def test_zenoh_says_where_it_is_and_that_nothing_answers() -> None:
+    with board_process("--sim", "rangers") as url:
+        port = free_tcp_url().rsplit(":", 1)[1]
+        cfg = f'[zenoh]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
+        import tempfile
+
+        with tempfile.NamedTemporaryFile("w", suffix=".toml", delete=False) as f:
+            f.write(cfg)
+        r = ml("run", url, "-p", "zenoh", "--config", f.name, "--duration", "1")
+        os.unlink(f.name)
+    assert r.returncode == 0, r.stderr
+    assert (
+        "missing-link: zenoh at peer " in r.stderr and f"connect tcp/127.0.0.1:{port}" in r.stderr
+    )
+    assert f"zenoh: nothing answers at tcp/127.0.0.1:{port} yet" in r.stderr

@@ -27,7 +27,11 @@ a one-off ``missing-link call`` loads only what it uses.
 from __future__ import annotations
 
 import importlib
+import logging
 from typing import TYPE_CHECKING, Any
+
+# A library says nothing on stderr unless the application configures logging (the CLI does).
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 if TYPE_CHECKING:  # (for type checkers and readers; at run time see __getattr__)
     from .daemon.service import Daemon, connect

@@ -52,6 +52,15 @@ class Transducer:
         return self.options.get("unit")
 
     @property
+    def scaled(self) -> bool:
+        """The raw values are counts of ``scale`` (and ``offset``) in ``unit``."""
+        return "scale" in self.options or "offset" in self.options
+
+    def in_unit(self, value: float) -> float:
+        """A raw value in the transducer's unit: ``value * scale + offset``."""
+        return value * float(self.options.get("scale", 1.0)) + float(self.options.get("offset", 0))
+
+    @property
     def sif_size(self) -> int:
         return self.chan_count * (8 + int(DTYPES[self.dtype][1]))
 

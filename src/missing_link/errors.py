@@ -60,11 +60,29 @@ class CallError(BoardError):
         self.code = code
 
 
+def without_prefix(who: str, text: str) -> str:
+    """``text`` without a leading ``who: `` (an error that names its board, shown where the
+    board is named already)."""
+    while who and text.startswith(who + ": "):
+        text = text[len(who) + 2 :]
+    return text
+
+
+def payload_text(payload: bytes) -> str:
+    """A reply payload as text when it is text (a board's error message), else ''."""
+    try:
+        text = payload.decode("utf-8").rstrip("\0")
+    except UnicodeDecodeError:
+        return ""
+    return text if text and text.isprintable() else ""
+
+
 class FunctionFailed(BoardError):
     """The function ran and returned a nonzero status where 0 (OK) was required."""
 
     def __init__(self, board: str, function: str, code: int, payload: bytes = b"") -> None:
-        super().__init__(board, f"{function} returned {code:#04x}")
+        said = payload_text(payload)
+        super().__init__(board, f"{function} returned {code:#04x}" + (f": {said}" if said else ""))
         self.function = function
         self.code = code
         self.payload = payload

@@ -8,6 +8,7 @@ so ``missing-link call`` loads the J2A client and nothing of the daemon, numpy o
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from collections.abc import Sequence
 
@@ -34,6 +35,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # the daemon's warnings (a board that is not up, a name taken) as plain lines on stderr
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.setLevel(logging.WARNING)
+    logging.getLogger("missing_link").addHandler(handler)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

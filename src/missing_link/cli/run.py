@@ -9,7 +9,7 @@ import threading
 import time
 from typing import Any
 
-from ..errors import BadURL, ConfigError
+from ..errors import BadURL, ConfigError, without_prefix
 from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE, non_negative, port_arg
 
 
@@ -132,10 +132,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         # another daemon, descriptors refused) fails the run: the user asked for that board.
         for s in given:
             if s.connects == 0:
-                print(
-                    f"missing-link: error: {s.spec.url}: never up: {s.error or s.state}",
-                    file=sys.stderr,
-                )
+                why = without_prefix(s.spec.url, s.error or s.state)
+                print(f"missing-link: error: {s.spec.url}: never up: {why}", file=sys.stderr)
                 code = EXIT_FAIL
     if interrupted:
         return EXIT_INTERRUPTED
@@ -172,7 +170,11 @@ def print_summary(daemon: Any, out: Any) -> None:
             f"missing-link: {s['board']}: {s['samples']} samples"
             + "".join(f", {e}" for e in extra)
             + f", {s['connects']} connect(s), state {s['state']}"
-            + (f" ({s['error']})" if s["error"] and s["state"] != "up" else ""),
+            + (
+                f" ({without_prefix(s['url'], s['error'])})"
+                if s["error"] and s["state"] != "up"
+                else ""
+            ),
             file=out,
         )
     for p in daemon.publishers:

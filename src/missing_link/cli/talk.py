@@ -9,6 +9,7 @@ import threading
 import time
 from typing import Any
 
+from ..errors import ConfigError, payload_text
 from ..host.board import Board
 from ..host.samples import Sample, SampleDecoder
 from ..j2a import SifReceived
@@ -81,8 +82,12 @@ def cmd_call(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    if args.value is not None and args.hex:
+        print("missing-link: error: give --hex or --value, not both", file=sys.stderr)
+        return EXIT_USAGE
     with open_url(args) as board:
-        result = board.call(args.name, args.hex, timeout=args.timeout)
+        payload = args.hex if args.value is None else value_payload(board, args.name, args.value)
+        result = board.call(args.name, payload, timeout=args.timeout)
     if args.json:
         emit_json(
             {
@@ -93,20 +98,41 @@ def cmd_call(args: argparse.Namespace) -> int:
             }
         )
     else:
-        text = result.payload.decode("ascii", "replace") if result.payload.isascii() else ""
+        text = payload_text(result.payload)
         print(f"return {result.code:#04x} ({result.code})  payload {len(result.payload)} bytes")
         if result.payload:
             print(f"  hex   {result.payload.hex(' ')}")
-            if text.isprintable():
-                print(f"  ascii {text}")
+            if text:
+                print(f"  text  {text}")
     if result.code != SUCCESS_CODES.get(args.name, 0) and not args.any_code:
+        said = payload_text(result.payload)
         print(
-            f"missing-link: error: {args.name} returned {result.code:#04x} (not OK; "
-            "--any-code accepts every return value)",
+            f"missing-link: error: {args.name} returned {result.code:#04x}"
+            + (f": {said}" if said else "")
+            + " (not OK; --any-code accepts every return value)",
             file=sys.stderr,
         )
         return EXIT_FAIL
     return 0
+
+
+def value_payload(board: Board, function: str, text: str) -> bytes:
+    """``--value``: one value packed as the data type of the actuator whose ``call=`` is
+    ``function`` (the same bytes ``send(topic, value)`` makes), checked against it."""
+    for t in board.transducers or []:
+        if t.call == function:
+            try:
+                value: int | float = float(text) if t.dtype in ("float", "double") else int(text)
+            except ValueError:
+                raise ConfigError(f"--value {text!r}: {t.name} takes a {t.dtype}") from None
+            if not t.legal(value):
+                raise ConfigError(f"--value {text!r} is not a legal {t.dtype} for {t.name}")
+            return t.value_struct().pack(value)
+    callers = sorted(str(t.call) for t in board.transducers or [] if t.call)
+    raise ConfigError(
+        f"--value: no actuator of {board.name} is called through {function} "
+        f"(actuator functions: {', '.join(callers) or 'none'}); give --hex bytes"
+    )
 
 
 def format_sample(s: Sample, unit: str | None) -> str:
@@ -267,7 +293,14 @@ def add_parsers(sub: Any) -> None:
     sp = sub.add_parser("call", help="call a board function by name")
     with_url(sp)
     sp.add_argument("name", help="function name, e.g. a2jEcho")
-    sp.add_argument("--hex", type=parse_hex, default=b"", help="request payload as hex")
+    sp.add_argument(
+        "--hex", type=parse_hex, default=b"", help="request payload as hex bytes (28 is 0x28 = 40)"
+    )
+    sp.add_argument(
+        "--value",
+        help="one value in the data type of the actuator this function drives (40 is 40, as "
+        "send(topic, 40) sends it)",
+    )
     sp.add_argument("--json", action="store_true")
     sp.add_argument(
         "--any-code",

@@ -13,6 +13,7 @@ import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -24,6 +25,7 @@ class TopicStats:
     count: int = 0
     missing: int = 0
     unit: str = ""
+    scale: Callable[[float], float] | None = None  #: raw -> unit (a descriptor with a scale)
     last: list[object] = field(default_factory=list)
     recent: deque[float] = field(default_factory=lambda: deque(maxlen=5000))
     latency_us: deque[float] = field(default_factory=lambda: deque(maxlen=20000))
@@ -77,7 +79,10 @@ class LiveView:
         with self.lock:
             st = self.stats.get(u.topic.name)
             if st is None:
-                st = self.stats[u.topic.name] = TopicStats(unit=u.topic.transducer.unit or "")
+                t = u.topic.transducer
+                st = self.stats[u.topic.name] = TopicStats(
+                    unit=t.unit or "", scale=t.in_unit if t.scaled else None
+                )
             st.last = list(u.values)
             st.recent.append(recv_us)
             for stamp, v in zip(u.board_us, u.values, strict=True):
@@ -131,7 +136,11 @@ class LiveView:
             for name, st in sorted(self.stats.items()):
                 rate = sum(1 for t in st.recent if now_us - t <= 1e6)
                 lat = list(st.latency_us)[-1000:]
-                last = " ".join(_fmt(v) for v in st.last)
+                scale = st.scale
+                if scale is None:
+                    last = " ".join(_fmt(v) for v in st.last)
+                else:  # in the unit (the servo's raw 20 is 14.17 deg)
+                    last = " ".join(_fmt(None if v is None else scale(v)) for v in st.last)  # type: ignore[arg-type]
                 topics.add_row(
                     name,
                     str(rate),

@@ -39,7 +39,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from ..descriptors import load_descriptor_file
-from ..errors import BadURL, BoardError, ConfigError, MissingLinkError
+from ..errors import BadURL, BoardError, ConfigError, MissingLinkError, without_prefix
 from ..host.reactor import Reactor
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
@@ -342,6 +342,6 @@ def connect(
     if wait > 0 and not daemon.wait_until_up(wait):
         down = [s for s in daemon.sessions if s.state != UP]
         daemon.stop()
-        why = "; ".join(f"{s.spec.url}: {s.error or s.state}" for s in down)
-        raise BoardError(", ".join(s.spec.url for s in down), f"not up within {wait:g} s ({why})")
+        why = "; ".join(without_prefix(s.spec.url, s.error or s.state) for s in down)
+        raise BoardError(", ".join(s.spec.url for s in down), f"not up within {wait:g} s: {why}")
     return daemon

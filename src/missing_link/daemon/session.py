@@ -157,8 +157,12 @@ class BoardSession:
     def _failed(self, e: Exception) -> None:
         self.failures += 1
         if isinstance(e, MissingLinkError):
-            self.error = str(e)
-            log.warning("%s: %s", self.spec.url, e)
+            text = str(e)
+            line = text if text.startswith(self.spec.url) else f"{self.spec.url}: {text}"
+            # the same failure again on every backoff (a board that is off) is said once; the
+            # status and /diagnostics always carry it
+            log.log(logging.DEBUG if text == self.error else logging.WARNING, "%s", line)
+            self.error = text
             return
         # A bug (ours, or a board case nobody validated yet): the traceback once, then one line.
         self.error = f"internal error: {type(e).__name__}: {e}"

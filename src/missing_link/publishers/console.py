@@ -7,8 +7,21 @@ import threading
 import time
 from typing import Any, TextIO
 
+from ..descriptors import Transducer
+from ..errors import without_prefix
 from ..topics import Update
 from .base import Publisher
+
+
+def format_values(t: Transducer, values: list[Any]) -> str:
+    """Values as a user reads them: in the descriptor's unit where it gives a scale (the servo's
+    raw 20 is 14.17 deg), the raw numbers after them; ``-`` for N/A."""
+    raw = "[" + " ".join("-" if v is None else str(v) for v in values) + "]"
+    unit = f" {t.unit}" if t.unit else ""
+    if not t.scaled:
+        return raw + unit
+    real = " ".join("-" if v is None else f"{t.in_unit(v):.4g}" for v in values)
+    return f"[{real}]{unit} (raw {raw})"
 
 
 class ConsolePublisher(Publisher):
@@ -28,19 +41,17 @@ class ConsolePublisher(Publisher):
         if now < self._next.get(name, 0.0):
             return
         self._next[name] = now + self.period
-        unit = update.topic.transducer.unit or ""
-        values = " ".join("-" if v is None else str(v) for v in update.values)
+        text = format_values(update.topic.transducer, update.values)
         with self._lock:
-            print(
-                f"{update.stamp_ns / 1e9:.6f} {name} [{values}] {unit}", file=self.out, flush=True
-            )
+            print(f"{update.stamp_ns / 1e9:.6f} {name} {text}", file=self.out, flush=True)
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         for s in status:
             if s.get("level", 0) >= 2:
                 with self._lock:
                     who = s.get("board") or f"publisher {s.get('publisher')}"
-                    line = f"{who}: {s.get('state', 'failed')} {s.get('message', '')}"
+                    said = without_prefix(str(s.get("url", "")), str(s.get("message", "")))
+                    line = f"{who}: {s.get('state', 'failed')}: {said}"
                     print(
                         f"{now_ns / 1e9:.6f} /diagnostics {line}",
                         file=self.out,

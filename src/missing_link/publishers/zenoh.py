@@ -134,7 +134,20 @@ class ZenohPublisher(RosPublisher):
         )
         with self._lock:
             self._declare_publisher(DIAG_TOPIC, DIAG_TYPE)
-        log.info("zenoh: session %s (%s), connect %s, listen %s", self.zid, mode, connect, listen)
+        #: what ``run`` prints: where this face is
+        self.url = (
+            f"{mode} {self.zid}, connect {' '.join(connect) or '-'}, listen {' '.join(listen)}"
+        )
+        log.info("zenoh: session %s", self.url)
+        info = self.session.info
+        if connect and not list(info.routers_zid()) and not list(info.peers_zid()):
+            log.warning(
+                "zenoh: nothing answers at %s yet (start rmw_zenohd, or missing-link router "
+                "--listen %s): ROS 2 nodes behind it see nothing until it runs; zenoh keeps "
+                "trying, and peers that dial this session get every topic meanwhile",
+                " ".join(connect),
+                connect[0],
+            )
 
     # ---- graph ------------------------------------------------------------------------------
     @staticmethod
