@@ -209,3 +209,24 @@ class AvrSim:
         for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if f is not None:
                 f.close()
+
+
+def read_blob_raw(exchange: Callable[[bytes], bytes], target: int, size: int) -> bytes:
+    """Read a many-function's blob chunk by chunk with raw a2jMany requests (``exchange``:
+    request bytes in, the board's output out), checking each reply echoes its offset and only
+    the last says isLast: what our runtimes serve past offset 255, where the 2014 firmware used
+    only the offset's low byte (a host meeting a Part 1 board stops there, not knowing which)."""
+    from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame
+    from missing_link.j2a.blobs import many_request
+
+    blob = b""
+    for k, offset in enumerate(range(0, size, 249)):
+        out = exchange(encode_frame(SOF, (20 + k) & 0xFF, 1, many_request(target, 0, offset)))
+        (frame,) = [
+            f for f in FrameDecoder().feed(out) if isinstance(f, Frame) and f.kind == FrameKind.SOF
+        ]
+        payload = frame.payload
+        assert frame.opcode == 0 and payload[2:6] == offset.to_bytes(4, "little"), payload[:6]
+        assert bool(payload[1] & 1) == (offset + 249 >= size)
+        blob += payload[6:]
+    return blob

@@ -14,6 +14,7 @@ import pytest
 from missing_link import (
     AsyncBoard,
     Board,
+    CallError,
     CallTimeout,
     FunctionFailed,
     LinkLost,
@@ -52,11 +53,11 @@ def test_original_board_functions_and_properties(serve: Serve) -> None:
     with open_board(server.url) as board:
         assert board.is_original and board.transducers is None
         assert board.functions[6:] == ["getTime", "syncTime", "bigBlob"]
-        blob = board.read_many(
-            "bigBlob", progress=lambda done, total: progress.append((done, total))
-        )
-        assert len(blob) == 1000
-        assert progress == [(249, None), (498, None), (747, None), (996, None)]
+        # the 2014 firmware's a2jMany cannot move a blob over 498 bytes (its offset bug): the
+        # read stops before the first chunk past offset 255, naming it (issue 23, item 7)
+        with pytest.raises(CallError, match="offset bug"):
+            board.read_many("bigBlob", progress=lambda done, total: progress.append((done, total)))
+        assert progress == [(249, None)]
 
 
 def test_unknown_function_names_board_and_choices(serve: Serve) -> None:

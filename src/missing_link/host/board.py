@@ -19,6 +19,7 @@ from concurrent.futures import Future
 from ..descriptors import Transducer, parse_transds
 from ..errors import (
     BoardError,
+    CallError,
     CallTimeout,
     FunctionFailed,
     MissingLinkError,
@@ -26,6 +27,7 @@ from ..errors import (
 )
 from ..j2a import BlobError, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
+from ..j2a.connection import ORIGINAL_MAX_BLOB
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
 from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
@@ -92,8 +94,9 @@ class Board(BoardLink):
 
     @property
     def is_original(self) -> bool:
-        """True for a Part 1 (2014 firmware) board: no ``j2a.version`` property."""
-        return "j2a.version" not in self.properties
+        """True for a Part 1 (2014 firmware) board: no ``j2a.version`` property (and no
+        ``a2jGetMappingMany``, which tells a Part 2 board before its properties are read)."""
+        return "j2a.version" not in self.properties and "a2jGetMappingMany" not in self.index
 
     def handshake(self, *, describe: bool = True, deadline: float | None = None) -> None:
         """Read the mapping, properties and descriptors, all by ``deadline`` (monotonic s;
@@ -124,6 +127,9 @@ class Board(BoardLink):
         head = blob[: blob.rfind(b"\0") + 1] if b"\0" in blob else b""
         try:
             names = parse_mapping(head)
+            # (what fits one frame, until the full table is read: it names a2jGetMappingMany,
+            # which tells a Part 2 board, whose a2jMany serves offsets past 255)
+            self.functions, self.index = names, mapping_index(names)
             if "a2jGetMappingMany" in names:
                 full = self._wait(
                     self._read_future(
@@ -294,7 +300,7 @@ class Board(BoardLink):
                 max_bytes=max_bytes,
                 progress=progress is not None,
                 deadline=deadline if deadline is not None else now + TRANSFER_TIMEOUT,
-                detect_offset_bug=self.is_original,
+                original=self.is_original,
             ),
             timeout,
             progress,
@@ -328,10 +334,17 @@ class Board(BoardLink):
     ) -> int:
         """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
         target = self._lookup(name)
+        if self.is_original and len(data) > ORIGINAL_MAX_BLOB:
+            raise CallError(
+                self.name,
+                name,
+                f"{len(data)} bytes cannot be written to the 2014 firmware: its a2jMany offset "
+                f"bug (it uses only the offset's low byte) limits a blob to {ORIGINAL_MAX_BLOB}",
+            )
         fut: Future[int] = self._start(
             name,
             lambda now, t: self.conn.write_many(
-                target, data, now, t, progress=progress is not None
+                target, data, now, t, progress=progress is not None, original=self.is_original
             ),
             timeout,
             progress,

@@ -25,10 +25,12 @@ chunks of up to 249 bytes, the last with isLast.  A nonzero return value from th
 ends the transfer with that status.  Transfers are capped in bytes and chunks, and may be given an
 overall deadline (``deadline``, in ``now`` units) besides the per-chunk timeout: a board that
 streams chunks for ever without isLast cannot hold a caller.  A transfer that makes no progress
-fails at once: a chunk without data and without isLast, or -- the 2014 firmware's bug, which
-used only the low byte of the offset -- chunks past offset 255 that repeat, byte for byte, the
-data at ``offset & 0xFF`` (two in a row, and not a run of one byte value, which could repeat
-honestly).
+fails at once: a chunk without data and without isLast.  The 2014 firmware's a2jMany used only
+the low byte of the offset, so it answers an offset past 255 with the data of ``offset & 0xFF``
+and never sends the last chunk of a blob over 504 bytes (whatever the data: a blob that repeats
+every 256 bytes looks right and still never ends).  A transfer with a board known to be the
+2014 firmware (``original``) therefore fails the moment it would move a chunk past offset 255
+-- after two chunks, 498 bytes -- naming the bug, instead of spinning until its deadline.
 
 SIFs (0xED frames) are delivered in arrival order; the gap between a SIF's seq and the previous
 one's is reported as lost SIFs.  Damaged frames become ``FrameDamaged`` events and counters.
@@ -57,8 +59,10 @@ A2J_MANY = 1
 #: the spec's cap on a2jMany chunks: 4 GiB in 249-byte chunks
 MAX_MANY_CHUNKS = (4 << 30) // MANY_CHUNK
 DEFAULT_MAX_TRANSFER = 64 << 20
-#: chunks past offset 255 that repeat the data at offset & 0xFF before the offset bug is named
-OFFSET_BUG_CHUNKS = 2
+#: the 2014 firmware's a2jMany passes only the offset's low byte: no chunk starts past this,
+#: so the largest blob it can move is two whole chunks
+ORIGINAL_MAX_OFFSET = 255
+ORIGINAL_MAX_BLOB = 2 * MANY_CHUNK
 _RETRYABLE = frozenset((0xF2, 0xF3, 0xF4))
 _LATE_MEMORY = 64
 
@@ -98,9 +102,7 @@ class _Op:
     received: bytearray = field(default_factory=bytearray)
     deadline_total: float = math.inf  #: the whole transfer must end by then
     total_s: float = 0.0  #: for the error message
-    low_byte_repeats: int = 0  #: consecutive chunks that look like the offset bug
-    detect_offset_bug: bool = False
-    periodic: bool = True  #: so far, the blob repeats every 256 bytes
+    original: bool = False  #: the board is the 2014 firmware (its a2jMany offset bug)
     retries_left: int = 0
     # in flight
     seq: int = -1
@@ -152,26 +154,39 @@ class HostConnection:
         max_bytes: int = DEFAULT_MAX_TRANSFER,
         progress: bool = False,
         deadline: float | None = None,
-        detect_offset_bug: bool = True,
+        original: bool = False,
     ) -> int:
         """Read a many-function's blob; ``deadline`` (``now`` units) bounds the whole transfer.
-        ``detect_offset_bug``: fail on the 2014 firmware's offset pattern (off for Part 2 boards,
-        whose blobs may honestly repeat with a period that divides 256)."""
+        ``original``: the board is the 2014 firmware, which cannot serve a chunk past offset 255
+        (see the theory of operation): such a read fails at once, naming the bug."""
         op = _Op(op=0, timeout=timeout, many=True, target=target, max_bytes=max_bytes)
         op.progress = progress
-        op.detect_offset_bug = detect_offset_bug
+        op.original = original
         if deadline is not None:
             op.deadline_total = deadline
             op.total_s = deadline - now
         return self._start(op, now)
 
     def write_many(
-        self, target: int, data: bytes, now: float, timeout: float, *, progress: bool = False
+        self,
+        target: int,
+        data: bytes,
+        now: float,
+        timeout: float,
+        *,
+        progress: bool = False,
+        original: bool = False,
     ) -> int:
         if len(data) > MAX_MANY_CHUNKS * MANY_CHUNK:
             raise ValueError(f"{len(data)} bytes exceed the a2jMany limit")
+        if original and len(data) > ORIGINAL_MAX_BLOB:
+            raise ValueError(
+                f"{len(data)} bytes cannot be written to the 2014 firmware: its a2jMany offset "
+                f"bug (it uses only the offset's low byte) limits a blob to {ORIGINAL_MAX_BLOB}"
+            )
         op = _Op(op=0, timeout=timeout, many=True, target=target, write=True, data=bytes(data))
         op.progress = progress
+        op.original = original
         return self._start(op, now)
 
     def _start(self, op: _Op, now: float) -> int:
@@ -218,13 +233,7 @@ class HostConnection:
                             FailureReason.LIMIT,
                             None,
                             f"transfer not finished within {op.total_s:.1f} s "
-                            f"({op.offset} bytes in {op.chunks} chunks, no isLast yet)"
-                            + (
-                                "; the data repeats like the 2014 firmware's a2jMany offset "
-                                "bug (only the offset's low byte used)"
-                                if op.low_byte_repeats
-                                else ""
-                            ),
+                            f"({op.offset} bytes in {op.chunks} chunks, no isLast yet)",
                         )
                     )
                     continue
@@ -360,19 +369,6 @@ class HostConnection:
             done = op.offset >= len(op.data)
             last = last or done
         else:
-            if self._looks_like_offset_bug(op, chunk):
-                events.append(
-                    CallFailed(
-                        op.op,
-                        FailureReason.PROTOCOL,
-                        None,
-                        f"a2jMany read makes no progress: from offset {op.offset} the board "
-                        f"repeats the data of offset {op.offset & 0xFF}; this is the 2014 "
-                        "firmware's a2jMany offset bug (it uses only the offset's low byte), "
-                        "so blobs over ~500 bytes cannot be read from it",
-                    )
-                )
-                return
             op.received += chunk
             op.offset += len(chunk)
             if not chunk and not last:
@@ -399,24 +395,21 @@ class HostConnection:
             data = bytes(op.received) if not op.write else b""
             events.append(TransferCompleted(op.op, status, data, op.chunks))
             return
+        if op.original and op.offset > ORIGINAL_MAX_OFFSET:
+            events.append(
+                CallFailed(
+                    op.op,
+                    FailureReason.PROTOCOL,
+                    None,
+                    f"a2jMany {'write' if op.write else 'read'} past offset 255 (next chunk at "
+                    f"{op.offset}) from the 2014 firmware: its a2jMany offset bug (it uses only "
+                    f"the offset's low byte) would give the data of offset {op.offset & 0xFF} "
+                    "and never the last chunk, so a blob over 498 bytes cannot be moved",
+                )
+            )
+            return
         if op.progress:
             total = len(op.data) if op.write else None
             events.append(TransferProgress(op.op, op.offset, total, op.chunks))
         op.retries_left = self.retries
         self._queue.appendleft(op)
-
-    @staticmethod
-    def _looks_like_offset_bug(op: _Op, chunk: bytes) -> bool:
-        o, n = op.offset, len(chunk)
-        if not op.detect_offset_bug or o < 256 or n < 2:
-            return False
-        received = op.received
-        # A blob that repeats every 256 bytes reads the same from a buggy board as from a good
-        # one: that case is left to the deadline.  Kept up to date chunk by chunk (O(chunk)).
-        op.periodic = op.periodic and received[o - 256 : o - 256 + n] == chunk
-        low = o & 0xFF
-        if chunk.count(chunk[0]) != n and received[low : low + n] == chunk:
-            op.low_byte_repeats += 1
-        else:
-            op.low_byte_repeats = 0
-        return op.low_byte_repeats >= OFFSET_BUG_CHUNKS and not op.periodic

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 from ..board.runtime import BoardRuntime, Transducer, read_blob
 from .drivers import Counter, rng_for
+from .original import OriginalRuntime
 
 
 def _board(name: str, seed: int, **kw: object) -> BoardRuntime:
@@ -55,31 +56,17 @@ def never_last(
     return rt
 
 
-class _OffsetBugRuntime(BoardRuntime):  # type: ignore[misc]
-    """The 2014 firmware read ``(*datap)[2]`` as the whole offset: the low byte only."""
-
-    def _dispatch(self, seq, opcode, payload):  # type: ignore[no-untyped-def]
-        if opcode == 1 and len(payload) >= 6:
-            # Serve the chunk from offset & 0xFF but echo the offset the host sent, as the
-            # original did (it copied the header back unchanged).
-            target, flags = payload[0], payload[1]
-            offset = int.from_bytes(payload[2:6], "little")
-            entry = self.functions[target] if target < len(self.functions) else None
-            if entry is not None and entry[1] == 1 and not flags & 2:  # a many-function read
-                handler = entry[2]
-                ret, last, data = handler(False, False, offset & 0xFF, b"")
-                head = bytes((ret & 0xFF, 1 if last else 0)) + payload[2:6]
-                self._reply(seq, 0, head + data[:249])
-                return
-        super()._dispatch(seq, opcode, payload)
-
-
-def offset_bug(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntime:
-    rt = _OffsetBugRuntime(
+def offset_bug(
+    seed: int = 0, name: str = "original", periodic: bool = False, size: int = 1000, **kw: object
+) -> BoardRuntime:
+    """``periodic``: the blob repeats every 256 bytes, so the wrong chunks look right (and
+    still no last chunk ever comes)."""
+    rt = OriginalRuntime(
         name, "2014 firmware (offset bug)", f"hostile-{name}-{seed}", part2=False, **kw
     )
     rng = random.Random(f"{seed}:blob")
-    blob = bytes(rng.randrange(256) for _ in range(1000))
+    period = 256 if periodic else size
+    blob = (bytes(rng.randrange(256) for _ in range(period)) * (size // period + 1))[:size]
     rt.add_many_function("bigBlob", lambda w, last, off, data: read_blob(blob, off))
     return rt
 

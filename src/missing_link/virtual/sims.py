@@ -16,6 +16,7 @@ from collections.abc import Callable
 from ..board.runtime import BoardRuntime, Transducer
 from .drivers import Counter, QuadEncoders, Servo, SharpIR, SRF02Sonars, Trigger, rng_for
 from .hostile import HOSTILE
+from .original import OriginalRuntime
 
 
 def _common(rt: BoardRuntime, seed: int) -> None:
@@ -130,8 +131,9 @@ def rate(
 
 
 def original(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntime:
-    """A Part 1 board: the golden-vector table, no Part 2 functions, no j2a.version."""
-    rt = BoardRuntime(name, "2014 firmware (emulated)", f"sim-{name}-{seed}", part2=False, **kw)
+    """A Part 1 board: the golden-vector table, no Part 2 functions, no j2a.version, and the
+    2014 firmware's a2jMany (its offset bug)."""
+    rt = OriginalRuntime(name, "2014 firmware (emulated)", f"sim-{name}-{seed}", part2=False, **kw)
     rt.add_function("getTime", lambda p: (0, struct.pack("<Q", rt.clock())))
     rt.add_function("syncTime", lambda p: (0, b""))
     blob = bytes(rng_for(seed, "blob").randrange(256) for _ in range(1000))
