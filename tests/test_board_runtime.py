@@ -229,3 +229,44 @@ def test_clock_reply_encoded_in_two_parts_is_the_whole_frame(seq: int, t2: int, 
     (frame,) = FrameDecoder().feed(got)
     assert isinstance(frame, Frame) and frame.seq == seq and frame.opcode == 0
     assert struct.unpack("<QQ", frame.payload) == (t2, t3)
+
+
+def test_error_paths_against_the_original_firmwares_bytes() -> None:
+    """docs/protocol-differences.md, row by row, against what the 2014 firmware answered
+    (tests/vectors.py): identical, the same but for the diagnostic u16 (a source line there),
+    or different on purpose."""
+    import time
+
+    from .vectors import ORIGINAL_ERROR_PATHS, ORIGINAL_OFFSET_300, h
+
+    def ours(request: bytes) -> bytes:
+        rt = original(epoch="e")
+        rt.feed(request)
+        out = bytes(rt.take_output())
+        time.sleep(0.02)  # past the board's 10 ms receive timeout
+        rt.poll()
+        return out + bytes(rt.take_output())
+
+    def shape(data: bytes) -> list[tuple[int, int, int]]:
+        return [(f.seq, f.opcode, len(f.payload)) for f in FrameDecoder().feed(data)]
+
+    got = {case: (ours(req), theirs) for case, req, theirs in ORIGINAL_ERROR_PATHS}
+    # identical, byte for byte
+    for case in ("a2jMany with a 2-byte payload", "a2jGetProperties through a2jMany with isWrite"):
+        assert got[case][0] == got[case][1], case
+    # the same frame; only the diagnostic differs
+    for case in ("SOF and seq, then silence", "bad checksum", "no function 200"):
+        assert shape(got[case][0]) == shape(got[case][1]), case
+    # different on purpose
+    assert got["lone SOF, then silence"] == (b"", h("12 0e f2 02 01 25 b4"))
+    mine, theirs = got["cut frame, then a good echo"]
+    assert shape(mine) == [(5, 0xF2, 2), (6, 0xBA, 0)] and shape(theirs) == [(5, 0xF2, 2)]
+    assert shape(got["escape 7D FF in a payload"][0]) == [(8, 0xF4, 2)]
+    assert shape(got["escape 7D FF in a payload"][1]) == [(8, 0xF2, 2)]
+    assert shape(got["escape 7D 00 in a payload"][0]) == [(8, 0xF4, 2)]
+    assert got["escape 7D 00 in a payload"][1] == h("12 08 ba 01 01 ae")  # taken as 0x01
+    # the emulated original has the offset bug: offset 300 gives the data of offset 44
+    request, head = ORIGINAL_OFFSET_300
+    at_44 = ours(encode_frame(SOF, 9, 1, bytes([8, 0]) + (44).to_bytes(4, "little")))
+    reply = ours(request)
+    assert reply.startswith(head) and reply[10:][:-1] == at_44[10:][:-1]

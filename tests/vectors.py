@@ -39,3 +39,26 @@ VECTORS = [
 PROPS_REQUEST = h("12 01 01 06 02 00 00 00 00 00 68")
 PROPS_REPLY_HEAD = h("12 01 00 33 00 01 00 00 00 00")  # + 45 bytes + checksum
 SIF = h("ed 00 0d 0a 16 01 91 a1 c6 60 06 00 00 00 f4")
+
+# What the original 2014 firmware answers to damaged and odd requests: its own arduino2j code
+# (java2arduino-uc ceeec46, serial build, the table above) measured on AVR machine code in
+# simavr.  Its error frames carry a source line as the diagnostic (0x0125 = line 293, ...).
+# (case, request, the original's whole answer; b"" = nothing)
+ORIGINAL_ERROR_PATHS = [
+    ("lone SOF, then silence", h("12"), h("12 0e f2 02 01 25 b4")),
+    ("SOF and seq, then silence", h("12 0e"), h("12 0e f2 02 01 2d bc")),
+    ("cut frame, then a good echo", h("12 05 04 03 aa 12 06 04 00 68"), h("12 05 f2 02 01 4c d6")),
+    ("a2jMany with a 2-byte payload", h("12 05 01 02 02 00 68"), h("12 05 ff 02 02 00 6e")),
+    (
+        "a2jGetProperties through a2jMany with isWrite",
+        h("12 01 01 06 02 02 00 00 00 00 6a"),
+        h("12 01 00 06 ff 00 00 00 00 00 92"),
+    ),
+    ("escape 7D FF in a payload", h("12 08 04 01 7d ff 65"), h("12 08 f2 02 01 4c db")),
+    ("escape 7D 00 in a payload", h("12 08 04 01 7d 00 64"), h("12 08 ba 01 01 ae")),
+    ("bad checksum", h("12 0a 04 00 00"), h("12 0a f3 02 01 5c ca")),
+    ("no function 200", h("12 0b c8 00 b9"), h("12 0b f0 02 01 34 a6")),
+]
+# a2jMany read of bigBlob ((i * 7 + 3) & 0xFF, 1000 bytes) at offset 300: the data of offset 44,
+# with the offset 300 echoed (the offset bug)
+ORIGINAL_OFFSET_300 = (h("12 09 01 06 08 00 2c 01 00 00 47"), h("12 09 00 ff 00 00 2c 01 00 00"))
