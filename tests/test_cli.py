@@ -185,3 +185,21 @@ def test_a_publisher_this_environment_lacks_is_one_line_naming_what_it_needs() -
     assert "--publisher 'ros2': needs rclpy" in line
     r = ml("run", "tcp://127.0.0.1:1", "-p", "zenohh")
     assert r.returncode == 2 and "unknown (available here: " in r.stderr
+
+
+def test_docs_cli_names_every_command_and_option() -> None:
+    """docs/cli.md says what the CLI does: every command and every long option is in it."""
+    from missing_link.cli.main import build_parser
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "cli.md").read_text()
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices  # type: ignore[attr-defined]
+    missing = [
+        f"{name} {opt}"
+        for name, sp in commands.items()
+        for a in sp._actions
+        for opt in a.option_strings
+        if opt.startswith("--") and opt != "--help" and opt not in doc
+    ]
+    missing += [name for name in commands if f"missing-link {name}" not in doc]
+    assert not missing, f"docs/cli.md does not mention: {missing}"
