@@ -40,7 +40,7 @@ from missing_link.virtual.clocks import DriftClock
 BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
 
 
-def record(runs: int, seconds: float, out: Path) -> None:
+def record(runs: int, seconds: float, out: Path, link: str = "pty") -> None:
     import missing_link.daemon.session as session
     from _whole_run import whole_run
     from missing_link.timesync import sync
@@ -63,7 +63,7 @@ def record(runs: int, seconds: float, out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
         for k in range(runs):
             seen.clear()
-            got = whole_run("pty", seconds, 100 + k)
+            got = whole_run(link, seconds, 100 + k)
             _save(out / f"run{100 + k}.json", vars(whole_run), seen)
             print(f"run {k + 1}/{runs}: {len(seen)} exchanges (live p50 {got['p50']:.1f} µs)")
     finally:
@@ -215,6 +215,7 @@ def main() -> None:
     rec.add_argument("--runs", type=int, default=6)
     rec.add_argument("--seconds", type=float, default=30.0)
     rec.add_argument("--out", type=Path, default=Path("recordings/timesync"))
+    rec.add_argument("--link", choices=("pty", "tcp"), default="pty")
     rep = sub.add_parser("replay")
     rep.add_argument("--in", dest="where", type=Path, default=Path("recordings/timesync"))
     rep.add_argument("--set", dest="specs", action="append", default=None)
@@ -222,7 +223,7 @@ def main() -> None:
     a = ap.parse_args()
     if a.cmd == "record":
         sys.path.insert(0, str(Path(__file__).parent))
-        record(a.runs, a.seconds, a.out)
+        record(a.runs, a.seconds, a.out, a.link)
     else:
         replay(a.where, a.specs or ["default"], a.anchors)
 
