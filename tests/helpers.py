@@ -8,9 +8,11 @@ import queue
 import shutil
 import socket
 import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -230,3 +232,21 @@ def read_blob_raw(exchange: Callable[[bytes], bytes], target: int, size: int) ->
         assert bool(payload[1] & 1) == (offset + 249 >= size)
         blob += payload[6:]
     return blob
+
+
+@contextmanager
+def board_process(*args: str) -> Iterator[str]:
+    """``missing-link board ARGS`` on a free TCP port in a process of its own; yields its URL."""
+    p = subprocess.Popen(
+        [sys.executable, "-m", "missing_link", "board", "--listen", "tcp://127.0.0.1:0", *args],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert p.stdout is not None
+        line = p.stdout.readline()
+        assert line.startswith("LISTENING "), line
+        yield line.split()[1]
+    finally:
+        p.terminate()
+        p.wait(10)

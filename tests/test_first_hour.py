@@ -20,26 +20,13 @@ from typing import Any
 
 import pytest
 
+from .helpers import board_process, wait_for
+
 ML = [sys.executable, "-m", "missing_link"]
 
 
 def ml(*args: str, timeout: float = 60, **kw: Any) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout, **kw)
-
-
-@contextmanager
-def board_process(*args: str) -> Iterator[str]:
-    p = subprocess.Popen(
-        [*ML, "board", "--listen", "tcp://127.0.0.1:0", *args], stdout=subprocess.PIPE, text=True
-    )
-    try:
-        assert p.stdout is not None
-        line = p.stdout.readline()
-        assert line.startswith("LISTENING "), line
-        yield line.split()[1]
-    finally:
-        p.terminate()
-        p.wait(10)
 
 
 @contextmanager
@@ -151,8 +138,6 @@ def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
     from missing_link.daemon.config import BoardSpec, Config
     from missing_link.ros.package import read_manifest
 
-    from .helpers import wait_for
-
     out = tmp_path / "ws"
     with (
         board_process("--sim", "hostile_dtype", "--name", "board_a") as a,
@@ -190,8 +175,6 @@ def test_create_msgs_qualifies_a_differing_type_like_the_daemon(tmp_path: Path, 
     from missing_link.ros.package import read_manifest
     from missing_link.virtual import make_sim
 
-    from .helpers import wait_for
-
     out = tmp_path / "ws"
     a = serve(make_sim("hostile_dtype", name="board_a"), "tcp://127.0.0.1:0").url
     b = serve(make_sim("hostile_dtype", name="board_b", dtype="float"), "tcp://127.0.0.1:0").url
@@ -217,8 +200,6 @@ def test_a_late_bus_subscriber_asks_for_the_latest_state(serve: Any) -> None:
     from missing_link.daemon.config import BoardSpec, Config
     from missing_link.topics import Update
     from missing_link.virtual import make_sim
-
-    from .helpers import wait_for
 
     server = serve(make_sim("thesis", seed=2))
     with Daemon(Config(boards=[BoardSpec(server.url)])) as d:

@@ -29,7 +29,7 @@ from missing_link.host.aio import AsyncBoard
 from missing_link.host.board import Board
 from missing_link.virtual import make_sim
 
-from .helpers import free_port
+from .helpers import board_process, free_port
 
 Serve = Callable[..., Any]
 ML = [sys.executable, "-m", "missing_link"]
@@ -87,19 +87,6 @@ def test_connect_is_importable_closes_and_refuses_nonsense() -> None:
 
 
 # ---- 2. crash-safe, loud recording ------------------------------------------------------------
-@contextmanager
-def board_process(*args: str) -> Iterator[str]:
-    p = subprocess.Popen(
-        [*ML, "board", "--listen", "tcp://127.0.0.1:0", *args], stdout=subprocess.PIPE, text=True
-    )
-    try:
-        assert p.stdout is not None
-        line = p.stdout.readline()
-        assert line.startswith("LISTENING "), line
-        yield line.split()[1]
-    finally:
-        p.terminate()
-        p.wait(10)
 
 
 def count_messages(bag: Path, topic: str) -> tuple[int, int]:

@@ -47,14 +47,19 @@ def test_wire_format_helpers() -> None:
     assert len(att) == 33 and att[16] == 16 and att[17:] == bytes(range(16))
 
 
-def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:  # type: ignore[no-untyped-def]
-    server = serve("thesis", "tcp://127.0.0.1:0")
-    port = free_port()
-    cfg = Config(
-        boards=[BoardSpec(server.url)],
+def zenoh_config(url: str, port: int) -> Config:
+    """One board, the bus and a zenoh peer listening on ``port`` (loopback), connecting nowhere."""
+    return Config(
+        boards=[BoardSpec(url)],
         publishers=["bus", "zenoh"],
         publisher_options={"zenoh": {"listen": [f"tcp/127.0.0.1:{port}"], "connect": []}},
     )
+
+
+def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:  # type: ignore[no-untyped-def]
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    port = free_port()
+    cfg = zenoh_config(server.url, port)
     with Daemon(cfg) as d:
         assert d.wait_until_up(10)
         lines = run_listener(
@@ -106,11 +111,7 @@ def test_a_late_subscriber_gets_the_actuators_state(serve) -> None:  # type: ign
     joins later still gets it (rmw_zenoh's way: an advanced publisher's cache)."""
     server = serve("thesis", "tcp://127.0.0.1:0")
     port = free_port()
-    cfg = Config(
-        boards=[BoardSpec(server.url)],
-        publishers=["bus", "zenoh"],
-        publisher_options={"zenoh": {"listen": [f"tcp/127.0.0.1:{port}"], "connect": []}},
-    )
+    cfg = zenoh_config(server.url, port)
     with Daemon(cfg) as d:
         assert d.wait_until_up(10)
         states: list[Update] = []
