@@ -27,7 +27,6 @@ from ..errors import (
 )
 from ..j2a import BlobError, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
-from ..j2a.connection import ORIGINAL_MAX_BLOB
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
 from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
@@ -334,22 +333,18 @@ class Board(BoardLink):
     ) -> int:
         """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
         target = self._lookup(name)
-        if self.is_original and len(data) > ORIGINAL_MAX_BLOB:
-            raise CallError(
-                self.name,
+        try:
+            fut: Future[int] = self._start(
                 name,
-                f"{len(data)} bytes cannot be written to the 2014 firmware: its a2jMany offset "
-                f"bug (it uses only the offset's low byte) limits a blob to {ORIGINAL_MAX_BLOB}",
+                lambda now, t: self.conn.write_many(
+                    target, data, now, t, progress=progress is not None, original=self.is_original
+                ),
+                timeout,
+                progress,
+                write=True,
             )
-        fut: Future[int] = self._start(
-            name,
-            lambda now, t: self.conn.write_many(
-                target, data, now, t, progress=progress is not None, original=self.is_original
-            ),
-            timeout,
-            progress,
-            write=True,
-        )
+        except ValueError as e:  # a blob the board cannot take (the connection says why)
+            raise CallError(self.name, name, str(e)) from None
         return self._wait(fut, None)
 
     def __enter__(self) -> Board:

@@ -83,7 +83,6 @@ class McapPublisher(RosPublisher):
         self.messages_by_topic: dict[str, int] = {}
         self._bag_messages = 0  # handed to the writer of the current bag
         self._bag_recorded = 0  # of those, flushed to its file
-        self._pending = 0  # of those, not flushed yet
         self.dropped = 0
         self.error = ""
         self._topics: dict[str, Topic] = {}
@@ -187,9 +186,8 @@ class McapPublisher(RosPublisher):
 
     def _flushed(self) -> None:
         """Everything handed to the writer so far is in the file."""
-        self.recorded += self._pending
-        self._bag_recorded += self._pending
-        self._pending = 0
+        self.recorded += self._bag_messages - self._bag_recorded
+        self._bag_recorded = self._bag_messages
 
     def _abandon_bag(self) -> None:
         """A write failed: close the file as it stands and count what it holds, exactly as
@@ -209,7 +207,7 @@ class McapPublisher(RosPublisher):
             in_file = self._bag_recorded  # what was flushed before the failure
         self.recorded += in_file - self._bag_recorded
         self.dropped += self._bag_messages - in_file
-        self._bag_messages = self._bag_recorded = self._pending = 0
+        self._bag_messages = self._bag_recorded = 0
 
     def _handle(self, item: tuple[Any, ...]) -> None:
         kind = item[0]
@@ -233,7 +231,6 @@ class McapPublisher(RosPublisher):
         # (the read-back after a failure says; see _abandon_bag)
         self.messages += 1
         self._bag_messages += 1
-        self._pending += 1
         self._writer.write(conn, stamp, data)
         if kind == "msg":
             self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
