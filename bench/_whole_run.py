@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from _calibration import est_stats
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.topics import Update
@@ -37,7 +38,7 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
     truth = DriftClock(offset, skew, drift, ref, [reset_s])
     whole_run.truth = truth  # type: ignore[attr-defined]  # for diagnostics of a run
     answering_again = truth.reset_ns[0] + gap_ms * 1e6
-    rows: list[tuple[int, int, float, int, int]] = []  # recv, host, err, bound, flags
+    rows: list[tuple[int, int, float, int, int, int]] = []  # recv, host, err, bound, flags, est
     try:
         with Daemon(Config(boards=[BoardSpec(url)])) as d:
             off = d.realtime_offset_ns
@@ -46,7 +47,9 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
                 boot = 0 if u.recv_ns < answering_again else 1
                 true_ns = truth.host_ns(u.board_us[0], boot)
                 h = u.host_ns[0]
-                rows.append((u.recv_ns, h, h - off - true_ns, u.bound_ns, u.clock_flags))
+                rows.append(
+                    (u.recv_ns, h, h - off - true_ns, u.bound_ns, u.clock_flags, u.est_error_ns)
+                )
 
             d.subscribe("/w/signal", on_update, queue=0)
             t_end = ref + seconds * 1e9
@@ -61,8 +64,10 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
     hosts = [r[1] for r in rows]
     not_increasing = sum(1 for a, b in itertools.pairwise(hosts) if b <= a)
     counted = [r for r in rows if r[0] >= first + 5e8 and not r[4] & 6]  # synced, not outliers
-    err = np.abs(np.array([r[2] for r in counted])) / 1000
+    signed = np.array([r[2] for r in counted]) / 1000
+    err = np.abs(signed)
     bounds = np.array([r[3] for r in counted]) / 1000
+    ests = np.array([r[5] for r in counted]) / 1000
     covered = float(np.mean(err <= bounds)) * 100
     # recovery: from the board answering again to the first synced sample within 50 µs, after
     # which none is worse
@@ -73,10 +78,15 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
             recovery = (r[0] - answering_again) / 1e6
             break
     return {
+        "signed_us": signed,  # (for pooled figures over seeds)
+        "err_us": err,
+        "est_us": ests,
         "p50": float(np.percentile(err, 50)),
         "p99": float(np.percentile(err, 99)),
         "max": float(err.max()),
+        "mean_signed": float(signed.mean()),
         "bound_p50": float(np.percentile(bounds, 50)),
+        **est_stats(err, ests),
         "covered": covered,
         "not_increasing": not_increasing,
         "recovery_ms": recovery,

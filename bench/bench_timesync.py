@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 import replay_timesync  # (bench/, next to this file)
+from _calibration import est_stats
 from _whole_run import whole_run
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
@@ -183,9 +184,12 @@ def real_same_exchanges(link: str, seconds: float) -> list[str]:
     return out
 
 
-def real_daemon(link: str, seconds: float) -> str:
-    proc, url, truth = _board("pty" if link == "pty" else "tcp://127.0.0.1:0", 12, 50.0)
+def real_daemon(link: str, seconds: float, seed: int = 12) -> tuple[str, np.ndarray, np.ndarray]:
+    """The daemon's own row; and every sample's signed error and estimated error (µs)."""
+    skew = (50.0, -120.0, 180.0)[(seed - 12) % 3]
+    proc, url, truth = _board("pty" if link == "pty" else "tcp://127.0.0.1:0", seed, skew)
     errs: list[float] = []
+    ests: list[float] = []
     state = {"prev": 0, "back": 0, "in": 0, "n": 0}
     try:
         with Daemon(Config(boards=[BoardSpec(url)])) as d:
@@ -201,24 +205,50 @@ def real_daemon(link: str, seconds: float) -> str:
                 err = h - off - truth.host_ns(u.board_us[0])
                 state["n"] += 1
                 state["in"] += u.bound_ns >= 0 and abs(err) <= u.bound_ns
-                if time.monotonic() - t0 > 10:
+                if time.monotonic() - t0 > 10 and u.bound_ns >= 0:
                     errs.append(err)
+                    ests.append(u.est_error_ns)
 
-            d.subscribe("/b12/signal", on_update)
+            d.subscribe(f"/b{seed}/signal", on_update)
             time.sleep(seconds)
             st = d.status()[0]
     finally:
         stop_process(proc)
-    e = np.abs(np.array(errs)) / 1000
+    signed = np.array(errs) / 1000
+    e = np.abs(signed)
     p50, p99 = np.percentile(e, 50), np.percentile(e, 99)
     cov = state["in"] / state["n"] * 100
-    return (
+    row = (
         f"| {link} | missing-link (daemon) | {p50:.1f} | {p99:.1f} | {e.max():.1f} | -"
         f" | {state['back']} | {cov:.3f} % | {len(e)} |"
         f"\n\n{link} daemon: first bound {st.get('first_bound_ms')} ms,"
         f" probes {st['sync_exchanges']} in {seconds:.0f} s, bound now ±{st.get('bound_us')} µs,"
         f" min RTT {st['sync_min_rtt_us']} µs"
     )
+    return row, signed, np.array(ests) / 1000
+
+
+def _estimate_table(runs: dict[str, list[tuple[np.ndarray, np.ndarray]]], seconds: float) -> None:
+    """The daemon's estimated error against the truth, pooled over board seeds (per seed in
+    brackets)."""
+    print(f"\nThe daemon's estimated error, {len(next(iter(runs.values())))} board seeds x")
+    print(f"{seconds:.0f} s per link (skews +50, -120, +180 ppm), every sample after 10 s:\n")
+    print("| link | p50 µs | mean signed µs | est_error p50 µs | est / error | within 2 est |")
+    print("|---|---|---|---|---|---|")
+    for link, rs in runs.items():
+        per = [est_stats(np.abs(s), e) for s, e in rs]
+        pooled = est_stats(
+            np.abs(np.concatenate([s for s, _ in rs])), np.concatenate([e for _, e in rs])
+        )
+        signed = np.concatenate([s for s, _ in rs])
+        ratios = ", ".join(f"{p['est_ratio']:.2f}" for p in per)
+        within = ", ".join(f"{p['in_2est']:.1f}" for p in per)
+        means = ", ".join(f"{s.mean():+.1f}" for s, _ in rs)
+        print(
+            f"| {link} | {np.median(np.abs(signed)):.1f} | {signed.mean():+.2f} ({means})"
+            f" | {pooled['est_p50']:.1f} | {pooled['est_ratio']:.2f} ({ratios})"
+            f" | {pooled['in_2est']:.1f} % ({within}) |"
+        )
 
 
 def whole_runs(seeds: int, seconds: float) -> None:
@@ -226,17 +256,30 @@ def whole_runs(seeds: int, seconds: float) -> None:
     print("board clock: random offset, +-50..200 ppm, drift +-0.5 ppm/s, reset at 18 s (100 ms")
     print("boot gap), 500 Hz; medians over seeds, worst = max over seeds\n")
     print(
-        "| link | p50 µs | p99 µs | max µs (worst) | bound p50 µs | in bound | not increasing"
-        " | recovery ms (worst) | probes/s |"
+        "| link | p50 µs | p99 µs | max µs (worst) | mean signed µs (seeds) | bound p50 µs"
+        " | in bound | est_error p50 µs | est / error (seeds) | within 2 est (seeds)"
+        " | not increasing | recovery ms (worst) | probes/s |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---" * 13 + "|")
     for link in ("pty", "tcp"):
         rs = [whole_run(link, seconds, 100 + k) for k in range(seeds)]
-        med = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+        med = {k: statistics.median(r[k] for r in rs) for k in rs[0] if k[-3:] != "_us"}
+        # pooled over the seeds: every sample of every run counts once
+        pooled = est_stats(
+            np.concatenate([r["err_us"] for r in rs]), np.concatenate([r["est_us"] for r in rs])
+        )
+        mean = float(np.concatenate([r["signed_us"] for r in rs]).mean())
+
+        def span(key: str, fmt: str, rs: list[dict[str, Any]] = rs) -> str:
+            return f"{min(r[key] for r in rs):{fmt}}..{max(r[key] for r in rs):{fmt}}"
+
         print(
             f"| {link} | {med['p50']:.1f} | {med['p99']:.1f} | {med['max']:.1f}"
-            f" ({max(r['max'] for r in rs):.1f}) | {med['bound_p50']:.1f}"
-            f" | {min(r['covered'] for r in rs):.2f} % | {sum(r['not_increasing'] for r in rs)}"
+            f" ({max(r['max'] for r in rs):.1f}) | {mean:+.2f} ({span('mean_signed', '+.1f')})"
+            f" | {med['bound_p50']:.1f} | {min(r['covered'] for r in rs):.2f} %"
+            f" | {pooled['est_p50']:.1f} | {pooled['est_ratio']:.2f} ({span('est_ratio', '.2f')})"
+            f" | {pooled['in_2est']:.1f} % ({span('in_2est', '.1f')})"
+            f" | {sum(r['not_increasing'] for r in rs)}"
             f" | {med['recovery_ms']:.0f} ({max(r['recovery_ms'] for r in rs):.0f})"
             f" | {med['probes_per_s']:.1f} |",
             flush=True,
@@ -325,15 +368,19 @@ def main() -> None:
         )
         print("|---|---|---|---|---|---|---|---|---|")
         notes = []
+        more: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         for link in ("pty", "tcp"):
             for row in real_same_exchanges(link, a.seconds):
                 print(row, flush=True)
-            row, note = real_daemon(link, a.seconds).split("\n\n")
+            text, signed, est = real_daemon(link, a.seconds)
+            row, note = text.split("\n\n")
             print(row, flush=True)
             notes.append(note)
+            more[link] = [(signed, est)] + [real_daemon(link, a.seconds, s)[1:] for s in (13, 14)]
         print()
         for n in notes:
             print(n)
+        _estimate_table(more, a.seconds)
     if "trigger" in parts:
         trigger(a.triggers)
 

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from _calibration import est_stats
 from missing_link.timesync import ClockSync, Exchange, SyncOptions
 from missing_link.virtual import syncsim as sim
 from missing_link.virtual.clocks import DriftClock
@@ -90,14 +91,15 @@ def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
     path.write_text(json.dumps(doc))
 
 
-def _map_at(method: Any, board_us: int, now: float) -> tuple[float, float] | None:
-    """(host ns, bound ns) as published: ours as the daemon's sample path maps (with ``now``,
-    refusing stamps from the future); an anchor by its own map, without a bound."""
+def _map_at(method: Any, board_us: int, now: float) -> tuple[float, float, float] | None:
+    """(host ns, bound ns, estimated error ns) as published: ours as the daemon's sample path
+    maps (with ``now``, refusing stamps from the future); an anchor by its own map, without a
+    bound or an estimate."""
     if isinstance(method, sim.Ours):
         got = method.sync.map_many((board_us,), now)
-        return None if got is None or got[2] < 0 else (got[0][0], float(got[2]))
+        return None if got is None or got[2] < 0 else (got[0][0], float(got[2]), float(got[1]))
     mapped = method.map(board_us)
-    return None if mapped is None else (mapped[0], math.inf)
+    return None if mapped is None else (mapped[0], math.inf, math.inf)
 
 
 def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
@@ -109,7 +111,7 @@ def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
     exs = [Exchange(*row) for row in doc["exchanges"]]
     sent = [e.t1 for e in exs]
     first, again = doc["first_sample_ns"], doc["answering_again_ns"]
-    rows: list[tuple[float, float, float]] = []  # (s since first sample, error µs, bound ns)
+    rows: list[tuple[float, float, float, float]] = []  # (s since first, error µs, bound, est µs)
     h, i, used = first, 0, 0
     while True:
         k = bisect.bisect_left(sent, method.due() * 1e9, lo=i)
@@ -120,12 +122,15 @@ def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
             if h >= first + 5e8 and not truth.reset_ns[0] <= h < again:
                 got = _map_at(method, math.floor(truth.board_us_at(h)), h / 1e9)
                 if got is not None:
-                    rows.append(((h - first) / 1e9, (got[0] - h) / 1000, got[1] / 1000))
+                    rows.append(
+                        ((h - first) / 1e9, (got[0] - h) / 1000, got[1] / 1000, got[2] / 1000)
+                    )
             h += 2_000_000
         method.on_exchange(ex, ex.t4 / 1e9)
         used, i = used + 1, k + 1
     a = np.array(rows)
-    t, err, bound = a[:, 0], np.abs(a[:, 1]), a[:, 2]
+    t, signed, bound, est = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    err = np.abs(signed)
     before = t < (truth.reset_ns[0] - first) / 1e9
     bins = {}
     for lo, hi in BINS:
@@ -135,6 +140,8 @@ def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
         "p50": float(np.percentile(err, 50)),
         "p99": float(np.percentile(err, 99)),
         "max": float(err.max()),
+        "mean_signed": float(signed.mean()),
+        **est_stats(err, est),
         "p99_before": float(np.percentile(err[before], 99)),
         "max_before": float(err[before].max()),
         "covered": float(np.mean(err <= bound)) * 100,
@@ -181,10 +188,11 @@ def replay(where: Path, specs: list[str], anchors: bool) -> None:
     print(f"{len(docs)} recordings from {where}; medians over them, worst = the worst run\n")
     bins = " | ".join(f"p50 {lo:g}-{hi:g} s" if hi < 1e9 else f"p50 {lo:g} s-" for lo, hi in BINS)
     print(
-        "| method | p50 µs | p99 µs | max µs (worst) | before the reset: p99 / max µs | in bound"
-        f" | bound p50 µs | probes/s | {bins} |"
+        "| method | p50 µs | p99 µs | max µs (worst) | mean signed µs | before the reset: p99 /"
+        " max µs | in bound | bound p50 µs | est / error | within 2 est | probes/s"
+        f" | {bins} |"
     )
-    print("|---" * (8 + len(BINS)) + "|")
+    print("|---" * (11 + len(BINS)) + "|")
     runs: list[tuple[str, Callable[[], Any]]] = [
         (f"missing-link ({s})", partial(sim.Ours, o)) for s, o in options.items()
     ]
@@ -200,11 +208,15 @@ def replay(where: Path, specs: list[str], anchors: bool) -> None:
         bounded = not math.isinf(med("bound"))
         covered = f"{min(r['covered'] for r in rs):.2f} %" if bounded else "-"
         bound = f"{med('bound'):.1f}" if bounded else "-"
+        ratio = f"{med('est_ratio'):.2f}" if bounded else "-"
+        within = f"{med('in_2est'):.1f} %" if bounded else "-"
         worst = max(r["max"] for r in rs)
+        mean = med("mean_signed")
+        signed = f"{mean:+.1f}" if abs(mean) < 1e6 else f"{mean / 1e6:+,.0f} s"
         print(
             f"| {label} | {_us(med('p50'))} | {_us(med('p99'))} | {_us(med('max'))}"
-            f" ({_us(worst)}) | {_us(med('p99_before'))} / {_us(med('max_before'))}"
-            f" | {covered} | {bound} | {med('probes'):.1f} | {per_bin} |"
+            f" ({_us(worst)}) | {signed} | {_us(med('p99_before'))} / {_us(med('max_before'))}"
+            f" | {covered} | {bound} | {ratio} | {within} | {med('probes'):.1f} | {per_bin} |"
         )
 
 

@@ -260,3 +260,40 @@ def test_board_sifs_never_interleave_with_replies_and_replies_go_first() -> None
     assert (t0, v0, v1) == (1_000_000, 10, -1)
     t0, v0, _t1, v1 = struct.unpack("<QhQh", sifs[1].payload)
     assert (t0, v0, v1) == (1_000_005, 11, -1)
+
+
+def test_lead_names_the_call_whose_reply_starts_the_bytes_and_only_that() -> None:
+    """``lead``: the caller knows when the first byte of a read had arrived; only a reply that
+    starts that read (the decoder between frames, a good frame, a call it completes) is the
+    lead: the clock probe's t4 is then that moment (host/link.py)."""
+    conn = HostConnection()
+    op = conn.call(4, b"", 0.0, 1.0)
+    (req,) = conn.data_to_send()
+    seq = req[1]
+    reply = encode_frame(SOF, seq, 0xBA, b"")
+    sif = encode_frame(SOS, 0, 3, b"\x00" * 10)
+    assert conn.receive_data(reply + sif, 0.1, lead=True)[0] == CallCompleted(op, 0xBA, b"")
+    assert conn.lead_op == op
+
+    op = conn.call(4, b"", 0.2, 1.0)
+    (req,) = conn.data_to_send()
+    events = conn.receive_data(sif + encode_frame(SOF, req[1], 0xBA, b""), 0.3, lead=True)
+    assert CallCompleted(op, 0xBA, b"") in events and conn.lead_op is None  # a SIF came first
+
+    op = conn.call(4, b"", 0.4, 1.0)
+    (req,) = conn.data_to_send()
+    whole = encode_frame(SOF, req[1], 0xBA, b"")
+    assert conn.receive_data(whole[:2], 0.5, lead=True) == []  # half a frame ...
+    assert conn.receive_data(whole[2:], 0.5, lead=True) == [CallCompleted(op, 0xBA, b"")]
+    assert conn.lead_op is None  # ... whose start came in an earlier read
+
+    op = conn.call(4, b"", 0.6, 1.0)
+    (req,) = conn.data_to_send()
+    foreign = encode_frame(SOF, (req[1] + 7) & 0xFF, 0xBA, b"")
+    events = conn.receive_data(foreign + encode_frame(SOF, req[1], 0xBA, b""), 0.7, lead=True)
+    assert events == [CallCompleted(op, 0xBA, b"")] and conn.lead_op is None  # not the head
+
+    op = conn.call(4, b"", 0.8, 1.0)
+    (req,) = conn.data_to_send()
+    assert conn.receive_data(encode_frame(SOF, req[1], 0xBA, b""), 0.9) != []
+    assert conn.lead_op is None  # not asked

@@ -315,3 +315,47 @@ def test_bytes_counted_at_the_wake_are_stamped_then_and_only_they() -> None:
         t.close()
         os.close(master)
         os.close(slave)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="a pty; SO_TIMESTAMPNS")
+@pytest.mark.parametrize("shared_loop", [False, True])
+@pytest.mark.parametrize("link", ["pty", "tcp"])
+def test_a_clock_reply_heading_a_read_is_stamped_at_the_wake_and_stays_causal(
+    shared_loop: bool, link: str
+) -> None:
+    """A clock reply that starts the read is stamped when the wait returned (``head_ns``), not
+    at the byte count after the host's own work; against a board process whose clock is this
+    machine's CLOCK_MONOTONIC (in µs), that stamp is never before the board sent the reply,
+    on a board's own reader thread and on the daemon's shared I/O loop.  Over TCP both ends
+    take the kernel's receive stamps (the virtual board's t2 too): still causal."""
+    from missing_link.host.reactor import Reactor
+    from missing_link.virtual.process import start_board_process, stop_process
+
+    proc, url = start_board_process("rate", 3, "pty" if link == "pty" else "tcp://127.0.0.1:0")
+    reactor = Reactor().start() if shared_loop else None
+    board = Board(open_transport(url), timeout=1.0, reactor=reactor)
+    try:
+        board.handshake()
+        heads = 0
+        for _ in range(60):
+            board.transport.count_arrivals = True
+            result = board.call_future("a2jClock", b"").result(2.0)
+            board.transport.count_arrivals = False
+            t2, t3 = (int.from_bytes(result.payload[i : i + 8], "little") for i in (0, 8))
+            assert result.sent_ns <= (t2 + 1) * 1000  # the request was sent before it arrived
+            assert t3 * 1000 <= result.recv_ns
+            if result.head_ns:
+                heads += 1
+                assert t3 * 1000 <= result.head_ns < result.recv_ns  # causal, and earlier
+            time.sleep(0.01)
+        if link == "pty":
+            assert heads >= 30  # the reply headed almost every read
+        else:
+            assert heads == 0  # (TCP: the kernel's stamp is earlier still)
+        ex = board.clock_exchange(1.0)  # and the exchange takes the tighter stamp
+        assert ex.t3 * 1000 <= ex.t4 and ex.down_min_ns == 0
+    finally:
+        board.close()
+        if reactor is not None:
+            reactor.stop()
+        stop_process(proc)

@@ -1,7 +1,8 @@
 """Topics and updates: what the daemon hands to every publisher.
 
 An ``Update`` is one SIF of one transducer: per channel the board stamp, the host time and the
-value (None for N/A), plus the clock map's error bound for those host times.  Its CDR form is
+value (None for N/A), plus the clock map's hard error bound and estimated error for those host
+times.  Its CDR form is
 computed once, on first use, and shared by every publisher that needs it (MCAP, Zenoh,
 Foxglove)."""
 
@@ -72,11 +73,11 @@ class Update:
         "board_us",
         "bound_ns",
         "clock_flags",
+        "est_error_ns",
         "host_ns",
         "lost",
         "recv_ns",
         "seq",
-        "sigma_ns",
         "stamp_ns",
         "topic",
         "values",
@@ -94,7 +95,7 @@ class Update:
         cdr: bytes | None = None,
         stamp_ns: int | None = None,
         bound_ns: int = -1,
-        sigma_ns: int = -1,
+        est_error_ns: int = -1,
         clock_flags: int = 0,
     ) -> None:
         self.topic = topic
@@ -111,10 +112,17 @@ class Update:
         #: hard bound: every host time in this update is within ±bound_ns of the truth, as far
         #: as the clock map can tell (-1: unknown, see clock_flags)
         self.bound_ns = bound_ns
-        self.sigma_ns = sigma_ns  #: 1-sigma error estimate of the host times (-1: unknown)
+        #: statistical: the typical size of the host times' error, about one sigma, calibrated
+        #: against known board clocks (weight measurements with it; -1: unknown)
+        self.est_error_ns = est_error_ns
         #: missing_link.timesync.STEP (the clock map stepped here: start or board reset) |
         #: NOT_SYNCED (no clock map: host time is the receive time)
         self.clock_flags = clock_flags
+
+    @property
+    def sigma_ns(self) -> int:
+        """The estimated error's earlier name (``est_error_ns``)."""
+        return self.est_error_ns
 
     @property
     def cdr(self) -> bytes:
@@ -132,7 +140,7 @@ class Update:
             "seq": self.seq,
             "lost": self.lost,
             "bound_ns": self.bound_ns,
-            "sigma_ns": self.sigma_ns,
+            "est_error_ns": self.est_error_ns,
             "clock_flags": self.clock_flags,
         }
 

@@ -277,7 +277,7 @@ def format_sync(st: dict[str, Any]) -> str:
         return f"{head} no estimate yet (exchanges {st['sync_exchanges']}, lost {st['sync_lost']})"
     return (
         f"{head} offset {st['offset_us']:+.3f} µs  skew {st['skew_ppm']:+8.3f} ppm"
-        f"  bound ±{st['bound_us']:.1f} µs  sigma {st['sigma_us']:.1f} µs"
+        f"  bound ±{st['bound_us']:.1f} µs (hard)  est ±{st['est_error_us']:.1f} µs"
         f"  rtt {st['sync_rtt_us']:.0f} µs (min {st['sync_min_rtt_us']:.0f})"
         f"  every {st['sync_interval_ms']:.0f} ms  exchanges {st['sync_exchanges']}"
         f" lost {st['sync_lost']}"

@@ -17,6 +17,7 @@ from typing import Any
 
 from ..descriptors import Transducer
 from ..host.reactor import Reactor
+from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 from .config import Config
 
@@ -40,3 +41,5 @@ class SessionContext:
     add_command: Callable[[str, Topic, CommandHandler], None]
     remove_command: Callable[[str], None]
     probe_gap: Callable[[], float]  #: s between a tracking board's clock probes (the budget)
+    #: (topic, record): one clock exchange of the board, for recordings (``ros/clock.py``)
+    record_clock: Callable[[str, ClockRecord], None] = lambda topic, record: None

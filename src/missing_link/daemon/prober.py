@@ -62,6 +62,8 @@ class ProbeContext:
     on_rtt: Callable[[float], None]  #: each exchange's round trip, µs
     on_error: Callable[[str], None]  #: a failure that is neither a timeout nor a lost link
     on_map_pushed: Callable[[], None]  #: the board took a clock map (a2jHostMap)
+    #: each exchange and what the sync made of it (the session records it)
+    on_exchange: Callable[[Exchange, AddResult], None] = lambda ex, result: None
 
 
 class ClockProber:
@@ -169,6 +171,7 @@ class ClockProber:
     def _exchanged(self, ex: Exchange) -> None:
         result = self.sync.on_exchange(ex, time.monotonic())
         self.ctx.on_rtt(ex.rtt_ns / 1000)
+        self.ctx.on_exchange(ex, result)
         if result is AddResult.RESET:
             log.warning(
                 "%s: board clock went backwards: board reset, clock map restarted", self.ctx.name

@@ -29,6 +29,7 @@ from the monotonic clock to the published (realtime) one.
 from __future__ import annotations
 
 import logging
+import math
 import struct
 from collections.abc import Callable
 from typing import Any
@@ -132,7 +133,7 @@ class SamplePath:
             if sync.resets != resets:
                 log.warning("%s: sample stamps went back: board reset, map restarted", self.name)
         if got is not None and not got[3] & OUTLIER:
-            host_ns, sigma, bound, flags = got
+            host_ns, est_error, bound, flags = got
             newest = max(host_ns)
             # Measured before it arrived: a map error never puts a sample after its receipt.
             if newest > arrived:
@@ -143,7 +144,7 @@ class SamplePath:
                 host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
                 newest = max(host_ns)  # (0 when every channel is N/A)
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
-            sigma, bound, flags = -1, -1, NOT_SYNCED
+            est_error, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:
                 flags |= OUTLIER
                 self.outliers += 1  # (the sync wants a probe now: the ticker sends it)
@@ -159,6 +160,7 @@ class SamplePath:
                 self.host_time_clamps += 1
                 if bound >= 0:
                     bound += shift  # moved off the map by shift: the bound says so
+                    est_error = round(math.hypot(est_error, shift))  # ... and the estimate
             self._last_host[cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
@@ -174,7 +176,7 @@ class SamplePath:
             None,
             stamp,
             bound,
-            sigma,
+            est_error,
             flags,
         )
         self.samples += len(values) - missing
@@ -201,7 +203,7 @@ class SamplePath:
                             cdr,
                             None,
                             bound,
-                            sigma,
+                            est_error,
                             flags,
                         )
                     )

@@ -44,6 +44,7 @@ from ..host.reactor import Reactor
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
 from ..publishers.registry import make_publisher
+from ..ros.clock import ClockRecord
 from ..ros.msgs import typestore_for
 from ..topics import Topic, Update
 from ..transport import check_url
@@ -280,6 +281,7 @@ class Daemon:
             add_command=self._add_command,
             remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
+            record_clock=self._record_clock,
         )
 
     def _declare(self, topic: Topic) -> None:
@@ -297,6 +299,14 @@ class Daemon:
             except Exception:
                 self.publish_errors += 1
                 log.exception("publisher %s failed", p.name)
+
+    def _record_clock(self, topic: str, record: ClockRecord) -> None:
+        for p in self.publishers:
+            try:
+                p.clock_record(topic, record)
+            except Exception:  # (as _publish)
+                self.publish_errors += 1
+                log.exception("publisher %s failed on a clock record", p.name)
 
     def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
         self.bus.add_command(name, handler)

@@ -51,7 +51,10 @@ from typing import Any
 from ..descriptors import load_descriptor_file
 from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
+from ..ros.clock import ACCEPTED, REFUSED, RESET, clock_topic, record_of
 from ..ros.standard import StandardMapping, mapping_for
+from ..timesync.estimator import AddResult
+from ..timesync.exchange import Exchange
 from ..timesync.sync import ClockSync, SyncOptions
 from ..topics import Topic
 from ..transport import open_transport
@@ -92,6 +95,7 @@ class BoardSession:
         self.epoch = ""
         self.map_pushes = 0
         self.prober: ClockProber | None = None
+        self._clock_topic = ""  # where recordings keep this board's clock exchanges
         self._serial = ""  # board.serial of the board this session last connected to
         self._skew_memory: tuple[str, float, float] | None = None  # (serial, skew, host ns)
         self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
@@ -200,6 +204,7 @@ class BoardSession:
             self.warn(taken)
         self.path.name = self.name
         cfg = self.ctx.config
+        self._clock_topic = clock_topic(self.name, {t.name for t in transducers})
         self._start_sync(board)
         # New tables, filled as they are declared (a failure half-way leaves _disconnect the
         # command topics added so far to remove)
@@ -317,13 +322,13 @@ class BoardSession:
         if memory is not None and memory[0] == serial:
             sync.estimator.set_prior(memory[1], memory[2])
         sync.start(time.monotonic())
-        prober = ClockProber(self._probe_context(board), board, sync)
+        prober = ClockProber(self._probe_context(board, sync), board, sync)
         prober.first_estimate()  # a map before any sample is published
         self.sync, self.prober = sync, prober
         self.path.sync = sync
         prober.start()  # from now on on the board's reading thread (prober.py)
 
-    def _probe_context(self, board: Board) -> ProbeContext:
+    def _probe_context(self, board: Board, sync: ClockSync) -> ProbeContext:
         spec = self.spec
 
         def on_error(text: str) -> None:
@@ -336,6 +341,14 @@ class BoardSession:
         def on_rtt(us: float) -> None:
             self.rtt_us = us
 
+        results = {AddResult.ACCEPTED: ACCEPTED, AddResult.RESET: RESET}
+        epoch = board.properties.get("clock.epoch", "")
+        topic, offset = self._clock_topic, self.ctx.realtime_offset_ns
+
+        def on_exchange(ex: Exchange, result: AddResult) -> None:
+            got = results.get(result, REFUSED)
+            self.ctx.record_clock(topic, record_of(ex, got, sync.estimate, offset, epoch))
+
         return ProbeContext(
             name=self.name,
             timeout=spec.timeout,
@@ -346,6 +359,7 @@ class BoardSession:
             on_rtt=on_rtt,
             on_error=on_error,
             on_map_pushed=on_map_pushed,
+            on_exchange=on_exchange,
         )
 
     def _set_error(self, text: str) -> None:

@@ -250,10 +250,13 @@ class Board(BoardLink):
             t3 = t2
         # On a byte-serial link, the request's bytes before t2 (SOF, seq, op, len, checksum)
         # and the reply's after t3 (SOF, seq, code, len, payload, checksum) are on the wire in
-        # every exchange: known delays, not uncertainty.
-        return Exchange(
-            result.sent_ns, t2, t3, result.recv_ns, int((5 + len(p)) * byte_ns), int(5 * byte_ns)
-        )
+        # every exchange: known delays, not uncertainty.  When the reply headed a read, its
+        # first byte (only that one on the wire after t3) had arrived by ``head_ns``: the
+        # tighter of the two upper constraints is kept.
+        t4, down = result.recv_ns, int((5 + len(p)) * byte_ns)
+        if result.head_ns and result.head_ns - int(byte_ns) < t4 - down:
+            t4, down = result.head_ns, int(byte_ns)
+        return Exchange(result.sent_ns, t2, t3, t4, down, int(5 * byte_ns))
 
     def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Call and require return code 0; returns the reply payload."""

@@ -70,6 +70,9 @@ class CallResult:
     payload: bytes
     sent_ns: int = 0  #: CLOCK_MONOTONIC ns just before the request was written
     recv_ns: int = 0  #: CLOCK_MONOTONIC ns when the read that completed the reply returned
+    #: CLOCK_MONOTONIC ns by which the reply's *first* byte had arrived, when known and earlier
+    #: (the reply headed a read whose wait returned then: the transport's ``first_rx_ns``); 0
+    head_ns: int = 0
 
     @property
     def ok(self) -> bool:
@@ -247,11 +250,15 @@ class BoardLink:
         now = now_ns / 1e9
         if data and 0 < rx_ns <= now_ns:  # when the bytes arrived (t4): the transport's stamp
             now_ns = rx_ns
+        head = self.transport.first_rx_ns if data else 0
+        lead: tuple[int, int] | None = None  # (op, head): a reply that headed this read
         with self._lock:
             timer = self.conn.get_timer()
             if data:
                 frames = self.conn.decoder.stats.frames
-                events = self.conn.receive_data(data, now)
+                events = self.conn.receive_data(data, now, lead=0 < head < now_ns)
+                if self.conn.lead_op is not None:
+                    lead = (self.conn.lead_op, head)
                 if self.conn.decoder.stats.frames != frames:
                     self.last_frame = now
             else:
@@ -260,7 +267,7 @@ class BoardLink:
                 events += self.conn.handle_timer(now)
             self._flush()
         if events:
-            self._dispatch(events, now_ns / 1e9, now_ns)
+            self._dispatch(events, now_ns / 1e9, now_ns, lead)
         with self._lock:
             self._update_due()
         return now
@@ -348,7 +355,9 @@ class BoardLink:
         if self._done.is_set():
             fn()
 
-    def _dispatch(self, events: list[Any], now: float, now_ns: int) -> None:
+    def _dispatch(
+        self, events: list[Any], now: float, now_ns: int, lead: tuple[int, int] | None = None
+    ) -> None:
         by_cmd, any_sif = self._sif_handlers, self._any_sif
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
@@ -368,16 +377,18 @@ class BoardLink:
             elif isinstance(ev, FrameDamaged):
                 log.debug("%s: damaged frame: %s", self.url, ev.error)
             else:
-                self._resolve(ev, now_ns)
+                self._resolve(ev, now_ns, lead[1] if lead is not None and lead[0] == ev.op else 0)
 
-    def _resolve(self, ev: CallCompleted | CallFailed | TransferCompleted, now_ns: int) -> None:
+    def _resolve(
+        self, ev: CallCompleted | CallFailed | TransferCompleted, now_ns: int, head_ns: int = 0
+    ) -> None:
         entry = self._futures.pop(ev.op, None)
         sent = self._sent.pop(ev.op, 0)
         if entry is None:
             return
         fut, label, _, is_write = entry
         if isinstance(ev, CallCompleted):
-            fut.set_result(CallResult(ev.code, ev.payload, sent, now_ns))
+            fut.set_result(CallResult(ev.code, ev.payload, sent, now_ns, head_ns))
         elif isinstance(ev, TransferCompleted):
             if is_write:
                 fut.set_result(ev.status)  # a write reports the function's status

@@ -10,7 +10,8 @@ as aioquic's loop drives a QUIC connection.  The loop waits in one ``select`` fo
 bytes, the wake pipe, or the soonest call timer of any board.  A round then
 
 1. for a board with a clock probe in flight, counts the bytes waiting the moment the wait
-   returns (``count_arrived``: clock sync's t4, before any other work of the round); then
+   returns (``count_arrived``: clock sync's t4, before any other work of the round; a reply
+   that heads the read gets the moment the wait returned); then
    reads every ready descriptor (each read stamped right after it, or at that count), so a
    board's stamp does not wait for another board's processing;
 2. runs each board's ``step`` with its bytes (decode, replies to futures, SIFs to the sample
@@ -192,15 +193,16 @@ class Reactor:
             waited_after = self._registrations
             try:
                 ready = self._sel.wait(timeout)
+                woke = time.monotonic_ns()  # (a clock reply heading a read was there by now)
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
                 log.debug("reactor: wait: %s", e)
-                ready = []
+                ready, woke = [], 0
             try:
                 boards = self._boards
                 for fd in ready:  # first, before any other work: a clock reply's t4
                     board = boards.get(fd)
                     if board is not None and board.transport.count_arrivals:
-                        board.transport.count_arrived()
+                        board.transport.count_arrived(woke)
                 sifs = self._round(ready, waited_after)
             except Exception:  # a bug here must not end every board's reading
                 self.loop_errors += 1

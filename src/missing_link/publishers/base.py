@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
+from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 
 
@@ -27,6 +28,10 @@ class Publisher:
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         """Per-board status, about once a second (also published on /diagnostics)."""
+
+    def clock_record(self, topic: str, record: ClockRecord) -> None:
+        """One clock exchange of a board and the map after it (``ros/clock.py``), a few per
+        second per board: recordings keep them on ``topic``.  Default: nothing."""
 
     def close(self) -> None:
         """Flush and release everything.  Idempotent; must not block for long, whatever

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..ros.clock import CLOCK_MSG, CLOCK_TYPE, ClockRecord, clock_record_cdr
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
 from .base import PublisherError
@@ -86,6 +87,7 @@ class McapPublisher(RosPublisher):
         self.dropped = 0
         self.error = ""
         self._topics: dict[str, Topic] = {}
+        self._clock_topics: set[str] = set()  # boards' clock records (ros/clock.py)
         self._writer: Any = None
         self._conns: dict[str, Any] = {}
         self._bytes = 0
@@ -104,6 +106,9 @@ class McapPublisher(RosPublisher):
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         self._put(("diag", now_ns, cdr))
+
+    def clock_record(self, topic: str, record: ClockRecord) -> None:
+        self._put(("clock", topic, record.t4_ns, clock_record_cdr(record)))
 
     def _put(self, item: tuple[Any, ...]) -> None:
         if self._closed:
@@ -224,6 +229,12 @@ class McapPublisher(RosPublisher):
             conn = self._conns.get(name)
             if conn is None:
                 return
+        elif kind == "clock":
+            _, name, stamp, data = item
+            if name not in self._clock_topics:
+                self._clock_topics.add(name)
+                self._connect_clock(name)
+            conn = self._conns[name]
         else:
             _, stamp, data = item
             name, conn = DIAG_TOPIC, self._conns[DIAG_TOPIC]
@@ -232,7 +243,7 @@ class McapPublisher(RosPublisher):
         self.messages += 1
         self._bag_messages += 1
         self._writer.write(conn, stamp, data)
-        if kind == "msg":
+        if kind != "diag":
             self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
         if self._chunk_since is None:
             self._chunk_since = time.monotonic()
@@ -263,6 +274,8 @@ class McapPublisher(RosPublisher):
         )
         for topic in self._topics.values():
             self._connect(topic)
+        for name in self._clock_topics:
+            self._connect_clock(name)
 
     def _connect(self, topic: Topic) -> None:
         if topic.name in self._conns:
@@ -271,6 +284,15 @@ class McapPublisher(RosPublisher):
         self._conns[topic.name] = self._writer.add_connection(
             topic.name, topic.type_name, typestore=self.typestore
         )
+
+    def _connect_clock(self, name: str) -> None:
+        if name in self._conns:
+            return
+        if CLOCK_TYPE not in self.typestore.types:
+            from rosbags.typesys import get_types_from_msg
+
+            self.typestore.register(get_types_from_msg(CLOCK_MSG, CLOCK_TYPE))
+        self._conns[name] = self._writer.add_connection(name, CLOCK_TYPE, typestore=self.typestore)
 
     def _close_bag(self) -> None:
         """Close the bag (its last chunk, indexes, footer): every message is in the file.  When

@@ -36,12 +36,19 @@ Each ``add``:
      with the prior, under 10 µs.  (No prior at the first connect: a guess of 0 ppm measured
      worse than the burst's own fit for crystals 150-200 ppm off);
   5. offset: the middle between the tightest lower and the tightest upper constraint at the
-     fitted skew, each loosened by the skew's sigma times its age; hard band at the newest
-     exchange: every constraint, moved to ``b_ref`` along the fitted skew and widened by the
-     skew uncertainty (plus an allowance for frequency wander over the window); the offset is
-     clamped into the band;
+     fitted skew, each loosened by its age times the skew's sigma (plus the fit's lag, and half
+     the curvature, under a rate that drifts by up to ``drift_per_s``: a linear fit of a
+     drifting clock errs by both, so an old exchange must not win over a recent one); hard
+     band at the newest exchange: every constraint, moved to ``b_ref`` along the fitted skew
+     and widened by the skew uncertainty (plus an allowance for frequency wander over the
+     window); the offset is clamped into the band;
   6. an empty band (the window no longer fits one line: the clock's rate wandered) drops the
-     oldest exchanges until it fits again - this is what makes the window adaptive.
+     oldest exchanges until it fits again - this is what makes the window adaptive;
+  7. the estimated error (statistical, next to the hard band; chrony's ``esterror`` next to its
+     ``maxerror``): the scatter of the fastest exchanges' midpoints about the fitted line (a
+     robust sigma), an allowance for the asymmetry between the two directions that no round
+     trip reveals (``ASYM_FRACTION`` of half the fastest round trip), the stamps' quantisation,
+     and at a distance from ``b_ref`` the skew's sigma times that distance (``est_error_ns``).
 
 The estimate carries the band, so any board time maps to host time with a hard interval that
 widens with the distance from the newest exchange.  Everything is float µs relative to the
@@ -67,6 +74,12 @@ MAX_SKEW = 5000e-6
 PRIOR_SIGMA = 2e-6
 PRIOR_WANDER = 0.5e-6
 PRIOR_LIFE_S = 60.0
+#: The estimated error allows for an asymmetry between the two directions of this fraction of
+#: half the fastest round trip.  No round trip reveals an asymmetry, so it is calibrated against
+#: board clocks whose truth is known: the one-way floors measured here differ by up to ~7 % of
+#: the round trip over a pty (a process that slept longer wakes later), < 2 % over TCP with
+#: kernel stamps at both ends (docs/timesync.md, "The estimated error").
+ASYM_FRACTION = 0.12
 
 
 class AddResult(Enum):
@@ -89,6 +102,9 @@ class Estimate:
     span_s: float  #: board time the window covers
     min_delay_ns: float  #: the window's smallest exchange delay
     consistent: bool  #: False when even the smallest window violated a constraint
+    #: the statistical error at ``b_ref``, squared (ns²): scatter, asymmetry allowance, ticks
+    est_sq_ns: float = 0.0
+    skew_sigma: float = 0.0  #: 1-sigma skew (dimensionless) for the error away from b_ref
 
     @property
     def skew(self) -> float:
@@ -98,10 +114,15 @@ class Estimate:
     def width_ns(self) -> float:
         return self.hi_ns - self.lo_ns
 
-    @property
-    def sigma_ns(self) -> float:
-        """1-sigma error if the truth lies anywhere in the band with equal probability."""
-        return self.width_ns / (2.0 * math.sqrt(3.0))
+    def est_error_ns(self, board_us: int, deviation_ns: float = 0.0) -> float:
+        """The statistical error (about one sigma) of host times mapped at ``board_us`` by a map
+        ``deviation_ns`` away from this estimate (the published map's slew); never more than
+        the hard bound there (a few wild exchanges right after connecting can scatter more)."""
+        d = board_us - self.b_ref
+        spread = self.skew_sigma * 1000.0 * d
+        est = math.sqrt(self.est_sq_ns + spread * spread + deviation_ns * deviation_ns)
+        hard = max(deviation_ns - self.lo_ns, self.hi_ns - deviation_ns)
+        return min(est, hard + abs(d) * 1000.0 * self.dskew)
 
     def host_at(self, board_us: int) -> float:
         return self.h_ref + (board_us - self.b_ref) * self.rate
@@ -127,6 +148,7 @@ class ClockEstimator:
         wander_per_s: float = 0.05e-6,
         floor_us: float = 1.0,
         memory_s: float = 5.0,
+        drift_per_s: float = 0.5e-6,
     ) -> None:
         if max_points < min_points or min_points < 1:
             raise ValueError("need 1 <= min_points <= max_points")
@@ -137,6 +159,8 @@ class ClockEstimator:
         self.wander_per_s = wander_per_s  #: assumed bound on how fast the rate can change
         self.floor_us = floor_us  #: delay noise floor in the weights (stamping jitter)
         self.memory_us = memory_s * 1e6  #: skew-fit weights fall by e every memory_s of age
+        #: a rate drift the offset allows for (not a hard limit): a fast temperature ramp
+        self.drift_per_us = drift_per_s / 1e6
         self.points: deque[Exchange] = deque()
         # The same window as rows (t1 + up_min, t2, t3, t4 - down_min) kept in step with ``points``:
         # the fit and the filter work on columns, without a Python pass over the exchanges.
@@ -286,14 +310,27 @@ class ClockEstimator:
         # not win over a recent one almost as tight.  Replayed on 12 recorded pty runs: p50
         # 8.0/7.3 -> 5.8/6.3 µs, worst max 25.8/28.4 -> 17.0/21.3 µs; simulated USB and FTDI
         # worst max 233/281 -> 158/231 µs.
-        sk = (kmax - kmin) / 4.0 if consistent else 0.0
-        c = (float((at_l - sk * ax_l).max()) + float((at_u + sk * ax_u).min())) / 2.0
+        # Under a drifting rate the fitted skew lags by about the drift times half the fit's
+        # memory, and a line misses the curve by half the drift times the age squared: both
+        # count against an old exchange too.  Replayed on 12 recorded runs (6 pty, 6 TCP;
+        # drifts up to 0.5 ppm/s): TCP p99 6.5 -> 3.4 µs, the pty unchanged.
+        drift = self.drift_per_us
+        sk = ((kmax - kmin) / 4.0 if consistent else 0.0) + drift * self.memory_us / 2.0
+        dl = (sk + 0.5 * drift * ax_l) * ax_l
+        du = (sk + 0.5 * drift * ax_u) * ax_u
+        c = (float((at_l - dl).max()) + float((at_u + du).min())) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0
             lo = hi = c
         else:
             c = min(max(c, lo), hi)
+        # The estimated error: the fastest quarter's midpoints about the line (robust sigma),
+        # the asymmetry allowance, the ticks of both stamps (uniform: res / sqrt 12).
+        fast = (rm - (c + k * xm))[np.argsort(delay)[: max(4, n // 4)]]
+        scatter = 1.4826 * float(np.median(np.abs(fast - np.median(fast)))) if n >= 4 else 0.0
+        asym = ASYM_FRACTION * dmin / 2.0
+        est_sq = (scatter**2 + asym**2 + res * res / 12.0) * 1e6
         return Estimate(
             b_ref=int(b_ref),
             h_ref=h_ref + c * 1000.0,
@@ -305,4 +342,6 @@ class ClockEstimator:
             span_s=span_s,
             min_delay_ns=dmin * 1000.0,
             consistent=consistent,
+            est_sq_ns=est_sq,
+            skew_sigma=sk,
         )

@@ -30,10 +30,10 @@ agree with each other but not with the map, or ``reset_confirm`` samples in a ro
 behind the newest mapped one and consistent with each other.  A sample is also refused when it
 would map later than ``now + glitch_us`` (nothing is measured in the future).
 
-``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a 1-sigma estimate, a hard
-bound and flags; it is the only call made from the sample path, and it is cheap.  ``now`` is
-always passed in; a lock makes ``map`` safe against a concurrent ``on_exchange`` (the sample
-path and the prober run on different threads).
+``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a hard bound, the estimated
+(statistical) error next to it, and flags; it is the only call made from the sample path, and it
+is cheap.  ``now`` is always passed in; a lock makes ``map`` safe against a concurrent
+``on_exchange`` (the sample path and the prober run on different threads).
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ class SyncOptions:
 @dataclass(frozen=True)
 class Mapped:
     host_ns: int  #: CLOCK_MONOTONIC ns
-    sigma_ns: int
+    est_error_ns: int  #: statistical: the error's typical size, about one sigma (-1: unknown)
     bound_ns: int  #: hard: |host_ns - truth| <= bound_ns (-1: unknown)
     flags: int
 
@@ -277,15 +277,15 @@ class ClockSync:
         got = self.map_many((board_us,))
         if got is None:
             return None
-        hosts, sigma, bound, flags = got
-        return Mapped(hosts[0], sigma, bound, flags)
+        hosts, est_error, bound, flags = got
+        return Mapped(hosts[0], est_error, bound, flags)
 
     def map_many(
         self, board_us: Sequence[int], now: float | None = None, offset_ns: int = 0
     ) -> tuple[list[int], int, int, int] | None:
         """Host ns (CLOCK_MONOTONIC, plus ``offset_ns``: the caller's realtime offset, added
-        here rather than in another pass) for each stamp of one update, plus the 1-sigma
-        estimate, the hard bound (both for the newest stamp) and flags; None before the first
+        here rather than in another pass) for each stamp of one update, plus the estimated
+        error, the hard bound (both for the newest stamp) and flags; None before the first
         estimate.  ``now``: the host's receive time (monotonic s), to refuse stamps from the
         future.
 
@@ -328,8 +328,7 @@ class ClockSync:
                 dev = h - (est.h_ref + d * est.rate)
                 widen = abs(d) * 1000.0 * est.dskew
                 bound = math.ceil(max(dev - est.lo_ns, est.hi_ns - dev) + widen)
-                sigma = est.sigma_ns
-                return hosts, round(math.sqrt(sigma * sigma + dev * dev)), bound, flags
+                return hosts, round(est.est_error_ns(newest, dev)), bound, flags
         # a reset, or an outlier: probe at once to confirm or refute
         if reset:
             self._enter(BURST, now or 0.0)
@@ -368,7 +367,7 @@ class ClockSync:
                     # the board clock's rate error (a board running fast has a positive skew)
                     "skew_ppm": round((1000.0 / est.rate - 1.0) * 1e6, 3),
                     "bound_us": round(max(-est.lo_ns, est.hi_ns) / 1000, 2),
-                    "sigma_us": round(est.sigma_ns / 1000, 2),
+                    "est_error_us": round(est.est_error_ns(est.b_ref) / 1000, 2),
                     "slew_error_us": round(self.last_error_ns / 1000, 2),
                     "window_points": est.points,
                     "window_s": round(est.span_s, 1),

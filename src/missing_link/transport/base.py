@@ -39,6 +39,12 @@ class Transport(ABC):
     #: set by ``_recv`` when it knows an earlier time by which every byte it read had arrived
     #: (TCP: the kernel's receive stamp), for ``last_rx_ns``
     arrived_ns: int = 0
+    #: CLOCK_MONOTONIC ns by which the *first* byte of the newest read had arrived, when that
+    #: is earlier than ``last_rx_ns``: the wait that said the descriptor was readable returned
+    #: then, and nothing read it in between, so whatever came first was there.  A reply that
+    #: heads the read was on its way by then (clock sync's t4 without the host's work between
+    #: its wake-up and the byte count).  Set only while ``count_arrivals``; else 0
+    first_rx_ns: int = 0
     #: set by the board while a clock exchange is in flight: the reader then counts the bytes
     #: waiting the moment its wait returns (``count_arrived``), for a tighter t4
     count_arrivals: bool = False
@@ -48,8 +54,9 @@ class Transport(ABC):
     def poke(self) -> None:  # noqa: B027 - optional: transports that cannot wake a read skip it
         """Make a waiting read() return b"" now (the caller has new timers for the reader)."""
 
-    def count_arrived(self) -> None:  # noqa: B027 - optional: descriptor transports do it
-        """Right after a wait said bytes are there: note how many, and when (see FdTransport)."""
+    def count_arrived(self, woke_ns: int = 0) -> None:  # noqa: B027 - descriptor transports
+        """Right after a wait said bytes are there (it returned at ``woke_ns``): note how many,
+        and when (see FdTransport)."""
 
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
@@ -79,7 +86,8 @@ class FdTransport(Transport):
         self.url = url
         self._fd = fd
         self._closed = False
-        self._counted: tuple[int, int] | None = None  # (bytes, when): see count_arrived
+        # (bytes, when counted, when the wait returned): see count_arrived
+        self._counted: tuple[int, int, int] | None = None
         self._wlock = threading.Lock()
         # close() writes here, so a reader blocked in select() returns at once
         self._wake_r, self._wake_w = os.pipe()
@@ -116,18 +124,20 @@ class FdTransport(Transport):
     def _recv(self, n: int) -> bytes:
         return os.read(self._fd, n)
 
-    def count_arrived(self) -> None:
-        """Called the moment a wait said this descriptor is readable, while a clock exchange is
-        in flight: the bytes waiting now (FIONREAD) had all arrived by now, so the next
-        ``read_ready`` takes exactly those and stamps them with this moment (t4), not with the
-        end of the loop's work and the read that follow."""
+    def count_arrived(self, woke_ns: int = 0) -> None:
+        """Called the moment a wait said this descriptor is readable (it returned at
+        ``woke_ns``), while a clock exchange is in flight: the bytes waiting now (FIONREAD) had
+        all arrived by now, so the next ``read_ready`` takes exactly those and stamps them with
+        this moment (t4), not with the end of the loop's work and the read that follow; and
+        the first of them had arrived by ``woke_ns`` (``first_rx_ns``)."""
         try:
             raw = fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0")
         except (OSError, ValueError):  # closed meanwhile: the read reports it
             return
         n = struct.unpack("i", raw)[0]
         if n > 0:  # (the first 64 KiB of many were there too: one read's worth)
-            self._counted = (min(n, 65536), time.monotonic_ns())
+            now = time.monotonic_ns()
+            self._counted = (min(n, 65536), now, woke_ns if 0 < woke_ns <= now else 0)
 
     def _send(self, data: memoryview) -> int:
         return os.write(self._fd, data)
@@ -150,7 +160,7 @@ class FdTransport(Transport):
         if self._fd not in ready:
             return b""
         if self.count_arrivals:
-            self.count_arrived()
+            self.count_arrived(time.monotonic_ns())
         return self.read_ready()
 
     def read_ready(self) -> bytes:
@@ -171,6 +181,7 @@ class FdTransport(Transport):
             if counted is not None and (arrived <= 0 or counted[1] < arrived):
                 arrived = counted[1]  # (the read took at most the bytes counted then)
             self.last_rx_ns = arrived if 0 < arrived <= now else now
+            self.first_rx_ns = counted[2] if counted is not None else 0
             self.arrived_ns = 0
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()

@@ -21,25 +21,43 @@ _SO_TIMESTAMPNS = 35
 _CMSG_SPACE = socket.CMSG_SPACE(16) if hasattr(socket, "CMSG_SPACE") else 0
 
 
+def enable_rx_stamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp each segment arriving on a TCP socket (Linux); False where it
+    cannot.  Also sets TCP_NODELAY: frames are small and latency matters more than packets."""
+    if sock.family not in (socket.AF_INET, socket.AF_INET6):
+        return False
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    if sys.platform != "linux" or not _CMSG_SPACE:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def recv_stamped(sock: socket.socket, n: int) -> tuple[bytes, int]:
+    """``recv`` with the kernel's receive stamp of the last segment the read took (CLOCK_REALTIME
+    ns; 0 when the kernel gave none): a stamp of when the bytes arrived, not of when this
+    thread got round to reading them (what a microcontroller's receive interrupt gives)."""
+    data, ancillary, _flags, _addr = sock.recvmsg(n, _CMSG_SPACE)
+    for level, kind, raw in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= 16:
+            sec, nsec = struct.unpack("qq", raw[:16])
+            return data, sec * 1_000_000_000 + nsec
+    return data, 0
+
+
 class SocketTransport(FdTransport):
     def __init__(self, url: str, sock: socket.socket) -> None:
         sock.setblocking(True)
-        self._kernel_stamps = False
-        if sock.family in (socket.AF_INET, socket.AF_INET6):
-            # Frames are small and latency matters more than packet count.
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            if sys.platform == "linux" and _CMSG_SPACE:
-                try:
-                    sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
-                    self._kernel_stamps = True
-                except OSError:
-                    pass
+        self._kernel_stamps = enable_rx_stamps(sock)
         super().__init__(url, sock.fileno())
         self.sock = sock
 
-    def count_arrived(self) -> None:
+    def count_arrived(self, woke_ns: int = 0) -> None:
         if not self._kernel_stamps:  # (with them, the kernel's stamp is earlier still)
-            super().count_arrived()
+            super().count_arrived(woke_ns)
 
     def _recv(self, n: int) -> bytes:
         if not (self._kernel_stamps and self.count_arrivals):
@@ -48,13 +66,11 @@ class SocketTransport(FdTransport):
             return self.sock.recv(n)
         # When the bytes arrived, not when this thread got round to reading them: clock sync's
         # t4 without the host's wake-up and scheduling delay (the return trip's host share).
-        data, ancillary, _flags, _addr = self.sock.recvmsg(n, _CMSG_SPACE)
-        for level, kind, raw in ancillary:
-            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= 16:
-                sec, nsec = struct.unpack("qq", raw[:16])
-                # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
-                offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
-                self.arrived_ns = sec * 1_000_000_000 + nsec - offset
+        data, stamp = recv_stamped(self.sock, n)
+        if stamp:
+            # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
+            offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
+            self.arrived_ns = stamp - offset
         return data
 
     def _send(self, data: memoryview) -> int:

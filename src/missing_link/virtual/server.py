@@ -26,6 +26,7 @@ from urllib.parse import urlsplit
 from ..board.runtime import BoardRuntime
 from ..errors import BadURL, TransportBroken, TransportClosed
 from ..transport.memory import MemoryListener, MemoryTransport
+from ..transport.sockets import enable_rx_stamps, recv_stamped
 
 OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
@@ -40,6 +41,11 @@ class _Link:
     def __init__(self, fd: int, sock: socket.socket | None = None) -> None:
         self.fd = fd
         self.sock = sock
+        # Over TCP the kernel stamps each segment as it arrives: the board's t2 is then when
+        # the request arrived, as a microcontroller stamps it in its receive interrupt, not when
+        # this process woke up (the host stamps its t4 the same way: the two directions match).
+        self.kernel_stamps = sock is not None and enable_rx_stamps(sock)
+        self.arrived_age_ns = 0  #: how long ago (ns) the newest read's bytes arrived; 0: unknown
         self.frames: deque[tuple[bytes, bool]] = deque()  # (frame, is a SIF), oldest first
         self.queued = 0  # bytes in frames
         self.head_sent = 0  # bytes of frames[0] already written (it can no longer be dropped)
@@ -52,8 +58,15 @@ class _Link:
 
     def recv(self) -> bytes | None:
         """Bytes, b"" if none now, None when the host went away."""
+        self.arrived_age_ns = 0
         try:
-            data = self.sock.recv(4096) if self.sock else os.read(self.fd, 4096)
+            if self.kernel_stamps:
+                assert self.sock is not None
+                data, stamp = recv_stamped(self.sock, 4096)
+                if stamp:
+                    self.arrived_age_ns = time.clock_gettime_ns(time.CLOCK_REALTIME) - stamp
+            else:
+                data = self.sock.recv(4096) if self.sock else os.read(self.fd, 4096)
         except BlockingIOError:
             return b""
         except OSError as e:
@@ -252,6 +265,9 @@ class BoardServer:
                         self._drop_link()
                     else:
                         data = received
+                        age = self._link.arrived_age_ns
+                        if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
+                            rx_us = self.runtime.clock() - age // 1000
                 if self._lifecycle():
                     continue  # booting: input is lost, nothing is sent
                 replies, sifs = self._turn(data, rx_us)
@@ -266,9 +282,7 @@ class BoardServer:
         if self._link is not None:
             sock.close()  # one host at a time
             return
-        if sock.family == socket.AF_INET:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._link = _Link(sock.fileno(), sock)
+        self._link = _Link(sock.fileno(), sock)  # (TCP_NODELAY and kernel receive stamps)
         self.connections += 1
 
     def _drop_link(self) -> None:
