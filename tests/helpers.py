@@ -45,6 +45,13 @@ class HexLinePipe(Transport):
             self.proc.stdin.write(line + "\n")
             self.proc.stdin.flush()
 
+    def command(self, line: str, timeout: float = 10.0) -> str:
+        """A line of the setup's own (REBOOT, CUT n, ...): its answer line as it is."""
+        self.send_line(line)
+        answer = self._lines.get(timeout=timeout)
+        assert answer is not None, f"{self.url}: board process ended"
+        return answer
+
     def exchange(self, data: bytes, timeout: float = 10.0) -> bytes:
         """Raw use without a reader thread: send bytes, return the board's output."""
         self.send_line(data.hex())

@@ -266,7 +266,7 @@ def test_the_walk_sees_every_kind_of_import() -> None:
 
 
 #: imported where the environment provides them (ROS installs), never installed by pip
-PROVIDED_BY_ROS = {"rclpy", "rospy", "genpy", "rosgraph", "roslib"}
+PROVIDED_BY_ROS = {"rclpy", "rcl_interfaces", "rospy", "genpy", "rosgraph", "roslib"}
 
 
 def test_every_imported_package_is_declared() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +16,7 @@ import pytest
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.host.board import Board
+from missing_link.host.config import ConfigRefused
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
@@ -184,3 +186,48 @@ def test_two_ctrl_c_between_frames_give_the_repl_back() -> None:
             assert s.next_line(10) == "BREAK"
     finally:
         s.close()
+
+
+def test_configuration_reaches_the_simulated_devices(sim: FirmwareSim) -> None:
+    """Run-time configuration on the real drivers under MicroPython: a new rate shows as the
+    SRF02's rangings at the device, a disabled ranger is not read at all, a new IMU range is
+    written to the chip's register, servo limits clamp the pulse; saved, it is applied at the
+    next boot."""
+    board = Board(open_transport(sim.url), timeout=5.0)
+
+    def per_s(expr: str, seconds: float = 2.0) -> float:
+        a = sim.ctl(f"result = {expr}")
+        time.sleep(seconds)
+        return float(sim.ctl(f"result = {expr}") - a) / seconds
+
+    sonar = "WORLD.i2c[(0, fw.drivers['sonar'].address)].rangings"
+    try:
+        board.handshake()
+        assert board.config()["sonar.rate_hz"] == 10.0
+        board.configure({"sonar.rate_hz": 2})
+        assert 1.0 <= per_s(sonar) <= 3.0
+        board.configure({"sonar.rate_hz": 10})
+        assert 8.0 <= per_s(sonar) <= 11.0
+        board.configure({"dist_ir.enabled": False})
+        time.sleep(0.1)
+        assert per_s("WORLD.adc_reads", 1.0) == 0  # not polled at all
+        board.configure({"dist_ir.enabled": True})
+        assert per_s("WORLD.adc_reads", 1.0) > 30  # 25 Hz x 3 reads
+        board.configure({"imu.accel_g": 8, "imu.dlpf": 5})
+        assert wait_for(lambda: sim.ctl("result = WORLD.i2c[(0, 0x68)].regs[0x1C]") == 2 << 3)
+        assert sim.ctl("result = WORLD.i2c[(0, 0x68)].regs[0x1A]") == 5
+        assert board.call("a2j_set_servo", struct.pack("<b", 127)).code == 0
+        board.configure({"servo.max_us": 1800})
+        assert sim.ctl("result = WORLD.pulse_us(15)") == 1800  # the held pulse, re-clamped
+        with pytest.raises(ConfigRefused, match="min_us < centre_us < max_us"):
+            board.configure({"servo.max_us": 1400})
+        board.configure({"sonar.rate_hz": 5, "imu.accel_g": 4}, save=True)
+        sim.ctl("reboot()")
+        after = board.config()
+        assert after["sonar.rate_hz"] == 5.0 and after["imu.accel_g"] == 4
+        assert after["servo.max_us"] == 1800 and board.settings.state & 3 == 3
+        board.reset_config(erase_saved=True)
+        sim.ctl("reboot()")
+        assert board.config()["sonar.rate_hz"] == 10.0
+    finally:
+        board.close()

@@ -12,10 +12,17 @@ import pytest
 
 from missing_link.errors import CallError
 from missing_link.host.board import Board
-from missing_link.j2a import Frame, FrameDecoder, FrameKind
+from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame
 
 from .helpers import HexLinePipe, read_blob_raw
-from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
+from .vectors import (
+    CONFIG_KEYS,
+    CONFIG_VECTORS,
+    ORIGINAL_TABLE,
+    PROPS_REPLY_HEAD,
+    PROPS_REQUEST,
+    VECTORS,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 MPY_PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pyscript"
@@ -105,3 +112,39 @@ def test_sample_sif_from_micropython(mpy_board: HexLinePipe) -> None:
     assert frame.opcode == 13 and frame.seq == 0  # cmd = transducer id, board SIF counter
     stamp, value = struct.unpack("<Qh", frame.payload)
     assert value == 1234 and stamp >= 0
+
+
+def test_run_time_configuration_golden_vectors_on_micropython() -> None:
+    """The configuration functions answer byte for byte as on CPython (tests/vectors.py), and
+    the key table is the same."""
+    pipe = _start("setup_config.py")
+    try:
+        blob = read_blob_raw(pipe.exchange, 11, len(CONFIG_KEYS))
+        assert blob == CONFIG_KEYS
+        for case, request, reply in CONFIG_VECTORS:
+            assert pipe.exchange(request) == reply, case
+    finally:
+        pipe.close()
+
+
+def test_a_power_cut_in_a_save_on_micropython_leaves_old_or_new() -> None:
+    """The record goes to a real file on MicroPython's filesystem, through a temporary file and
+    a rename: power lost after any part of the new record, or before the rename, and the board
+    boots with the old configuration; a save that completed is there after a reboot."""
+    pipe = _start("setup_config.py")
+    set_rate = lambda seq, hz: encode_frame(SOF, seq, 13, b"\x01\x01" + struct.pack("<f", hz))  # noqa: E731
+    get = encode_frame(SOF, 99, 12, b"")
+    try:
+        assert pipe.exchange(set_rate(1, 20.0)) == encode_frame(SOF, 1, 0, b"")  # saved: 20
+        for k, cut in enumerate(("CUT 0", "CUT 5", "CUT 17", "CUT 24", "CUTRENAME")):
+            pipe.command(cut)
+            assert pipe.command(set_rate(2 + k, 30.0).hex()) == "CUT", cut
+            pipe.command("REBOOT")
+            rate = struct.unpack_from("<f", pipe.exchange(get), 4 + 3 + 4)[0]
+            assert rate == 20.0, cut  # the old configuration, whole
+        assert pipe.exchange(set_rate(20, 40.0)) == encode_frame(SOF, 20, 0, b"")
+        pipe.command("REBOOT")
+        reply = pipe.exchange(get)
+        assert struct.unpack_from("<f", reply, 11)[0] == 40.0 and reply[6] & 3 == 3
+    finally:
+        pipe.close()

@@ -247,3 +247,60 @@ def test_run_help_names_ros2_where_rclpy_is() -> None:
     ).stdout
     listed = " ".join(out.split()).split("add a publisher (")[1].split(" here)")[0].split(", ")
     assert "ros2" in listed and "zenoh" in listed
+
+
+PARAMS = Path(__file__).with_name("ros2_param_client.py")
+
+
+def test_board_configuration_is_ros2_parameters_of_the_node(
+    thesis_board: str, tmp_path: Path
+) -> None:
+    """Every key of the board's run-time configuration is a parameter of /missing_link, named
+    <board>.<transducer>.<key>, with its range (read-only where the board says so); a stock
+    rclpy parameter client in its own process sets one, and the board changes (read back
+    through the daemon's control endpoint); a set the board refuses is an unsuccessful result
+    with the board's reason, and nothing changes."""
+    control = str(tmp_path / "control.sock")
+    env = ros_env(MISSING_LINK_CONTROL=control)
+    daemon = start_daemon(thesis_board, env)
+    try:
+        r = subprocess.run(
+            [
+                *(str(ROS2_PY), str(PARAMS), "--prefix", "thesis."),
+                *("--describe", "thesis.dist_ir.rate_hz", "--describe", "thesis.dist_us.groups"),
+                *("--set", "thesis.dist_ir.rate_hz=double:5.0"),
+                *("--set", "thesis.servo.min_deg=integer:60"),
+                *("--set", "thesis.servo.max_deg=integer:50"),  # below min_deg: refused
+                *("--set", "thesis.dist_ir.rate_hz=double:99.0"),  # outside the range
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+        )
+        assert r.returncode == 0, r.stderr[-3000:]
+        got = json.loads(r.stdout.strip().splitlines()[-1])
+        board = subprocess.run(
+            [sys.executable, "-m", "missing_link", "config", "thesis", "--json"],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+        )
+    finally:
+        err = stop(daemon)
+    assert "thesis.servo.enabled" in got["names"], err[-3000:]
+    d = got["descriptors"]
+    assert d["thesis.dist_ir.rate_hz"]["float_range"] == [[0.1, 26.0]]
+    assert d["thesis.dist_us.groups"]["read_only"] is True
+    ok, refused_combo, ok2, out_of_range = got["results"]
+    assert ok["successful"], ok
+    assert refused_combo["successful"], refused_combo  # 60 < max_deg 90: fine on its own
+    assert not ok2["successful"] and "min_deg < max_deg" in ok2["reason"], ok2  # 60 vs 50
+    assert not out_of_range["successful"], out_of_range
+    assert got["values"]["thesis.dist_ir.rate_hz"] == 5.0
+    assert got["values"]["thesis.servo.max_deg"] == 90  # the refused set changed nothing
+    assert board.returncode == 0, board.stderr + err[-2000:]
+    values = json.loads(board.stdout)["values"]
+    assert values["dist_ir.rate_hz"] == 5.0 and values["servo.min_deg"] == 60
+    assert values["servo.max_deg"] == 90

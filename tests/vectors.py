@@ -62,3 +62,37 @@ ORIGINAL_ERROR_PATHS = [
 # a2jMany read of bigBlob ((i * 7 + 3) & 0xFF, 1000 bytes) at offset 300: the data of offset 44,
 # with the offset 300 echoed (the offset bug)
 ORIGINAL_OFFSET_300 = (h("12 09 01 06 08 00 2c 01 00 00 47"), h("12 09 00 ff 00 00 2c 01 00 00"))
+
+# The run-time configuration (docs/configuration.md): the board of tests/micropython/
+# setup_config.py (one transducer "signal" with rate_hz, an enum, a read-only key and a
+# combination its driver refuses), function indices 11..14 after the Part 2 built-ins.
+CONFIG_KEYS = (
+    b"config/1\nsignal.enabled;bool;1;;\nsignal.rate_hz;float;100;0.1..1000;\n"
+    b"signal.mode;enum;fast;fast|slow;\nsignal.gain;int;2;1..8;ro\n"
+)
+# (case, request, reply), in this order on one board (each changes what the next sees)
+CONFIG_VECTORS = [
+    ("get from key 0: 4 keys, state 0, [1, 100.0f, 0 (fast), 2]",
+     h("12 01 0c 01 00 74"),
+     h("12 01 00 13 00 04 00 01 00 00 00 00 00 c8 42 00 00 00 00 02 00 00 00 f3")),
+    ("set rate_hz (key 1) = 10.0f", h("12 02 0d 06 00 01 00 00 20 41 1d"), h("12 02 00 00 68")),
+    ("set rate_hz = 2000.0f: outside its limits, nothing changes",
+     h("12 03 0d 06 00 01 00 00 fa 44 c3"),
+     h("12 03 ff 22") + b"signal.rate_hz: expected 0.1..1000" + h("ff")),
+    ("set mode (key 2) = slow (1)", h("12 04 0d 06 00 02 01 00 00 00 78"), h("12 04 00 00 6e")),
+    ("set rate_hz = 50.0f: the driver refuses the combination",
+     h("12 05 0d 06 00 01 00 00 48 42 71"),
+     h("12 05 ff 22") + b"signal: slow mode goes up to 10 Hz" + h("bf")),
+    ("set gain (key 3): read-only",
+     h("12 06 0d 06 00 03 04 00 00 00 7e"),
+     h("12 06 ff 16") + b"signal.gain: read-only" + h("7b")),
+    ("set enabled (key 0) = 0, and save (flags 1)",
+     h("12 07 0d 06 01 00 00 00 00 00 79"), h("12 07 00 00 6d")),
+    ("get (empty = from 0): state 1 (saved), [0, 10.0f, 1 (slow), 2]",
+     h("12 08 0c 00 7e"),
+     h("12 08 00 13 00 04 01 00 00 00 00 00 00 20 41 01 00 00 00 02 00 00 00 10")),
+    ("reset, erasing the saved record (flags 1)", h("12 09 0e 01 01 73"), h("12 09 00 00 63")),
+    ("get: the defaults, nothing saved",
+     h("12 0a 0c 00 7c"),
+     h("12 0a 00 13 00 04 00 01 00 00 00 00 00 c8 42 00 00 00 00 02 00 00 00 f8")),
+]  # fmt: skip

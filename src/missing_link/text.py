@@ -22,6 +22,13 @@ def clean(text: str) -> str:
     return "".join(c for c in text if c == " " or unicodedata.category(c) not in _UNSAFE)
 
 
+def safe_text(text: str, limit: int = 200) -> str:
+    """``clean(text)``, at most ``limit`` characters (``...`` marks a cut): for text from a
+    board or a network client on its way to a log or a terminal."""
+    text = clean(text)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def is_token(name: str) -> bool:
     """A ROS name token as used for board and transducer names: ``[a-z][a-z0-9_]*``."""
     return bool(_TOKEN_RE.match(name))

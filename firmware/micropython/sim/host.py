@@ -1,7 +1,8 @@
 # The simulator's side inside MicroPython: the firmware from the board file on a link whose bytes
 # the node host moves, with the world's devices created from the same board file.
 # _feed(hex) hands received bytes to the link, _tick() runs one firmware step and returns the
-# bytes to send (hex), _ctl(src) runs test code against WORLD and returns repr() of `result`.
+# bytes to send (hex), _ctl(src) runs test code against WORLD and returns repr() of `result`
+# (reboot() restarts the firmware on the same filesystem and devices).
 
 import machine
 from board import BOARD
@@ -77,8 +78,16 @@ def _due_us():
     return -1 if due is None else max(0, due - rt.clock())
 
 
+def reboot():
+    # The board restarts: its firmware is built again from the board file, on the same
+    # filesystem (a configuration saved there is applied) and the same simulated devices.
+    global fw, rt
+    fw = Firmware(BOARD, machine, link)
+    rt = fw.runtime
+
+
 def _ctl(src):
-    env = {"WORLD": WORLD, "fw": fw, "rt": rt, "machine": machine, "result": None}
+    env = {"WORLD": WORLD, "fw": fw, "rt": rt, "machine": machine, "reboot": reboot, "result": None}
     exec(src, env)
     return repr(env["result"])
 

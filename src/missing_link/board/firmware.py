@@ -6,7 +6,9 @@
 # `missing-link flash` and `gen-firmware`) names the board, its link, its buses and its
 # transducers, each with a driver from mlboard.drivers and that driver's pins and options.
 # build() turns it into a BoardRuntime: one Transducer per entry, its descriptor fields from the
-# driver's defaults overridden by the entry, actuators registered as J2A functions.
+# driver's defaults overridden by the entry, actuators registered as J2A functions (refused while
+# their transducer is disabled), and the run-time configuration (config.py) with its keys and
+# the record saved in `config_file` (default mlconfig.bin), applied at boot.
 #
 # Firmware.step() is one turn of the board's loop: read what the link has, feed it to the runtime
 # (which answers requests at once), let the drivers run (poll), write replies then SIFs.
@@ -19,6 +21,7 @@
 # before they take over, so `mpremote` and `missing-link flash` work on a running board.
 
 from .clock import resolution_us
+from .config import FileStore, RuntimeConfig
 from .drivers import driver_class
 from .runtime import BoardRuntime, Transducer
 
@@ -78,8 +81,9 @@ def describe(entry, cls):
     )
 
 
-def build(board, machine, clock=None):
-    # -> (runtime, {transducer name: driver})
+def build(board, machine, clock=None, store=None):
+    # -> (runtime, {transducer name: driver}); store: where the configuration is saved
+    # (default: the file named by the board file's `config_file`)
     name = board["name"]
     rt = BoardRuntime(
         name,
@@ -104,16 +108,19 @@ def build(board, machine, clock=None):
         drv = cls(machine, rt.clock, **params)
         t = describe(entry, cls)
         if hasattr(drv, "command"):
-            rt.add_function(t.options["call"], drv.command)
+            rt.add_function(t.options["call"], rt.gated(t, drv.command))
         rt.add_transducer(t, drv)
         drivers[entry["name"]] = drv
+    if store is None:
+        store = FileStore(board.get("config_file", "mlconfig.bin"))
+    rt.config = RuntimeConfig(rt, store)
     return rt, drivers
 
 
 class Firmware:
-    def __init__(self, board, machine, link, clock=None):
+    def __init__(self, board, machine, link, clock=None, store=None):
         self.board = board
-        self.runtime, self.drivers = build(board, machine, clock)
+        self.runtime, self.drivers = build(board, machine, clock, store)
         self.link = link
         self._breaks = 0
 

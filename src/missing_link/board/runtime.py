@@ -27,7 +27,7 @@
 import struct
 
 from .clock import default_clock, new_epoch
-from .dtypes import DTYPES, SIF_MAX_PAYLOAD, sif_size
+from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
     EV_CHECKSUM,
     EV_CUT,
@@ -59,80 +59,6 @@ DIAG_SILENCE = 2
 DIAG_CHECKSUM = 3
 DIAG_ESCAPE = 4
 DIAG_INDEX = 5
-
-
-class Transducer:
-    # One sensor or actuator, as described in spec 2.2 (the thesis's transds.def fields).
-    def __init__(self, name, tid, prefix, model, chan_count, dtype, na, **options):
-        if dtype not in DTYPES:
-            raise ValueError("transducer %s: unknown data type %s" % (name, dtype))
-        if not (0 <= tid <= 239):
-            raise ValueError("transducer %s: id %d outside 0..239" % (name, tid))
-        if not (1 <= chan_count <= 255):
-            raise ValueError("transducer %s: chan_count %d outside 1..255" % (name, chan_count))
-        if sif_size(dtype, chan_count) > SIF_MAX_PAYLOAD:
-            raise ValueError(
-                "transducer %s: %d channels of %s need %d bytes, one SIF carries 255"
-                % (name, chan_count, dtype, sif_size(dtype, chan_count))
-            )
-        self.name = name
-        self.tid = tid
-        self.prefix = prefix
-        self.model = model
-        self.chan_count = chan_count
-        self.dtype = dtype
-        self.na = na
-        self.options = options
-        code, _size, lo, hi = DTYPES[dtype]
-        self._lo = lo
-        self._hi = hi
-        self._float = lo is None
-        self._fmt = "<" + ("Q" + code) * chan_count
-        self._pending = [None] * chan_count  # (stamp_us, value) per channel, None = no new value
-        self._dirty = False
-        self.values_dropped = 0  # illegal values replaced by N/A
-
-    def descriptor_line(self):
-        fields = [
-            self.name,
-            str(self.tid),
-            self.prefix,
-            self.model,
-            str(self.chan_count),
-            self.dtype,
-            _fmt_value(self.na),
-        ]
-        for key in self.options:
-            fields.append("%s=%s" % (key, self.options[key]))
-        return ",".join(fields)
-
-    def legal(self, value):
-        if self._float:
-            return value == value  # NaN is not a measurement
-        return self._lo <= value <= self._hi
-
-    def encode_sif(self, now_us):
-        # Payload per spec 1.10: [t0 v0 t1 v1 ...]; channels without a new value carry N/A,
-        # stamped with the moment the SIF was assembled.
-        args = []
-        pending = self._pending
-        for ch in range(self.chan_count):
-            item = pending[ch]
-            if item is None:
-                args.append(now_us)
-                args.append(self.na)
-            else:
-                args.append(item[0])
-                args.append(item[1])
-                pending[ch] = None
-        self._dirty = False
-        return struct.pack(self._fmt, *args)
-
-
-def _fmt_value(v):
-    if isinstance(v, bool):
-        return "1" if v else "0"
-    return str(v)
 
 
 def read_blob(blob, offset):
@@ -170,6 +96,7 @@ class BoardRuntime:
         self._request_us = 0
         self._clock_op = -1
         self.host_map = None  # (board µs, host ns, host ns per board µs in ppb) from the host
+        self.config = None  # the run-time configuration (config.py), when the board has one
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -238,12 +165,24 @@ class BoardRuntime:
         self.transducers.append(transducer)
         if driver is not None:
             self.drivers.append(driver)
+            transducer.driver = driver
+            transducer._poll = getattr(driver, "poll", None)
+            transducer._due = getattr(driver, "next_due_us", None)
             if hasattr(driver, "set_cb"):
 
                 def cb(channel, value, stamp_us=None, _t=transducer):
                     self.record(_t, channel, value, stamp_us)
 
                 driver.set_cb(cb)
+
+    def gated(self, transducer, handler):
+        # An actuator's command function that refuses while its transducer is disabled.
+        def call(payload):
+            if not transducer.enabled:
+                return 0xFF, ("%s is disabled" % transducer.name).encode()
+            return handler(payload)
+
+        return call
 
     def debug(self, text):
         self._debug.extend(text.encode())
@@ -254,6 +193,8 @@ class BoardRuntime:
     def record(self, transducer, channel, value, stamp_us=None):
         # Called by drivers (through set_cb): stamp now, or at stamp_us when the driver took the
         # stamp closer to the measurement (in an interrupt, at an echo); keep until poll().
+        if not transducer.enabled:
+            return
         now = self.clock() if stamp_us is None else stamp_us
         if not (0 <= channel < transducer.chan_count):
             self.debug("%s: no channel %d;" % (transducer.name, channel))
@@ -286,9 +227,9 @@ class BoardRuntime:
 
     def poll(self):
         now = self.clock()
-        for d in self.drivers:
-            if hasattr(d, "poll"):
-                d.poll(now)
+        for t in self.transducers:
+            if t._poll is not None and t.enabled:
+                t._poll(now)
         for t in self.transducers:
             if t._dirty:
                 self._queue_sif(t, now)
@@ -300,9 +241,9 @@ class BoardRuntime:
     def next_deadline_us(self):
         # Board time by which poll() should run again (None: only on input).
         due = None
-        for d in self.drivers:
-            if hasattr(d, "next_due_us"):
-                t = d.next_due_us()
+        for tr in self.transducers:
+            if tr._due is not None and tr.enabled:
+                t = tr._due()
                 if t is not None and (due is None or t < due):
                     due = t
         if self.parser.in_frame():

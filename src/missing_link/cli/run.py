@@ -71,6 +71,10 @@ def build_config(args: argparse.Namespace) -> Any:
         if args.any_usb:
             spec.any_usb, spec.vid, spec.pid = True, None, None
         cfg.discover = spec
+    if cfg.control is None:  # (config/call/info reach the boards through it: docs/cli.md)
+        from ..daemon.control import default_control_path
+
+        cfg.control = default_control_path()
     if not cfg.boards and cfg.discover is None:
         raise BadURL(
             "no boards: give URLs on the command line, [[board]] tables or [discover] in "
@@ -108,6 +112,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             url = getattr(p, "url", None)
             if url:
                 print(f"missing-link: {p.name} at {url}", file=sys.stderr)
+        if daemon.control is not None:
+            print(f"missing-link: control endpoint {daemon.control.path}", file=sys.stderr)
         if args.wait_up and not daemon.wait_until_up(args.wait_up):
             for s in daemon.sessions:
                 if s.state != "up":

@@ -1,4 +1,5 @@
-"""``info``, ``call``, ``listen``, ``sync``: one board, talked to directly."""
+"""``info``, ``call``, ``listen``, ``sync``: one board, talked to directly (``info`` and ``call``
+through the daemon that holds it, when one does: remote.py)."""
 
 from __future__ import annotations
 
@@ -24,31 +25,21 @@ from .common import (
     positive,
     with_url,
 )
-
-
-def info_dict(board: Board) -> dict[str, Any]:
-    return {
-        "url": board.url,
-        "original": board.is_original,
-        "functions": [{"index": i, "name": n} for i, n in enumerate(board.functions)],
-        "properties": dict(board.properties),
-        "transducers": None
-        if board.transducers is None
-        else [t.to_json() for t in board.transducers],
-    }
+from .remote import RemoteBoard, reach
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    with open_url(args) as board:
+    with reach(args.url, args.timeout) as board:
         if args.json:
-            emit_json(info_dict(board))
+            emit_json(board.describe())
             return 0
         kind = (
             "original (Part 1) board"
             if board.is_original
             else f"J2A {board.properties['j2a.version']} board"
         )
-        print(f"{board.name} at {board.url}: {kind}")
+        via = " (through the daemon that holds it)" if isinstance(board, RemoteBoard) else ""
+        print(f"{board.name} at {board.url}: {kind}{via}")
         print("functions:")
         for i, name in enumerate(board.functions):
             print(f"  {i:3d}  {name}")
@@ -85,7 +76,7 @@ def cmd_call(args: argparse.Namespace) -> int:
     if args.value is not None and args.hex:
         print("missing-link: error: give --hex or --value, not both", file=sys.stderr)
         return EXIT_USAGE
-    with open_url(args) as board:
+    with reach(args.url, args.timeout) as board:
         payload = args.hex if args.value is None else value_payload(board, args.name, args.value)
         result = board.call(args.name, payload, timeout=args.timeout)
     if args.json:
@@ -116,7 +107,7 @@ def cmd_call(args: argparse.Namespace) -> int:
     return 0
 
 
-def value_payload(board: Board, function: str, text: str) -> bytes:
+def value_payload(board: Board | RemoteBoard, function: str, text: str) -> bytes:
     """``--value``: one value packed as the data type of the actuator whose ``call=`` is
     ``function`` (the same bytes ``send(topic, value)`` makes), checked against it."""
     for t in board.transducers or []:

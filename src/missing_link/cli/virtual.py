@@ -16,6 +16,10 @@ def cmd_board(args: argparse.Namespace) -> int:
 
     try:
         extra: dict[str, Any] = {"name": args.name} if args.name else {}
+        if args.config_file:
+            if args.sim not in ("thesis", "encoder_servo", "rangers", "rate"):
+                raise ValueError(f"--config-file: the {args.sim} board has no configuration")
+            extra["config_file"] = args.config_file
         if args.rate or args.channels:
             if args.sim != "rate":
                 raise ValueError("--rate and --channels go with --sim rate")
@@ -150,6 +154,11 @@ def add_parsers(sub: Any) -> None:
         type=int,
         default=1,
         help="serve N boards from this process (NAME_0 .. NAME_N-1, tcp only; benchmarks)",
+    )
+    sp.add_argument(
+        "--config-file",
+        help="where the board keeps a saved configuration (its flash; default: none, a save "
+        "is refused) and reads it back at every boot",
     )
     sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
     sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")

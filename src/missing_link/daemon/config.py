@@ -6,6 +6,7 @@ See ``examples/missing-link.toml`` for a complete, commented example.
 from __future__ import annotations
 
 import fnmatch
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -137,6 +138,12 @@ class Config:
     probe_budget: float = 100.0
     #: find boards as their serial ports appear ([discover]; ``run --auto``)
     discover: DiscoverSpec | None = None
+    #: run-time configuration per board name ([boards.<name>.config]): applied at every
+    #: connect and after every board reset (docs/configuration.md)
+    board_config: dict[str, dict[str, bool | int | float | str]] = field(default_factory=dict)
+    #: the local control endpoint (a unix socket) through which ``missing-link config``,
+    #: ``call`` and ``info`` reach the boards this daemon holds; "" = none (docs/cli.md)
+    control: str | None = None
     source: str = "<defaults>"
 
 
@@ -149,6 +156,7 @@ _DAEMON_KEYS = {
     "backoff_max": (int, float),
     "diagnostics_period": (int, float),
     "probe_budget": (int, float),
+    "control": str,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -199,7 +207,8 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
                 if not lo <= value <= hi:
                     raise fail(f"{where}.{key}", f"{value!r} is outside {lo:g}..{hi:g}")
 
-    known_tables = {"daemon", "board", "remap", "discover"}
+    known_tables = {"daemon", "board", "boards", "remap", "discover"}
+    cfg.board_config = _parse_boards(doc.get("boards", {}), fail)
     if "discover" in doc:
         cfg.discover = _parse_discover(doc["discover"], fail)
     daemon = doc.get("daemon", {})
@@ -208,6 +217,8 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
     check(daemon, _DAEMON_KEYS, "daemon")
     for key, value in daemon.items():
         setattr(cfg, key, float(value) if isinstance(value, int) else value)  # 1 -> 1.0 (seconds)
+    if cfg.control and not cfg.control.startswith("/"):
+        raise fail("daemon.control", f'{cfg.control!r}: an absolute path of a socket, or ""')
     if cfg.backoff_max < cfg.backoff_min:
         raise fail("daemon.backoff_max", f"{cfg.backoff_max:g} is below backoff_min")
     if cfg.distro not in DISTROS:
@@ -253,6 +264,33 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
             raise fail(table, "must be a table of publisher options")
         cfg.publisher_options[table] = dict(value)
     return cfg
+
+
+_CONFIG_KEY = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
+
+
+def _parse_boards(table: Any, fail: Any) -> dict[str, dict[str, bool | int | float | str]]:
+    """``[boards.<name>.config]``: keys ``"<transducer>.<key>" = value`` per board name (checked
+    against the board's own table when it connects)."""
+    if not isinstance(table, dict):
+        raise fail("boards", "must be tables like [boards.thesis.config]")
+    out: dict[str, dict[str, bool | int | float | str]] = {}
+    for name, sub in table.items():
+        where = f"boards.{name}"
+        if not is_token(name):
+            raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
+        if not isinstance(sub, dict) or set(sub) - {"config"}:
+            raise fail(where, "has one table: config ([boards.NAME.config])")
+        values = sub.get("config", {})
+        if not isinstance(values, dict):
+            raise fail(f"{where}.config", 'must be a table of "transducer.key" = value')
+        for key, value in values.items():
+            if not _CONFIG_KEY.match(key):
+                raise fail(f"{where}.config.{key}", 'keys are "<transducer>.<key>", quoted')
+            if not isinstance(value, (bool, int, float, str)):
+                raise fail(f"{where}.config.{key}", f"expected a value, got {value!r}")
+        out[name] = dict(values)
+    return out
 
 
 def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:

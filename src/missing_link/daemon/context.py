@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..descriptors import Transducer
+from ..host.config import ConfigKey, Value
 from ..host.reactor import Reactor
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
@@ -43,3 +44,9 @@ class SessionContext:
     probe_gap: Callable[[], float]  #: s between a tracking board's clock probes (the budget)
     #: (topic, record): one clock exchange of the board, for recordings (``ros/clock.py``)
     record_clock: Callable[[str, ClockRecord], None] = lambda topic, record: None
+    #: (board, keys, values, apply): a board's run-time configuration, offered on every face
+    offer_config: Callable[[str, list[ConfigKey], dict[str, Value], Any], None] = (
+        lambda board, keys, values, apply: None
+    )
+    #: (board, values): its configuration changed (the faces follow)
+    config_changed: Callable[[str, dict[str, Value]], None] = lambda board, values: None

@@ -35,11 +35,14 @@ import logging
 import struct
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from ..descriptors import load_descriptor_file
 from ..errors import BadURL, BoardError, ConfigError, MissingLinkError, without_prefix
+from ..host.board import Board
+from ..host.config import ConfigKey, Value, describe_keys
+from ..host.link import CallResult
 from ..host.reactor import Reactor
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
@@ -51,6 +54,7 @@ from ..transport import check_url
 from .claims import Claims
 from .config import BoardSpec, Config
 from .context import CommandHandler, SessionContext
+from .control import ControlServer
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .session import UP, BoardSession
 
@@ -106,6 +110,7 @@ class Daemon:
         self.publish_errors = 0
         self._sessions_lock = threading.Lock()  # add/remove replace the list (copy on write)
         self.discovery: DiscoveryService | None = None
+        self.control: ControlServer | None = None  #: the local control endpoint, when on
         if config.discover is not None:
             ports = enumerate_ports or all_ports
             self.discovery = DiscoveryService(
@@ -130,6 +135,12 @@ class Daemon:
         self._diag_thread.start()
         if self.discovery is not None:
             self.discovery.start()
+        if self.config.control:
+            try:
+                self.control = ControlServer(self.config.control, self.control_handlers())
+            except MissingLinkError as e:  # another daemon has it: this one runs without
+                log.warning("%s; missing-link config/call/info reach this daemon's boards "
+                            "only by another endpoint ([daemon] control)", e)  # fmt: skip
         return self
 
     @property
@@ -180,6 +191,8 @@ class Daemon:
         if self._diag_thread.is_alive():
             self._diag_thread.join(max(0.05, deadline - time.monotonic()))
         self.reactor.stop(max(0.05, deadline - time.monotonic()))
+        if self.control is not None:
+            self.control.close()
         for p in self.publishers:
             try:
                 p.close()
@@ -240,6 +253,96 @@ class Daemon:
             ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
         return ticks
 
+    # ---- one board, by name or URL (the control endpoint, ROS 2 parameters, applications) ------
+    def session(self, board: str) -> BoardSession:
+        """The session of the board named ``board`` (its topic name) or at URL ``board``."""
+        sessions = self.sessions
+        for s in sessions:
+            if board in (s.name, s.spec.url):
+                return s
+        for s in sessions:  # the same device with other options (?baud=...)
+            if "://" in board and board.split("?")[0] == s.spec.url.split("?")[0]:
+                return s
+        known = ", ".join(f"{s.name} ({s.spec.url})" for s in sessions) or "none"
+        raise BoardError(board, f"no such board in this daemon (boards: {known})")
+
+    def _up(self, board: str) -> tuple[BoardSession, Board]:
+        s = self.session(board)
+        b = s.board
+        if s.state != UP or b is None:
+            raise BoardError(s.name, f"not up ({s.state}{': ' + s.error if s.error else ''})")
+        return s, b
+
+    def call(
+        self, board: str, function: str, payload: bytes = b"", timeout: float | None = None
+    ) -> CallResult:
+        """Call a function of a board this daemon holds (by name or URL), through its link."""
+        return self._up(board)[1].call(function, payload, timeout)
+
+    def board_config(self, board: str) -> dict[str, Value]:
+        """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""
+        return self._up(board)[0].settings.read()
+
+    def configure(
+        self, board: str, values: Mapping[str, object], save: bool = False, *, by: str = "api"
+    ) -> dict[str, Value]:
+        """Set keys of a board's run-time configuration, all or none (``save``: keep them on
+        the board); every face hears the new values.  Returns the configuration after it."""
+        return self._up(board)[0].settings.configure(values, save, by=by)
+
+    def reset_config(self, board: str, erase_saved: bool = False) -> dict[str, Value]:
+        return self._up(board)[0].settings.reset(erase_saved)
+
+    def control_handlers(self) -> dict[str, Any]:
+        """What the control endpoint (control.py) serves: board name or URL in, JSON out."""
+
+        def find(r: dict[str, Any]) -> dict[str, Any]:
+            s = self.session(str(r["board"]))
+            return {"name": s.name, "url": s.spec.url, "state": s.state}
+
+        def info(r: dict[str, Any]) -> dict[str, Any]:
+            b = self._up(str(r["board"]))[1]
+            return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
+
+        def call(r: dict[str, Any]) -> dict[str, Any]:
+            payload = bytes.fromhex(str(r.get("payload", "")))
+            timeout = float(r["timeout"]) if r.get("timeout") is not None else None
+            got = self.call(str(r["board"]), str(r["function"]), payload, timeout)
+            return {"code": got.code, "payload": got.payload.hex()}
+
+        def config(r: dict[str, Any]) -> dict[str, Any]:
+            s, b = self._up(str(r["board"]))
+            settings = s.settings
+            if r.get("reset"):
+                settings.reset(bool(r.get("erase")), by="control")
+            if r.get("set") or r.get("save"):
+                wanted = r.get("set") or {}
+                if not isinstance(wanted, dict):
+                    raise ConfigError("config: set must be an object of key: value")
+                settings.configure(wanted, bool(r.get("save")), by="control")
+            values = settings.read()
+            keys = describe_keys(b.settings.keys(), values)
+            return {"values": values, "keys": keys, "state": b.settings.state}
+
+        return {"find": find, "info": info, "call": call, "config": config}
+
+    def _offer_config(self, board: str, keys: list[ConfigKey], values: dict[str, Value],
+                      apply: Any) -> None:  # fmt: skip
+        for p in self.publishers:
+            try:
+                p.add_config(board, keys, values, apply)
+            except Exception:  # (as _declare)
+                self.publish_errors += 1
+                log.exception("publisher %s cannot offer %s's configuration", p.name, board)
+
+    def _config_changed(self, board: str, values: dict[str, Value]) -> None:
+        for p in self.publishers:
+            try:
+                p.config_changed(board, values)
+            except Exception:
+                self.publish_errors += 1
+                log.exception("publisher %s failed on %s's configuration", p.name, board)
+
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -282,6 +385,8 @@ class Daemon:
             remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
             record_clock=self._record_clock,
+            offer_config=self._offer_config,
+            config_changed=self._config_changed,
         )
 
     def _declare(self, topic: Topic) -> None:

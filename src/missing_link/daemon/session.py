@@ -64,6 +64,7 @@ from .config import BoardSpec
 from .context import SessionContext
 from .prober import ClockProber, ProbeContext
 from .sample_path import SamplePath
+from .settings import BoardSettings, SettingsContext
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +104,16 @@ class BoardSession:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self.actuators = Actuators(self._wake.set, self._set_error)
+        self.settings = BoardSettings(
+            SettingsContext(
+                name=lambda: self.name,
+                wanted=lambda: ctx.config.board_config.get(self.name, {}),
+                warn=self.warn,
+                on_keys=ctx.offer_config,
+                on_change=ctx.config_changed,
+            )
+        )
+        self._resets_seen = 0
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
         )
@@ -244,6 +255,11 @@ class BoardSession:
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
         board.on_sif(None, self.path.on_sif)
+        try:  # a board whose configuration cannot be read still publishes
+            self.settings.on_connect(board)
+        except MissingLinkError as e:
+            self.warn(f"run-time configuration unreadable: {e}")
+        self._resets_seen = self.sync.resets if self.sync is not None else 0
         self.connects += 1
         self.error = ""
         self.state = UP
@@ -276,6 +292,10 @@ class BoardSession:
             self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
             self.actuators.run(board, self._stop.is_set)
+            sync = self.sync
+            if sync is not None and sync.resets != self._resets_seen:
+                self._resets_seen = sync.resets  # the board restarted: the file's keys again
+                self.settings.on_reset()
             now = time.monotonic()
             silent = now - board.last_frame
             if silent > link_timeout:
@@ -418,6 +438,7 @@ class BoardSession:
             "warnings": "; ".join(self.warnings),
             "clock_epoch": self.epoch,
             "map_pushes": self.map_pushes,
+            **self.settings.status(),
             **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
         }
 

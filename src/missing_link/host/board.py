@@ -13,8 +13,9 @@ from __future__ import annotations
 import logging
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future
+from typing import Any
 
 from ..descriptors import Transducer, parse_transds
 from ..errors import (
@@ -29,6 +30,7 @@ from ..j2a import BlobError, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
+from .config import BoardConfig, Value
 from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
 from .reactor import Reactor
 
@@ -65,6 +67,7 @@ class Board(BoardLink):
         self.properties: dict[str, str] = {}
         self.transducers: list[Transducer] | None = None
         self.transds_text: str | None = None
+        self._settings: BoardConfig | None = None
         super().__init__(transport, timeout=timeout, window=window, reactor=reactor)
 
     # ---- opening ---------------------------------------------------------------------------
@@ -349,6 +352,43 @@ class Board(BoardLink):
         except ValueError as e:  # a blob the board cannot take (the connection says why)
             raise CallError(self.name, name, str(e)) from None
         return self._wait(fut, None)
+
+    def describe(self) -> dict[str, Any]:
+        """What ``missing-link info --json`` shows: functions, properties, transducers."""
+        return {
+            "name": self.name,
+            "url": self.url,
+            "original": self.is_original,
+            "functions": [{"index": i, "name": n} for i, n in enumerate(self.functions)],
+            "properties": dict(self.properties),
+            "transducers": None
+            if self.transducers is None
+            else [t.to_json() for t in self.transducers],
+            "configurable": self.settings.available,
+        }
+
+    # ---- run-time configuration (host/config.py) ---------------------------------------------
+    @property
+    def settings(self) -> BoardConfig:
+        """The board's run-time configuration functions (keys, limits, state)."""
+        if self._settings is None:
+            self._settings = BoardConfig(self)
+        return self._settings
+
+    def config(self) -> dict[str, Value]:
+        """Every ``<transducer>.<key>`` and its value now (NotConfigurable for a board without
+        run-time configuration, e.g. the 2014 firmware)."""
+        return self.settings.read()
+
+    def configure(self, values: Mapping[str, object], save: bool = False) -> dict[str, Value]:
+        """Set several keys at once, all or none; ``save`` keeps them on the board across
+        resets.  ConfigError (nothing sent) for an unknown key or a value it does not allow;
+        ConfigRefused when the board refuses.  Returns the configuration after it."""
+        return self.settings.configure(values, save)
+
+    def reset_config(self, erase_saved: bool = False) -> dict[str, Value]:
+        """The board file's defaults again (``erase_saved``: forget the saved ones too)."""
+        return self.settings.reset(erase_saved)
 
     def __enter__(self) -> Board:
         return self

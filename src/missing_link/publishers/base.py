@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
+from ..host.config import ConfigKey, Value
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 
@@ -28,6 +29,21 @@ class Publisher:
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         """Per-board status, about once a second (also published on /diagnostics)."""
+
+    def add_config(
+        self,
+        board: str,
+        keys: list[ConfigKey],
+        values: dict[str, Value],
+        apply: Callable[[dict[str, object]], dict[str, Value]],
+    ) -> None:
+        """A board's run-time configuration (host/config.py), offered where a face has such a
+        thing (ROS 2 parameters): ``apply(values)`` changes keys, all or none, raising
+        ConfigError (the value) or MissingLinkError (the board) with the reason.  Default:
+        nothing."""
+
+    def config_changed(self, board: str, values: dict[str, Value]) -> None:
+        """A board's configuration changed (through any face): follow it.  Default: nothing."""
 
     def clock_record(self, topic: str, record: ClockRecord) -> None:
         """One clock exchange of a board and the map after it (``ros/clock.py``), a few per

@@ -20,6 +20,8 @@ of its message class, and every update is published as the CDR bytes the daemon 
   (the board changed since the build) is refused, never sent wrong.
 * Actuators: ``/<board>/<name>/cmd`` is subscribed with the thesis type (raw CDR, decoded with
   rosbags) and goes through the daemon's latest-wins path.
+* Boards' run-time configuration: every key is a parameter ``<board>.<transducer>.<key>`` of
+  the node, with its range (``ros2_params.py``); a refused set is an unsuccessful result.
 * QoS: reliable, volatile, keep last ``depth`` (10): a default subscriber and a sensor-data
   (best-effort) subscriber both match.  An actuator's state topics are transient local, keep
   last 1: a late subscriber that asks for transient local gets the current state (the board
@@ -37,10 +39,12 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from ..host.config import ConfigKey, Value
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..ros.msgs import ROS_TYPES
 from ..topics import Topic, Update
 from .base import PublisherError
+from .ros2_params import RosParameters
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
@@ -114,6 +118,7 @@ class Ros2Publisher(RosPublisher):
         except Exception:
             rclpy.shutdown(context=self.context)
             raise
+        self.params = RosParameters(self.node)  # boards' run-time configuration
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._pubs: dict[str, Any] = {}
@@ -206,6 +211,21 @@ class Ros2Publisher(RosPublisher):
             self._subs[name] = self.node.create_subscription(
                 cls, name, on_command, self.qos, raw=True
             )
+
+    def add_config(
+        self,
+        board: str,
+        keys: list[ConfigKey],
+        values: dict[str, Value],
+        apply: Callable[[dict[str, object]], dict[str, Value]],
+    ) -> None:
+        with self._lock:
+            if not self._closed:
+                self.params.add_board(board, keys, values, apply)
+
+    def config_changed(self, board: str, values: dict[str, Value]) -> None:
+        if not self._closed:
+            self.params.follow(board, values)
 
     def publish(self, update: Update) -> None:
         pub = self._pubs.get(update.topic.name)

@@ -20,9 +20,11 @@ def rng_for(seed: int, name: str) -> random.Random:
 
 
 class _Driver:
-    """Common driver plumbing: a callback, a period and the next due time (board µs)."""
+    """Common driver plumbing: a callback, a period and the next due time (board µs); the rate
+    is a run-time key (``rate_hz``, board/config.py) where the class lists it in CONFIG."""
 
     period_us = 10_000
+    CONFIG: tuple[tuple[str, str, tuple[float, float] | None, bool], ...] = ()
 
     def __init__(self, rng: random.Random) -> None:
         self.rng = rng
@@ -38,6 +40,18 @@ class _Driver:
 
     def next_due_us(self) -> int | None:
         return self._due
+
+    def get_config(self, key: str) -> float:
+        if key != "rate_hz":
+            raise ValueError(f"no key {key}")
+        return round(1e6 / self.period_us, 3)
+
+    def set_config(self, key: str, value: float) -> None:
+        if key != "rate_hz":
+            raise ValueError(f"no key {key}")
+        old, self.period_us = self.period_us, max(1, round(1e6 / value))
+        if self._due is not None:  # the next sample one new period after the last at most
+            self._due = min(self._due, self._due - old + self.period_us)
 
     def poll(self, now: int) -> None:
         if self._due is None:
@@ -93,6 +107,7 @@ class SharpIR(_Driver):
     Out-of-range readings are not a number: they become N/A."""
 
     period_us = 40_000
+    CONFIG = (("rate_hz", "float", (0.1, 26.0), False),)  # the sensor updates every 38 ms
 
     def __init__(self, rng: random.Random, channels: int = 8) -> None:
         super().__init__(rng)
@@ -122,6 +137,17 @@ class SRF02Sonars(_Driver):
 
     period_us = 13_333
     GROUPS = 3
+    #: each sonar's rate: a group fires every period, so one sonar every GROUPS periods; how
+    #: many groups take turns is the wiring's (read-only)
+    CONFIG = (("rate_hz", "float", (0.1, 30.0), False), ("groups", "int", (1, 12), True))
+
+    def get_config(self, key: str) -> float:
+        if key == "groups":
+            return self.GROUPS
+        return round(super().get_config(key) / self.GROUPS, 3)
+
+    def set_config(self, key: str, value: float) -> None:
+        super().set_config(key, value * self.GROUPS)
 
     def __init__(self, rng: random.Random, channels: int = 12) -> None:
         super().__init__(rng)
@@ -148,12 +174,28 @@ class Servo(_Driver):
 
     period_us = 20_000
     DEG_PER_S = 60 / 0.24
+    #: the horn's travel, in degrees: a command beyond is held at the limit
+    CONFIG = (("min_deg", "int", (-90, 90), False), ("max_deg", "int", (-90, 90), False))
 
     def __init__(self, rng: random.Random) -> None:
         super().__init__(rng)
         self.position = 0.0  # degrees
         self.target = 0.0
         self.commands = 0
+        self.limits = {"min_deg": -90, "max_deg": 90}
+
+    def get_config(self, key: str) -> float:
+        return self.limits[key]
+
+    def set_config(self, key: str, value: float) -> None:
+        self.limits[key] = int(value)
+
+    def check_config(self) -> str | None:
+        lo, hi = self.limits["min_deg"], self.limits["max_deg"]
+        if lo >= hi:
+            return f"need min_deg < max_deg ({lo}, {hi})"
+        self.target = min(max(self.target, lo), hi)
+        return None
 
     def command(self, payload: bytes) -> tuple[int, bytes]:
         if len(payload) != 1:
@@ -161,7 +203,7 @@ class Servo(_Driver):
         (value,) = struct.unpack("<b", payload)
         if value == -128:
             return 0xFF, b"-128 is N/A"
-        self.target = value * 90 / 127
+        self.target = min(max(value * 90 / 127, self.limits["min_deg"]), self.limits["max_deg"])
         self.commands += 1
         self.emit(0, self.reported())
         return 0, b""
@@ -222,6 +264,8 @@ class Trigger(_Driver):
 
 class Counter(_Driver):
     """A test signal at an exact rate: every channel gets the sample counter (benchmarks)."""
+
+    CONFIG = (("rate_hz", "float", (0.1, 100000.0), False),)
 
     def __init__(self, rng: random.Random, rate_hz: float, channels: int) -> None:
         super().__init__(rng)

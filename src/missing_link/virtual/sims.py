@@ -13,6 +13,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 
+from ..board.config import FileStore, RuntimeConfig
 from ..board.runtime import BoardRuntime, Transducer
 from .drivers import Counter, QuadEncoders, Servo, SharpIR, SRF02Sonars, Trigger, rng_for
 from .hostile import HOSTILE
@@ -36,24 +37,22 @@ def _add_encoders(rt: BoardRuntime, seed: int) -> None:
 
 def _add_servo(rt: BoardRuntime, seed: int) -> Servo:
     servo = Servo(rng_for(seed, "servo"))
-    rt.add_function("a2j_set_servo", servo.command)
-    rt.add_transducer(
-        Transducer(
-            "servo",
-            3,
-            "hs645",
-            "HS-645MG",
-            1,
-            "int8_t",
-            -128,
-            kind="actuator",
-            call="a2j_set_servo",
-            unit="deg",
-            scale="0.708661",  # int8 command -127..127 = -90..+90 degrees
-            ros="sensor_msgs/msg/JointState",
-        ),
-        servo,
+    t = Transducer(
+        "servo",
+        3,
+        "hs645",
+        "HS-645MG",
+        1,
+        "int8_t",
+        -128,
+        kind="actuator",
+        call="a2j_set_servo",
+        unit="deg",
+        scale="0.708661",  # int8 command -127..127 = -90..+90 degrees
+        ros="sensor_msgs/msg/JointState",
     )
+    rt.add_function("a2j_set_servo", rt.gated(t, servo.command))
+    rt.add_transducer(t, servo)
     return servo
 
 
@@ -94,32 +93,50 @@ def _add_rangers(rt: BoardRuntime, seed: int) -> None:
     )
 
 
-def thesis(seed: int = 0, name: str = "thesis", **kw: object) -> BoardRuntime:
+def _configurable(rt: BoardRuntime, config_file: str | None) -> BoardRuntime:
+    """The run-time configuration (board/config.py), saved to ``config_file`` if given (else the
+    board has no storage: a save is refused, saying so)."""
+    rt.config = RuntimeConfig(rt, FileStore(config_file) if config_file else None)
+    return rt
+
+
+def thesis(
+    seed: int = 0, name: str = "thesis", config_file: str | None = None, **kw: object
+) -> BoardRuntime:
     rt = BoardRuntime(name, "missing-link virtual thesis board", f"sim-{name}-{seed}", **kw)
     _add_encoders(rt, seed)
     _add_rangers(rt, seed)
     _add_servo(rt, seed)
     _common(rt, seed)
-    return rt
+    return _configurable(rt, config_file)
 
 
-def encoder_servo(seed: int = 0, name: str = "board_a", **kw: object) -> BoardRuntime:
+def encoder_servo(
+    seed: int = 0, name: str = "board_a", config_file: str | None = None, **kw: object
+) -> BoardRuntime:
     rt = BoardRuntime(name, "missing-link virtual encoder+servo board", f"sim-{name}-{seed}", **kw)
     _add_encoders(rt, seed)
     _add_servo(rt, seed)
     _common(rt, seed)
-    return rt
+    return _configurable(rt, config_file)
 
 
-def rangers(seed: int = 0, name: str = "board_b", **kw: object) -> BoardRuntime:
+def rangers(
+    seed: int = 0, name: str = "board_b", config_file: str | None = None, **kw: object
+) -> BoardRuntime:
     rt = BoardRuntime(name, "missing-link virtual ranger board", f"sim-{name}-{seed}", **kw)
     _add_rangers(rt, seed)
     _common(rt, seed)
-    return rt
+    return _configurable(rt, config_file)
 
 
 def rate(
-    seed: int = 0, name: str = "rate", rate_hz: float = 100.0, channels: int = 1, **kw: object
+    seed: int = 0,
+    name: str = "rate",
+    rate_hz: float = 100.0,
+    channels: int = 1,
+    config_file: str | None = None,
+    **kw: object,
 ) -> BoardRuntime:
     """One transducer ``signal`` (int32 counter) at ``rate_hz`` updates/s: for benchmarks."""
     rt = BoardRuntime(name, "missing-link rate generator", f"sim-{name}-{seed}", **kw)
@@ -127,7 +144,7 @@ def rate(
         Transducer("signal", 0, "counter", "COUNTER", channels, "int32_t", -1, rate_hz=rate_hz),
         Counter(rng_for(seed, "counter"), rate_hz, channels),
     )
-    return rt
+    return _configurable(rt, config_file)
 
 
 def original(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntime:

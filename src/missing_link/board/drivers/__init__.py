@@ -6,8 +6,11 @@
 # port: the same code runs on RP2040, ESP32, CPython (host-side checks) and the simulator.
 #
 # A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS);
-# a board file entry may override any of them.  An actuator has command(payload) -> (code, reply),
-# registered as the J2A function named by the entry's `call`.
+# a board file entry may override any of them.  Its run-time configuration (board/config.py) is
+# CONFIG, a tuple of (key, kind, limits, read_only), with get_config(key) and set_config(key,
+# value); check_config() (optional) says what is wrong with a combination after a set.  An
+# actuator has command(payload) -> (code, reply), registered as the J2A function named by the
+# entry's `call`.
 #
 # DRIVERS maps the board file's `driver` names to module and class, imported only when used (RAM).
 
@@ -33,13 +36,33 @@ def driver_class(name):
 class Periodic:
     # A driver that measures every period: poll(now) calls measure(now) when due.  A late poll
     # skips the missed slots instead of bursting to catch up (a stale burst measures nothing).
+    # Its rate is a run-time key (`rate_hz`, up to MAX_RATE_HZ); a new rate takes effect at
+    # once: the next measurement is at most one new period after the last one.
+    MAX_RATE_HZ = 1000.0
+    CONFIG = (("rate_hz", "float", (0.1, 1000.0), False),)
+
     def __init__(self, clock, rate_hz):
         if not rate_hz > 0:
             raise ValueError("rate_hz must be > 0")
         self.clock = clock
         self.period_us = max(1, int(1000000 / rate_hz))
         self._due = None
+        self._last = None
         self._cb = None
+
+    def get_config(self, key):
+        if key == "rate_hz":
+            return round(1000000.0 / self.period_us, 3)
+        raise ValueError("no key " + key)
+
+    def set_config(self, key, value):
+        if key != "rate_hz":
+            raise ValueError("no key " + key)
+        self.period_us = max(1, int(1000000 / value))
+        if self._due is not None and self._last is not None:
+            due = self._last + self.period_us
+            if due < self._due:
+                self._due = due
 
     def set_cb(self, fn):
         self._cb = fn
@@ -59,6 +82,7 @@ class Periodic:
         self._due += self.period_us
         if self._due <= now:
             self._due = now + self.period_us
+        self._last = now
         self.measure(now)
 
     def measure(self, now):

@@ -12,12 +12,24 @@ class AnalogIn(Periodic):
     DTYPE = "uint16_t"
     NA = 0xFFFF
     OPTIONS = {"kind": "sensor"}
+    CONFIG = Periodic.CONFIG + (("reads", "int", (1, 15), False),)
 
     def __init__(self, machine, clock, pin, rate_hz=100, vref=3.3, millivolts=False, reads=1):
         Periodic.__init__(self, clock, rate_hz)
         self._adc = machine.ADC(machine.Pin(pin))
         self._mv = vref * 1000.0 / 65535.0 if millivolts else None
         self._reads = max(1, reads)
+
+    def get_config(self, key):
+        if key == "reads":
+            return self._reads
+        return Periodic.get_config(self, key)
+
+    def set_config(self, key, value):
+        if key == "reads":
+            self._reads = value
+        else:
+            Periodic.set_config(self, key, value)
 
     def measure(self, now):
         r = sorted(self._adc.read_u16() for _ in range(self._reads))

@@ -14,6 +14,11 @@ class DigitalIn:
     DTYPE = "uint8_t"  # 0/1; bool has no room for N/A
     NA = 0xFF
     OPTIONS = {"kind": "sensor"}
+    # rate_hz: the heartbeat (0: only changes are reported)
+    CONFIG = (
+        ("debounce_ms", "int", (0, 1000), False),
+        ("rate_hz", "float", (0.0, 100.0), False),
+    )
 
     def __init__(self, machine, clock, pin, pull="up", active_low=True, debounce_ms=20, rate_hz=0):
         Pin = machine.Pin
@@ -30,6 +35,22 @@ class DigitalIn:
         self._next_beat = None
         self.edges = 0
         self._pin.irq(handler=self._edge, trigger=Pin.IRQ_RISING | Pin.IRQ_FALLING)
+
+    def get_config(self, key):
+        if key == "debounce_ms":
+            return self._debounce_us // 1000
+        if key == "rate_hz":
+            return round(1000000.0 / self._period_us, 3) if self._period_us else 0.0
+        raise ValueError("no key " + key)
+
+    def set_config(self, key, value):
+        if key == "debounce_ms":
+            self._debounce_us = int(value) * 1000
+        elif key == "rate_hz":
+            self._period_us = int(1000000 / value) if value else None
+            self._next_beat = None
+        else:
+            raise ValueError("no key " + key)
 
     def _read(self):
         return self._pin.value() ^ self._invert

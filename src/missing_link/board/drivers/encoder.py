@@ -22,6 +22,7 @@ class Quadrature(Periodic):
     DTYPE = "int32_t"
     NA = -2147483648
     OPTIONS = {"unit": "count", "kind": "sensor"}
+    CONFIG = Periodic.CONFIG + (("reverse", "bool", None, False),)
 
     def __init__(self, machine, clock, pin_a, pin_b, rate_hz=50, pull="up", reverse=False):
         Periodic.__init__(self, clock, rate_hz)
@@ -53,6 +54,17 @@ class Quadrature(Periodic):
             return
         self.count += d * self._sign
         self._edge_us = self.clock()
+
+    def get_config(self, key):
+        if key == "reverse":
+            return self._sign < 0
+        return Periodic.get_config(self, key)
+
+    def set_config(self, key, value):
+        if key == "reverse":
+            self._sign = -1 if value else 1
+        else:
+            Periodic.set_config(self, key, value)
 
     def measure(self, now):
         if self._bad:

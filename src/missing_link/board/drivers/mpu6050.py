@@ -28,6 +28,12 @@ class MPU6050(Periodic):
     NA = float("nan")
     # channels: ax ay az (m/s2), die temperature (degC), gx gy gz (rad/s)
     OPTIONS = {"kind": "sensor", "unit": "SI"}
+    # New ranges and filter are written to the chip before the next sample.
+    CONFIG = Periodic.CONFIG + (
+        ("accel_g", "enum", ACCEL_RANGES, False),
+        ("gyro_dps", "enum", GYRO_RANGES, False),
+        ("dlpf", "int", (0, 6), False),
+    )
 
     def __init__(
         self, machine, clock, i2c, address=0x68, rate_hz=100, accel_g=2, gyro_dps=250, dlpf=3
@@ -44,6 +50,29 @@ class MPU6050(Periodic):
         self._gyro = DEG / (131.0 / (1 << self._fs))
         self._ok = False
         self.bus_errors = 0
+
+    def get_config(self, key):
+        if key == "accel_g":
+            return ACCEL_RANGES[self._afs]
+        if key == "gyro_dps":
+            return GYRO_RANGES[self._fs]
+        if key == "dlpf":
+            return self._dlpf
+        return Periodic.get_config(self, key)
+
+    def set_config(self, key, value):
+        if key == "accel_g":
+            self._afs = ACCEL_RANGES.index(value)
+            self._accel = G / (16384 >> self._afs)
+        elif key == "gyro_dps":
+            self._fs = GYRO_RANGES.index(value)
+            self._gyro = DEG / (131.0 / (1 << self._fs))
+        elif key == "dlpf":
+            self._dlpf = value
+        else:
+            Periodic.set_config(self, key, value)
+            return
+        self._ok = False  # the chip gets the new setting before the next sample
 
     def init(self):
         i2c, a = self._i2c, self.address

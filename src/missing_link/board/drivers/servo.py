@@ -17,6 +17,12 @@ class Servo:
     DTYPE = "int8_t"
     NA = -128
     OPTIONS = {"unit": "deg", "kind": "actuator", "scale": "0.708661"}
+    CONFIG = (
+        ("min_us", "int", (500, 2500), False),
+        ("max_us", "int", (500, 2500), False),
+        ("centre_us", "int", (500, 2500), False),
+        ("span_us", "int", (100, 2000), False),
+    )
 
     def __init__(
         self, machine, clock, pin, freq=50, min_us=900, max_us=2100, centre_us=1500, span_us=1200
@@ -33,8 +39,37 @@ class Servo:
         self.centre_us = centre_us
         self.half_span_us = span_us / 2
         self.pulse_us = None
+        self._value = None  # the last commanded value
         self.commands = 0
         self._cb = None
+
+    def get_config(self, key):
+        if key == "span_us":
+            return int(self.half_span_us * 2)
+        if key in ("min_us", "max_us", "centre_us"):
+            return getattr(self, key)
+        raise ValueError("no key " + key)
+
+    def set_config(self, key, value):
+        if key == "span_us":
+            self.half_span_us = value / 2
+        elif key in ("min_us", "max_us", "centre_us"):
+            setattr(self, key, value)
+        else:
+            raise ValueError("no key " + key)
+
+    def check_config(self):
+        # After a set: the limits must bracket the centre; a pulse already out is re-clamped.
+        if not (self.min_us < self.centre_us < self.max_us):
+            return "need min_us < centre_us < max_us (%d, %d, %d)" % (
+                self.min_us,
+                self.centre_us,
+                self.max_us,
+            )
+        if self.pulse_us is not None and self._value is not None:
+            self.pulse_us = self.pulse_for(self._value)
+            self._pwm.duty_ns(self.pulse_us * 1000)
+        return None
 
     def set_cb(self, fn):
         self._cb = fn
@@ -49,6 +84,7 @@ class Servo:
         value = struct.unpack("<b", payload)[0]
         if value == -128:
             return 0xFF, b"-128 is N/A"
+        self._value = value
         self.pulse_us = self.pulse_for(value)
         self._pwm.duty_ns(self.pulse_us * 1000)
         self.commands += 1

@@ -52,6 +52,7 @@ class SharpGP2Y0A02(Periodic):
     DTYPE = "uint16_t"
     NA = 0
     OPTIONS = {"unit": "mm", "kind": "sensor", "ros": "sensor_msgs/msg/Range"}
+    CONFIG = (("rate_hz", "float", (0.1, 26.0), False),)  # it updates every 38 ms
 
     def __init__(self, machine, clock, pin, rate_hz=25, vref=3.3, reads=3):
         Periodic.__init__(self, clock, min(rate_hz, 26))

@@ -28,6 +28,13 @@ class SRF02(Periodic):
     DTYPE = "uint16_t"
     NA = 0
     OPTIONS = {"unit": "cm", "kind": "sensor", "ros": "sensor_msgs/msg/Range"}
+    # The SRF02 has no range or gain registers (the SRF08 has): what can change at run time is
+    # how often it pings (a ranging takes 65 ms) and the shortest range it reports.
+    CONFIG = (
+        ("rate_hz", "float", (0.1, 15.38), False),
+        ("min_range", "int", (0, 600), False),
+        ("units", "enum", ("cm", "us", "inch"), True),
+    )
 
     def __init__(self, machine, clock, i2c, address=0x70, rate_hz=10, units="cm", min_range=16):
         Periodic.__init__(self, clock, min(rate_hz, 1000000 / RANGING_US))
@@ -42,6 +49,19 @@ class SRF02(Periodic):
         self._check_us = None
         self.timeouts = 0
         self.bus_errors = 0
+
+    def get_config(self, key):
+        if key == "min_range":
+            return self._min
+        if key == "units":
+            return self._units
+        return Periodic.get_config(self, key)
+
+    def set_config(self, key, value):
+        if key == "min_range":
+            self._min = value
+        else:
+            Periodic.set_config(self, key, value)
 
     def next_due_us(self):
         return self._check_us if self._ping_us is not None else self._due

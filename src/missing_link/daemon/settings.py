@@ -1,0 +1,167 @@
+"""One board's run-time configuration in the daemon (docs/configuration.md).
+
+Theory of operation
+-------------------
+The daemon's config file may give a board keys (``[boards.<name>.config]``): they are applied at
+every connect and again after every reset of the board that the clock sync notices without the
+link dropping (a board forgets what was set at run time when it restarts, unless it was saved).
+Any face may change the configuration while the board runs (``Daemon.configure``, the control
+endpoint behind ``missing-link config``, ROS 2 parameters): each change goes to the board all at
+once or not at all (the board's ``a2jConfigSet``), then every face hears the new values
+(``on_change``: ROS 2 parameters follow).  The last change (when, by whom, what) is in the
+status and on ``/diagnostics``.
+
+A board without run-time configuration (the 2014 firmware) keeps working: keys given for it
+are a warning, and ``configure`` says it is not configurable.  Keys from the file that the
+board refuses are a warning too, with the board's reason: the board runs with what it has.
+Calls are serialised (one change at a time per board); they block the caller, never the I/O
+loop.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import ConfigError, MissingLinkError
+from ..host.board import Board
+from ..host.config import ST_DIRTY, ST_LOADED, ST_SAVED, ConfigKey, NotConfigurable, Value
+
+
+@dataclass(frozen=True)
+class SettingsContext:
+    """What a board's settings need of its session and the daemon."""
+
+    name: Callable[[], str]  #: the board's topic name now
+    #: the board's keys from [boards.<name>.config] (asked at every connect: the name is the
+    #: board's own until then)
+    wanted: Callable[[], Mapping[str, Any]] = dict
+    warn: Callable[[str], None] = lambda text: None
+    #: (board name, keys, values, apply): every face offers the keys (ROS 2 parameters);
+    #: ``apply(values)`` changes them (raising what configure raises) and returns all values
+    on_keys: Callable[[str, list[ConfigKey], dict[str, Value], Any], None] = (
+        lambda name, keys, values, apply: None
+    )
+    on_change: Callable[[str, dict[str, Value]], None] = lambda name, values: None
+
+
+class BoardSettings:
+    def __init__(self, ctx: SettingsContext) -> None:
+        self.ctx = ctx
+        self.board: Board | None = None
+        self.keys: list[ConfigKey] = []
+        self.values: dict[str, Value] = {}
+        self.state = 0
+        self.changed_at: float | None = None  #: time.time() of the last change
+        self.changed_by = ""
+        self.changes = 0
+        self._lock = threading.Lock()
+
+    @property
+    def configurable(self) -> bool:
+        b = self.board
+        return b is not None and b.settings.available
+
+    # ---- the session's events (its supervisor thread) -----------------------------------------
+    def on_connect(self, board: Board) -> None:
+        """A new link: read the keys, apply the config file's, offer them on every face."""
+        self.board = board
+        self.keys, self.values = [], {}
+        if not board.settings.available:
+            if self.ctx.wanted():
+                self.ctx.warn(
+                    "not configurable (no a2jConfig functions): the keys of "
+                    f"[boards.{self.ctx.name()}.config] are ignored"
+                )
+            return
+        with self._lock:
+            self.keys = board.settings.keys()
+            self.values = board.config()
+            self.state = board.settings.state
+        self._apply_file("connect")
+        self.ctx.on_keys(self.ctx.name(), self.keys, dict(self.values), self.apply_from_face)
+
+    def on_reset(self) -> None:
+        """The board restarted under the same link: what the file says, again."""
+        if self.configurable:
+            self._apply_file("board reset")
+
+    def _apply_file(self, why: str) -> None:
+        wanted = self.ctx.wanted()
+        if not wanted:
+            return
+        try:
+            self.configure(wanted, by=f"config file ({why})")
+        except (ConfigError, MissingLinkError) as e:
+            self.ctx.warn(f"[boards.{self.ctx.name()}.config] not applied: {e}")
+
+    # ---- changes (any thread but the I/O loop) ------------------------------------------------
+    def configure(
+        self, values: Mapping[str, object], save: bool = False, by: str = "api"
+    ) -> dict[str, Value]:
+        board = self._board()
+        with self._lock:
+            try:
+                self.values = board.configure(values, save)
+            finally:
+                self.state = board.settings.state
+            self._changed(by, values)
+        return dict(self.values)
+
+    def reset(self, erase_saved: bool = False, by: str = "api") -> dict[str, Value]:
+        board = self._board()
+        with self._lock:
+            self.values = board.reset_config(erase_saved)
+            self.state = board.settings.state
+            self._changed(by, {"(defaults)": True})
+        return dict(self.values)
+
+    def read(self) -> dict[str, Value]:
+        board = self._board()
+        with self._lock:
+            self.values = board.config()
+            self.state = board.settings.state
+        return dict(self.values)
+
+    def apply_from_face(self, values: Mapping[str, object]) -> dict[str, Value]:
+        return self.configure(values, by="ros2 parameters")
+
+    def _board(self) -> Board:
+        board = self.board
+        if board is None or not board.alive:
+            raise MissingLinkError(f"{self.ctx.name()}: not connected")
+        if not board.settings.available:
+            raise NotConfigurable(board.name, "not configurable (no a2jConfig functions)")
+        return board
+
+    def _changed(self, by: str, what: Mapping[str, object]) -> None:
+        self.changes += 1
+        self.changed_at = time.time()
+        self.changed_by = f"{by}: " + ", ".join(f"{k}={v}" for k, v in what.items())
+        self.ctx.on_change(self.ctx.name(), dict(self.values))
+
+    # ---- status ----------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        if not self.keys:
+            return {"configurable": self.configurable}
+        names = ((ST_SAVED, "saved"), (ST_LOADED, "loaded at boot"), (ST_DIRTY, "changed"))
+        flags = [n for bit, n in names if self.state & bit]
+        return {
+            "configurable": True,
+            "config": ", ".join(f"{k}={_text(v)}" for k, v in self.values.items()),
+            "config_state": ", ".join(flags) or "defaults",
+            "config_changes": self.changes,
+            "config_changed": ""
+            if self.changed_at is None
+            else time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(self.changed_at)),
+            "config_changed_by": self.changed_by,
+        }
+
+
+def _text(v: Value) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return f"{v:g}" if isinstance(v, float) else str(v)
