@@ -1,7 +1,11 @@
 from __future__ import annotations
 
 import itertools
+import shutil
+import subprocess
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -9,6 +13,10 @@ from missing_link.board.runtime import BoardRuntime
 from missing_link.virtual import BoardServer, make_sim, start_board_thread
 
 from .helpers import j2a_threads
+
+ROOT = Path(__file__).resolve().parent.parent
+AVR = ROOT / "firmware" / "avr"
+UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 
 _names = itertools.count()
 
@@ -37,3 +45,34 @@ def no_leftover_threads() -> Iterator[None]:
     yield
     left = [t for t in j2a_threads() if t.is_alive() and t.name.startswith("j2a:")]
     assert not left, f"reader threads left running: {left}"
+
+
+@pytest.fixture(scope="session")
+def avr_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The AVR firmware of the thesis rig (Uno), the golden-vector board and rig_sim, built
+    once per session (tests/test_avr*.py)."""
+    for tool in ("avr-gcc", "cc"):
+        if shutil.which(tool) is None:
+            pytest.fail(f"{tool} is required: run scripts/system-deps.sh")
+    if not Path("/usr/include/simavr/sim_avr.h").exists():
+        pytest.fail("libsimavr-dev is required: run scripts/system-deps.sh")
+    out = tmp_path_factory.mktemp("avr")
+    r = subprocess.run(
+        [
+            "make",
+            "-C",
+            str(AVR),
+            f"BOARD={UNO}",
+            f"BUILD={out}",
+            f"PYTHON={sys.executable}",
+            "all",
+            "sim",
+            "golden",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "atmega328p: flash" in r.stdout  # the size line, budgets checked by make
+    return out

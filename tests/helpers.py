@@ -183,9 +183,14 @@ class FirmwareSim:
 class AvrSim:
     """rig_sim running an ELF; ``ctl(line)`` talks to the simulated rig."""
 
-    def __init__(self, build: Path, elf: Path, skew_ppm: float = 0.0) -> None:
+    def __init__(
+        self, build: Path, elf: Path, skew_ppm: float = 0.0, eeprom: Path | None = None
+    ) -> None:
+        """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
+        power-up and writes at power-off)."""
+        extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
         self.proc = subprocess.Popen(
-            [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm)],
+            [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -202,6 +207,15 @@ class AvrSim:
             if line.startswith("PTY "):
                 self.url = "serial://" + line.split()[1]
                 break
+
+    def power_off(self) -> None:
+        """Quit the rig as a power-off: its EEPROM is written to the --eeprom file."""
+        if self.proc.poll() is None:
+            assert self.proc.stdin is not None
+            self.proc.stdin.write("quit\n")
+            self.proc.stdin.flush()
+            self.proc.wait(10)
+        self.close()
 
     def ctl(self, line: str) -> str:
         assert self.proc.stdin is not None

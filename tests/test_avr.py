@@ -4,10 +4,8 @@ ATmega328P from the board file, run in simavr with the thesis rig modelled at it
 
 from __future__ import annotations
 
-import shutil
 import struct
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -34,32 +32,8 @@ pytestmark = pytest.mark.avr
 
 
 @pytest.fixture(scope="module")
-def build(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    for tool in ("avr-gcc", "cc"):
-        if shutil.which(tool) is None:
-            pytest.fail(f"{tool} is required: run scripts/system-deps.sh")
-    if not Path("/usr/include/simavr/sim_avr.h").exists():
-        pytest.fail("libsimavr-dev is required: run scripts/system-deps.sh")
-    out = tmp_path_factory.mktemp("avr")
-    r = subprocess.run(
-        [
-            "make",
-            "-C",
-            str(AVR),
-            f"BOARD={UNO}",
-            f"BUILD={out}",
-            f"PYTHON={sys.executable}",
-            "all",
-            "sim",
-            "golden",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert "atmega328p: flash" in r.stdout  # the size line, budgets checked by make
-    return out
+def build(avr_build: Path) -> Path:
+    return avr_build
 
 
 @pytest.fixture

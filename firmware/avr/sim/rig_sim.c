@@ -4,12 +4,17 @@
  * no acknowledge while ranging, the address-change sequence), quadrature edges on INT0/INT1,
  * and the servo's frame on OC1A with its pulse width from the timer's registers.
  *
- *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P]
+ *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE]
  *
+ * --eeprom FILE: the EEPROM's contents are read from FILE at power-up (when it exists) and
+ * written back when the rig is powered off (quit, stdin closed), as a real EEPROM keeps them.
  * Prints "PTY /dev/pts/N" when the board runs.  Simulated time is paced to the host's
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
  *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   cut N: the power goes after the next N bytes written to the EEPROM (a byte written by
+ *          the firmware that changes it: avr-libc's eeprom_update_* writes only those): the
+ *          EEPROM is saved as it is then and the rig stops at once, printing "CUT"
  */
 #define _GNU_SOURCE
 #include <fcntl.h>
@@ -21,6 +26,7 @@
 #include <unistd.h>
 
 #include "avr_adc.h"
+#include "avr_eeprom.h"
 #include "avr_ioport.h"
 #include "avr_twi.h"
 #include "parts/uart_pty.h"
@@ -187,6 +193,55 @@ static double servo_pulse_us(void) {
     return (double)ocr * ps * 1e6 / avr->frequency;
 }
 
+/* ---- the EEPROM across power cycles, and power cuts ----------------------------------------- */
+static const char *eeprom_file;
+static uint8_t *eeprom;
+static uint32_t eeprom_size;
+static uint8_t eeprom_seen[8192];
+static int cut_left = -1; /* bytes still to be written before the power goes (-1: never) */
+
+static void eeprom_open(void) {
+    avr_eeprom_desc_t d = {.ee = NULL, .offset = 0, .size = 0};
+    avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d); /* (simavr 1.6 answers -1 even when it worked) */
+    if (!d.ee) return;
+    eeprom = d.ee;
+    eeprom_size = avr->e2end + 1;
+    if (eeprom_size > sizeof eeprom_seen) eeprom_size = sizeof eeprom_seen;
+    FILE *f = eeprom_file ? fopen(eeprom_file, "rb") : NULL;
+    if (f) {
+        if (fread(eeprom, 1, eeprom_size, f) != eeprom_size) fprintf(stderr, "rig_sim: short EEPROM file\n");
+        fclose(f);
+    }
+    memcpy(eeprom_seen, eeprom, eeprom_size);
+}
+
+static void eeprom_save(void) {
+    if (!eeprom || !eeprom_file) return;
+    FILE *f = fopen(eeprom_file, "wb");
+    if (!f || fwrite(eeprom, 1, eeprom_size, f) != eeprom_size) perror("rig_sim: EEPROM file");
+    if (f) fclose(f);
+}
+
+static void power_off(void) {
+    eeprom_save();
+    exit(0);
+}
+
+/* while a cut is armed: after every instruction, the bytes that changed since */
+static void eeprom_watch(void) {
+    for (uint32_t a = 0; a < eeprom_size; a++) {
+        if (eeprom[a] != eeprom_seen[a]) {
+            eeprom_seen[a] = eeprom[a];
+            if (--cut_left == 0) {
+                eeprom_save();
+                printf("CUT\n");
+                fflush(stdout);
+                _exit(0);
+            }
+        }
+    }
+}
+
 /* ---- control channel and pacing ---------------------------------------------------------------- */
 static char line[256];
 static size_t line_n;
@@ -222,8 +277,12 @@ static void command(const char *cmd) {
                (unsigned long long)sim_us(), (unsigned long long)mono_ns(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
     } else if (sscanf(cmd, "peek %x", (unsigned *)&v) == 1) {
         printf("peek %02x %02x %02x %02x\n", avr->data[v], avr->data[v + 1], avr->data[v + 2], avr->data[v + 3]);
+    } else if (sscanf(cmd, "cut %d", &v) == 1 && v > 0) {
+        memcpy(eeprom_seen, eeprom, eeprom_size);
+        cut_left = v;
+        printf("ok\n");
     } else if (strncmp(cmd, "quit", 4) == 0) {
-        exit(0);
+        power_off();
     } else {
         printf("error unknown command: %s\n", cmd);
     }
@@ -242,7 +301,7 @@ static void poll_stdin(void) {
             line[line_n++] = c;
         }
     }
-    if (r == 0) exit(0); /* stdin closed: the test is gone */
+    if (r == 0) power_off(); /* stdin closed: the test is gone */
 }
 
 static void pace(void) {
@@ -257,6 +316,7 @@ int main(int argc, char **argv) {
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--mcu") && i + 1 < argc) mcu = argv[++i];
         else if (!strcmp(argv[i], "--skew-ppm") && i + 1 < argc) skew = atof(argv[++i]) * 1e-6;
+        else if (!strcmp(argv[i], "--eeprom") && i + 1 < argc) eeprom_file = argv[++i];
         else elf = argv[i];
     }
     if (!elf) {
@@ -280,6 +340,7 @@ int main(int argc, char **argv) {
     avr_init(avr);
     avr_load_firmware(avr, &f);
     avr->log = 0;
+    eeprom_open();
     if (strcmp(mcu, "atmega328p") != 0) { /* Mega/Leonardo: INT0/1 = PD0/PD1, OC1A = PB5 */
         enc_pin_a = 0;
         enc_pin_b = 1;
@@ -306,6 +367,7 @@ int main(int argc, char **argv) {
             fprintf(stderr, "rig_sim: the AVR stopped (state %d)\n", state);
             return 1;
         }
+        if (cut_left > 0) eeprom_watch();
         if ((n & 1023) == 0) {
             pace();
             poll_stdin();

@@ -65,6 +65,18 @@ void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse) {
     EIMSK = _BV(INT0) | _BV(INT1);
 }
 
+/* A new period takes effect at once: the next report is at most one new period after the last. */
+static uint64_t retime(uint64_t due, uint32_t old_period, uint32_t new_period) {
+    return due ? due - old_period + new_period : 0;
+}
+
+void quadrature_set(float rate_hz, uint8_t reverse) {
+    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
+    quad_due = retime(quad_due, quad_period_us, p);
+    quad_period_us = p;
+    quad_sign = reverse ? -1 : 1;
+}
+
 void quadrature_poll(uint64_t now) {
     if (!quad_t || now < quad_due) return;
     quad_due = now + quad_period_us;
@@ -100,6 +112,12 @@ void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz) {
     sharp_period_us = 1000000UL / rate_hz;
     ADCSRA = _BV(ADEN) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0); /* 125 kHz ADC clock */
     sharp_start = board_clock();
+}
+
+void sharp_set(float rate_hz) {
+    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
+    sharp_due = retime(sharp_due, sharp_period_us, p);
+    sharp_period_us = p;
 }
 
 static uint16_t adc_read(uint8_t ch) {
@@ -220,10 +238,18 @@ void srf02_init(transducer_t *t, uint8_t address, uint16_t rate_hz, uint8_t min_
     srf02_t = t;
     srf02_addr = address;
     srf02_min = min_range_cm;
-    if (rate_hz > 15) rate_hz = 15; /* a ranging takes 65 ms */
     srf02_period_us = 1000000UL / rate_hz;
+    if (srf02_period_us < 65000UL) srf02_period_us = 65000UL; /* a ranging takes 65 ms */
     TWSR = 0;
     TWBR = 72; /* 100 kHz at 16 MHz */
+}
+
+void srf02_set(float rate_hz, uint16_t min_range_cm) {
+    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
+    if (p < 65000UL) p = 65000UL;
+    srf02_due = retime(srf02_due, srf02_period_us, p);
+    srf02_period_us = p;
+    srf02_min = (uint8_t)(min_range_cm > 255 ? 255 : min_range_cm);
 }
 
 void srf02_poll(uint64_t now) {
@@ -289,14 +315,30 @@ void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t cent
     servo_half = span_us / 2;
 }
 
-uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
-    *out_n = 0;
-    if (n != 1 || (int8_t)in[0] == -128) return 0xFF;
-    int8_t v = (int8_t)in[0];
+static int8_t servo_value;
+static uint8_t servo_on;
+
+static void servo_pulse(void) {
+    int8_t v = servo_value;
     int32_t us = (int32_t)servo_centre + ((int32_t)v * servo_half + (v >= 0 ? 63 : -63)) / 127;
     if (us < servo_min) us = servo_min;
     if (us > servo_max) us = servo_max;
     OCR1A = (uint16_t)(us * 2); /* 0.5 µs ticks */
+}
+
+void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us) {
+    servo_init(servo_t, min_us, max_us, centre_us, span_us);
+    if (servo_on) servo_pulse(); /* a pulse already out: re-clamped to the new limits */
+}
+
+uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    *out_n = 0;
+    if (n != 1 || (int8_t)in[0] == -128) return 0xFF;
+    int8_t v = (int8_t)in[0];
+    servo_value = v;
+    servo_on = 1;
+    servo_pulse();
+    uint16_t us = OCR1A / 2;
     SERVO_DDR |= _BV(SERVO_BIT);
     TCCR1A |= _BV(COM1A1); /* the pulse starts with the next frame */
     servo_commands++;

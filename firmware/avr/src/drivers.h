@@ -8,17 +8,21 @@
 #include "runtime.h"
 
 void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse);
+void quadrature_set(float rate_hz, uint8_t reverse); /* run-time configuration (config.c) */
 void quadrature_poll(uint64_t now);
 extern volatile uint16_t quadrature_errors;
 
 void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz);
+void sharp_set(float rate_hz);
 void sharp_poll(uint64_t now);
 
 void srf02_init(transducer_t *t, uint8_t address, uint16_t rate_hz, uint8_t min_range_cm);
+void srf02_set(float rate_hz, uint16_t min_range_cm);
 void srf02_poll(uint64_t now);
 extern uint16_t srf02_timeouts, srf02_bus_errors;
 
 void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t centre_us,
                 uint16_t span_us);
+void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us);
 uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 #endif

@@ -285,12 +285,12 @@ static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
 }
 
 void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us) {
-    if (channel >= t->chan_count) return;
+    if (channel >= t->chan_count || !t->enabled) return;
     keep(t, channel, raw, stamp_us);
 }
 
 void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
-    if (channel >= t->chan_count) return;
+    if (channel >= t->chan_count || !t->enabled) return;
     keep(t, channel, t->na, stamp_us);
 }
 

@@ -47,6 +47,7 @@ typedef struct {
     uint64_t *stamps;   /* chan_count stamps (board µs) */
     uint32_t *values;   /* chan_count raw values */
     uint16_t values_dropped;
+    uint8_t enabled;    /* run-time configuration (config.c): off = not polled, no SIFs */
 } transducer_t;
 
 /* The built-in functions: board_gen.c starts its table with BUILTIN_FUNCTIONS. */

@@ -1,0 +1,157 @@
+"""The run-time configuration of an AVR board: the tables config.c serves (firmware/avr/src),
+generated into ``board_gen.c`` from the same board file and the same driver CONFIG as a
+MicroPython board's (``board/config.py``), so the key table's text, the defaults and the limits
+are the same on both runtimes: the board file and the drivers stay their single source.
+
+What the C runtime cannot change at run time is refused here, naming the entry."""
+
+from __future__ import annotations
+
+import inspect
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+from ..board.config import Key, crc16
+from ..board.runtime import Transducer
+from ..errors import ConfigError
+
+#: per driver, the CONFIG keys the C drivers apply at run time, and the call that applies them
+#: (``{name}``: the index of that key's value in v[])
+APPLY = {
+    "quadrature": ("quadrature_set(F(v[{rate_hz}]), (uint8_t)v[{reverse}]);", ()),
+    "sharp_gp2y0a02": ("sharp_set(F(v[{rate_hz}]));", ()),
+    "srf02": ("srf02_set(F(v[{rate_hz}]), (uint16_t)v[{min_range}]);", ("units",)),
+    "servo": (
+        "servo_set((uint16_t)v[{min_us}], (uint16_t)v[{max_us}], (uint16_t)v[{centre_us}], "
+        "(uint16_t)v[{span_us}]);",
+        (),
+    ),
+}
+#: a combination a driver refuses (the Python driver's check_config, in C)
+CHECK = {
+    "servo": (
+        "(int32_t)v[{min_us}] < (int32_t)v[{centre_us}] && "
+        "(int32_t)v[{centre_us}] < (int32_t)v[{max_us}]",
+        "need min_us < centre_us < max_us",
+    ),
+}
+MAX_KEYS = 32  #: config.c's CONFIG_MAX
+EEPROM = {"atmega328p": 1024, "atmega2560": 4096, "atmega32u4": 1024}
+_KIND = {"bool": "KIND_BOOL", "int": "KIND_INT", "float": "KIND_FLOAT", "enum": "KIND_ENUM"}
+
+
+@dataclass
+class AvrKey:
+    key: Key
+    k: int  #: the transducer's index in board_transducers[]
+    driver: str
+
+
+def default_of(cls: type, entry: dict[str, Any], key: str, limits: Any) -> Any:
+    """A key's value at boot, as the Python driver computes it from the board file entry."""
+    params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
+    value = entry.get(key, params[key].default if key in params else None)
+    if key == "rate_hz":  # Periodic: capped to the limit, the period in whole µs
+        rate = min(float(value or 0), float(limits[1]))
+        return round(1e6 / int(1e6 / rate), 3)
+    return value
+
+
+def keys_of(
+    transducers: list[tuple[int, dict[str, Any], Transducer, type]], where: str
+) -> list[AvrKey]:
+    out: list[AvrKey] = []
+    for k, entry, t, cls in transducers:
+        drv = entry["driver"]
+        out.append(AvrKey(Key(t, "enabled", "bool", None, False, lambda: True, None), k, drv))
+        apply, read_only = APPLY[entry["driver"]]
+        for key, kind, limits, ro in cls.CONFIG:  # type: ignore[attr-defined]
+            if f"{{{key}}}" not in apply and key not in read_only:
+                raise ConfigError(f"{where}: {t.name}: key {key} cannot change at run time on AVR")
+            value = default_of(cls, entry, key, limits)
+            if key == "units" and value != "cm":
+                raise ConfigError(f"{where}: {t.name}: the AVR SRF02 measures in cm only")
+            out.append(AvrKey(Key(t, key, kind, limits, ro, lambda v=value: v, None), k, drv))
+    if len(out) > MAX_KEYS:
+        raise ConfigError(
+            f"{where}: {len(out)} run-time keys, the AVR runtime has room for {MAX_KEYS}"
+        )
+    return out
+
+
+def _raw(kind: str, value: Any, limits: Any) -> int:
+    if kind == "float":
+        return int(struct.unpack("<I", struct.pack("<f", float(value)))[0])
+    if kind == "enum":
+        return int(limits.index(value))
+    return int(value) & 0xFFFFFFFF
+
+
+def keys_blob(keys: list[AvrKey]) -> bytes:
+    return ("config/1\n" + "".join(a.key.line() + "\n" for a in keys)).encode()
+
+
+def generate_config(keys: list[AvrKey], mcu: str, where: str) -> tuple[list[str], bytes]:
+    """(C lines of the tables and the two generated functions, the key table's text)."""
+    slot = 1 + 9 + 4 * len(keys)
+    if 16 + 2 * slot > EEPROM[mcu]:
+        raise ConfigError(f"{where}: the configuration record does not fit the {mcu}'s EEPROM")
+    blob = keys_blob(keys)
+    index: dict[tuple[int, str], int] = {(a.k, a.key.key): i for i, a in enumerate(keys)}
+    rows, cases, checks, drivers_done = [], [], [], set()
+    for i, a in enumerate(keys):
+        key = a.key
+        if key.kind == "enum":
+            lo, hi = 0, len(key.limits) - 1
+        elif key.limits is None:
+            lo, hi = 0, 1
+        else:
+            lo, hi = (_raw(key.kind, x, None) for x in key.limits)
+        rows.append(
+            f"    {{{_KIND[key.kind]}, {1 if key.read_only else 0}, 0x{lo:08x}UL, 0x{hi:08x}UL, "
+            f"0x{_raw(key.kind, key.default, key.limits):08x}UL}}, /* {key.name} */"
+        )
+        sibling = {name: j for (k, name), j in index.items() if k == a.k}
+        if key.key == "enabled":
+            cases.append(
+                f"    case {i}: board_transducers[{a.k}].enabled = (uint8_t)v[{i}]; "
+                f"if (!v[{i}]) board_transducers[{a.k}].pending = 0; break;"
+            )
+        elif not key.read_only:
+            drv = a.driver
+            cases.append(f"    case {i}: {APPLY[drv][0].format(**sibling)} break;")
+            if drv in CHECK and a.k not in drivers_done:
+                drivers_done.add(a.k)
+                cond, why = CHECK[drv]
+                checks.append(
+                    f'    if (!({cond.format(**sibling)})) return PSTR("{key.t.name}: {why}");'
+                )
+    n = len(keys)
+    out = [
+        "/* run-time configuration (config.c): keys, limits and defaults from the board file */",
+        f"const config_key_t board_config_keys[{max(n, 1)}] PROGMEM = {{",
+        *rows,
+        "};",
+        f"const uint8_t board_config_count = {n};",
+        f"uint32_t board_config_values[{max(n, 1)}];",
+        f"const uint16_t board_config_schema_crc = 0x{crc16(blob):04x};",
+        f"static const char config_keys[] PROGMEM = {{{', '.join(str(b) for b in blob)}, 0}};",
+        f"static uint16_t config_keys_len(void) {{ return {len(blob)}; }}",
+        "static uint8_t config_keys_at(uint16_t i) { return pgm_read_byte(config_keys + i); }",
+        "const blob_t board_config_keys_blob = {config_keys_len, config_keys_at};",
+        "static float F(uint32_t raw) { float f; memcpy(&f, &raw, 4); return f; }",
+        "void board_config_apply(const uint32_t *v, uint8_t i) {",
+        "    (void)F;",
+        "    switch (i) {",
+        *cases,
+        "    default: break;",
+        "    }",
+        "}",
+        "const char *board_config_check(const uint32_t *v) {",
+        "    (void)v;",
+        *checks,
+        "    return 0;",
+        "}",
+    ]
+    return out, blob

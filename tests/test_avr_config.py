@@ -1,0 +1,154 @@
+"""Run-time configuration of the AVR firmware as real AVR machine code in simavr: the same keys
+as the MicroPython firmware makes from the same board file, a new rate at the simulated SRF02,
+a disabled transducer sending nothing, the record in EEPROM across power cycles, and power cuts
+in the middle of a save (the old configuration or the new one at the next boot, never a broken
+one)."""
+
+from __future__ import annotations
+
+import struct
+import time
+from pathlib import Path
+
+import pytest
+
+from missing_link.errors import MissingLinkError
+from missing_link.host.board import Board
+from missing_link.host.config import ConfigRefused
+from missing_link.transport import open_transport
+
+from .helpers import AvrSim, FirmwareSim
+
+ROOT = Path(__file__).resolve().parent.parent
+UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
+pytestmark = pytest.mark.avr
+
+
+def open_rig(build: Path, eeprom: Path) -> tuple[AvrSim, Board]:
+    sim = AvrSim(build, build / "uno_rig" / "firmware.elf", eeprom=eeprom)
+    board = Board(open_transport(sim.url), timeout=2.0)
+    board.handshake()
+    return sim, board
+
+
+def power_off(sim: AvrSim, board: Board) -> None:
+    board.close()
+    sim.power_off()
+
+
+def rangings(sim: AvrSim) -> int:
+    return int(sim.ctl("stats").split("rangings ")[1].split()[0])
+
+
+@pytest.mark.micropython
+def test_the_same_keys_as_the_micropython_firmware(avr_build: Path, tmp_path: Path) -> None:
+    """gen-firmware makes the key table from the board file and the drivers' CONFIG: byte for
+    byte what the MicroPython firmware serves for the same board file."""
+    sim, board = open_rig(avr_build, tmp_path / "ee.bin")
+    try:
+        avr_keys = board.read_many("a2jConfigKeys")
+        assert board.config()["sonar.units"] == "cm"
+    finally:
+        power_off(sim, board)
+    mpy = FirmwareSim(UNO)
+    try:
+        b = Board(open_transport(mpy.url), timeout=5.0)
+        try:
+            b.handshake()
+            assert b.read_many("a2jConfigKeys") == avr_keys
+            assert b.index["a2jConfigSet"] == board.index["a2jConfigSet"]
+        finally:
+            b.close()
+    finally:
+        mpy.close()
+
+
+def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> None:
+    sim, board = open_rig(avr_build, tmp_path / "ee.bin")
+    try:
+        assert board.config()["sonar.rate_hz"] == 10.0
+        # the SRF02 pings at the new rate (the firmware's own timer decides)
+        board.configure({"sonar.rate_hz": 2})
+        a = rangings(sim)
+        time.sleep(2.0)
+        assert 3 <= rangings(sim) - a <= 5
+        board.configure({"sonar.rate_hz": 10})
+        a = rangings(sim)
+        time.sleep(2.0)
+        assert 16 <= rangings(sim) - a <= 22
+        # disabled: no SIF of that transducer at all
+        seen: list[int] = []
+        board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
+        board.configure({"dist_ir.enabled": False})
+        time.sleep(0.2)
+        seen.clear()
+        time.sleep(1.0)
+        assert 1 not in seen and 0 in seen  # dist_ir (id 1) silent, the wheel (id 0) not
+        board.configure({"dist_ir.enabled": True})
+        time.sleep(0.5)
+        assert 1 in seen
+        # the servo: limits clamp the pulse; a combination it cannot take changes nothing
+        assert board.call("a2j_set_servo", struct.pack("<b", 127)).code == 0
+        time.sleep(0.1)
+        board.configure({"servo.max_us": 1800})
+        time.sleep(0.1)
+        assert sim.ctl("pulse").split()[1] == "1800.0"
+        with pytest.raises(ConfigRefused, match="servo: need min_us < centre_us < max_us"):
+            board.configure({"servo.max_us": 1400, "sonar.rate_hz": 3})
+        assert board.config()["sonar.rate_hz"] == 10.0
+        # what the host would never send, the board refuses itself (Python's texts)
+        units = board.settings.by_name()["sonar.units"].index
+        got = board.call("a2jConfigSet", bytes((0, units)) + struct.pack("<i", 0))
+        assert (got.code, got.payload) == (0xFF, b"sonar.units: read-only")
+        rate = board.settings.by_name()["sonar.rate_hz"].index
+        got = board.call("a2jConfigSet", bytes((0, rate)) + struct.pack("<f", 99.0))
+        assert (got.code, got.payload) == (0xFF, b"sonar.rate_hz: expected 0.1..15.38")
+        got = board.call("a2jConfigSet", b"")
+        assert got.code == 0xFF and got.payload.startswith(b"expects [flags]")
+        board.configure({"servo.enabled": False})
+        result = board.call("a2j_set_servo", struct.pack("<b", 10))
+        assert result.code == 0xFF and result.payload == b"servo is disabled"
+    finally:
+        power_off(sim, board)
+
+
+def test_a_saved_configuration_survives_power_and_cuts_leave_old_or_new(
+    avr_build: Path, tmp_path: Path
+) -> None:
+    ee = tmp_path / "ee.bin"
+    sim, board = open_rig(avr_build, ee)
+    board.configure({"sonar.rate_hz": 5, "wheel.reverse": True}, save=True)
+    power_off(sim, board)
+    sim, board = open_rig(avr_build, ee)
+    try:
+        got = board.config()
+        assert got["sonar.rate_hz"] == 5.0 and got["wheel.reverse"] is True
+        assert board.settings.state & 3 == 3  # saved, loaded at boot
+    finally:
+        power_off(sim, board)
+    # a slot is 1 + 9 + 4 * 15 = 70 bytes; what changes in a save is a part of that
+    for n in (1, 2, 8, 20, 40):
+        sim, board = open_rig(avr_build, ee)
+        assert sim.ctl(f"cut {n}") == "ok"
+        try:
+            board.configure({"sonar.rate_hz": 7, "dist_ir.rate_hz": 11}, save=True)
+            cut = False
+        except MissingLinkError:
+            cut = True  # the power went in the middle of the save
+        if not cut:  # the save wrote fewer than n bytes: it completed
+            power_off(sim, board)
+        else:
+            assert sim.lines.get(timeout=10) == "CUT"
+            board.close()
+            sim.close()
+        sim, board = open_rig(avr_build, ee)
+        try:
+            got = board.config()
+            old = (got["sonar.rate_hz"], got["dist_ir.rate_hz"]) == (5.0, 25.0)
+            new = (got["sonar.rate_hz"], got["dist_ir.rate_hz"]) == (7.0, 11.0)
+            assert old or new, (n, got)
+            assert new == (not cut), (n, cut, got)
+            assert board.settings.state & 3 == 3
+            board.configure({"sonar.rate_hz": 5, "dist_ir.rate_hz": 25}, save=True)  # again
+        finally:
+            power_off(sim, board)
