@@ -1,7 +1,8 @@
 """The live view of a running daemon (``missing-link run --view``, ``missing-link demo``).
 
 On a terminal it redraws in place (rich's ``Live``): per board the link state, RTT, clock bound
-and every loss counter that is not zero, per topic the rate, the latency from the board's moment
+and every loss counter that is not zero, per topic the rate (and the rate configured on the
+board, "off" when it is disabled), the latency from the board's moment
 of measurement to the host callback, and the last value with its unit.  Columns appear only
 where they apply (servo commands only for boards with actuators).  When the output is not a
 terminal it prints a plain block every ``plain_period`` seconds instead.  All times in µs.
@@ -123,9 +124,11 @@ class LiveView:
             row.append(losses or "none")
             boards.add_row(*row)
         topics = Table(expand=False)
+        configured = _configured_rates(self.daemon)
         for col, justify in (
             ("topic", "left"),
             ("msgs/s", "right"),
+            ("set Hz", "right"),
             ("latency p50 µs", "right"),
             ("p99 µs", "right"),
             ("last value", "left"),
@@ -144,6 +147,7 @@ class LiveView:
                 topics.add_row(
                     name,
                     str(rate),
+                    configured.get(name, "-"),
                     f"{percentile(lat, 0.5):.0f}",
                     f"{percentile(lat, 0.99):.0f}",
                     (last[:40] + (f" {st.unit}" if st.unit else "")),
@@ -201,6 +205,20 @@ class LiveView:
 
     def close(self) -> None:
         self.subscription.cancel()
+
+
+def _configured_rates(daemon: Any) -> dict[str, str]:
+    """Topic -> its transducer's configured rate (``rate_hz``), or "off" when disabled."""
+    out: dict[str, str] = {}
+    for s in daemon.sessions:
+        values = s.settings.values
+        for topic in list(s.topics.values()) + [std for std, _ in s.path.standard.values()]:
+            t = topic.transducer.name
+            if values.get(f"{t}.enabled") is False:
+                out[topic.name] = "off"
+            elif isinstance(values.get(f"{t}.rate_hz"), (int, float)):
+                out[topic.name] = f"{values[f'{t}.rate_hz']:g}"
+    return out
 
 
 def _transducers(session: Any) -> list[Any]:

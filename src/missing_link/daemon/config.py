@@ -258,7 +258,9 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
             continue
         if table not in known_pubs:
             raise fail(
-                table, f"unknown table (tables: daemon, board, remap, {', '.join(known_pubs)})"
+                table,
+                "unknown table (tables: daemon, board, boards, remap, discover, "
+                f"{', '.join(known_pubs)})",
             )
         if not isinstance(value, dict):
             raise fail(table, "must be a table of publisher options")
