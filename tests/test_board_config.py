@@ -12,7 +12,8 @@ from typing import Any
 
 import pytest
 
-from missing_link.board.config import FileStore, crc16
+from missing_link.board.config import crc16
+from missing_link.board.store import FileStore
 from missing_link.errors import BoardError, ConfigError
 from missing_link.host.board import Board
 from missing_link.host.config import ConfigRefused, NotConfigurable, parse_keys

@@ -27,6 +27,8 @@ BOARD_ALLOWED = {
     "board/clock.py": {"time", "os"},
     # the firmware's shell on a microcontroller: the link is I/O by definition
     "board/link.py": {"time", "select", "sys"},
+    # ... and the file a saved configuration lives in
+    "board/store.py": {"os"},
 }
 
 

@@ -9,6 +9,7 @@ import struct
 import sys
 
 import mlboard.config as C
+import mlboard.store as S
 from mlboard.runtime import BoardRuntime, Transducer
 
 PATH = globals().get("CONFIG_PATH", "/mlconfig-test.bin")  # (CPython tests: a tmp file)
@@ -84,7 +85,7 @@ def _open(path, mode="r"):
 
 
 def make_store():
-    store = C.FileStore(PATH)
+    store = S.FileStore(PATH)
     if _cut is not None and _cut[0] == "rename":
         store.os = _CutOs(store.os)
     return store
@@ -97,7 +98,7 @@ def boot():
     return rt
 
 
-C.open = _open  # (a power cut is armed only by CUT lines)
+S.open = _open  # (a power cut is armed only by CUT lines)
 rt = boot()
 
 

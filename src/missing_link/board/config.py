@@ -117,9 +117,16 @@ class RuntimeConfig:
         self.keys = []
         self.changes = 0  # applied sets and resets since boot
         self.state = 0
+        timing = runtime.timing
         for t in runtime.transducers:
             self._add(t, "enabled", "bool", None, False, _getter(t), _enabler(t))
             drv = t.driver
+            if timing is not None and getattr(drv, "ALIGNABLE", False):
+                # sampling on the host-time grid (timing.py): every board at the same instants
+                drv.timing = timing
+                self._add(t, "aligned", "bool", None, False, _attr(drv, "aligned"), _align(drv))
+                self._add(t, "phase", "float", (0.0, 0.999), False, _attr(drv, "phase"),
+                          _phase(drv))  # fmt: skip
             for entry in getattr(drv, "CONFIG", ()):
                 key, kind, limits, ro = entry
                 if kind not in KINDS:
@@ -293,45 +300,29 @@ def _enabler(t):
     return t.set_enabled
 
 
+def _attr(drv, name):
+    return lambda: getattr(drv, name)
+
+
+def _align(drv):
+    def put(value):
+        drv.aligned = bool(value)
+        drv.realign()
+
+    return put
+
+
+def _phase(drv):
+    def put(value):
+        drv.phase = value
+        drv.realign()
+
+    return put
+
+
 def _drv_get(drv, key):
     return lambda: drv.get_config(key)
 
 
 def _drv_put(drv, key):
     return lambda value: drv.set_config(key, value)
-
-
-class FileStore:
-    # A configuration record in a file: written under a temporary name, then renamed over the
-    # old one (atomic on littlefs and on POSIX): a power cut leaves the old or the new record.
-    def __init__(self, path, os_module=None):
-        if os_module is None:
-            import os as os_module
-        self.os = os_module
-        self.path = path
-        self.tmp = path + ".tmp"
-
-    def read(self):
-        # (a write that died between its two steps on FAT, below, left only the new record)
-        for path in (self.path, self.tmp):
-            try:
-                with open(path, "rb") as f:
-                    return f.read()
-            except OSError:
-                pass
-        return None
-
-    def write(self, record):
-        with open(self.tmp, "wb") as f:
-            f.write(record)
-        try:
-            self.os.rename(self.tmp, self.path)
-        except OSError:  # FAT will not rename over a file: remove it first (read() copes)
-            self.os.remove(self.path)
-            self.os.rename(self.tmp, self.path)
-
-    def erase(self):
-        try:
-            self.os.remove(self.path)
-        except OSError:
-            pass

@@ -21,9 +21,10 @@
 # before they take over, so `mpremote` and `missing-link flash` work on a running board.
 
 from .clock import resolution_us
-from .config import FileStore, RuntimeConfig
+from .config import RuntimeConfig
 from .drivers import driver_class
 from .runtime import BoardRuntime, Transducer
+from .store import FileStore
 
 RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options")
 BREAK = 0x03

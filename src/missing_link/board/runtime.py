@@ -97,6 +97,7 @@ class BoardRuntime:
         self._clock_op = -1
         self.host_map = None  # (board µs, host ns, host ns per board µs in ppb) from the host
         self.config = None  # the run-time configuration (config.py), when the board has one
+        self.timing = None  # acting on host time (timing.py), when the board has it
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -227,6 +228,8 @@ class BoardRuntime:
 
     def poll(self):
         now = self.clock()
+        if self.timing is not None:
+            self.timing.poll(now)  # timed calls first: they are due at a tick
         for t in self.transducers:
             if t._poll is not None and t.enabled:
                 t._poll(now)
@@ -249,6 +252,10 @@ class BoardRuntime:
         if self.parser.in_frame():
             t = self._last_byte_us + INTERBYTE_TIMEOUT_US
             if due is None or t < due:
+                due = t
+        if self.timing is not None:
+            t = self.timing.next_precise_us()
+            if t is not None and (due is None or t < due):
                 due = t
         return due
 

@@ -28,8 +28,8 @@ from .check import FlashError, verify
 BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
-    "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "wire.py",
-    "firmware.py", "link.py",
+    "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
+    "timing.py", "wire.py", "firmware.py", "link.py",
 )  # fmt: skip
 
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 
-from ..board.config import FileStore, RuntimeConfig
+from ..board.config import RuntimeConfig
 from ..board.runtime import BoardRuntime, Transducer
+from ..board.store import FileStore
 from .drivers import Counter, QuadEncoders, Servo, SharpIR, SRF02Sonars, Trigger, rng_for
 from .hostile import HOSTILE
 from .original import OriginalRuntime

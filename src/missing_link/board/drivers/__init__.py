@@ -38,8 +38,13 @@ class Periodic:
     # skips the missed slots instead of bursting to catch up (a stale burst measures nothing).
     # Its rate is a run-time key (`rate_hz`, up to MAX_RATE_HZ); a new rate takes effect at
     # once: the next measurement is at most one new period after the last one.
+    # Aligned (board/timing.py): the measurements fall on the host-time grid of the period, so
+    # every board with the same rate measures at the same instants; `phase` (a fraction of the
+    # period) lets boards take turns.  Without a valid map of the host's clock it runs free, and
+    # each such measurement is counted (timing.unaligned).
     MAX_RATE_HZ = 1000.0
     CONFIG = (("rate_hz", "float", (0.1, 1000.0), False),)
+    ALIGNABLE = True
 
     def __init__(self, clock, rate_hz):
         if not rate_hz > 0:
@@ -49,6 +54,14 @@ class Periodic:
         self._due = None
         self._last = None
         self._cb = None
+        self.aligned = False
+        self.phase = 0.0
+        self.timing = None  # set by the runtime's configuration when the board has timing
+        self._free = True  # the next measurement was scheduled without the grid
+
+    def realign(self):
+        # alignment or phase changed: the next measurement is scheduled anew
+        self._due = None
 
     def get_config(self, key):
         if key == "rate_hz":
@@ -59,7 +72,9 @@ class Periodic:
         if key != "rate_hz":
             raise ValueError("no key " + key)
         self.period_us = max(1, int(1000000 / value))
-        if self._due is not None and self._last is not None:
+        if self.aligned:
+            self._due = None  # the grid of the new period
+        elif self._due is not None and self._last is not None:
             due = self._last + self.period_us
             if due < self._due:
                 self._due = due
@@ -76,14 +91,34 @@ class Periodic:
 
     def poll(self, now):
         if self._due is None:
+            grid = self._grid(now)
+            if grid is not None:
+                self._due = grid  # wait for the grid's next instant
+                return
             self._due = now
         if now < self._due:
             return
-        self._due += self.period_us
-        if self._due <= now:
-            self._due = now + self.period_us
+        if self.aligned and self._free and self.timing is not None:
+            self.timing.unaligned += 1  # measured now, but not on the grid: said
+        grid = self._grid(now)
+        if grid is None:
+            self._due += self.period_us
+            if self._due <= now:
+                self._due = now + self.period_us
+        else:
+            self._due = grid
         self._last = now
         self.measure(now)
+
+    def _grid(self, now):
+        # the next grid instant (board µs) when aligned with a valid map, else None
+        self._free = True
+        if not self.aligned or self.timing is None:
+            return None
+        t = self.timing.next_grid(self.period_us, self.phase, now)
+        if t is not None:
+            self._free = False
+        return t
 
     def measure(self, now):
         raise NotImplementedError

@@ -1,0 +1,119 @@
+# Acting on host time (docs/timesync.md, "Measuring together, acting on time"): the host's map
+# of this board's clock (a2jHostMap), the sampling grid of aligned transducers, and timed calls.
+#
+# Theory of operation
+# -------------------
+# The daemon hands the board its current estimate of the map board µs -> host ns (CLOCK_REALTIME,
+# the time base samples are published in) after every clock exchange.  A map vouches for board
+# times within MAP_LIFE_US of its reference: beyond, the board's crystal may have wandered more
+# than the estimate knows.  With a valid map:
+#
+# * aligned sampling: a transducer with `aligned` samples at the host instants k * P + phase * P
+#   (P = 1 / rate_hz, counted in host ns since the epoch), so every board with the same rate
+#   samples at the same instants; the driver asks `next_grid(period_us, phase, now)` for the
+#   board tick of the next one.  Without a valid map it runs free and each such sample is
+#   counted (`unaligned`): never silently misaligned.
+# * timed calls: a2jAt [q host ns][B function index][payload] calls that function at the tick
+#   the host time maps to (reply: 0 + [Q board tick]), or refuses when the time is past, when
+#   it lies beyond what the map vouches for, or when no map is there.  The queue holds at most
+#   QUEUE entries.  The shell asks `next_precise_us()` to be on time (a timer compare on a
+#   microcontroller; the virtual boards spin for the last stretch).
+#
+# a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
+#                 [I timed calls refused]: what the daemon shows per board.
+#
+# Integer maths only (MicroPython's floats may be 32 bit; its ints are arbitrary precision).
+
+import struct
+
+MAP_LIFE_US = 10000000
+QUEUE = 8
+_BILLION = 1000000000
+_MILLION = 1000000
+
+
+class Timing:
+    def __init__(self, runtime):
+        self.rt = runtime
+        self.unaligned = 0
+        self.done = 0
+        self.refused = 0
+        self._queue = []  # (board tick, handler, payload), soonest first
+        runtime.add_function("a2jAt", self._at)
+        runtime.add_function("a2jAlignInfo", self._info)
+
+    # ---- the map ------------------------------------------------------------------------------
+    def map_valid(self, now):
+        m = self.rt.host_map
+        return m is not None and -MAP_LIFE_US <= now - m[0] <= MAP_LIFE_US
+
+    def host_at(self, board_us):
+        b0, h0, ppb = self.rt.host_map
+        return h0 + ((board_us - b0) * (_BILLION + ppb)) // _MILLION
+
+    def next_grid(self, period_us, phase, now):
+        # The board tick of the first grid instant after `now` (None: no valid map).
+        if not self.map_valid(now):
+            return None
+        p = period_us * 1000
+        offset = int(phase * p) % p
+        h = self.host_at(now)
+        k = (h - offset) // p + 1
+        return self.rt.board_time_at(k * p + offset)
+
+    # ---- timed calls ----------------------------------------------------------------------------
+    def _at(self, payload):
+        if len(payload) < 9:
+            return 0xFF, b"expects [q host ns][B function index][payload]"
+        host_ns = struct.unpack("<q", payload[:8])[0]
+        index = payload[8]
+        rt = self.rt
+        now = rt.clock()
+        if index >= len(rt.functions) or rt.functions[index][1] != 0:
+            self.refused += 1
+            return 0xFF, b"no such plain function"
+        if not self.map_valid(now):
+            self.refused += 1
+            return 0xFF, b"no valid host map (a2jHostMap)"
+        tick = rt.board_time_at(host_ns)
+        if tick < now:
+            self.refused += 1
+            return 0xFF, ("past by %d us" % (now - tick)).encode()
+        if tick - rt.host_map[0] > MAP_LIFE_US:
+            self.refused += 1
+            return 0xFF, (
+                "%d ms ahead: beyond what the map vouches for (%d ms)"
+                % ((tick - now) // 1000, MAP_LIFE_US // 1000)
+            ).encode()
+        if len(self._queue) >= QUEUE:
+            self.refused += 1
+            return 0xFF, b"timed calls queue full"
+        self._queue.append((tick, rt.functions[index][2], payload[9:]))
+        self._queue.sort(key=_first)
+        return 0, struct.pack("<Q", tick)
+
+    def next_precise_us(self):
+        return self._queue[0][0] if self._queue else None
+
+    def poll(self, now):
+        q = self._queue
+        while q and q[0][0] <= now:
+            _tick, handler, payload = q.pop(0)
+            try:
+                handler(payload)
+                self.done += 1
+            except Exception as e:  # noqa: BLE001 - a failing action must not stop the board
+                self.rt.debug("timed call: %s;" % e)
+
+    def _info(self, payload):
+        now = self.rt.clock()
+        valid = self.map_valid(now)
+        age = (now - self.rt.host_map[0]) // 1000 if self.rt.host_map is not None else 0xFFFFFFFF
+        age = max(0, min(age, 0xFFFFFFFF))
+        return 0, struct.pack(
+            "<BIIII", 1 if valid else 0, age, self.unaligned & 0xFFFFFFFF, self.done, self.refused
+        )
+
+
+def _first(item):
+    return item[0]
