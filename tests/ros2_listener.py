@@ -34,6 +34,11 @@ def main() -> int:
     ap.add_argument("--command-type")
     ap.add_argument("--command-msgdef")
     ap.add_argument("--command-value", type=int)
+    ap.add_argument("--command-dtype", default="int8", help="numpy type of the values array")
+    ap.add_argument("--command-count", type=int, default=5)
+    ap.add_argument(
+        "--command-at-ms", type=float, help="a timed command: times[0] = now + this (a host time)"
+    )
     ap.add_argument("--history", action="store_true", help="get cached samples (late joiner)")
     a = ap.parse_args()
 
@@ -102,10 +107,14 @@ def main() -> int:
             import numpy as np
 
             Time = ts.types["builtin_interfaces/msg/Time"]
-            msg = cls(times=[Time(sec=0, nanosec=0)], values=np.array([a.command_value], np.int8))
+            at = 0 if a.command_at_ms is None else time.time_ns() + int(a.command_at_ms * 1e6)
+            stamp = Time(sec=at // 10**9, nanosec=at % 10**9)
+            values = np.array([a.command_value], getattr(np, a.command_dtype))
+            msg = cls(times=[stamp], values=values)
             cdr = bytes(ts.serialize_cdr(msg, a.command_type))
+            print(json.dumps({"command_at_ns": at}), flush=True)
             gid = os.urandom(16)
-            for i in range(5):
+            for i in range(a.command_count):
                 att = struct.pack("<qqB", i + 1, time.time_ns(), 16) + gid
                 cmd_pub.put(cdr, attachment=att)
                 time.sleep(0.1)

@@ -197,3 +197,41 @@ def test_distro_sets_the_type_hash_slot(distro: str) -> None:
     ts = typestore_for(distro)
     h = type_hash(ts, "sensor_msgs/msg/Range", distro)
     assert h == "TypeHashNotSupported" if distro == "humble" else h.startswith("RIHS01_")
+
+
+TRIGGER = "builtin_interfaces/Time[] times\\nuint16[] values"
+
+
+def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  # type: ignore[no-untyped-def]
+    """A plain zenoh + rosbags consumer sends a thesis-format command whose times[0] is a host
+    time 400 ms ahead: the board's trigger fires then (board/timing.py), reported as a sample
+    whose host time is that time, not when the command arrived."""
+    server = serve("aligned", "tcp://127.0.0.1:0")
+    port = free_port()
+    with Daemon(zenoh_config(server.url, port)) as d:
+        assert d.wait_until_up(10)
+        fired: list[Update] = []
+        d.subscribe("/aligned/trigger", fired.append, queue=0)
+        lines = run_listener(
+            f"tcp/127.0.0.1:{port}",
+            *("--topic", "/aligned/signal", "--type", "missing_link_msgs/msg/Signal"),
+            *("--msgdef", SIGNAL, "--count", "1"),
+            *(
+                "--command",
+                "/aligned/trigger/cmd",
+                "--command-type",
+                "missing_link_msgs/msg/Trigger",
+            ),
+            *("--command-msgdef", TRIGGER, "--command-value", "25", "--command-dtype", "uint16"),
+            *("--command-count", "1", "--command-at-ms", "400"),
+        )
+        at = next(x["command_at_ns"] for x in lines if "command_at_ns" in x)
+        deadline = time.monotonic() + 5
+        while not fired and time.monotonic() < deadline:
+            time.sleep(0.05)
+        status = d.status()[0]
+    assert len(fired) == 1, fired
+    u = fired[0]
+    assert u.values == [25]
+    assert abs(u.host_ns[0] - at) <= u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
+    assert u.recv_ns / 1e9 > 0 and status["commands"] == 1

@@ -9,8 +9,9 @@ Foxglove)."""
 from __future__ import annotations
 
 import re
+from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from .descriptors import Transducer
 from .ros.msgs import CdrEncoder, msgdef, type_name
@@ -63,6 +64,31 @@ class Topic:
     ) -> Topic:
         text, _ = typestore.generate_msgdef(type_name, ros_version=2)
         return cls(check_topic(name), board, t, type_name, text, None, standard=True)
+
+
+class Command(NamedTuple):
+    """An actuator command as a face hands it to the daemon: the values (the first one is the
+    command) and, for a timed command, the host time (CLOCK_REALTIME ns) to act at; ``done``,
+    when given, gets the board tick it will act at, or the board's refusal (``Daemon.send``).
+
+    A thesis-format command message carries its execution time as ``times[0]`` (ROS 2, Zenoh,
+    ROS 1): zero means now."""
+
+    values: list[Any]
+    at_ns: int | None = None
+    done: Future[int] | None = None
+
+    @classmethod
+    def from_message(cls, msg: Any) -> Command:
+        """A thesis-format message decoded by rosbags (ROS 2: ``Time`` with sec and nanosec;
+        ROS 1: with sec and nsec too)."""
+        values = [v.item() if hasattr(v, "item") else v for v in msg.values]
+        times = list(msg.times)
+        at = 0
+        if times:
+            t = times[0]
+            at = int(t.sec) * 1_000_000_000 + int(getattr(t, "nanosec", getattr(t, "nsec", 0)))
+        return cls(values, at if at > 0 else None)
 
 
 class Update:

@@ -35,6 +35,8 @@ class World:
         self.pwms = {}  # pin -> PWM
         self.i2c = {}  # (bus, 7-bit address) -> device model
         self.adc_reads = 0
+        self.adc_log = []  # ticks_us of the newest ADC reads (at most 2000)
+        self.edges = {}  # pin -> [(ticks_us, level)] of an output's changes (at most 2000)
 
     def pin(self, pin_id):
         st = self.pins.get(pin_id)
@@ -148,7 +150,13 @@ class Pin:
         st = WORLD.pin(self.id)
         if v is None:
             return st.level
-        st.level = 1 if v else 0
+        level = 1 if v else 0
+        if level != st.level:
+            log = WORLD.edges.setdefault(self.id, [])
+            log.append((time.ticks_us(), level))
+            if len(log) > 2000:
+                log.pop(0)
+        st.level = level
         return None
 
     def irq(self, handler=None, trigger=IRQ_FALLING | IRQ_RISING, hard=False):
@@ -163,6 +171,9 @@ class ADC:
 
     def read_u16(self):
         WORLD.adc_reads += 1
+        WORLD.adc_log.append(time.ticks_us())
+        if len(WORLD.adc_log) > 2000:
+            WORLD.adc_log.pop(0)
         v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
         code12 = int(v / VREF * 4095 + 0.5)
         return (code12 << 4) | (code12 >> 8)  # as rp2 scales 12 to 16 bit

@@ -121,9 +121,10 @@ class RuntimeConfig:
         for t in runtime.transducers:
             self._add(t, "enabled", "bool", None, False, _getter(t), _enabler(t))
             drv = t.driver
+            if timing is not None and hasattr(drv, "timing"):
+                drv.timing = timing  # (timed calls, the grid: timing.py)
             if timing is not None and getattr(drv, "ALIGNABLE", False):
                 # sampling on the host-time grid (timing.py): every board at the same instants
-                drv.timing = timing
                 self._add(t, "aligned", "bool", None, False, _attr(drv, "aligned"), _align(drv))
                 self._add(t, "phase", "float", (0.0, 0.999), False, _attr(drv, "phase"),
                           _phase(drv))  # fmt: skip

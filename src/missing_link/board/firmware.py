@@ -19,15 +19,19 @@
 # 0x03 bytes in a row *between* frames (where J2A never sends them) stop the firmware and give
 # the REPL back, with Ctrl-C re-enabled.  mpremote and pyboard.py send exactly "\r\x03\x03"
 # before they take over, so `mpremote` and `missing-link flash` work on a running board.
+# Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
+# ms, a timed call wants its µs.
 
 from .clock import resolution_us
 from .config import RuntimeConfig
 from .drivers import driver_class
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
+from .timing import Timing
 
 RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options")
 BREAK = 0x03
+SPIN_US = 2000
 
 
 class BreakIn(Exception):
@@ -114,6 +118,7 @@ def build(board, machine, clock=None, store=None):
         drivers[entry["name"]] = drv
     if store is None:
         store = FileStore(board.get("config_file", "mlconfig.bin"))
+    rt.timing = Timing(rt)  # aligned sampling, timed calls (before the configuration's keys)
     rt.config = RuntimeConfig(rt, store)
     return rt, drivers
 
@@ -150,7 +155,12 @@ class Firmware:
         rt = self.runtime
         while True:
             self.step()
+            precise = rt.timing.next_precise_us()
+            if precise is not None and precise - rt.clock() < SPIN_US:
+                continue  # a timed call is near: no sleep (the link's wait is in ms)
             due = rt.next_deadline_us()
+            if precise is not None and due is not None and precise - SPIN_US < due:
+                due = precise - SPIN_US
             wait = 10000 if due is None else due - rt.clock()
             if wait > 0:
                 self.link.wait(min(wait, 10000))

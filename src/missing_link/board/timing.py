@@ -16,8 +16,10 @@
 # * timed calls: a2jAt [q host ns][B function index][payload] calls that function at the tick
 #   the host time maps to (reply: 0 + [Q board tick]), or refuses when the time is past, when
 #   it lies beyond what the map vouches for, or when no map is there.  The queue holds at most
-#   QUEUE entries.  The shell asks `next_precise_us()` to be on time (a timer compare on a
-#   microcontroller; the virtual boards spin for the last stretch).
+#   QUEUE entries.  The shell asks `next_precise_us()` to be on time (the MicroPython firmware
+#   stops sleeping for the last stretch).  While a call runs, `acting_tick` is the tick it was
+#   due at: a driver that models a timer-compare output (the virtual boards' trigger) acts at
+#   that tick, however late the process got round to it.
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
 #                 [I timed calls refused]: what the daemon shows per board.
@@ -39,6 +41,7 @@ class Timing:
         self.done = 0
         self.refused = 0
         self._queue = []  # (board tick, handler, payload), soonest first
+        self.acting_tick = None  # while a timed call runs: the tick it was due at
         runtime.add_function("a2jAt", self._at)
         runtime.add_function("a2jAlignInfo", self._info)
 
@@ -98,12 +101,15 @@ class Timing:
     def poll(self, now):
         q = self._queue
         while q and q[0][0] <= now:
-            _tick, handler, payload = q.pop(0)
+            tick, handler, payload = q.pop(0)
+            self.acting_tick = tick
             try:
                 handler(payload)
                 self.done += 1
             except Exception as e:  # noqa: BLE001 - a failing action must not stop the board
                 self.rt.debug("timed call: %s;" % e)
+            finally:
+                self.acting_tick = None
 
     def _info(self, payload):
         now = self.rt.clock()

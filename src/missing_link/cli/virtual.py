@@ -17,14 +17,15 @@ def cmd_board(args: argparse.Namespace) -> int:
     try:
         extra: dict[str, Any] = {"name": args.name} if args.name else {}
         if args.config_file:
-            if args.sim not in ("thesis", "encoder_servo", "rangers", "rate"):
+            if args.sim not in ("thesis", "encoder_servo", "rangers", "rate", "aligned"):
                 raise ValueError(f"--config-file: the {args.sim} board has no configuration")
             extra["config_file"] = args.config_file
         if args.rate or args.channels:
-            if args.sim != "rate":
-                raise ValueError("--rate and --channels go with --sim rate")
-            extra["rate_hz"] = args.rate or 100.0
-            extra["channels"] = args.channels or 1
+            if args.sim not in ("rate", "aligned") or (args.channels and args.sim != "rate"):
+                raise ValueError("--rate goes with --sim rate or aligned, --channels with rate")
+            extra["rate_hz"] = args.rate or (100.0 if args.sim == "rate" else 50.0)
+            if args.sim == "rate":
+                extra["channels"] = args.channels or 1
         drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
         if drifting:
             from ..virtual.clocks import DriftClock

@@ -64,6 +64,9 @@ class ProbeContext:
     on_map_pushed: Callable[[], None]  #: the board took a clock map (a2jHostMap)
     #: each exchange and what the sync made of it (the session records it)
     on_exchange: Callable[[Exchange, AddResult], None] = lambda ex, result: None
+    #: the board samples on the host-time grid: hand it the map after every exchange, not only
+    #: once a second (board/timing.py)
+    wants_map: Callable[[], bool] = lambda: False
 
 
 class ClockProber:
@@ -88,6 +91,11 @@ class ClockProber:
                 self._lost(e)
                 continue
             self._exchanged(ex)
+        if self._pushes:  # the board can act on host time from its first sample on
+            try:
+                self.push_map()
+            except MissingLinkError as e:
+                self._report(e)
 
     def start(self) -> None:
         """From now on, probe on the board's reading thread."""
@@ -137,7 +145,7 @@ class ClockProber:
             self._lost(got)
             return
         self._exchanged(got)
-        if self._pushes and time.monotonic() >= self._next_push:
+        if self._pushes and (time.monotonic() >= self._next_push or self.ctx.wants_map()):
             payload = self._map_payload()
             if payload is not None:
                 self._next_push = time.monotonic() + MAP_PUSH_PERIOD  # one in flight at most

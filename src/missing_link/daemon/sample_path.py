@@ -37,10 +37,14 @@ from typing import Any
 from ..host.board import Board
 from ..j2a import SifReceived
 from ..ros.standard import StandardMapping
-from ..timesync.sync import NOT_SYNCED, OUTLIER, ClockSync
+from ..timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ..topics import Topic, Update
 
 log = logging.getLogger(__name__)
+
+#: how far from its grid an aligned sample may lie beyond its clock bound (a board's tick and
+#: the map it was handed are that good): more is flagged OFF_GRID
+GRID_SLACK_NS = 100_000
 
 
 class SamplePath:
@@ -59,6 +63,10 @@ class SamplePath:
         self.host_time_clamps = 0
         self.future_clamps = 0  # mapped after their own receipt (map error): set to the receipt
         self.outage_lost_sifs = 0  #: SIFs lost while the link was down (included in lost_sifs)
+        #: transducer id -> (period ns, phase ns) of its host-time grid, when it is aligned
+        #: (board/timing.py; the session keeps it with the board's configuration)
+        self.grid: dict[int, tuple[int, int]] = {}
+        self.off_grid = 0  #: samples of aligned transducers that were not on their grid
         self.next_seq: int | None = None  # after the last SIF seen on this board boot
         self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
         self._outage_count: int | None = None  # a2jSifCount read after an outage
@@ -100,6 +108,7 @@ class SamplePath:
             "clock_outliers": self.outliers,
             "host_time_clamps": self.host_time_clamps,
             "future_clamps": self.future_clamps,
+            "off_grid_samples": self.off_grid,
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
@@ -143,6 +152,13 @@ class SamplePath:
             if missing:
                 host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
                 newest = max(host_ns)  # (0 when every channel is N/A)
+            grid = self.grid.get(cmd) if self.grid else None
+            if grid is not None and newest:
+                period, phase = grid
+                off = (newest - phase) % period
+                if min(off, period - off) > bound + GRID_SLACK_NS:
+                    flags |= OFF_GRID
+                    self.off_grid += 1
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             est_error, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:

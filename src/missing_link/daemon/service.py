@@ -36,6 +36,7 @@ import struct
 import threading
 import time
 from collections.abc import Iterable, Mapping
+from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import load_descriptor_file
@@ -49,7 +50,7 @@ from ..publishers.bus import Bus, Callback, Subscription
 from ..publishers.registry import make_publisher
 from ..ros.clock import ClockRecord
 from ..ros.msgs import typestore_for
-from ..topics import Topic, Update
+from ..topics import Command, Topic, Update
 from ..transport import check_url
 from .claims import Claims
 from .config import BoardSpec, Config
@@ -230,8 +231,20 @@ class Daemon:
         sessions = self.sessions
         return self.discovery is None and bool(sessions) and all(s.state == UP for s in sessions)
 
-    def send(self, topic: str, value: Any) -> None:
-        self.bus.send(topic, value)
+    def send(
+        self, topic: str, value: Any, at_ns: int | None = None, timeout: float = 5.0
+    ) -> int | None:
+        """Command an actuator (``/<board>/<name>/cmd``).  Now: asynchronously, the latest
+        command wins.  With ``at_ns`` (a host time, CLOCK_REALTIME ns): the board acts at that
+        time (board/timing.py); this waits for the board's answer and returns the board tick
+        it will act at, or raises the board's refusal (past, beyond what its clock map vouches
+        for, no map yet)."""
+        if at_ns is None:
+            self.bus.send(topic, value)
+            return None
+        done: Future[int] = Future()
+        self.bus.send(topic, Command([value], at_ns, done))
+        return done.result(timeout)
 
     def trigger_at(
         self, host_ns: int, boards: Iterable[str] | None = None, function: str = "setTriggerAt"

@@ -59,6 +59,7 @@ from ..timesync.sync import ClockSync, SyncOptions
 from ..topics import Topic
 from ..transport import open_transport
 from .actuators import Actuators
+from .alignment import Alignment, grid_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
@@ -109,10 +110,11 @@ class BoardSession:
                 name=lambda: self.name,
                 wanted=lambda: ctx.config.board_config.get(self.name, {}),
                 warn=self.warn,
-                on_keys=ctx.offer_config,
-                on_change=ctx.config_changed,
+                on_keys=self._offer_config,
+                on_change=self._config_changed,
             )
         )
+        self.alignment = Alignment()
         self._resets_seen = 0
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
@@ -291,7 +293,7 @@ class BoardSession:
             due = min(next_ping, max(board.last_frame + link_timeout / 2, next_beat))
             self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
-            self.actuators.run(board, self._stop.is_set)
+            self.actuators.run(board, self._stop.is_set, self._push_map)
             sync = self.sync
             if sync is not None and sync.resets != self._resets_seen:
                 self._resets_seen = sync.resets  # the board restarted: the file's keys again
@@ -310,6 +312,8 @@ class BoardSession:
             ping = now >= next_ping
             if ping:
                 next_ping = now + period
+                if self.path.grid:  # the board's own account of its grid (alignment.py)
+                    self.alignment.refresh(board)
             if self.prober is not None:
                 if heartbeat:
                     self.prober.probe_now()  # answered (or timed out) on the reading thread
@@ -380,7 +384,27 @@ class BoardSession:
             on_error=on_error,
             on_map_pushed=on_map_pushed,
             on_exchange=on_exchange,
+            wants_map=lambda: bool(self.path.grid),
         )
+
+    def _offer_config(self, name: str, keys: list[Any], values: dict[str, Any], apply: Any) -> None:
+        self.path.grid = grid_of(values, self.path.topics)
+        self.ctx.offer_config(name, keys, values, apply)
+
+    def _config_changed(self, name: str, values: dict[str, Any]) -> None:
+        aligned_before = bool(self.path.grid)
+        self.path.grid = grid_of(values, self.path.topics)
+        if self.path.grid and not aligned_before:
+            try:  # the grid needs the map now, not at the next exchange
+                self._push_map()
+            except MissingLinkError as e:
+                self._set_error(str(e))
+        self.ctx.config_changed(name, values)
+
+    def _push_map(self) -> None:
+        prober = self.prober
+        if prober is not None:
+            prober.push_map()
 
     def _set_error(self, text: str) -> None:
         self.error = text
@@ -439,6 +463,7 @@ class BoardSession:
             "clock_epoch": self.epoch,
             "map_pushes": self.map_pushes,
             **self.settings.status(),
+            **self.alignment.status(self.path.grid, self.path.topics),
             **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
         }
 

@@ -22,7 +22,7 @@ from typing import Any
 from ..errors import MissingLinkError
 from ..ros.diagnostics import status_label, status_level, status_message
 from ..ros.msgs import ROS_TYPES
-from ..topics import Topic, Update
+from ..topics import Command, Topic, Update
 from .registry import DEBIAN_DIST, debian_rospy
 from .rosbase import RosPublisher
 
@@ -113,7 +113,8 @@ class Ros1Publisher(RosPublisher):
 
             def on_command(msg: Any) -> None:  # rospy's thread: hand over, never raise
                 try:
-                    deliver(list(msg.values))
+                    at = msg.times[0].to_nsec() if msg.times else 0
+                    deliver(Command(list(msg.values), at if at > 0 else None))
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command is counted, not fatal
                     self.dropped += 1

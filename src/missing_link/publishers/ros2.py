@@ -42,7 +42,7 @@ from typing import Any
 from ..host.config import ConfigKey, Value
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..ros.msgs import ROS_TYPES
-from ..topics import Topic, Update
+from ..topics import Command, Topic, Update
 from .base import PublisherError
 from .ros2_params import RosParameters
 from .rosbase import RosPublisher
@@ -200,7 +200,7 @@ class Ros2Publisher(RosPublisher):
         def on_command(raw: bytes) -> None:
             try:
                 msg: Any = self.typestore.deserialize_cdr(raw, type_name)
-                deliver([v.item() if hasattr(v, "item") else v for v in msg.values])
+                deliver(Command.from_message(msg))  # (times[0]: when to act; 0 = now)
             except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
                 self.dropped += 1
                 log.warning("ros2: command on %s refused: %s", name, e)

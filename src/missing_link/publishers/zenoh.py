@@ -35,7 +35,7 @@ import xxhash
 
 from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
-from ..topics import Topic, Update
+from ..topics import Command, Topic, Update
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
@@ -206,8 +206,7 @@ class ZenohPublisher(RosPublisher):
             def on_sample(sample: Any) -> None:  # zenoh's thread: decode and hand over
                 try:
                     msg: Any = self.typestore.deserialize_cdr(bytes(sample.payload), type_name)
-                    values = [v.item() if hasattr(v, "item") else v for v in msg.values]
-                    deliver(values)
+                    deliver(Command.from_message(msg))  # (times[0]: when to act; 0 = now)
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
                     self.command_errors += 1

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from .estimator import AddResult, ClockEstimator, Estimate
     from .exchange import Exchange
     from .published import PublishedMap
-    from .sync import NOT_SYNCED, OUTLIER, STEP, ClockSync, Mapped, SyncOptions
+    from .sync import NOT_SYNCED, OFF_GRID, OUTLIER, STEP, ClockSync, Mapped, SyncOptions
 
 _WHERE = {
     "AddResult": "estimator",
@@ -28,6 +28,7 @@ _WHERE = {
     "Exchange": "exchange",
     "PublishedMap": "published",
     "NOT_SYNCED": "sync",
+    "OFF_GRID": "sync",
     "OUTLIER": "sync",
     "STEP": "sync",
     "ClockSync": "sync",
@@ -37,6 +38,7 @@ _WHERE = {
 
 __all__ = [
     "NOT_SYNCED",
+    "OFF_GRID",
     "OUTLIER",
     "STEP",
     "AddResult",

@@ -55,6 +55,9 @@ UNSYNCED, BURST, TRACKING, FAST = "unsynced", "burst", "tracking", "fast"
 STEP = 1  #: the map stepped at this sample (first sample after start or a board reset)
 NOT_SYNCED = 2  #: no estimate yet: the host time is not from the clock map, the bound is unknown
 OUTLIER = 4  #: the board stamp was far from the map (a glitch): refused; host time = receive time
+#: an aligned transducer's sample that is not on its host-time grid (board/timing.py): the board
+#: had no valid clock map then (it ran free), or it does not align
+OFF_GRID = 8
 
 
 @dataclass

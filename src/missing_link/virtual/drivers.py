@@ -8,6 +8,7 @@ import math
 import random
 import struct
 from collections.abc import Callable
+from typing import Any
 
 from ..board.runtime import BoardRuntime
 
@@ -21,22 +22,36 @@ def rng_for(seed: int, name: str) -> random.Random:
 
 class _Driver:
     """Common driver plumbing: a callback, a period and the next due time (board µs); the rate
-    is a run-time key (``rate_hz``, board/config.py) where the class lists it in CONFIG."""
+    is a run-time key (``rate_hz``, board/config.py) where the class lists it in CONFIG.
+
+    ``ALIGNABLE`` drivers sample on the host-time grid when ``aligned`` (board/timing.py): at
+    the grid's board tick, stamped with that tick, as a microcontroller whose timer triggers the
+    measurement (the virtual board's process wakes up later than that, which the stamp does
+    not show, as a timer-triggered ADC's would not)."""
 
     period_us = 10_000
     CONFIG: tuple[tuple[str, str, tuple[float, float] | None, bool], ...] = ()
+    ALIGNABLE = False
 
     def __init__(self, rng: random.Random) -> None:
         self.rng = rng
         self._cb: ValueCb | None = None
         self._due: int | None = None
+        self._stamp: int | None = None  # the tick of the measurement under way, when aligned
+        self.aligned = False
+        self.phase = 0.0
+        self.timing: Any = None  # set by the runtime's configuration (board/timing.py)
+        self._free = True
+
+    def realign(self) -> None:
+        self._due = None
 
     def set_cb(self, fn: ValueCb) -> None:
         self._cb = fn
 
     def emit(self, channel: int, value: int | float) -> None:
         if self._cb is not None:
-            self._cb(channel, value)
+            self._cb(channel, value, self._stamp)  # type: ignore[call-arg]
 
     def next_due_us(self) -> int | None:
         return self._due
@@ -50,17 +65,39 @@ class _Driver:
         if key != "rate_hz":
             raise ValueError(f"no key {key}")
         old, self.period_us = self.period_us, max(1, round(1e6 / value))
-        if self._due is not None:  # the next sample one new period after the last at most
+        if self.aligned:
+            self._due = None  # the grid of the new period
+        elif self._due is not None:  # the next sample one new period after the last at most
             self._due = min(self._due, self._due - old + self.period_us)
+
+    def _grid(self, now: int) -> int | None:
+        self._free = True
+        if not self.aligned or self.timing is None:
+            return None
+        t: int | None = self.timing.next_grid(self.period_us, self.phase, now)
+        self._free = t is None
+        return t
 
     def poll(self, now: int) -> None:
         if self._due is None:
-            # Random phase so that drivers do not all fire at once.
-            self._due = now + self.rng.randrange(self.period_us)
+            # On the grid when aligned; else a random phase, so drivers do not all fire at once.
+            grid = self._grid(now)
+            self._due = grid if grid is not None else now + self.rng.randrange(self.period_us)
             return
         if now < self._due:
             return
-        self.step(now)
+        scheduled = self._due
+        if self.aligned and self._free and self.timing is not None:
+            self.timing.unaligned += 1  # not on the grid (no valid map): said
+        self._stamp = scheduled if self.aligned else None
+        try:
+            self.step(now)
+        finally:
+            self._stamp = None
+        grid = self._grid(now)
+        if grid is not None:
+            self._due = grid
+            return
         self._due += self.period_us
         if self._due < now:  # fell behind (e.g. the process was paused): skip, do not burst
             self._due = now + self.period_us
@@ -108,6 +145,7 @@ class SharpIR(_Driver):
 
     period_us = 40_000
     CONFIG = (("rate_hz", "float", (0.1, 26.0), False),)  # the sensor updates every 38 ms
+    ALIGNABLE = True
 
     def __init__(self, rng: random.Random, channels: int = 8) -> None:
         super().__init__(rng)
@@ -262,10 +300,50 @@ class Trigger(_Driver):
             self.emit(0, self.fired & 0xFF)
 
 
+class PulseTrigger(_Driver):
+    """A trigger output (a camera's or a scope's): ``a2j_trigger`` (u16 width in µs; 0 = the
+    configured ``pulse_us``) makes one pulse, reported as a sample of its width stamped at its
+    rising edge.  Through ``a2jAt`` (board/timing.py) it fires at a host time: the pulse is a
+    timer-compare output, whose edge is at the tick the call was due at (``acting_tick``),
+    however late the virtual board's process got round to the call."""
+
+    CONFIG = (("pulse_us", "int", (1, 65535), False),)
+
+    def __init__(self, rng: random.Random, pulse_us: int = 10) -> None:
+        super().__init__(rng)
+        self.pulse_us = pulse_us
+        self.fired = 0
+
+    def get_config(self, key: str) -> float:
+        return self.pulse_us
+
+    def set_config(self, key: str, value: float) -> None:
+        self.pulse_us = int(value)
+
+    def next_due_us(self) -> int | None:
+        return None
+
+    def poll(self, now: int) -> None:
+        pass
+
+    def command(self, payload: bytes) -> tuple[int, bytes]:
+        if len(payload) != 2:
+            return 0xFF, b"expects u16 width in us"
+        width = struct.unpack("<H", payload)[0] or self.pulse_us
+        self.fired += 1
+        self._stamp = self.timing.acting_tick if self.timing is not None else None
+        try:
+            self.emit(0, width)
+        finally:
+            self._stamp = None
+        return 0, b""
+
+
 class Counter(_Driver):
     """A test signal at an exact rate: every channel gets the sample counter (benchmarks)."""
 
     CONFIG = (("rate_hz", "float", (0.1, 100000.0), False),)
+    ALIGNABLE = True
 
     def __init__(self, rng: random.Random, rate_hz: float, channels: int) -> None:
         super().__init__(rng)

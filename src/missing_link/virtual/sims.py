@@ -16,7 +16,17 @@ from collections.abc import Callable
 from ..board.config import RuntimeConfig
 from ..board.runtime import BoardRuntime, Transducer
 from ..board.store import FileStore
-from .drivers import Counter, QuadEncoders, Servo, SharpIR, SRF02Sonars, Trigger, rng_for
+from ..board.timing import Timing
+from .drivers import (
+    Counter,
+    PulseTrigger,
+    QuadEncoders,
+    Servo,
+    SharpIR,
+    SRF02Sonars,
+    Trigger,
+    rng_for,
+)
 from .hostile import HOSTILE
 from .original import OriginalRuntime
 
@@ -95,8 +105,10 @@ def _add_rangers(rt: BoardRuntime, seed: int) -> None:
 
 
 def _configurable(rt: BoardRuntime, config_file: str | None) -> BoardRuntime:
-    """The run-time configuration (board/config.py), saved to ``config_file`` if given (else the
-    board has no storage: a save is refused, saying so)."""
+    """Acting on host time (board/timing.py: aligned sampling, timed calls) and the run-time
+    configuration (board/config.py), saved to ``config_file`` if given (else the board has no
+    storage: a save is refused, saying so)."""
+    rt.timing = Timing(rt)
     rt.config = RuntimeConfig(rt, FileStore(config_file) if config_file else None)
     return rt
 
@@ -148,6 +160,31 @@ def rate(
     return _configurable(rt, config_file)
 
 
+def aligned(
+    seed: int = 0,
+    name: str = "aligned",
+    rate_hz: float = 50.0,
+    config_file: str | None = None,
+    **kw: object,
+) -> BoardRuntime:
+    """Measuring together, acting on time (bench/bench_aligned.py): ``signal`` (a counter at
+    ``rate_hz``, alignable to the host-time grid) and ``trigger`` (a pulse output, an actuator
+    that takes timed commands)."""
+    rt = BoardRuntime(name, "missing-link aligned sampling board", f"sim-{name}-{seed}", **kw)
+    rt.add_transducer(
+        Transducer("signal", 0, "counter", "COUNTER", 1, "int32_t", -1, rate_hz=rate_hz),
+        Counter(rng_for(seed, "counter"), rate_hz, 1),
+    )
+    trig = PulseTrigger(rng_for(seed, "trigger"))
+    t = Transducer(
+        "trigger", 1, "gpio", "PULSE", 1, "uint16_t", 0, unit="us", kind="actuator",
+        call="a2j_trigger",
+    )  # fmt: skip
+    rt.add_function("a2j_trigger", rt.gated(t, trig.command))
+    rt.add_transducer(t, trig)
+    return _configurable(rt, config_file)
+
+
 def original(seed: int = 0, name: str = "original", **kw: object) -> BoardRuntime:
     """A Part 1 board: the golden-vector table, no Part 2 functions, no j2a.version, and the
     2014 firmware's a2jMany (its offset bug)."""
@@ -178,6 +215,7 @@ SIMS: dict[str, Callable[..., BoardRuntime]] = {
     "rangers": rangers,
     "original": original,
     "rate": rate,
+    "aligned": aligned,
 }
 
 SIMS.update(HOSTILE)

@@ -22,6 +22,7 @@ DRIVERS = {
     "digital": ("digital", "DigitalIn"),
     "analog": ("analog", "AnalogIn"),
     "mpu6050": ("mpu6050", "MPU6050"),
+    "trigger": ("trigger", "Trigger"),
 }
 
 
