@@ -231,3 +231,52 @@ def test_configuration_reaches_the_simulated_devices(sim: FirmwareSim) -> None:
         assert board.config()["sonar.rate_hz"] == 10.0
     finally:
         board.close()
+
+
+def test_aligned_sampling_and_a_timed_trigger_on_micropython(sim: FirmwareSim) -> None:
+    """Given a map of the board's clock (a2jHostMap), an aligned ranger's ADC reads at the
+    simulated device fall on the host-time grid in board ticks, and a timed trigger's edge at
+    the device lands on the tick its host time maps to (the wasm port's clock counts whole
+    ms: within that)."""
+    board = Board(open_transport(sim.url), timeout=5.0)
+    try:
+        board.handshake()
+        now = board.clock_exchange(5.0).t3
+        h0 = 1_795_000_000_000_000_000 + 3_456_789  # host ns (any epoch will do)
+        board.call_ok("a2jHostMap", struct.pack("<Qqi", now, h0, 0))
+
+        # the device logs time.ticks_us(); the board's clock extends it to 64 bit (its own
+        # origin): the same instant in both
+        board_now, raw_now = sim.ctl("import time; result = (rt.clock(), time.ticks_us())")
+
+        def host(tick: int) -> int:
+            return h0 + (tick - now) * 1000
+
+        def board_tick(raw: int) -> int:
+            return raw - raw_now + board_now
+
+        sim.ctl("WORLD.adc_log.clear()")
+        board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 10, "dist_ir.phase": 0.25})
+        time.sleep(1.5)
+        reads = sim.ctl("result = list(WORLD.adc_log)")
+        firsts = [t for i, t in enumerate(reads) if i == 0 or t - reads[i - 1] > 5_000]
+        assert len(firsts) >= 10  # 10 Hz, 3 conversions each
+        for t in firsts[1:]:
+            off = (host(board_tick(t)) - 25_000_000) % 100_000_000
+            assert min(off, 100_000_000 - off) <= 2_000_000, off  # the wasm clock's 1 ms ticks
+        board.configure({"dist_ir.aligned": False})
+        sim.ctl("WORLD.edges.clear()")
+        soon = board.clock_exchange(5.0).t3 + 500_000  # half a second from now
+        at = host(soon)
+        tick = struct.unpack(
+            "<Q",
+            board.call_ok("a2jAt", struct.pack("<qB", at, board.index["a2j_trigger"]) + b"\0\0"),
+        )[0]
+        assert tick == soon
+        time.sleep(max(0.0, (tick - board.clock_exchange(5.0).t3) / 1e6) + 0.3)
+        edges = sim.ctl("result = WORLD.edges.get(16, [])")
+        assert [level for _t, level in edges] == [1, 0]
+        assert 0 <= board_tick(edges[0][0]) - tick <= 2_000, (edges, tick)
+        assert board.call_ok("a2jAlignInfo")[0] == 1  # the map is valid
+    finally:
+        board.close()

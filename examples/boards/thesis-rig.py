@@ -1,5 +1,6 @@
 # The thesis's test rig on one Raspberry Pi Pico (RP2040) running MicroPython: a wheel encoder,
-# a Sharp IR ranger, an SRF02 sonar, the servo it steers, a bumper and an IMU.
+# a Sharp IR ranger, an SRF02 sonar, the servo it steers, a bumper, an IMU and a trigger output
+# (a camera's trigger input: pulses at a host time, docs/timesync.md).
 # Flash it with:  missing-link flash examples/boards/thesis-rig.py --port /dev/ttyACM0
 # Wiring: docs/hardware.md.  Every key of a transducer that is not a descriptor field
 # (name, id, driver, prefix, model, dtype, na, call, bus, options) is the driver's own option.
@@ -19,5 +20,7 @@ BOARD = {
         {"name": "servo", "id": 3, "driver": "servo", "pin": 15, "call": "a2j_set_servo"},
         {"name": "bumper", "id": 4, "driver": "digital", "pin": 14, "debounce_ms": 20},
         {"name": "imu", "id": 5, "driver": "mpu6050", "bus": "i2c0", "rate_hz": 100},
+        {"name": "camera", "id": 6, "driver": "trigger", "pin": 16, "pulse_us": 100,
+         "call": "a2j_trigger"},
     ],
 }
