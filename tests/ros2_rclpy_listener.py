@@ -6,7 +6,9 @@ is given, reads the ROS graph, optionally publishes commands, and prints one JSO
         --sub /diagnostics=diagnostic_msgs/msg/DiagnosticArray \
         [--sensor-qos] [--cmd /thesis/servo/cmd=missing_link_msgs/msg/Servo=40]
 
-It waits until every subscribed topic delivered at least --min messages (or --seconds pass)."""
+A command value VALUE@MS is a timed command: its times[0] is the host time MS ms after it is
+sent (CLOCK_REALTIME); the times sent are printed ("sent_at_ns").  It waits until every
+subscribed topic delivered at least --min messages (or --seconds pass)."""
 
 from __future__ import annotations
 
@@ -81,9 +83,11 @@ def main() -> None:
             msg_class(type_name), topic, lambda m, t=topic: got[t].append(summarise(m)), qos
         )
     pubs = []
+    sent_at: list[int] = []
     for spec in a.cmd:
         topic, type_name, value = spec.split("=")
         pubs.append((node.create_publisher(msg_class(type_name), topic, 10), type_name, value))
+    Time = importlib.import_module("builtin_interfaces.msg").Time
     wait_topic, wait_value = a.until_value.split("=") if a.until_value else (None, None)
     deadline = time.monotonic() + a.seconds
     next_cmd = 0.0
@@ -92,8 +96,15 @@ def main() -> None:
         if pubs and time.monotonic() >= next_cmd:
             next_cmd = time.monotonic() + 0.5
             for pub, type_name, value in pubs:
+                if pub.get_subscription_count() == 0:
+                    continue  # (not matched yet: DDS would drop it)
                 m = msg_class(type_name)()
-                m.values = [int(value)]
+                v, _, ahead_ms = value.partition("@")
+                m.values = [int(v)]
+                if ahead_ms:
+                    at = time.time_ns() + int(float(ahead_ms) * 1e6)
+                    m.times = [Time(sec=at // 10**9, nanosec=at % 10**9)]
+                    sent_at.append(at)
                 pub.publish(m)
         enough = all(len(v) >= a.min for v in got.values())
         if wait_topic is not None:
@@ -111,10 +122,11 @@ def main() -> None:
     print(
         json.dumps(
             {
-                "received": {k: v[-20:] for k, v in got.items()},
+                "received": {k: v[-100:] for k, v in got.items()},
                 "counts": {k: len(v) for k, v in got.items()},
                 "topics": topics,
                 "nodes": [n for n, _ns in nodes],
+                "sent_at_ns": sent_at,
             }
         ),
         flush=True,

@@ -55,7 +55,13 @@ def test_info_shows_the_descriptors_of_the_board_file(rig: AvrSim) -> None:
 
     info = json.loads(r.stdout)
     assert info["properties"]["board.name"] == "uno_rig"
-    assert [t["name"] for t in info["transducers"]] == ["wheel", "dist_ir", "sonar", "servo"]
+    assert [t["name"] for t in info["transducers"]] == [
+        "wheel",
+        "dist_ir",
+        "sonar",
+        "servo",
+        "camera",
+    ]
     # the same descriptor lines the MicroPython firmware makes from the same board file
     board = Board(open_transport(rig.url), timeout=2.0)
     try:

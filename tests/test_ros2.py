@@ -189,6 +189,14 @@ def test_thesis_types_after_create_msgs_build_and_ros2_commands(
             "--until-value",
             "/thesis/servo=40",
         )
+        # a timed command: times[0] 300 ms ahead; the board acts then and says so
+        timed = listen(
+            listener_env,
+            *("--seconds", "30", "--min", "0"),
+            *("--sub", "/thesis/servo=missing_link_msgs/msg/Servo"),
+            *("--cmd", "/thesis/servo/cmd=missing_link_msgs/msg/Servo=-30@300"),
+            *("--until-value", "/thesis/servo=-30"),
+        )
         time.sleep(1.0)  # the servo has settled: its state goes out no more
         late = listen(
             listener_env,
@@ -197,9 +205,16 @@ def test_thesis_types_after_create_msgs_build_and_ros2_commands(
         )
     finally:
         err = stop(daemon)
+    # each timed command acted at its asked time: the servo's state is reported then (where
+    # it is when the command takes effect; it moves towards -30 over the next frames)
+    stamps = [m["times_ns"][0] for m in timed["received"]["/thesis/servo"]]  # type: ignore[index]
+    sent = timed["sent_at_ns"]
+    assert isinstance(sent, list) and sent, timed
+    acted = [at for at in sent if any(abs(s - at) <= 200_000 for s in stamps)]
+    assert len(acted) >= max(1, len(sent) - 1), (sent, stamps)
     # a late transient-local subscriber gets the servo's current state all the same
     late_values = [v for m in late["received"]["/thesis/servo"] for v in m["values"]]  # type: ignore[index]
-    assert late_values == [40], (late_values, err[-2000:])
+    assert late_values == [-30], (late_values, err[-2000:])
     received = got["received"]
     assert isinstance(received, dict), err[-2000:]
     dist = received["/thesis/dist_ir"]

@@ -12,11 +12,13 @@ import pytest
 
 from missing_link.board.timing import MAP_LIFE_US
 from missing_link.daemon import Daemon
+from missing_link.daemon.alignment import ECHO_LAG_NS, grid_of, off_grid
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.descriptors import Transducer
 from missing_link.errors import MissingLinkError
 from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame
 from missing_link.timesync import OFF_GRID
-from missing_link.topics import Update
+from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
 from missing_link.virtual.server import start_board_thread
 
@@ -129,6 +131,31 @@ def test_aligned_samples_fall_on_the_grid_and_free_ones_are_counted() -> None:
     for s in stamps:  # stamped at the grid's tick, a half period off the whole 20 ms
         d = (timing.host_at(s) - 10_000_000) % 20_000_000
         assert min(d, 20_000_000 - d) <= 1_001, d
+
+
+def test_the_grid_the_daemon_checks_stamps_against() -> None:
+    """From the configuration: the board's whole-µs period of its float32 rate, the phase, and
+    an ultrasonic ranger's lag (its ping is on the grid, its stamp at the echo's mid-flight)."""
+
+    def topic(tid: int, prefix: str) -> Topic:
+        t = Transducer(f"t{tid}", tid, prefix, "m", 1, "uint16_t", 0)
+        return Topic(f"/b/t{tid}", "b", t, "missing_link_msgs/msg/T", "", None)
+
+    topics = {0: topic(0, "ir"), 1: topic(1, "ultrasonic"), 2: topic(2, "ir")}
+    values = {
+        "t0.aligned": True, "t0.rate_hz": 30.0, "t0.phase": 0.25,
+        "t1.aligned": True, "t1.rate_hz": 10.0,
+        "t2.aligned": False, "t2.rate_hz": 10.0,
+    }  # fmt: skip
+    grid = grid_of(values, topics)
+    assert grid == {0: (33_333_000, 8_333_250, 0), 1: (100_000_000, 0, ECHO_LAG_NS)}
+    bound, slack = 5_000, 100_000
+    assert not off_grid(10 * 33_333_000 + 8_333_250 + 50_000, grid[0], bound, slack)
+    assert not off_grid(10 * 33_333_000 + 8_333_250 - 100_000, grid[0], bound, slack)
+    assert off_grid(10 * 33_333_000 + 8_333_250 + 200_000, grid[0], bound, slack)
+    assert not off_grid(7 * 100_000_000 + 12_000_000, grid[1], bound, slack)  # an echo's lag
+    assert off_grid(7 * 100_000_000 - 1_000_000, grid[1], bound, slack)  # but never early
+    assert off_grid(7 * 100_000_000 + 30_000_000, grid[1], bound, slack)
 
 
 def test_the_daemon_keeps_the_maps_and_flags_a_board_that_runs_free() -> None:

@@ -1,9 +1,11 @@
 # The thesis's test rig on an Arduino Uno (ATmega328P) with our C firmware (firmware/avr):
-# encoder, Sharp IR ranger, SRF02 sonar and the servo it steers.  Build and flash with:
+# encoder, Sharp IR ranger, SRF02 sonar, the servo it steers and a trigger output (a camera's).
+# Build and flash with:
 #   make -C firmware/avr BOARD=../../examples/boards/thesis-rig-uno.py
 #   missing-link flash examples/boards/thesis-rig-uno.py --port /dev/ttyACM0
 # On AVR the encoder sits on INT0/INT1 (Uno D2/D3), the servo on OC1A (D9), the SRF02 on the
-# TWI pins (A4/A5), the Sharp on an ADC channel (pin = 0..7 for A0..A7).
+# TWI pins (A4/A5), the Sharp on an ADC channel (pin = 0..7 for A0..A7), the trigger on D11
+# (OC2A: Timer2's compare makes its edges, on the tick a host time maps to, docs/timesync.md).
 BOARD = {
     "name": "uno_rig",
     "model": "uno-thesis-rig",
@@ -16,5 +18,7 @@ BOARD = {
         {"name": "sonar", "id": 2, "driver": "srf02", "bus": "twi", "address": 0x70,
          "rate_hz": 10},
         {"name": "servo", "id": 3, "driver": "servo", "pin": 9, "call": "a2j_set_servo"},
+        {"name": "camera", "id": 4, "driver": "trigger", "pin": 11, "pulse_us": 20,
+         "call": "a2j_trigger"},
     ],
 }

@@ -12,6 +12,10 @@
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
  *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   trig: the trigger pin's edges (OC2A: Uno D11 / Mega D10): "trig EDGES RISE_US FALL_US", the last
+ *         edges in the board's µs (its clock: Timer1, counted from the cycle it was started)
+ *   adc: "adc N T1 T2 ...": the starts of the last conversions of ADC0, in the board's µs
+ *   stack: "stack MIN_SP PC": the lowest the stack pointer has been, and where (a byte address)
  *   cut N: the power goes after the next N bytes written to the EEPROM (a byte written by
  *          the firmware that changes it: avr-libc's eeprom_update_* writes only those): the
  *          EEPROM is saved as it is then and the rig stops at once, printing "CUT"
@@ -193,6 +197,88 @@ static double servo_pulse_us(void) {
     return (double)ocr * ps * 1e6 / avr->frequency;
 }
 
+/* ---- the board's clock, the trigger's pin, ADC0's conversions, the stack --------------------------
+ * The firmware's clock is Timer1 at 2 MHz from the moment TCCR1B's clock bits are set: that
+ * cycle (seen after the instruction that set them, at most 2 cycles late) is its zero, so an
+ * event at the pins can be put in the board's µs to compare with the ticks it was asked for. */
+static avr_cycle_count_t t1_start;
+static uint8_t trig_pin = 3; /* OC2A: PB3 */
+static avr_cycle_count_t trig_rise, trig_fall;
+static unsigned trig_edges;
+#define ADC_LOG 64
+static avr_cycle_count_t adc_starts[ADC_LOG];
+static unsigned adc_n;
+static uint16_t sp_min = 0xFFFF;
+static uint32_t sp_min_pc; /* where it was reached */
+
+static double board_us_at(avr_cycle_count_t c) {
+    return c < t1_start ? -1.0 : (double)(c - t1_start) * 1e6 / avr->frequency;
+}
+
+/* OC2A (the trigger's pin) as the datasheet has it, from the registers: Timer2 counts from the
+ * cycle its clock was started, one count per 8 cycles (prescaler 8, the only one the firmware
+ * uses); a compare match (the count going from OCR2A to OCR2A + 1) applies COM2A to the pin:
+ * toggle, clear or set; COM2A = 0 hands the pin back to PORTB.  The rig does not take the pin
+ * from simavr's timer: 1.6 also drives it at every overflow in normal mode (its PWM modes'
+ * behaviour; fixed upstream since).  Checked after every instruction with the registers as they
+ * were before it, so a match is placed on its exact cycle. */
+static avr_cycle_count_t t2_start, t2_seen;
+static uint8_t oc2a, trig_level, ocr2a_was, com2a_was;
+
+static void trig_edge(uint8_t level, avr_cycle_count_t at) {
+    if (level == trig_level) return;
+    trig_level = level;
+    trig_edges++;
+    if (level) trig_rise = at;
+    else trig_fall = at;
+}
+
+static void trig_watch(void) {
+    enum { TCCR2A = 0xB0, TCCR2B = 0xB1, OCR2A = 0xB3, PORTB = 0x25 };
+    if (!t2_start) {
+        if ((avr->data[TCCR2B] & 7) != 2) return;
+        t2_start = t2_seen = avr->cycle;
+    }
+    uint64_t n0 = (t2_seen - t2_start) / 8, n1 = (avr->cycle - t2_start) / 8; /* counts so far */
+    if (com2a_was && n1 > n0) {
+        uint64_t to = (uint64_t)((uint8_t)(ocr2a_was + 1) - (uint8_t)(n0 + 1)) & 0xFF; /* counts */
+        if (to < n1 - n0) { /* the count reached OCR2A + 1 in this instruction */
+            if (com2a_was == 1) oc2a ^= 1;
+            else if (com2a_was == 2) oc2a = 0;
+            else oc2a = 1;
+            trig_edge(oc2a, t2_start + (n0 + 1 + to) * 8);
+        }
+    }
+    t2_seen = avr->cycle;
+    ocr2a_was = avr->data[OCR2A];
+    com2a_was = avr->data[TCCR2A] >> 6;
+    if (!com2a_was) trig_edge((avr->data[PORTB] >> trig_pin) & 1, avr->cycle);
+}
+
+static void adc_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    (void)param;
+    /* an avr_adc_mux_t's bits (kind 0-2, gain, diff, src 19-31) in the low 32 */
+    if ((value & 7) == ADC_MUX_SINGLE && (value >> 19) == 0) adc_starts[adc_n++ % ADC_LOG] = avr->cycle;
+}
+
+/* after every instruction */
+static void watch(void) {
+    if (!t1_start && (avr->data[0x81] & 7)) t1_start = avr->cycle; /* TCCR1B */
+    trig_watch();
+    uint16_t sp = (uint16_t)(avr->data[0x5D] | (avr->data[0x5E] << 8));
+    /* SPH is written before SPL (with SREG restored between): no reading until SPL is too */
+    int half = 0;
+    for (int k = 0; k < 4; k += 2) {
+        uint16_t op = (uint16_t)(avr->flash[avr->pc + k] | (avr->flash[avr->pc + k + 1] << 8));
+        half |= (op & 0xFE0F) == 0xBE0D; /* out 0x3d (SPL), rN */
+    }
+    if (!half && sp < sp_min && sp > 0x100) {
+        sp_min = sp;
+        sp_min_pc = avr->pc;
+    }
+}
+
 /* ---- the EEPROM across power cycles, and power cuts ----------------------------------------- */
 static const char *eeprom_file;
 static uint8_t *eeprom;
@@ -277,6 +363,16 @@ static void command(const char *cmd) {
                (unsigned long long)sim_us(), (unsigned long long)mono_ns(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
     } else if (sscanf(cmd, "peek %x", (unsigned *)&v) == 1) {
         printf("peek %02x %02x %02x %02x\n", avr->data[v], avr->data[v + 1], avr->data[v + 2], avr->data[v + 3]);
+    } else if (strncmp(cmd, "trig", 4) == 0) {
+        printf("trig %u %.3f %.3f\n", trig_edges, trig_rise ? board_us_at(trig_rise) : -1.0,
+               trig_fall ? board_us_at(trig_fall) : -1.0);
+    } else if (strncmp(cmd, "adc", 3) == 0) {
+        unsigned n = adc_n < ADC_LOG ? adc_n : ADC_LOG;
+        printf("adc %u", n);
+        for (unsigned i = adc_n - n; i < adc_n; i++) printf(" %.3f", board_us_at(adc_starts[i % ADC_LOG]));
+        printf("\n");
+    } else if (strncmp(cmd, "stack", 5) == 0) {
+        printf("stack 0x%04x 0x%x\n", sp_min, (unsigned)sp_min_pc);
     } else if (sscanf(cmd, "cut %d", &v) == 1 && v > 0) {
         memcpy(eeprom_seen, eeprom, eeprom_size);
         cut_left = v;
@@ -345,6 +441,7 @@ int main(int argc, char **argv) {
         enc_pin_a = 0;
         enc_pin_b = 1;
         servo_pin = 5;
+        trig_pin = 4;
     }
     uart_pty_init(avr, &uart);
     uart_pty_connect(&uart, strcmp(mcu, "atmega32u4") ? '0' : '1');
@@ -354,6 +451,8 @@ int main(int argc, char **argv) {
     avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), srf.irq);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(servo_port), servo_pin),
                             servo_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_hook,
+                            NULL);
     enc_set(enc_pin_a, enc_a);
     enc_set(enc_pin_b, enc_b);
     sharp_update();
@@ -367,6 +466,7 @@ int main(int argc, char **argv) {
             fprintf(stderr, "rig_sim: the AVR stopped (state %d)\n", state);
             return 1;
         }
+        watch();
         if (cut_left > 0) eeprom_watch();
         if ((n & 1023) == 0) {
             pace();

@@ -8,6 +8,80 @@
 #include <util/twi.h>
 
 #include "hal.h"
+#include "timing.h"
+
+/* ---- when a periodic driver measures: every period, or on the host-time grid --------------------
+ * Aligned (timing.c): the next measurement is the grid's next instant in board ticks, and the
+ * last stretch before it is waited out here (SCHED_SPIN_US), so the measurement starts within a
+ * few µs of it; without a valid map it runs free and each such measurement is counted
+ * (timing_unaligned), as the Python drivers do (board/drivers/__init__.py, Periodic). */
+#ifndef SCHED_SPIN_US
+#define SCHED_SPIN_US 400
+#endif
+
+typedef struct {
+    uint64_t due; /* the next measurement (stale: the last one's) */
+    uint32_t period_us;
+    float phase;
+    uint8_t aligned : 1, started : 1, free : 1, stale : 1;
+} schedule_t;
+
+static uint8_t sched_grid(schedule_t *s, uint64_t now) {
+    s->free = 1;
+    if (!s->aligned || !timing_next_grid(s->period_us, s->phase, now, &s->due)) return 0;
+    s->free = 0;
+    return 1;
+}
+
+/* 1 when it is time to measure: due, or aligned and due within SCHED_SPIN_US (then the driver
+ * readies its measurement and calls sched_wait just before it starts).  The next instant is
+ * reckoned on the call after a measurement, not before it: a grid instant costs a few 64-bit
+ * divisions (about 1 ms on an AVR), which must not sit between the instant and the measurement. */
+static uint8_t sched_due(schedule_t *s, uint64_t *now) {
+    if (!s->started) {
+        s->started = 1;
+        s->stale = 0;
+        if (sched_grid(s, *now)) return 0; /* wait for the grid */
+        s->due = *now;
+    }
+    if (s->stale) {
+        s->stale = 0;
+        if (!sched_grid(s, *now)) {
+            s->due += s->period_us;
+            if (s->due <= *now) s->due = *now + s->period_us;
+        }
+        *now = board_clock();
+    }
+    if (*now < s->due && !(s->aligned && !s->free && s->due - *now < SCHED_SPIN_US)) return 0;
+    if (s->aligned && s->free) timing_unaligned++;
+    s->stale = 1;
+    return 1;
+}
+
+/* the last stretch to an aligned measurement's instant (*now: that instant, within a tick) */
+static inline __attribute__((always_inline)) void sched_wait(schedule_t *s, uint64_t *now) {
+    clock_wait_t w;
+    if (*now >= s->due || !clock_wait_prepare(s->due, &w)) return;
+    *now = s->due;
+    clock_wait(&w);
+}
+
+static void sched_rate(schedule_t *s, float rate_hz) {
+    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
+    uint64_t last = s->stale ? s->due : s->due - s->period_us;
+    if (s->aligned) s->started = 0; /* the grid of the new period */
+    else if (s->started && p < s->period_us) { /* sooner */
+        s->due = last + p;
+        s->stale = 0;
+    }
+    s->period_us = p;
+}
+
+static void sched_align(schedule_t *s, uint8_t aligned, float phase) {
+    s->aligned = aligned;
+    s->phase = phase;
+    s->started = 0;
+}
 
 /* ---- quadrature: INT0/INT1 on any edge, x4 decoding ------------------------------------------ */
 #if defined(__AVR_ATmega328P__)
@@ -28,8 +102,7 @@ static volatile int32_t quad_count;
 static volatile uint8_t quad_state, quad_bad, quad_moved;
 static volatile uint64_t quad_edge_us;
 static int8_t quad_sign = 1;
-static uint32_t quad_period_us;
-static uint64_t quad_due;
+static schedule_t quad_s;
 volatile uint16_t quadrature_errors;
 
 static uint8_t quad_read(void) {
@@ -58,28 +131,23 @@ ISR(INT1_vect) { quad_edge(); }
 void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse) {
     quad_t = t;
     quad_sign = reverse ? -1 : 1;
-    quad_period_us = 1000000UL / rate_hz;
+    quad_s.period_us = 1000000UL / rate_hz;
     QUAD_PORT |= _BV(QUAD_A) | _BV(QUAD_B); /* pull-ups for open-collector outputs */
     quad_state = quad_read();
     EICRA = _BV(ISC00) | _BV(ISC10); /* any logical change */
     EIMSK = _BV(INT0) | _BV(INT1);
 }
 
-/* A new period takes effect at once: the next report is at most one new period after the last. */
-static uint64_t retime(uint64_t due, uint32_t old_period, uint32_t new_period) {
-    return due ? due - old_period + new_period : 0;
-}
-
 void quadrature_set(float rate_hz, uint8_t reverse) {
-    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
-    quad_due = retime(quad_due, quad_period_us, p);
-    quad_period_us = p;
+    sched_rate(&quad_s, rate_hz);
     quad_sign = reverse ? -1 : 1;
 }
 
+void quadrature_align(uint8_t aligned, float phase) { sched_align(&quad_s, aligned, phase); }
+
 void quadrature_poll(uint64_t now) {
-    if (!quad_t || now < quad_due) return;
-    quad_due = now + quad_period_us;
+    if (!quad_t || !sched_due(&quad_s, &now)) return;
+    sched_wait(&quad_s, &now);
     int32_t count;
     uint64_t stamp;
     uint8_t bad, moved;
@@ -102,26 +170,23 @@ static const uint16_t sharp_mm[] PROGMEM = {200, 300, 400, 500, 600, 700, 800,
 #define SHARP_POINTS (sizeof sharp_mv / sizeof sharp_mv[0])
 static transducer_t *sharp_t;
 static uint8_t sharp_channel;
-static uint32_t sharp_period_us;
-static uint64_t sharp_due, sharp_start;
+static schedule_t sharp_s;
+static uint64_t sharp_start;
 
 void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz) {
     sharp_t = t;
     sharp_channel = adc_channel & 7;
     if (rate_hz > 26) rate_hz = 26; /* the sensor updates every 38 ms */
-    sharp_period_us = 1000000UL / rate_hz;
+    sharp_s.period_us = 1000000UL / rate_hz;
     ADCSRA = _BV(ADEN) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0); /* 125 kHz ADC clock */
     sharp_start = board_clock();
 }
 
-void sharp_set(float rate_hz) {
-    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
-    sharp_due = retime(sharp_due, sharp_period_us, p);
-    sharp_period_us = p;
-}
+void sharp_set(float rate_hz) { sched_rate(&sharp_s, rate_hz); }
 
-static uint16_t adc_read(uint8_t ch) {
-    ADMUX = _BV(REFS0) | ch; /* AVcc */
+void sharp_align(uint8_t aligned, float phase) { sched_align(&sharp_s, aligned, phase); }
+
+static uint16_t adc_convert(void) {
     ADCSRA |= _BV(ADSC);
     while (ADCSRA & _BV(ADSC)) {
     }
@@ -144,13 +209,15 @@ static uint16_t sharp_volts_to_mm(uint16_t mv) {
 }
 
 void sharp_poll(uint64_t now) {
-    if (!sharp_t || now < sharp_due) return;
-    sharp_due = now + sharp_period_us;
-    if (now - sharp_start < 50000UL) {
+    if (!sharp_t || !sched_due(&sharp_s, &now)) return;
+    ADMUX = _BV(REFS0) | sharp_channel; /* AVcc */
+    uint8_t warm = now - sharp_start >= 50000UL;
+    sched_wait(&sharp_s, &now); /* the first conversion starts on the instant */
+    if (!warm) {
         record_na(sharp_t, 0, now);
         return;
     }
-    uint16_t a = adc_read(sharp_channel), b = adc_read(sharp_channel), c = adc_read(sharp_channel);
+    uint16_t a = adc_convert(), b = adc_convert(), c = adc_convert();
     uint16_t med = a > b ? (b > c ? b : (a > c ? c : a)) : (a > c ? a : (b > c ? c : b));
     uint16_t mm = sharp_volts_to_mm((uint16_t)((uint32_t)med * 5000UL / 1023UL));
     if (mm) record(sharp_t, 0, mm, now);
@@ -160,8 +227,8 @@ void sharp_poll(uint64_t now) {
 /* ---- SRF02 on TWI (100 kHz master, every wait bounded) ---------------------------------------- */
 static transducer_t *srf02_t;
 static uint8_t srf02_addr, srf02_min;
-static uint32_t srf02_period_us;
-static uint64_t srf02_due, srf02_ping_us, srf02_check_us;
+static schedule_t srf02_s;
+static uint64_t srf02_ping_us, srf02_check_us;
 static uint8_t srf02_ranging;
 uint16_t srf02_timeouts, srf02_bus_errors;
 
@@ -238,26 +305,25 @@ void srf02_init(transducer_t *t, uint8_t address, uint16_t rate_hz, uint8_t min_
     srf02_t = t;
     srf02_addr = address;
     srf02_min = min_range_cm;
-    srf02_period_us = 1000000UL / rate_hz;
-    if (srf02_period_us < 65000UL) srf02_period_us = 65000UL; /* a ranging takes 65 ms */
+    srf02_s.period_us = 1000000UL / rate_hz;
+    if (srf02_s.period_us < 65000UL) srf02_s.period_us = 65000UL; /* a ranging takes 65 ms */
     TWSR = 0;
     TWBR = 72; /* 100 kHz at 16 MHz */
 }
 
 void srf02_set(float rate_hz, uint16_t min_range_cm) {
-    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
-    if (p < 65000UL) p = 65000UL;
-    srf02_due = retime(srf02_due, srf02_period_us, p);
-    srf02_period_us = p;
+    sched_rate(&srf02_s, rate_hz < 15.38f ? rate_hz : 15.38f); /* a ranging takes 65 ms */
     srf02_min = (uint8_t)(min_range_cm > 255 ? 255 : min_range_cm);
 }
+
+void srf02_align(uint8_t aligned, float phase) { sched_align(&srf02_s, aligned, phase); }
 
 void srf02_poll(uint64_t now) {
     if (!srf02_t) return;
     if (!srf02_ranging) {
-        if (now < srf02_due) return;
-        srf02_due = now + srf02_period_us;
+        if (!sched_due(&srf02_s, &now)) return;
         const uint8_t cmd = 0x51; /* range in cm */
+        sched_wait(&srf02_s, &now); /* the command starts on the instant */
         if (twi_transfer(0, &cmd, 1, 0, 0) != 0) {
             srf02_bus_errors++;
             record_na(srf02_t, 0, now);

@@ -4,7 +4,9 @@
  * its overflow interrupt counts wraps, so the clock is wraps * 20000 + TCNT1 / 2 µs, 64 bit.
  * The same timer drives the servo's 50 Hz PWM on OC1A, so one timer serves both.  A read with
  * interrupts off checks the pending overflow flag, so a read just after the wrap (before the
- * interrupt ran) is not 20 ms early.
+ * interrupt ran) is not 20 ms early.  Where there is a Timer2 (not on the 32U4) it starts in the
+ * same tick at the same 2 MHz, free-running: its count is the clock's ticks mod 256 ever after,
+ * which is what lets the trigger (trigger.c) put a compare match on a board tick without reading it.
  *
  * The UART: received bytes go into a ring by interrupt, each stamped with the raw timer and the
  * low byte of the wrap count (cheap enough for 1 Mbaud, no 64-bit maths in the interrupt, 3 bytes
@@ -23,18 +25,46 @@
 #define TIMER_TOP 39999u /* 40000 ticks of 0.5 µs = 20 ms */
 
 static volatile uint32_t clock_wraps;
+/* clock_wraps * CLOCK_PERIOD_US, kept by the interrupt: a 64-bit multiply per read would cost
+ * ~30 µs on an AVR, too coarse for the aligned drivers' last wait (drivers.c) */
+static volatile uint64_t clock_base_us;
 
-ISR(TIMER1_OVF_vect) { clock_wraps++; }
+ISR(TIMER1_OVF_vect) {
+    clock_wraps++;
+    clock_base_us += CLOCK_PERIOD_US;
+}
 
 void board_clock_init(void) {
+#if defined(TCCR2B)
+    GTCCR = _BV(TSM) | _BV(PSRASY) | _BV(PSRSYNC); /* both prescalers held in reset ... */
+#endif
     ICR1 = TIMER_TOP; /* TOP first: the timer must never run with TOP = 0 */
     TCCR1A = _BV(WGM11);                          /* mode 14: fast PWM, TOP = ICR1 */
     TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS11); /* prescaler 8: 2 MHz */
+#if defined(TCCR2B)
+    TCCR2A = 0;
+    TCCR2B = _BV(CS21); /* 2 MHz, normal mode */
+    GTCCR = 0;          /* ... and released together: TCNT1 and TCNT2 count from 0 in step */
+#endif
     TIMSK1 |= _BV(TOIE1);
 }
 
+/* the clock at `wraps` (within 256 of clock_wraps) and `ticks` (interrupts off) */
 static uint64_t clock_of(uint32_t wraps, uint16_t ticks) {
-    return (uint64_t)wraps * CLOCK_PERIOD_US + (ticks >> 1);
+    int32_t d = (int32_t)(wraps - clock_wraps) * (int32_t)CLOCK_PERIOD_US;
+    return clock_base_us + (uint64_t)(int64_t)d + (ticks >> 1);
+}
+
+static uint64_t clock_of_at(uint32_t wraps, uint16_t ticks) {
+    uint64_t t;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = clock_of(wraps, ticks); }
+    return t;
+}
+
+uint32_t clock_wraps_at(uint16_t ticks) {
+    uint32_t w = clock_wraps;
+    if ((TIFR1 & _BV(TOV1)) && ticks < TIMER_TOP / 2) w++; /* wrapped, interrupt not yet run */
+    return w;
 }
 
 uint64_t board_clock_from_isr(void) {
@@ -42,6 +72,20 @@ uint64_t board_clock_from_isr(void) {
     uint16_t t = TCNT1;
     if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) w++; /* wrapped, interrupt not yet run */
     return clock_of(w, t);
+}
+
+uint8_t clock_wait_prepare(uint64_t at_us, clock_wait_t *w) {
+    uint32_t wraps;
+    uint16_t t;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        t = TCNT1;
+        wraps = clock_wraps_at(t);
+    }
+    uint64_t now = clock_of_at(wraps, t); /* (the slow part, from the counts read above) */
+    if (at_us <= now || at_us - now >= CLOCK_PERIOD_US) return 0;
+    w->from = t;
+    w->ticks = (uint16_t)((at_us - now) * 2 - (t & 1));
+    return 1;
 }
 
 uint64_t board_clock(void) {

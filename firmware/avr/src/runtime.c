@@ -25,6 +25,7 @@
 #include <string.h>
 
 #include "hal.h"
+#include "timing.h"
 #include "wire.h"
 
 static frame_parser_t parser;
@@ -32,7 +33,6 @@ static uint8_t scratch[255];
 static uint64_t last_byte_us, request_us;
 static char debug_text[32];
 static uint8_t debug_len;
-static uint8_t host_map[20], host_map_set;
 static uint8_t sif_seq;
 uint32_t sifs_dropped, sifs_sent, sif_total, calls;
 char clock_epoch[9];
@@ -52,18 +52,24 @@ static void error_frame(uint8_t seq, uint8_t code, uint16_t diag) {
     reply(seq, code, d, 2);
 }
 
+void function_get(uint8_t i, function_t *f) { memcpy_P(f, &board_functions[i], sizeof *f); }
+
 /* ---- blobs -------------------------------------------------------------------------------- */
+static const char *function_name(uint8_t i) {
+    return (const char *)pgm_read_ptr(&board_functions[i].name);
+}
+
 static uint16_t mapping_len(void) {
     uint16_t n = 0;
-    for (uint8_t i = 0; i < board_function_count; i++)
-        n += strlen_P(board_functions[i].name) + 1;
+    for (uint8_t i = 0; i < board_function_count; i++) n += strlen_P(function_name(i)) + 1;
     return n;
 }
 
 static uint8_t mapping_at(uint16_t k) {
     for (uint8_t i = 0; i < board_function_count; i++) {
-        uint16_t len = strlen_P(board_functions[i].name) + 1;
-        if (k < len) return k + 1 == len ? 0 : pgm_read_byte(board_functions[i].name + k);
+        const char *name = function_name(i);
+        uint16_t len = strlen_P(name) + 1;
+        if (k < len) return k + 1 == len ? 0 : pgm_read_byte(name + k);
         k -= len;
     }
     return 0;
@@ -98,22 +104,6 @@ uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     memmove(out, in, n);
     *out_n = n;
     return 0xBA;
-}
-
-uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
-    /* <Q board µs><q host ns><i rate - 1 in ppb>; empty payload reads it back. */
-    *out_n = 0;
-    if (n == 20) {
-        memcpy(host_map, in, 20);
-        host_map_set = 1;
-        return 0;
-    }
-    if (n == 0 && host_map_set) {
-        memcpy(out, host_map, 20);
-        *out_n = 20;
-        return 0;
-    }
-    return 0xFF;
 }
 
 static void put_u64(uint8_t *out, uint64_t v) {
@@ -162,7 +152,9 @@ static void many(uint8_t seq, const uint8_t *in, uint8_t n) {
         error_frame(seq, ERR_INDEX, DIAG_INDEX);
         return;
     }
-    const function_t *f = &board_functions[target];
+    function_t fn;
+    function_get(target, &fn);
+    const function_t *f = &fn;
     uint8_t ret = 0xFF, last = 1, len = 0;
     uint8_t *data = scratch + 6;
     if (f->kind == KIND_BLOB) {
@@ -197,7 +189,9 @@ static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
         error_frame(seq, ERR_INDEX, DIAG_INDEX);
         return;
     }
-    const function_t *f = &board_functions[op];
+    function_t fn_op;
+    function_get(op, &fn_op);
+    const function_t *f = &fn_op;
     if (op == 1) {
         many(seq, in, n);
         return;
@@ -296,6 +290,7 @@ void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
 
 void runtime_poll(void) {
     uint64_t now = board_clock();
+    timing_poll(now); /* timed calls first: they are due at a tick (timing.c) */
     board_poll(now);
     for (uint8_t i = 0; i < board_transducer_count; i++) {
         if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);

@@ -50,11 +50,12 @@ typedef struct {
     uint8_t enabled;    /* run-time configuration (config.c): off = not polled, no SIFs */
 } transducer_t;
 
-/* The built-in functions: board_gen.c starts its table with BUILTIN_FUNCTIONS. */
+/* The built-in functions: board_gen.c starts its table with BUILTIN_FUNCTIONS (a2jHostMap's
+ * handler is timing.c's). */
+uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 uint8_t get_mapping(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 uint8_t get_debug(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 uint8_t sif_count(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 extern const blob_t mapping_blob, board_properties_blob, board_transds_blob;
 extern const char n_get_mapping[], n_many[], n_get_properties[], n_debug[], n_echo[],
@@ -69,7 +70,8 @@ extern const char n_get_mapping[], n_many[], n_get_properties[], n_debug[], n_ec
         {n_host_map, KIND_PLAIN, host_map_fn, 0}, {n_sif_count, KIND_PLAIN, sif_count, 0}
 
 /* Board tables, generated from the board file (board_gen.c) */
-extern function_t board_functions[];
+extern const function_t board_functions[]; /* in flash (PROGMEM): read with function_get */
+void function_get(uint8_t i, function_t *f);
 extern const uint8_t board_function_count;
 extern transducer_t board_transducers[];
 extern const uint8_t board_transducer_count;

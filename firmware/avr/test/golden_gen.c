@@ -48,7 +48,7 @@ static const char n_get_time[] PROGMEM = "getTime";
 static const char n_sync_time[] PROGMEM = "syncTime";
 static const char n_big_blob[] PROGMEM = "bigBlob";
 
-function_t board_functions[] = {
+const function_t board_functions[] PROGMEM = {
     {n_get_mapping, KIND_PLAIN, get_mapping, 0},
     {n_many, KIND_PLAIN, 0, 0},
     {n_get_properties, KIND_BLOB, 0, &board_properties_blob},

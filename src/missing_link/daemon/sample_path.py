@@ -16,7 +16,10 @@ Per SIF:
    receive time is used and flagged (``NOT_SYNCED``, ``OUTLIER``).  Nothing is measured after it
    arrived: a mapped time later than the receipt (the map's error, a few µs) is set to the
    receipt (``future_clamps``).  Per topic, host times are strictly increasing
-   (``host_time_clamps`` counts the nudges, e.g. several samples read in one go while unsynced);
+   (``host_time_clamps`` counts the nudges, e.g. several samples read in one go while unsynced).
+   An aligned transducer's time is held against its host-time grid (``grid``, set by the
+   session from the configuration: alignment.py): one further from its instant than its bound
+   allows is flagged ``OFF_GRID`` and counted (``off_grid_samples``);
 4. one ``Update`` to every publisher, and per channel one on the standard-type topic when the
    transducer has one (``standard.py``).
 
@@ -39,6 +42,7 @@ from ..j2a import SifReceived
 from ..ros.standard import StandardMapping
 from ..timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ..topics import Topic, Update
+from .alignment import off_grid
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +69,8 @@ class SamplePath:
         self.outage_lost_sifs = 0  #: SIFs lost while the link was down (included in lost_sifs)
         #: transducer id -> (period ns, phase ns) of its host-time grid, when it is aligned
         #: (board/timing.py; the session keeps it with the board's configuration)
-        self.grid: dict[int, tuple[int, int]] = {}
-        self.off_grid = 0  #: samples of aligned transducers that were not on their grid
+        self.grid: dict[int, tuple[int, int, int]] = {}
+        self.off_grid_samples = 0  #: samples of aligned transducers that were not on their grid
         self.next_seq: int | None = None  # after the last SIF seen on this board boot
         self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
         self._outage_count: int | None = None  # a2jSifCount read after an outage
@@ -108,7 +112,7 @@ class SamplePath:
             "clock_outliers": self.outliers,
             "host_time_clamps": self.host_time_clamps,
             "future_clamps": self.future_clamps,
-            "off_grid_samples": self.off_grid,
+            "off_grid_samples": self.off_grid_samples,
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
@@ -153,12 +157,9 @@ class SamplePath:
                 host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
                 newest = max(host_ns)  # (0 when every channel is N/A)
             grid = self.grid.get(cmd) if self.grid else None
-            if grid is not None and newest:
-                period, phase = grid
-                off = (newest - phase) % period
-                if min(off, period - off) > bound + GRID_SLACK_NS:
-                    flags |= OFF_GRID
-                    self.off_grid += 1
+            if grid is not None and newest and off_grid(newest, grid, bound, GRID_SLACK_NS):
+                flags |= OFF_GRID
+                self.off_grid_samples += 1
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             est_error, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:

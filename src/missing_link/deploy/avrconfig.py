@@ -27,6 +27,13 @@ APPLY = {
         "(uint16_t)v[{span_us}]);",
         (),
     ),
+    "trigger": ("trigger_set((uint16_t)v[{pulse_us}]);", ()),
+}
+#: sampling on the host-time grid (timing.c), for the drivers that align (``ALIGNABLE``)
+ALIGN = {
+    "quadrature": "quadrature_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "sharp_gp2y0a02": "sharp_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "srf02": "srf02_align((uint8_t)v[{aligned}], F(v[{phase}]));",
 }
 #: a combination a driver refuses (the Python driver's check_config, in C)
 CHECK = {
@@ -65,6 +72,13 @@ def keys_of(
     for k, entry, t, cls in transducers:
         drv = entry["driver"]
         out.append(AvrKey(Key(t, "enabled", "bool", None, False, lambda: True, None), k, drv))
+        if getattr(cls, "ALIGNABLE", False):  # (as board/config.py adds them)
+            if drv not in ALIGN:
+                raise ConfigError(f"{where}: {t.name}: {drv} cannot align on AVR")
+            out.append(AvrKey(Key(t, "aligned", "bool", None, False, lambda: False, None), k, drv))
+            out.append(
+                AvrKey(Key(t, "phase", "float", (0.0, 0.999), False, lambda: 0.0, None), k, drv)
+            )
         apply, read_only = APPLY[entry["driver"]]
         for key, kind, limits, ro in cls.CONFIG:  # type: ignore[attr-defined]
             if f"{{{key}}}" not in apply and key not in read_only:
@@ -118,6 +132,8 @@ def generate_config(keys: list[AvrKey], mcu: str, where: str) -> tuple[list[str]
                 f"    case {i}: board_transducers[{a.k}].enabled = (uint8_t)v[{i}]; "
                 f"if (!v[{i}]) board_transducers[{a.k}].pending = 0; break;"
             )
+        elif key.key in ("aligned", "phase"):
+            cases.append(f"    case {i}: {ALIGN[a.driver].format(**sibling)} break;")
         elif not key.read_only:
             drv = a.driver
             cases.append(f"    case {i}: {APPLY[drv][0].format(**sibling)} break;")

@@ -21,22 +21,24 @@ from .avrconfig import generate_config, keys_of
 from .boardfile import BoardFile
 
 
-#: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo)
+#: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo), the
+#: trigger output on Timer2's OC2A (none on the Leonardo: no Timer2)
 @dataclass(frozen=True)
 class FixedPins:
     quad: tuple[int, int]  #: INT0, INT1
     servo: int  #: OC1A
     board: str
+    trigger: int | None = None  #: OC2A: PB3 (Uno D11) / PB4 (Mega D10)
 
 
 PINS = {
-    "atmega328p": FixedPins((2, 3), 9, "Uno/Nano"),
-    "atmega2560": FixedPins((21, 20), 11, "Mega 2560"),
+    "atmega328p": FixedPins((2, 3), 9, "Uno/Nano", 11),
+    "atmega2560": FixedPins((21, 20), 11, "Mega 2560", 10),
     "atmega32u4": FixedPins((3, 2), 9, "Leonardo"),
 }
 DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
       "int32_t": "DT_INT32", "uint32_t": "DT_UINT32", "float": "DT_FLOAT"}  # fmt: skip
-AVR_DRIVERS = ("quadrature", "sharp_gp2y0a02", "srf02", "servo")
+AVR_DRIVERS = ("quadrature", "sharp_gp2y0a02", "srf02", "servo", "trigger")
 MAX_SIF_PAYLOAD = 120  # the TX ring (256) must hold a SIF's worst-case escaping
 
 
@@ -70,6 +72,22 @@ def _na_raw(dtype: str, na: float) -> str:
     return f"0x{struct.unpack('<I', raw)[0]:08x}UL"
 
 
+def _gated(k: int, name: str, fn: str) -> str:
+    """An actuator's J2A function that refuses while its transducer is disabled (config.c)."""
+    return (
+        f"static uint8_t call_{k}(const uint8_t *in, uint8_t n, uint8_t *out, "
+        f"uint8_t *out_n) {{ /* refused while {name} is disabled (config.c) */\n"
+        f"    if (!board_transducers[{k}].enabled) {{\n"
+        f'        static const char why[] PROGMEM = "{name} is disabled";\n'
+        "        strcpy_P((char *)out, why);\n"
+        "        *out_n = sizeof why - 1;\n"
+        "        return 0xFF;\n"
+        "    }\n"
+        f"    return {fn}(in, n, out, out_n);\n"
+        "}"
+    )
+
+
 def generate_avr(bf: BoardFile) -> str:
     """The C source of board_gen.c for ``bf``; ConfigError for what an AVR cannot do."""
     where = str(bf.path)
@@ -79,6 +97,7 @@ def generate_avr(bf: BoardFile) -> str:
     board = bf.board
     seen: set[str] = set()
     decls, setup, polls, funcs, lines = [], [], [], [], ["transds/1"]
+    hardware: list[tuple[str, str, str]] = []  # timed calls the hardware makes (the trigger's)
     described: list[tuple[int, dict[str, Any], Transducer, type]] = []
     for k, e in enumerate(bf.transducers):
         drv, name = e["driver"], e["name"]
@@ -122,6 +141,22 @@ def generate_avr(bf: BoardFile) -> str:
                 f"{int(e.get('min_range', 16))});"
             )
             polls.append(f"if (board_transducers[{k}].enabled) srf02_poll(now);")
+        elif drv == "trigger":
+            if pins.trigger is None:
+                raise ConfigError(f"{at}: the {pins.board} has no Timer2 for a timed trigger")
+            if int(e["pin"]) != pins.trigger:
+                raise ConfigError(
+                    f"{at}: on the {pins.board} the trigger is on pin {pins.trigger} "
+                    "(OC2A: its edges are made by Timer2's compare)"
+                )
+            setup.append(f"trigger_init({tref}, {int(e.get('pulse_us', 10))});")
+            setup.append("timing_hardware = hardware;")
+            polls.append(f"if (board_transducers[{k}].enabled) trigger_poll(now);")
+            funcs.append((t.options["call"], f"call_{k}"))
+            decls.append(_gated(k, name, "trigger_command"))
+            hardware.append(
+                (str(t.options["call"]), f"board_transducers[{k}].enabled", "trigger_at")
+            )
         else:  # servo
             if int(e["pin"]) != pins.servo:
                 raise ConfigError(
@@ -133,19 +168,7 @@ def generate_avr(bf: BoardFile) -> str:
                 f"{int(e.get('centre_us', 1500))}, {span});"
             )
             funcs.append((t.options["call"], f"call_{k}"))
-            decls.append(
-                f"static uint8_t call_{k}(const uint8_t *in, uint8_t n, uint8_t *out, "
-                "uint8_t *out_n) {"
-                f" /* refused while {name} is disabled (config.c) */\n"
-                f"    if (!board_transducers[{k}].enabled) {{\n"
-                f'        static const char why[] PROGMEM = "{name} is disabled";\n'
-                "        strcpy_P((char *)out, why);\n"
-                "        *out_n = sizeof why - 1;\n"
-                "        return 0xFF;\n"
-                "    }\n"
-                "    return servo_command(in, n, out, out_n);\n"
-                "}"
-            )
+            decls.append(_gated(k, name, "servo_command"))
         na = _na_raw(t.dtype, t.na)
         decls.append(f"/* transducer {k}: {name} */")
         decls.append(
@@ -172,6 +195,7 @@ def generate_avr(bf: BoardFile) -> str:
         "#include <avr/pgmspace.h>",
         "#include <string.h>",
         '#include "config.h"',
+        '#include "timing.h"',
         '#include "drivers.h"',
         '#include "runtime.h"',
         "",
@@ -202,19 +226,35 @@ def generate_avr(bf: BoardFile) -> str:
     ]
     config_c, _blob = generate_config(keys_of(described, where), bf.mcu, where)
     out += [*config_c, ""]
+    if hardware:  # (the trigger's function index: builtins, then the board's own functions)
+        index = {name: 11 + j for j, (name, _fn) in enumerate(funcs)}
+        out += [
+            "static uint8_t hardware(uint8_t fn, uint64_t tick, const uint8_t *payload, "
+            "uint8_t n) {",
+            *(
+                f"    if (fn == {index[call]} && {enabled}) return {fn}(payload, n, tick);"
+                for call, enabled, fn in hardware
+            ),
+            "    return 0;",
+            "}",
+            "",
+        ]
     for j, (fname, _fn) in enumerate(funcs):
         out.append(f'static const char fname_{j}[] PROGMEM = "{fname}";')
     own = "".join(f", {{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs))
+    own += ", {n_at, KIND_PLAIN, timing_at, 0}, {n_align_info, KIND_PLAIN, timing_info, 0}"
     own += ", {n_config_keys, KIND_BLOB, 0, &board_config_keys_blob}"
     own += ", {n_config_get, KIND_PLAIN, config_get, 0}, {n_config_set, KIND_PLAIN, config_set, 0}"
     own += ", {n_config_reset, KIND_PLAIN, config_reset, 0}"
     out += [
+        'static const char n_at[] PROGMEM = "a2jAt";',
+        'static const char n_align_info[] PROGMEM = "a2jAlignInfo";',
         'static const char n_config_keys[] PROGMEM = "a2jConfigKeys";',
         'static const char n_config_get[] PROGMEM = "a2jConfigGet";',
         'static const char n_config_set[] PROGMEM = "a2jConfigSet";',
         'static const char n_config_reset[] PROGMEM = "a2jConfigReset";',
-        f"function_t board_functions[] = {{BUILTIN_FUNCTIONS{own}}};",
-        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs) + 4};",
+        f"const function_t board_functions[] PROGMEM = {{BUILTIN_FUNCTIONS{own}}};",
+        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs) + 6};",
         "",
         "void board_setup(void) {",
     ]

@@ -27,7 +27,9 @@ class _Driver:
     ``ALIGNABLE`` drivers sample on the host-time grid when ``aligned`` (board/timing.py): at
     the grid's board tick, stamped with that tick, as a microcontroller whose timer triggers the
     measurement (the virtual board's process wakes up later than that, which the stamp does
-    not show, as a timer-triggered ADC's would not)."""
+    not show, as a timer-triggered ADC's would not).  Likewise what a timed call does (``a2jAt``)
+    is stamped at the tick it was due at (``timing.acting_tick``), as a timer-compare output's
+    edge would be, however late the process got round to the call."""
 
     period_us = 10_000
     CONFIG: tuple[tuple[str, str, tuple[float, float] | None, bool], ...] = ()
@@ -51,7 +53,10 @@ class _Driver:
 
     def emit(self, channel: int, value: int | float) -> None:
         if self._cb is not None:
-            self._cb(channel, value, self._stamp)  # type: ignore[call-arg]
+            stamp = self._stamp
+            if stamp is None and self.timing is not None:
+                stamp = self.timing.acting_tick  # (None unless a timed call is running)
+            self._cb(channel, value, stamp)  # type: ignore[call-arg]
 
     def next_due_us(self) -> int | None:
         return self._due
@@ -303,9 +308,8 @@ class Trigger(_Driver):
 class PulseTrigger(_Driver):
     """A trigger output (a camera's or a scope's): ``a2j_trigger`` (u16 width in µs; 0 = the
     configured ``pulse_us``) makes one pulse, reported as a sample of its width stamped at its
-    rising edge.  Through ``a2jAt`` (board/timing.py) it fires at a host time: the pulse is a
-    timer-compare output, whose edge is at the tick the call was due at (``acting_tick``),
-    however late the virtual board's process got round to the call."""
+    rising edge.  Through ``a2jAt`` (board/timing.py) it fires at a host time, stamped at the
+    tick the call was due at (see _Driver)."""
 
     CONFIG = (("pulse_us", "int", (1, 65535), False),)
 
@@ -331,11 +335,7 @@ class PulseTrigger(_Driver):
             return 0xFF, b"expects u16 width in us"
         width = struct.unpack("<H", payload)[0] or self.pulse_us
         self.fired += 1
-        self._stamp = self.timing.acting_tick if self.timing is not None else None
-        try:
-            self.emit(0, width)
-        finally:
-            self._stamp = None
+        self.emit(0, width)
         return 0, b""
 
 

@@ -1,0 +1,202 @@
+/* Acting on host time on AVR: the same functions, bytes and texts as board/timing.py (Python).
+ *
+ * Theory of operation
+ * -------------------
+ * The host's map of this board's clock (a2jHostMap: <Q board us><q host ns><i rate - 1, ppb>)
+ * converts both ways in 64-bit integer maths (floor division, as Python's //).  A map vouches
+ * for board times within MAP_LIFE_US of its reference.  a2jAt [q host ns][B function][payload]
+ * calls a plain function at the tick the host time maps to (reply: 0 + [Q tick]) or refuses:
+ * no valid map, past, beyond what the map vouches for, queue full, no such function.  A call
+ * the hardware can make on its own at the tick (the trigger: Timer2's compare A, trigger.c)
+ * is handed to it; every other one runs from the main loop when due (its latency: the loop's).
+ * a2jAlignInfo: [B map valid][I map age ms][I unaligned samples][I done][I refused].
+ */
+#include "timing.h"
+
+#include <avr/pgmspace.h>
+#include <string.h>
+
+#include "hal.h"
+#include "runtime.h"
+
+#define FAR_NS 100000000000LL /* 100 s */
+
+static uint8_t host_map_set;
+static uint64_t map_b0;
+static int64_t map_h0;
+static int32_t map_ppb;
+uint32_t timing_unaligned, timing_done, timing_refused;
+uint8_t (*timing_hardware)(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n);
+
+static struct {
+    uint64_t tick;
+    uint8_t fn, n, used;
+    uint8_t payload[TIMED_PAYLOAD];
+} queue[TIMED_QUEUE];
+
+static uint64_t get_u64(const uint8_t *p) {
+    uint64_t v = 0;
+    for (int8_t i = 7; i >= 0; i--) v = (v << 8) | p[i];
+    return v;
+}
+
+static void put_u64(uint8_t *p, uint64_t v) {
+    for (uint8_t i = 0; i < 8; i++) p[i] = (uint8_t)(v >> (8 * i));
+}
+
+static int64_t floor_div(int64_t a, int64_t b) { /* b > 0 */
+    int64_t q = a / b;
+    return (a % b != 0 && a < 0) ? q - 1 : q;
+}
+
+uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    *out_n = 0;
+    if (n == 20) {
+        map_b0 = get_u64(in);
+        map_h0 = (int64_t)get_u64(in + 8);
+        map_ppb = (int32_t)((uint32_t)in[16] | ((uint32_t)in[17] << 8) | ((uint32_t)in[18] << 16) |
+                            ((uint32_t)in[19] << 24));
+        host_map_set = 1;
+        return 0;
+    }
+    if (n == 0 && host_map_set) {
+        put_u64(out, map_b0);
+        put_u64(out + 8, (uint64_t)map_h0);
+        memcpy(out + 16, &map_ppb, 4);
+        *out_n = 20;
+        return 0;
+    }
+    return 0xFF;
+}
+
+uint8_t timing_map_valid(uint64_t now) {
+    if (!host_map_set) return 0;
+    int64_t d = (int64_t)(now - map_b0);
+    return d >= -MAP_LIFE_US && d <= MAP_LIFE_US;
+}
+
+int64_t timing_host_at(uint64_t board_us) {
+    return map_h0 + floor_div((int64_t)(board_us - map_b0) * (1000000000LL + map_ppb), 1000000LL);
+}
+
+int64_t timing_board_at(int64_t host_ns) {
+    /* (host times further than FAR_NS from the map's are held there: no overflow, and such a
+     * tick is refused anyway, as past or beyond the map's life) */
+    int64_t d = host_ns > map_h0 + FAR_NS ? FAR_NS : host_ns < map_h0 - FAR_NS ? -FAR_NS : host_ns - map_h0;
+    return (int64_t)map_b0 + floor_div(d * 1000000LL, 1000000000LL + map_ppb);
+}
+
+uint8_t timing_next_grid(uint32_t period_us, float phase, uint64_t now, uint64_t *tick) {
+    if (!timing_map_valid(now)) return 0;
+    int64_t p = (int64_t)period_us * 1000;
+    int64_t off = (int64_t)(phase * (float)p) % p;
+    int64_t h = timing_host_at(now);
+    int64_t k = floor_div(h - off, p) + 1;
+    *tick = (uint64_t)timing_board_at(k * p + off);
+    return 1;
+}
+
+static uint8_t say(uint8_t *out, const char *text) {
+    uint8_t k = 0;
+    while (pgm_read_byte(text) && k < 250) out[k++] = pgm_read_byte(text++);
+    return k;
+}
+
+static uint8_t utoa_at(uint8_t *out, uint8_t k, uint32_t v) {
+    char d[11];
+    uint8_t n = 0;
+    do {
+        d[n++] = (char)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    while (n) out[k++] = (uint8_t)d[--n];
+    return k;
+}
+
+uint8_t timing_at(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    *out_n = 0;
+    if (n < 9) {
+        *out_n = say(out, PSTR("expects [q host ns][B function index][payload]"));
+        return 0xFF;
+    }
+    int64_t host_ns = (int64_t)get_u64(in);
+    uint8_t fn = in[8];
+    uint64_t now = board_clock();
+    timing_refused++;
+    function_t f;
+    if (fn < board_function_count) function_get(fn, &f);
+    if (fn >= board_function_count || f.kind != KIND_PLAIN) {
+        *out_n = say(out, PSTR("no such plain function"));
+        return 0xFF;
+    }
+    if (n - 9 > TIMED_PAYLOAD) { /* (AVR only: the queue's entries are small) */
+        *out_n = say(out, PSTR("payload too long for a timed call (4 bytes)"));
+        return 0xFF;
+    }
+    if (!timing_map_valid(now)) {
+        *out_n = say(out, PSTR("no valid host map (a2jHostMap)"));
+        return 0xFF;
+    }
+    int64_t at = timing_board_at(host_ns);
+    if (at < (int64_t)now) {
+        uint8_t k = say(out, PSTR("past by "));
+        int64_t late = (int64_t)now - at;
+        k = utoa_at(out, k, late > 0xFFFFFFFFLL ? 0xFFFFFFFFUL : (uint32_t)late);
+        *out_n = (uint8_t)(k + say(out + k, PSTR(" us")));
+        return 0xFF;
+    }
+    uint64_t tick = (uint64_t)at;
+    if ((int64_t)(tick - map_b0) > MAP_LIFE_US) {
+        uint8_t k = utoa_at(out, 0, (uint32_t)((tick - now) / 1000));
+        k += say(out + k, PSTR(" ms ahead: beyond what the map vouches for ("));
+        k = utoa_at(out, k, (uint32_t)(MAP_LIFE_US / 1000));
+        *out_n = (uint8_t)(k + say(out + k, PSTR(" ms)")));
+        return 0xFF;
+    }
+    if (!(timing_hardware && timing_hardware(fn, tick, in + 9, (uint8_t)(n - 9)))) {
+        uint8_t slot = 0;
+        while (slot < TIMED_QUEUE && queue[slot].used) slot++;
+        if (slot == TIMED_QUEUE) {
+            *out_n = say(out, PSTR("timed calls queue full"));
+            return 0xFF;
+        }
+        queue[slot].tick = tick;
+        queue[slot].fn = fn;
+        queue[slot].n = (uint8_t)(n - 9);
+        memcpy(queue[slot].payload, in + 9, n - 9);
+        queue[slot].used = 1;
+    }
+    timing_refused--;
+    put_u64(out, tick);
+    *out_n = 8;
+    return 0;
+}
+
+void timing_poll(uint64_t now) {
+    uint8_t reply[16], reply_n; /* (what the function answers goes nowhere) */
+    for (uint8_t i = 0; i < TIMED_QUEUE; i++) {
+        if (queue[i].used && queue[i].tick <= now) {
+            queue[i].used = 0;
+            function_t f;
+            function_get(queue[i].fn, &f);
+            f.plain(queue[i].payload, queue[i].n, reply, &reply_n);
+            timing_done++;
+        }
+    }
+}
+
+uint8_t timing_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    uint64_t now = board_clock();
+    uint32_t age = 0xFFFFFFFFUL;
+    if (host_map_set) {
+        int64_t d = (int64_t)(now - map_b0) / 1000;
+        age = d < 0 ? 0 : d > 0xFFFFFFFELL ? 0xFFFFFFFEUL : (uint32_t)d;
+    }
+    uint32_t v[4] = {age, timing_unaligned, timing_done, timing_refused};
+    out[0] = timing_map_valid(now);
+    memcpy(out + 1, v, 16);
+    *out_n = 17;
+    return 0;
+}

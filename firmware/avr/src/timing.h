@@ -1,0 +1,25 @@
+/* Acting on host time on AVR: the same functions and texts as board/timing.py (Python). */
+#ifndef J2A_TIMING_H
+#define J2A_TIMING_H
+#include <stdint.h>
+
+#define MAP_LIFE_US 10000000LL
+#define TIMED_QUEUE 4
+#define TIMED_PAYLOAD 4
+
+uint8_t timing_map_valid(uint64_t now);
+int64_t timing_host_at(uint64_t board_us);
+int64_t timing_board_at(int64_t host_ns); /* the map must be valid */
+/* The board tick of the first grid instant after now (1), or 0 without a valid map. */
+uint8_t timing_next_grid(uint32_t period_us, float phase, uint64_t now, uint64_t *tick);
+void timing_poll(uint64_t now); /* timed calls that are due (the main loop) */
+
+uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
+uint8_t timing_at(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);   /* a2jAt */
+uint8_t timing_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n); /* a2jAlignInfo */
+extern uint32_t timing_unaligned, timing_done, timing_refused;
+
+/* A function a timed call may be handed to at its tick, by the hardware (board_gen.c: the
+ * trigger's; 0: none): returns 1 if it took the call. */
+extern uint8_t (*timing_hardware)(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n);
+#endif

@@ -1,0 +1,195 @@
+"""Acting on host time on AVR (firmware/avr/src/timing.c, trigger.c, the aligned drivers): real
+AVR machine code in simavr, the rig watching the pins.  The trigger's edges are made by Timer2's
+compare on OC2A; the rig models that pin from the registers (rig_sim.c) and reports edges in the
+board's µs, so the edge can be held against the tick the asked host time maps to through the map
+the host pushed.  The aligned Sharp's ADC conversions are seen where simavr starts them."""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
+from missing_link.errors import FunctionFailed
+from missing_link.host.board import Board
+from missing_link.topics import Update
+from missing_link.transport import open_transport
+
+from .helpers import AvrSim, wait_for
+
+pytestmark = pytest.mark.avr
+H0 = 1_795_000_000_000_000_000 + 3_456_789  # host ns of the pushed map's reference (any epoch)
+
+
+@pytest.fixture
+def rig(avr_build: Path) -> Iterator[AvrSim]:
+    sim = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf", skew_ppm=40)
+    try:
+        yield sim
+    finally:
+        sim.close()
+
+
+@pytest.fixture
+def mapped(rig: AvrSim) -> Iterator[tuple[Board, int]]:
+    """A board handed a map (a2jHostMap): board µs b0 is host ns H0, 1 µs per 1000 ns."""
+    board = Board(open_transport(rig.url), timeout=5.0)
+    try:
+        board.handshake()
+        b0 = board.clock_exchange(5.0).t3
+        board.call_ok("a2jHostMap", struct.pack("<Qqi", b0, H0, 0))
+        yield board, b0
+    finally:
+        board.close()
+
+
+def _trig(rig: AvrSim) -> tuple[int, float, float]:
+    _, edges, rise, fall = rig.ctl("trig").split()
+    return int(edges), float(rise), float(fall)
+
+
+def _timed_pulse(board: Board, b0: int, tick: int, width_us: int) -> int:
+    at = H0 + (tick - b0) * 1000
+    payload = struct.pack("<qB", at, board.index["a2j_trigger"]) + struct.pack("<H", width_us)
+    return int(struct.unpack("<Q", board.call_ok("a2jAt", payload))[0])
+
+
+def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], rig: AvrSim) -> None:
+    """The rising edge on OC2A is within one timer tick (0.5 µs) of the tick the host time maps
+    to; the falling edge `width` later: short pulses (one compare step), one longer than
+    Timer2's 128 µs wrap (steps through wraps), ticks at every phase of the 8-bit timer."""
+    board, b0 = mapped
+    edges = _trig(rig)[0]
+    for k, width in enumerate((20, 300, 20, 1000, 55)):
+        now = board.clock_exchange(5.0).t3
+        want = now + 150_000 + 37 * k  # 150 ms ahead, a different Timer2 phase each time
+        tick = _timed_pulse(board, b0, want, width)
+        assert tick == want
+        time.sleep(0.3 + width / 1e6)
+        n, rise, fall = _trig(rig)
+        assert n == edges + 2 * (k + 1), (n, edges)
+        assert 0 <= rise - tick <= 0.5, (k, rise, tick)
+        assert fall - rise == pytest.approx(width, abs=0.5), (k, fall - rise)
+    valid, _age, _unaligned, done, refused = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
+    assert valid == 1 and done == 5 and refused == 0
+
+
+def test_refusals_say_why(mapped: tuple[Board, int]) -> None:
+    board, b0 = mapped
+    now = board.clock_exchange(5.0).t3
+    fn = board.index["a2j_trigger"]
+    past = H0 + (now - 5_000 - b0) * 1000
+    with pytest.raises(FunctionFailed, match=r"past by \d+ us"):
+        board.call_ok("a2jAt", struct.pack("<qB", past, fn) + b"\x14\x00")
+    far = H0 + (now + 30_000_000 - b0) * 1000
+    with pytest.raises(
+        FunctionFailed, match=r"ms ahead: beyond what the map vouches for \(10000 ms\)"
+    ):
+        board.call_ok("a2jAt", struct.pack("<qB", far, fn) + b"\x14\x00")
+    with pytest.raises(FunctionFailed, match="no such plain function"):
+        board.call_ok("a2jAt", struct.pack("<qB", far, board.index["a2jGetTransds"]))
+    with pytest.raises(FunctionFailed, match="expects"):
+        board.call_ok("a2jAt", b"\x01\x02")
+    # a host time far out of int64 range of the map (a hostile host): refused, no overflow
+    with pytest.raises(FunctionFailed, match="past by"):
+        board.call_ok("a2jAt", struct.pack("<qB", -(2**63), fn) + b"\x14\x00")
+    with pytest.raises(FunctionFailed, match="beyond"):
+        board.call_ok("a2jAt", struct.pack("<qB", 2**63 - 1, fn) + b"\x14\x00")
+    refused = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))[4]
+    assert refused == 5  # (a malformed request is an error, not a refused timed call)
+
+
+def test_aligned_adc_conversions_start_on_the_grid(mapped: tuple[Board, int], rig: AvrSim) -> None:
+    """dist_ir aligned at 10 Hz, phase 0.25: each sample's first ADC conversion starts (where
+    simavr starts it) on the host-time grid in board ticks, a few µs after the instant (the call
+    into the conversion); three conversions per sample, as the driver takes a median."""
+    board, b0 = mapped
+    board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 10, "dist_ir.phase": 0.25})
+    since = board.clock_exchange(5.0).t3  # (before: free running at 25 Hz)
+    time.sleep(1.2)
+    starts = [float(x) for x in rig.ctl("adc").split()[2:]]
+    firsts = [t for i, t in enumerate(starts) if i == 0 or t - starts[i - 1] > 5_000]
+    firsts = [t for t in firsts if t > since]
+    assert len(firsts) >= 8
+    lags = []
+    for t in firsts:
+        off = (H0 + round((t - b0) * 1000) - 25_000_000) % 100_000_000
+        lags.append(off if off < 50_000_000 else off - 100_000_000)
+    assert all(0 <= lag <= 5_000 for lag in lags), lags  # ns
+    unaligned = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))[2]
+    assert unaligned == 0
+    board.configure({"dist_ir.aligned": False})
+
+
+def test_without_a_map_aligned_sampling_runs_free_and_counts(rig: AvrSim) -> None:
+    board = Board(open_transport(rig.url), timeout=5.0)
+    try:
+        board.handshake()
+        board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 20})
+        time.sleep(0.6)
+        valid, age, unaligned, _done, _refused = struct.unpack(
+            "<BIIII", board.call_ok("a2jAlignInfo")
+        )
+        assert valid == 0 and age == 0xFFFFFFFF and unaligned >= 8
+    finally:
+        board.close()
+
+
+def test_the_daemon_times_a_trigger_and_aligns_the_rig(rig: AvrSim) -> None:
+    """End to end: the daemon keeps the board's map current; a timed command acts at the asked
+    host time (the published sample says so, within its bound); an aligned ranger's samples
+    sit on the grid (no OFF_GRID) and the status shows the board's account."""
+    fired: list[Update] = []
+    ranged: list[Update] = []
+    cfg = Config(boards=[BoardSpec(rig.url, timeout=2.0, uart_baud=115200)])
+    with Daemon(cfg) as d:
+        assert d.wait_until_up(20), d.status()
+        d.subscribe("/uno_rig/camera", fired.append, queue=0)
+        d.subscribe("/uno_rig/dist_ir", ranged.append, queue=0)
+        d.configure("uno_rig", {"dist_ir.aligned": True, "dist_ir.rate_hz": 20})
+        at = time.time_ns() + 300_000_000
+        tick = d.send("/uno_rig/camera/cmd", 40, at_ns=at)
+        assert isinstance(tick, int)
+        assert wait_for(lambda: len(fired) == 1, 5)
+        u = fired[0]
+        assert u.values == [40]
+        assert abs(u.host_ns[0] - at) <= u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
+        _, _edges, rise, _fall = rig.ctl("trig").split()
+        assert 0 <= float(rise) - tick <= 0.5
+        n = len(ranged)
+        assert wait_for(lambda: len(ranged) >= n + 20, 5)
+        status = d.status()[0]
+    assert status["aligned"] == "dist_ir" and status["map_valid"] is True
+    assert status["off_grid_samples"] == 0 and status["timed_done"] == 1
+    for x in ranged[n:]:  # each on the 50 ms grid, within what its stamp vouches for
+        assert x.values[0] is not None
+        off = x.host_ns[0] % 50_000_000
+        assert min(off, 50_000_000 - off) <= x.bound_ns + 100_000, (off, x.bound_ns)
+
+
+def test_the_stack_stays_clear_of_static_ram(avr_build: Path, rig: AvrSim) -> None:
+    """After calls, SIFs, configuration and timed pulses (this module's other tests run on
+    their own rigs; here a short mix), the lowest stack pointer is above the end of .bss."""
+    elf = avr_build / "uno_rig" / "firmware.elf"
+    syms = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    end = next(int(x.split()[0], 16) & 0xFFFF for x in syms.splitlines() if x.endswith(" _end"))
+    board = Board(open_transport(rig.url), timeout=5.0)
+    try:
+        board.handshake()
+        board.config()
+        b0 = board.clock_exchange(5.0).t3
+        board.call_ok("a2jHostMap", struct.pack("<Qqi", b0, H0, 0))
+        board.configure({"dist_ir.aligned": True, "wheel.aligned": True})
+        _timed_pulse(board, b0, board.clock_exchange(5.0).t3 + 50_000, 300)
+        rig.ctl("enc 200")
+        time.sleep(0.5)
+    finally:
+        board.close()
+    low = int(rig.ctl("stack").split()[1], 16)
+    assert low - end >= 64, f"stack reached 0x{low:04x}, .bss ends at 0x{end:04x}"
