@@ -159,14 +159,18 @@ def test_the_daemon_times_a_trigger_and_aligns_the_rig(rig: AvrSim) -> None:
         assert wait_for(lambda: len(fired) == 1, 5)
         u = fired[0]
         assert u.values == [40]
-        assert abs(u.host_ns[0] - at) <= u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
+        # acted at the tick of the pushed map, published through the map of now: each within
+        # its bound of the truth
+        assert abs(u.host_ns[0] - at) <= 2 * u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
         _, _edges, rise, _fall = rig.ctl("trig").split()
         assert 0 <= float(rise) - tick <= 0.5
         n = len(ranged)
         assert wait_for(lambda: len(ranged) >= n + 20, 5)
         status = d.status()[0]
     assert status["aligned"] == "dist_ir" and status["map_valid"] is True
-    assert status["off_grid_samples"] == 0 and status["timed_done"] == 1
+    # off the grid: only what the board measured before the map reached it (and counted)
+    assert status["off_grid_samples"] <= status["unaligned_samples"]
+    assert status["timed_done"] == 1
     for x in ranged[n:]:  # each on the 50 ms grid, within what its stamp vouches for
         assert x.values[0] is not None
         off = x.host_ns[0] % 50_000_000

@@ -135,7 +135,7 @@ def test_a_prober_reports_through_its_context(serve: Serve) -> None:
         prober.start()
         assert wait_for(lambda: len(rtts) > 12)  # probes go on, on the board's reading thread
         board.set_ticker(None)
-    assert pushes == [1] and errors == []
+    assert len(pushes) >= 1 and errors == []  # (then once a second while it probes)
 
 
 def test_claims_name_and_type_without_a_daemon() -> None:

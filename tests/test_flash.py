@@ -99,7 +99,7 @@ def test_real_mpremote_on_a_missing_port_is_one_line_exit_1(tmp_path: Path) -> N
 def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
     sim = FirmwareSim(RIG)
     try:
-        assert "rig answers J2A with 6 transducers" in verify(sim.url, load_board_file(RIG))
+        assert "rig answers J2A with 7 transducers" in verify(sim.url, load_board_file(RIG))
         other = board_file(tmp_path, RIG.read_text().replace('"name": "rig"', '"name": "rig2"'))
         with pytest.raises(FlashError, match="the board file says 'rig2'"):
             verify(sim.url, load_board_file(other))

@@ -233,5 +233,7 @@ def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  #
     assert len(fired) == 1, fired
     u = fired[0]
     assert u.values == [25]
-    assert abs(u.host_ns[0] - at) <= u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
+    # the board acted at the tick the pushed map gave (within that map's bound of the truth),
+    # published through the map of now (within its bound): twice the bound, at most
+    assert abs(u.host_ns[0] - at) <= 2 * u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
     assert u.recv_ns / 1e9 > 0 and status["commands"] == 1

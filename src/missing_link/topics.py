@@ -72,23 +72,24 @@ class Command(NamedTuple):
     when given, gets the board tick it will act at, or the board's refusal (``Daemon.send``).
 
     A thesis-format command message carries its execution time as ``times[0]`` (ROS 2, Zenoh,
-    ROS 1): zero means now."""
+    ROS 1): a time in the future makes a timed command; zero or a time already past (a message
+    stamped when it was made, as ROS messages usually are) means now."""
 
     values: list[Any]
     at_ns: int | None = None
     done: Future[int] | None = None
 
     @classmethod
-    def from_message(cls, msg: Any) -> Command:
+    def from_message(cls, msg: Any, now_ns: int) -> Command:
         """A thesis-format message decoded by rosbags (ROS 2: ``Time`` with sec and nanosec;
-        ROS 1: with sec and nsec too)."""
+        ROS 1: with sec and nsec too), arrived at ``now_ns`` (CLOCK_REALTIME)."""
         values = [v.item() if hasattr(v, "item") else v for v in msg.values]
         times = list(msg.times)
         at = 0
         if times:
             t = times[0]
             at = int(t.sec) * 1_000_000_000 + int(getattr(t, "nanosec", getattr(t, "nsec", 0)))
-        return cls(values, at if at > 0 else None)
+        return cls(values, at if at > now_ns else None)
 
 
 class Update:

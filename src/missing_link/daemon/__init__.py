@@ -5,8 +5,12 @@
 - :mod:`.claims` - board names and message type names, held daemon-wide
 - :mod:`.session` - one board: connect, validate, serve, notice loss, reconnect
 - :mod:`.sample_path` - a sample SIF in, host-timed updates out
+- :mod:`.session_clock` - one board's clock sync in its session, its skew kept across links
 - :mod:`.prober` - one board's clock probes on its reading thread
-- :mod:`.actuators` - commands for a board's actuators, latest wins
+- :mod:`.alignment` - the host-time grid of aligned transducers, the board's account of it
+- :mod:`.settings` - a board's run-time configuration: the file's keys at connect and reset
+- :mod:`.control` - the local control endpoint (``missing-link config``, ``info``, ``call``)
+- :mod:`.actuators` - commands for a board's actuators, latest wins; timed ones at their time
 - :mod:`.discovery` - boards found as their serial ports appear (``run --auto``)
 - :mod:`.config` - the TOML configuration, validated
 """

@@ -70,6 +70,8 @@ class SamplePath:
         #: transducer id -> (period ns, phase ns) of its host-time grid, when it is aligned
         #: (board/timing.py; the session keeps it with the board's configuration)
         self.grid: dict[int, tuple[int, int, int]] = {}
+        #: host time (ns) the grid took effect: what was measured before is not held against it
+        self.grid_since_ns = 0
         self.off_grid_samples = 0  #: samples of aligned transducers that were not on their grid
         self.next_seq: int | None = None  # after the last SIF seen on this board boot
         self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
@@ -157,7 +159,11 @@ class SamplePath:
                 host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
                 newest = max(host_ns)  # (0 when every channel is N/A)
             grid = self.grid.get(cmd) if self.grid else None
-            if grid is not None and newest and off_grid(newest, grid, bound, GRID_SLACK_NS):
+            if (
+                grid is not None
+                and newest >= self.grid_since_ns
+                and off_grid(newest, grid, bound, GRID_SLACK_NS)
+            ):
                 flags |= OFF_GRID
                 self.off_grid_samples += 1
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged

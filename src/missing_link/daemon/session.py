@@ -51,11 +51,9 @@ from typing import Any
 from ..descriptors import load_descriptor_file
 from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
-from ..ros.clock import ACCEPTED, REFUSED, RESET, clock_topic, record_of
+from ..ros.clock import clock_topic
 from ..ros.standard import StandardMapping, mapping_for
-from ..timesync.estimator import AddResult
-from ..timesync.exchange import Exchange
-from ..timesync.sync import ClockSync, SyncOptions
+from ..timesync.sync import ClockSync
 from ..topics import Topic
 from ..transport import open_transport
 from .actuators import Actuators
@@ -63,8 +61,9 @@ from .alignment import Alignment, grid_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
-from .prober import ClockProber, ProbeContext
+from .prober import ClockProber
 from .sample_path import SamplePath
+from .session_clock import ClockContext, SessionClock
 from .settings import BoardSettings, SettingsContext
 
 log = logging.getLogger(__name__)
@@ -93,13 +92,21 @@ class BoardSession:
         self.failures = 0
         self.stale_links = 0
         self.rtt_us: float | None = None
-        self.sync: ClockSync | None = None
         self.epoch = ""
-        self.map_pushes = 0
-        self.prober: ClockProber | None = None
-        self._clock_topic = ""  # where recordings keep this board's clock exchanges
-        self._serial = ""  # board.serial of the board this session last connected to
-        self._skew_memory: tuple[str, float, float] | None = None  # (serial, skew, host ns)
+        self.clock = SessionClock(
+            ClockContext(
+                url=spec.url,
+                timeout=spec.timeout,
+                link_timeout=spec.link_timeout,
+                byte_ns=spec.byte_ns,
+                realtime_offset_ns=ctx.realtime_offset_ns,
+                probe_gap=ctx.probe_gap,
+                record_clock=ctx.record_clock,
+                on_error=self._probe_failed,
+                on_rtt=self._set_rtt,
+                wants_map=lambda: bool(self.path.grid),
+            )
+        )
         self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
@@ -128,6 +135,14 @@ class BoardSession:
     @property
     def command_errors(self) -> int:
         return self.actuators.command_errors
+
+    @property
+    def sync(self) -> ClockSync | None:
+        return self.clock.sync
+
+    @property
+    def prober(self) -> ClockProber | None:
+        return self.clock.prober
 
     @property
     def topics(self) -> dict[int, Topic]:
@@ -217,8 +232,13 @@ class BoardSession:
             self.warn(taken)
         self.path.name = self.name
         cfg = self.ctx.config
-        self._clock_topic = clock_topic(self.name, {t.name for t in transducers})
-        self._start_sync(board)
+        self.path.sync = None
+        no_clock = self.clock.start(
+            board, self.name, clock_topic(self.name, {t.name for t in transducers})
+        )
+        if no_clock:
+            self.warn(no_clock)
+        self.path.sync = self.clock.sync
         # New tables, filled as they are declared (a failure half-way leaves _disconnect the
         # command topics added so far to remove)
         topics: dict[int, Topic] = {}
@@ -327,73 +347,18 @@ class BoardSession:
         if not board.alive and not self._stop.is_set():
             self.error = f"link lost: {board.transport.url}"
 
-    # ---- clock synchronisation ---------------------------------------------------------------
-    def _start_sync(self, board: Board) -> None:
-        old, self.sync, self.prober = self.sync, None, None
-        self.path.sync = None
-        serial = board.properties.get("board.serial", "")
-        if old is not None and old.estimate is not None:
-            # The same board again (a link outage): its crystal's skew is a prior, like
-            # ntpd's drift file; a different board (another serial) starts from nothing.
-            self._skew_memory = (self._serial, old.estimate.skew, old.estimate.h_ref)
-        self._serial = serial
-        if "a2jClock" not in board.index and "getTime" not in board.index:
-            self.warn("no a2jClock or getTime: host times are receive times, without a bound")
-            return
-        res = int(board.properties.get("clock.res_us", "1"))  # range-checked by the handshake
-        sync = ClockSync(SyncOptions(res_us=res), seed=hash(self.spec.url) & 0xFFFF)
-        memory = self._skew_memory
-        if memory is not None and memory[0] == serial:
-            sync.estimator.set_prior(memory[1], memory[2])
-        sync.start(time.monotonic())
-        prober = ClockProber(self._probe_context(board, sync), board, sync)
-        prober.first_estimate()  # a map before any sample is published
-        self.sync, self.prober = sync, prober
-        self.path.sync = sync
-        prober.start()  # from now on on the board's reading thread (prober.py)
-
-    def _probe_context(self, board: Board, sync: ClockSync) -> ProbeContext:
-        spec = self.spec
-
-        def on_error(text: str) -> None:
-            if self.board is board:  # (a late reply of an earlier link says nothing now)
-                self.error = text
-
-        def on_map_pushed() -> None:
-            self.map_pushes += 1
-
-        def on_rtt(us: float) -> None:
-            self.rtt_us = us
-
-        results = {AddResult.ACCEPTED: ACCEPTED, AddResult.RESET: RESET}
-        epoch = board.properties.get("clock.epoch", "")
-        topic, offset = self._clock_topic, self.ctx.realtime_offset_ns
-
-        def on_exchange(ex: Exchange, result: AddResult) -> None:
-            got = results.get(result, REFUSED)
-            self.ctx.record_clock(topic, record_of(ex, got, sync.estimate, offset, epoch))
-
-        return ProbeContext(
-            name=self.name,
-            timeout=spec.timeout,
-            link_timeout=spec.link_timeout,
-            byte_ns=spec.byte_ns,
-            realtime_offset_ns=self.ctx.realtime_offset_ns,
-            probe_gap=self.ctx.probe_gap,
-            on_rtt=on_rtt,
-            on_error=on_error,
-            on_map_pushed=on_map_pushed,
-            on_exchange=on_exchange,
-            wants_map=lambda: bool(self.path.grid),
-        )
+    def _set_grid(self, values: dict[str, Any]) -> None:
+        grid = grid_of(values, self.path.topics)
+        if grid != self.path.grid:
+            self.path.grid, self.path.grid_since_ns = grid, time.time_ns()
 
     def _offer_config(self, name: str, keys: list[Any], values: dict[str, Any], apply: Any) -> None:
-        self.path.grid = grid_of(values, self.path.topics)
+        self._set_grid(values)
         self.ctx.offer_config(name, keys, values, apply)
 
     def _config_changed(self, name: str, values: dict[str, Any]) -> None:
         aligned_before = bool(self.path.grid)
-        self.path.grid = grid_of(values, self.path.topics)
+        self._set_grid(values)
         if self.path.grid and not aligned_before:
             try:  # the grid needs the map now, not at the next exchange
                 self._push_map()
@@ -402,12 +367,17 @@ class BoardSession:
         self.ctx.config_changed(name, values)
 
     def _push_map(self) -> None:
-        prober = self.prober
-        if prober is not None:
-            prober.push_map()
+        self.clock.push_map()
 
     def _set_error(self, text: str) -> None:
         self.error = text
+
+    def _probe_failed(self, board: Board, text: str) -> None:
+        if self.board is board:  # (a late reply of an earlier link says nothing now)
+            self.error = text
+
+    def _set_rtt(self, us: float) -> None:
+        self.rtt_us = us
 
     def _disconnect(self) -> None:
         try:
@@ -461,7 +431,7 @@ class BoardSession:
             "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
             "warnings": "; ".join(self.warnings),
             "clock_epoch": self.epoch,
-            "map_pushes": self.map_pushes,
+            "map_pushes": self.clock.map_pushes,
             **self.settings.status(),
             **self.alignment.status(self.path.grid, self.path.topics),
             **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -113,8 +114,8 @@ class Ros1Publisher(RosPublisher):
 
             def on_command(msg: Any) -> None:  # rospy's thread: hand over, never raise
                 try:
-                    at = msg.times[0].to_nsec() if msg.times else 0
-                    deliver(Command(list(msg.values), at if at > 0 else None))
+                    at = msg.times[0].to_nsec() if msg.times else 0  # (future: timed; else now)
+                    deliver(Command(list(msg.values), at if at > time.time_ns() else None))
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command is counted, not fatal
                     self.dropped += 1

@@ -36,6 +36,7 @@ import logging
 import os
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -200,7 +201,7 @@ class Ros2Publisher(RosPublisher):
         def on_command(raw: bytes) -> None:
             try:
                 msg: Any = self.typestore.deserialize_cdr(raw, type_name)
-                deliver(Command.from_message(msg))  # (times[0]: when to act; 0 = now)
+                deliver(Command.from_message(msg, time.time_ns()))  # (times[0]: when to act)
             except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
                 self.dropped += 1
                 log.warning("ros2: command on %s refused: %s", name, e)

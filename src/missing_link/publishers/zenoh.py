@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import struct
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -206,7 +207,7 @@ class ZenohPublisher(RosPublisher):
             def on_sample(sample: Any) -> None:  # zenoh's thread: decode and hand over
                 try:
                     msg: Any = self.typestore.deserialize_cdr(bytes(sample.payload), type_name)
-                    deliver(Command.from_message(msg))  # (times[0]: when to act; 0 = now)
+                    deliver(Command.from_message(msg, time.time_ns()))  # (times[0]: when to act)
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
                     self.command_errors += 1
