@@ -17,6 +17,7 @@ from .helpers import j2a_threads
 ROOT = Path(__file__).resolve().parent.parent
 AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
+ROVER_MEGA = ROOT / "examples" / "boards" / "rover-mega.py"
 
 _names = itertools.count()
 
@@ -49,8 +50,8 @@ def no_leftover_threads() -> Iterator[None]:
 
 @pytest.fixture(scope="session")
 def avr_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The AVR firmware of the thesis rig (Uno), the golden-vector board and rig_sim, built
-    once per session (tests/test_avr*.py)."""
+    """The AVR firmware of the thesis rig (Uno) and of the rover (Mega), the golden-vector
+    board and rig_sim, built once per session (tests/test_avr*.py)."""
     for tool in ("avr-gcc", "cc"):
         if shutil.which(tool) is None:
             pytest.fail(f"{tool} is required: run scripts/system-deps.sh")
@@ -75,4 +76,11 @@ def avr_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "atmega328p: flash" in r.stdout  # the size line, budgets checked by make
+    r = subprocess.run(  # the rover's parts on a Mega (tests/test_avr_rover.py)
+        ["make", "-C", str(AVR), f"BOARD={ROVER_MEGA}", f"BUILD={out}", f"PYTHON={sys.executable}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
     return out

@@ -134,11 +134,13 @@ class FirmwareSim:
     ROOT = Path(__file__).resolve().parent.parent
     HOST = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
 
-    def __init__(self, board_file: Path | str) -> None:
+    def __init__(self, board_file: Path | str, files: dict[str, Path] | None = None) -> None:
+        """``files``: put on the board's filesystem (name -> local file), as flash would."""
         if shutil.which("node") is None:
             raise RuntimeError("node is required: run `make node`")
+        extra = [x for name, path in (files or {}).items() for x in ("--file", f"{name}={path}")]
         self.proc = subprocess.Popen(
-            ["node", str(self.HOST), str(board_file)],
+            ["node", str(self.HOST), str(board_file), *extra],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -184,11 +186,19 @@ class AvrSim:
     """rig_sim running an ELF; ``ctl(line)`` talks to the simulated rig."""
 
     def __init__(
-        self, build: Path, elf: Path, skew_ppm: float = 0.0, eeprom: Path | None = None
+        self,
+        build: Path,
+        elf: Path,
+        skew_ppm: float = 0.0,
+        eeprom: Path | None = None,
+        rover: bool = False,
     ) -> None:
         """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
-        power-up and writes at power-off)."""
+        power-up and writes at power-off); ``rover``: a Mega with the rover's parts
+        (firmware/avr/sim/rover.c)."""
         extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
+        if rover:
+            extra += ["--mcu", "atmega2560", "--rover"]
         self.proc = subprocess.Popen(
             [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra],
             stdin=subprocess.PIPE,

@@ -23,7 +23,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--connect", required=True)
+    ap.add_argument("--connect", help="endpoint (default: the --config file's)")
+    ap.add_argument("--config", help="a native Zenoh config file (TLS certificates)")
     ap.add_argument("--mode", default="peer")
     ap.add_argument("--topic", required=True)
     ap.add_argument("--type", required=True)
@@ -47,9 +48,10 @@ def main() -> int:
     pkg, _, name = a.type.split("/")
     key = f"0/{a.topic.lstrip('/')}/{pkg}::msg::dds_::{name}_/{ts.hash_rihs01(a.type)}"
 
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", json.dumps(a.mode))
-    cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
+    cfg = zenoh.Config.from_file(a.config) if a.config else zenoh.Config()
+    if a.connect or not a.config:
+        cfg.insert_json5("mode", json.dumps(a.mode))
+        cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     got: queue.Queue[tuple[str, bytes, bytes | None, int]] = queue.Queue()
     with zenoh.open(cfg) as session:

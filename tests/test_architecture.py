@@ -33,6 +33,7 @@ FLOORS = {
     "version": 0,
     "errors": 0,
     "text": 0,
+    "logs": 0,
     "descriptors": 0,
     "j2a": 0,
     "timesync": 0,

@@ -139,7 +139,7 @@ def test_the_host_checks_before_it_sends_and_says_what_is_allowed() -> None:
                 "servo.min_deg": ("1.5", "a whole number"),
                 "dist_us.groups": ("2", "read-only"),
                 "sonar.rate_hz": ("2", "transducers: quad, dist_ir"),
-                "dist_ir.rate": ("2", "dist_ir has: dist_ir.aligned, dist_ir.enabled, dist_ir.phase"),
+                "dist_ir.rate": ("2", "dist_ir has: dist_ir.aligned, dist_ir.enabled, dist_ir.ph"),
             }
             board.settings.keys()  # (the table is read once)
             calls = board.conn.stats.requests

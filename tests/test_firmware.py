@@ -155,7 +155,7 @@ def test_imu_scaling_and_bus_loss(daemon: Rig, sim: FirmwareSim) -> None:
     sim.ctl("dev = WORLD.i2c.pop((0, 0x68))")
     n = len(got["imu"])
     assert wait_for(lambda: any(u.values[0] is None for u in got["imu"][n:]))
-    sim.ctl("machine.MPU6050(0, 0x68).accel_g = (0, 0, 1)")
+    sim.ctl("devices.MPU6050(0, 0x68).accel_g = (0, 0, 1)")
     assert wait_for(lambda: got["imu"][-1].values[2] == pytest.approx(9.80665, abs=0.01))
 
 

@@ -26,7 +26,7 @@ FORBIDDEN = {
 BOARD_ALLOWED = {
     "board/clock.py": {"time", "os"},
     # the firmware's shell on a microcontroller: the link is I/O by definition
-    "board/link.py": {"time", "select", "sys"},
+    "board/link.py": {"time", "select", "sys", "socket", "os"},
     # ... and the file a saved configuration lives in
     "board/store.py": {"os"},
 }

@@ -41,6 +41,8 @@ def ros_env(**extra: str) -> dict[str, str]:
         ROS_DOMAIN_ID=str(random.randrange(1, 200)),
         FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILE),
         ROS_DISTRO="kilted",
+        # the host only, as the loopback profile: the daemon then takes commands from this face
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
         PYTHONUNBUFFERED="1",
     )
     env.update(extra)
@@ -319,3 +321,23 @@ def test_board_configuration_is_ros2_parameters_of_the_node(
     values = json.loads(board.stdout)["values"]
     assert values["dist_ir.rate_hz"] == 5.0 and values["servo.min_deg"] == 60
     assert values["servo.max_deg"] == 90
+
+
+def test_ros_security_variables_reach_rcl(thesis_board: str) -> None:
+    """The rclpy node honours SROS2's ROS_SECURITY_* as any node does: with enforcement on and
+    no keystore it does not start (one line, exit 1) rather than talk unsecured."""
+    env = ros_env(
+        ROS_SECURITY_ENABLE="true",
+        ROS_SECURITY_STRATEGY="Enforce",
+        ROS_SECURITY_KEYSTORE="/nonexistent/keystore",
+    )
+    r = subprocess.run(
+        [str(ROS2_PY), "-m", "missing_link", "run", thesis_board, "-p", "ros2", "--duration", "5"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
+    assert r.returncode == 1, r.stderr
+    assert "SECURITY ERROR" in r.stderr and "/nonexistent/keystore" in r.stderr
+    assert r.stderr.strip().count("\n") == 0, r.stderr  # one line, no traceback

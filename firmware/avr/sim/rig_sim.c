@@ -4,7 +4,10 @@
  * no acknowledge while ranging, the address-change sequence), quadrature edges on INT0/INT1,
  * and the servo's frame on OC1A with its pulse width from the timer's registers.
  *
- *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE]
+ *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--rover]
+ *
+ * --rover (with --mcu atmega2560): the rover's parts too (rover.c: motors, a stepper, an
+ * HC-SR04 and a GPS at examples/boards/rover-mega.py's pins).
  *
  * --eeprom FILE: the EEPROM's contents are read from FILE at power-up (when it exists) and
  * written back when the rig is powered off (quit, stdin closed), as a real EEPROM keeps them.
@@ -37,8 +40,10 @@
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_time.h"
+#include "rover.h"
 
 static avr_t *avr;
+static int rover; /* --rover: the rover's parts (rover.c) on a Mega */
 static uart_pty_t uart;
 static double skew;
 static uint64_t start_ns;
@@ -215,6 +220,8 @@ static double board_us_at(avr_cycle_count_t c) {
     return c < t1_start ? -1.0 : (double)(c - t1_start) * 1e6 / avr->frequency;
 }
 
+double rig_board_us(avr_cycle_count_t c) { return board_us_at(c); }
+
 /* OC2A (the trigger's pin) as the datasheet has it, from the registers: Timer2 counts from the
  * cycle its clock was started, one count per 8 cycles (prescaler 8, the only one the firmware
  * uses); a compare match (the count going from OCR2A to OCR2A + 1) applies COM2A to the pin:
@@ -334,7 +341,8 @@ static size_t line_n;
 
 static void command(const char *cmd) {
     int v;
-    if (sscanf(cmd, "sharp %d", &v) == 1) {
+    if (rover && rover_command(cmd)) {
+    } else if (sscanf(cmd, "sharp %d", &v) == 1) {
         sharp_mm = v;
         sharp_update();
         printf("ok\n");
@@ -413,6 +421,7 @@ int main(int argc, char **argv) {
         if (!strcmp(argv[i], "--mcu") && i + 1 < argc) mcu = argv[++i];
         else if (!strcmp(argv[i], "--skew-ppm") && i + 1 < argc) skew = atof(argv[++i]) * 1e-6;
         else if (!strcmp(argv[i], "--eeprom") && i + 1 < argc) eeprom_file = argv[++i];
+        else if (!strcmp(argv[i], "--rover")) rover = 1;
         else elf = argv[i];
     }
     if (!elf) {
@@ -451,6 +460,7 @@ int main(int argc, char **argv) {
     avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), srf.irq);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(servo_port), servo_pin),
                             servo_hook, NULL);
+    if (rover) rover_init(avr);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_hook,
                             NULL);
     enc_set(enc_pin_a, enc_a);

@@ -8,80 +8,8 @@
 #include <util/twi.h>
 
 #include "hal.h"
+#include "schedule.h"
 #include "timing.h"
-
-/* ---- when a periodic driver measures: every period, or on the host-time grid --------------------
- * Aligned (timing.c): the next measurement is the grid's next instant in board ticks, and the
- * last stretch before it is waited out here (SCHED_SPIN_US), so the measurement starts within a
- * few µs of it; without a valid map it runs free and each such measurement is counted
- * (timing_unaligned), as the Python drivers do (board/drivers/__init__.py, Periodic). */
-#ifndef SCHED_SPIN_US
-#define SCHED_SPIN_US 400
-#endif
-
-typedef struct {
-    uint64_t due; /* the next measurement (stale: the last one's) */
-    uint32_t period_us;
-    float phase;
-    uint8_t aligned : 1, started : 1, free : 1, stale : 1;
-} schedule_t;
-
-static uint8_t sched_grid(schedule_t *s, uint64_t now) {
-    s->free = 1;
-    if (!s->aligned || !timing_next_grid(s->period_us, s->phase, now, &s->due)) return 0;
-    s->free = 0;
-    return 1;
-}
-
-/* 1 when it is time to measure: due, or aligned and due within SCHED_SPIN_US (then the driver
- * readies its measurement and calls sched_wait just before it starts).  The next instant is
- * reckoned on the call after a measurement, not before it: a grid instant costs a few 64-bit
- * divisions (about 1 ms on an AVR), which must not sit between the instant and the measurement. */
-static uint8_t sched_due(schedule_t *s, uint64_t *now) {
-    if (!s->started) {
-        s->started = 1;
-        s->stale = 0;
-        if (sched_grid(s, *now)) return 0; /* wait for the grid */
-        s->due = *now;
-    }
-    if (s->stale) {
-        s->stale = 0;
-        if (!sched_grid(s, *now)) {
-            s->due += s->period_us;
-            if (s->due <= *now) s->due = *now + s->period_us;
-        }
-        *now = board_clock();
-    }
-    if (*now < s->due && !(s->aligned && !s->free && s->due - *now < SCHED_SPIN_US)) return 0;
-    if (s->aligned && s->free) timing_unaligned++;
-    s->stale = 1;
-    return 1;
-}
-
-/* the last stretch to an aligned measurement's instant (*now: that instant, within a tick) */
-static inline __attribute__((always_inline)) void sched_wait(schedule_t *s, uint64_t *now) {
-    clock_wait_t w;
-    if (*now >= s->due || !clock_wait_prepare(s->due, &w)) return;
-    *now = s->due;
-    clock_wait(&w);
-}
-
-static void sched_rate(schedule_t *s, float rate_hz) {
-    uint32_t p = (uint32_t)(1000000.0f / rate_hz);
-    uint64_t last = s->stale ? s->due : s->due - s->period_us;
-    if (s->aligned) s->started = 0; /* the grid of the new period */
-    else if (s->started && p < s->period_us) { /* sooner */
-        s->due = last + p;
-        s->stale = 0;
-    }
-    s->period_us = p;
-}
-
-static void sched_align(schedule_t *s, uint8_t aligned, float phase) {
-    s->aligned = aligned;
-    s->phase = phase;
-    s->started = 0;
-}
 
 /* ---- quadrature: INT0/INT1 on any edge, x4 decoding ------------------------------------------ */
 #if defined(__AVR_ATmega328P__)
@@ -372,17 +300,18 @@ static transducer_t *servo_t;
 static uint16_t servo_min, servo_max, servo_centre, servo_half;
 uint16_t servo_commands;
 
+static int8_t servo_value;
+static uint8_t servo_on, servo_limp; /* servo_limp: the failsafe's `safe` = limp */
+
 void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t centre_us,
-                uint16_t span_us) {
+                uint16_t span_us, uint8_t limp) {
     servo_t = t;
     servo_min = min_us;
     servo_max = max_us;
     servo_centre = centre_us;
     servo_half = span_us / 2;
+    servo_limp = limp;
 }
-
-static int8_t servo_value;
-static uint8_t servo_on;
 
 static void servo_pulse(void) {
     int8_t v = servo_value;
@@ -392,9 +321,21 @@ static void servo_pulse(void) {
     OCR1A = (uint16_t)(us * 2); /* 0.5 µs ticks */
 }
 
-void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us) {
-    servo_init(servo_t, min_us, max_us, centre_us, span_us);
+void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us,
+               uint8_t limp) {
+    servo_init(servo_t, min_us, max_us, centre_us, span_us, limp);
     if (servo_on) servo_pulse(); /* a pulse already out: re-clamped to the new limits */
+}
+
+void servo_make_safe(void) {
+    /* the failsafe (failsafe.c): hold the last pulse, or stop the pulses (limp, N/A) */
+    if (servo_limp && servo_on) {
+        TCCR1A &= (uint8_t)~_BV(COM1A1);
+        PORTB &= (uint8_t)~_BV(SERVO_BIT); /* (OC1A is on port B on every MCU here) */
+        servo_on = 0;
+    }
+    if (servo_on) record(servo_t, 0, (uint8_t)servo_value, board_clock());
+    else record_na(servo_t, 0, board_clock());
 }
 
 uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {

@@ -25,8 +25,10 @@ void srf02_poll(uint64_t now);
 extern uint16_t srf02_timeouts, srf02_bus_errors;
 
 void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t centre_us,
-                uint16_t span_us);
-void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us);
+                uint16_t span_us, uint8_t limp);
+void servo_set(uint16_t min_us, uint16_t max_us, uint16_t centre_us, uint16_t span_us,
+               uint8_t limp);
+void servo_make_safe(void);
 uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 
 /* A trigger output on the MCU's fixed pin (Uno D10, Mega D10): a pulse when commanded, or at a

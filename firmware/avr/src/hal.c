@@ -55,7 +55,7 @@ static uint64_t clock_of(uint32_t wraps, uint16_t ticks) {
     return clock_base_us + (uint64_t)(int64_t)d + (ticks >> 1);
 }
 
-static uint64_t clock_of_at(uint32_t wraps, uint16_t ticks) {
+uint64_t clock_at(uint32_t wraps, uint16_t ticks) {
     uint64_t t;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = clock_of(wraps, ticks); }
     return t;
@@ -81,7 +81,7 @@ uint8_t clock_wait_prepare(uint64_t at_us, clock_wait_t *w) {
         t = TCNT1;
         wraps = clock_wraps_at(t);
     }
-    uint64_t now = clock_of_at(wraps, t); /* (the slow part, from the counts read above) */
+    uint64_t now = clock_at(wraps, t); /* (the slow part, from the counts read above) */
     if (at_us <= now || at_us - now >= CLOCK_PERIOD_US) return 0;
     w->from = t;
     w->ticks = (uint16_t)((at_us - now) * 2 - (t & 1));

@@ -11,6 +11,8 @@ uint64_t board_clock(void);           /* µs since boot, 64 bit, never wraps */
 uint64_t board_clock_from_isr(void);  /* the same, with interrupts already off */
 /* Timer1's wraps when it read ``ticks`` just now, counting one still pending (irqs off) */
 uint32_t clock_wraps_at(uint16_t ticks);
+/* the clock at a count read earlier: Timer1's wraps (within 256 of now) and ticks */
+uint64_t clock_at(uint32_t wraps, uint16_t ticks);
 /* Waiting for board µs `at_us` to within a timer tick (0.5 µs) on Timer1 itself (a
  * board_clock() costs ~19 µs of 64-bit arithmetic), for waits under 20 ms: prepare (0: the time
  * has come already), then clock_wait, inline, right before what must happen then. */

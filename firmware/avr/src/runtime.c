@@ -25,15 +25,17 @@
 #include <string.h>
 
 #include "hal.h"
+#include "failsafe.h"
 #include "timing.h"
 #include "wire.h"
 
 static frame_parser_t parser;
 static uint8_t scratch[255];
 static uint64_t last_byte_us, request_us;
-static char debug_text[32];
+static char debug_text[64];
 static uint8_t debug_len;
 static uint8_t sif_seq;
+uint64_t runtime_last_frame_us;
 uint32_t sifs_dropped, sifs_sent, sif_total, calls;
 char clock_epoch[9];
 
@@ -41,6 +43,12 @@ static void tx(uint8_t b) { link_write(b); }
 
 void runtime_debug(const char *text) {
     while (*text && debug_len < sizeof debug_text) debug_text[debug_len++] = *text++;
+}
+
+void runtime_debug_P(const char *text) {
+    char c;
+    while ((c = (char)pgm_read_byte(text++)) && debug_len < sizeof debug_text)
+        debug_text[debug_len++] = c;
 }
 
 static void reply(uint8_t seq, uint8_t code, const uint8_t *payload, uint8_t n) {
@@ -217,6 +225,7 @@ void runtime_feed(uint8_t b, uint64_t rx_us) {
     last_byte_us = rx_us;
     uint8_t ev = frame_parser_feed(&parser, b);
     if (ev == EV_NONE) return;
+    runtime_last_frame_us = rx_us; /* the host is there (failsafe.c) */
     if (ev == EV_REQUEST) {
         request_us = rx_us;
         dispatch(parser.seq, parser.op, parser.buf, parser.n);
@@ -291,6 +300,7 @@ void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
 void runtime_poll(void) {
     uint64_t now = board_clock();
     timing_poll(now); /* timed calls first: they are due at a tick (timing.c) */
+    failsafe_poll(now);
     board_poll(now);
     for (uint8_t i = 0; i < board_transducer_count; i++) {
         if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);

@@ -23,6 +23,8 @@ const args = process.argv.slice(2);
 const boardFile = args[0];
 const portArg = args.indexOf("--port") >= 0 ? Number(args[args.indexOf("--port") + 1]) : 0;
 const runArg = args.indexOf("--run") >= 0 ? args[args.indexOf("--run") + 1] : null;
+// --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
+const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 
 const mp = await loadMicroPython({
   stdout: (line) => (runArg ? process.stdout : process.stderr).write((runArg ? "" : "mpy: ") + line + "\n"),
@@ -43,8 +45,13 @@ function copyTree(src, dst) {
 mp.FS.mkdir("/lib");
 copyTree(join(root, "src", "missing_link", "board"), "/lib/mlboard");
 mp.FS.writeFile("/lib/machine.py", readFileSync(join(here, "machine.py")));
+mp.FS.writeFile("/lib/simdevices.py", readFileSync(join(here, "devices.py")));
 mp.FS.writeFile("/lib/simhost.py", readFileSync(join(here, "host.py")));
 mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
+for (const spec of files) {
+  const eq = spec.indexOf("=");
+  mp.FS.writeFile("/" + spec.slice(0, eq), readFileSync(spec.slice(eq + 1)));
+}
 if (runArg) {
   mp.runPython("import sys\nsys.path.append('/lib')\n" + readFileSync(runArg, "utf8"));
   process.exit(0);

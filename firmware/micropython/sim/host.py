@@ -5,8 +5,9 @@
 # (reboot() restarts the firmware on the same filesystem and devices).
 
 import machine
+import simdevices
 from board import BOARD
-from machine import MPU6050, SRF02, WORLD
+from machine import WORLD
 from mlboard.firmware import BreakIn, Firmware
 
 
@@ -32,29 +33,55 @@ class SimLink:
         pass
 
 
+I2C_DEVICES = {
+    "srf02": (simdevices.SRF02, 0x70),
+    "mpu6050": (simdevices.MPU6050, 0x68),
+    "hmc5883l": (simdevices.HMC5883L, 0x1E),
+    "qmc5883l": (simdevices.QMC5883L, 0x0D),
+    "vl53l0x": (simdevices.VL53L0X, 0x29),
+}
+
+
 def _populate(board):
+    # the devices the board file says are wired, at their pins and buses (WORLD.devices by
+    # transducer name; I2C devices also at WORLD.i2c[(bus, address)])
     buses = board.get("buses", {})
     for t in board["transducers"]:
         drv = t["driver"]
+        dev = None
         if drv == "sharp_gp2y0a02":
             WORLD.sharp[t["pin"]] = 800
-        elif drv in ("srf02", "mpu6050"):
-            bus = buses[t["bus"]].get("id", 0)
-            if drv == "srf02":
-                SRF02(bus, t.get("address", 0x70))
-            else:
-                MPU6050(bus, t.get("address", 0x68))
+        elif drv in I2C_DEVICES:
+            cls, address = I2C_DEVICES[drv]
+            dev = cls(buses[t["bus"]].get("id", 0), t.get("address", address))
+        elif drv == "hcsr04":
+            dev = simdevices.HCSR04(t["trig_pin"], t["echo_pin"])
+        elif drv == "gps_nmea":
+            dev = simdevices.GpsReceiver(t["uart"], t.get("pps_pin"), t.get("baud", 9600))
+        elif drv == "stepper":
+            dev = simdevices.StepperDriver(t["step_pin"], t["dir_pin"], t.get("enable_pin"))
+        elif drv == "hbridge":
+            dev = simdevices.Motor(t.get("pwm_pin"), t.get("dir_pin"), t.get("in1"), t.get("in2"))
+        if dev is not None:
+            WORLD.devices[t["name"]] = dev
 
 
 _populate(BOARD)
-link = SimLink()
+wire = SimLink()  # the bytes node moves (signed records on a network board)
+link = wire
+if BOARD.get("link", {}).get("key_file"):  # a network board: signed records (signing.py)
+    from mlboard.clock import default_clock
+    from mlboard.link import signed
+
+    _clock = default_clock()
+    link = signed(wire, BOARD["link"], lambda: _clock() // 1000)
 fw = Firmware(BOARD, machine, link)
 rt = fw.runtime
 stopped = False
 
 
 def _feed(h):
-    link.rx.extend(bytes.fromhex(h))
+    wire.rx.extend(bytes.fromhex(h))
 
 
 def _tick():
@@ -66,10 +93,10 @@ def _tick():
     except BreakIn:
         stopped = True
         return "BREAK"
-    if not link.tx:
+    if not wire.tx:
         return ""  # (b"".hex() is b"" on MicroPython, not "")
-    out = bytes(link.tx).hex()
-    link.tx = bytearray()
+    out = bytes(wire.tx).hex()
+    wire.tx = bytearray()
     return out
 
 
@@ -87,7 +114,15 @@ def reboot():
 
 
 def _ctl(src):
-    env = {"WORLD": WORLD, "fw": fw, "rt": rt, "machine": machine, "reboot": reboot, "result": None}
+    env = {
+        "WORLD": WORLD,
+        "fw": fw,
+        "rt": rt,
+        "machine": machine,
+        "devices": simdevices,
+        "reboot": reboot,
+        "result": None,
+    }
     exec(src, env)
     return repr(env["result"])
 

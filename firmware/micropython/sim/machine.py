@@ -6,8 +6,11 @@
 # ADC.read_u16 converts the voltage the world puts on the pin as a 12-bit converter does (RP2040)
 # and scales it to 16 bit.  PWM keeps frequency and duty as set.  I2C dispatches to device models
 # by (bus, address); an absent or busy device does not acknowledge: OSError(EIO), as rp2.
-# The device models (SRF02, MPU-6050, the Sharp ranger's curve) follow their datasheets, with
-# their own tables: the drivers are checked against them, not against themselves.
+# UART keeps what the world sent (a device at the other end produces it when the firmware looks)
+# and what the firmware wrote; time_pulse_us asks the device driving that pin for its pulse.
+# The device models (devices.py: SRF02, MPU-6050, compasses, VL53L0X, HC-SR04, a GPS receiver,
+# a stepper driver; here the Sharp ranger's curve) follow their datasheets, with their own
+# tables: the drivers are checked against them, not against themselves.
 #
 # WORLD holds everything; a test drives it through the simulator host's control channel.
 
@@ -37,6 +40,11 @@ class World:
         self.adc_reads = 0
         self.adc_log = []  # ticks_us of the newest ADC reads (at most 2000)
         self.edges = {}  # pin -> [(ticks_us, level)] of an output's changes (at most 2000)
+        self.watchers = {}  # pin -> [fn(level)]: devices that see the firmware drive a pin
+        self.uarts = {}  # UART id -> UART
+        self.uart_sources = {}  # UART id -> device producing its bytes (.produce(now_us))
+        self.pulses = {}  # pin -> device answering time_pulse_us on it (.pulse(level, timeout))
+        self.devices = {}  # transducer name -> its device model (devices.py), for tests
 
     def pin(self, pin_id):
         st = self.pins.get(pin_id)
@@ -90,6 +98,16 @@ class World:
     def pulse_us(self, pin_id):
         p = self.pwms.get(pin_id)
         return None if p is None else p._duty_ns / 1000
+
+    def watch(self, pin_id, fn):
+        self.watchers.setdefault(pin_id, []).append(fn)
+
+    def duty(self, pin_id):
+        # a PWM output's duty 0..1 (0 when it is not a PWM output)
+        p = self.pwms.get(pin_id)
+        if p is None or not p._freq:
+            return 0.0
+        return p._duty_ns / (1000000000 / p._freq)
 
 
 WORLD = World()
@@ -151,12 +169,16 @@ class Pin:
         if v is None:
             return st.level
         level = 1 if v else 0
-        if level != st.level:
+        changed = level != st.level
+        if changed:
             log = WORLD.edges.setdefault(self.id, [])
             log.append((time.ticks_us(), level))
             if len(log) > 2000:
                 log.pop(0)
         st.level = level
+        if changed:
+            for fn in WORLD.watchers.get(self.id, ()):
+                fn(level)
         return None
 
     def irq(self, handler=None, trigger=IRQ_FALLING | IRQ_RISING, hard=False):
@@ -249,110 +271,53 @@ class I2C:
         return bytes(self._dev(addr).read(None, n))
 
 
-def _now_us():
-    return time.ticks_us()
+class UART:
+    def __init__(self, uart_id, baudrate=9600, tx=None, rx=None, rxbuf=256, **kw):
+        self.id = uart_id
+        self.baudrate = baudrate
+        self.rxbuf = rxbuf
+        self.rx = bytearray()  # from the device, not read yet
+        self.tx = bytearray()  # what the firmware wrote
+        self.overruns = 0
+        WORLD.uarts[uart_id] = self
 
+    def feed(self, data):
+        # the device sends: bytes beyond the receive buffer are lost, as on a real UART
+        room = self.rxbuf - len(self.rx)
+        if len(data) > room:
+            self.overruns += len(data) - room
+            data = data[:room]
+        self.rx.extend(data)
 
-class SRF02:
-    # Devantech SRF02 (datasheet "SRF02 Ultrasonic range finder", I2C mode): 6 registers; a
-    # ranging takes 65 ms during which it does not acknowledge; range in the unit asked for.
-    REVISION = 6
-    BUSY_US = 65000
+    def _produce(self):
+        src = WORLD.uart_sources.get(self.id)
+        if src is not None:
+            src.produce(time.ticks_us())
 
-    def __init__(self, bus, address=0x70):
-        self.bus = bus
-        self.address = address
-        self.distance_cm = 100.0
-        self.echo = True  # False: nothing in range (range reads 0)
-        self._busy_until = None
-        self._range = 0
-        self._min = 18
-        self._seq = []
-        self.rangings = 0
-        WORLD.i2c[(bus, address)] = self
+    def any(self):
+        self._produce()
+        return len(self.rx)
 
-    def ack(self):
-        if self._busy_until is None:
-            return True
-        if time.ticks_diff(_now_us(), self._busy_until) >= 0:
-            self._busy_until = None
-            return True
-        return False
-
-    def write(self, reg, data):
-        if reg != 0 or len(data) != 1:
-            return
-        cmd = data[0]
-        if cmd in (0x50, 0x51, 0x52):
-            self._seq = []
-            self.rangings += 1
-            cm = self.distance_cm if self.echo else 0
-            self._range = {0x50: int(cm / 2.54), 0x51: int(cm), 0x52: int(cm * 58.3)}[cmd]
-            self._busy_until = time.ticks_add(_now_us(), self.BUSY_US)
-            return
-        self._seq.append(cmd)
-        if self._seq[:3] == [0xA0, 0xAA, 0xA5][: len(self._seq[:3])] and len(self._seq) == 4:
-            new = cmd >> 1
-            if cmd & 1 == 0 and 0x70 <= new <= 0x7F:
-                del WORLD.i2c[(self.bus, self.address)]
-                self.address = new
-                WORLD.i2c[(self.bus, new)] = self
-            self._seq = []
-        elif self._seq != [0xA0, 0xAA, 0xA5][: len(self._seq)]:
-            self._seq = []
-
-    def read(self, reg, n):
-        regs = [
-            self.REVISION,
-            0x80,
-            (self._range >> 8) & 0xFF,
-            self._range & 0xFF,
-            0,
-            self._min,
-        ]
-        reg = 0 if reg is None else reg
-        return [regs[r] if r < len(regs) else 0 for r in range(reg, reg + n)]
-
-
-class MPU6050:
-    # InvenSense MPU-6050 (register map rev 4.2): asleep at power-up (PWR_MGMT_1 = 0x40), data
-    # registers read 0 while asleep; scaled by GYRO_CONFIG / ACCEL_CONFIG's FS_SEL bits.
-    def __init__(self, bus, address=0x68):
-        self.regs = bytearray(128)
-        self.regs[0x6B] = 0x40
-        self.regs[0x75] = 0x68
-        self.accel_g = (0.0, 0.0, 1.0)
-        self.gyro_dps = (0.0, 0.0, 0.0)
-        self.temp_c = 25.0
-        WORLD.i2c[(bus, address)] = self
-
-    def ack(self):
-        return True
-
-    def write(self, reg, data):
-        for i, b in enumerate(data):
-            self.regs[reg + i] = b
-
-    def _sample(self):
-        if self.regs[0x6B] & 0x40:
-            return bytes(14)
-        afs = (self.regs[0x1C] >> 3) & 3
-        fs = (self.regs[0x1B] >> 3) & 3
-        a = [int(round(g * (16384 >> afs))) for g in self.accel_g]
-        w = [int(round(d * 131.0 / (1 << fs))) for d in self.gyro_dps]
-        t = int(round((self.temp_c - 36.53) * 340))
-        vals = a + [t] + w
-        out = bytearray()
-        for v in vals:
-            v = max(-32768, min(32767, v)) & 0xFFFF
-            out.append(v >> 8)
-            out.append(v & 0xFF)
+    def read(self, n=None):
+        self._produce()
+        if not self.rx:
+            return None
+        n = len(self.rx) if n is None else min(n, len(self.rx))
+        out = bytes(self.rx[:n])
+        self.rx = self.rx[n:]
         return out
 
-    def read(self, reg, n):
-        if reg == 0x3B:
-            return self._sample()[:n]
-        return self.regs[reg : reg + n]
+    def write(self, data):
+        self.tx.extend(data)
+        return len(data)
+
+
+def time_pulse_us(pin, pulse_level, timeout_us=1000000):
+    # -2: no pulse started within the timeout, -1: it did not end within it (MicroPython's)
+    dev = WORLD.pulses.get(pin.id)
+    if dev is None:
+        return -1 if WORLD.pin(pin.id).level == pulse_level else -2
+    return dev.pulse(pulse_level, timeout_us)
 
 
 def unique_id():

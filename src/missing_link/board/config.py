@@ -5,7 +5,9 @@
 # Theory of operation
 # -------------------
 # The keys are `<transducer>.<key>`, in a fixed order (the key index on the wire): for each
-# transducer `enabled`, then its driver's CONFIG entries.  A CONFIG entry is (key, kind, limits,
+# transducer `enabled`, then `aligned` and `phase` where it samples on the host-time grid
+# (timing.py), `failsafe_ms` for an actuator the failsafe guards (failsafe.py), then its
+# driver's CONFIG entries.  A CONFIG entry is (key, kind, limits,
 # read_only): kind `bool`, `int`, `float` or `enum`; limits (lo, hi) for numbers, the choices for
 # an enum (its wire value is the choice's index).  The driver answers get_config(key) and
 # set_config(key, value) (raising ValueError with the reason when it cannot take a value that is
@@ -38,6 +40,7 @@ ST_SAVED = 1
 ST_LOADED = 2
 ST_DIRTY = 4
 KINDS = ("bool", "int", "float", "enum")
+DEFAULT_FAILSAFE_MS = 500  # (failsafe.py's)
 
 
 def crc16(data, crc=0xFFFF):
@@ -128,6 +131,12 @@ class RuntimeConfig:
                 self._add(t, "aligned", "bool", None, False, _attr(drv, "aligned"), _align(drv))
                 self._add(t, "phase", "float", (0.0, 0.999), False, _attr(drv, "phase"),
                           _phase(drv))  # fmt: skip
+            if runtime.failsafe is not None and hasattr(drv, "make_safe"):
+                # how long without the host before it is made safe (failsafe.py; 0: never)
+                if not hasattr(drv, "failsafe_ms"):
+                    drv.failsafe_ms = DEFAULT_FAILSAFE_MS
+                self._add(t, "failsafe_ms", "int", (0, 60000), False, _attr(drv, "failsafe_ms"),
+                          _setattr(drv, "failsafe_ms"))  # fmt: skip
             for entry in getattr(drv, "CONFIG", ()):
                 key, kind, limits, ro = entry
                 if kind not in KINDS:
@@ -303,6 +312,13 @@ def _enabler(t):
 
 def _attr(drv, name):
     return lambda: getattr(drv, name)
+
+
+def _setattr(drv, name):
+    def put(value):
+        setattr(drv, name, value)
+
+    return put
 
 
 def _align(drv):

@@ -22,14 +22,18 @@
 # Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
 # ms, a timed call wants its µs.
 
+import struct
+
 from .clock import resolution_us
 from .config import RuntimeConfig
 from .drivers import driver_class
+from .failsafe import Failsafe
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
 from .timing import Timing
 
-RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options")
+RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options",
+            "failsafe_ms")  # fmt: skip
 BREAK = 0x03
 SPIN_US = 2000
 
@@ -111,6 +115,8 @@ def build(board, machine, clock=None, store=None):
                 raise ValueError("%s: no bus %s in the board file" % (entry["name"], entry["bus"]))
             params["i2c"] = buses[entry["bus"]]
         drv = cls(machine, rt.clock, **params)
+        if "failsafe_ms" in entry:
+            drv.failsafe_ms = entry["failsafe_ms"]  # (failsafe.py; a run-time key too)
         t = describe(entry, cls)
         if hasattr(drv, "command"):
             rt.add_function(t.options["call"], rt.gated(t, drv.command))
@@ -119,6 +125,7 @@ def build(board, machine, clock=None, store=None):
     if store is None:
         store = FileStore(board.get("config_file", "mlconfig.bin"))
     rt.timing = Timing(rt)  # aligned sampling, timed calls (before the configuration's keys)
+    rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone (ditto)
     rt.config = RuntimeConfig(rt, store)
     return rt, drivers
 
@@ -128,6 +135,8 @@ class Firmware:
         self.board = board
         self.runtime, self.drivers = build(board, machine, clock, store)
         self.link = link
+        if hasattr(link, "stats"):  # a signed link: what it dropped, for the host to see
+            self.runtime.add_function("a2jLinkStats", self._link_stats)
         self._breaks = 0
 
     def step(self):
@@ -141,6 +150,12 @@ class Firmware:
         out = rt.take_output()
         if out:
             self.link.write(out)
+
+    def _link_stats(self, payload):
+        # [I records][I bad tags][I replayed][I junk bytes] (signing.py)
+        s = self.link.stats()
+        n = [v & 0xFFFFFFFF for v in (s["records"], s["bad_tags"], s["replayed"], s["junk"])]
+        return 0, struct.pack("<IIII", n[0], n[1], n[2], n[3])
 
     def _check_break(self, data):
         for b in data:

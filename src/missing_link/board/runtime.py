@@ -98,6 +98,8 @@ class BoardRuntime:
         self.host_map = None  # (board µs, host ns, host ns per board µs in ppb) from the host
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
+        self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
+        self.last_frame_us = 0  # when the last frame from the host came (the failsafe's)
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -177,11 +179,15 @@ class BoardRuntime:
                 driver.set_cb(cb)
 
     def gated(self, transducer, handler):
-        # An actuator's command function that refuses while its transducer is disabled.
+        # An actuator's command function that refuses while its transducer is disabled; a
+        # command it takes arms the failsafe for it (failsafe.py).
         def call(payload):
             if not transducer.enabled:
                 return 0xFF, ("%s is disabled" % transducer.name).encode()
-            return handler(payload)
+            code, reply = handler(payload)
+            if code == 0 and self.failsafe is not None:
+                self.failsafe.arm(transducer)
+            return code, reply
 
         return call
 
@@ -230,6 +236,8 @@ class BoardRuntime:
         now = self.clock()
         if self.timing is not None:
             self.timing.poll(now)  # timed calls first: they are due at a tick
+        if self.failsafe is not None:
+            self.failsafe.poll(now)
         for t in self.transducers:
             if t._poll is not None and t.enabled:
                 t._poll(now)
@@ -255,6 +263,10 @@ class BoardRuntime:
                 due = t
         if self.timing is not None:
             t = self.timing.next_precise_us()
+            if t is not None and (due is None or t < due):
+                due = t
+        if self.failsafe is not None:
+            t = self.failsafe.next_due_us()
             if t is not None and (due is None or t < due):
                 due = t
         return due
@@ -290,6 +302,7 @@ class BoardRuntime:
         self._last_byte_us = self.clock() if rx_us is None else rx_us
         for ev in self.parser.feed(data):
             tag = ev[0]
+            self.last_frame_us = self._last_byte_us  # the host is there (the failsafe)
             if tag == EV_REQUEST:
                 self._dispatch(ev[1], ev[2], ev[3])
             elif ev[1] is not None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
@@ -17,22 +16,18 @@ def cmd_router(args: argparse.Namespace) -> int:
     machines meet here.  Multicast scouting off; prints one READY line, stops on SIGINT/SIGTERM."""
     import zenoh
 
-    for endpoint in (args.listen or []) + (args.connect or []):
-        if "/" not in endpoint or "://" in endpoint:
-            print(
-                f"missing-link: error: {endpoint!r} is not a Zenoh endpoint "
-                "(e.g. tcp/127.0.0.1:7447)",
-                file=sys.stderr,
-            )
-            return EXIT_USAGE
+    from ..errors import ConfigError
+    from ..publishers.zenoh_config import check_endpoints, session_config
+
     if not args.listen:
         print("missing-link: error: --listen ENDPOINT is required", file=sys.stderr)
         return EXIT_USAGE
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"router"')
-    cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
-    cfg.insert_json5("connect/endpoints", json.dumps(args.connect or []))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
+    try:
+        check_endpoints("--listen/--connect", (args.listen or []) + (args.connect or []))
+        cfg = session_config("router", args.connect or [], args.listen, args.config)
+    except ConfigError as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     signal.signal(signal.SIGINT, lambda *a: stop.set())
@@ -55,4 +50,9 @@ def add_parsers(sub: Any) -> None:
         "--listen", action="append", help="endpoint, e.g. tcp/0.0.0.0:7447 (repeatable)"
     )
     sp.add_argument("--connect", action="append", help="another router to join (repeatable)")
+    sp.add_argument(
+        "--config",
+        help="a native Zenoh config (JSON5: TLS certificates, access_control; docs/security.md); "
+        "--listen/--connect still apply",
+    )
     sp.set_defaults(func=cmd_router)

@@ -144,6 +144,8 @@ class Config:
     #: the local control endpoint (a unix socket) through which ``missing-link config``,
     #: ``call`` and ``info`` reach the boards this daemon holds; "" = none (docs/cli.md)
     control: str | None = None
+    #: the command topics that take commands at all, from any face (patterns; daemon/commands.py)
+    commands: list[str] = field(default_factory=lambda: ["**"])
     source: str = "<defaults>"
 
 
@@ -157,6 +159,7 @@ _DAEMON_KEYS = {
     "diagnostics_period": (int, float),
     "probe_budget": (int, float),
     "control": str,
+    "commands": list,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -216,7 +219,9 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
         raise fail("daemon", "must be a table")
     check(daemon, _DAEMON_KEYS, "daemon")
     for key, value in daemon.items():
-        setattr(cfg, key, float(value) if isinstance(value, int) else value)  # 1 -> 1.0 (seconds)
+        setattr(cfg, key, float(value) if type(value) is int else value)  # 1 -> 1.0 (seconds)
+    if not all(isinstance(c, str) and c[:1] in ("/", "*") for c in cfg.commands):
+        raise fail("daemon.commands", 'command topics or patterns, e.g. ["/rover/*/cmd"]')
     if cfg.control and not cfg.control.startswith("/"):
         raise fail("daemon.control", f'{cfg.control!r}: an absolute path of a socket, or ""')
     if cfg.backoff_max < cfg.backoff_min:

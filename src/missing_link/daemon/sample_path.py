@@ -205,7 +205,9 @@ class SamplePath:
         self.samples += len(values) - missing
         self.publish(update)
         std = self.standard.get(cmd)
-        if std is not None:
+        if std is not None and std[1].sample is not None:
+            self._publish_sample_type(std, board_us, host_ns, values, seq, recv_ns, update)
+        elif std is not None:
             std_topic, mapping = std
             for ch, v in enumerate(values):
                 if v is not None:
@@ -230,3 +232,40 @@ class SamplePath:
                             flags,
                         )
                     )
+
+    def _publish_sample_type(
+        self,
+        std: tuple[Topic, StandardMapping],
+        board_us: list[int],
+        host_ns: list[int],
+        values: list[Any],
+        seq: int,
+        recv_ns: int,
+        update: Update,
+    ) -> None:
+        """A standard type made from every channel at once (NavSatFix, MagneticField)."""
+        std_topic, mapping = std
+        assert mapping.sample is not None
+        if not any(host_ns):
+            return  # every channel N/A: nothing to say
+        try:
+            cdr = mapping.sample(host_ns, values)
+        except (ValueError, OverflowError, struct.error, TypeError):
+            self.bad_sifs += 1  # values the standard type cannot carry
+            return
+        self.publish(
+            Update(
+                std_topic,
+                board_us,
+                host_ns,
+                values,
+                seq,
+                0,
+                recv_ns,
+                cdr,
+                None,
+                update.bound_ns,
+                update.est_error_ns,
+                update.clock_flags,
+            )
+        )

@@ -45,6 +45,7 @@ from ..host.board import Board
 from ..host.config import ConfigKey, Value, describe_keys
 from ..host.link import CallResult
 from ..host.reactor import Reactor
+from ..logs import SafeLog
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
 from ..publishers.registry import make_publisher
@@ -53,6 +54,7 @@ from ..ros.msgs import typestore_for
 from ..topics import Command, Topic, Update
 from ..transport import check_url
 from .claims import Claims
+from .commands import CommandGate
 from .config import BoardSpec, Config
 from .context import CommandHandler, SessionContext
 from .control import ControlServer
@@ -80,6 +82,7 @@ class Daemon:
             if spec.descriptors:
                 load_descriptor_file(spec.descriptors)
         self.bus = Bus()
+        self.commands = CommandGate(config.commands)
         self.publishers: list[Publisher] = [self.bus]
         try:
             for name in config.publishers:
@@ -373,9 +376,15 @@ class Daemon:
         out = []
         for p in self.publishers:
             try:
-                out.append(p.status())
+                st = p.status()
+                if p.takes_commands is not None:
+                    st["commands_refused"] = self.commands.refused.get(p.name, 0)
+                out.append(st)
             except Exception as e:  # noqa: BLE001 - a broken status must not hide the others
                 out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}"})
+        if SafeLog.suppressed:
+            out.append({"publisher": "log", "level": 0, "message": "ok",
+                        "lines_held_back": SafeLog.suppressed})  # fmt: skip
         return out
 
     def failures(self) -> list[str]:
@@ -427,10 +436,13 @@ class Daemon:
                 log.exception("publisher %s failed on a clock record", p.name)
 
     def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
-        self.bus.add_command(name, handler)
+        gate = self.commands  # (who may command what: commands.py)
+        self.bus.add_command(name, gate.wrap("bus", True, name, handler))
         for p in self.publishers:
             try:
-                p.add_command_topic(name, topic, handler)
+                p.add_command_topic(
+                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, handler)
+                )
             except Exception:  # (as _declare)
                 self.publish_errors += 1
                 log.exception("publisher %s cannot take commands on %s", p.name, name)

@@ -61,6 +61,7 @@ from .alignment import Alignment, grid_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
+from .failsafe import FailsafeInfo, goodbye, keep_alive, keepalive_s
 from .prober import ClockProber
 from .sample_path import SamplePath
 from .session_clock import ClockContext, SessionClock
@@ -122,6 +123,7 @@ class BoardSession:
             )
         )
         self.alignment = Alignment()
+        self.failsafe = FailsafeInfo()
         self._resets_seen = 0
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
@@ -153,11 +155,14 @@ class BoardSession:
         self._thread.start()
 
     def request_stop(self) -> None:
-        """Begin stopping without waiting (the daemon stops every session at once)."""
+        """Begin stopping without waiting long (the daemon stops every session at once): the
+        board hears goodbye first, so its actuators go safe now (failsafe.py)."""
         self._stop.set()
         self._wake.set()
         board = self.board
         if board is not None:
+            if self.state == UP:
+                goodbye(board)
             board.close()
 
     def stop(self, timeout: float = 1.0) -> None:
@@ -303,14 +308,17 @@ class BoardSession:
         period = self.ctx.config.diagnostics_period
         link_timeout = self.spec.link_timeout
         next_ping = time.monotonic()
-        next_beat = 0.0
+        next_beat = next_keep = 0.0
         board = self.board
         assert board is not None
         board.on_close(self._wake.set)  # a broken link wakes the supervisor at once
         while not self._stop.is_set() and board.alive:
             # Sleep until the next thing to do (commands and a dying link wake it early): an
             # idle board costs a wake-up a second; clock probes run on the reading thread.
+            keep = keepalive_s(board, self.settings.values)  # (the board's failsafe)
             due = min(next_ping, max(board.last_frame + link_timeout / 2, next_beat))
+            if keep is not None:
+                due = min(due, next_keep)
             self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
             self._wake.clear()
             self.actuators.run(board, self._stop.is_set, self._push_map)
@@ -326,6 +334,9 @@ class BoardSession:
                     f"{self.name}: no frame from the board for {silent:.1f} s (frozen, "
                     "unplugged or a half-open link); reconnecting"
                 )
+            if keep is not None and now >= next_keep:
+                next_keep = now + keep
+                keep_alive(board)
             heartbeat = silent >= link_timeout / 2 and now >= next_beat
             if heartbeat:
                 next_beat = now + link_timeout / 4
@@ -334,6 +345,7 @@ class BoardSession:
                 next_ping = now + period
                 if self.path.grid:  # the board's own account of its grid (alignment.py)
                     self.alignment.refresh(board)
+                self.failsafe.refresh(board)
             if self.prober is not None:
                 if heartbeat:
                     self.prober.probe_now()  # answered (or timed out) on the reading thread
@@ -434,6 +446,7 @@ class BoardSession:
             "map_pushes": self.clock.map_pushes,
             **self.settings.status(),
             **self.alignment.status(self.path.grid, self.path.topics),
+            **self.failsafe.info,
             **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
         }
 

@@ -12,28 +12,40 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from ..board.config import Key, crc16
+from ..board.config import DEFAULT_FAILSAFE_MS, Key, crc16
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 
 #: per driver, the CONFIG keys the C drivers apply at run time, and the call that applies them
-#: (``{name}``: the index of that key's value in v[])
+#: (``{name}``: the index of that key's value in v[]; ``{inst}``: which of the driver's
+#: instances, for the drivers a board may have more than one of)
 APPLY = {
     "quadrature": ("quadrature_set(F(v[{rate_hz}]), (uint8_t)v[{reverse}]);", ()),
     "sharp_gp2y0a02": ("sharp_set(F(v[{rate_hz}]));", ()),
     "srf02": ("srf02_set(F(v[{rate_hz}]), (uint16_t)v[{min_range}]);", ("units",)),
     "servo": (
         "servo_set((uint16_t)v[{min_us}], (uint16_t)v[{max_us}], (uint16_t)v[{centre_us}], "
-        "(uint16_t)v[{span_us}]);",
+        "(uint16_t)v[{span_us}], (uint8_t)v[{safe}]);",
         (),
     ),
     "trigger": ("trigger_set((uint16_t)v[{pulse_us}]);", ()),
+    "hbridge": ("hbridge_set({inst}, F(v[{ramp}]), (uint8_t)v[{stop}], v[{freq}]);", ()),
+    "stepper": (
+        "stepper_set(F(v[{max_speed}]), F(v[{accel}]), (uint8_t)v[{mode}]);",
+        ("microsteps",),
+    ),
+    "hcsr04": (
+        "hcsr04_set(F(v[{rate_hz}]), F(v[{temperature_c}]), (uint16_t)v[{max_range_cm}]);",
+        (),
+    ),
+    "gps_nmea": ("", ()),
 }
 #: sampling on the host-time grid (timing.c), for the drivers that align (``ALIGNABLE``)
 ALIGN = {
     "quadrature": "quadrature_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "sharp_gp2y0a02": "sharp_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "srf02": "srf02_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "hcsr04": "hcsr04_align((uint8_t)v[{aligned}], F(v[{phase}]));",
 }
 #: a combination a driver refuses (the Python driver's check_config, in C)
 CHECK = {
@@ -53,6 +65,7 @@ class AvrKey:
     key: Key
     k: int  #: the transducer's index in board_transducers[]
     driver: str
+    inst: int = 0  #: which of its driver's instances (hbridge: 0 or 1)
 
 
 def default_of(cls: type, entry: dict[str, Any], key: str, limits: Any) -> Any:
@@ -69,16 +82,24 @@ def keys_of(
     transducers: list[tuple[int, dict[str, Any], Transducer, type]], where: str
 ) -> list[AvrKey]:
     out: list[AvrKey] = []
+    count: dict[str, int] = {}
     for k, entry, t, cls in transducers:
         drv = entry["driver"]
-        out.append(AvrKey(Key(t, "enabled", "bool", None, False, lambda: True, None), k, drv))
+        inst = count.get(drv, 0)
+        count[drv] = inst + 1
+
+        def add(key: Key, k: int = k, drv: str = drv, inst: int = inst) -> None:
+            out.append(AvrKey(key, k, drv, inst))
+
+        add(Key(t, "enabled", "bool", None, False, lambda: True, None))
         if getattr(cls, "ALIGNABLE", False):  # (as board/config.py adds them)
             if drv not in ALIGN:
                 raise ConfigError(f"{where}: {t.name}: {drv} cannot align on AVR")
-            out.append(AvrKey(Key(t, "aligned", "bool", None, False, lambda: False, None), k, drv))
-            out.append(
-                AvrKey(Key(t, "phase", "float", (0.0, 0.999), False, lambda: 0.0, None), k, drv)
-            )
+            add(Key(t, "aligned", "bool", None, False, lambda: False, None))
+            add(Key(t, "phase", "float", (0.0, 0.999), False, lambda: 0.0, None))
+        if hasattr(cls, "make_safe"):  # the failsafe's (failsafe.c), as board/config.py adds it
+            ms = int(entry.get("failsafe_ms", DEFAULT_FAILSAFE_MS))
+            add(Key(t, "failsafe_ms", "int", (0, 60000), False, lambda v=ms: v, None))
         apply, read_only = APPLY[entry["driver"]]
         for key, kind, limits, ro in cls.CONFIG:  # type: ignore[attr-defined]
             if f"{{{key}}}" not in apply and key not in read_only:
@@ -86,7 +107,7 @@ def keys_of(
             value = default_of(cls, entry, key, limits)
             if key == "units" and value != "cm":
                 raise ConfigError(f"{where}: {t.name}: the AVR SRF02 measures in cm only")
-            out.append(AvrKey(Key(t, key, kind, limits, ro, lambda v=value: v, None), k, drv))
+            add(Key(t, key, kind, limits, ro, lambda v=value: v, None))
     if len(out) > MAX_KEYS:
         raise ConfigError(
             f"{where}: {len(out)} run-time keys, the AVR runtime has room for {MAX_KEYS}"
@@ -106,14 +127,22 @@ def keys_blob(keys: list[AvrKey]) -> bytes:
     return ("config/1\n" + "".join(a.key.line() + "\n" for a in keys)).encode()
 
 
-def generate_config(keys: list[AvrKey], mcu: str, where: str) -> tuple[list[str], bytes]:
-    """(C lines of the tables and the two generated functions, the key table's text)."""
+def generate_config(
+    keys: list[AvrKey],
+    mcu: str,
+    where: str,
+    wiring: dict[int, list[tuple[str, str]]] | None = None,
+) -> tuple[list[str], bytes]:
+    """(C lines of the tables and the two generated functions, the key table's text).
+    ``wiring``: per transducer index, conditions a set must keep that depend on how the entry
+    is wired (avrdrivers.py: a PWM/DIR bridge cannot brake)."""
     slot = 1 + 9 + 4 * len(keys)
     if 16 + 2 * slot > EEPROM[mcu]:
         raise ConfigError(f"{where}: the configuration record does not fit the {mcu}'s EEPROM")
     blob = keys_blob(keys)
     index: dict[tuple[int, str], int] = {(a.k, a.key.key): i for i, a in enumerate(keys)}
     rows, cases, checks, drivers_done = [], [], [], set()
+    safe_slots: dict[int, int] = {}  # transducer -> its place in the failsafe's table
     for i, a in enumerate(keys):
         key = a.key
         if key.kind == "enum":
@@ -134,15 +163,20 @@ def generate_config(keys: list[AvrKey], mcu: str, where: str) -> tuple[list[str]
             )
         elif key.key in ("aligned", "phase"):
             cases.append(f"    case {i}: {ALIGN[a.driver].format(**sibling)} break;")
+        elif key.key == "failsafe_ms":
+            slot = safe_slots.setdefault(a.k, len(safe_slots))
+            cases.append(f"    case {i}: board_failsafe_ms[{slot}] = (uint16_t)v[{i}]; break;")
         elif not key.read_only:
             drv = a.driver
-            cases.append(f"    case {i}: {APPLY[drv][0].format(**sibling)} break;")
-            if drv in CHECK and a.k not in drivers_done:
+            apply = APPLY[drv][0].format(inst=a.inst, **sibling)
+            cases.append(f"    case {i}: {apply} break;")
+            if a.k not in drivers_done:
                 drivers_done.add(a.k)
-                cond, why = CHECK[drv]
-                checks.append(
-                    f'    if (!({cond.format(**sibling)})) return PSTR("{key.t.name}: {why}");'
-                )
+                conds = ([CHECK[drv]] if drv in CHECK else []) + (wiring or {}).get(a.k, [])
+                for cond, why in conds:
+                    checks.append(
+                        f'    if (!({cond.format(**sibling)})) return PSTR("{key.t.name}: {why}");'
+                    )
     n = len(keys)
     out = [
         "/* run-time configuration (config.c): keys, limits and defaults from the board file */",
@@ -155,6 +189,7 @@ def generate_config(keys: list[AvrKey], mcu: str, where: str) -> tuple[list[str]
         f"static const char config_keys[] PROGMEM = {{{', '.join(str(b) for b in blob)}, 0}};",
         f"static uint16_t config_keys_len(void) {{ return {len(blob)}; }}",
         "static uint8_t config_keys_at(uint16_t i) { return pgm_read_byte(config_keys + i); }",
+        "extern uint16_t board_failsafe_ms[];",
         "const blob_t board_config_keys_blob = {config_keys_len, config_keys_at};",
         "static float F(uint32_t raw) { float f; memcpy(&f, &raw, 4); return f; }",
         "void board_config_apply(const uint32_t *v, uint8_t i) {",

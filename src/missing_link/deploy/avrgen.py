@@ -8,7 +8,6 @@ what the board file asks that the hardware cannot do is refused here, naming the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,27 +17,12 @@ from ..board.firmware import describe
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 from .avrconfig import generate_config, keys_of
+from .avrdrivers import AVR_DRIVERS, Part, part_of
+from .avrpins import PINS
 from .boardfile import BoardFile
 
-
-#: Arduino pin numbers of the fixed hardware per MCU: INT0/INT1 (encoder), OC1A (servo), the
-#: trigger output on Timer2's OC2A (none on the Leonardo: no Timer2)
-@dataclass(frozen=True)
-class FixedPins:
-    quad: tuple[int, int]  #: INT0, INT1
-    servo: int  #: OC1A
-    board: str
-    trigger: int | None = None  #: OC2A: PB3 (Uno D11) / PB4 (Mega D10)
-
-
-PINS = {
-    "atmega328p": FixedPins((2, 3), 9, "Uno/Nano", 11),
-    "atmega2560": FixedPins((21, 20), 11, "Mega 2560", 10),
-    "atmega32u4": FixedPins((3, 2), 9, "Leonardo"),
-}
 DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
       "int32_t": "DT_INT32", "uint32_t": "DT_UINT32", "float": "DT_FLOAT"}  # fmt: skip
-AVR_DRIVERS = ("quadrature", "sharp_gp2y0a02", "srf02", "servo", "trigger")
 MAX_SIF_PAYLOAD = 120  # the TX ring (256) must hold a SIF's worst-case escaping
 
 
@@ -72,22 +56,6 @@ def _na_raw(dtype: str, na: float) -> str:
     return f"0x{struct.unpack('<I', raw)[0]:08x}UL"
 
 
-def _gated(k: int, name: str, fn: str) -> str:
-    """An actuator's J2A function that refuses while its transducer is disabled (config.c)."""
-    return (
-        f"static uint8_t call_{k}(const uint8_t *in, uint8_t n, uint8_t *out, "
-        f"uint8_t *out_n) {{ /* refused while {name} is disabled (config.c) */\n"
-        f"    if (!board_transducers[{k}].enabled) {{\n"
-        f'        static const char why[] PROGMEM = "{name} is disabled";\n'
-        "        strcpy_P((char *)out, why);\n"
-        "        *out_n = sizeof why - 1;\n"
-        "        return 0xFF;\n"
-        "    }\n"
-        f"    return {fn}(in, n, out, out_n);\n"
-        "}"
-    )
-
-
 def generate_avr(bf: BoardFile) -> str:
     """The C source of board_gen.c for ``bf``; ConfigError for what an AVR cannot do."""
     where = str(bf.path)
@@ -95,9 +63,12 @@ def generate_avr(bf: BoardFile) -> str:
         raise ConfigError(f"{where}: mcu {bf.mcu!r} is not an AVR (atmega328p/2560/32u4)")
     pins = PINS[bf.mcu]
     board = bf.board
-    seen: set[str] = set()
+    count: dict[str, int] = {}
     decls, setup, polls, funcs, lines = [], [], [], [], ["transds/1"]
     hardware: list[tuple[str, str, str]] = []  # timed calls the hardware makes (the trigger's)
+    safe: list[tuple[int, str]] = []  # (transducer index, make_safe): the failsafe's actuators
+    isrs: list[str] = []
+    checks: dict[int, list[tuple[str, str]]] = {}
     described: list[tuple[int, dict[str, Any], Transducer, type]] = []
     for k, e in enumerate(bf.transducers):
         drv, name = e["driver"], e["name"]
@@ -105,9 +76,14 @@ def generate_avr(bf: BoardFile) -> str:
         if drv not in AVR_DRIVERS:
             known = ", ".join(AVR_DRIVERS)
             raise ConfigError(f"{at}: driver {drv} is not in the AVR runtime ({known})")
-        if drv in seen:
-            raise ConfigError(f"{at}: a second {drv}: the AVR runtime has one (fixed hardware)")
-        seen.add(drv)
+        inst = count.get(drv, 0)
+        if inst >= AVR_DRIVERS[drv]:
+            most = AVR_DRIVERS[drv]
+            raise ConfigError(
+                f"{at}: {'a second' if most == 1 else f'more than {most}'} {drv}: the AVR "
+                f"runtime has {most} (fixed hardware)"
+            )
+        count[drv] = inst + 1
         cls = driver_class(drv)
         t = describe(e, cls)
         described.append((k, e, t, cls))
@@ -119,56 +95,17 @@ def generate_avr(bf: BoardFile) -> str:
         size = DTYPES[t.dtype][1]
         decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
         decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
-        default_rate = {"quadrature": 50, "sharp_gp2y0a02": 25}.get(drv, 10)
-        rate = int(e.get("rate_hz", default_rate))
-        tref = f"&board_transducers[{k}]"
-        if drv == "quadrature":
-            if (e["pin_a"], e["pin_b"]) != pins.quad:
-                raise ConfigError(
-                    f"{at}: on the {pins.board} the encoder is on pins {pins.quad[0]} and "
-                    f"{pins.quad[1]} (INT0/INT1), not {e['pin_a']} and {e['pin_b']}"
-                )
-            setup.append(f"quadrature_init({tref}, {rate}, {1 if e.get('reverse') else 0});")
-            polls.append(f"if (board_transducers[{k}].enabled) quadrature_poll(now);")
-        elif drv == "sharp_gp2y0a02":
-            if not 0 <= int(e["pin"]) <= 7:
-                raise ConfigError(f"{at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
-            setup.append(f"sharp_init({tref}, {int(e['pin'])}, {rate});")
-            polls.append(f"if (board_transducers[{k}].enabled) sharp_poll(now);")
-        elif drv == "srf02":
-            setup.append(
-                f"srf02_init({tref}, 0x{int(e.get('address', 0x70)):02x}, {rate}, "
-                f"{int(e.get('min_range', 16))});"
-            )
-            polls.append(f"if (board_transducers[{k}].enabled) srf02_poll(now);")
-        elif drv == "trigger":
-            if pins.trigger is None:
-                raise ConfigError(f"{at}: the {pins.board} has no Timer2 for a timed trigger")
-            if int(e["pin"]) != pins.trigger:
-                raise ConfigError(
-                    f"{at}: on the {pins.board} the trigger is on pin {pins.trigger} "
-                    "(OC2A: its edges are made by Timer2's compare)"
-                )
-            setup.append(f"trigger_init({tref}, {int(e.get('pulse_us', 10))});")
-            setup.append("timing_hardware = hardware;")
-            polls.append(f"if (board_transducers[{k}].enabled) trigger_poll(now);")
-            funcs.append((t.options["call"], f"call_{k}"))
-            decls.append(_gated(k, name, "trigger_command"))
-            hardware.append(
-                (str(t.options["call"]), f"board_transducers[{k}].enabled", "trigger_at")
-            )
-        else:  # servo
-            if int(e["pin"]) != pins.servo:
-                raise ConfigError(
-                    f"{at}: on the {pins.board} the servo is on pin {pins.servo} (OC1A)"
-                )
-            span = int(e.get("span_us", 1200))
-            setup.append(
-                f"servo_init({tref}, {int(e.get('min_us', 900))}, {int(e.get('max_us', 2100))}, "
-                f"{int(e.get('centre_us', 1500))}, {span});"
-            )
-            funcs.append((t.options["call"], f"call_{k}"))
-            decls.append(_gated(k, name, "servo_command"))
+        part: Part = part_of(k, e, t, pins, bf.mcu, inst, at)
+        setup += part.setup
+        polls += part.polls
+        decls += part.decls
+        funcs += part.funcs
+        hardware += part.hardware
+        isrs += part.isrs
+        if part.make_safe:
+            safe.append((k, part.make_safe))
+        if part.checks:
+            checks[k] = part.checks
         na = _na_raw(t.dtype, t.na)
         decls.append(f"/* transducer {k}: {name} */")
         decls.append(
@@ -192,14 +129,21 @@ def generate_avr(bf: BoardFile) -> str:
     n = len(bf.transducers)
     out = [
         "/* Generated by `missing-link gen-firmware` from " + bf.path.name + ": do not edit. */",
+        "#include <avr/interrupt.h>",
         "#include <avr/pgmspace.h>",
         "#include <string.h>",
         '#include "config.h"',
-        '#include "timing.h"',
         '#include "drivers.h"',
+        '#include "failsafe.h"',
+        '#include "gps_nmea.h"',
+        '#include "hbridge.h"',
+        '#include "hcsr04.h"',
         '#include "runtime.h"',
+        '#include "stepper.h"',
+        '#include "timing.h"',
         "",
         *decls,
+        *isrs,
         f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
         f"const uint8_t board_transducer_count = {n};",
         "",
@@ -224,8 +168,19 @@ def generate_avr(bf: BoardFile) -> str:
         "const blob_t board_properties_blob = {props_len, props_at};",
         "",
     ]
-    config_c, _blob = generate_config(keys_of(described, where), bf.mcu, where)
+    config_c, _blob = generate_config(keys_of(described, where), bf.mcu, where, checks)
     out += [*config_c, ""]
+    # the failsafe's actuators (failsafe.c): their names for its debug text, their make_safe
+    for k, _fn in safe:
+        out.append(f'static const char safe_name_{k}[] PROGMEM = "{bf.transducers[k]["name"]}";')
+    rows = ", ".join(f"{{{k}, safe_name_{k}, {fn}}}" for k, fn in safe)
+    out += [
+        f"static const failsafe_entry_t failsafe_table[{max(len(safe), 1)}] PROGMEM = {{{rows}}};",
+        f"uint16_t board_failsafe_ms[{max(len(safe), 1)}] = "
+        f"{{{', '.join(str(int(bf.transducers[k].get('failsafe_ms', 500))) for k, _f in safe)}}};"
+        " /* the board file's; config.c sets them at run time */",
+        "",
+    ]
     if hardware:  # (the trigger's function index: builtins, then the board's own functions)
         index = {name: 11 + j for j, (name, _fn) in enumerate(funcs)}
         out += [
@@ -243,22 +198,27 @@ def generate_avr(bf: BoardFile) -> str:
         out.append(f'static const char fname_{j}[] PROGMEM = "{fname}";')
     own = "".join(f", {{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs))
     own += ", {n_at, KIND_PLAIN, timing_at, 0}, {n_align_info, KIND_PLAIN, timing_info, 0}"
+    own += ", {n_goodbye, KIND_PLAIN, failsafe_goodbye, 0}"
+    own += ", {n_failsafe, KIND_PLAIN, failsafe_info, 0}"
     own += ", {n_config_keys, KIND_BLOB, 0, &board_config_keys_blob}"
     own += ", {n_config_get, KIND_PLAIN, config_get, 0}, {n_config_set, KIND_PLAIN, config_set, 0}"
     own += ", {n_config_reset, KIND_PLAIN, config_reset, 0}"
     out += [
         'static const char n_at[] PROGMEM = "a2jAt";',
         'static const char n_align_info[] PROGMEM = "a2jAlignInfo";',
+        'static const char n_goodbye[] PROGMEM = "a2jGoodbye";',
+        'static const char n_failsafe[] PROGMEM = "a2jFailsafe";',
         'static const char n_config_keys[] PROGMEM = "a2jConfigKeys";',
         'static const char n_config_get[] PROGMEM = "a2jConfigGet";',
         'static const char n_config_set[] PROGMEM = "a2jConfigSet";',
         'static const char n_config_reset[] PROGMEM = "a2jConfigReset";',
         f"const function_t board_functions[] PROGMEM = {{BUILTIN_FUNCTIONS{own}}};",
-        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs) + 6};",
+        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs) + 8};",
         "",
         "void board_setup(void) {",
     ]
     out += [f"    {line}" for line in setup]
+    out += [f"    failsafe_init(failsafe_table, board_failsafe_ms, {len(safe)});"]
     out += ["    config_boot(); /* the saved configuration, if any (config.c) */"]
     out += ["}", "", "void board_poll(uint64_t now) {"]
     out += [f"    {line}" for line in polls] or ["    (void)now;"]

@@ -85,8 +85,13 @@ def check_board(board: dict[str, Any], where: str) -> None:
     if mcu not in MCUS:
         raise ConfigError(f"{where}: mcu {mcu!r} is not one of {', '.join(MCUS)}")
     link = board.get("link", {"kind": "usb"})
-    if not isinstance(link, dict) or link.get("kind", "usb") not in ("usb", "uart"):
-        raise ConfigError(f"{where}: link must be {{'kind': 'usb'}} or {{'kind': 'uart', ...}}")
+    if not isinstance(link, dict) or link.get("kind", "usb") not in ("usb", "uart", "tcp"):
+        raise ConfigError(
+            f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}} or "
+            "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'}"
+        )
+    if link.get("kind") == "tcp" and mcu in AVR_MCUS:
+        raise ConfigError(f"{where}: the AVR runtime has no network link (tcp)")
     buses = board.get("buses", {})
     if not isinstance(buses, dict):
         raise ConfigError(f"{where}: buses must be a dict of name -> settings")

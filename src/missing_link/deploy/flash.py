@@ -29,7 +29,7 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
-    "timing.py", "wire.py", "firmware.py", "link.py",
+    "timing.py", "failsafe.py", "wire.py", "firmware.py", "link.py",
 )  # fmt: skip
 
 
@@ -74,10 +74,23 @@ def flash(
     mpremote: list[str] | None = None,
     say: Callable[[str], None] = print,
     check: bool = True,
+    key: str | None = None,
 ) -> int:
     if bf.is_avr:
+        if key:
+            raise FlashError("--key: the AVR runtime has no network link to sign")
         return flash_avr(bf, port, dry_run=dry_run, say=say, check=check)
     files = micropython_files(bf)
+    link = bf.board.get("link", {})
+    if key:  # over USB only: never over a network (docs/signing.md)
+        if "://" in port and not port.startswith("serial://"):
+            raise FlashError(f"--key goes over USB only, not {port}")
+        from ..transport.signed import load_key
+
+        load_key(key)  # (a key that does not load fails here, not on the board)
+        files.append(Copy(Path(key).resolve(), str(link.get("key_file", "mlkey.bin"))))
+    elif link.get("key_file"):
+        raise FlashError(f"{bf.path}: the link has a key_file: give the key with --key")
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
     with tempfile.TemporaryDirectory(prefix="missing-link-flash-") as tmp:
@@ -101,6 +114,11 @@ def flash(
         if r.returncode != 0:
             tail = (r.stderr or r.stdout).strip().splitlines()
             raise FlashError(f"mpremote failed on {port}: {tail[-1] if tail else r.returncode}")
-    if check:
+    if check and link.get("kind") == "tcp":
+        say(
+            "a network board: check it once it joined its network: missing-link info "
+            f"signed+tcp://HOST:{link.get('port', 5000)}?key=KEYFILE"
+        )
+    elif check:
         say(verify(url, bf))
     return 0

@@ -53,6 +53,10 @@ class Publisher:
         """Flush and release everything.  Idempotent; must not block for long, whatever
         state the publisher is in."""
 
+    #: whether commands from this face reach the boards (daemon/commands.py): True or False for
+    #: the faces that carry commands (their ``commands`` option; by default True only where
+    #: the face listens on loopback alone), None for those that carry none
+    takes_commands: bool | None = None
     #: set when the publisher failed for good (e.g. a recording that cannot write): the daemon
     #: reports it as ERROR, and ``run`` exits non-zero
     error: str = ""

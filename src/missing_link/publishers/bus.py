@@ -108,6 +108,7 @@ class Subscription:
 
 class Bus(Publisher):
     name = "bus"
+    takes_commands = True  # (in-process: the allow-list still applies, commands.py)
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         self._lock = threading.Lock()

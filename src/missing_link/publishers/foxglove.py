@@ -1,8 +1,10 @@
 """Live view in Foxglove: a WebSocket server (foxglove-sdk) with every topic as a ros2msg/CDR
 channel, plus ``/diagnostics``.  Open Foxglove, "Open connection", ``ws://127.0.0.1:8765``.
 
-Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  Messages are
-logged at the sample's host time (clock sync), so plots line up across boards.
+Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  A client
+whose browser page came from another site is refused unless its origin is in ``origins``, and
+only the view's read-only operations reach the SDK (foxglove_gate.py).  Messages are logged at
+the sample's host time (clock sync), so plots line up across boards.
 
 The WebSocket protocol has no latching: a client that connects after an actuator last moved
 would not see its state (the board reports it only when it changes).  So the latest state of
@@ -15,8 +17,11 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
+from .base import PublisherError
+from .foxglove_gate import OriginGate
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
@@ -32,14 +37,26 @@ class FoxglovePublisher(RosPublisher):
         super().__init__(str(opts.get("distro", "jazzy")))
         self._fg = foxglove
         self.context = foxglove.Context()
+        origins = opts.get("origins", [])
+        if not isinstance(origins, list) or not all(isinstance(o, str) for o in origins):
+            raise ConfigError('[foxglove] origins: a list like ["https://app.foxglove.dev"]')
+        # the SDK's server on loopback only; clients reach it through the gate
         self.server = foxglove.start_server(
             name=str(opts.get("name", "missing-link")),
-            host=str(opts.get("host", "127.0.0.1")),
-            port=int(opts.get("port", 8765)),
+            host="127.0.0.1",
+            port=0,
             context=self.context,
         )
-        self.port = int(self.server.port)
-        self.url = f"ws://{opts.get('host', '127.0.0.1')}:{self.port}"
+        host = str(opts.get("host", "127.0.0.1"))
+        try:
+            self.gate = OriginGate(
+                host, int(opts.get("port", 8765)), int(self.server.port), origins
+            )
+        except OSError as e:
+            self.server.stop()
+            raise PublisherError(f"foxglove: cannot listen on {host}: {e}") from None
+        self.port = self.gate.port
+        self.url = f"ws://{host}:{self.port}"
         self._channels: dict[str, Any] = {}
         self._states: dict[str, Update] = {}  # an actuator's topic -> its latest update
         self.logged = 0
@@ -76,6 +93,14 @@ class FoxglovePublisher(RosPublisher):
             self._channels[name].log(update.cdr, log_time=update.stamp_ns)
 
     def shutdown(self) -> None:
+        self.gate.close()
         for ch in self._channels.values():
             ch.close()
         self.server.stop()
+
+    def status(self) -> dict[str, Any]:
+        return {
+            **super().status(),
+            "origins_refused": self.gate.refused_origins,
+            "client_messages_dropped": self.gate.dropped_messages,
+        }

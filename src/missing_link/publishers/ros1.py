@@ -26,6 +26,7 @@ from ..ros.msgs import ROS_TYPES
 from ..topics import Command, Topic, Update
 from .registry import DEBIAN_DIST, debian_rospy
 from .rosbase import RosPublisher
+from .zenoh_config import loopback_only, takes_commands
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +55,12 @@ class Ros1Publisher(RosPublisher):
         )
         os.environ["ROS_MASTER_URI"] = master
         os.environ.setdefault("ROS_IP", str(opts.get("ros_ip", "127.0.0.1")))
+        # commands only where this node and its master are on loopback alone (commands.py)
+        here = os.environ.get("ROS_IP") or os.environ.get("ROS_HOSTNAME", "")
+        master_host = master.split("://", 1)[-1].rsplit(":", 1)[0]
+        self.takes_commands = takes_commands(
+            opts.get("commands"), loopback_only([f"tcp/{here}:0", f"tcp/{master_host}:0"]), "[ros1]"
+        )
         self.rospy = rospy = import_rospy()
         import genpy.dynamic
         import rosgraph

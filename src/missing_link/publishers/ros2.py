@@ -47,6 +47,7 @@ from ..topics import Command, Topic, Update
 from .base import PublisherError
 from .ros2_params import RosParameters
 from .rosbase import RosPublisher
+from .zenoh_config import takes_commands
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +97,11 @@ class Ros2Publisher(RosPublisher):
         for p in filter(None, prefix.split(os.pathsep)):
             add_prefix(p)
         self.rclpy = rclpy
+        # DDS reaches the network unless told to stay on the host: commands from this face by
+        # default only then (daemon/commands.py)
+        local = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in ("LOCALHOST", "OFF")
+        local = local or os.environ.get("ROS_LOCALHOST_ONLY") == "1"
+        self.takes_commands = takes_commands(opts.get("commands"), local, "[ros2]")
         distro = str(opts.get("distro") or os.environ.get("ROS_DISTRO") or "kilted")
         super().__init__(distro if distro in ("humble", "jazzy", "kilted") else "kilted")
         self.qos = QoSProfile(

@@ -24,7 +24,6 @@ rmw_zenohd listens) with multicast scouting off; every endpoint is configurable.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import struct
@@ -38,6 +37,7 @@ from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Command, Topic, Update
 from .rosbase import RosPublisher
+from .zenoh_config import check_endpoints, loopback_only, session_config, takes_commands
 
 log = logging.getLogger(__name__)
 
@@ -104,24 +104,22 @@ class ZenohPublisher(RosPublisher):
             raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
         connect = list(opts.get("connect", DEFAULT_CONNECT))
         listen = list(opts.get("listen", DEFAULT_LISTEN))
-        for key, endpoints in (("connect", connect), ("listen", listen)):
-            for ep in endpoints:
-                if not isinstance(ep, str) or "://" in ep or "/" not in ep:
-                    raise ConfigError(
-                        f"[zenoh] {key}: {ep!r} is not a Zenoh endpoint (e.g. tcp/127.0.0.1:7447)"
-                    )
-        cfg = zenoh.Config()
-        cfg.insert_json5("mode", json.dumps(mode))
-        cfg.insert_json5("connect/endpoints", json.dumps(connect))
-        cfg.insert_json5("listen/endpoints", json.dumps(listen))
-        # never scout by multicast: it reaches every interface, and tests stay on loopback
-        cfg.insert_json5("scouting/multicast/enabled", "false")
+        check_endpoints("[zenoh] connect", connect)
+        check_endpoints("[zenoh] listen", listen)
+        native = opts.get("config")
+        cfg = session_config(mode, connect, listen, str(native) if native else None)
+        self.takes_commands = takes_commands(
+            opts.get("commands"), loopback_only(connect + listen), "[zenoh]"
+        )
         if mode == "peer":
             cfg.insert_json5("scouting/gossip/enabled", "true")
         # as rmw_zenoh's default config: samples carry HLC timestamps (the actuators' state
         # cache needs them to sequence its samples)
         cfg.insert_json5("timestamping/enabled", "true")
-        self.session: Any = zenoh.open(cfg)
+        try:
+            self.session: Any = zenoh.open(cfg)
+        except zenoh.ZError as e:  # (a certificate that does not load, an endpoint in use)
+            raise ConfigError(f"[zenoh] cannot open the session: {e}") from None
         self.zid = str(self.session.info.zid())
         self._entities: dict[str, _Entity] = {}
         self._subs: dict[str, tuple[Any, Any]] = {}

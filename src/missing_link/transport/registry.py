@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, parse_qsl, urlsplit, urlunsplit
 
 from ..errors import BadURL
 from .base import Transport
@@ -24,6 +24,7 @@ BUILTIN: dict[str, tuple[str, str]] = {
     "memory": ("missing_link.transport.memory", "open_memory"),
 }
 _SPY = ("missing_link.transport.spy", "SpyTransport")
+_SIGNED = ("missing_link.transport.signed", "SignedTransport")
 _REGISTERED: dict[str, Factory] = {}  # register_transport() and loaded entry points
 
 
@@ -63,11 +64,27 @@ def _unknown(url: str, scheme: str) -> BadURL:
     return BadURL(f"{url!r}: unknown transport {scheme!r} (known: {known}, and spy+ prefix)")
 
 
+def _unsigned(url: str) -> tuple[str, str]:
+    """``signed+URL?key=FILE`` -> (URL without the key, the key file); BadURL without one."""
+    parts = urlsplit(url[len("signed+") :])
+    query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True)]
+    keys = [v for k, v in query if k == "key"]
+    if not keys or not keys[-1]:
+        raise BadURL(f"{url!r}: signed+ needs ?key=FILE (the board's signing key)")
+    rest = "&".join(f"{k}={v}" for k, v in query if k != "key")
+    return urlunsplit(parts._replace(query=rest)), keys[-1]
+
+
 def check_url(url: str) -> str:
     """The URL's scheme if a transport for it exists; ``BadURL`` (a usage error) otherwise.
     Errors that retrying cannot fix are found here, before any connection attempt."""
     if url.startswith("spy+"):
         return check_url(url[4:])
+    if url.startswith("signed+"):
+        inner, key = _unsigned(url)
+        module = importlib.import_module(_SIGNED[0])
+        module.load_key(key)  # (a missing or malformed key is the user's to fix, not a retry's)
+        return check_url(inner)
     scheme = _scheme(url)
     if scheme not in BUILTIN and scheme not in _REGISTERED and _plugin(scheme) is None:
         raise _unknown(url, scheme)
@@ -90,9 +107,15 @@ def _factory(url: str, scheme: str) -> Factory:
 
 def open_transport(url: str) -> Transport:
     """Open a board link by URL: ``tcp://127.0.0.1:5000``, ``serial:///dev/ttyACM0?baud=115200``,
-    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to dump traffic."""
+    ``usb://``, ``unix:///tmp/board.sock``, ``memory://name``; prefix ``spy+`` to dump traffic,
+    ``signed+`` (with ``?key=FILE``) for a board on a network link that signs (docs/signing.md)."""
     if url.startswith("spy+"):
         module, name = _SPY
         spy: Callable[[Transport], Transport] = getattr(importlib.import_module(module), name)
         return spy(open_transport(url[4:]))
+    if url.startswith("signed+"):
+        inner, key = _unsigned(url)
+        mod = importlib.import_module(_SIGNED[0])
+        signed: Transport = getattr(mod, _SIGNED[1])(open_transport(inner), mod.load_key(key))
+        return signed
     return _factory(url, _scheme(url))(url, query_dict(url))

@@ -12,7 +12,7 @@ from typing import Any
 
 from ..board.runtime import BoardRuntime
 
-ValueCb = Callable[[int, int | float], None]
+ValueCb = Callable[[int, int | float | None], None]
 
 
 def rng_for(seed: int, name: str) -> random.Random:
@@ -51,7 +51,7 @@ class _Driver:
     def set_cb(self, fn: ValueCb) -> None:
         self._cb = fn
 
-    def emit(self, channel: int, value: int | float) -> None:
+    def emit(self, channel: int, value: int | float | None) -> None:
         if self._cb is not None:
             stamp = self._stamp
             if stamp is None and self.timing is not None:
@@ -217,8 +217,13 @@ class Servo(_Driver):
 
     period_us = 20_000
     DEG_PER_S = 60 / 0.24
-    #: the horn's travel, in degrees: a command beyond is held at the limit
-    CONFIG = (("min_deg", "int", (-90, 90), False), ("max_deg", "int", (-90, 90), False))
+    #: the horn's travel, in degrees: a command beyond is held at the limit; ``safe``: what the
+    #: failsafe does (board/failsafe.py): hold where it is, or go limp (reported as N/A)
+    CONFIG: tuple[tuple[str, str, Any, bool], ...] = (
+        ("min_deg", "int", (-90, 90), False),
+        ("max_deg", "int", (-90, 90), False),
+        ("safe", "enum", ("hold", "limp"), False),
+    )
 
     def __init__(self, rng: random.Random) -> None:
         super().__init__(rng)
@@ -226,12 +231,23 @@ class Servo(_Driver):
         self.target = 0.0
         self.commands = 0
         self.limits = {"min_deg": -90, "max_deg": 90}
+        self.safe = "hold"
+        self.limp = False
 
-    def get_config(self, key: str) -> float:
-        return self.limits[key]
+    def get_config(self, key: str) -> Any:
+        return self.safe if key == "safe" else self.limits[key]
 
-    def set_config(self, key: str, value: float) -> None:
-        self.limits[key] = int(value)
+    def set_config(self, key: str, value: Any) -> None:
+        if key == "safe":
+            self.safe = str(value)
+        else:
+            self.limits[key] = int(value)
+
+    def make_safe(self) -> None:
+        """The failsafe: stop where it is (hold) or let go (limp)."""
+        self.target = self.position
+        self.limp = self.safe == "limp"
+        self.emit(0, None if self.limp else self.reported())
 
     def check_config(self) -> str | None:
         lo, hi = self.limits["min_deg"], self.limits["max_deg"]
@@ -247,6 +263,7 @@ class Servo(_Driver):
         if value == -128:
             return 0xFF, b"-128 is N/A"
         self.target = min(max(value * 90 / 127, self.limits["min_deg"]), self.limits["max_deg"])
+        self.limp = False
         self.commands += 1
         self.emit(0, self.reported())
         return 0, b""
@@ -255,7 +272,7 @@ class Servo(_Driver):
         return max(-127, min(127, round(self.position * 127 / 90)))
 
     def step(self, now: int) -> None:
-        if self.position == self.target:
+        if self.position == self.target or self.limp:
             return
         step = self.DEG_PER_S * self.period_us / 1e6
         delta = self.target - self.position

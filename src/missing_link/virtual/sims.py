@@ -14,6 +14,7 @@ import struct
 from collections.abc import Callable
 
 from ..board.config import RuntimeConfig
+from ..board.failsafe import Failsafe
 from ..board.runtime import BoardRuntime, Transducer
 from ..board.store import FileStore
 from ..board.timing import Timing
@@ -109,6 +110,7 @@ def _configurable(rt: BoardRuntime, config_file: str | None) -> BoardRuntime:
     configuration (board/config.py), saved to ``config_file`` if given (else the board has no
     storage: a save is refused, saying so)."""
     rt.timing = Timing(rt)
+    rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone
     rt.config = RuntimeConfig(rt, FileStore(config_file) if config_file else None)
     return rt
 
@@ -204,7 +206,7 @@ class _OneEncoder(QuadEncoders):
     def __init__(self, seed: int) -> None:
         super().__init__(rng_for(seed, "quad1"))
 
-    def emit(self, channel: int, value: int | float) -> None:
+    def emit(self, channel: int, value: int | float | None) -> None:
         if channel == 0:
             super().emit(0, value)
 

@@ -23,6 +23,13 @@ DRIVERS = {
     "analog": ("analog", "AnalogIn"),
     "mpu6050": ("mpu6050", "MPU6050"),
     "trigger": ("trigger", "Trigger"),
+    "gps_nmea": ("gps_nmea", "GpsNmea"),
+    "hmc5883l": ("compass", "HMC5883L"),
+    "qmc5883l": ("compass", "QMC5883L"),
+    "hbridge": ("hbridge", "HBridge"),
+    "stepper": ("stepper", "Stepper"),
+    "hcsr04": ("hcsr04", "HCSR04"),
+    "vl53l0x": ("vl53l0x", "VL53L0X"),
 }
 
 

@@ -5,7 +5,8 @@
 # command can never drive the horn into its end stop.  -128 is the N/A value and is refused.
 # The servo cannot report where it is, so the transducer reports the commanded value (stamped
 # when the new pulse width took effect); until the first command it outputs no pulse at all
-# (the servo stays limp) and reports nothing.
+# (the servo stays limp) and reports nothing.  Failsafe (failsafe.py): `safe` = hold keeps the
+# last pulse (the servo holds where it is), limp stops the pulses (reported as N/A).
 
 import struct
 
@@ -22,13 +23,26 @@ class Servo:
         ("max_us", "int", (500, 2500), False),
         ("centre_us", "int", (500, 2500), False),
         ("span_us", "int", (100, 2000), False),
+        ("safe", "enum", ("hold", "limp"), False),
     )
 
     def __init__(
-        self, machine, clock, pin, freq=50, min_us=900, max_us=2100, centre_us=1500, span_us=1200
+        self,
+        machine,
+        clock,
+        pin,
+        freq=50,
+        min_us=900,
+        max_us=2100,
+        centre_us=1500,
+        span_us=1200,
+        safe="hold",
     ):
         if not (min_us < centre_us < max_us):
             raise ValueError("servo: need min_us < centre_us < max_us")
+        if safe not in ("hold", "limp"):
+            raise ValueError("servo safe: hold or limp")
+        self.safe = safe
         self.clock = clock
         self._pwm = machine.PWM(machine.Pin(pin))
         self._pwm.freq(freq)
@@ -46,14 +60,14 @@ class Servo:
     def get_config(self, key):
         if key == "span_us":
             return int(self.half_span_us * 2)
-        if key in ("min_us", "max_us", "centre_us"):
+        if key in ("min_us", "max_us", "centre_us", "safe"):
             return getattr(self, key)
         raise ValueError("no key " + key)
 
     def set_config(self, key, value):
         if key == "span_us":
             self.half_span_us = value / 2
-        elif key in ("min_us", "max_us", "centre_us"):
+        elif key in ("min_us", "max_us", "centre_us", "safe"):
             setattr(self, key, value)
         else:
             raise ValueError("no key " + key)
@@ -91,3 +105,12 @@ class Servo:
         if self._cb is not None:
             self._cb(0, value, self.clock())
         return 0, struct.pack("<H", self.pulse_us)
+
+    def make_safe(self):
+        # the failsafe (failsafe.py): hold the last pulse, or go limp
+        if self.safe == "limp" and self.pulse_us is not None:
+            self._pwm.duty_ns(0)
+            self.pulse_us = None
+            self._value = None
+        if self._cb is not None:
+            self._cb(0, self._value, self.clock())

@@ -1,0 +1,87 @@
+/* The failsafe: see board/failsafe.py (Python) for the theory of operation; the same keys
+ * (`failsafe_ms` per actuator), functions (a2jGoodbye, a2jFailsafe) and debug texts.  An
+ * actuator is armed by a command it takes and trips once when the host has been silent for its
+ * failsafe_ms (runtime.c notes every frame from the host). */
+#include "failsafe.h"
+
+#include <avr/pgmspace.h>
+#include <string.h>
+
+#include "hal.h"
+#include "runtime.h"
+
+#define NO_SILENCE 0xFFFFFFFFUL
+
+static const failsafe_entry_t *table;
+static uint16_t *ms;
+static uint8_t count, armed; /* armed: a bit per actuator commanded since it was made safe */
+static uint64_t last_trip;
+static uint32_t trips;
+
+void failsafe_init(const failsafe_entry_t *t, uint16_t *m, uint8_t n) {
+    table = t;
+    ms = m;
+    count = n > 8 ? 8 : n;
+}
+
+static void trip(uint8_t i, const char *why, uint32_t silent_ms) {
+    failsafe_entry_t e;
+    memcpy_P(&e, &table[i], sizeof e);
+    armed &= (uint8_t)~(1 << i);
+    trips++;
+    last_trip = board_clock();
+    e.make_safe();
+    runtime_debug_P(PSTR("failsafe: "));
+    runtime_debug_P(e.name);
+    runtime_debug_P(PSTR(" safe ("));
+    runtime_debug_P(why);
+    if (silent_ms != NO_SILENCE) {
+        char num[12];
+        uint8_t n = sizeof num - 1;
+        num[n] = 0;
+        do {
+            num[--n] = (char)('0' + silent_ms % 10);
+            silent_ms /= 10;
+        } while (silent_ms);
+        runtime_debug_P(PSTR(" for "));
+        runtime_debug(num + n);
+        runtime_debug_P(PSTR(" ms"));
+    }
+    runtime_debug_P(PSTR(");"));
+}
+
+void failsafe_arm(uint8_t k) {
+    for (uint8_t i = 0; i < count; i++)
+        if (pgm_read_byte(&table[i].k) == k) armed |= (uint8_t)(1 << i);
+}
+
+void failsafe_poll(uint64_t now) {
+    uint64_t last = runtime_last_frame_us;
+    for (uint8_t i = 0; i < count; i++)
+        if (ms[i] && (armed & (1 << i)) && now - last >= (uint64_t)ms[i] * 1000)
+            trip(i, PSTR("no frame from the host"), (uint32_t)((now - last) / 1000));
+}
+
+uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    (void)out;
+    *out_n = 0;
+    for (uint8_t i = 0; i < count; i++)
+        if (armed & (1 << i)) trip(i, PSTR("the host said goodbye"), NO_SILENCE);
+    return 0;
+}
+
+uint8_t failsafe_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    (void)in;
+    (void)n;
+    uint32_t age = 0xFFFFFFFFUL;
+    if (trips) {
+        uint64_t d = (board_clock() - last_trip) / 1000;
+        age = d > 0xFFFFFFFEULL ? 0xFFFFFFFEUL : (uint32_t)d;
+    }
+    memcpy(out, &trips, 4);
+    memcpy(out + 4, &age, 4);
+    *out_n = 8;
+    return 0;
+}

@@ -1,0 +1,192 @@
+# A GPS receiver speaking NMEA 0183 on a UART (`uart`, `tx`, `rx`, `baud`), optionally with its
+# PPS output on `pps_pin`.
+#
+# Sentences are "$<talker><type>,<fields>*<hh>\r\n" with hh the XOR of the characters between
+# '$' and '*' in hex; a sentence whose checksum is missing or wrong is counted
+# (`checksum_errors`) and dropped, as is one longer than NMEA's 82 characters.  Two are used,
+# from any talker (GP, GN, GL, GA, BD):
+#   GGA  time, latitude, N/S, longitude, E/W, fix quality (0 none, 1 GPS, 2 DGPS, 4 RTK fixed,
+#        5 RTK float, 6 dead reckoning...), satellites used, HDOP, altitude above mean sea level
+#   RMC  time, status (A valid, V void), latitude, longitude, speed over ground (knots), course
+#        over ground (degrees true), date
+# A sample goes out with each GGA, with the speed and course of the RMC of the same second when
+# one came (else N/A).  Without a fix (quality 0) position and altitude are N/A.
+#
+# Channels (int32, so a position keeps its centimetres: a float32 would not):
+#   0 latitude, 1 longitude (1e-7 degree, north and east positive), 2 altitude (mm above MSL),
+#   3 fix quality, 4 satellites, 5 HDOP (x 100), 6 speed (mm/s), 7 course (0.01 degree)
+# The host publishes them as sensor_msgs/msg/NavSatFix too (ros/standard.py).
+#
+# Stamps: when the sentence's '$' was read (the receiver sends a fix some 100-500 ms after the
+# second it belongs to: that is what the stamp then says).  With `pps_pin` the fix is stamped at
+# the PPS edge that began its second (the receiver's pulse marks the top of each UTC second, and
+# the sentences of that second follow it), plus the sentence time's fraction of a second (5 or
+# 10 Hz receivers); an edge older than 1.1 s is not used.
+
+NA = -2147483648
+MAX_SENTENCE = 82
+PPS_VALID_US = 1100000
+
+
+def nmea_checksum(body):
+    c = 0
+    for ch in body:
+        c ^= ch
+    return c
+
+
+def _coord(text, hemi, degree_digits):
+    # ddmm.mmmm / dddmm.mmmm -> 1e-7 degree (integer maths: no float32 rounding)
+    if not text or "." not in text:
+        return None
+    whole, frac = text.split(".")
+    deg = int(whole[:degree_digits])
+    minutes = int(whole[degree_digits:] + (frac + "00000")[:5])  # minutes * 1e5
+    e7 = deg * 10000000 + minutes * 100 // 60  # (minutes * 1e5 / 60) * 100 = 1e-7 degree
+    return -e7 if hemi in ("S", "W") else e7
+
+
+def _decimal(text, scale):
+    # "12.34" -> round(12.34 * scale) without floats
+    if not text:
+        return None
+    neg = text.startswith("-")
+    if neg:
+        text = text[1:]
+    whole, _, frac = text.partition(".")
+    digits = 0
+    s = scale
+    while s > 1:
+        s //= 10
+        digits += 1
+    frac = (frac + "0" * (digits + 1))[: digits + 1]
+    v = (int(whole or "0") * scale * 10 + int(frac) + 5) // 10
+    return -v if neg else v
+
+
+def _seconds_fraction_us(hhmmss):
+    _, _, frac = hhmmss.partition(".")
+    return int((frac + "000000")[:6]) if frac else 0
+
+
+class GpsNmea:
+    PREFIX = "gps"
+    MODEL = "NMEA 0183"
+    CHANNELS = 8
+    DTYPE = "int32_t"
+    NA = NA
+    OPTIONS = {"kind": "sensor", "ros": "sensor_msgs/msg/NavSatFix"}
+    CONFIG = ()
+
+    def __init__(self, machine, clock, uart, tx=None, rx=None, baud=9600, pps_pin=None):
+        self.clock = clock
+        kw = {"baudrate": baud, "rxbuf": 1024}
+        if tx is not None:
+            kw["tx"] = machine.Pin(tx)
+        if rx is not None:
+            kw["rx"] = machine.Pin(rx)
+        self._uart = machine.UART(uart, **kw)
+        self._line = bytearray()
+        self._line_us = None  # when the current sentence's '$' was read
+        self._rmc = None  # (time, speed mm/s, course 0.01 deg) of the last valid RMC
+        self._pps = None  # clock at the newest PPS edge
+        if pps_pin is not None:
+            self._pps_pin = machine.Pin(pps_pin, machine.Pin.IN)
+            self._pps_pin.irq(self._on_pps, machine.Pin.IRQ_RISING)
+        self.sentences = 0
+        self.checksum_errors = 0
+        self.fixes = 0
+        self.pps_edges = 0
+        self._due = None
+        self._cb = None
+
+    def _on_pps(self, _pin):
+        self._pps = self.clock()
+        self.pps_edges += 1
+
+    def set_cb(self, fn):
+        self._cb = fn
+
+    def next_due_us(self):
+        return self._due
+
+    def poll(self, now):
+        self._due = now + 10000  # ~10 bytes at 9600 baud between looks
+        if not self._uart.any():
+            return
+        data = self._uart.read()
+        if not data:
+            return
+        for b in data:
+            if b == 0x24:  # '$': a sentence starts (anything before it was noise or a cut one)
+                self._line = bytearray(b"$")
+                self._line_us = now
+            elif self._line_us is None:
+                continue
+            elif b == 0x0A:  # '\n'
+                self._sentence(bytes(self._line).rstrip(b"\r"), self._line_us)
+                self._line = bytearray()
+                self._line_us = None
+            else:
+                self._line.append(b)
+                if len(self._line) > MAX_SENTENCE:
+                    self.checksum_errors += 1  # not NMEA: dropped
+                    self._line = bytearray()
+                    self._line_us = None
+
+    def _sentence(self, line, at_us):
+        star = line.find(b"*")
+        if star < 0 or len(line) != star + 3:
+            self.checksum_errors += 1
+            return
+        body = line[1:star]
+        try:
+            want = int(line[star + 1 :].decode(), 16)
+            text = body.decode()
+        except (ValueError, UnicodeError):
+            self.checksum_errors += 1
+            return
+        if nmea_checksum(body) != want:
+            self.checksum_errors += 1
+            return
+        self.sentences += 1
+        f = text.split(",")
+        kind = f[0][2:]
+        try:
+            if kind == "RMC" and len(f) >= 9:
+                valid = f[2] == "A"
+                speed = _decimal(f[7], 1000)  # knots * 1000
+                self._rmc = (
+                    f[1],
+                    speed * 1852 // 3600 if valid and speed is not None else None,  # mm/s
+                    _decimal(f[8], 100) if valid else None,
+                )
+            elif kind == "GGA" and len(f) >= 10:
+                self._gga(f, at_us)
+        except (ValueError, IndexError):
+            self.checksum_errors += 1  # a sentence with a valid checksum but bad fields
+
+    def _gga(self, f, at_us):
+        quality = int(f[6] or "0")
+        fixed = quality > 0
+        values = [
+            _coord(f[2], f[3], 2) if fixed else None,
+            _coord(f[4], f[5], 3) if fixed else None,
+            _decimal(f[9], 1000) if fixed else None,
+            quality,
+            int(f[7] or "0"),
+            _decimal(f[8], 100),
+            None,
+            None,
+        ]
+        rmc = self._rmc
+        if rmc is not None and rmc[0] == f[1]:
+            values[6], values[7] = rmc[1], rmc[2]
+        stamp = at_us
+        pps = self._pps
+        if pps is not None and 0 <= at_us - pps < PPS_VALID_US:
+            stamp = pps + _seconds_fraction_us(f[1])
+        self.fixes += 1 if fixed else 0
+        if self._cb is not None:
+            for ch in range(8):
+                self._cb(ch, values[ch], stamp)

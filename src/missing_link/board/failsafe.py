@@ -1,0 +1,78 @@
+# The failsafe (docs/hardware.md, "Failsafe"): an actuator that keeps running when the host is
+# gone is a hazard.
+#
+# Theory of operation
+# -------------------
+# Every actuator whose driver has make_safe() gets a run-time key `failsafe_ms` (config.py; the
+# board file's `failsafe_ms`, default 500; 0 = never).  The runtime notes when the last frame
+# came from the host (any frame: a request, or one too damaged to answer).  An actuator that
+# took a command (runtime.gated arms it) and then hears no frame from the host for its
+# `failsafe_ms` is brought to its safe state by its driver - a motor coasts or brakes, a
+# stepper stops and lets go, a servo holds or goes limp, as its keys say - which reports it as a
+# sample stamped when it happened; a line goes to a2jDebug.  Only an armed actuator trips: one
+# not commanded since it was last made safe (or since boot) is safe already, and a board that
+# waits for its host does not trip at boot.  A host that means to go says so: a2jGoodbye makes
+# every armed actuator safe at once.  The daemon keeps a quiet link talking well within the
+# shortest `failsafe_ms` (daemon/failsafe.py), so only a host that is gone trips it.
+#
+# a2jFailsafe -> [I trips since boot][I ms since the last trip; 0xFFFFFFFF: none]
+
+import struct
+
+DEFAULT_MS = 500
+
+
+class Failsafe:
+    def __init__(self, runtime):
+        self.rt = runtime
+        self.trips = 0
+        self._last_trip_us = None
+        self._armed = []  # actuators commanded since they were last made safe
+        runtime.add_function("a2jGoodbye", self._goodbye)
+        runtime.add_function("a2jFailsafe", self._info)
+
+    def arm(self, t):
+        # t took a command (runtime.gated): guarded from now on
+        if t not in self._armed and hasattr(t.driver, "make_safe"):
+            self._armed.append(t)
+
+    def poll(self, now):
+        last = self.rt.last_frame_us
+        for t in list(self._armed):
+            ms = getattr(t.driver, "failsafe_ms", DEFAULT_MS)
+            if ms and now - last >= ms * 1000:
+                self._trip(t, "no frame from the host for %d ms" % ((now - last) // 1000))
+
+    def next_due_us(self):
+        # when the next armed actuator would trip (None: none)
+        due = None
+        last = self.rt.last_frame_us
+        for t in self._armed:
+            ms = getattr(t.driver, "failsafe_ms", DEFAULT_MS)
+            if ms:
+                d = last + ms * 1000
+                if due is None or d < due:
+                    due = d
+        return due
+
+    def _trip(self, t, why):
+        self._armed.remove(t)
+        self.trips += 1
+        self._last_trip_us = self.rt.clock()
+        try:
+            t.driver.make_safe()
+        except Exception as e:  # noqa: BLE001 - the others must still be made safe
+            self.rt.debug("failsafe: %s: %s;" % (t.name, e))
+            return
+        self.rt.debug("failsafe: %s safe (%s);" % (t.name, why))
+
+    def _goodbye(self, payload):
+        for t in list(self._armed):
+            self._trip(t, "the host said goodbye")
+        return 0, b""
+
+    def _info(self, payload):
+        age = 0xFFFFFFFF
+        if self._last_trip_us is not None:
+            age = max(0, min((self.rt.clock() - self._last_trip_us) // 1000, 0xFFFFFFFE))
+        return 0, struct.pack("<II", self.trips & 0xFFFFFFFF, age)

@@ -1,0 +1,231 @@
+"""The rover's parts on AVR (examples/boards/rover-mega.py: the C runtime's hbridge.c,
+stepper.c, hcsr04.c, gps_nmea.c and failsafe.c) as real ATmega2560 machine code in simavr,
+the parts modelled at the pins and the second UART (firmware/avr/sim/rover.c); and gen-firmware
+refusing what an MCU cannot do."""
+
+from __future__ import annotations
+
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
+from missing_link.deploy.avrgen import generate_avr
+from missing_link.deploy.boardfile import load_board_file
+from missing_link.errors import ConfigError
+from missing_link.host.board import Board
+from missing_link.host.config import ConfigRefused
+from missing_link.topics import Update
+from missing_link.transport import open_transport
+
+from .helpers import AvrSim, FirmwareSim, wait_for
+
+ROOT = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.avr
+
+
+@pytest.fixture
+def rig(avr_build: Path) -> Iterator[AvrSim]:
+    sim = AvrSim(avr_build, avr_build / "mega_rover" / "firmware.elf", rover=True)
+    try:
+        yield sim
+    finally:
+        sim.close()
+
+
+@pytest.fixture
+def rover(rig: AvrSim) -> Iterator[Daemon]:
+    with Daemon(Config(boards=[BoardSpec(rig.url, timeout=2.0, uart_baud=115200)])) as d:
+        assert d.wait_until_up(20), d.status()
+        yield d
+
+
+def listen(d: Daemon, name: str) -> list[Update]:
+    got: list[Update] = []
+    d.subscribe(f"/mega_rover/{name}", got.append, queue=0)
+    return got
+
+
+def motor(rig: AvrSim) -> tuple[float, int, float, int]:
+    _, a, da, b, db = rig.ctl("motor").split()
+    return float(a), int(da), float(b), int(db)
+
+
+def test_gps_on_the_second_uart_stamped_at_its_pps(rover: Daemon, rig: AvrSim) -> None:
+    got = listen(rover, "gps")
+    assert wait_for(lambda: len(got) >= 2, 10)
+    lat, lon, alt, fix, sats, hdop, speed, course = got[-1].values
+    assert (lat, lon, alt, fix, sats, hdop) == (481173000, 115166666, 545400, 1, 8, 90)
+    assert (speed, course) == (22400 * 1852 // 3600, 8440)
+    pps = float(rig.ctl("gps").split()[2])  # the newest PPS edge, in the board's µs
+    # INT4 stamped it: the interrupt's entry, about 2.4 µs after the edge
+    assert min(abs(u.board_us[0] - pps) for u in got[-2:]) <= 5.0
+    rig.ctl("gps bad 2")  # every GGA: no sample, checksum errors
+    time.sleep(1.5)
+    n = len(got)
+    time.sleep(2.2)
+    assert len(got) == n
+    rig.ctl("gps bad 0")
+    rig.ctl("gps fix 0")
+    assert wait_for(lambda: len(got) > n and got[-1].values[3] == 0, 5)
+    assert got[-1].values[:3] == [None, None, None]
+
+
+def test_hcsr04_echo_stamped_by_its_pin_change_interrupt(rover: Daemon, rig: AvrSim) -> None:
+    got = listen(rover, "sonar")
+    assert wait_for(lambda: len(got) >= 3, 5)
+    assert got[-1].values[0] == pytest.approx(1000, abs=1)  # the echo's width at 20 degC
+    assert rig.ctl("hcsr04 437") == "ok"
+    assert wait_for(lambda: got[-1].values[0] == pytest.approx(437, abs=1), 5)
+    assert rig.ctl("hcsr04 0") == "ok"  # nothing in range: the echo stays high 38 ms
+    assert wait_for(lambda: got[-1].values == [None], 5)
+    rover.configure("mega_rover", {"sonar.max_range_cm": 100, "sonar.rate_hz": 5})
+    assert rig.ctl("hcsr04 1500") == "ok"  # beyond the configured range: N/A
+    n = len(got)
+    assert wait_for(lambda: len(got) >= n + 2 and got[-1].values == [None], 5)
+
+
+def test_motors_ramp_on_timer0_and_the_failsafe_stops_them(rover: Daemon, rig: AvrSim) -> None:
+    got = listen(rover, "motor_l")
+    rover.send("/mega_rover/motor_l/cmd", 0.5)
+    assert wait_for(lambda: got and got[-1].values == [0.5], 5)
+    assert len(got) >= 5  # ramped (4 per second), each step reported
+    assert abs(motor(rig)[0] - 0.5) < 0.01  # OCR0A = 128: (128 + 1) / 256 of each period
+    rover.send("/mega_rover/motor_r/cmd", -0.25)
+    assert wait_for(lambda: abs(motor(rig)[2] - 0.25) < 0.01 and motor(rig)[3] == 1, 5)
+    # a PWM/DIR bridge cannot brake: the board refuses it, naming why (config.c)
+    with pytest.raises(ConfigRefused, match="stop = brake needs in1 and in2"):
+        rover.configure("mega_rover", {"motor_l.stop": "brake"})
+
+
+def test_stepper_counts_and_the_servo_goes_limp_when_the_host_is_gone(rig: AvrSim) -> None:
+    """A host drives the stepper, the motors and the servo, then goes silent: after
+    failsafe_ms (300 ms for the motors, 500 for the others) the motors coast, the stepper lets
+    go and the servo (safe = limp) stops its pulses; a2jFailsafe and a2jDebug say so."""
+    board = Board(open_transport(rig.url), timeout=5.0)
+    try:
+        board.handshake()
+
+        def talking(cond: Callable[[], bool]) -> Callable[[], bool]:
+            def check() -> bool:  # (the host talks meanwhile: no trip yet)
+                board.call("a2jEcho")
+                return cond()
+
+            return check
+
+        board.call_ok("a2j_mast", struct.pack("<f", 0.5))  # half a turn: 200 microsteps
+        assert wait_for(talking(lambda: rig.ctl("stepper").split()[1] == "200"), 10)
+        board.call_ok("a2j_mast", struct.pack("<f", 20.0))  # and on: still turning when ...
+        board.call_ok("a2j_motor_l", struct.pack("<f", 1.0))
+        board.call_ok("a2j_set_servo", struct.pack("<b", 40))
+        assert wait_for(talking(lambda: motor(rig)[0] == 1.0), 5)
+        assert rig.ctl("pulse").split()[1] != "0.0"
+        t0 = time.monotonic()  # ... the host goes quiet
+        assert wait_for(lambda: motor(rig)[0] == 0.0, 5)
+        assert time.monotonic() - t0 >= 0.25
+        assert wait_for(lambda: rig.ctl("stepper").split()[2] == "0", 5)  # enable off
+        assert wait_for(lambda: rig.ctl("pulse").split()[1] == "0.0", 5)  # limp
+        moved = rig.ctl("stepper").split()[1]
+        time.sleep(0.3)
+        assert rig.ctl("stepper").split()[1] == moved
+        trips, age = struct.unpack("<II", board.call_ok("a2jFailsafe"))
+        assert trips == 3 and age < 5000  # the three commanded: motor_l, the stepper, the servo
+        assert board.call_ok("a2jDebug").decode().startswith("failsafe: motor_l safe (no frame")
+    finally:
+        board.close()
+
+
+def test_the_daemon_says_goodbye_and_a_killed_one_trips_the_failsafe(
+    avr_build: Path, rig: AvrSim, tmp_path: Path
+) -> None:
+    cfg = tmp_path / "d.toml"
+    cfg.write_text(
+        f'[daemon]\npublishers = ["bus"]\ncontrol = "{tmp_path}/c.sock"\n'
+        f'[[board]]\nurl = "{rig.url}"\nuart_baud = 115200\n'
+    )
+    env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
+
+    def drive() -> bool:  # through the daemon's control endpoint, as a user would
+        r = subprocess.run(
+            [sys.executable, "-m", "missing_link", "call", "mega_rover", "a2j_motor_r",
+             "--value", "0.75"],
+            capture_output=True, text=True, timeout=30, env=env,
+        )  # fmt: skip
+        return r.returncode == 0
+
+    for kill in (signal.SIGTERM, signal.SIGKILL):
+        p = subprocess.Popen(
+            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert wait_for(drive, 30)
+            assert wait_for(lambda: abs(motor(rig)[2] - 0.75) < 0.01, 5)
+            time.sleep(1.0)  # the daemon keeps the quiet link alive: no trip meanwhile
+            assert abs(motor(rig)[2] - 0.75) < 0.01
+            t0 = time.monotonic()
+            p.send_signal(kill)
+            p.wait(10)
+            assert wait_for(lambda: motor(rig)[2] == 0.0, 5)
+            if kill == signal.SIGTERM:  # goodbye: at once, not after failsafe_ms
+                assert time.monotonic() - t0 < 2.0
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.wait(5)
+
+
+@pytest.mark.parametrize(
+    ("entry", "said"),
+    [
+        ({"driver": "gps_nmea", "uart": 1}, "only UART is the J2A link"),
+        ({"driver": "hbridge", "pwm_pin": 9, "dir_pin": 7}, "pwm_pin is 6 or 5"),
+        ({"driver": "hbridge", "pwm_pin": 6, "dir_pin": 7, "stop": "brake"}, "needs in1 and in2"),
+        ({"driver": "hcsr04", "trig_pin": 7, "echo_pin": 99}, "echo_pin 99 has no pin-change"),
+        ({"driver": "stepper", "step_pin": 40, "dir_pin": 7}, "no digital pin 40"),
+    ],
+)
+def test_gen_firmware_refuses_what_the_uno_cannot_do(
+    tmp_path: Path, entry: dict[str, object], said: str
+) -> None:
+    board = {"name": "u", "mcu": "atmega328p", "transducers": [{"name": "x", "id": 0, **entry}]}
+    f = tmp_path / "u.py"
+    f.write_text(f"BOARD = {board!r}\n")
+    with pytest.raises(ConfigError, match=said) as e:
+        generate_avr(load_board_file(f))
+    assert str(f) in str(e.value) and ": x:" in str(e.value)  # names the file and the entry
+
+
+@pytest.mark.micropython
+def test_the_same_keys_and_functions_as_the_micropython_firmware(rig: AvrSim) -> None:
+    """The failsafe's and the new drivers' keys: byte for byte what the MicroPython firmware
+    serves for the same board file, the functions at the same indices."""
+    board = Board(open_transport(rig.url), timeout=5.0)
+    try:
+        board.handshake()
+        avr_keys, avr_index = board.read_many("a2jConfigKeys"), dict(board.index)
+    finally:
+        board.close()
+    mpy = FirmwareSim(ROOT / "examples" / "boards" / "rover-mega.py")
+    try:
+        b = Board(open_transport(mpy.url), timeout=5.0)
+        try:
+            b.handshake()
+            assert b.read_many("a2jConfigKeys").decode() == avr_keys.decode()
+            assert dict(b.index) == avr_index
+        finally:
+            b.close()
+    finally:
+        mpy.close()
+    assert b"motor_l.failsafe_ms;int;300;0..60000;" in avr_keys
+    assert b"servo.safe;enum;limp;hold|limp;" in avr_keys
