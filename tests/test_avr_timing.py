@@ -164,7 +164,7 @@ def test_the_daemon_times_a_trigger_and_aligns_the_rig(rig: AvrSim) -> None:
         # paces its time to the host's, and on a loaded machine it falls behind now and then
         # (its "crystal" wanders by up to 1 %); the exact tick is the raw test's above
         lead_slack = 300_000_000 // 100
-        assert abs(u.host_ns[0] - at) <= 2 * u.bound_ns + lead_slack, (u.host_ns[0] - at)
+        assert abs(u.host_ns[0] - at) <= 2 * u.bound_ns + lead_slack, u.host_ns[0] - at
         _, _edges, rise, _fall = rig.ctl("trig").split()
         assert 0 <= float(rise) - tick <= 0.5
         n = len(ranged)

@@ -8,9 +8,23 @@ BOARD = {
     "buses": {"i2c0": {"id": 0, "scl": 5, "sda": 4, "freq": 400000}},
     "transducers": [
         {"name": "compass", "id": 0, "driver": "hmc5883l", "bus": "i2c0", "rate_hz": 20},
-        {"name": "motor", "id": 1, "driver": "hbridge", "pwm_pin": 6, "dir_pin": 7,
-         "ramp": 0, "failsafe_ms": 200, "call": "a2j_motor"},
-        {"name": "servo", "id": 2, "driver": "servo", "pin": 15, "safe": "limp",
-         "call": "a2j_set_servo"},
+        {
+            "name": "motor",
+            "id": 1,
+            "driver": "hbridge",
+            "pwm_pin": 6,
+            "dir_pin": 7,
+            "ramp": 0,
+            "failsafe_ms": 200,
+            "call": "a2j_motor",
+        },
+        {
+            "name": "servo",
+            "id": 2,
+            "driver": "servo",
+            "pin": 15,
+            "safe": "limp",
+            "call": "a2j_set_servo",
+        },
     ],
 }
