@@ -18,6 +18,7 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.errors import FunctionFailed
 from missing_link.host.board import Board
+from missing_link.timesync import OFF_GRID
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
@@ -152,6 +153,7 @@ def test_the_daemon_times_a_trigger_and_aligns_the_rig(rig: AvrSim) -> None:
         assert d.wait_until_up(20), d.status()
         d.subscribe("/uno_rig/camera", fired.append, queue=0)
         d.subscribe("/uno_rig/dist_ir", ranged.append, queue=0)
+        rig.ctl("lag")  # (from here on)
         d.configure("uno_rig", {"dist_ir.aligned": True, "dist_ir.rate_hz": 20})
         at = time.time_ns() + 300_000_000
         tick = d.send("/uno_rig/camera/cmd", 40, at_ns=at)
@@ -170,14 +172,22 @@ def test_the_daemon_times_a_trigger_and_aligns_the_rig(rig: AvrSim) -> None:
         n = len(ranged)
         assert wait_for(lambda: len(ranged) >= n + 20, 5)
         status = d.status()[0]
+        lag_us = float(rig.ctl("lag").split()[1])
     assert status["aligned"] == "dist_ir" and status["map_valid"] is True
-    # off the grid: only what the board measured before the map reached it (and counted)
-    assert status["off_grid_samples"] <= status["unaligned_samples"]
+    # Off the grid: only what the board measured before the map reached it (and counted), unless
+    # simavr fell behind the host's time (a loaded machine): then the board's clock stood still
+    # for a while and caught up, which no map extrapolated over a second foresees; the daemon
+    # flags and counts those samples, as it should.
+    rig_kept_pace = lag_us <= 100
+    if rig_kept_pace:
+        assert status["off_grid_samples"] <= status["unaligned_samples"], lag_us
     assert status["timed_done"] == 1
-    for x in ranged[n:]:  # each on the 50 ms grid, within what its stamp vouches for
+    for x in ranged[n:]:  # each on the 50 ms grid, within what its stamp vouches for, or flagged
         assert x.values[0] is not None
         off = x.host_ns[0] % 50_000_000
-        assert min(off, 50_000_000 - off) <= x.bound_ns + 100_000, (off, x.bound_ns)
+        on_grid = min(off, 50_000_000 - off) <= x.bound_ns + 100_000
+        assert on_grid or x.clock_flags & OFF_GRID, (off, x.bound_ns)
+        assert on_grid or not rig_kept_pace, (off, x.bound_ns, lag_us)
 
 
 def test_the_stack_stays_clear_of_static_ram(avr_build: Path, rig: AvrSim) -> None:

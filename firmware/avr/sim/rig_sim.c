@@ -15,6 +15,7 @@
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
  *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   lag: "lag US", the furthest simulated time fell behind the host's since last asked
  *   trig: the trigger pin's edges (OC2A: Uno D11 / Mega D10): "trig EDGES RISE_US FALL_US", the last
  *         edges in the board's µs (its clock: Timer1, counted from the cycle it was started)
  *   adc: "adc N T1 T2 ...": the starts of the last conversions of ADC0, in the board's µs
@@ -46,6 +47,7 @@ static avr_t *avr;
 static int rover; /* --rover: the rover's parts (rover.c) on a Mega */
 static uart_pty_t uart;
 static double skew;
+static double worst_lag_us; /* how far simulated time fell behind the host's (a loaded machine) */
 static uint64_t start_ns;
 
 static uint64_t mono_ns(void) {
@@ -366,6 +368,9 @@ static void command(const char *cmd) {
     } else if (strncmp(cmd, "pulse", 5) == 0) {
         printf("pulse %.1f period %.1f frames %u\n", servo_pulse_us(),
                (double)servo_period * 1e6 / avr->frequency, servo_frames);
+    } else if (strncmp(cmd, "lag", 3) == 0) { /* the worst since last asked */
+        printf("lag %.0f\n", worst_lag_us);
+        worst_lag_us = 0;
     } else if (strncmp(cmd, "stats", 5) == 0) {
         printf("stats sim_us %llu host_ns %llu cycles %llu rangings %u srf02_addr 0x%02x pc 0x%x twi %u last 0x%08x\n",
                (unsigned long long)sim_us(), (unsigned long long)mono_ns(), (unsigned long long)avr->cycle, srf.rangings, srf.addr, (unsigned)avr->pc, srf.msgs, (unsigned)srf.last_msg);
@@ -412,6 +417,7 @@ static void pace(void) {
     /* simulated µs must not run ahead of host µs * (1 + skew) */
     double host_us = (double)(mono_ns() - start_ns) / 1000.0 * (1.0 + skew);
     double ahead = (double)sim_us() - host_us;
+    if (-ahead > worst_lag_us) worst_lag_us = -ahead;
     if (ahead > 50) usleep((useconds_t)(ahead / (1.0 + skew)));
 }
 

@@ -108,6 +108,7 @@ void stepper_poll(uint64_t now) {
         if (want > v) v = v + dv < want ? v + dv : want;
         else if (want < v) v = v - dv > want ? v - dv : want;
         if (v != 0 && (v > 0) != (speed > 0)) v = 0; /* through zero: stop first */
+        else if (want == 0 && fabsf(v) < v0) v = 0;   /* slower than a step from rest */
     }
     int32_t togo = mode == GOTO ? lroundf(goal) - position : 1;
     if (v == 0 || (mode == GOTO && togo == 0 && fabsf(v) <= v0 * 1.5f)) {

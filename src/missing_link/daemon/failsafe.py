@@ -5,7 +5,8 @@ run-time key).  So that only a host that is gone trips it, the session keeps a q
 talking: a frame (``a2jEcho``, not waited for) every third of the shortest ``failsafe_ms`` on
 the board, whatever else is going on.  When the daemon stops it says goodbye first
 (``a2jGoodbye``: every actuator safe at once), and a board's own count of trips
-(``a2jFailsafe``) is read once per diagnostics period into the status (``failsafe_trips``).
+(``a2jFailsafe``) is read once per diagnostics period into the status (``failsafe_trips``), on
+boards with a ``failsafe_ms`` key (an actuator that can be made safe) only.
 """
 
 from __future__ import annotations
@@ -55,8 +56,9 @@ class FailsafeInfo:
     def __init__(self) -> None:
         self.info: dict[str, Any] = {}
 
-    def refresh(self, board: Board) -> None:
-        if "a2jFailsafe" not in board.index:
+    def refresh(self, board: Board, values: Mapping[str, Value]) -> None:
+        # only a board with an actuator that has a failsafe (a round trip a second costs)
+        if "a2jFailsafe" not in board.index or not any(k.endswith(".failsafe_ms") for k in values):
             return
         try:
             p = board.call_ok("a2jFailsafe")

@@ -345,7 +345,7 @@ class BoardSession:
                 next_ping = now + period
                 if self.path.grid:  # the board's own account of its grid (alignment.py)
                     self.alignment.refresh(board)
-                self.failsafe.refresh(board)
+                self.failsafe.refresh(board, self.settings.values)
             if self.prober is not None:
                 if heartbeat:
                     self.prober.probe_now()  # answered (or timed out) on the reading thread

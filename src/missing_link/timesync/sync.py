@@ -325,13 +325,15 @@ class ClockSync:
                 if self._step_pending:
                     flags = STEP
                     self._step_pending = False
-                # The hard band at the newest stamp (est.interval, inlined: this runs per
-                # update) and how far the published map is from the estimate there.
+                # The hard band at the newest stamp and the estimated error there, no more
+                # than the band (est.interval and est.est_error_ns, inlined: this runs per
+                # update), with how far the published map is from the estimate.
                 d = newest - est.b_ref
                 dev = h - (est.h_ref + d * est.rate)
-                widen = abs(d) * 1000.0 * est.dskew
-                bound = math.ceil(max(dev - est.lo_ns, est.hi_ns - dev) + widen)
-                return hosts, round(est.est_error_ns(newest, dev)), bound, flags
+                hard = max(dev - est.lo_ns, est.hi_ns - dev) + abs(d) * 1000.0 * est.dskew
+                spread = est.skew_sigma * 1000.0 * d
+                e = math.sqrt(est.est_sq_ns + spread * spread + dev * dev)
+                return hosts, round(min(e, hard)), math.ceil(hard), flags
         # a reset, or an outlier: probe at once to confirm or refute
         if reset:
             self._enter(BURST, now or 0.0)

@@ -168,6 +168,8 @@ class Stepper:
                 v = max(want, v - dv)
             if v != 0 and (v > 0) != (self.speed > 0):
                 v = 0.0  # through zero: stop first, the next step starts the other way
+            elif want == 0 and abs(v) < math.sqrt(2 * a):
+                v = 0.0  # slower than a step from rest: stopped (not a rounding crawl)
         togo = round(self._goal) - self.position if self._mode == GOTO else None
         if v == 0 or (togo == 0 and abs(v) <= math.sqrt(2 * a) * 1.5):
             self.speed = 0.0
