@@ -1,5 +1,5 @@
 """One board's clock probes, in the daemon: when the sync wants an exchange, send it; feed the
-reply to the sync; hand the board the clock map now and then.
+reply to the sync; hand the board the clock map while it samples on the grid.
 
 Theory of operation
 -------------------
@@ -46,7 +46,6 @@ from ..timesync.sync import TRACKING, ClockSync
 
 log = logging.getLogger(__name__)
 
-MAP_PUSH_PERIOD = 1.0  #: s between a2jHostMap calls (boards that act at host times)
 
 
 @dataclass(frozen=True)
@@ -77,7 +76,6 @@ class ClockProber:
         self._in_flight = False
         self._asap = False  # a heartbeat asked for a probe now
         self._not_before = 0.0  # the daemon's probe budget: no tracking probe before this
-        self._next_push = 0.0
         self._pushes = "a2jHostMap" in board.index
 
     # ---- on the session's thread --------------------------------------------------------------
@@ -112,7 +110,6 @@ class ClockProber:
         if payload is not None:
             self.board.call_ok("a2jHostMap", payload, timeout=self.ctx.timeout)
             self.ctx.on_map_pushed()
-            self._next_push = time.monotonic() + MAP_PUSH_PERIOD
 
     # ---- on the board's reading thread --------------------------------------------------------
     def due(self) -> float | None:
@@ -145,10 +142,12 @@ class ClockProber:
             self._lost(got)
             return
         self._exchanged(got)
-        if self._pushes and (time.monotonic() >= self._next_push or self.ctx.wants_map()):
+        # The map goes to the board after every exchange while something there samples on the
+        # grid; otherwise only right before a timed command (push_map): a round trip a second
+        # on every board costs the idle ones a third more CPU.
+        if self._pushes and self.ctx.wants_map():
             payload = self._map_payload()
             if payload is not None:
-                self._next_push = time.monotonic() + MAP_PUSH_PERIOD  # one in flight at most
                 try:
                     fut = self.board.call_future("a2jHostMap", payload, timeout=self.ctx.timeout)
                 except MissingLinkError as e:
