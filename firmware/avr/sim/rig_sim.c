@@ -222,7 +222,6 @@ static double board_us_at(avr_cycle_count_t c) {
     return c < t1_start ? -1.0 : (double)(c - t1_start) * 1e6 / avr->frequency;
 }
 
-double rig_board_us(avr_cycle_count_t c) { return board_us_at(c); }
 
 /* OC2A (the trigger's pin) as the datasheet has it, from the registers: Timer2 counts from the
  * cycle its clock was started, one count per 8 cycles (prescaler 8, the only one the firmware
@@ -466,7 +465,7 @@ int main(int argc, char **argv) {
     avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), srf.irq);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(servo_port), servo_pin),
                             servo_hook, NULL);
-    if (rover) rover_init(avr);
+    if (rover) rover_init(avr, board_us_at);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_hook,
                             NULL);
     enc_set(enc_pin_a, enc_a);

@@ -21,6 +21,7 @@
 #include "sim_time.h"
 
 static avr_t *avr;
+static double (*rig_board_us)(avr_cycle_count_t cycle); /* rig_sim.c's clock */
 enum { PORTA = 0x22, PORTB = 0x25, PORTG = 0x34, TCCR0A = 0x44, OCR0A = 0x47, OCR0B = 0x48 };
 
 /* ---- motors ---- */
@@ -137,7 +138,8 @@ static avr_cycle_count_t gps_second(avr_t *a, avr_cycle_count_t when, void *para
     return when + avr_usec_to_cycles(avr, 1000000);
 }
 
-void rover_init(avr_t *a) {
+void rover_init(avr_t *a, double (*board_us)(avr_cycle_count_t cycle)) {
+    rig_board_us = board_us;
     avr = a;
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 4), step_hook, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 2), trig_hook, NULL);

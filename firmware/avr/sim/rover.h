@@ -4,7 +4,7 @@
 #define RIG_ROVER_H
 #include "sim_avr.h"
 
-void rover_init(avr_t *avr);
+/* board_us: a cycle in the board's µs (rig_sim.c's clock, handed in) */
+void rover_init(avr_t *avr, double (*board_us)(avr_cycle_count_t cycle));
 int rover_command(const char *cmd); /* 1: it was one of ours (answered on stdout) */
-double rig_board_us(avr_cycle_count_t cycle); /* rig_sim.c: a cycle in the board's µs */
 #endif

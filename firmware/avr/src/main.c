@@ -3,8 +3,10 @@
 #include <avr/interrupt.h>
 #include <avr/io.h>
 
+#include "failsafe.h"
 #include "hal.h"
 #include "runtime.h"
+#include "timing.h"
 
 #ifndef BOARD_BAUD
 #define BOARD_BAUD 115200UL
@@ -51,6 +53,9 @@ int main(void) {
             runtime_feed(b, rx_us);
 #endif
         }
+        uint64_t now = board_clock();
+        timing_poll(now); /* timed calls first: they are due at a tick (timing.c) */
+        failsafe_poll(now);
         runtime_poll();
     }
 }

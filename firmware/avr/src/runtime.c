@@ -19,14 +19,12 @@
  * request's last byte, t3 is taken just before the reply's first byte enters the TX ring.
  * No dynamic allocation; the one 255-byte scratch buffer is shared by replies and SIFs.
  */
-#include "runtime.h"
+#include "builtins.h"
 
 #include <avr/pgmspace.h>
 #include <string.h>
 
 #include "hal.h"
-#include "failsafe.h"
-#include "timing.h"
 #include "wire.h"
 
 static frame_parser_t parser;
@@ -299,8 +297,6 @@ void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
 
 void runtime_poll(void) {
     uint64_t now = board_clock();
-    timing_poll(now); /* timed calls first: they are due at a tick (timing.c) */
-    failsafe_poll(now);
     board_poll(now);
     for (uint8_t i = 0; i < board_transducer_count; i++) {
         if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);

@@ -50,25 +50,6 @@ typedef struct {
     uint8_t enabled;    /* run-time configuration (config.c): off = not polled, no SIFs */
 } transducer_t;
 
-/* The built-in functions: board_gen.c starts its table with BUILTIN_FUNCTIONS (a2jHostMap's
- * handler is timing.c's). */
-uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t get_mapping(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t get_debug(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t sif_count(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-extern const blob_t mapping_blob, board_properties_blob, board_transds_blob;
-extern const char n_get_mapping[], n_many[], n_get_properties[], n_debug[], n_echo[],
-    n_echo_many[], n_get_mapping_many[], n_get_transds[], n_clock[], n_host_map[], n_sif_count[];
-#define BUILTIN_COUNT 11
-#define BUILTIN_FUNCTIONS                                                                      \
-    {n_get_mapping, KIND_PLAIN, get_mapping, 0}, {n_many, KIND_PLAIN, 0, 0},                   \
-        {n_get_properties, KIND_BLOB, 0, &board_properties_blob},                             \
-        {n_debug, KIND_PLAIN, get_debug, 0}, {n_echo, KIND_PLAIN, echo, 0},                    \
-        {n_echo_many, KIND_ECHO_MANY, 0, 0}, {n_get_mapping_many, KIND_BLOB, 0, &mapping_blob}, \
-        {n_get_transds, KIND_BLOB, 0, &board_transds_blob}, {n_clock, KIND_CLOCK, 0, 0},      \
-        {n_host_map, KIND_PLAIN, host_map_fn, 0}, {n_sif_count, KIND_PLAIN, sif_count, 0}
-
 /* Board tables, generated from the board file (board_gen.c) */
 extern const function_t board_functions[]; /* in flash (PROGMEM): read with function_get */
 void function_get(uint8_t i, function_t *f);

@@ -5,7 +5,7 @@
 #include <string.h>
 
 #include "hal.h"
-#include "runtime.h"
+#include "builtins.h"
 
 transducer_t board_transducers[1];
 const uint8_t board_transducer_count = 0;

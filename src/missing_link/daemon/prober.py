@@ -47,7 +47,6 @@ from ..timesync.sync import TRACKING, ClockSync
 log = logging.getLogger(__name__)
 
 
-
 @dataclass(frozen=True)
 class ProbeContext:
     """What the prober needs of its session and daemon: values and callables."""

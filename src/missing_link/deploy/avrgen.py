@@ -132,6 +132,7 @@ def generate_avr(bf: BoardFile) -> str:
         "#include <avr/interrupt.h>",
         "#include <avr/pgmspace.h>",
         "#include <string.h>",
+        '#include "builtins.h"',
         '#include "config.h"',
         '#include "drivers.h"',
         '#include "failsafe.h"',
