@@ -92,7 +92,7 @@ static float target_speed(void) {
     int32_t togo = lroundf(goal) - position;
     if (togo == 0) return 0;
     float braking = speed * speed / (2 * a);
-    if (labs(togo) <= braking + 1 && (togo > 0) == (speed > 0)) return 0; /* slow down */
+    if (speed != 0 && labs(togo) <= braking + 1 && (togo > 0) == (speed > 0)) return 0; /* slow down */
     return togo > 0 ? vmax : -vmax;
 }
 
@@ -108,7 +108,10 @@ void stepper_poll(uint64_t now) {
         if (want > v) v = v + dv < want ? v + dv : want;
         else if (want < v) v = v - dv > want ? v - dv : want;
         if (v != 0 && (v > 0) != (speed > 0)) v = 0; /* through zero: stop first */
-        else if (want == 0 && fabsf(v) < v0) v = 0;   /* slower than a step from rest */
+        else if (want == 0 && fabsf(v) < v0) { /* slower than a step from rest: stop, or go on */
+            int32_t left = mode == GOTO ? lroundf(goal) - position : 0;
+            v = left && (left > 0) == (v > 0) ? (v > 0 ? v0 : -v0) : 0;
+        }
     }
     int32_t togo = mode == GOTO ? lroundf(goal) - position : 1;
     if (v == 0 || (mode == GOTO && togo == 0 && fabsf(v) <= v0 * 1.5f)) {

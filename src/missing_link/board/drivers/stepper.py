@@ -143,7 +143,7 @@ class Stepper:
         if togo == 0:
             return 0.0
         braking = self.speed * self.speed / (2 * a)  # steps to stop from here
-        if abs(togo) <= braking + 1 and (togo > 0) == (self.speed > 0):
+        if self.speed != 0 and abs(togo) <= braking + 1 and (togo > 0) == (self.speed > 0):
             return 0.0  # time to slow down
         return vmax if togo > 0 else -vmax
 
@@ -169,7 +169,10 @@ class Stepper:
             if v != 0 and (v > 0) != (self.speed > 0):
                 v = 0.0  # through zero: stop first, the next step starts the other way
             elif want == 0 and abs(v) < math.sqrt(2 * a):
-                v = 0.0  # slower than a step from rest: stopped (not a rounding crawl)
+                # Slower than a step from rest (a rounding residue would crawl for ever): stop,
+                # or with steps to go that way, go on at that speed.
+                togo = round(self._goal) - self.position if self._mode == GOTO else 0
+                v = math.copysign(math.sqrt(2 * a), v) if togo and (togo > 0) == (v > 0) else 0.0
         togo = round(self._goal) - self.position if self._mode == GOTO else None
         if v == 0 or (togo == 0 and abs(v) <= math.sqrt(2 * a) * 1.5):
             self.speed = 0.0
