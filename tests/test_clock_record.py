@@ -8,6 +8,7 @@ import math
 import time
 from pathlib import Path
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from rosbags.highlevel import AnyReader
@@ -22,7 +23,7 @@ from missing_link.ros.clock import (
     clock_record_cdr,
     clock_topic,
 )
-from missing_link.timesync import ClockSync, Exchange, SyncOptions
+from missing_link.timesync import ClockSync, Exchange, SyncOptions, estimator
 from missing_link.topics import Update
 from missing_link.virtual.clocks import AffineClock
 from missing_link.virtual.process import start_board_process, stop_process
@@ -79,6 +80,41 @@ def test_estimated_error_arithmetic() -> None:
     mapped = sync.map(est.b_ref)
     assert mapped is not None and 0 < mapped.est_error_ns < mapped.bound_ns
     assert sync.status()["est_error_us"] == round(at_ref / 1000, 2)
+
+
+def _estimate_of_split_delays(
+    monkeypatch: pytest.MonkeyPatch, gap_factor: float
+) -> tuple[float, float, float]:
+    """16 exchanges, each 100 µs there and back, 40 µs each way plus 20 µs split differently
+    between the two directions (no round trip shows how): (estimated error at the newest
+    exchange, the fastest round trip, the offset's true error), in ns."""
+    monkeypatch.setattr(estimator, "GAP_FACTOR", gap_factor)
+    sync = ClockSync(SyncOptions(res_us=1))
+    host, board = 10**12, 5 * 10**9
+    for k, out in enumerate([0, 20, 1, 19, 10, 5, 15, 8, 12, 3, 17, 6, 14, 9, 11, 2]):
+        t1 = host + k * 1_000_000
+        t2 = board + k * 1000 + 40 + out
+        sync.on_exchange(Exchange(t1, t2, t2, t1 + 100_000), t1 / 1e9)
+    est = sync.estimate
+    assert est is not None
+    truth = host + (est.b_ref - board) * 1000
+    return est.est_error_ns(est.b_ref), est.min_delay_ns, abs(est.h_ref - truth)
+
+
+def test_the_estimate_follows_how_well_the_offset_is_pinned(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Deterministic: the fastest exchanges' midpoints scatter by ±10 µs, but each side's two
+    tightest constraints are 1 µs apart, and the offset rests on those: the estimate uses the
+    smaller of the two measures (GAP_FACTOR gaps, or the scatter), over a floor of the
+    asymmetry allowance and the ticks."""
+    factor = estimator.GAP_FACTOR
+    floor, dmin, _ = _estimate_of_split_delays(monkeypatch, 0.0)
+    assert math.isclose(floor, math.hypot(estimator.ASYM_FRACTION * dmin / 2, 1000 / math.sqrt(12)))
+    pinned, _, err = _estimate_of_split_delays(monkeypatch, factor)
+    scatter, _, _ = _estimate_of_split_delays(monkeypatch, 1e9)
+    assert floor < pinned < scatter
+    assert err <= pinned  # and the estimate still covers the offset's true error here
 
 
 def test_recorded_exchanges_retime_the_run_offline(tmp_path: Path) -> None:

@@ -45,8 +45,9 @@ Each ``add``:
   6. an empty band (the window no longer fits one line: the clock's rate wandered) drops the
      oldest exchanges until it fits again - this is what makes the window adaptive;
   7. the estimated error (statistical, next to the hard band; chrony's ``esterror`` next to its
-     ``maxerror``): the scatter of the fastest exchanges' midpoints about the fitted line (a
-     robust sigma), an allowance for the asymmetry between the two directions that no round
+     ``maxerror``): how well the offset is pinned, i.e. the gap between each side's tightest and
+     next tightest constraint (``GAP_FACTOR`` times), or the scatter of the fastest exchanges'
+     midpoints about the fitted line (a robust sigma) when that is less, an allowance for the asymmetry between the two directions that no round
      trip reveals (``ASYM_FRACTION`` of half the fastest round trip), the stamps' quantisation,
      and at a distance from ``b_ref`` the skew's sigma times that distance (``est_error_ns``).
 
@@ -80,6 +81,12 @@ PRIOR_LIFE_S = 60.0
 #: the round trip over a pty (a process that slept longer wakes later), < 2 % over TCP with
 #: kernel stamps at both ends (docs/timesync.md, "The estimated error").
 ASYM_FRACTION = 0.12
+#: The offset sits between each side's tightest constraint, which is off the path's floor by
+#: about the gap to that side's next tightest (the last of a few draws from a delay tail);
+#: this many such gaps (both sides, in quadrature, halved) make the offset's own sigma.
+#: Calibrated on real processes over a pty (docs/timesync.md): where the fastest exchanges'
+#: midpoints scatter by 15 µs with the VM's wake-ups, the tightest ones are within ~5 µs.
+GAP_FACTOR = 1.5
 
 
 class AddResult(Enum):
@@ -325,10 +332,17 @@ class ClockEstimator:
             lo = hi = c
         else:
             c = min(max(c, lo), hi)
-        # The estimated error: the fastest quarter's midpoints about the line (robust sigma),
-        # the asymmetry allowance, the ticks of both stamps (uniform: res / sqrt 12).
+        # The estimated error: how well the two sides pin the offset (each side's tightest
+        # constraint against its next), or the fastest quarter's midpoints about the line
+        # (robust sigma) if less; the asymmetry allowance; the ticks of both stamps (uniform:
+        # res / sqrt 12).
         fast = (rm - (c + k * xm))[np.argsort(delay)[: max(4, n // 4)]]
         scatter = 1.4826 * float(np.median(np.abs(fast - np.median(fast)))) if n >= 4 else 0.0
+        if n >= 4:
+            low2 = np.partition(at_l - dl, len(at_l) - 2)[-2:]  # the two tightest lower ones
+            up2 = np.partition(at_u + du, 1)[:2]  # and upper ones
+            gl, gu = float(low2.max() - low2.min()), float(up2.max() - up2.min())
+            scatter = min(scatter, GAP_FACTOR * math.sqrt(gl * gl + gu * gu) / 2.0)
         asym = ASYM_FRACTION * dmin / 2.0
         est_sq = (scatter**2 + asym**2 + res * res / 12.0) * 1e6
         return Estimate(
