@@ -47,9 +47,10 @@ Each ``add``:
   7. the estimated error (statistical, next to the hard band; chrony's ``esterror`` next to its
      ``maxerror``): how well the offset is pinned, i.e. the gap between each side's tightest and
      next tightest constraint (``GAP_FACTOR`` times), or the scatter of the fastest exchanges'
-     midpoints about the fitted line (a robust sigma) when that is less, an allowance for the asymmetry between the two directions that no round
-     trip reveals (``ASYM_FRACTION`` of half the fastest round trip), the stamps' quantisation,
-     and at a distance from ``b_ref`` the skew's sigma times that distance (``est_error_ns``).
+     midpoints about the fitted line (a robust sigma) when that is less; an allowance for the
+     asymmetry between the two directions that no round trip reveals (``ASYM_FRACTION`` of half
+     the fastest round trip); the stamps' quantisation; and at a distance from ``b_ref`` the
+     skew's sigma times that distance (``est_error_ns``).
 
 The estimate carries the band, so any board time maps to host time with a hard interval that
 widens with the distance from the newest exchange.  Everything is float µs relative to the
