@@ -67,8 +67,12 @@ def test_gps_on_the_second_uart_stamped_at_its_pps(rover: Daemon, rig: AvrSim) -
     assert (speed, course) == (22400 * 1852 // 3600, 8440)
     pps = float(rig.ctl("gps").split()[2])  # the newest PPS edge, in the board's µs
     # INT4 stamped it: the interrupt's entry, about 2.4 µs after the edge (the fix of a PPS edge
-    # arrives after its sentences: it may still be on its way)
-    assert wait_for(lambda: min(abs(u.board_us[0] - pps) for u in got[-3:]) <= 5.0, 3), pps
+    # arrives after its sentences: it may still be on its way, and simavr runs slower than the
+    # host's time on a loaded machine)
+    assert wait_for(lambda: min(abs(u.board_us[0] - pps) for u in got[-3:]) <= 5.0, 10), (
+        pps,
+        [u.board_us[0] for u in got[-3:]],
+    )
     rig.ctl("gps bad 2")  # every GGA: no sample, checksum errors
     time.sleep(1.5)
     n = len(got)

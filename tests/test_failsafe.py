@@ -11,11 +11,13 @@ import struct
 import subprocess
 import sys
 import time
+from concurrent.futures import Future
 from pathlib import Path
+from typing import Any, cast
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.failsafe import keepalive_s
+from missing_link.daemon.failsafe import goodbye, keepalive_s
 from missing_link.host.board import Board
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.virtual import make_sim
@@ -129,3 +131,23 @@ def test_a_killed_daemon_trips_the_failsafe(tmp_path: Path) -> None:
             debug = board.call_ok("a2jDebug").decode()
         assert trips == 1 and 300 <= age < 5000
         assert "failsafe: servo safe (no frame from the host for" in debug
+
+
+class _UnansweredBoard:
+    """A board whose link closes under the goodbye: the call is never answered."""
+
+    index = {"a2jGoodbye": 0}
+    alive = True
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def call_future(self, name: str, payload: bytes = b"", timeout: float | None = None) -> Any:
+        self.calls += 1
+        return Future()
+
+
+def test_a_goodbye_never_answered_neither_hangs_nor_raises() -> None:
+    board = _UnansweredBoard()
+    goodbye(cast(Board, board))  # returns (stopping goes on: the board trips on its own)
+    assert board.calls == 1

@@ -119,8 +119,9 @@ def test_hbridge_ramps_reverses_and_brakes(rover: Daemon, sim: FirmwareSim) -> N
     state = "result = WORLD.devices['motor_l'].state()"
     rover.send("/rover/motor_l/cmd", 0.5)
     assert wait_for(lambda: sim.ctl(state) == (0.5, "drive"), 5), sim.ctl(state)
+    assert wait_for(lambda: got[-1].values[0] == 0.5, 5), got[-1]  # (its report on its way)
     duties = [u.values[0] for u in got]
-    assert duties[-1] == 0.5 and len(duties) >= 5  # ramped (4 per second): steps on the way
+    assert len(duties) >= 5  # ramped (4 per second): steps on the way
     assert all(b > a for a, b in itertools.pairwise(duties))
     rover.send("/rover/motor_l/cmd", -0.25)
     assert wait_for(lambda: sim.ctl(state) == (-0.25, "drive"), 5), sim.ctl(state)

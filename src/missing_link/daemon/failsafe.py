@@ -46,10 +46,15 @@ def goodbye(board: Board) -> None:
     """Tell the board the host is going: its actuators go to their safe states now."""
     if "a2jGoodbye" not in board.index or not board.alive:
         return
+    # Waited for here with its own limit: stopping must never hang on a board (nor raise: a
+    # link closing under the call may leave it unanswered), and the board trips on its own
+    # after failsafe_ms anyway.
     try:
-        board.call("a2jGoodbye", b"", timeout=GOODBYE_TIMEOUT_S)
-    except MissingLinkError:
-        pass  # (it will trip on its own after failsafe_ms)
+        board.call_future("a2jGoodbye", b"", timeout=GOODBYE_TIMEOUT_S).result(
+            GOODBYE_TIMEOUT_S + 0.2
+        )
+    except (MissingLinkError, TimeoutError):
+        pass
 
 
 class FailsafeInfo:

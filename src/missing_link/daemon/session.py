@@ -86,6 +86,7 @@ class BoardSession:
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
+        self._said_goodbye: Board | None = None  # the board told the host is going
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
         self.warnings: list[str] = []
@@ -161,7 +162,8 @@ class BoardSession:
         self._wake.set()
         board = self.board
         if board is not None:
-            if self.state == UP:
+            if self.state == UP and board is not self._said_goodbye:
+                self._said_goodbye = board  # (once: stop() asks again)
                 goodbye(board)
             board.close()
 
