@@ -196,6 +196,7 @@ class AvrSim:
         """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
         power-up and writes at power-off); ``rover``: a Mega with the rover's parts
         (firmware/avr/sim/rover.c)."""
+        self.elf = elf
         extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
         if rover:
             extra += ["--mcu", "atmega2560", "--rover"]

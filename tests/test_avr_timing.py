@@ -55,6 +55,18 @@ def _trig(rig: AvrSim) -> tuple[int, float, float]:
     return int(edges), float(rise), float(fall)
 
 
+def _late_pulses(rig: AvrSim) -> int:
+    """The firmware's count of pulses whose falling edge it had to force late (trigger.c)."""
+    nm = subprocess.run(["avr-nm", str(rig.elf)], capture_output=True, text=True, check=True)
+    addr = next(
+        int(x.split()[0], 16) & 0xFFFF
+        for x in nm.stdout.splitlines()
+        if x.endswith(" trigger_late")
+    )
+    lo, hi = rig.ctl(f"peek {addr:x}").split()[1:3]
+    return int(lo, 16) | int(hi, 16) << 8
+
+
 def _timed_pulse(board: Board, b0: int, tick: int, width_us: int) -> int:
     at = H0 + (tick - b0) * 1000
     payload = struct.pack("<qB", at, board.index["a2j_trigger"]) + struct.pack("<H", width_us)
@@ -67,6 +79,7 @@ def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], r
     Timer2's 128 µs wrap (steps through wraps), ticks at every phase of the 8-bit timer."""
     board, b0 = mapped
     edges = _trig(rig)[0]
+    late = first = _late_pulses(rig)
     for k, width in enumerate((20, 300, 20, 1000, 55)):
         now = board.clock_exchange(5.0).t3
         want = now + 150_000 + 37 * k  # 150 ms ahead, a different Timer2 phase each time
@@ -76,7 +89,12 @@ def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], r
         n, rise, fall = _trig(rig)
         assert n == edges + 2 * (k + 1), (n, edges)
         assert 0 <= rise - tick <= 0.5, (k, rise, tick)
-        assert fall - rise == pytest.approx(width, abs=0.5), (k, fall - rise)
+        if _late_pulses(rig) == late:
+            assert fall - rise == pytest.approx(width, abs=0.5), (k, fall - rise)
+        else:  # the rising edge's interrupt was held off past the fall's match: forced late,
+            late += 1  # never early, and counted (a loaded host bunches the UART's bytes)
+            assert fall - rise > width, (k, fall - rise)
+    assert late - first <= 1  # (once in a while, not the rule)
     valid, _age, _unaligned, done, refused = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
     assert valid == 1 and done == 5 and refused == 0
 

@@ -17,8 +17,10 @@
  * ARM_US away; its rising edge is at the tick, its falling edge `width` µs later.  One pulse is
  * under way at a time: a timed call for another while one is armed goes to timing.c's queue and
  * is made "now" when due.  A pulse commanded now starts MIN_STEP ticks after the command.  The
- * sample is the width, stamped with the tick of the rising edge.  A pulse shorter than MIN_STEP
- * ticks ends by forcing the compare (FOC2A) when its match may have passed already.
+ * sample is the width, stamped with the tick of the rising edge.  When the rising edge's
+ * interrupt comes so late that the falling edge's match may have passed already (a pulse
+ * shorter than MIN_STEP ticks, or interrupts held off that long), the pulse ends by forcing the
+ * compare (FOC2A) then: longer than asked, never shorter, and counted (trigger_late).
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -51,6 +53,7 @@ static volatile uint8_t trig_state; /* IDLE, RISING (armed), FALLING */
 static volatile uint32_t trig_rest; /* ticks to go after the step set up now */
 static volatile uint8_t trig_fired; /* the rising edge was made: record it (main loop) */
 uint16_t trigger_pulses;
+volatile uint16_t trigger_late; /* pulses whose falling edge was forced late (above) */
 
 /* the next step: r ticks after the match of OCR2A = from (or the instant TCNT2 became from + 1);
  * returns the step's length */
@@ -84,6 +87,7 @@ ISR(TIMER2_COMPA_vect) {
     uint16_t s = step(from, (uint32_t)trig_width * 2, COM_CLEAR);
     if (!trig_rest && (uint16_t)((uint8_t)(TCNT2 - from) + 2) >= s) { /* its match may be gone already */
         TCCR2B |= _BV(FOC2A);
+        trigger_late++;
         finish();
     }
 }
