@@ -55,14 +55,15 @@ def _trig(rig: AvrSim) -> tuple[int, float, float]:
     return int(edges), float(rise), float(fall)
 
 
-def _late_pulses(rig: AvrSim) -> int:
-    """The firmware's count of pulses whose falling edge it had to force late (trigger.c)."""
-    nm = subprocess.run(["avr-nm", str(rig.elf)], capture_output=True, text=True, check=True)
-    addr = next(
-        int(x.split()[0], 16) & 0xFFFF
-        for x in nm.stdout.splitlines()
-        if x.endswith(" trigger_late")
-    )
+def _data_address(elf: Path, symbol: str) -> int:
+    """Where a symbol of the firmware's RAM is, as the rig's `peek` and `stack` count."""
+    nm = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    return next(int(x.split()[0], 16) & 0xFFFF for x in nm.splitlines() if x.endswith(" " + symbol))
+
+
+def _late_pulses(rig: AvrSim, addr: int) -> int:
+    """The firmware's count of pulses whose falling edge it had to force late (trigger.c,
+    ``trigger_late`` at ``addr``)."""
     lo, hi = rig.ctl(f"peek {addr:x}").split()[1:3]
     return int(lo, 16) | int(hi, 16) << 8
 
@@ -79,7 +80,8 @@ def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], r
     Timer2's 128 µs wrap (steps through wraps), ticks at every phase of the 8-bit timer."""
     board, b0 = mapped
     edges = _trig(rig)[0]
-    late = first = _late_pulses(rig)
+    late_at = _data_address(rig.elf, "trigger_late")
+    late = first = _late_pulses(rig, late_at)
     for k, width in enumerate((20, 300, 20, 1000, 55)):
         now = board.clock_exchange(5.0).t3
         want = now + 150_000 + 37 * k  # 150 ms ahead, a different Timer2 phase each time
@@ -89,12 +91,13 @@ def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], r
         n, rise, fall = _trig(rig)
         assert n == edges + 2 * (k + 1), (n, edges)
         assert 0 <= rise - tick <= 0.5, (k, rise, tick)
-        if _late_pulses(rig) == late:
+        if _late_pulses(rig, late_at) == late:
             assert fall - rise == pytest.approx(width, abs=0.5), (k, fall - rise)
-        else:  # the rising edge's interrupt was held off past the fall's match: forced late,
-            late += 1  # never early, and counted (a loaded host bunches the UART's bytes)
-            assert fall - rise > width, (k, fall - rise)
-    assert late - first <= 1  # (once in a while, not the rule)
+        else:  # the rising edge's interrupt ran so late that the fall's match may have passed:
+            late += 1  # forced then, never early (late by how late the interrupt was), counted;
+            assert fall - rise >= width - 0.5, (k, fall - rise)  # short pulses only
+            assert width <= 55, (k, width)
+    assert late - first <= 3
     valid, _age, _unaligned, done, refused = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
     assert valid == 1 and done == 5 and refused == 0
 
@@ -212,8 +215,7 @@ def test_the_stack_stays_clear_of_static_ram(avr_build: Path, rig: AvrSim) -> No
     """After calls, SIFs, configuration and timed pulses (this module's other tests run on
     their own rigs; here a short mix), the lowest stack pointer is above the end of .bss."""
     elf = avr_build / "uno_rig" / "firmware.elf"
-    syms = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
-    end = next(int(x.split()[0], 16) & 0xFFFF for x in syms.splitlines() if x.endswith(" _end"))
+    end = _data_address(elf, "_end")
     board = Board(open_transport(rig.url), timeout=5.0)
     try:
         board.handshake()

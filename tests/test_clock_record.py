@@ -79,6 +79,9 @@ def test_estimated_error_arithmetic() -> None:
     assert math.isclose(est.est_error_ns(est.b_ref, 3000.0), math.hypot(at_ref, 3000.0))
     mapped = sync.map(est.b_ref)
     assert mapped is not None and 0 < mapped.est_error_ns < mapped.bound_ns
+    # the per-update map inlines est_error_ns: the same number, for the map's own deviation
+    dev = mapped.host_ns - est.host_at(est.b_ref)
+    assert abs(mapped.est_error_ns - est.est_error_ns(est.b_ref, dev)) <= 1
     assert sync.status()["est_error_us"] == round(at_ref / 1000, 2)
 
 

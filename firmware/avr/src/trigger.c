@@ -18,9 +18,10 @@
  * under way at a time: a timed call for another while one is armed goes to timing.c's queue and
  * is made "now" when due.  A pulse commanded now starts MIN_STEP ticks after the command.  The
  * sample is the width, stamped with the tick of the rising edge.  When the rising edge's
- * interrupt comes so late that the falling edge's match may have passed already (a pulse
- * shorter than MIN_STEP ticks, or interrupts held off that long), the pulse ends by forcing the
- * compare (FOC2A) then: longer than asked, never shorter, and counted (trigger_late).
+ * interrupt runs so late that the falling edge's match may have passed already (a pulse not
+ * much longer than MIN_STEP ticks, or interrupts held off), the pulse ends by forcing the
+ * compare (FOC2A) then: on time or late by as much as the interrupt was, never shorter than
+ * asked, and counted (trigger_late).
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -53,7 +54,7 @@ static volatile uint8_t trig_state; /* IDLE, RISING (armed), FALLING */
 static volatile uint32_t trig_rest; /* ticks to go after the step set up now */
 static volatile uint8_t trig_fired; /* the rising edge was made: record it (main loop) */
 uint16_t trigger_pulses;
-volatile uint16_t trigger_late; /* pulses whose falling edge was forced late (above) */
+volatile uint16_t trigger_late; /* pulses whose falling edge was forced (above) */
 
 /* the next step: r ticks after the match of OCR2A = from (or the instant TCNT2 became from + 1);
  * returns the step's length */

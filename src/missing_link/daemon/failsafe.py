@@ -24,11 +24,16 @@ MIN_KEEPALIVE_S = 0.02
 GOODBYE_TIMEOUT_S = 0.3
 
 
+def failsafe_ms(board: Board, values: Mapping[str, Value]) -> list[int]:
+    """Every actuator's ``failsafe_ms`` on this board (0: disarmed; none: no failsafe)."""
+    if "a2jFailsafe" not in board.index:
+        return []
+    return [v for k, v in values.items() if k.endswith(".failsafe_ms") and isinstance(v, int)]
+
+
 def keepalive_s(board: Board, values: Mapping[str, Value]) -> float | None:
     """How often the host must send a frame to this board (None: it has no failsafe armed)."""
-    if "a2jFailsafe" not in board.index:
-        return None
-    ms = [v for k, v in values.items() if k.endswith(".failsafe_ms") and isinstance(v, int) and v]
+    ms = [v for v in failsafe_ms(board, values) if v]
     if not ms:
         return None
     return max(MIN_KEEPALIVE_S, min(ms) / 3000)
@@ -63,7 +68,7 @@ class FailsafeInfo:
 
     def refresh(self, board: Board, values: Mapping[str, Value]) -> None:
         # only a board with an actuator that has a failsafe (a round trip a second costs)
-        if "a2jFailsafe" not in board.index or not any(k.endswith(".failsafe_ms") for k in values):
+        if not failsafe_ms(board, values):
             return
         try:
             p = board.call_ok("a2jFailsafe")

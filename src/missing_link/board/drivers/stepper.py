@@ -154,11 +154,11 @@ class Stepper:
         if self._next is None or now < self._next:
             return
         a = self.accel * self.per_rev
+        v0 = math.sqrt(2 * a)  # the speed after the first step from rest (v^2 = 2as)
         dt = (now - self._last_step) / 1000000 if self._last_step is not None else 0.0
         want = self._target_speed()
         v = self.speed
         if v == 0:
-            v0 = math.sqrt(2 * a)  # the speed after the first step from rest (v^2 = 2as)
             v = v0 if want > 0 else -v0 if want < 0 else 0.0
         else:
             dv = a * max(dt, 1 / abs(v))
@@ -166,15 +166,15 @@ class Stepper:
                 v = min(want, v + dv)
             elif want < v:
                 v = max(want, v - dv)
-            if v != 0 and (v > 0) != (self.speed > 0):
+        togo = round(self._goal) - self.position if self._mode == GOTO else None
+        if v != 0 and self.speed != 0:
+            if (v > 0) != (self.speed > 0):
                 v = 0.0  # through zero: stop first, the next step starts the other way
-            elif want == 0 and abs(v) < math.sqrt(2 * a):
+            elif want == 0 and abs(v) < v0:
                 # Slower than a step from rest (a rounding residue would crawl for ever): stop,
                 # or with steps to go that way, go on at that speed.
-                togo = round(self._goal) - self.position if self._mode == GOTO else 0
-                v = math.copysign(math.sqrt(2 * a), v) if togo and (togo > 0) == (v > 0) else 0.0
-        togo = round(self._goal) - self.position if self._mode == GOTO else None
-        if v == 0 or (togo == 0 and abs(v) <= math.sqrt(2 * a) * 1.5):
+                v = math.copysign(v0, v) if togo and (togo > 0) == (v > 0) else 0.0
+        if v == 0 or (togo == 0 and abs(v) <= v0 * 1.5):
             self.speed = 0.0
             self._next = None
             self._last_step = None
