@@ -8,8 +8,10 @@
 // Prints "LISTEN <port> <micropython version>" when ready.  Lines on stdin are control requests
 // for the simulated world: a JSON string of Python code (setting `result`); each gets one line
 // back, "OK <repr(result)>" or "ERR <message>".  The firmware stepping its own loop, the bytes
-// of the link moved between the socket and the firmware as they come.  "BREAK" is printed when the
-// firmware stops for the REPL (two Ctrl-C between frames); the process then exits 0.
+// of each connection moved between its socket and the firmware as they come (the firmware's
+// link, as on a device, decides which connection is its host and closes the others).  "BREAK"
+// is printed when the firmware stops for the REPL (two Ctrl-C between frames); the process then
+// exits 0.
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
 import { readFileSync, readdirSync, statSync } from "node:fs";
 import { createServer } from "node:net";
@@ -56,14 +58,17 @@ if (runArg) {
   mp.runPython("import sys\nsys.path.append('/lib')\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-mp.runPython("import sys\nsys.path.append('/lib')\nfrom simhost import _feed, _tick, _due_us, _ctl, _ident\n");
+mp.runPython("import sys\nsys.path.append('/lib')\nfrom simhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident\n");
+const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
+const closed = mp.globals.get("_closed");
 const tick = mp.globals.get("_tick");
 const dueUs = mp.globals.get("_due_us");
 const ctl = mp.globals.get("_ctl");
 const ident = mp.globals.get("_ident")();
 
-let sock = null;
+const conns = new Map(); // connection number -> socket: the firmware's link decides who stays
+let nextConn = 1;
 let pending = null; // the next run(): { immediate } or { timeout }
 function cancel() {
   if (pending === null) return;
@@ -84,7 +89,17 @@ function run() {
     process.stdout.write("BREAK\n");
     process.exit(0);
   }
-  if (out && sock) sock.write(Buffer.from(out, "hex"));
+  for (const tok of out ? out.split(" ") : []) {
+    if (tok[0] === "-") {
+      const s = conns.get(Number(tok.slice(1)));
+      conns.delete(Number(tok.slice(1)));
+      if (s) s.destroy();
+    } else {
+      const at = tok.indexOf(":");
+      const s = conns.get(Number(tok.slice(0, at)));
+      if (s) s.write(Buffer.from(tok.slice(at + 1), "hex"));
+    }
+  }
   schedule(Boolean(out));
 }
 // Step again at once after input or output (more may be queued), else at the drivers' next
@@ -98,15 +113,17 @@ function schedule(now) {
 }
 
 const server = createServer((s) => {
-  if (sock) sock.destroy();
-  sock = s;
+  const n = nextConn++;
+  conns.set(n, s);
+  open(n);
   s.setNoDelay(true);
   s.on("data", (d) => {
-    feed(d.toString("hex"));
+    feed(n, d.toString("hex"));
     schedule(true);
   });
   s.on("close", () => {
-    if (sock === s) sock = null;
+    if (conns.delete(n)) closed(n);
+    schedule(true);
   });
   s.on("error", () => {});
 });

@@ -1,8 +1,10 @@
 # The simulator's side inside MicroPython: the firmware from the board file on a link whose bytes
 # the node host moves, with the world's devices created from the same board file.
-# _feed(hex) hands received bytes to the link, _tick() runs one firmware step and returns the
-# bytes to send (hex), _ctl(src) runs test code against WORLD and returns repr() of `result`
-# (reboot() restarts the firmware on the same filesystem and devices).
+# node's TCP connections are the link's (SimServer: as link.py's TcpServer on a device):
+# _open(n), _feed(n, hex), _closed(n) say what happened to connection n; _tick() runs one
+# firmware step and returns what to send and close ("n:hex" and "-n", space-separated);
+# _ctl(src) runs test code against WORLD and returns repr() of `result` (reboot() restarts the
+# firmware on the same filesystem and devices).
 
 import machine
 import simdevices
@@ -11,20 +13,39 @@ from machine import WORLD
 from mlboard.firmware import BreakIn, Firmware
 
 
-class SimLink:
+class SimServer:
+    # the TcpServer interface (link.py) over the connections node moves the bytes of
     def __init__(self):
-        self.rx = bytearray()
-        self.tx = bytearray()
+        self.new = []
+        self.rx = {}  # open connection -> bytes received
+        self.ended = []  # closed by the client (what they sent is read first)
+        self.out = []  # "n:hex" to send, "-n" to close
 
-    def read(self):
-        if not self.rx:
+    def accept(self):
+        return self.new.pop(0) if self.new else None
+
+    def recv(self, n):
+        data = self.rx.get(n)
+        if data is None:
+            return b""
+        if not data:
+            if n in self.ended:
+                self.ended.remove(n)
+                del self.rx[n]
+                return b""
             return None
-        data = bytes(self.rx)
-        self.rx = bytearray()
-        return data
+        self.rx[n] = bytearray()
+        return bytes(data)
 
-    def write(self, data):
-        self.tx.extend(data)
+    def send(self, n, data):
+        if n not in self.rx or n in self.ended:
+            return False
+        self.out.append("%d:%s" % (n, bytes(data).hex()))
+        return True
+
+    def drop(self, n):
+        if self.rx.pop(n, None) is not None:
+            self.out.append("-%d" % n)
 
     def wait(self, us):
         pass
@@ -67,21 +88,35 @@ def _populate(board):
 
 
 _populate(BOARD)
-wire = SimLink()  # the bytes node moves (signed records on a network board)
-link = wire
+wire = SimServer()  # node's connections
 if BOARD.get("link", {}).get("key_file"):  # a network board: signed records (signing.py)
     from mlboard.clock import default_clock
-    from mlboard.link import signed
+    from mlboard.link import network_link
 
     _clock = default_clock()
-    link = signed(wire, BOARD["link"], lambda: _clock() // 1000)
+    link = network_link(wire, BOARD["link"], lambda: _clock() // 1000)
+else:  # one host at a time, the newest (a cable has one)
+    from mlboard.link import TcpLink
+
+    link = TcpLink(server=wire)
 fw = Firmware(BOARD, machine, link)
 rt = fw.runtime
 stopped = False
 
 
-def _feed(h):
-    wire.rx.extend(bytes.fromhex(h))
+def _open(n):
+    wire.new.append(n)
+    wire.rx[n] = bytearray()
+
+
+def _feed(n, h):
+    if n in wire.rx:
+        wire.rx[n].extend(bytes.fromhex(h))
+
+
+def _closed(n):
+    if n in wire.rx:
+        wire.ended.append(n)
 
 
 def _tick():
@@ -93,10 +128,8 @@ def _tick():
     except BreakIn:
         stopped = True
         return "BREAK"
-    if not wire.tx:
-        return ""  # (b"".hex() is b"" on MicroPython, not "")
-    out = bytes(wire.tx).hex()
-    wire.tx = bytearray()
+    out = " ".join(wire.out)
+    wire.out = []
     return out
 
 

@@ -1,8 +1,9 @@
 # The board's side of the backbone link on a microcontroller: USB CDC (the REPL's stdin/stdout),
 # a UART, or TCP on a network (an ESP32 on WiFi: the network is the user's boot.py's to join).
 # read() -> bytes available now (or None), write(bytes), wait(µs): sleep until input or the
-# timeout, close(): hand the port back to the REPL.  A link with a `key_file` carries signed
-# records (signing.py): on a network, a board with a key takes nothing unsigned.
+# timeout, close(): hand the port back to the REPL.  A TCP link with a `key_file` carries signed
+# records (signing.py): on a network, a board with a key takes nothing unsigned, and keeps the
+# host that proved the key whoever else connects.
 
 import sys
 
@@ -72,9 +73,15 @@ class UartLink:
         self._uart.deinit()
 
 
-class TcpLink:
-    # One host at a time on a TCP port (a new connection replaces the old one: the host
-    # reconnected).  Blocking sockets, read only when a poll says there are bytes.
+class TcpServer:
+    # Connections on one TCP port, by number: accept() -> a new connection's number or None,
+    # recv(n) -> the bytes there now, None (none yet) or b"" (closed: forgotten), send(n, data)
+    # -> False when it failed (then closed), drop(n), wait(µs): until input or the timeout,
+    # close().  Blocking sockets, read only when a poll says there are bytes; a send that
+    # cannot go out within SEND_S closes the connection (a host that vanished must not stall
+    # the firmware's loop, and with it the failsafe).
+    SEND_S = 0.5
+
     def __init__(self, port=5000, host="0.0.0.0"):
         import select
         import socket
@@ -83,57 +90,106 @@ class TcpLink:
         self._srv = socket.socket()
         self._srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._srv.bind(socket.getaddrinfo(host, port)[0][-1])
-        self._srv.listen(1)
-        self._conn = None
+        self._srv.listen(2)
+        self._conns = {}
+        self._next = 1
 
     def _ready(self, sock, ms=0):
         p = self._select.poll()
         p.register(sock, self._select.POLLIN)
         return bool(p.poll(ms))
 
-    def _drop(self):
-        if self._conn is not None:
-            self._conn.close()
-            self._conn = None
-
-    def read(self):
-        if self._ready(self._srv):
-            conn, _addr = self._srv.accept()
-            self._drop()
-            self._conn = conn
-        if self._conn is None or not self._ready(self._conn):
+    def accept(self):
+        if not self._ready(self._srv):
             return None
         try:
-            data = self._conn.recv(512)
+            conn, _addr = self._srv.accept()
+        except OSError:  # (out of sockets: the client is gone again)
+            return None
+        conn.settimeout(self.SEND_S)
+        n = self._next
+        self._next += 1
+        self._conns[n] = conn
+        return n
+
+    def recv(self, n):
+        conn = self._conns.get(n)
+        if conn is None:
+            return b""
+        if not self._ready(conn):
+            return None
+        try:
+            data = conn.recv(512)
         except OSError:
             data = b""
-        if not data:  # the host closed: wait for the next
-            self._drop()
-            return None
+        if not data:
+            self.drop(n)
         return data
 
-    def write(self, data):
-        if self._conn is None:
-            return  # nobody listening: like a UART with nothing attached
+    def send(self, n, data):
+        conn = self._conns.get(n)
+        if conn is None:
+            return False
         try:
-            self._conn.sendall(data)
+            conn.sendall(data)
         except OSError:
-            self._drop()
+            self.drop(n)
+            return False
+        return True
+
+    def drop(self, n):
+        conn = self._conns.pop(n, None)
+        if conn is not None:
+            conn.close()
 
     def wait(self, us):
         p = self._select.poll()
         p.register(self._srv, self._select.POLLIN)
-        if self._conn is not None:
-            p.register(self._conn, self._select.POLLIN)
+        for conn in self._conns.values():
+            p.register(conn, self._select.POLLIN)
         p.poll(max(0, us // 1000))
 
     def close(self):
-        self._drop()
+        for n in list(self._conns):
+            self.drop(n)
         self._srv.close()
 
 
+class TcpLink:
+    # Plain J2A on a TCP port (a board without a key): one host at a time, and a new connection
+    # replaces the old one (the host reconnected).  Anyone who reaches the port is that host:
+    # a board on a network takes a key (signing.py), whose link keeps its host.
+    def __init__(self, port=5000, host="0.0.0.0", server=None):
+        self.server = server if server is not None else TcpServer(port, host)
+        self._conn = None
+
+    def read(self):
+        n = self.server.accept()
+        if n is not None:
+            if self._conn is not None:
+                self.server.drop(self._conn)
+            self._conn = n
+        if self._conn is None:
+            return None
+        data = self.server.recv(self._conn)
+        if data is not None and not data:  # the host closed: wait for the next
+            self._conn = None
+            return None
+        return data
+
+    def write(self, data):
+        if self._conn is not None and not self.server.send(self._conn, data):
+            self._conn = None  # (nobody listening: like a UART with nothing attached)
+
+    def wait(self, us):
+        self.server.wait(us)
+
+    def close(self):
+        self.server.close()
+
+
 class FileCounter:
-    # an integer kept in a file (a board's boot count, the newest host timestamp)
+    # an integer kept in a file (a board's boot count, where it has no RNG)
     def __init__(self, path):
         self.path = path
 
@@ -153,23 +209,53 @@ class FileCounter:
         os.rename(tmp, self.path)
 
 
-def signed(link, cfg, clock_ms):
-    # the link in signed records when the board file names a key (signing.py), else itself
-    key_file = cfg.get("key_file")
-    if not key_file:
-        return link
-    from .signing import SignedLink
+def random_source(cfg):
+    # n -> n fresh random bytes for a connection's challenge (signing.py): the port's RNG
+    # (os.urandom: hardware on ESP32 and RP2040); on a port without one, bytes that are at
+    # least never the same twice: the boot count (kept in `boot_file`), a counter, the clock
+    # and random's state, hashed
+    try:
+        import os
 
+        os.urandom(1)
+        return os.urandom
+    except (ImportError, AttributeError, OSError):
+        pass
+    import hashlib
+    import random
+    import time
+
+    boots = FileCounter(cfg.get("boot_file", "mlboots.txt"))
+    boot = (boots.load() or 0) + 1
+    boots.save(boot)
+    made = [0]
+
+    def fresh(n):
+        made[0] += 1
+        seed = "%d %d %d %d" % (boot, made[0], time.ticks_us(), random.getrandbits(32))
+        return hashlib.sha256(seed.encode()).digest()[:n]
+
+    return fresh
+
+
+def read_key(key_file):
     with open(key_file, "rb") as f:
         key = f.read()
     text = key.strip()
     if len(text) == 64:  # (missing-link key new writes hex; a raw 32-byte key works too)
         key = bytes.fromhex(text.decode())
-    boots = FileCounter(cfg.get("boot_file", "mlboots.txt"))
-    n = (boots.load() or 0) + 1
-    boots.save(n)
-    newest = FileCounter(cfg.get("replay_file", "mlreplay.txt"))
-    return SignedLink(link, key, clock_ms, n, newest)
+    return key
+
+
+def network_link(server, cfg, clock_ms):
+    # a board on a network port: signed records when the board file names a key (signing.py),
+    # else plain J2A (TcpLink)
+    key_file = cfg.get("key_file")
+    if not key_file:
+        return TcpLink(server=server)
+    from .signing import SignedLink
+
+    return SignedLink(server, read_key(key_file), clock_ms, random_source(cfg))
 
 
 def open_link(cfg, machine):
@@ -178,7 +264,7 @@ def open_link(cfg, machine):
         from .clock import default_clock
 
         clock = default_clock()  # (extended to 64 bit: ticks_ms wraps in 12 days)
-        return signed(TcpLink(cfg.get("port", 5000)), cfg, lambda: clock() // 1000)
+        return network_link(TcpServer(cfg.get("port", 5000)), cfg, lambda: clock() // 1000)
     if kind == "usb":
         return StdioLink()
     if kind == "uart":

@@ -1,36 +1,59 @@
 # Signed J2A records: the J2A bytes of a network link (a board on WiFi, TCP) authenticated in
-# the spirit of MAVLink 2's signing (docs/signing.md has the bytes).
+# the spirit of MAVLink 2's signing, with a per-connection challenge in place of its clock
+# (docs/signing.md has the bytes).
 #
 # Theory of operation
 # -------------------
 # Both ends hold the same 32-byte key, put on the board over USB only (`missing-link flash
-# --key`) and never sent over the network.  Every write becomes one record:
+# --key`) and never sent over the network.  Everything on the link is a record:
 #
-#   magic "J2AS" (4) | link id (1) | timestamp (6, LE) | length (2, LE) | J2A bytes | tag (8)
+#   magic "J2AS" (4) | kind (1) | counter (6, LE) | length n (2, LE) | n bytes | tag (8)
 #
-# tag = the first 8 bytes of HMAC-SHA256(key, everything before the tag).  The J2A bytes inside
-# are exactly what the unsigned link would carry (whole frames), so J2A itself is unchanged.
-# The timestamp must grow with every record a sender sends: a receiver keeps the newest it has
-# accepted per link id and drops a record whose timestamp is not newer (a replay), one whose tag
-# does not check (altered, or signed with another key) and anything that is not a record
-# (unsigned bytes), counting each (`replayed`, `bad_tags`, `junk`).  The host stamps in MAVLink's
-# units, 10 µs since 2015-01-01 (its wall clock, kept increasing); a board, which has no wall
-# clock, stamps (boot count << 32) + ms since boot, so a board that restarts still stamps newer
-# than before (its boot count is kept in its flash).  The link id tells the two directions apart
-# (host: 0, board: 1), so a record cannot be reflected back to its sender.
+# tag = the first 8 bytes of HMAC-SHA256(a key, everything before the tag).  A connection opens
+# with a handshake that needs no clock on either side:
 #
-# Pure: time and keys are handed in.  MicroPython subset (hashlib.sha256; its hmac module is
-# not on every port, so HMAC is spelled out).
+#   host -> board  HELLO      kind 2, counter 0, data: Nh, 16 fresh random bytes; tag: the key
+#   board -> host  CHALLENGE  kind 3, counter 0, data: Nh + Nb, 16 fresh bytes of the board's;
+#                             tag: the key
+#
+# and both derive the session key S = HMAC-SHA256(key, "J2AK" + Nh + Nb).  J2A then travels in
+# DATA records tagged with S: kind 0 from the host, 1 from the board, each side counting 1, 2,
+# 3...  A receiver takes a DATA record only when its tag checks under S and its counter is
+# beyond the newest it took; everything else is dropped and counted: a record of another
+# connection (another Nh or Nb, so another S: a replay), an old one of this connection
+# (`replayed`), an altered or foreign one, or one sent back to its sender (the other kind: a
+# reflection) (`bad_tags`), bytes that are no record (`junk`).  The host checks the CHALLENGE
+# under the key (another key: "the board's key differs", by name) and that it carries its own
+# Nh (an old challenge replayed is refused).  Nothing of this depends on a wall clock, and
+# nothing is kept across connections or restarts but the key.
+#
+# The board's side (SignedLink) serves the connections of a server (link.py's TcpServer):
+# a new connection is answered its challenge and becomes the board's host only when its first
+# DATA record checks (it has proven the key); until then the host that proved it keeps the
+# link, and a client without the key can connect as often as it likes without moving it.  A
+# new connection that sends anything else first, or nothing for PENDING_MS, is closed; at most
+# MAX_PENDING wait at once (the oldest is closed for a newer one).
+#
+# Resynchronisation costs one pass: a record whose tag does not check is skipped whole (its
+# length says how far), so every byte received is hashed at most once, whatever the garbage.
+# (Records travel on reliable streams, TCP or a unix socket: a bad record there is an
+# attacker's, not line noise, and what follows its claimed end is the next record.)
+#
+# Pure: keys, nonces and the clock are handed in.  MicroPython subset (hashlib.sha256; its hmac
+# module is not on every port, so HMAC is spelled out).
 
 import hashlib
 import struct
 
 MAGIC = b"J2AS"
-HEAD = 13  # magic, link id, timestamp, length
+HEAD = 13  # magic, kind, counter, length
 TAG = 8
 MAX_DATA = 4096
-HOST_LINK = 0
-BOARD_LINK = 1
+NONCE = 16
+HOST_LINK = 0  # DATA from the host
+BOARD_LINK = 1  # DATA from the board
+HELLO = 2
+CHALLENGE = 3
 _BLOCK = 64
 
 
@@ -42,36 +65,46 @@ def hmac_sha256(key, data):
     return hashlib.sha256(bytes(b ^ 0x5C for b in key) + inner).digest()
 
 
-class Signer:
-    # seal(data, now) -> one record; `now` is the sender's clock in its units (see above)
-    def __init__(self, key, link_id):
-        if len(key) != 32:
-            raise ValueError("a signing key has 32 bytes")
-        self.key = key
-        self.link_id = link_id
-        self._last = 0
-
-    def seal(self, data, now):
-        if len(data) > MAX_DATA:
-            raise ValueError("record of %d bytes: at most %d" % (len(data), MAX_DATA))
-        ts = now if now > self._last else self._last + 1  # strictly growing
-        self._last = ts
-        head = MAGIC + bytes((self.link_id,)) + _u48(ts) + struct.pack("<H", len(data))
-        body = head + bytes(data)
-        return body + hmac_sha256(self.key, body)[:TAG]
+def seal(key, kind, counter, data):
+    # one record of `data`
+    if len(data) > MAX_DATA:
+        raise ValueError("record of %d bytes: at most %d" % (len(data), MAX_DATA))
+    body = MAGIC + bytes((kind,)) + _u48(counter) + struct.pack("<H", len(data)) + bytes(data)
+    return body + hmac_sha256(key, body)[:TAG]
 
 
-class Verifier:
-    # feed(bytes) -> the J2A bytes of the records that check, in order
-    def __init__(self, key, link_id):
-        self.key = key
-        self.link_id = link_id  # the sender's: records from anyone else are not ours
-        self.newest = -1
-        self.records = 0
-        self.bad_tags = 0
-        self.replayed = 0
+def checks(key, rec):
+    # whether a record (from Splitter) carries the tag of `key`
+    return hmac_sha256(key, rec[3])[:TAG] == rec[4]
+
+
+def session_key(key, host_nonce, board_nonce):
+    return hmac_sha256(key, b"J2AK" + host_nonce + board_nonce)
+
+
+def hello(key, host_nonce):
+    return seal(key, HELLO, 0, host_nonce)
+
+
+def challenge(key, host_nonce, board_nonce):
+    return seal(key, CHALLENGE, 0, host_nonce + board_nonce)
+
+
+class Splitter:
+    # feed(bytes) -> the whole records in them, each (kind, counter, data, body, tag); bytes
+    # that begin no record are counted in `junk` (and kept in `skipped`, up to its cap, when it
+    # is a bytearray: the host looks there for plain J2A).  A header whose length is over
+    # MAX_DATA is no record either.
+    def __init__(self):
         self.junk = 0
+        self.skipped = None
         self._buf = b""
+
+    def _skip(self, b):
+        self.junk += len(b)
+        s = self.skipped
+        if s is not None and len(s) < 1024:
+            s.extend(b[: 1024 - len(s)])
 
     def feed(self, data):
         buf = self._buf + bytes(data)
@@ -80,54 +113,94 @@ class Verifier:
             i = buf.find(MAGIC)
             if i < 0:
                 keep = _partial_magic(buf)
-                self.junk += len(buf) - keep
+                self._skip(buf[: len(buf) - keep])
                 buf = buf[len(buf) - keep :]
                 break
             if i:
-                self.junk += i
+                self._skip(buf[:i])
                 buf = buf[i:]
             if len(buf) < HEAD:
                 break
-            n = struct.unpack("<H", buf[11:13])[0]
+            n = buf[11] | (buf[12] << 8)
             if n > MAX_DATA:
-                self.junk += 1  # not a record: look for the next magic
+                self._skip(buf[:1])  # not a record: look for the next magic
                 buf = buf[1:]
                 continue
             end = HEAD + n + TAG
             if len(buf) < end:
                 break
-            body, tag = buf[: HEAD + n], buf[HEAD + n : end]
-            if buf[4] != self.link_id or hmac_sha256(self.key, body)[:TAG] != tag:
-                self.bad_tags += 1
-                buf = buf[1:]  # (resynchronise: the next magic may be a real record)
-                continue
+            body = buf[: HEAD + n]
+            out.append((buf[4], _u48_of(buf, 5), body[HEAD:], body, buf[HEAD + n : end]))
             buf = buf[end:]
-            ts = _u48_of(body[5:11])
-            if ts <= self.newest:
-                self.replayed += 1
-                continue
-            self.newest = ts
-            self.records += 1
-            out.append(body[HEAD:])
         self._buf = buf
+        return out
+
+
+class Signer:
+    # seal(data) -> one DATA record of this side (`link_id`), its counter one more each time
+    def __init__(self, key, link_id):
+        if len(key) != 32:
+            raise ValueError("a signing key has 32 bytes")
+        self.key = key
+        self.link_id = link_id
+        self.counter = 0
+
+    def seal(self, data):
+        self.counter += 1
+        return seal(self.key, self.link_id, self.counter, data)
+
+
+class Verifier:
+    # feed(bytes) -> the J2A bytes of the DATA records from `link_id` (the sender's) that check
+    # under `key` with a growing counter, in order.  `took` counts the records it took,
+    # `dropped` those it did not; `counts` (shared by a board's connections) has every kind.
+    def __init__(self, key, link_id, counts=None, split=None):
+        self.key = key
+        self.link_id = link_id
+        self.newest = 0
+        self.took = 0
+        self.dropped = 0
+        self.counts = counts if counts is not None else new_counts()
+        self.split = split if split is not None else Splitter()
+
+    def feed(self, data):
+        junk = self.split.junk
+        out = self.take(self.split.feed(data))
+        self.counts["junk"] += self.split.junk - junk
+        return out
+
+    def take(self, recs):
+        c = self.counts
+        out = []
+        for rec in recs:
+            if rec[0] != self.link_id or not checks(self.key, rec):
+                c["bad_tags"] += 1
+                self.dropped += 1
+            elif rec[1] <= self.newest:
+                c["replayed"] += 1
+                self.dropped += 1
+            else:
+                self.newest = rec[1]
+                self.took += 1
+                c["records"] += 1
+                out.append(rec[2])
         return b"".join(out)
 
     def stats(self):
-        return {
-            "records": self.records,
-            "bad_tags": self.bad_tags,
-            "replayed": self.replayed,
-            "junk": self.junk,
-        }
+        return dict(self.counts)
+
+
+def new_counts():
+    return {"records": 0, "bad_tags": 0, "replayed": 0, "junk": 0, "unproven": 0}
 
 
 def _u48(v):
     return bytes((v >> (8 * i)) & 0xFF for i in range(6))
 
 
-def _u48_of(b):
+def _u48_of(b, at):
     v = 0
-    for i in range(5, -1, -1):
+    for i in range(at + 5, at - 1, -1):
         v = (v << 8) | b[i]
     return v
 
@@ -140,56 +213,131 @@ def _partial_magic(buf):
     return 0
 
 
-def host_now(unix_ns):
-    # the host's timestamp: 10 µs units since 2015-01-01 UTC, as MAVLink 2's
-    return (unix_ns - 1420070400000000000) // 10000
-
-
-def board_now(boots, ms):
-    # a board's timestamp: its boot count, then ms since boot
-    return ((boots & 0xFFFF) << 32) | (ms & 0xFFFFFFFF)
+class _Pending:
+    # a connection that has not proven the key yet
+    def __init__(self, since):
+        self.since = since
+        self.split = Splitter()
+        self.verifier = None  # once its HELLO is answered: its session's
 
 
 class SignedLink:
-    # The board's side: a link (link.py's) whose bytes travel in signed records.  Unsigned
-    # bytes, altered or foreign records and replays are dropped and counted (stats(): the J2A
-    # function a2jLinkStats).  `store` keeps the newest host timestamp across restarts (saved
-    # when it has moved on by SAVE_EVERY, a minute of the host's clock), so a record replayed
-    # after the board restarted is refused too, but for the last minute's.
-    SAVE_EVERY = 6000000  # 10 µs units: 60 s
+    # The board's side: the connections of `server` (link.py's TcpServer: accept() -> n,
+    # recv(n) -> bytes / None (nothing yet) / b"" (closed), send(n, data) -> bool, drop(n),
+    # wait(us), close()) as one link to the host that proved the key (see the theory above).
+    # `nonce(n)` gives n fresh random bytes, `clock_ms()` the board's ms.  stats(): the J2A
+    # function a2jLinkStats, plus `unproven` (connections closed before they proved the key).
+    MAX_PENDING = 3
+    PENDING_MS = 5000
 
-    def __init__(self, link, key, clock_ms, boots, store=None):
-        self.link = link
-        self._signer = Signer(key, BOARD_LINK)
-        self._verifier = Verifier(key, HOST_LINK)
+    def __init__(self, server, key, clock_ms, nonce):
+        if len(key) != 32:
+            raise ValueError("a signing key has 32 bytes")
+        self.server = server
+        self.key = key
         self._clock_ms = clock_ms
-        self._boots = boots
-        self._store = store
-        self._saved = -1
-        if store is not None:
-            v = store.load()
-            if v is not None:
-                self._verifier.newest = self._saved = v
+        self._nonce = nonce
+        self.counts = new_counts()
+        self._pending = {}
+        self.host = None  # the connection that proved the key
+        self._verifier = None
+        self._signer = None
 
     def read(self):
-        data = self.link.read()
-        if not data:
-            return None
-        out = self._verifier.feed(data)
-        v = self._verifier.newest
-        if self._store is not None and v - self._saved >= self.SAVE_EVERY:
-            self._store.save(v)
-            self._saved = v
-        return out or None
+        now = self._clock_ms()
+        self._accept(now)
+        out = []
+        for n in list(self._pending):
+            if now - self._pending[n].since > self.PENDING_MS:
+                self._refuse(n)
+                continue
+            data = self.server.recv(n)
+            if data is None:
+                continue
+            if not data:  # closed by the client
+                self._pending.pop(n)
+                self.counts["unproven"] += 1
+            else:
+                out.append(self._proving(n, data))
+        if self.host is not None:
+            data = self.server.recv(self.host)
+            if data:
+                out.append(self._verifier.feed(data))
+            elif data is not None:  # the host closed: wait for the next to prove the key
+                self.host = None
+        data = b"".join(out)
+        return data or None
+
+    def _accept(self, now):
+        while True:
+            n = self.server.accept()
+            if n is None:
+                return
+            self._pending[n] = _Pending(now)
+            if len(self._pending) > self.MAX_PENDING:
+                oldest = None
+                for k in self._pending:
+                    if oldest is None or self._pending[k].since < self._pending[oldest].since:
+                        oldest = k
+                self._refuse(oldest)
+
+    def _refuse(self, n):
+        self._pending.pop(n, None)
+        self.server.drop(n)
+        self.counts["unproven"] += 1
+
+    def _proving(self, n, data):
+        # a new connection's bytes: a HELLO first, then DATA records; the first that checks
+        # makes it the host, anything else before that closes it
+        p = self._pending[n]
+        junk = p.split.junk
+        recs = p.split.feed(data)
+        self.counts["junk"] += p.split.junk - junk
+        if p.split.junk != junk:
+            self._refuse(n)  # bytes that are no record: not a host of ours
+            return b""
+        if p.verifier is None:
+            if not recs:
+                return b""  # (the rest of the HELLO is on its way)
+            if not self._answer(n, p, recs.pop(0)):
+                return b""
+        out = p.verifier.take(recs)
+        if p.verifier.took:
+            self._pending.pop(n)
+            if self.host is not None:
+                self.server.drop(self.host)
+            self.host, self._verifier = n, p.verifier
+            self._signer = Signer(p.verifier.key, BOARD_LINK)
+            return out
+        if p.verifier.dropped:
+            self._refuse(n)
+        return b""
+
+    def _answer(self, n, p, rec):
+        if rec[0] != HELLO or len(rec[2]) != NONCE:
+            self._refuse(n)
+            return False
+        if not checks(self.key, rec):
+            self.counts["bad_tags"] += 1  # (answered all the same: the host names the mismatch)
+        nb = self._nonce(NONCE)
+        if not self.server.send(n, challenge(self.key, rec[2], nb)):
+            self._pending.pop(n, None)
+            self.counts["unproven"] += 1
+            return False
+        p.verifier = Verifier(session_key(self.key, rec[2], nb), HOST_LINK, self.counts, p.split)
+        return True
 
     def write(self, data):
-        self.link.write(self._signer.seal(data, board_now(self._boots, self._clock_ms())))
+        if self.host is None:
+            return  # nobody has proven the key: like a UART with nothing attached
+        if not self.server.send(self.host, self._signer.seal(data)):
+            self.host = None
 
     def wait(self, us):
-        self.link.wait(us)
+        self.server.wait(us)
 
     def close(self):
-        self.link.close()
+        self.server.close()
 
     def stats(self):
-        return self._verifier.stats()
+        return dict(self.counts)
