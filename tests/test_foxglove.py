@@ -8,6 +8,7 @@ import json
 import struct
 from typing import Any
 
+import pytest
 import websockets
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -121,3 +122,152 @@ def test_a_late_client_gets_the_actuators_state(serve) -> None:  # type: ignore[
     ts = get_typestore(Stores.ROS2_JAZZY)
     ts.register(get_types_from_msg(ch["schema"].split("=" * 80)[0], ch["schemaName"]))
     assert list(ts.deserialize_cdr(payload, ch["schemaName"]).values) == [25]
+
+
+def listening() -> set[str]:
+    """Every socket this process listens on: TCP ports and unix socket inodes."""
+    import os
+
+    mine = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            mine.add(target[8:-1])
+    out = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for row in f.read().splitlines()[1:]:
+                col = row.split()
+                if col[3] == "0A" and col[9] in mine:  # LISTEN
+                    out.add(f"tcp:{int(col[1].rsplit(':', 1)[1], 16)}")
+    with open("/proc/net/unix") as f:
+        for row in f.read().splitlines()[1:]:
+            col = row.split()
+            if int(col[3], 16) & 0x10000 and col[6] in mine:  # __SO_ACCEPTCON: listening
+                out.add(f"unix:{col[6]}")
+    return out
+
+
+def upgrade(port: int, origin: str | None, agent: str) -> int:
+    """A WebSocket upgrade by hand (a client library refuses to send control characters in a
+    header): the HTTP status of the answer."""
+    import base64
+    import os
+    import socket
+
+    lines = [
+        "GET / HTTP/1.1", f"Host: 127.0.0.1:{port}", "Upgrade: websocket",
+        "Connection: Upgrade", f"Sec-WebSocket-Key: {base64.b64encode(os.urandom(16)).decode()}",
+        "Sec-WebSocket-Version: 13", "Sec-WebSocket-Protocol: foxglove.sdk.v1",
+        f"User-Agent: {agent}", *([f"Origin: {origin}"] if origin is not None else []),
+    ]  # fmt: skip
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        head = b""
+        while b"\r\n" not in head:
+            chunk = s.recv(1024)
+            if not chunk:
+                break
+            head += chunk
+    return int(head.split()[1]) if head else 0  # (0: closed without an answer)
+
+
+def test_the_view_opens_one_listener_and_it_is_gated(caplog: Any) -> None:
+    """The Foxglove SDK's server used to listen on a second port of its own, ungated: a page
+    with ``Origin: http://evil.example`` got every channel there.  Every listener the view
+    opens refuses that origin, and what a client chose (its origin, its name) reaches the log
+    only cleaned."""
+    import logging
+
+    from missing_link.publishers.foxglove import FoxglovePublisher
+
+    before = listening()
+    fox = FoxglovePublisher({"port": 0})
+    try:
+        opened = listening() - before
+        assert opened == {f"tcp:{fox.port}"}, opened
+
+        with caplog.at_level(logging.WARNING):
+            for sock in opened:
+                port = int(sock.split(":")[1])
+                forged = "missing-link: error: forged\x1b[31m"
+                assert upgrade(port, "http://evil.example", "a-browser") == 403
+                assert upgrade(port, "http://evil.example", forged) in (0, 400)
+                assert upgrade(port, "http://evil.example\x1b[2J", "a-browser") in (0, 400)
+                assert upgrade(port, None, "a-script") == 101  # (a native client: admitted)
+        assert fox.status()["origins_refused"] >= len(opened)
+        logged = "\n".join(r.getMessage() for r in caplog.records)
+        assert "evil.example" in logged and "\x1b" not in logged and "forged" not in logged
+    finally:
+        fox.close()
+    assert listening() == before  # (and nothing is left listening)
+
+
+def test_subscriptions_slow_clients_and_what_a_client_may_say() -> None:
+    """The view's own protocol server: a client gets only what it subscribed to, until it
+    unsubscribes; a client that does not read loses the oldest data (counted), not the others'
+    data and not the daemon's memory; malformed operations are dropped and counted."""
+    import websockets
+
+    from missing_link.publishers.foxglove_gate import BACKLOG, LiveView
+
+    view = LiveView("127.0.0.1", 0, [])
+    a = view.add_channel("/a", "std_msgs/msg/Empty", "")
+    b = view.add_channel("/b", "std_msgs/msg/Empty", "")
+    url = f"ws://127.0.0.1:{view.port}"
+
+    async def until(pred: Any) -> None:
+        for _ in range(500):
+            if pred():
+                return
+            await asyncio.sleep(0.02)
+        raise AssertionError("the view did not take the operation")
+
+    async def run() -> list[bytes]:
+        async with (
+            websockets.connect(url, subprotocols=["foxglove.websocket.v1"]) as ws,  # type: ignore[list-item]
+            websockets.connect(
+                url,
+                max_queue=1,
+                close_timeout=0.5,
+                subprotocols=["foxglove.sdk.v1"],  # type: ignore[list-item]
+            ) as idle,
+        ):
+            info = json.loads(await ws.recv())
+            adv = json.loads(await ws.recv())
+            assert info["op"] == "serverInfo" and ws.subprotocol == "foxglove.websocket.v1"
+            assert [c["topic"] for c in adv["channels"]] == ["/a", "/b"]
+            for bad in ('{"op": "subscribe", "subscriptions": [{"id": -1, "channelId": 1}]}',
+                        '{"op": "subscribe", "subscriptions": "all"}',
+                        '{"op": "unsubscribe", "subscriptionIds": [true]}',
+                        "[" * 60_000):  # fmt: skip
+                await ws.send(bad)
+            sub = {"op": "subscribe", "subscriptions": [{"id": 5, "channelId": a}]}
+            await ws.send(json.dumps(sub))
+            await idle.recv()
+            await idle.recv()
+            await idle.send(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": b}]})
+            )
+            await until(lambda: view.subscriptions == 2)
+            for k in range(3 * BACKLOG):  # the idle client reads none of /b
+                view.log(b, b"x" * 1000, k)
+            view.log(a, b"first", 1)
+            got = [await asyncio.wait_for(ws.recv(), 5)]
+            await ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [5]}))
+            await until(lambda: view.subscriptions == 1)
+            view.log(a, b"second", 2)
+            view.log(b, b"not subscribed", 3)
+            with pytest.raises(TimeoutError):
+                got.append(await asyncio.wait_for(ws.recv(), 0.5))
+            return got  # type: ignore[return-value]
+
+    try:
+        got = asyncio.run(run())
+    finally:
+        view.close()
+    assert [(struct.unpack_from("<I", m, 1)[0], m[13:]) for m in got] == [(5, b"first")]
+    assert view.dropped_messages == 4 and view.dropped >= BACKLOG

@@ -1,9 +1,11 @@
-"""Live view in Foxglove: a WebSocket server (foxglove-sdk) with every topic as a ros2msg/CDR
-channel, plus ``/diagnostics``.  Open Foxglove, "Open connection", ``ws://127.0.0.1:8765``.
+"""Live view in Foxglove: a WebSocket server speaking the Foxglove WebSocket protocol
+(foxglove_gate.py) with every topic as a ros2msg/CDR channel, plus ``/diagnostics``.  Open
+Foxglove, "Open connection", ``ws://127.0.0.1:8765``.
 
-Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  A client
-whose browser page came from another site is refused unless its origin is in ``origins``, and
-only the view's read-only operations reach the SDK (foxglove_gate.py).  Messages are logged at
+Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  That one
+port is the view's only listener: a client whose browser page came from another site is refused
+unless its origin is in ``origins``, and clients say nothing but subscribe and unsubscribe
+(foxglove_gate.py says why the Foxglove SDK's own server is not used).  Messages are logged at
 the sample's host time (clock sync), so plots line up across boards.
 
 The WebSocket protocol has no latching: a client that connects after an actuator last moved
@@ -21,7 +23,7 @@ from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
 from .base import PublisherError
-from .foxglove_gate import OriginGate
+from .foxglove_gate import LiveView
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
@@ -31,45 +33,30 @@ class FoxglovePublisher(RosPublisher):
     name = "foxglove"
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
-        import foxglove
-
         opts = dict(options or {})
         super().__init__(str(opts.get("distro", "jazzy")))
-        self._fg = foxglove
-        self.context = foxglove.Context()
         origins = opts.get("origins", [])
         if not isinstance(origins, list) or not all(isinstance(o, str) for o in origins):
             raise ConfigError('[foxglove] origins: a list like ["https://app.foxglove.dev"]')
-        # the SDK's server on loopback only; clients reach it through the gate
-        self.server = foxglove.start_server(
-            name=str(opts.get("name", "missing-link")),
-            host="127.0.0.1",
-            port=0,
-            context=self.context,
-        )
         host = str(opts.get("host", "127.0.0.1"))
         try:
-            self.gate = OriginGate(
-                host, int(opts.get("port", 8765)), int(self.server.port), origins
+            self.view = LiveView(
+                host, int(opts.get("port", 8765)), origins, str(opts.get("name", "missing-link"))
             )
         except OSError as e:
-            self.server.stop()
             raise PublisherError(f"foxglove: cannot listen on {host}: {e}") from None
-        self.port = self.gate.port
+        self.port = self.view.port
         self.url = f"ws://{host}:{self.port}"
-        self._channels: dict[str, Any] = {}
+        self._channels: dict[str, int] = {}
         self._states: dict[str, Update] = {}  # an actuator's topic -> its latest update
         self.logged = 0
         with self._lock:
             self._channel(DIAG_TOPIC, DIAG_TYPE)
         log.info("foxglove: live view at %s", self.url)
 
-    def _channel(self, name: str, type_name: str) -> Any:
+    def _channel(self, name: str, type_name: str) -> None:
         text, _ = self.typestore.generate_msgdef(type_name, ros_version=2)
-        schema = self._fg.Schema(name=type_name, encoding="ros2msg", data=text.encode())
-        ch = self._fg.Channel(name, schema=schema, message_encoding="cdr", context=self.context)
-        self._channels[name] = ch
-        return ch
+        self._channels[name] = self.view.add_channel(name, type_name, text)
 
     def add_topic(self, topic: Topic) -> None:
         with self._lock:
@@ -82,25 +69,26 @@ class FoxglovePublisher(RosPublisher):
         ch = self._channels.get(update.topic.name)
         if ch is None or self._closed:
             return
-        ch.log(update.cdr, log_time=update.stamp_ns)
+        self.view.log(ch, update.cdr, update.stamp_ns)
         self.logged += 1
         if update.topic.transducer.is_actuator:
             self._states[update.topic.name] = update
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
-        self._channels[DIAG_TOPIC].log(cdr, log_time=now_ns)
+        self.view.log(self._channels[DIAG_TOPIC], cdr, now_ns)
         for name, update in list(self._states.items()):  # (see the module's docstring)
-            self._channels[name].log(update.cdr, log_time=update.stamp_ns)
+            self.view.log(self._channels[name], update.cdr, update.stamp_ns)
 
     def shutdown(self) -> None:
-        self.gate.close()
-        for ch in self._channels.values():
-            ch.close()
-        self.server.stop()
+        self.view.close()
 
     def status(self) -> dict[str, Any]:
         return {
             **super().status(),
-            "origins_refused": self.gate.refused_origins,
-            "client_messages_dropped": self.gate.dropped_messages,
+            "dropped": self.view.dropped,
+            "clients": self.view.clients,
+            "subscriptions": self.view.subscriptions,
+            "origins_refused": self.view.refused_origins,
+            "clients_refused": self.view.refused_clients,
+            "client_messages_dropped": self.view.dropped_messages,
         }

@@ -50,8 +50,8 @@ BUILTIN: dict[str, Entry] = {
     "foxglove": Entry(
         "missing_link.publishers.foxglove",
         "FoxglovePublisher",
-        ("foxglove", "rosbags"),
-        "pip install foxglove-sdk",
+        ("websockets", "rosbags"),
+        "pip install websockets",
     ),
     "ros1": Entry(
         "missing_link.publishers.ros1",
