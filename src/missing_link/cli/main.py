@@ -8,12 +8,11 @@ so ``missing-link call`` loads the J2A client and nothing of the daemon, numpy o
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from collections.abc import Sequence
 
 from ..errors import BadURL, ConfigError, DescriptorError, MissingLinkError
-from ..logs import SafeLog
+from ..logs import install as install_log
 from ..version import __version__
 from . import configure, demo, deploy, msgs, router, run, talk, virtual
 from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
@@ -36,13 +35,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # the daemon's warnings (a board that is not up, a name taken) as plain lines on stderr:
-    # made safe and rate-limited, they may carry what a board or a network client sent (logs.py)
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(message)s"))
-    handler.setLevel(logging.WARNING)
-    handler.addFilter(SafeLog())
-    logging.getLogger("missing_link").addHandler(handler)
+    # the daemon's warnings (a board that is not up, a name taken) as plain lines on stderr,
+    # and every library's: made safe and rate-limited, they may carry what a board or a
+    # network client sent (logs.py)
+    install_log(sys.stderr)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
