@@ -237,3 +237,51 @@ def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  #
     # published through the map of now (within its bound): twice the bound, at most
     assert abs(u.host_ns[0] - at) <= 2 * u.bound_ns + 1000, (u.host_ns[0] - at, u.bound_ns)
     assert u.recv_ns / 1e9 > 0 and status["commands"] == 1
+
+
+def test_rejected_commands_are_counted_on_diagnostics(serve) -> None:  # type: ignore[no-untyped-def]
+    """Commands that do not decode (an attacker's, a client with another message type) were
+    counted in the publisher but shown nowhere: ~6,000 in one run, invisible.  Now they are
+    ``commands_rejected`` in the publisher's status and on ``/diagnostics`` (what the daemon's
+    allow-list refuses is ``commands_refused``, beside it)."""
+    import zenoh
+    from rosbags.typesys import Stores, get_typestore
+
+    server = serve("thesis", "tcp://127.0.0.1:0")
+    port = free_port()
+    with Daemon(zenoh_config(server.url, port)) as d:
+        assert d.wait_until_up(10)
+        zp = next(p for p in d.publishers if p.name == "zenoh")
+        servo = "missing_link_msgs/msg/Servo"
+        key = data_key(0, "/thesis/servo/cmd", servo, zp.typestore.hash_rihs01(servo))  # type: ignore[attr-defined]
+        diag_key = data_key(
+            0, "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray",
+            zp.typestore.hash_rihs01("diagnostic_msgs/msg/DiagnosticArray"),  # type: ignore[attr-defined]
+        )  # fmt: skip
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", json.dumps("peer"))
+        cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        diags: list[bytes] = []
+        with zenoh.open(cfg) as client:
+            sub = client.declare_subscriber(diag_key, lambda s: diags.append(bytes(s.payload)))
+            pub = client.declare_publisher(key)
+            deadline = time.monotonic() + 10
+            while not pub.matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.05)  # (until the daemon's subscriber is known here)
+            for k in range(50):
+                pub.put(b"\x00\x01\x00\x00" + bytes([k % 7]) * (k % 5))  # not a Servo
+            deadline = time.monotonic() + 10
+            while zp.command_errors < 50 and time.monotonic() < deadline:  # type: ignore[attr-defined]
+                time.sleep(0.05)
+            st = next(s for s in d.publisher_status() if s["publisher"] == "zenoh")
+            seen = len(diags)
+            while len(diags) < seen + 2 and time.monotonic() < deadline + 5:
+                time.sleep(0.05)  # a /diagnostics round after the last of them
+            pub.undeclare()
+            sub.undeclare()
+    assert st["commands_rejected"] == 50 and st["commands"] == 0, st
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    last = ts.deserialize_cdr(diags[-1], "diagnostic_msgs/msg/DiagnosticArray")
+    mine = next(s for s in last.status if s.name == "missing_link publisher: zenoh")
+    assert {kv.key: kv.value for kv in mine.values}["commands_rejected"] == "50"

@@ -208,8 +208,8 @@ class ZenohPublisher(RosPublisher):
                     deliver(Command.from_message(msg, time.time_ns()))  # (times[0]: when to act)
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
-                    self.command_errors += 1
-                    log.warning("zenoh: command on %s rejected: %s", name, e)
+                    self.command_errors += 1  # (in status(): /diagnostics shows it)
+                    log.warning("zenoh: a command on %s rejected: %s", name, e)
 
             sub = self.session.declare_subscriber(key, on_sample)
             token = self.session.liveliness().declare_token(
@@ -234,6 +234,17 @@ class ZenohPublisher(RosPublisher):
         ent = self._entities[DIAG_TOPIC]
         ent.seq += 1
         ent.pub.put(cdr, attachment=attachment(ent.seq, now_ns, ent.gid))
+
+    def status(self) -> dict[str, Any]:
+        """The base's, and what came in: ``commands`` handed on, ``commands_rejected`` (a
+        payload that does not decode as the topic's type, or that its handler raised on).  The
+        daemon adds ``commands_refused`` (its allow-list and the face's ``commands`` option)."""
+        return {
+            **super().status(),
+            "published": self.published,
+            "commands": self.commands,
+            "commands_rejected": self.command_errors,
+        }
 
     def shutdown(self) -> None:
         for sub, token in self._subs.values():
