@@ -40,12 +40,15 @@ def _decompressed(chunk: Any) -> bytes | None:
     size = int(chunk.uncompressed_size)
     if size > min(MAX_CHUNK, max(2**20, MAX_RATIO * len(chunk.data))):
         return None
+    # (the decompressors mcap itself reads chunks with: its dependencies, None if missing)
+    from mcap import stream_reader
+
+    zstd: Any = getattr(stream_reader, "zstandard", None)
+    lz4: Any = getattr(stream_reader, "lz4", None)
     if chunk.compression == "":
         data = bytes(chunk.data)
-    elif chunk.compression == "zstd":
-        import zstandard
-
-        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data))
+    elif chunk.compression == "zstd" and zstd is not None:
+        reader = zstd.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data))
         parts, got = [], 0
         while got <= size:  # (one byte past the claim is enough to know it lied)
             part = reader.read(size + 1 - got)
@@ -54,10 +57,8 @@ def _decompressed(chunk: Any) -> bytes | None:
             parts.append(part)
             got += len(part)
         data = b"".join(parts)
-    elif chunk.compression == "lz4":
-        import lz4.frame  # type: ignore[import-untyped]
-
-        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
+    elif chunk.compression == "lz4" and lz4 is not None:
+        data = lz4.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
     else:
         return None
     return data if len(data) == size else None
