@@ -1,28 +1,41 @@
-"""The ``missing-link`` command: each command group adds its own parsers; here they are
-assembled and every error becomes one line on stderr with its exit code:
-0 ok, 1 the board, the link or a publisher failed, 2 bad command line or input, 130 interrupted.
+"""The ``missing-link`` command: the parser built from the table of commands (commands.py),
+the command's own module imported when it runs, and every error one line on stderr with its
+exit code: 0 ok, 1 the board, the link or a publisher failed, 2 bad command line or input,
+130 interrupted.
 
-Only what a command uses is imported: the groups import their heavy parts inside the command,
-so ``missing-link call`` loads the J2A client and nothing of the daemon, numpy or zenoh."""
+Start-up is most of a one-off command's time, so only what the command uses is imported: a
+``missing-link call`` loads the J2A client and the daemon's control client, and nothing of the
+daemon's service, numpy, zenoh or rich (tests/test_startup.py holds it to that)."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from ..errors import BadURL, ConfigError, DescriptorError, MissingLinkError
 from ..logs import SafeLog
 from ..version import __version__
-from . import configure, demo, deploy, msgs, router, run, talk, virtual
+from .commands import COMMANDS
 from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
 
-GROUPS = (talk, configure, msgs, run, deploy, virtual, router, demo)
+NAMES = frozenset(c.name for c in COMMANDS)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+class _Parser(argparse.ArgumentParser):
+    """A usage error is one line too (argparse would print the usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"missing-link: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Every command's parser; with ``command``, only that one's (all a command line naming
+    it needs: building every command's arguments costs more than parsing them)."""
+    p = _Parser(
         prog="missing-link",
         description="Sensor boards on a J2A link: inspect, call, listen, simulate.",
         epilog="Board URLs: tcp://HOST:PORT, unix:///PATH, serial:///dev/ttyACM0?baud=115200, "
@@ -30,23 +43,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"missing-link {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for group in GROUPS:
-        group.add_parsers(sub)
+    for c in COMMANDS:
+        if command is None or c.name == command:
+            sp = sub.add_parser(c.name, help=c.help, description=c.description)
+            c.arguments(sp)
+            sp.set_defaults(func=c.handler)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    words = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(words[0] if words and words[0] in NAMES else None).parse_args(words)
     # the daemon's warnings (a board that is not up, a name taken) as plain lines on stderr:
     # made safe and rate-limited, they may carry what a board or a network client sent (logs.py)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(message)s"))
     handler.setLevel(logging.WARNING)
     handler.addFilter(SafeLog())
-    logging.getLogger("missing_link").addHandler(handler)
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    log = logging.getLogger("missing_link")
+    log.addHandler(handler)
+    module, _, name = str(args.func).partition(":")
     try:
-        return int(args.func(args))
+        run = getattr(importlib.import_module(f"{__package__}.{module}"), name)
+        return int(run(args))
     except (BadURL, DescriptorError, ConfigError) as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_USAGE
@@ -57,6 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         return 0
+    finally:
+        log.removeHandler(handler)  # (main may run again in one process: tests)
 
 
 if __name__ == "__main__":
