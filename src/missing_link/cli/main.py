@@ -10,11 +10,14 @@ daemon's service, numpy, zenoh or rich (tests/test_startup.py holds it to that).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from ..errors import BadURL, ConfigError, DescriptorError, MissingLinkError
 from ..logs import SafeLog
@@ -28,8 +31,38 @@ NAMES = frozenset(c.name for c in COMMANDS)
 class _Parser(argparse.ArgumentParser):
     """A usage error is one line too (argparse would print the usage first)."""
 
+    def __init__(self, **kw: Any) -> None:
+        super().__init__(formatter_class=_Formatter, **kw)
+
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"missing-link: error: {message} (see {self.prog} --help)\n")
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse's, its width found once and without shutil: argparse makes a formatter for
+    every argument it adds, and shutil (with bz2 and lzma) is a tenth of a one-off call."""
+
+    def __init__(
+        self,
+        prog: str,
+        indent_increment: int = 2,
+        max_help_position: int = 24,
+        width: int | None = None,
+    ) -> None:
+        width = _columns() - 2 if width is None else width
+        super().__init__(prog, indent_increment, max_help_position, width)
+
+
+@functools.cache
+def _columns() -> int:
+    """The terminal's width as shutil.get_terminal_size finds it: $COLUMNS, stdout's, 80."""
+    with contextlib.suppress(KeyError, ValueError):
+        if (columns := int(os.environ["COLUMNS"])) > 0:
+            return columns
+    try:
+        return os.get_terminal_size(sys.__stdout__.fileno()).columns or 80  # type: ignore[union-attr]
+    except (AttributeError, ValueError, OSError):
+        return 80
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -85,9 +85,10 @@ class RemoteBoard:
         self.close()
 
 
-def reach(target: str, timeout: float) -> Board | RemoteBoard:
+def reach(target: str, timeout: float, *, describe: bool = True) -> Board | RemoteBoard:
     """The board ``target`` (a URL, or a board name a daemon holds): through the daemon that
-    holds it if one does, else on its own link."""
+    holds it if one does, else on its own link (``describe``: read its transducer descriptors,
+    which a call that does not pack a value does without: on a UART they take longest)."""
     path = default_control_path()
     if os.path.exists(path):
         try:
@@ -101,4 +102,4 @@ def reach(target: str, timeout: float) -> Board | RemoteBoard:
             f"{target!r} is not a board URL (serial:///dev/ttyACM0, tcp://HOST:PORT, ...), and "
             f"no running daemon holds a board of that name (control endpoint {path})"
         )
-    return Board.open(target, timeout=timeout)
+    return Board.open(target, timeout=timeout, describe=describe)

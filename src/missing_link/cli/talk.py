@@ -4,18 +4,19 @@ through the daemon that holds it, when one does: remote.py)."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, payload_text
-from ..host.board import Board
-from ..host.samples import Sample, SampleDecoder
-from ..j2a import SifReceived
 from .common import EXIT_FAIL, EXIT_USAGE, emit_json, open_url
 from .remote import RemoteBoard, reach
+
+if TYPE_CHECKING:  # (what only listen and sync use is imported there: a call loads less)
+    from ..host.board import Board
+    from ..host.samples import Sample
+    from ..j2a import SifReceived
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -66,7 +67,7 @@ def cmd_call(args: argparse.Namespace) -> int:
     if args.value is not None and args.hex:
         print("missing-link: error: give --hex or --value, not both", file=sys.stderr)
         return EXIT_USAGE
-    with reach(args.url, args.timeout) as board:
+    with reach(args.url, args.timeout, describe=args.value is not None) as board:
         payload = args.hex if args.value is None else value_payload(board, args.name, args.value)
         result = board.call(args.name, payload, timeout=args.timeout)
     if args.json:
@@ -124,6 +125,10 @@ def format_sample(s: Sample, unit: str | None) -> str:
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
+    import json
+
+    from ..host.samples import SampleDecoder
+
     done = threading.Event()
     count = 0
     lock = threading.Lock()

@@ -31,7 +31,6 @@ import socket
 import stat
 import threading
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
@@ -53,8 +52,8 @@ def default_control_path() -> str:
     if env:
         return env
     run = os.environ.get("XDG_RUNTIME_DIR")
-    base = Path(run) / "missing-link" if run else Path(f"/tmp/missing-link-{os.getuid()}")
-    return str(base / "control.sock")
+    base = os.path.join(run, "missing-link") if run else f"/tmp/missing-link-{os.getuid()}"
+    return os.path.join(base, "control.sock")  # (os.path: a one-off call skips pathlib)
 
 
 def error_kind(e: BaseException) -> str:
@@ -138,6 +137,8 @@ class ControlServer:
 def _bind(path: str) -> socket.socket:
     """A socket only this user can reach: its directory 0700 (created), the socket 0600.  An
     endpoint another daemon answers on is not taken over (MissingLinkError); a stale one is."""
+    from pathlib import Path
+
     p = Path(path)
     p.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     if p.exists() or p.is_symlink():
