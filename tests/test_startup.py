@@ -83,6 +83,9 @@ def test_a_one_off_call_loads_nothing_heavy(serve: Serve, tmp_path: Path) -> Non
     assert "typing" not in first  # (a name used later pays for it)
     parse = got["stages"]["parse a call"]
     assert "missing_link.host.board" not in parse  # the command's code: only when it runs
+    # a call that packs no --value reads no descriptors and sets no keys: neither is loaded
+    call = got["stages"]["call"]
+    assert "missing_link.descriptors" not in call and "missing_link.host.config" not in call
 
 
 def test_building_every_command_parser_loads_no_command_code() -> None:

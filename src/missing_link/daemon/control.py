@@ -34,7 +34,6 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
-from ..host.config import ConfigRefused, NotConfigurable
 from ..text import safe_text
 
 log = logging.getLogger(__name__)
@@ -57,6 +56,8 @@ def default_control_path() -> str:
 
 
 def error_kind(e: BaseException) -> str:
+    from ..host.config import ConfigRefused, NotConfigurable  # (not on a one-off call's path)
+
     if isinstance(e, ConfigRefused):
         return "refused"
     if isinstance(e, NotConfigurable):
