@@ -6,6 +6,11 @@ board, "off" when it is disabled), the latency from the board's moment
 of measurement to the host callback, and the last value with its unit.  Columns appear only
 where they apply (servo commands only for boards with actuators).  When the output is not a
 terminal it prints a plain block every ``plain_period`` seconds instead.  All times in µs.
+
+At the width it is drawn at, the topic table keeps every topic name whole if it can and cuts
+the last value instead; names that still do not fit lose their start, never their end, where
+topics of one board differ (:func:`fit_names`: ``/board_b/dist_ir`` and ``/board_b/dist_us``
+never look alike).
 """
 
 from __future__ import annotations
