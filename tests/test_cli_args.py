@@ -6,14 +6,20 @@ command is the whole parser's for that command."""
 from __future__ import annotations
 
 import argparse
+import re
 import socket
+import struct
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from missing_link.cli.commands import COMMANDS
 from missing_link.cli.common import MAX_TIMEOUT_S
 from missing_link.cli.main import build_parser, main
+from missing_link.cli.talk import value_payload
+from missing_link.descriptors import Transducer
+from missing_link.errors import ConfigError
 
 ONE_BOARD = ("info", "call", "listen", "sync", "config", "create-msgs")
 
@@ -143,3 +149,50 @@ def test_a_command_line_runs_the_command_it_names(tmp_path: Path) -> None:
     key = tmp_path / "k.key"
     assert main(["key", "new", str(key)]) == 0
     assert len(key.read_text().strip()) == 64
+
+
+class _Board:
+    """What ``value_payload`` reads of a board: its name and its transducers."""
+
+    name = "rover"
+
+    def __init__(self, *transducers: Transducer) -> None:
+        self.transducers = list(transducers)
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("1e308", "too large for a float"),
+        ("nan", "not a legal float"),
+        ("inf", "not a legal float"),
+        ("-inf", "not a legal float"),
+        ("fast", "takes a float"),
+    ],
+)
+def test_a_value_an_actuator_cannot_take_is_one_line(text: str, words: str) -> None:
+    stepper = Transducer("wheel", 0, "wheel", "A4988", 1, "float", float("nan"))
+    stepper.options.update(kind="actuator", call="a2j_set_wheel")
+    with pytest.raises(ConfigError, match=words):
+        value_payload(_Board(stepper), "a2j_set_wheel", text)
+    assert value_payload(_Board(stepper), "a2j_set_wheel", "2.5") == struct.pack("<f", 2.5)
+
+
+EXPECTED = "expected a number in 0.1..26"
+
+
+def test_a_config_value_beyond_a_float32_is_one_line(
+    serve: Any, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``dist_ir.rate_hz=1e308`` overflowed a float32 pack: a traceback, not exit 2."""
+    monkeypatch.setenv("MISSING_LINK_CONTROL", str(tmp_path / "no-daemon.sock"))
+    url = serve("thesis", listen="tcp://127.0.0.1:0").url
+    for value in ("1e308", "-1e39", "nan", "inf"):
+        assert main(["config", url, f"dist_ir.rate_hz={value}"]) == 2
+        (line,) = capsys.readouterr().err.splitlines()
+        assert (
+            line
+            == f"missing-link: error: dist_ir.rate_hz = '{value}': expected a number in 0.1..26"
+        )
+    assert main(["config", url]) == 0
+    assert re.search(r"^dist_ir\.rate_hz += 25$", capsys.readouterr().out, re.M)  # unchanged

@@ -4,6 +4,8 @@ through the daemon that holds it, when one does: remote.py)."""
 from __future__ import annotations
 
 import argparse
+import math
+import struct
 import sys
 import threading
 import time
@@ -107,9 +109,12 @@ def value_payload(board: Board | RemoteBoard, function: str, text: str) -> bytes
                 value: int | float = float(text) if t.dtype in ("float", "double") else int(text)
             except ValueError:
                 raise ConfigError(f"--value {text!r}: {t.name} takes a {t.dtype}") from None
-            if not t.legal(value):
+            if not t.legal(value) or not math.isfinite(value):
                 raise ConfigError(f"--value {text!r} is not a legal {t.dtype} for {t.name}")
-            return t.value_struct().pack(value)
+            try:
+                return t.value_struct().pack(value)
+            except (OverflowError, struct.error):  # (1e308 for a float32)
+                raise ConfigError(f"--value {text!r}: too large for a {t.dtype}") from None
     callers = sorted(str(t.call) for t in board.transducers or [] if t.call)
     raise ConfigError(
         f"--value: no actuator of {board.name} is called through {function} "
