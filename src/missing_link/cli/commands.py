@@ -289,11 +289,9 @@ def _relay(sp: Parser) -> None:
     sp.add_argument(
         "--listen", default="tcp://127.0.0.1:0", help="tcp://127.0.0.1:PORT or unix:///PATH"
     )
-    probability = number(0, 1)
-    sp.add_argument(
-        "--corrupt", type=probability, default=0.0, help="per-byte bit-flip probability"
-    )
-    sp.add_argument("--drop", type=probability, default=0.0, help="per-chunk loss probability")
+    # (finite here; the relay's own check says what a probability may be)
+    sp.add_argument("--corrupt", type=finite, default=0.0, help="per-byte bit-flip probability")
+    sp.add_argument("--drop", type=finite, default=0.0, help="per-chunk loss probability")
     sp.add_argument(
         "--delay-ms",
         type=number(0, 86_400_000, unit=" ms"),

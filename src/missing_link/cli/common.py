@@ -55,7 +55,7 @@ def number(
                 f"{text} must be a number {'>' if above else '>='} {low:g}"
             )
         if value > high:
-            most = f"{high:.0f}" if high.is_integer() else f"{high:g}"
+            most = f"{high:.0f}" if float(high).is_integer() else f"{high:g}"
             raise argparse.ArgumentTypeError(f"{text} is over {most}{unit}, the most allowed")
         return value
 
