@@ -26,14 +26,17 @@ a one-off ``missing-link call`` loads only what it uses.
 
 from __future__ import annotations
 
-import importlib
 import logging
-from typing import TYPE_CHECKING, Any
 
 # A library says nothing on stderr unless the application configures logging (the CLI does).
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
+# (not typing's: importing typing costs a one-off command milliseconds; type checkers take any
+# name TYPE_CHECKING as true)
+TYPE_CHECKING = False
 if TYPE_CHECKING:  # (for type checkers and readers; at run time see __getattr__)
+    from typing import Any
+
     from .daemon.service import Daemon, connect
     from .descriptors import Transducer, parse_transds
     from .errors import (
@@ -130,6 +133,8 @@ def __getattr__(name: str) -> Any:
     module = _WHERE.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
     value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
     globals()[name] = value  # once: later look-ups are plain attribute reads
     return value

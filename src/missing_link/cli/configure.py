@@ -10,7 +10,7 @@ from typing import Any
 from ..errors import ConfigError
 from ..host.board import Board
 from ..host.config import ST_DIRTY, ST_LOADED, ST_SAVED, describe_keys
-from .common import emit_json, positive
+from .common import emit_json
 from .remote import RemoteBoard, reach
 
 
@@ -82,26 +82,3 @@ def _text(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:g}"
     return str(v)
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser(
-        "config",
-        help="a board's run-time configuration: print, set (KEY=VALUE ...), save, reset",
-        description="Print a board's configuration (one key = value per line), or set keys: "
-        "all of them or none.  TARGET is a board URL, or the name of a board a running daemon "
-        "holds (the daemon is asked then, never fought for the port).",
-    )
-    sp.add_argument("url", metavar="TARGET", help="board URL or (through a daemon) board name")
-    sp.add_argument("assign", nargs="*", metavar="KEY=VALUE", help="e.g. dist_ir.rate_hz=10")
-    sp.add_argument("--save", action="store_true", help="keep the result on the board")
-    sp.add_argument("--reset", action="store_true", help="the board file's defaults first")
-    sp.add_argument(
-        "--erase", action="store_true", help="with --reset: forget the saved configuration too"
-    )
-    sp.add_argument("--json", action="store_true", help="machine-readable output (docs/cli.md)")
-    sp.add_argument("--verbose", "-v", action="store_true", help="defaults, limits and state too")
-    sp.add_argument(
-        "--timeout", type=positive, default=1.0, help="per-call timeout in seconds (1.0)"
-    )
-    sp.set_defaults(func=cmd_config)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 
 def cmd_flash(args: argparse.Namespace) -> int:
@@ -44,32 +43,3 @@ def cmd_gen_firmware(args: argparse.Namespace) -> int:
     for path in write_avr(bf, Path(args.out)):
         print(f"wrote {path}")
     return 0
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser("flash", help="put the firmware for a board file on a board")
-    sp.add_argument("boardfile", help="board file (BOARD = {...}, see examples/boards/)")
-    sp.add_argument("--port", default="/dev/ttyACM0", help="serial port (/dev/ttyACM0)")
-    sp.add_argument("--dry-run", action="store_true", help="list files and commands, touch nothing")
-    sp.add_argument(
-        "--no-check", action="store_true", help="do not check the board answers J2A afterwards"
-    )
-    sp.add_argument(
-        "--key",
-        help="a signing key (missing-link key new) for a board on a network link: copied over "
-        "USB as the board file's link key_file, never over the network (docs/signing.md)",
-    )
-    sp.set_defaults(func=cmd_flash)
-
-    sp = sub.add_parser("key", help="signing keys for boards on a network link")
-    ksub = sp.add_subparsers(dest="key_command", required=True, metavar="ACTION")
-    kp = ksub.add_parser("new", help="write a new random key (mode 0600)")
-    kp.add_argument("file")
-    kp.add_argument("--force", action="store_true", help="replace an existing file")
-    kp.set_defaults(func=cmd_key_new)
-
-    sp = sub.add_parser("gen-firmware", help="C tables for an AVR board from its board file")
-    sp.add_argument("boardfile", help="board file with mcu = atmega328p, atmega2560 or atmega32u4")
-    sp.add_argument("--target", choices=["avr"], default="avr", help="firmware target (avr)")
-    sp.add_argument("--out", required=True, help="directory for board_gen.c and board.mk")
-    sp.set_defaults(func=cmd_gen_firmware)

@@ -12,12 +12,11 @@ import argparse
 import os
 import sys
 from dataclasses import dataclass
-from typing import Any
 
 from ..descriptors import Transducer
 from ..errors import BadURL, ConfigError
 from ..host.board import Board
-from .common import EXIT_FAIL, EXIT_USAGE, positive
+from .common import EXIT_FAIL, EXIT_USAGE
 
 
 @dataclass(frozen=True)
@@ -171,33 +170,3 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser(
-        "create-msgs", help="write .msg files and a ROS package from boards' descriptors"
-    )
-    sp.add_argument(
-        "source",
-        nargs="*",
-        help="board URLs and/or descriptor files (.toml or transds/1 text), in order",
-    )
-    sp.add_argument("--config", help="every [[board]] of the daemon's configuration, first")
-    sp.add_argument("--out", required=True, help="directory to write the package into")
-    sp.add_argument("--ros", type=int, choices=(1, 2), default=2, help="ROS version (2)")
-    sp.add_argument("--package", default="missing_link_msgs", help="package name")
-    sp.add_argument("--timeout", type=positive, default=1.0)
-    sp.add_argument(
-        "--force", action="store_true", help="replace a package directory create-msgs did not write"
-    )
-    sp.add_argument(
-        "--fresh",
-        action="store_true",
-        help="start the package over: drop the types an earlier run wrote for other boards",
-    )
-    sp.add_argument(
-        "--build",
-        metavar="PREFIX",
-        help="build the ROS 2 package with the ROS 2 in this environment and install it there",
-    )
-    sp.set_defaults(func=cmd_create_msgs)

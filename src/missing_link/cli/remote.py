@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..daemon.control import ask, default_control_path
-from ..descriptors import Transducer, parse_transds
 from ..errors import BadURL, BoardError, ConfigError
 from ..host.board import Board
-from ..host.config import ConfigRefused, NotConfigurable
 from ..host.link import CallResult
 
-_RAISE = {"usage": ConfigError, "refused": ConfigRefused}
+if TYPE_CHECKING:
+    from ..descriptors import Transducer
 
 
 class RemoteBoard:
@@ -34,9 +33,11 @@ class RemoteBoard:
         self.configurable: bool = info.get("configurable", False)
         text = info.get("transds_text")
         self.transds_text: str | None = text
-        self.transducers: list[Transducer] | None = (
-            None if text is None else parse_transds(text, self.name)
-        )
+        self.transducers: list[Transducer] | None = None
+        if text is not None:
+            from ..descriptors import parse_transds
+
+            self.transducers = parse_transds(text, self.name)
         self._info = info
 
     def _ask(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -45,11 +46,17 @@ class RemoteBoard:
         except (OSError, ValueError) as e:
             raise BoardError(self.target, f"the daemon at {self.path} did not answer: {e}") from e
         if "error" in answer:
+            from ..host.config import ConfigRefused, NotConfigurable
+
             kind = answer.get("kind")
             text = str(answer["error"])
             if kind == "unconfigurable":
                 raise NotConfigurable(self.target, text)
-            raise _RAISE.get(str(kind), lambda t: BoardError(self.target, t))(text)
+            if kind == "refused":
+                raise ConfigRefused(text)
+            if kind == "usage":
+                raise ConfigError(text)
+            raise BoardError(self.target, text)
         return answer
 
     def describe(self) -> dict[str, Any]:
@@ -85,9 +92,10 @@ class RemoteBoard:
         self.close()
 
 
-def reach(target: str, timeout: float) -> Board | RemoteBoard:
+def reach(target: str, timeout: float, *, describe: bool = True) -> Board | RemoteBoard:
     """The board ``target`` (a URL, or a board name a daemon holds): through the daemon that
-    holds it if one does, else on its own link."""
+    holds it if one does, else on its own link (``describe``: read its transducer descriptors,
+    which a call that does not pack a value does without: on a UART they take longest)."""
     path = default_control_path()
     if os.path.exists(path):
         try:
@@ -101,4 +109,4 @@ def reach(target: str, timeout: float) -> Board | RemoteBoard:
             f"{target!r} is not a board URL (serial:///dev/ttyACM0, tcp://HOST:PORT, ...), and "
             f"no running daemon holds a board of that name (control endpoint {path})"
         )
-    return Board.open(target, timeout=timeout)
+    return Board.open(target, timeout=timeout, describe=describe)

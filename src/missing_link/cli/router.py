@@ -6,7 +6,6 @@ import argparse
 import signal
 import sys
 import threading
-from typing import Any
 
 from .common import EXIT_FAIL, EXIT_USAGE
 
@@ -42,17 +41,3 @@ def cmd_router(args: argparse.Namespace) -> int:
         print(f"READY zenoh router {session.info.zid()} on {', '.join(args.listen)}", flush=True)
         stop.wait()
     return 0
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser("router", help="a Zenoh router for daemons and consumers on several hosts")
-    sp.add_argument(
-        "--listen", action="append", help="endpoint, e.g. tcp/0.0.0.0:7447 (repeatable)"
-    )
-    sp.add_argument("--connect", action="append", help="another router to join (repeatable)")
-    sp.add_argument(
-        "--config",
-        help="a native Zenoh config (JSON5: TLS certificates, access_control; docs/security.md); "
-        "--listen/--connect still apply",
-    )
-    sp.set_defaults(func=cmd_router)

@@ -10,28 +10,7 @@ import time
 from typing import Any
 
 from ..errors import BadURL, ConfigError, without_prefix
-from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE, non_negative, port_arg
-
-
-class _PublisherArg(argparse.Action):
-    """``-p NAME`` (repeatable); its help lists the publishers this environment has, found only
-    when the help is shown (finding them costs a look at the installed packages)."""
-
-    def __init__(self, option_strings: list[str], dest: str, **kw: Any) -> None:
-        super().__init__(option_strings, dest, metavar="NAME", **kw)
-
-    @property
-    def help(self) -> str:
-        from ..publishers.registry import available_publishers
-
-        return f"add a publisher ({', '.join(available_publishers())} here)"
-
-    @help.setter
-    def help(self, value: str | None) -> None:
-        pass  # (argparse sets it; the property above answers)
-
-    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
-        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), values])
+from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
 
 
 def build_config(args: argparse.Namespace) -> Any:
@@ -211,56 +190,3 @@ def cmd_recover(args: argparse.Namespace) -> int:
         return EXIT_FAIL
     print(f"recovered {count} messages into {dest}")
     return 0
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser("run", help="the daemon: every board's transducers as topics")
-    sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
-    sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
-    sp.add_argument("--publisher", "-p", action=_PublisherArg)
-    sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
-    sp.add_argument(
-        "--foxglove",
-        nargs="?",
-        type=port_arg,
-        const=8765,
-        metavar="PORT",
-        help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
-    )
-    sp.add_argument(
-        "--duration", type=non_negative, default=0, help="stop after S seconds (0 = run)"
-    )
-    sp.add_argument(
-        "--wait-up",
-        type=non_negative,
-        default=0,
-        metavar="S",
-        help="fail (exit 1) unless every board is up within S seconds",
-    )
-    sp.add_argument("--view", action="store_true", help="a live view of boards and topics")
-    sp.add_argument(
-        "--auto",
-        action="store_true",
-        help="find J2A boards as they plug in ([discover] in --config): by default only USB "
-        "devices known to be J2A boards are probed (docs/hardware.md)",
-    )
-    sp.add_argument(
-        "--usb-id",
-        action="append",
-        metavar="VID:PID",
-        help="--auto probes ports with this USB id (hex, PID may be *; repeatable), instead of "
-        "the known J2A boards' (e.g. 2341:* for Arduinos running our firmware)",
-    )
-    sp.add_argument("--port", action="append", metavar="GLOB", help="--auto looks at these devices")
-    sp.add_argument("--serial", metavar="GLOB", help="--auto: only this USB serial number")
-    sp.add_argument(
-        "--any-usb",
-        action="store_true",
-        help="--auto probes every USB serial port (writes J2A bytes to whatever is there)",
-    )
-    sp.set_defaults(func=cmd_run)
-
-    sp = sub.add_parser("recover", help="salvage a recording whose process died")
-    sp.add_argument("path", help="bag directory or .mcap file")
-    sp.add_argument("--out", help="new bag directory (default: PATH_recovered)")
-    sp.set_defaults(func=cmd_recover)

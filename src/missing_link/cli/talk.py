@@ -4,28 +4,21 @@ through the daemon that holds it, when one does: remote.py)."""
 from __future__ import annotations
 
 import argparse
-import json
+import math
+import struct
 import sys
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, payload_text
-from ..host.board import Board
-from ..host.samples import Sample, SampleDecoder
-from ..j2a import SifReceived
-from .common import (
-    EXIT_FAIL,
-    EXIT_USAGE,
-    count_arg,
-    emit_json,
-    non_negative,
-    open_url,
-    parse_hex,
-    positive,
-    with_url,
-)
+from .common import EXIT_FAIL, EXIT_USAGE, emit_json, open_url
 from .remote import RemoteBoard, reach
+
+if TYPE_CHECKING:  # (what only listen and sync use is imported there: a call loads less)
+    from ..host.board import Board
+    from ..host.samples import Sample
+    from ..j2a import SifReceived
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -76,7 +69,7 @@ def cmd_call(args: argparse.Namespace) -> int:
     if args.value is not None and args.hex:
         print("missing-link: error: give --hex or --value, not both", file=sys.stderr)
         return EXIT_USAGE
-    with reach(args.url, args.timeout) as board:
+    with reach(args.url, args.timeout, describe=args.value is not None) as board:
         payload = args.hex if args.value is None else value_payload(board, args.name, args.value)
         result = board.call(args.name, payload, timeout=args.timeout)
     if args.json:
@@ -116,9 +109,12 @@ def value_payload(board: Board | RemoteBoard, function: str, text: str) -> bytes
                 value: int | float = float(text) if t.dtype in ("float", "double") else int(text)
             except ValueError:
                 raise ConfigError(f"--value {text!r}: {t.name} takes a {t.dtype}") from None
-            if not t.legal(value):
+            if not t.legal(value) or not math.isfinite(value):
                 raise ConfigError(f"--value {text!r} is not a legal {t.dtype} for {t.name}")
-            return t.value_struct().pack(value)
+            try:
+                return t.value_struct().pack(value)
+            except (OverflowError, struct.error):  # (1e308 for a float32)
+                raise ConfigError(f"--value {text!r}: too large for a {t.dtype}") from None
     callers = sorted(str(t.call) for t in board.transducers or [] if t.call)
     raise ConfigError(
         f"--value: no actuator of {board.name} is called through {function} "
@@ -134,6 +130,10 @@ def format_sample(s: Sample, unit: str | None) -> str:
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
+    import json
+
+    from ..host.samples import SampleDecoder
+
     done = threading.Event()
     count = 0
     lock = threading.Lock()
@@ -209,9 +209,6 @@ def cmd_sync(args: argparse.Namespace) -> int:
     from ..errors import CallTimeout
     from ..timesync.sync import ClockSync, SyncOptions
 
-    if args.period <= 0:
-        print("missing-link: error: --period must be > 0", file=sys.stderr)
-        return EXIT_USAGE
     if args.uart_baud and not args.url.removeprefix("spy+").startswith("serial://"):
         print(
             "missing-link: error: --uart-baud describes a UART link (serial://); "
@@ -273,48 +270,3 @@ def format_sync(st: dict[str, Any]) -> str:
         f"  every {st['sync_interval_ms']:.0f} ms  exchanges {st['sync_exchanges']}"
         f" lost {st['sync_lost']}"
     )
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser("info", help="functions, properties and transducers of a board")
-    with_url(sp)
-    sp.add_argument("--json", action="store_true", help="machine-readable output (docs/cli.md)")
-    sp.set_defaults(func=cmd_info)
-
-    sp = sub.add_parser("call", help="call a board function by name")
-    with_url(sp)
-    sp.add_argument("name", help="function name, e.g. a2jEcho")
-    sp.add_argument(
-        "--hex", type=parse_hex, default=b"", help="request payload as hex bytes (28 is 0x28 = 40)"
-    )
-    sp.add_argument(
-        "--value",
-        help="one value in the data type of the actuator this function drives (40 is 40, as "
-        "send(topic, 40) sends it)",
-    )
-    sp.add_argument("--json", action="store_true")
-    sp.add_argument(
-        "--any-code",
-        action="store_true",
-        help="exit 0 whatever the function returns (default: 1 unless it returns OK)",
-    )
-    sp.set_defaults(func=cmd_call)
-
-    sp = sub.add_parser("listen", help="print decoded samples live, one line each")
-    with_url(sp)
-    sp.add_argument("--count", type=count_arg, default=0, help="stop after N samples")
-    sp.add_argument("--duration", type=non_negative, default=0, help="stop after S seconds")
-    sp.add_argument("--transducer", "-t", action="append", help="only this transducer (repeatable)")
-    sp.add_argument("--missing", action="store_true", help="also print N/A channels")
-    sp.add_argument("--json", action="store_true", help="one JSON object per line")
-    sp.set_defaults(func=cmd_listen)
-
-    sp = sub.add_parser("sync", help="clock synchronisation with a board, live")
-    with_url(sp)
-    sp.add_argument("--duration", type=non_negative, default=0, help="stop after S seconds")
-    sp.add_argument("--period", type=positive, default=1.0, help="seconds between lines (1.0)")
-    sp.add_argument(
-        "--uart-baud", type=count_arg, default=0, help="baud rate if the link is a UART"
-    )
-    sp.add_argument("--json", action="store_true", help="one JSON object per line")
-    sp.set_defaults(func=cmd_sync)

@@ -6,6 +6,11 @@ board, "off" when it is disabled), the latency from the board's moment
 of measurement to the host callback, and the last value with its unit.  Columns appear only
 where they apply (servo commands only for boards with actuators).  When the output is not a
 terminal it prints a plain block every ``plain_period`` seconds instead.  All times in µs.
+
+At the width it is drawn at, the topic table keeps every topic name whole if it can and cuts
+the last value instead; names that still do not fit lose their start, never their end, where
+topics of one board differ (:func:`fit_names`: ``/board_b/dist_ir`` and ``/board_b/dist_us``
+never look alike).
 """
 
 from __future__ import annotations
@@ -14,11 +19,14 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from ..topics import Update
+
+if TYPE_CHECKING:
+    from rich.console import Console, ConsoleOptions, RenderResult
 
 
 @dataclass
@@ -96,16 +104,33 @@ class LiveView:
     # ---- drawing -----------------------------------------------------------------------------
     def render(self, elapsed: float, duration: float | None) -> Any:
         from rich.console import Group
-        from rich.table import Table
         from rich.text import Text
 
         span = f"{elapsed:5.1f} s" + (f" / {duration:.0f} s" if duration else "")
-        boards = Table(title=f"{self.title}  {span}", title_justify="left", expand=False)
+        parts: list[Any] = [self._boards(f"{self.title}  {span}"), TopicTable(self._topic_rows())]
+        pubs = [p for p in self.daemon.publisher_status() if p.get("level") or p.get("dropped")]
+        for p in pubs:
+            style = "bold red" if p.get("level", 0) >= 2 else "yellow"
+            parts.append(
+                Text(
+                    f"publisher {p['publisher']}: {p.get('message', '')}, "
+                    f"{p.get('dropped', 0)} dropped",
+                    style=style,
+                )
+            )
+        return Group(*parts)
+
+    def _boards(self, title: str) -> Any:
+        from rich.table import Table
+        from rich.text import Text
+
+        boards = Table(title=title, title_justify="left", expand=False)
         status = self.daemon.status()
         with_cmds = any(s["commands"] or s["command_errors"] for s in status) or any(
             t.is_actuator for s in self.daemon.sessions for t in _transducers(s)
         )
-        for col in ("board", "state", "RTT µs", "clock ±µs"):
+        boards.add_column("board", no_wrap=True)  # (the losses wrap first)
+        for col in ("state", "RTT µs", "clock ±µs"):
             boards.add_column(col)
         if with_cmds:
             boards.add_column("commands")
@@ -123,18 +148,13 @@ class LiveView:
                 row.append(str(s["commands"]) if _has_actuator(self.daemon, s["board"]) else "")
             row.append(losses or "none")
             boards.add_row(*row)
-        topics = Table(expand=False)
+        return boards
+
+    def _topic_rows(self) -> list[tuple[str, ...]]:
+        """Per topic: name, msgs/s, configured rate, latency p50 and p99, last value."""
         configured = _configured_rates(self.daemon)
-        for col, justify in (
-            ("topic", "left"),
-            ("msgs/s", "right"),
-            ("set Hz", "right"),
-            ("latency p50 µs", "right"),
-            ("p99 µs", "right"),
-            ("last value", "left"),
-        ):
-            topics.add_column(col, justify=justify)  # type: ignore[arg-type]
         now_us = time.monotonic_ns() / 1000
+        rows: list[tuple[str, ...]] = []
         with self.lock:
             for name, st in sorted(self.stats.items()):
                 rate = sum(1 for t in st.recent if now_us - t <= 1e6)
@@ -144,26 +164,17 @@ class LiveView:
                     last = " ".join(_fmt(v) for v in st.last)
                 else:  # in the unit (the servo's raw 20 is 14.17 deg)
                     last = " ".join(_fmt(None if v is None else scale(v)) for v in st.last)  # type: ignore[arg-type]
-                topics.add_row(
-                    name,
-                    str(rate),
-                    configured.get(name, "-"),
-                    f"{percentile(lat, 0.5):.0f}",
-                    f"{percentile(lat, 0.99):.0f}",
-                    (last[:40] + (f" {st.unit}" if st.unit else "")),
+                rows.append(
+                    (
+                        name,
+                        str(rate),
+                        configured.get(name, "-"),
+                        f"{percentile(lat, 0.5):.0f}",
+                        f"{percentile(lat, 0.99):.0f}",
+                        last[:40] + (f" {st.unit}" if st.unit else ""),
+                    )
                 )
-        pubs = [p for p in self.daemon.publisher_status() if p.get("level") or p.get("dropped")]
-        parts: list[Any] = [boards, topics]
-        for p in pubs:
-            style = "bold red" if p.get("level", 0) >= 2 else "yellow"
-            parts.append(
-                Text(
-                    f"publisher {p['publisher']}: {p.get('message', '')}, "
-                    f"{p.get('dropped', 0)} dropped",
-                    style=style,
-                )
-            )
-        return Group(*parts)
+        return rows
 
     def run(self, stop: threading.Event, duration: float | None, refresh: float = 1.0) -> None:
         """Draw until ``stop`` is set, ``duration`` passes or a publisher fails for good."""
@@ -229,3 +240,71 @@ def _has_actuator(daemon: Any, board: str) -> bool:
     return any(
         s.name == board and any(t.is_actuator for t in _transducers(s)) for s in daemon.sessions
     )
+
+
+ELLIPSIS = "…"
+
+
+def fit_names(names: Iterable[str], width: int) -> dict[str, str]:
+    """Each name as shown in ``width`` characters.  Whole when it fits; else "…" and as much of
+    its end as fits, because the end is where topics differ (``…/dist_ir``, ``…/dist_us``).
+    Where the ends would look alike, every long name keeps one more character of its start and
+    one less of its end, until no two look the same (``/board_a…dist_ir``,
+    ``/board_b…dist_ir``).  If no cut tells them apart, every name is shown whole."""
+    unique = sorted(set(names))
+    whole = {n: n for n in unique}
+    long = [n for n in unique if len(n) > width]
+    if not long or width < 2:
+        return whole
+    keep = width - 1
+    for head in range(keep + 1):
+        tail = keep - head
+        shown = {n: n[:head] + ELLIPSIS + (n[-tail:] if tail else "") for n in long}
+        if len(set(shown.values())) == len(long):  # (a name shown whole has no "…")
+            return {**whole, **shown}
+    return whole
+
+
+#: the topic table's columns (header, justify); the first is the topic, the last the value
+TOPIC_COLUMNS = (
+    ("topic", "left"),
+    ("msgs/s", "right"),
+    ("set Hz", "right"),
+    ("latency p50 µs", "right"),
+    ("p99 µs", "right"),
+    ("last value", "left"),
+)
+
+
+class TopicTable:
+    """The topic table, laid out for the width it is drawn at (rich hands it that width): the
+    numbers whole, then the topics whole if they fit beside a short last value, else cut by
+    :func:`fit_names`; the last value takes what is left and is the one cut short."""
+
+    def __init__(self, rows: list[tuple[str, ...]]) -> None:
+        self.rows = rows
+
+    def layout(self, width: int) -> tuple[dict[str, str], int]:
+        """(topic -> as shown, the last value's width) for a table ``width`` characters wide."""
+        numbers = sum(
+            max(len(head), *(len(r[i]) for r in self.rows))
+            for i, (head, _) in enumerate(TOPIC_COLUMNS[1:-1], start=1)
+        )
+        room = width - 3 * len(TOPIC_COLUMNS) - 1 - numbers  # (borders and padding)
+        least = len(TOPIC_COLUMNS[-1][0])
+        shown = fit_names((r[0] for r in self.rows), max(len("topic"), room - least))
+        widest = max((len(v) for v in shown.values()), default=0)
+        return shown, max(least, room - max(widest, len("topic")))
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        from rich.table import Table
+
+        shown, last_width = self.layout(options.max_width)
+        table = Table(expand=False)
+        for head, justify in TOPIC_COLUMNS[:-1]:
+            table.add_column(head, justify=justify, no_wrap=True)  # type: ignore[arg-type]
+        head = TOPIC_COLUMNS[-1][0]
+        table.add_column(head, no_wrap=True, overflow="ellipsis", max_width=last_width)
+        for row in self.rows:
+            table.add_row(shown[row[0]], *row[1:])
+        yield table

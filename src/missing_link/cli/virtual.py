@@ -8,7 +8,7 @@ import sys
 import threading
 from typing import Any
 
-from .common import EXIT_FAIL, EXIT_USAGE, non_negative
+from .common import EXIT_FAIL, EXIT_USAGE
 
 
 def cmd_board(args: argparse.Namespace) -> int:
@@ -140,67 +140,3 @@ def cmd_relay(args: argparse.Namespace) -> int:
     for line in relay.errors[-5:]:
         print(f"relay: {line}", file=sys.stderr)
     return 0
-
-
-def add_parsers(sub: Any) -> None:
-    sp = sub.add_parser("board", help="run a virtual board")
-    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers, original or rate")
-    sp.add_argument(
-        "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
-    )
-    sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
-    sp.add_argument("--name", help="board.name property (default: the sim's)")
-    sp.add_argument(
-        "--count",
-        type=int,
-        default=1,
-        help="serve N boards from this process (NAME_0 .. NAME_N-1, tcp only; benchmarks)",
-    )
-    sp.add_argument(
-        "--config-file",
-        help="where the board keeps a saved configuration (its flash; default: none, a save "
-        "is refused) and reads it back at every boot",
-    )
-    sp.add_argument("--rate", type=float, help="updates per second (sim rate only)")
-    sp.add_argument("--channels", type=int, help="channels per update (sim rate only)")
-    sp.add_argument(
-        "--clock-offset-us",
-        type=float,
-        help="board clock = OFFSET + (1 + SKEW) * host CLOCK_MONOTONIC (default: the host's clock)",
-    )
-    sp.add_argument("--clock-skew-ppm", type=float, help="the board clock's rate error (ppm)")
-    sp.add_argument(
-        "--clock-drift-ppm-per-s", type=float, help="the rate error changes this much per second"
-    )
-    sp.add_argument(
-        "--clock-ref-ns",
-        type=int,
-        help="host CLOCK_MONOTONIC ns the drift and --reset-at count from (default: now)",
-    )
-    sp.add_argument(
-        "--reset-at",
-        type=float,
-        action="append",
-        metavar="S",
-        help="the board resets S seconds after --clock-ref-ns (repeatable); the link stays",
-    )
-    sp.add_argument("--boot-gap-ms", type=float, default=100.0, help="silence after a reset (100)")
-    sp.set_defaults(func=cmd_board)
-
-    sp = sub.add_parser("relay", help="a fault-injecting relay in front of a board (tests)")
-    sp.add_argument("url", help="the board's URL (tcp, unix, serial, ...)")
-    sp.add_argument(
-        "--listen", default="tcp://127.0.0.1:0", help="tcp://127.0.0.1:PORT or unix:///PATH"
-    )
-    sp.add_argument("--corrupt", type=float, default=0.0, help="per-byte bit-flip probability")
-    sp.add_argument("--drop", type=float, default=0.0, help="per-chunk loss probability")
-    sp.add_argument("--delay-ms", type=float, default=0.0, help="hold every chunk this long")
-    sp.add_argument(
-        "--blackhole-after", type=float, help="forward nothing after S s of a connection"
-    )
-    sp.add_argument("--blackhole-for", type=float, help="... for S s (default: for ever)")
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument(
-        "--duration", type=non_negative, default=0, help="stop after S seconds (0 = run)"
-    )
-    sp.set_defaults(func=cmd_relay)

@@ -15,8 +15,29 @@
 - :mod:`.config` - the TOML configuration, validated
 """
 
-from .config import BoardSpec, Config
-from .service import Daemon, connect
-from .session import BoardSession
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # (at run time loaded on first use: ``missing-link call`` imports .control only)
+    from .config import BoardSpec, Config
+    from .service import Daemon, connect
+    from .session import BoardSession
+
+_WHERE = {
+    "BoardSpec": "config",
+    "Config": "config",
+    "Daemon": "service",
+    "connect": "service",
+    "BoardSession": "session",
+}
 
 __all__ = ["BoardSession", "BoardSpec", "Config", "Daemon", "connect"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)

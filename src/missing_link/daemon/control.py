@@ -31,11 +31,9 @@ import socket
 import stat
 import threading
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
-from ..host.config import ConfigRefused, NotConfigurable
 from ..text import safe_text
 
 log = logging.getLogger(__name__)
@@ -53,11 +51,13 @@ def default_control_path() -> str:
     if env:
         return env
     run = os.environ.get("XDG_RUNTIME_DIR")
-    base = Path(run) / "missing-link" if run else Path(f"/tmp/missing-link-{os.getuid()}")
-    return str(base / "control.sock")
+    base = os.path.join(run, "missing-link") if run else f"/tmp/missing-link-{os.getuid()}"
+    return os.path.join(base, "control.sock")  # (os.path: a one-off call skips pathlib)
 
 
 def error_kind(e: BaseException) -> str:
+    from ..host.config import ConfigRefused, NotConfigurable  # (not on a one-off call's path)
+
     if isinstance(e, ConfigRefused):
         return "refused"
     if isinstance(e, NotConfigurable):
@@ -138,6 +138,8 @@ class ControlServer:
 def _bind(path: str) -> socket.socket:
     """A socket only this user can reach: its directory 0700 (created), the socket 0600.  An
     endpoint another daemon answers on is not taken over (MissingLinkError); a stale one is."""
+    from pathlib import Path
+
     p = Path(path)
     p.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     if p.exists() or p.is_symlink():

@@ -15,9 +15,8 @@ import struct
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..descriptors import Transducer, parse_transds
 from ..errors import (
     BoardError,
     CallError,
@@ -30,9 +29,12 @@ from ..j2a import BlobError, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
-from .config import BoardConfig, Value
 from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
 from .reactor import Reactor
+
+if TYPE_CHECKING:  # (loaded where used: a one-off call reads no descriptors, sets no keys)
+    from ..descriptors import Transducer
+    from .config import BoardConfig, Value
 
 #: the whole handshake (mapping, properties, descriptors) must end within this (s)
 HANDSHAKE_TIMEOUT = 5.0
@@ -171,6 +173,8 @@ class Board(BoardLink):
                 self.transds_text = raw.decode("utf-8")
             except UnicodeDecodeError as e:
                 raise BoardError(self.name, f"transducer descriptors are not UTF-8: {e}") from e
+            from ..descriptors import parse_transds
+
             self.transducers = parse_transds(self.transds_text, self.name)
 
     # ---- calls -----------------------------------------------------------------------------
@@ -372,6 +376,8 @@ class Board(BoardLink):
     def settings(self) -> BoardConfig:
         """The board's run-time configuration functions (keys, limits, state)."""
         if self._settings is None:
+            from .config import BoardConfig
+
             self._settings = BoardConfig(self)
         return self._settings
 

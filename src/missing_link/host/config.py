@@ -123,7 +123,11 @@ class ConfigKey:
                 raise ConfigError(f"{where}: expected {self.allowed()}")
             number = int(number)
         assert self.lo is not None and self.hi is not None
-        if not _f32(self.lo) <= _f32(number) <= _f32(self.hi):
+        try:
+            inside = _f32(self.lo) <= _f32(number) <= _f32(self.hi)
+        except OverflowError:  # (beyond a float32, so beyond every range: 1e308)
+            inside = False
+        if not inside:
             raise ConfigError(f"{where}: expected {self.allowed()}")
         return number
 

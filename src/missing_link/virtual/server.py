@@ -256,8 +256,6 @@ class BoardServer:
                 wfds = [self._link.fd] if self._link is not None and self._link.pending else []
                 ready, _, _ = select.select(fds, wfds, [], self._wait_time())
                 rx_us = self.runtime.clock()  # input (if any) arrived before select returned
-                if self._listener is not None and self._listener.fileno() in ready:
-                    self._accept()
                 data = b""
                 if self._link is not None and self._link.fd in ready:
                     received = self._link.recv()
@@ -268,6 +266,10 @@ class BoardServer:
                         age = self._link.arrived_age_ns
                         if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
                             rx_us = self.runtime.clock() - age // 1000
+                # (after the link's own end: a host that closes and one that connects in the
+                # same turn is a handover, not a second host to turn away)
+                if self._listener is not None and self._listener.fileno() in ready:
+                    self._accept()
                 if self._lifecycle():
                     continue  # booting: input is lost, nothing is sent
                 replies, sifs = self._turn(data, rx_us)

@@ -1,0 +1,86 @@
+"""The documents a newcomer reads hold together: every relative link in README.md and docs/*.md
+points at a file that exists and, with a ``#anchor``, at a heading of that file; the README
+stays short enough to read (issue 33.7) and every benchmark table lives in docs/performance.md
+with its command, machine and date."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)")
+FENCE = re.compile(r"^```.*?^```", re.S | re.M)
+CODE = re.compile(r"`[^`\n]*`")
+
+
+def prose(text: str) -> str:
+    """The text without fenced blocks and inline code (where brackets are not links)."""
+    return CODE.sub("", FENCE.sub("", text))
+
+
+def slug(heading: str) -> str:
+    """A heading's anchor as GitHub makes it: lower case, punctuation dropped, spaces to -."""
+    text = heading.strip().lower().replace("`", "")
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    seen: dict[str, int] = {}
+    out = set()
+    for line in FENCE.sub("", path.read_text(encoding="utf-8")).splitlines():
+        m = re.match(r"#{1,6} (.*)", line)
+        if not m:
+            continue
+        base = slug(m.group(1))
+        n = seen.get(base, 0)
+        seen[base] = n + 1
+        out.add(base if n == 0 else f"{base}-{n}")
+    return out
+
+
+def links(path: Path) -> list[str]:
+    return [m.group(1) for m in LINK.finditer(prose(path.read_text(encoding="utf-8")))]
+
+
+def test_slugs_are_githubs() -> None:
+    assert slug("Measuring together, acting on time") == "measuring-together-acting-on-time"
+    assert slug("`missing-link info URL [--json]`") == "missing-link-info-url---json"
+    assert slug("ROS 2 through Zenoh (`zenoh` publisher)") == "ros-2-through-zenoh-zenoh-publisher"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_points_at_a_file_and_heading(doc: Path) -> None:
+    broken = []
+    for target in links(doc):
+        if re.match(r"[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto: ...
+            continue
+        file, _, anchor = target.partition("#")
+        where = (doc.parent / file).resolve() if file else doc
+        if not where.exists():
+            broken.append(f"{target}: no such file")
+        elif anchor and where.suffix == ".md" and anchor not in anchors(where):
+            broken.append(f"{target}: no heading #{anchor} in {where.relative_to(ROOT)}")
+    assert not broken, f"{doc.relative_to(ROOT)}: " + "; ".join(broken)
+
+
+def test_the_readme_is_short_and_its_tables_are_few() -> None:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 250
+    tables = re.findall(r"^\|---.*$", prose(text), re.M)
+    assert len(tables) <= 1  # the performance summary; every other table is in docs/
+
+
+def test_every_benchmark_table_says_its_command_machine_and_date() -> None:
+    text = (ROOT / "docs" / "performance.md").read_text(encoding="utf-8")
+    sections = re.split(r"^## ", text, flags=re.M)[1:]
+    assert len(sections) >= 15
+    for section in sections:
+        title = section.splitlines()[0]
+        if "|---" not in section and "```" not in section:
+            continue  # (prose only)
+        assert "*Machine:" in section and "Date:" in section, f"{title}: no machine or date"
+        assert "bench/" in section or "missing-link" in section, f"{title}: no command"

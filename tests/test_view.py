@@ -1,0 +1,105 @@
+"""The live view never cuts the part of a topic name that tells topics apart (issue 33.8): at
+80, 100 and 120 columns, topics that share a long start stay distinct and show their end."""
+
+from __future__ import annotations
+
+import io
+import re
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from missing_link.cli.view import ELLIPSIS, LiveView, TopicTable, fit_names
+from missing_link.daemon import BoardSpec, Config, Daemon
+from missing_link.virtual import make_sim
+
+from .helpers import wait_for
+
+Serve = Callable[..., Any]
+WIDTHS = (80, 100, 120)
+
+
+def test_names_that_fit_are_whole() -> None:
+    names = ["/board_b/dist_ir", "/board_b/dist_us"]
+    assert fit_names(names, 16) == {n: n for n in names}
+
+
+def test_a_shared_start_is_cut_and_the_end_kept() -> None:
+    names = ["/board_b/distance_infrared", "/board_b/distance_ultrasonic", "/board_a/quad"]
+    shown = fit_names(names, 14)
+    assert shown["/board_b/distance_infrared"] == ELLIPSIS + "ance_infrared"
+    assert shown["/board_b/distance_ultrasonic"] == ELLIPSIS + "ce_ultrasonic"
+    assert shown["/board_a/quad"] == "/board_a/quad"  # fits: whole
+    assert all(len(v) <= 14 for v in shown.values())
+
+
+def test_names_alike_at_the_end_keep_their_start() -> None:
+    names = ["/front_left/distance_infrared", "/front_right/distance_infrared"]
+    shown = fit_names(names, 20)
+    assert len(set(shown.values())) == 2 and all(len(v) == 20 for v in shown.values())
+    assert shown[names[0]].startswith("/front_l") and shown[names[1]].startswith("/front_r")
+    assert all(v.endswith("infrared") for v in shown.values())
+
+
+def test_when_no_cut_tells_names_apart_they_stay_whole() -> None:
+    names = ["/abcdef", "/abcdeg"]
+    assert fit_names(names, 1) == {n: n for n in names}
+
+
+ROWS = [
+    ("/board_a/quad", "50", "-", "180", "320", "1234 -56"),
+    ("/board_a/servo/cmd", "2", "-", "150", "300", "14.17 deg"),
+    ("/board_b/dist_ir", "25", "25", "199", "377", " ".join(["812"] * 8) + " mm"),
+    ("/board_b/dist_us", "25", "25", "201", "380", " ".join(["1402"] * 12) + " mm"),
+    ("/rover_front_ranger_board/distance_infrared", "25", "25", "210", "390", "800 mm"),
+    ("/rover_front_ranger_board/distance_ultrasonic", "25", "25", "210", "390", "900 mm"),
+    ("/rover_front_ranger_board/distance_infrared_raw", "25", "25", "210", "390", "4095"),
+]
+
+
+def topic_cells(text: str) -> list[str]:
+    """The topic column's cells of a drawn topic table (the header left out)."""
+    return [m.group(1).strip() for m in re.finditer(r"^│ (.*?) +│", text, re.M)]
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_the_topic_table_keeps_every_topic_distinct_at(width: int) -> None:
+    buf = io.StringIO()
+    Console(file=buf, width=width).print(TopicTable(ROWS))
+    text = buf.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= width
+    cells = topic_cells(text)
+    assert len(cells) == len(ROWS) and len(set(cells)) == len(ROWS)
+    for (name, *_), cell in zip(ROWS, cells, strict=True):
+        head, _, tail = cell.partition(ELLIPSIS)
+        assert name.startswith(head) and name.endswith(tail)
+        assert cell.endswith(name[-6:])  # the end, where topics of one board differ, shows
+    # the short names are whole at every width; the last values are what gets cut
+    assert {"/board_b/dist_ir", "/board_b/dist_us"} <= set(cells)
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_the_live_view_of_a_running_daemon_shows_whole_names_at(serve: Serve, width: int) -> None:
+    """A real daemon with a ranger board whose name is long: its dist_ir and dist_us topics."""
+    long_name = "rover_front_ranger_board_b"
+    server = serve(make_sim("rangers", seed=1, name=long_name))
+    cfg = Config(boards=[BoardSpec(server.url)], publishers=["bus"])
+    with Daemon(cfg) as daemon:
+        assert daemon.wait_until_up(10)
+        out = io.StringIO()
+        view = LiveView(daemon, out)
+        try:
+            wanted = {f"/{long_name}/dist_ir", f"/{long_name}/dist_us"}
+            assert wait_for(lambda: wanted <= set(view.stats), 10)
+            console = Console(file=out, width=width)
+            console.print(view.render(1.0, None))
+        finally:
+            view.close()
+    text = out.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= width
+    table = text[text.index("topic") :]
+    cells = topic_cells(table)
+    assert len(cells) == len(set(cells)) >= 2
+    assert any(c.endswith("dist_ir") for c in cells) and any(c.endswith("dist_us") for c in cells)
