@@ -20,8 +20,8 @@ no: nothing changed), ``unconfigurable``, ``board`` (no such board, not up, the 
 
 Ours, and it stays up:
 
-* **ours**: the socket's directory must be a real directory (not a link) owned by this user (or
-  root) that no one else may write to, and the socket this user's.  The server checks before it
+* **ours**: the socket's directory must be a real directory (not a link) owned by this user
+  that no one else may write to, and the socket this user's.  The server checks before it
   binds and the client (``ask``) before it connects (``check_endpoint``), so another local user
   who made ``/tmp/missing-link-<uid>`` first can neither answer our clients nor be used by our
   daemon: both refuse with a line that says whose it is and what to do.
@@ -89,7 +89,7 @@ def default_control_path() -> str:
 
 def check_endpoint(path: str, uid: int | None = None) -> None:
     """Raise NotOurs unless the endpoint at ``path`` is ours (``uid``: this process's): its
-    directory a real directory owned by us or root that no one else can write to, and the
+    directory a real directory (not a link) owned by us that no one else can write to, and the
     socket, when there is one, a socket owned by us.  Nothing there yet is fine."""
     uid = os.getuid() if uid is None else uid
     p = Path(path)
@@ -102,7 +102,7 @@ def check_endpoint(path: str, uid: int | None = None) -> None:
         raise NotOurs(f"control endpoint {path}: its directory: {e.strerror or e}") from None
     if not stat.S_ISDIR(d.st_mode):
         raise NotOurs(f"control endpoint {path}: {p.parent} is not a directory; {fix}")
-    if d.st_uid not in (uid, 0):
+    if d.st_uid != uid:
         raise NotOurs(
             f"control endpoint {path}: {p.parent} belongs to uid {d.st_uid}, not to you "
             f"(uid {uid}): another user may have made it; {fix}"
@@ -367,7 +367,10 @@ def ask(path: str, request: dict[str, Any], timeout: float = CLIENT_TIMEOUT) -> 
     sock.settimeout(timeout)
     try:
         sock.connect(path)
-        sock.sendall(json.dumps(request).encode() + b"\n")
+        try:
+            sock.sendall(json.dumps(request).encode() + b"\n")
+        except (BrokenPipeError, ConnectionResetError):
+            pass  # turned away before it read (busy): its answer says so
         line = _read_line(sock, MAX_ANSWER, time.monotonic() + timeout)
     finally:
         sock.close()
