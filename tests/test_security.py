@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from missing_link.daemon import Daemon
+from missing_link.daemon.commands import CommandRefused
 from missing_link.daemon.config import BoardSpec, Config, parse_config
 from missing_link.errors import ConfigError
 from missing_link.logs import SafeLog
@@ -161,7 +162,8 @@ def test_a_face_off_and_the_allow_list_refuse_and_count() -> None:
             assert d.wait_until_up(10)
             states: list[Update] = []
             d.subscribe("/thesis/servo", states.append, queue=0)
-            d.send("/thesis/servo/cmd", 30)  # in-process: the allow-list still applies
+            with pytest.raises(CommandRefused, match="not in \\[daemon\\] commands"):
+                d.send("/thesis/servo/cmd", 30)  # in-process: the allow-list still applies
             lines = subprocess.run(
                 [sys.executable, str(LISTENER), "--connect", f"tcp/127.0.0.1:{port}",
                  "--topic", "/thesis/dist_ir", "--type", "missing_link_msgs/msg/DistIr",

@@ -4,13 +4,21 @@
 - :mod:`.context` - the values and callables a board session is handed instead of the daemon
 - :mod:`.claims` - board names and message type names, held daemon-wide
 - :mod:`.session` - one board: connect, validate, serve, notice loss, reconnect
+- :mod:`.liveness` - whether a board's link is alive, from what is heard (pure, time passed in)
+- :mod:`.inflight` - the supervisor's calls to a board: never waited for, one of a kind out
+- :mod:`.status` - a session's state (an enum) and status (a dataclass, its JSON keys)
+- :mod:`.board_topics` - a board's topics, message types and command topics at each handshake
+- :mod:`.fanout` - every topic and update to every publisher, their errors counted
 - :mod:`.sample_path` - a sample SIF in, host-timed updates out
 - :mod:`.session_clock` - one board's clock sync in its session, its skew kept across links
 - :mod:`.prober` - one board's clock probes on its reading thread
 - :mod:`.alignment` - the host-time grid of aligned transducers, the board's account of it
 - :mod:`.settings` - a board's run-time configuration: the file's keys at connect and reset
+- :mod:`.background` - what the supervisor asks for but must not wait for (re-applying keys)
+- :mod:`.failsafe` - the host's side of a board's failsafe: keepalive, goodbye, its trip count
 - :mod:`.control` - the local control endpoint (``missing-link config``, ``info``, ``call``)
 - :mod:`.actuators` - commands for a board's actuators, latest wins; timed ones at their time
+- :mod:`.commands` - who may move the robot: the allow-list, on every path to an actuator
 - :mod:`.discovery` - boards found as their serial ports appear (``run --auto``)
 - :mod:`.config` - the TOML configuration, validated
 """

@@ -1,16 +1,21 @@
 """A board's actuator commands: checked where they arrive, the latest per actuator kept, and
-called on the board by the session's supervisor (never on a face's thread).
+sent to the board by the session's supervisor (never on a face's thread), never waited for.
 
 Any face (the bus, Zenoh, rclpy, rospy) hands a command to the handler of its actuator; the
 handler checks it against the transducer's data type, keeps it as the latest for that actuator
 (an older one not yet sent is replaced: a servo wants the newest position, not a backlog) and
-wakes the supervisor, which calls the actuator's function (``call=`` in its descriptor) with
-it.  A refused call is counted and said once per failure, never raised into a face.
+wakes the supervisor, which starts the actuator's function (``call=`` in its descriptor) with
+it.  Each actuator has at most one call out at a time: a newer command waits (and is replaced)
+until the board has answered the previous one, whose answer wakes the supervisor again.  The
+supervisor never waits for an answer: it must see a frozen board in time (liveness.py), and
+the link sends one request at a time, so a wait would be behind whatever is queued.  A refused
+call is counted and said once per failure, never raised into a face.
 
 A timed command (``Command.at_ns``: a host time to act at; board/timing.py) is not replaced by
 a later one: each goes to the board as ``a2jAt`` in arrival order, the board's clock map pushed
 first, and the board acts at that host time or refuses (past, beyond what the map vouches for,
 no map): refusals are counted and said, and a caller waiting on ``Command.done`` gets them.
+One batch of timed commands is out at a time (the map, then its ``a2jAt`` calls, in order).
 """
 
 from __future__ import annotations
@@ -23,13 +28,19 @@ from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import Transducer
-from ..errors import MissingLinkError
+from ..errors import FunctionFailed, MissingLinkError
 from ..host.board import Board
+from ..host.link import CallResult
 from ..topics import Command, Update
 
 log = logging.getLogger(__name__)
 
 MAX_TIMED = 64  #: timed commands waiting for the supervisor, per board
+
+Timed = tuple[Transducer, Any, int, "Future[int] | None"]
+#: hands the board the current clock map: the call's future, or None (no map to push)
+PushMap = Callable[[], "Future[CallResult] | None"]
+Outcome = CallResult | MissingLinkError | struct.error
 
 
 class Actuators:
@@ -39,8 +50,11 @@ class Actuators:
         self._wake = wake
         self._on_error = on_error
         self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
-        self._timed: list[tuple[Transducer, Any, int, Future[int] | None]] = []
+        self._sending: set[str] = set()  # actuators with a call out
+        self._timed: list[Timed] = []
+        self._timed_out = False  # a batch of timed commands is out
         self._lock = threading.Lock()
+        self._stopping: Callable[[], bool] = lambda: False
         self.commands = 0
         self.command_errors = 0
 
@@ -74,57 +88,147 @@ class Actuators:
 
         return handle
 
-    def run(self, board: Board, stopping: Callable[[], bool], push_map: Callable[[], None]) -> None:
-        """Call the board with every pending command (the supervisor's thread); ``push_map``
-        hands the board the current clock map (before timed commands)."""
+    def run(self, board: Board, stopping: Callable[[], bool], push_map: PushMap) -> None:
+        """Start the board's calls for the pending commands (the supervisor's thread; returns
+        at once): the latest per actuator whose previous call was answered, and the timed
+        ones when no batch is out (``push_map`` first)."""
+        self._stopping = stopping
         with self._lock:
-            pending, self._pending = self._pending, {}
-            timed, self._timed = self._timed, []
+            ready = [(t, v) for name, (t, v) in self._pending.items() if name not in self._sending]
+            for t, _v in ready:
+                del self._pending[t.name]
+                self._sending.add(t.name)
+            timed: list[Timed] = []
+            if self._timed and not self._timed_out:
+                timed, self._timed, self._timed_out = self._timed, [], True
+        for t, value in ready:
+            self._send(board, t, value)
         if timed:
-            self._run_timed(board, timed, stopping, push_map)
-        for t, value in pending.values():
-            try:
-                board.call_ok(str(t.call), t.value_struct().pack(value))
-                self.commands += 1
-            except MissingLinkError as e:
-                if stopping():
-                    return  # closing: a command cut short is not an error worth a line
-                self.command_errors += 1
-                self._on_error(str(e))
-                log.warning("%s", e)
-            except struct.error as e:
-                self.command_errors += 1
-                log.warning("%s: bad command value %r: %s", t.name, value, e)
+            self._send_timed(board, timed, push_map)
 
-    def _run_timed(
-        self,
-        board: Board,
-        timed: list[tuple[Transducer, Any, int, Future[int] | None]],
-        stopping: Callable[[], bool],
-        push_map: Callable[[], None],
-    ) -> None:
+    def reset(self) -> None:
+        """A new link: nothing is out on it (what was out on the old one failed with it)."""
+        with self._lock:
+            self._sending.clear()
+            self._timed_out = False
+
+    # ---- commands now ---------------------------------------------------------------------------
+    def _send(self, board: Board, t: Transducer, value: Any) -> None:
         try:
-            push_map()
-        except MissingLinkError as e:
-            for _t, _v, _at, done in timed:
-                if done is not None:
-                    done.set_exception(e)
+            payload = t.value_struct().pack(value)
+            fut = board.call_future(str(t.call), payload)
+        except struct.error as e:
+            self._sent(t, None)
+            self.command_errors += 1
+            log.warning("%s: bad command value %r: %s", t.name, value, e)
             return
+        except MissingLinkError as e:
+            self._sent(t, e)
+            return
+        fut.add_done_callback(lambda f: self._sent(t, _outcome(board, str(t.call), f)))
+
+    def _sent(self, t: Transducer, got: CallResult | MissingLinkError | None) -> None:
+        """(the reading thread) An actuator's call was answered, or failed (None: never sent)."""
+        with self._lock:
+            self._sending.discard(t.name)
+            more = t.name in self._pending
+        if isinstance(got, CallResult):
+            self.commands += 1
+        elif got is None:
+            pass  # (counted where it failed)
+        elif not self._stopping():  # closing: a command cut short is not worth a line
+            self.command_errors += 1
+            self._on_error(str(got))
+            log.warning("%s", got)
+        if more:
+            self._wake()  # the newer command now
+
+    # ---- timed commands -----------------------------------------------------------------------
+    def _send_timed(self, board: Board, timed: list[Timed], push_map: PushMap) -> None:
+        try:
+            fut = push_map()
+        except MissingLinkError as e:
+            self._timed_failed(timed, e)
+            return
+        if fut is None:
+            self._send_at(board, timed)
+            return
+
+        def pushed(f: Future[CallResult]) -> None:
+            got = _outcome(board, "a2jHostMap", f)
+            if isinstance(got, MissingLinkError):
+                self._timed_failed(timed, got)
+            else:
+                self._send_at(board, timed)
+
+        fut.add_done_callback(pushed)
+
+    def _send_at(self, board: Board, timed: list[Timed]) -> None:
+        """The a2jAt calls of a batch, in order (after the map: maybe on the reading thread)."""
+        left = [len(timed)]
+        lock = threading.Lock()
+
+        def answered(t: Transducer, at_ns: int, done: Future[int] | None, got: Outcome) -> None:
+            self._at_answered(t, at_ns, done, got)
+            with lock:
+                left[0] -= 1
+                last = left[0] == 0
+            if last:
+                self._batch_done()
+
+        def reply_to(
+            t: Transducer, at_ns: int, done: Future[int] | None
+        ) -> Callable[[Future[CallResult]], None]:
+            return lambda f: answered(t, at_ns, done, _outcome(board, "a2jAt", f))
+
         for t, value, at_ns, done in timed:
             try:
                 if "a2jAt" not in board.index:
                     raise MissingLinkError(f"{board.name}: no a2jAt: it cannot act at a time")
                 payload = struct.pack("<qB", at_ns, board.index[str(t.call)])
-                reply = board.call_ok("a2jAt", payload + t.value_struct().pack(value))
-                tick = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
-                self.commands += 1
-                if done is not None:
-                    done.set_result(tick)
+                fut = board.call_future("a2jAt", payload + t.value_struct().pack(value))
             except (MissingLinkError, struct.error) as e:
-                if stopping():
-                    return
-                self.command_errors += 1
-                self._on_error(f"{t.name}: timed command refused: {e}")
-                log.warning("%s: timed command at %d refused: %s", t.name, at_ns, e)
-                if done is not None:
-                    done.set_exception(e)
+                answered(t, at_ns, done, e)
+                continue
+            fut.add_done_callback(reply_to(t, at_ns, done))
+
+    def _at_answered(
+        self, t: Transducer, at_ns: int, done: Future[int] | None, got: Outcome
+    ) -> None:
+        if isinstance(got, CallResult):
+            reply = got.payload
+            self.commands += 1
+            if done is not None:
+                done.set_result(struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1)
+            return
+        if self._stopping():
+            return
+        self.command_errors += 1
+        self._on_error(f"{t.name}: timed command refused: {got}")
+        log.warning("%s: timed command at %d refused: %s", t.name, at_ns, got)
+        if done is not None:
+            done.set_exception(got)
+
+    def _timed_failed(self, timed: list[Timed], e: MissingLinkError) -> None:
+        for _t, _v, _at, done in timed:
+            if done is not None:
+                done.set_exception(e)
+        self._batch_done()
+
+    def _batch_done(self) -> None:
+        with self._lock:
+            self._timed_out = False
+            more = bool(self._timed)
+        if more:
+            self._wake()
+
+
+def _outcome(board: Board, name: str, fut: Future[CallResult]) -> CallResult | MissingLinkError:
+    """The reply when the call returned 0, else the error (as ``call_ok`` would raise it)."""
+    try:
+        result = fut.result()
+    except MissingLinkError as e:
+        return e
+    if result.code != 0:
+        return FunctionFailed(board.name, name, result.code, result.payload)
+    return result

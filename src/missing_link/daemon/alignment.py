@@ -8,19 +8,21 @@ sample path flags a sample that is not on it (``OFF_GRID``).  An ultrasonic rang
 on the grid but its sample is stamped when the echo reflected, up to ECHO_LAG_NS later (half
 the flight to 6 m and back), so its stamps may lag the grid by that much.  The board's own account
 (``a2jAlignInfo``: whether its map is valid, its age, the samples it took without one, the
-timed calls it did and refused) is read once per diagnostics period while anything is aligned.
+timed calls it did and refused) is read once per diagnostics period while anything is aligned,
+in the background (never waited for: the session's supervisor must not be held up).
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
-from typing import Any
 
-from ..errors import MissingLinkError
 from ..host.board import Board
 from ..host.config import Value
+from ..host.link import CallResult
 from ..topics import Topic
+from .inflight import InFlight
+from .status import AlignInfo
 
 
 def _f32(x: float) -> float:
@@ -62,30 +64,34 @@ def off_grid(host_ns: int, grid: tuple[int, int, int], bound_ns: int, slack_ns: 
 
 
 class Alignment:
-    def __init__(self) -> None:
-        self.info: dict[str, Any] = {}
+    """The board's account of its grid, read in the background (``refresh``: never waited
+    for, one read out at a time)."""
 
-    def refresh(self, board: Board) -> None:
-        if "a2jAlignInfo" not in board.index:
-            return
-        try:
-            p = board.call_ok("a2jAlignInfo")
-        except MissingLinkError:
-            return
+    def __init__(self) -> None:
+        self.info = AlignInfo()
+        self._read = InFlight("a2jAlignInfo", self._took)
+
+    def refresh(self, board: Board, timeout: float) -> None:
+        if "a2jAlignInfo" in board.index:
+            self._read.start(board, b"", timeout)
+
+    def _took(self, result: CallResult) -> None:
+        if result.code != 0:
+            return  # (as a failed read before: the status keeps what it had)
+        p = result.payload
         if len(p) != 17:
-            self.info = {"align_info": f"a reply of {len(p)} bytes, not 17"}
+            self.info = AlignInfo(problem=f"a reply of {len(p)} bytes, not 17")
             return
         valid, age, unaligned, done, refused = struct.unpack("<BIIII", p)
-        self.info = {
-            "map_valid": bool(valid),
-            "map_age_ms": None if age == 0xFFFFFFFF else age,
-            "unaligned_samples": unaligned,
-            "timed_done": done,
-            "timed_refused": refused,
-        }
+        self.info = AlignInfo(
+            map_valid=bool(valid),
+            map_age_ms=None if age == 0xFFFFFFFF else age,
+            unaligned_samples=unaligned,
+            timed_done=done,
+            timed_refused=refused,
+        )
 
-    def status(
-        self, grid: Mapping[int, tuple[int, int, int]], topics: Mapping[int, Topic]
-    ) -> dict[str, Any]:
-        aligned = [topics[tid].transducer.name for tid in grid if tid in topics]
-        return {"aligned": ", ".join(aligned), **(self.info if aligned else {})}
+    @staticmethod
+    def aligned(grid: Mapping[int, tuple[int, int, int]], topics: Mapping[int, Topic]) -> str:
+        """The aligned transducers by name (the status's ``aligned``)."""
+        return ", ".join(topics[tid].transducer.name for tid in grid if tid in topics)

@@ -8,6 +8,12 @@ the command topics (patterns: ``*`` within a level, ``**`` across; default ``["*
 take commands.  A command that arrives where it may not is refused: not handed to the board,
 counted per face (``commands_refused`` on ``/diagnostics``) and said in the log (rate-limited:
 logs.py).  The face keeps its subscription, so a refusal is seen and counted, not silent.
+
+The list holds on every path that reaches an actuator, not only on the faces' command topics: a
+plain call of an actuator's function (``Daemon.call``, the control endpoint behind
+``missing-link call``, ``Daemon.trigger_at``), an ``a2jAt`` that would call one later, and
+``Daemon.send`` are refused the same way (``check``: CommandRefused, counted under the path's
+name: ``api``, ``control``, ``bus``), named by the actuator's command topic.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..errors import MissingLinkError
 from ..publishers.bus import topic_pattern
 
 log = logging.getLogger(__name__)
@@ -24,15 +31,39 @@ log = logging.getLogger(__name__)
 Handler = Callable[[Any], None]
 
 
+class CommandRefused(MissingLinkError):
+    """A command the allow-list (``[daemon] commands``) does not admit: nothing was sent."""
+
+
+def called_function(function: str, payload: bytes, functions: Sequence[str]) -> str:
+    """The function a call of ``function`` with ``payload`` ends up running on the board: for
+    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), else itself."""
+    if function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
+        return functions[payload[8]]
+    return function
+
+
 class CommandGate:
     def __init__(self, allowed: Sequence[str] = ("**",)) -> None:
         self.allowed = list(allowed)
         self._patterns = [topic_pattern(p) for p in self.allowed]
-        self.refused: dict[str, int] = {}  #: face -> commands refused
+        self.refused: dict[str, int] = {}  #: face (or path) -> commands refused
         self._lock = threading.Lock()
 
     def allows(self, topic: str) -> bool:
         return any(p.match(topic) for p in self._patterns)
+
+    def check(self, path: str, topic: str) -> None:
+        """Raise CommandRefused (counted under ``path``) unless the list admits ``topic``."""
+        if self.allows(topic):
+            return
+        self._count(path)
+        log.warning("%s: a command on %s refused: not in [daemon] commands", path, topic)
+        raise CommandRefused(f"a command on {topic} refused: not in [daemon] commands")
+
+    def _count(self, path: str) -> None:
+        with self._lock:
+            self.refused[path] = self.refused.get(path, 0) + 1
 
     def wrap(self, face: str, takes_commands: bool, topic: str, handler: Handler) -> Handler:
         """``handler`` where ``face`` may command ``topic``, else one that refuses and counts."""
@@ -45,8 +76,7 @@ class CommandGate:
         )
 
         def refuse(_command: Any) -> None:
-            with self._lock:
-                self.refused[face] = self.refused.get(face, 0) + 1
+            self._count(face)
             log.warning("%s: a command on %s refused: %s", face, topic, why)
 
         return refuse

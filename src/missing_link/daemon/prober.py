@@ -110,6 +110,21 @@ class ClockProber:
             self.board.call_ok("a2jHostMap", payload, timeout=self.ctx.timeout)
             self.ctx.on_map_pushed()
 
+    def push_map_future(self) -> Future[CallResult] | None:
+        """Hand the board the current clock map, not waited for (the session's supervisor,
+        before timed commands): the call's future, whose result says whether the board took
+        it (counted when it did); None when there is no map yet."""
+        payload = self._map_payload()
+        if payload is None:
+            return None
+        fut = self.board.call_future("a2jHostMap", payload, timeout=self.ctx.timeout)
+        fut.add_done_callback(self._map_counted)
+        return fut
+
+    def _map_counted(self, fut: Future[CallResult]) -> None:
+        if fut.exception() is None and fut.result().code == 0:
+            self.ctx.on_map_pushed()
+
     # ---- on the board's reading thread --------------------------------------------------------
     def due(self) -> float | None:
         if self._in_flight:

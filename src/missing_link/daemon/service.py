@@ -9,8 +9,9 @@ reconnected, and how its host times are made.  A session is handed a
 callables), never the daemon.  The daemon's own job is the fan-out and what sessions must agree
 on:
 
-* every ``Update`` a session makes goes to every publisher; a publisher that raises is counted
-  (``publish_errors``) and logged, never allowed to stop the sample path of any board;
+* every ``Update`` a session makes goes to every publisher (``fanout.py``); a publisher that
+  raises is counted (``publish_errors``) and logged, never allowed to stop the sample path of
+  any board;
 * names are claimed daemon-wide (``claims.py``): a board name is held by one session (a second
   board that calls itself ``robot`` publishes as ``robot_2``, with a warning), and a message type
   name by one definition (a second board whose ``temp`` differs gets ``<Board>Temp``), so no
@@ -42,24 +43,25 @@ from typing import Any
 from ..descriptors import load_descriptor_file
 from ..errors import BadURL, BoardError, ConfigError, MissingLinkError, without_prefix
 from ..host.board import Board
-from ..host.config import ConfigKey, Value, describe_keys
+from ..host.config import Value, describe_keys
 from ..host.link import CallResult
 from ..host.reactor import Reactor
 from ..logs import SafeLog
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
 from ..publishers.registry import make_publisher
-from ..ros.clock import ClockRecord
 from ..ros.msgs import typestore_for
-from ..topics import Command, Topic, Update
+from ..topics import Command
 from ..transport import check_url
 from .claims import Claims
-from .commands import CommandGate
+from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
-from .context import CommandHandler, SessionContext
-from .control import ControlServer
+from .context import SessionContext
+from .control import ControlServer, call_timeout
 from .discovery import DiscoveryService, Enumerator, all_ports
+from .fanout import Fanout
 from .session import UP, BoardSession
+from .status import SessionStatus
 
 log = logging.getLogger(__name__)
 
@@ -105,13 +107,13 @@ class Daemon:
         self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
         self.typestore = typestore_for(config.distro)
         self.claims = Claims(config.package)
+        self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
         self._stop = threading.Event()
         self._diag_thread = threading.Thread(
             target=self._diagnostics, name="diagnostics", daemon=True
         )
-        self.publish_errors = 0
         self._sessions_lock = threading.Lock()  # add/remove replace the list (copy on write)
         self.discovery: DiscoveryService | None = None
         self.control: ControlServer | None = None  #: the local control endpoint, when on
@@ -120,6 +122,11 @@ class Daemon:
             self.discovery = DiscoveryService(
                 config.discover, ports, self.add_board, self.remove_board
             )
+
+    @property
+    def publish_errors(self) -> int:
+        """Calls into a publisher that raised (counted and logged by the fan-out)."""
+        return self.fanout.errors
 
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
@@ -241,7 +248,8 @@ class Daemon:
         command wins.  With ``at_ns`` (a host time, CLOCK_REALTIME ns): the board acts at that
         time (board/timing.py); this waits for the board's answer and returns the board tick
         it will act at, or raises the board's refusal (past, beyond what its clock map vouches
-        for, no map yet)."""
+        for, no map yet).  CommandRefused when ``[daemon] commands`` does not list it."""
+        self.commands.check("bus", topic)
         if at_ns is None:
             self.bus.send(topic, value)
             return None
@@ -264,6 +272,7 @@ class Daemon:
                 continue
             if s.state != UP or b is None or prober is None:
                 raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
+            self._gate(s, b, function, b"", "api")
             prober.push_map()
             reply = b.call_ok(function, struct.pack("<q", host_ns))
             ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
@@ -290,10 +299,28 @@ class Daemon:
         return s, b
 
     def call(
-        self, board: str, function: str, payload: bytes = b"", timeout: float | None = None
+        self,
+        board: str,
+        function: str,
+        payload: bytes = b"",
+        timeout: float | None = None,
+        *,
+        by: str = "api",
     ) -> CallResult:
-        """Call a function of a board this daemon holds (by name or URL), through its link."""
-        return self._up(board)[1].call(function, payload, timeout)
+        """Call a function of a board this daemon holds (by name or URL), through its link.
+        ``timeout``: s, finite and > 0, at most ``MAX_CALL_TIMEOUT`` (60: more is clamped);
+        CommandRefused for an actuator's function (or an ``a2jAt`` of one) that ``[daemon]
+        commands`` does not list, counted under ``by``."""
+        t = call_timeout(timeout)
+        s, b = self._up(board)
+        self._gate(s, b, function, payload, by)
+        return b.call(function, payload, t)
+
+    def _gate(self, s: BoardSession, b: Board, function: str, payload: bytes, by: str) -> None:
+        """The allow-list on a plain call: what the call would move is named by its topic."""
+        topic = s.command_topic(called_function(function, payload, b.functions))
+        if topic is not None:
+            self.commands.check(by, topic)
 
     def board_config(self, board: str) -> dict[str, Value]:
         """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""
@@ -322,8 +349,9 @@ class Daemon:
 
         def call(r: dict[str, Any]) -> dict[str, Any]:
             payload = bytes.fromhex(str(r.get("payload", "")))
-            timeout = float(r["timeout"]) if r.get("timeout") is not None else None
-            got = self.call(str(r["board"]), str(r["function"]), payload, timeout)
+            got = self.call(
+                str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control"
+            )
             return {"code": got.code, "payload": got.payload.hex()}
 
         def config(r: dict[str, Any]) -> dict[str, Any]:
@@ -342,23 +370,6 @@ class Daemon:
 
         return {"find": find, "info": info, "call": call, "config": config}
 
-    def _offer_config(self, board: str, keys: list[ConfigKey], values: dict[str, Value],
-                      apply: Any) -> None:  # fmt: skip
-        for p in self.publishers:
-            try:
-                p.add_config(board, keys, values, apply)
-            except Exception:  # (as _declare)
-                self.publish_errors += 1
-                log.exception("publisher %s cannot offer %s's configuration", p.name, board)
-
-    def _config_changed(self, board: str, values: dict[str, Value]) -> None:
-        for p in self.publishers:
-            try:
-                p.config_changed(board, values)
-            except Exception:
-                self.publish_errors += 1
-                log.exception("publisher %s failed on %s's configuration", p.name, board)
-
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -368,8 +379,12 @@ class Daemon:
         return False
 
     def status(self) -> list[dict[str, Any]]:
-        """Per board: state, level, error and every counter (cumulative over reconnects)."""
+        """Per board: state, level, error and every counter (cumulative over reconnects), as
+        plain dicts (JSON); ``snapshots()`` gives the same typed."""
         return [s.status() for s in self.sessions]
+
+    def snapshots(self) -> list[SessionStatus]:
+        return [s.snapshot() for s in self.sessions]
 
     def publisher_status(self) -> list[dict[str, Any]]:
         """Per publisher: level, error, dropped and what it has to say (queue, messages)."""
@@ -382,6 +397,11 @@ class Daemon:
                 out.append(st)
             except Exception as e:  # noqa: BLE001 - a broken status must not hide the others
                 out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}"})
+        paths = {k: v for k, v in self.commands.refused.items() if k in ("api", "control")}
+        if self.control is not None or paths:  # commands refused on no face: still shown
+            extra = self.control.status() if self.control is not None else {}
+            out.append({"publisher": "control", "level": 0, "message": "ok", **extra,
+                        "commands_refused": sum(paths.values())})  # fmt: skip
         if SafeLog.suppressed:
             out.append({"publisher": "log", "level": 0, "message": "ok",
                         "lines_held_back": SafeLog.suppressed})  # fmt: skip
@@ -401,61 +421,19 @@ class Daemon:
             realtime_offset_ns=self.realtime_offset_ns,
             claim_name=self.claims.name,
             claim_type=self.claims.type,
-            declare=self._declare,
-            publish=self._publish,
-            add_command=self._add_command,
+            declare=self.fanout.declare,
+            publish=self.fanout.publish,
+            add_command=self.fanout.add_command,
             remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
-            record_clock=self._record_clock,
-            offer_config=self._offer_config,
-            config_changed=self._config_changed,
+            record_clock=self.fanout.record_clock,
+            offer_config=self.fanout.offer_config,
+            config_changed=self.fanout.config_changed,
         )
-
-    def _declare(self, topic: Topic) -> None:
-        for p in self.publishers:
-            try:
-                p.add_topic(topic)
-            except Exception:  # one face that cannot carry a topic must not stop the board
-                self.publish_errors += 1
-                log.exception("publisher %s cannot declare %s", p.name, topic.name)
-
-    def _publish(self, update: Update) -> None:
-        for p in self.publishers:
-            try:
-                p.publish(update)
-            except Exception:
-                self.publish_errors += 1
-                log.exception("publisher %s failed", p.name)
-
-    def _record_clock(self, topic: str, record: ClockRecord) -> None:
-        for p in self.publishers:
-            try:
-                p.clock_record(topic, record)
-            except Exception:  # (as _publish)
-                self.publish_errors += 1
-                log.exception("publisher %s failed on a clock record", p.name)
-
-    def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
-        gate = self.commands  # (who may command what: commands.py)
-        self.bus.add_command(name, gate.wrap("bus", True, name, handler))
-        for p in self.publishers:
-            try:
-                p.add_command_topic(
-                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, handler)
-                )
-            except Exception:  # (as _declare)
-                self.publish_errors += 1
-                log.exception("publisher %s cannot take commands on %s", p.name, name)
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):
-            status = self.status() + self.publisher_status()
-            now = time.time_ns()
-            for p in self.publishers:
-                try:
-                    p.diagnostics(status, now)
-                except Exception:
-                    log.exception("publisher %s failed on diagnostics", p.name)
+            self.fanout.diagnostics(self.status() + self.publisher_status(), time.time_ns())
 
 
 def connect(

@@ -16,24 +16,35 @@ Nothing a board sends can end the thread.
 ``connecting`` opens the transport and owns the :class:`~missing_link.host.board.Board` *before* the
 handshake, so ``stop()`` can close it at once.  The handshake has one overall deadline
 (``handshake_timeout``) and small caps on the mapping, properties and descriptors (see
-``client.handshake``).  Then everything the board said is validated, with errors that name the
-board and the field: its name must give a topic token (``board-a`` -> ``board_a``, said in the
-warnings) and must not be taken by another board (a second ``robot`` becomes ``robot_2``,
-loudly); message type names are claimed daemon-wide, so two boards whose ``temp`` differ in data
-type never share ``Temp`` (the second is qualified by its board: ``BoardBTemp``).
+``Board.handshake`` in ``host/board.py``).  Then everything the board said is validated, with
+errors that name the board and the field: its name must give a topic token (``board-a`` ->
+``board_a``, said in the warnings) and must not be taken by another board (a second ``robot``
+becomes ``robot_2``, loudly); message type names are claimed daemon-wide, so two boards whose
+``temp`` differ in data type never share ``Temp`` (the second is qualified by its board:
+``BoardBTemp``).
 
 ``up``: the board's reading thread (the daemon's I/O loop) decodes sample SIFs into ``Update``
 objects (the sample path: ``SamplePath`` in ``sample_path.py``) and runs the clock probes on the
-sync's schedule (``prober.py``); the supervisor runs actuator commands (latest wins) and watches
-the link.  A link is *stale* when no intact frame arrived for ``link_timeout``: a frozen board, a
-half-open TCP connection or a pulled cable looks like that.  Silence of half of that sends a
-heartbeat (a clock probe at once, or ``a2jEcho``), so a quiet but healthy board always answers in
-time; a stale link is closed, reported (state, error, ERROR in ``/diagnostics``) and reconnected.
-Like a CANopen heartbeat consumer, the host decides from what it hears, not from what the
-transport claims.
+sync's schedule (``prober.py``); the supervisor (``serve``) watches the link and starts what the
+board is asked: actuator commands (latest wins: ``actuators.py``), the failsafe's keepalive, a
+heartbeat, the board's own counts once a diagnostics period.  It never waits for any of them:
+each is answered on the reading thread, one of a kind in flight (``inflight.py``), so a frozen
+board, a queue of requests or a control call with a long timeout never holds it up.  A link is
+*stale* when no intact frame arrived for ``link_timeout`` (``liveness.py`` decides, from
+``last_frame`` alone): a frozen board, a half-open TCP connection or a pulled cable looks like
+that.  Silence of half of that sends a heartbeat (a clock probe at once, or ``a2jEcho``), so a
+quiet but healthy board always answers in time; a stale link is closed, reported (state, error,
+ERROR in ``/diagnostics``) and reconnected.  Like a CANopen heartbeat consumer, the host decides
+from what it hears, not from what the transport claims.  A board reset seen under the same link
+re-applies the configuration file's keys on a thread of its own (they are calls to wait for).
 
-The session builds the clock sync (``_start_sync``: the board's ``ClockSync`` and its prober)
-and, at each handshake, the topics; the sample path maps and publishes each sample with them.
+``stop``: the board hears goodbye first (``a2jGoodbye``: its actuators safe at once); the
+supervisor waits a bounded time for its answer, then closes the link.  The daemon asks every
+session at once, so the waits overlap.
+
+At each handshake the session builds the clock sync (``session_clock.py``: the board's
+``ClockSync`` and its prober) and the topics (``board_topics.py``); the sample path maps and
+publishes each sample with them.
 Actuator commands arrive through :class:`~missing_link.daemon.actuators.Actuators`.
 
 The session never holds the daemon: it is handed a :class:`SessionContext` of values and
@@ -46,32 +57,37 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import load_descriptor_file
-from ..errors import BoardError, MissingLinkError
+from ..errors import BoardError, LinkLost, MissingLinkError
 from ..host.board import Board
+from ..host.link import CallResult
 from ..ros.clock import clock_topic
-from ..ros.standard import StandardMapping, mapping_for
 from ..timesync.sync import ClockSync
 from ..topics import Topic
 from ..transport import open_transport
 from .actuators import Actuators
 from .alignment import Alignment, grid_of
+from .background import Background
+from .board_topics import BoardTopics, declare_topics
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
-from .failsafe import FailsafeInfo, goodbye, keep_alive, keepalive_s
+from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
+from .inflight import InFlight
+from .liveness import LinkWatch
 from .prober import ClockProber
 from .sample_path import SamplePath
 from .session_clock import ClockContext, SessionClock
 from .settings import BoardSettings, SettingsContext
+from .status import Level, LinkCounters, SessionState, SessionStatus
 
 log = logging.getLogger(__name__)
 
-CONNECTING, UP, BACKOFF, STOPPED = "connecting", "up", "backoff", "stopped"
-#: diagnostic levels (diagnostic_msgs/DiagnosticStatus)
-OK, WARN, ERROR = 0, 1, 2
+CONNECTING, UP, BACKOFF, STOPPED = SessionState
+OK, WARN, ERROR = Level
 
 
 class LinkStale(MissingLinkError):
@@ -82,11 +98,13 @@ class BoardSession:
     def __init__(self, ctx: SessionContext, spec: BoardSpec) -> None:
         self.ctx = ctx
         self.spec = spec
-        self.state = CONNECTING
+        self.state = SessionState.CONNECTING
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
         self._said_goodbye: Board | None = None  # the board told the host is going
+        self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
+        self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
         self.warnings: list[str] = []
@@ -109,11 +127,12 @@ class BoardSession:
                 wants_map=lambda: bool(self.path.grid),
             )
         )
-        self._past: dict[str, int] = {}  # link counters of earlier connections (cumulative)
+        self._past = LinkCounters()  # link counters of earlier connections (cumulative)
         self._logged: set[str] = set()  # failures whose traceback was logged once
         self._stop = threading.Event()
         self._wake = threading.Event()
         self.actuators = Actuators(self._wake.set, self._set_error)
+        self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
         self.settings = BoardSettings(
             SettingsContext(
                 name=lambda: self.name,
@@ -125,7 +144,11 @@ class BoardSession:
         )
         self.alignment = Alignment()
         self.failsafe = FailsafeInfo()
+        self.keepalive = Keepalive()
+        self._echo = InFlight("a2jEcho", self._echoed, self._call_failed)
         self._resets_seen = 0
+        # the file's keys again after a reset: calls to wait for, so not on the supervisor
+        self._reapply = Background(f"session:{spec.url}:config", self.settings.on_reset)
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
         )
@@ -152,46 +175,57 @@ class BoardSession:
         """Transducer id -> topic, as of the latest handshake."""
         return self.path.topics
 
+    def command_topic(self, function: str) -> str | None:
+        """The command topic of the actuator whose function is ``function`` (None: it moves
+        nothing here), as of the latest handshake: the allow-list's name for it."""
+        return self._actuator_calls.get(function)
+
     def start(self) -> None:
         self._thread.start()
 
     def request_stop(self) -> None:
-        """Begin stopping without waiting long (the daemon stops every session at once): the
-        board hears goodbye first, so its actuators go safe now (failsafe.py)."""
+        """Begin stopping without waiting (the daemon stops every session at once): the board
+        hears goodbye first, so its actuators go safe now (failsafe.py); the supervisor waits
+        a bounded time for its answer, then closes the link."""
         self._stop.set()
         self._wake.set()
         board = self.board
-        if board is not None:
-            if self.state == UP and board is not self._said_goodbye:
-                self._said_goodbye = board  # (once: stop() asks again)
-                goodbye(board)
-            board.close()
+        if board is None:
+            return
+        if self.state == UP and board is not self._said_goodbye:
+            self._said_goodbye = board  # (once: stop() asks again)
+            self._goodbye = start_goodbye(board)
+        if self._goodbye is None:
+            board.close()  # nothing to wait for: a handshake under way ends at once
 
     def stop(self, timeout: float = 1.0) -> None:
         self.request_stop()
         if self._thread.is_alive():
             self._thread.join(timeout)
-        self.state = STOPPED
+        board = self.board
+        if board is not None and self._thread.is_alive():
+            board.close()  # (a supervisor stuck in a system call: the link goes anyway)
+        self.state = SessionState.STOPPED
 
     # ---- supervisor thread -------------------------------------------------------------------
     def _supervise(self) -> None:
         delay = self.ctx.config.backoff_min
         while not self._stop.is_set():
-            self.state = CONNECTING
+            self.state = SessionState.CONNECTING
             try:
-                self._connect()
+                board = self._connect()
                 delay = self.ctx.config.backoff_min
-                self._serve()
+                self.serve(board)
             except Exception as e:  # noqa: BLE001 - nothing a board does may end this thread
                 self._failed(e)
             finally:
                 self._disconnect()
             if self._stop.is_set():
                 break
-            self.state = BACKOFF
+            self.state = SessionState.BACKOFF
             self._stop.wait(delay)
             delay = min(delay * 2, self.ctx.config.backoff_max)
-        self.state = STOPPED
+        self.state = SessionState.STOPPED
 
     def _failed(self, e: Exception) -> None:
         self.failures += 1
@@ -212,10 +246,9 @@ class BoardSession:
             self._logged.add(key)
             log.exception("%s: session failed; retrying with backoff", self.spec.url)
 
-    def _connect(self) -> None:
+    def _connect(self) -> Board:
         spec = self.spec
-        reactor = self.ctx.reactor
-        board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=reactor)
+        board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=self.ctx.reactor)
         board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         self.board = board  # owned before the handshake: stop() closes it at once
         if self._stop.is_set():
@@ -238,7 +271,6 @@ class BoardSession:
         if taken:
             self.warn(taken)
         self.path.name = self.name
-        cfg = self.ctx.config
         self.path.sync = None
         no_clock = self.clock.start(
             board, self.name, clock_topic(self.name, {t.name for t in transducers})
@@ -246,40 +278,13 @@ class BoardSession:
         if no_clock:
             self.warn(no_clock)
         self.path.sync = self.clock.sync
-        # New tables, filled as they are declared (a failure half-way leaves _disconnect the
-        # command topics added so far to remove)
-        topics: dict[int, Topic] = {}
-        standard: dict[int, tuple[Topic, StandardMapping]] = {}
-        self.path.topics, self.path.standard = topics, standard
-        for t in transducers:
-            topic_name = cfg.remap.get(f"/{self.name}/{t.name}", f"/{self.name}/{t.name}")
-            type_name, clash = self.ctx.claim_type(self.name, t)
-            if clash:
-                self.warn(clash)
-            topic = Topic.for_transducer(topic_name, self.name, t, cfg.package, type_name)
-            topics[t.id] = topic
-            self.ctx.declare(topic)
-            try:
-                mapping = mapping_for(t, self.name, self.ctx.typestore)
-            except ValueError as e:
-                self.warn(str(e))
-                mapping = None
-            if mapping is not None:
-                std = Topic.standard_type(
-                    f"{topic_name}/{mapping.suffix}",
-                    self.name,
-                    t,
-                    mapping.type_name,
-                    self.ctx.typestore,
-                )
-                standard[t.id] = (std, mapping)
-                self.ctx.declare(std)
-            if t.is_actuator:
-                if t.call not in board.index:
-                    raise BoardError(
-                        self.name, f"actuator {t.name} names call={t.call}, which the board lacks"
-                    )
-                self.ctx.add_command(f"{topic_name}/cmd", topic, self.actuators.handler(t))
+        declared = BoardTopics()  # (filled as declared: _disconnect withdraws what there is)
+        self.path.topics, self.path.standard = declared.topics, declared.standard
+        self._actuator_calls = declared.calls
+        declare_topics(
+            self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
+            declared,
+        )  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
@@ -291,8 +296,9 @@ class BoardSession:
         self._resets_seen = self.sync.resets if self.sync is not None else 0
         self.connects += 1
         self.error = ""
-        self.state = UP
-        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(topics))
+        self.state = SessionState.UP
+        log.info("%s: up as %s with %d topics", self.spec.url, self.name, len(self.topics))
+        return board
 
     def _board_name(self, board: Board) -> str:
         """The topic token this board publishes under (config name, else board.name)."""
@@ -306,60 +312,66 @@ class BoardSession:
             self.warnings.append(text)
             log.warning("%s: %s", self.spec.url, text)
 
-    def _serve(self) -> None:
-        period = self.ctx.config.diagnostics_period
+    def serve(self, board: Board) -> None:
+        """Serve a connected board until its link is lost or stale, or the session stops (the
+        supervisor's thread).  Nothing here waits for the board (liveness.py)."""
+        clock = self.ctx.clock
         link_timeout = self.spec.link_timeout
-        next_ping = time.monotonic()
-        next_beat = next_keep = 0.0
-        board = self.board
-        assert board is not None
+        limit = min(self.spec.timeout, link_timeout / 3)  # what a call of ours may take
+        watch = LinkWatch(link_timeout, self.ctx.config.diagnostics_period, clock.now())
         board.on_close(self._wake.set)  # a broken link wakes the supervisor at once
-        while not self._stop.is_set() and board.alive:
-            # Sleep until the next thing to do (commands and a dying link wake it early): an
-            # idle board costs a wake-up a second; clock probes run on the reading thread.
-            keep = keepalive_s(board, self.settings.values)  # (the board's failsafe)
-            due = min(next_ping, max(board.last_frame + link_timeout / 2, next_beat))
-            if keep is not None:
-                due = min(due, next_keep)
-            self._wake.wait(max(0.0, min(1.0, due - time.monotonic())))
-            self._wake.clear()
-            self.actuators.run(board, self._stop.is_set, self._push_map)
-            sync = self.sync
-            if sync is not None and sync.resets != self._resets_seen:
-                self._resets_seen = sync.resets  # the board restarted: the file's keys again
-                self.settings.on_reset()
-            now = time.monotonic()
-            silent = now - board.last_frame
-            if silent > link_timeout:
-                self.stale_links += 1
-                raise LinkStale(
-                    f"{self.name}: no frame from the board for {silent:.1f} s (frozen, "
-                    "unplugged or a half-open link); reconnecting"
-                )
-            if keep is not None and now >= next_keep:
-                next_keep = now + keep
-                keep_alive(board)
-            heartbeat = silent >= link_timeout / 2 and now >= next_beat
-            if heartbeat:
-                next_beat = now + link_timeout / 4
-            ping = now >= next_ping
-            if ping:
-                next_ping = now + period
-                if self.path.grid:  # the board's own account of its grid (alignment.py)
-                    self.alignment.refresh(board)
-                self.failsafe.refresh(board, self.settings.values)
-            if self.prober is not None:
-                if heartbeat:
-                    self.prober.probe_now()  # answered (or timed out) on the reading thread
-            elif ping or heartbeat:
-                try:  # no clock exchanges to measure the round trip with
-                    t0 = time.perf_counter()
-                    board.call("a2jEcho", b"", timeout=min(self.spec.timeout, link_timeout / 3))
-                    self.rtt_us = (time.perf_counter() - t0) * 1e6
-                except MissingLinkError as e:
-                    self.error = str(e)
+        self.actuators.reset()
+        self._serving = True
+        try:
+            while not self._stop.is_set() and board.alive:
+                # Sleep until the next thing to do (commands and a dying link wake it early):
+                # an idle board costs a wake-up a second; clock probes run on the reading thread.
+                keep = keepalive_s(board, self.settings.values)  # (the board's failsafe)
+                clock.wait(self._wake, watch.wait_s(clock.now(), board.last_frame, keep))
+                self._wake.clear()
+                if self._stop.is_set():
+                    break
+                self.actuators.run(board, self._stop.is_set, self.clock.push_map_future)
+                self._notice_reset()
+                turn = watch.turn(clock.now(), board.last_frame, keep)
+                if turn.stale:
+                    self.stale_links += 1
+                    raise LinkStale(
+                        f"{self.name}: no frame from the board for {turn.silent:.1f} s (frozen, "
+                        "unplugged or a half-open link); reconnecting"
+                    )
+                if turn.keepalive and keep is not None:
+                    self.keepalive.send(board, keep, limit)
+                if turn.ping:
+                    if self.path.grid:  # the board's own account of its grid (alignment.py)
+                        self.alignment.refresh(board, limit)
+                    self.failsafe.refresh(board, self.settings.values, limit)
+                if self.prober is not None:
+                    if turn.heartbeat:
+                        self.prober.probe_now()  # answered (or timed out) on the reading thread
+                elif turn.ping or turn.heartbeat:  # no clock exchanges to time the round trip
+                    self._echo.start(board, b"", limit)
+        finally:
+            self._serving = False
         if not board.alive and not self._stop.is_set():
-            self.error = f"link lost: {board.transport.url}"
+            self.error = f"link lost: {board.url}"
+
+    def _notice_reset(self) -> None:
+        """A board reset the clock sync noticed under the same link: the file's keys again,
+        on a thread of their own (calls to wait for; the supervisor must not)."""
+        sync = self.sync
+        if sync is None or sync.resets == self._resets_seen:
+            return
+        self._resets_seen = sync.resets
+        self._reapply.request()
+
+    def _echoed(self, result: CallResult) -> None:
+        if result.sent_ns and result.recv_ns > result.sent_ns:
+            self.rtt_us = (result.recv_ns - result.sent_ns) / 1000
+
+    def _call_failed(self, e: MissingLinkError) -> None:
+        if not isinstance(e, LinkLost):  # (a lost link: the session says why, e.g. stale)
+            self._set_error(str(e))
 
     def _set_grid(self, values: dict[str, Any]) -> None:
         grid = grid_of(values, self.path.topics)
@@ -374,17 +386,27 @@ class BoardSession:
         aligned_before = bool(self.path.grid)
         self._set_grid(values)
         if self.path.grid and not aligned_before:
-            try:  # the grid needs the map now, not at the next exchange
-                self._push_map()
-            except MissingLinkError as e:
-                self._set_error(str(e))
+            self._push_map_now()  # the grid needs the map now, not at the next exchange
+        self._wake.set()  # (a new failsafe_ms: the keepalive follows at once)
         self.ctx.config_changed(name, values)
 
-    def _push_map(self) -> None:
-        self.clock.push_map()
+    def _push_map_now(self) -> None:
+        try:
+            fut = self.clock.push_map_future()
+        except MissingLinkError as e:
+            self._set_error(str(e))
+            return
+        if fut is not None:
+            fut.add_done_callback(self._map_pushed)
+
+    def _map_pushed(self, fut: Future[CallResult]) -> None:
+        e = fut.exception()
+        if isinstance(e, MissingLinkError):
+            self._call_failed(e)
 
     def _set_error(self, text: str) -> None:
-        self.error = text
+        if self._serving:  # (a call failing as the link closes must not hide why it did)
+            self.error = text
 
     def _probe_failed(self, board: Board, text: str) -> None:
         if self.board is board:  # (a late reply of an earlier link says nothing now)
@@ -400,11 +422,11 @@ class BoardSession:
         finally:
             board, self.board = self.board, None
             if board is not None:
+                goodbye, self._goodbye = self._goodbye, None
+                wait_goodbye(goodbye)  # (stopping: bounded, so the actuators go safe first)
                 board.close()
-                for key, value in _link_counters(board).items():
-                    self._past[key] = self._past.get(key, 0) + value
+                self._past += LinkCounters.of(board)
 
-    # ---- the sample path (board reader thread) -----------------------------------------------
     def _sif_count(self, board: Board) -> int | None:
         if "a2jSifCount" not in board.index:
             return None
@@ -414,66 +436,46 @@ class BoardSession:
             return None
         return int.from_bytes(payload[:8], "little") if len(payload) >= 8 else None
 
-    def level(self) -> tuple[int, str]:
+    # ---- status ------------------------------------------------------------------------------
+    def level(self) -> tuple[Level, str]:
         """Diagnostic level and message: ERROR when not up, WARN when up with warnings."""
         if self.state != UP:
-            return ERROR, self.error or self.state
+            return Level.ERROR, self.error or self.state.value
         if self.warnings:
-            return WARN, "; ".join(self.warnings)
-        return OK, "up"
+            return Level.WARN, "; ".join(self.warnings)
+        return Level.OK, "up"
+
+    def snapshot(self) -> SessionStatus:
+        """The session's status now, typed; counters are cumulative over every connection."""
+        b = self.board
+        level, message = self.level()
+        sync = self.sync
+        return SessionStatus(
+            board=self.name,
+            url=self.spec.url,
+            state=self.state,
+            level=level,
+            message=message,
+            error=self.error,
+            serial=b.properties.get("board.serial", "") if b else "",
+            connects=self.connects,
+            failures=self.failures,
+            stale_links=self.stale_links,
+            link=self._past + LinkCounters.of(b) if b is not None else self._past,
+            samples=self.path.counters(),
+            commands=self.commands,
+            command_errors=self.command_errors,
+            rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
+            warnings="; ".join(self.warnings),
+            clock_epoch=self.epoch,
+            map_pushes=self.clock.map_pushes,
+            config=self.settings.status(),
+            aligned=Alignment.aligned(self.path.grid, self.path.topics),
+            align_info=self.alignment.info,
+            failsafe=self.failsafe.status,
+            sync=sync.status() if sync is not None else None,
+        )
 
     def status(self) -> dict[str, Any]:
-        """Counters are cumulative over every connection of this session."""
-        b = self.board
-        link = _link_counters(b) if b is not None else {}
-        level, message = self.level()
-        return {
-            "board": self.name,
-            "url": self.spec.url,
-            "state": self.state,
-            "level": level,
-            "message": message,
-            "error": self.error,
-            "serial": b.properties.get("board.serial", "") if b else "",
-            "connects": self.connects,
-            "failures": self.failures,
-            "stale_links": self.stale_links,
-            **{k: self._past.get(k, 0) + link.get(k, 0) for k in _LINK_COUNTERS},
-            **self.path.counters(),
-            "commands": self.commands,
-            "command_errors": self.command_errors,
-            "rtt_us": round(self.rtt_us) if self.rtt_us is not None else None,
-            "warnings": "; ".join(self.warnings),
-            "clock_epoch": self.epoch,
-            "map_pushes": self.clock.map_pushes,
-            **self.settings.status(),
-            **self.alignment.status(self.path.grid, self.path.topics),
-            **self.failsafe.info,
-            **(self.sync.status() if self.sync is not None else {"sync_state": "none"}),
-        }
-
-
-_LINK_COUNTERS = (
-    "frames",
-    "bad_checksums",
-    "bad_escapes",
-    "cut_frames",
-    "junk_bytes",
-    "lost_sifs",
-    "timeouts",
-    "late_replies",
-)
-
-
-def _link_counters(board: Board) -> dict[str, int]:
-    d, c = board.conn.decoder.stats, board.conn.stats
-    return {
-        "frames": d.frames,
-        "bad_checksums": d.bad_checksums,
-        "bad_escapes": d.bad_escapes,
-        "cut_frames": d.cut_frames,
-        "junk_bytes": d.junk_bytes,
-        "lost_sifs": c.sifs_lost,
-        "timeouts": c.timeouts,
-        "late_replies": c.late_replies,
-    }
+        """``snapshot()`` as the plain dict of ``Daemon.status()`` and ``/diagnostics``."""
+        return self.snapshot().to_json()

@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
 from ..host.board import Board
+from ..host.link import CallResult
 from ..ros.clock import ACCEPTED, REFUSED, RESET, record_of
 from ..timesync.estimator import AddResult
 from ..timesync.exchange import Exchange
@@ -75,6 +77,11 @@ class SessionClock:
         prober = self.prober
         if prober is not None:
             prober.push_map()
+
+    def push_map_future(self) -> Future[CallResult] | None:
+        """The map to the board, not waited for (None: no clock, or no map yet)."""
+        prober = self.prober
+        return prober.push_map_future() if prober is not None else None
 
     def _probe_context(self, board: Board, sync: ClockSync, name: str, topic: str) -> ProbeContext:
         ctx = self.ctx

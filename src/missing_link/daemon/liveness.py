@@ -1,0 +1,85 @@
+"""Whether a board's link is alive, decided from what the host hears (pure: time comes in).
+
+Theory of operation
+-------------------
+The session's supervisor asks a :class:`LinkWatch` what is due, given the time and
+``last_frame`` (when the newest intact frame arrived: the board's reading thread stamps it).
+Nothing else decides liveness, like a CANopen heartbeat consumer: not what the transport
+claims, not whether a call was answered.  The rules, with ``T`` = ``link_timeout``:
+
+* **stale**: no frame for ``T``.  The link is closed, reported and reconnected.  Everything
+  else waits for this verdict, never the other way round.
+* **heartbeat**: silent for ``T / 2``: make the board answer (a clock probe, or ``a2jEcho``),
+  again every ``T / 4`` while the silence lasts, so a quiet but healthy board is heard in time.
+* **keepalive**: every ``keep`` s while the board has an armed failsafe (failsafe.py): a frame
+  to the board, so that only a host that is gone trips it.
+* **ping**: once per diagnostics ``period``: the board's own counts (failsafe trips, alignment)
+  and, without clock probes, a round trip.
+
+``wait_s`` says how long the supervisor may sleep until something is due: never past the
+instant the link turns stale, so a frozen board is found ``T`` after its last frame plus the
+supervisor's wake-up.  That holds only because the supervisor never waits for the board: each
+thing it asks is sent and answered in the background, one of a kind at a time (inflight.py),
+so a queue of requests ahead of it, a control call with a long timeout or a board that never
+answers cannot hold it up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: the longest the supervisor sleeps: a new failsafe_ms (keepalive) is taken up within it
+MAX_SLEEP_S = 1.0
+
+
+@dataclass(frozen=True)
+class Turn:
+    """What is due now (at most one verdict: a stale link does nothing else)."""
+
+    stale: bool = False
+    silent: float = 0.0  #: s since the last frame
+    heartbeat: bool = False
+    keepalive: bool = False
+    ping: bool = False
+
+
+class LinkWatch:
+    def __init__(self, link_timeout: float, period: float, now: float) -> None:
+        if link_timeout <= 0 or period <= 0:
+            raise ValueError("link_timeout and period must be positive")
+        self.link_timeout = link_timeout
+        self.period = period
+        self.next_ping = now  # the first at once (the board's counts in the status)
+        self.next_beat = 0.0
+        self.next_keep = now
+
+    def due(self, last_frame: float, keep: float | None) -> float:
+        """The next instant something may be due (CLOCK_MONOTONIC s)."""
+        t = self.link_timeout
+        due = min(self.next_ping, max(last_frame + t / 2, self.next_beat), last_frame + t)
+        if keep is not None:
+            due = min(due, self.next_keep)
+        return due
+
+    def wait_s(self, now: float, last_frame: float, keep: float | None) -> float:
+        """How long the supervisor may sleep (commands and a closing link wake it earlier)."""
+        return max(0.0, min(MAX_SLEEP_S, self.due(last_frame, keep) - now))
+
+    def turn(self, now: float, last_frame: float, keep: float | None) -> Turn:
+        """What is due at ``now``; the schedule moves on for what it returns.  (Each instant
+        is computed as ``due`` computes it: a wake-up at ``due`` always finds its work.)"""
+        t = self.link_timeout
+        silent = now - last_frame
+        if now >= last_frame + t:
+            return Turn(stale=True, silent=silent)
+        keepalive = keep is not None and now >= self.next_keep
+        if keepalive:
+            assert keep is not None
+            self.next_keep = now + keep
+        heartbeat = now >= max(last_frame + t / 2, self.next_beat)
+        if heartbeat:
+            self.next_beat = now + t / 4
+        ping = now >= self.next_ping
+        if ping:
+            self.next_ping = now + self.period
+        return Turn(False, silent, heartbeat, keepalive, ping)

@@ -1,0 +1,171 @@
+"""What a board session reports: its state (an enum) and its status (a dataclass).
+
+``SessionState`` is a ``str`` enum, so a state compares equal to its old string (``"up"``) and
+goes into JSON as that string.  ``SessionStatus`` is one session's status at one moment, typed;
+``to_json()`` gives the plain dict that ``Daemon.status()``, ``/diagnostics``, the ``run``
+summary and the live view read, with the keys (and their order) documented for them: the
+session's own, the link's counters, the sample path's, the commands', the run-time
+configuration's, the alignment's, the failsafe's and the clock sync's.  The parts that other
+modules own (sample path, settings, clock sync) stay the plain dicts those modules give.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import astuple, dataclass, field, fields
+from enum import IntEnum, StrEnum
+from typing import Any
+
+from ..host.board import Board
+
+
+class SessionState(StrEnum):
+    """Where a session's supervisor is (session.py, "Theory of operation")."""
+
+    CONNECTING = "connecting"
+    UP = "up"
+    BACKOFF = "backoff"
+    STOPPED = "stopped"
+
+
+class Level(IntEnum):
+    """Diagnostic levels (diagnostic_msgs/DiagnosticStatus)."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+@dataclass(frozen=True)
+class LinkCounters:
+    """A link's counters (the frame decoder's and the connection's), summed over links."""
+
+    frames: int = 0
+    bad_checksums: int = 0
+    bad_escapes: int = 0
+    cut_frames: int = 0
+    junk_bytes: int = 0
+    lost_sifs: int = 0
+    timeouts: int = 0
+    late_replies: int = 0
+
+    @classmethod
+    def of(cls, board: Board) -> LinkCounters:
+        """The counters of ``board``'s link now."""
+        d, c = board.conn.decoder.stats, board.conn.stats
+        return cls(
+            frames=d.frames,
+            bad_checksums=d.bad_checksums,
+            bad_escapes=d.bad_escapes,
+            cut_frames=d.cut_frames,
+            junk_bytes=d.junk_bytes,
+            lost_sifs=c.sifs_lost,
+            timeouts=c.timeouts,
+            late_replies=c.late_replies,
+        )
+
+    def __add__(self, other: LinkCounters) -> LinkCounters:
+        return LinkCounters(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
+
+    def to_json(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class FailsafeStatus:
+    """The board's own count of failsafe trips (``a2jFailsafe``), once read; ``problem`` when
+    its reply made no sense."""
+
+    trips: int | None = None
+    last_trip_ms: int | None = None
+    problem: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        if self.problem:
+            return {"failsafe": self.problem}
+        if self.trips is None:
+            return {}
+        return {"failsafe_trips": self.trips, "failsafe_last_trip_ms": self.last_trip_ms}
+
+
+@dataclass(frozen=True)
+class AlignInfo:
+    """The board's account of its grid (``a2jAlignInfo``), once read; ``problem`` when its
+    reply made no sense."""
+
+    map_valid: bool | None = None
+    map_age_ms: int | None = None
+    unaligned_samples: int = 0
+    timed_done: int = 0
+    timed_refused: int = 0
+    problem: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        if self.problem:
+            return {"align_info": self.problem}
+        if self.map_valid is None:
+            return {}
+        return {
+            "map_valid": self.map_valid,
+            "map_age_ms": self.map_age_ms,
+            "unaligned_samples": self.unaligned_samples,
+            "timed_done": self.timed_done,
+            "timed_refused": self.timed_refused,
+        }
+
+
+@dataclass(frozen=True)
+class SessionStatus:
+    """One board session's status; counters are cumulative over every connection."""
+
+    board: str
+    url: str
+    state: SessionState
+    level: Level
+    message: str
+    error: str
+    serial: str
+    connects: int
+    failures: int
+    stale_links: int
+    link: LinkCounters
+    samples: Mapping[str, Any]  #: the sample path's counters (sample_path.py)
+    commands: int
+    command_errors: int
+    rtt_us: int | None
+    warnings: str
+    clock_epoch: str
+    map_pushes: int
+    config: Mapping[str, Any]  #: the run-time configuration's (settings.py)
+    aligned: str  #: the transducers sampled on the host-time grid, by name
+    align_info: AlignInfo = field(default_factory=AlignInfo)  #: shown while anything is aligned
+    failsafe: FailsafeStatus = field(default_factory=FailsafeStatus)
+    sync: Mapping[str, Any] | None = None  #: the clock sync's (None: the board has no clock)
+
+    def to_json(self) -> dict[str, Any]:
+        """The plain dict, in the documented key order (JSON types only)."""
+        return {
+            "board": self.board,
+            "url": self.url,
+            "state": self.state.value,
+            "level": int(self.level),
+            "message": self.message,
+            "error": self.error,
+            "serial": self.serial,
+            "connects": self.connects,
+            "failures": self.failures,
+            "stale_links": self.stale_links,
+            **self.link.to_json(),
+            **self.samples,
+            "commands": self.commands,
+            "command_errors": self.command_errors,
+            "rtt_us": self.rtt_us,
+            "warnings": self.warnings,
+            "clock_epoch": self.clock_epoch,
+            "map_pushes": self.map_pushes,
+            **self.config,
+            "aligned": self.aligned,
+            **(self.align_info.to_json() if self.aligned else {}),
+            **self.failsafe.to_json(),
+            **(self.sync if self.sync is not None else {"sync_state": "none"}),
+        }
