@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..board.signing import BOARD_LINK, HOST_LINK, Signer, Verifier, host_now
 from ..errors import BadURL
-from .base import Transport
+from .base import Received, Transport
 
 #: key digest -> the newest board timestamp accepted in this process (replays across reconnects)
 _NEWEST: dict[bytes, int] = {}
@@ -52,14 +52,17 @@ class SignedTransport(Transport):
             self._verifier.newest = _NEWEST.get(self._id, -1)
 
     def read(self, timeout: float | None) -> bytes:
-        data = self.inner.read(timeout)
+        return self.read_stamped(timeout)[0]
+
+    def read_stamped(self, timeout: float | None) -> Received:
+        data, rx_ns, first_rx_ns = self.inner.read_stamped(timeout)  # (the inner link's stamps)
         if not data:
-            return data
+            return data, rx_ns, first_rx_ns
         out: bytes = self._verifier.feed(data)
         if self._verifier.newest >= 0:
             with _NEWEST_LOCK:
                 _NEWEST[self._id] = max(_NEWEST.get(self._id, -1), self._verifier.newest)
-        return out
+        return out, rx_ns, first_rx_ns
 
     def write(self, data: bytes) -> None:
         with self._wlock:
@@ -79,14 +82,6 @@ class SignedTransport(Transport):
     @property
     def last_write_ns(self) -> int:  # type: ignore[override]
         return self.inner.last_write_ns
-
-    @property
-    def last_rx_ns(self) -> int:  # type: ignore[override]
-        return self.inner.last_rx_ns
-
-    @property
-    def first_rx_ns(self) -> int:  # type: ignore[override]
-        return self.inner.first_rx_ns
 
     @property
     def wakes_on_close(self) -> bool:  # type: ignore[override]
