@@ -138,7 +138,7 @@ def sample_path_us(boards: int = 1, per_read: int = 4, n: int = 20000) -> float:
                 clamps = sum(p.host_time_clamps + p.future_clamps for p in paths)
                 t0 = time.thread_time()
                 for board, data in turns:
-                    board.step(data, time.monotonic_ns(), 0)
+                    board.link.step(data, time.monotonic_ns())
                 spent = time.thread_time() - t0
                 # (a clamp is a branch the real stream does not take: not the path measured)
                 assert sum(p.host_time_clamps + p.future_clamps for p in paths) == clamps

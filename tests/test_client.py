@@ -6,7 +6,7 @@ import asyncio
 import itertools
 import struct
 import threading
-import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import pytest
@@ -21,8 +21,11 @@ from missing_link import (
     UnknownFunction,
     open_board,
 )
+from missing_link.host.clock import FakeClock
 from missing_link.j2a import SifReceived
 from missing_link.transport.memory import memory_pair
+
+from .helpers import wait_for
 
 Serve = Any
 
@@ -75,20 +78,63 @@ def test_function_failed_carries_code(serve: Serve) -> None:
     assert err.value.code == 0xFF and "a2j_set_servo returned 0xff" in str(err.value)
 
 
-def test_timeout_names_function_and_leaves_no_lock() -> None:
+def test_a_timeout_runs_on_the_boards_clock_names_the_function_and_leaves_no_lock() -> None:
+    """A call's deadline is on the board's clock: 30 s of a fake clock pass in no real time,
+    and not before it is moved; the timeout names the function, and the link takes the next
+    call (nothing left locked)."""
+    clock = FakeClock()
     host, _silent = memory_pair("silent")
-    board = Board(host, timeout=0.1)
+    board = Board(host, timeout=30.0, clock=clock)
     try:
-        t0 = time.monotonic()
-        with pytest.raises(CallTimeout) as err:
-            board.call_index(0, b"", "a2jGetMapping")
-        assert time.monotonic() - t0 < 2.0
-        assert "a2jGetMapping: no reply within 100 ms" in str(err.value)
-        assert board._lock.acquire(timeout=1)
-        board._lock.release()
+        with ThreadPoolExecutor(1) as pool:
+            for _ in range(2):
+                start = clock.monotonic()
+                call = pool.submit(board.call_index, 0, b"", "a2jGetMapping")
+                assert wait_for(lambda: board.link.next_due is not None)  # the call is out
+                assert board.link.next_due == start + 30.0  # the deadline, on the fake clock
+                clock.advance(30.0)
+                with pytest.raises(CallTimeout) as err:
+                    call.result(10)
+                assert "a2jGetMapping: no reply within 30000 ms" in str(err.value)
+        assert board.link_stats().timeouts == 2
     finally:
         board.close()
     assert not board.alive
+
+
+def test_the_handshake_asks_again_until_its_deadline_on_the_boards_clock() -> None:
+    """First contact is asked again after each timeout (a board still booting) until the
+    handshake's deadline, all on the board's clock: the last ask waits only what is left."""
+    clock = FakeClock()
+    host, _mute = memory_pair("mute")
+    board = Board(host, timeout=1.0, clock=clock)
+    try:
+        with ThreadPoolExecutor(1) as pool:
+            done = pool.submit(board.handshake, deadline=clock.monotonic() + 3.5)
+            for asked in range(1, 5):  # at 0, 1, 2 and 3 s; the last for 0.5 s
+                assert wait_for(lambda: board.link_stats().requests == asked)  # noqa: B023
+                assert board.link.next_due == clock.monotonic() + (1.0 if asked < 4 else 0.5)
+                clock.advance(1.0)
+            with pytest.raises(CallTimeout, match=r"handshake not done within 3\.5 s"):
+                done.result(10)
+        assert board.link_stats().requests == 4
+    finally:
+        board.close()
+
+
+def test_last_frame_is_on_the_boards_clock(serve: Serve) -> None:
+    """``last_frame`` (a link's staleness, what the daemon's supervisor watches) is stamped on
+    the board's clock: a silent board goes stale as the fake clock moves, and a reply is fresh."""
+    from missing_link.board.runtime import BoardRuntime
+
+    clock = FakeClock()
+    server = serve(BoardRuntime("quiet", "m", "s", epoch="e"))  # no transducers: no SIFs
+    with open_board(server.url, clock=clock) as board:
+        assert board.last_frame == clock.monotonic()  # the handshake's replies, just now
+        clock.advance(7.5)
+        assert clock.monotonic() - board.last_frame == 7.5
+        assert board.call("a2jEcho", b"x").payload == b"x"
+        assert board.last_frame == clock.monotonic()
 
 
 def test_link_broken_vs_closed(serve: Serve) -> None:
@@ -104,7 +150,7 @@ def test_link_broken_vs_closed(serve: Serve) -> None:
 
     t = threading.Thread(target=waiter)
     t.start()
-    time.sleep(0.1)
+    assert wait_for(lambda: board.link.calls_waiting)
     dev.close()  # the board end goes away while the call waits
     t.join(5)
     assert isinstance(result[0], LinkLost) and result[0].broken
@@ -146,9 +192,15 @@ def test_sif_handlers_by_cmd_and_any(serve: Serve) -> None:
 
 def test_handler_exception_does_not_stop_board(serve: Serve) -> None:
     server = serve("thesis")
+    raised = []
+
+    def failing(ev: SifReceived, now: float) -> None:
+        raised.append(ev)
+        raise ZeroDivisionError("a handler's bug")
+
     with open_board(server.url) as board:
-        board.on_sif(None, lambda ev, now: 1 / 0)
-        time.sleep(0.2)
+        board.on_sif(None, failing)
+        assert wait_for(lambda: len(raised) >= 5)  # it raised, and SIFs kept coming
         assert board.call("a2jEcho", b"x").payload == b"x"
 
 
@@ -173,7 +225,7 @@ def test_many_boards_one_broken_does_not_affect_other(serve: Serve) -> None:
     b = serve("rangers")
     with open_board(a.url) as ba, open_board(b.url) as bb:
         b.stop()
-        time.sleep(0.2)
+        assert wait_for(lambda: not bb.alive)
         assert ba.call("a2jEcho", b"still").payload == b"still"
         with pytest.raises(LinkLost):
             bb.call("a2jEcho", b"gone", timeout=0.5)
@@ -216,3 +268,17 @@ def test_a_call_times_out_on_time_while_the_reader_idles() -> None:
         finally:
             board.close()
             conn.close()
+
+
+def test_link_stats_are_a_snapshot_of_the_links_counters(serve: Serve) -> None:
+    server = serve("thesis")
+    with open_board(server.url) as board:
+        before = board.link_stats()
+        assert board.call("a2jEcho", b"x").payload == b"x"
+        after = board.link_stats()
+        assert after.requests == before.requests + 1 and after.replies == before.replies + 1
+        assert after.frames > before.frames and after.bad_checksums == 0
+        assert after.transport == {}  # (a memory link counts nothing of its own)
+        board.link.count_lost_sifs(512)  # two whole seq wraps, known from the board's count
+        assert board.link_stats().sifs_lost >= after.sifs_lost + 512
+        assert before.requests == board.link_stats().requests - 1  # a snapshot: it stayed

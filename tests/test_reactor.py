@@ -17,6 +17,7 @@ from missing_link.daemon.config import BoardSpec
 from missing_link.daemon.prober import ClockProber, ProbeContext
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board
+from missing_link.host.clock import FakeClock
 from missing_link.host.reactor import Reactor
 from missing_link.j2a import SifReceived
 from missing_link.timesync import ClockSync, Exchange, SyncOptions
@@ -140,8 +141,11 @@ def test_ticker_and_async_clock_exchange_run_on_the_reading_thread(
         board.close()
 
 
-def test_async_clock_exchange_reports_a_timeout_to_its_callback(reactor: Reactor) -> None:
-    # A board that never answers: the callback gets the CallTimeout (on the loop thread).
+def test_async_clock_exchange_reports_a_timeout_to_its_callback() -> None:
+    # A board that never answers: the callback gets the CallTimeout, on the loop thread, when
+    # the loop's clock says so (a fake one: 30 s in no real time).
+    clock = FakeClock()
+    reactor = Reactor(clock=clock).start()
     listener = socket.socket()
     listener.bind(("127.0.0.1", 0))
     listener.listen(1)
@@ -149,14 +153,72 @@ def test_async_clock_exchange_reports_a_timeout_to_its_callback(reactor: Reactor
     board = Board(open_transport(url), timeout=0.2, reactor=reactor)
     conn, _ = listener.accept()
     try:
+        assert board.clock is clock  # (a board read by the loop runs on the loop's clock)
         board.index = {"a2jClock": 3}
-        done: Future[Exchange | BaseException] = Future()
-        board.clock_exchange_async(done.set_result, timeout=0.1)
-        assert isinstance(done.result(5), CallTimeout)
+        done: Future[tuple[str, Exchange | BaseException]] = Future()
+        board.clock_exchange_async(
+            lambda got: done.set_result((threading.current_thread().name, got)), timeout=30.0
+        )
+        assert board.link.next_due == clock.monotonic() + 30.0
+        clock.advance(30.0)
+        thread, got = done.result(10)
+        assert isinstance(got, CallTimeout) and thread == "j2a:reactor"
+        assert not board.link.transport.count_arrivals  # counting ends with the exchange
     finally:
         board.close()
         conn.close()
         listener.close()
+        reactor.stop()
+
+
+def _settle(board: Board) -> None:
+    """Two round trips: the thread that reads ``board`` has looked at its timers since this
+    was called (the second reply is read after a pass that began after the first's)."""
+    for _ in range(2):
+        assert board.call("a2jEcho", b"s").payload == b"s"
+
+
+@pytest.mark.parametrize("shared", [True, False], ids=["shared-loop", "own-thread"])
+def test_a_ticker_runs_when_due_on_the_boards_clock_and_not_before(
+    serve: Serve, shared: bool
+) -> None:
+    """Timers are on the board's clock: a ticker due in 1 s of a fake clock does not run while
+    that clock stands 1 ms short, however long the machine takes, and runs at once, at its due
+    time, when the clock gets there; on the shared loop and on a board's own reader."""
+    clock = FakeClock()
+    reactor = Reactor(clock=clock).start() if shared else None
+    server = serve("thesis", "tcp://127.0.0.1:0" if shared else "memory")
+    board = Board(open_transport(server.url), timeout=2.0, reactor=reactor, clock=clock)
+    try:
+        board.handshake()
+        start = clock.monotonic()
+        ticks: list[float] = []
+        board.set_ticker(lambda: None if ticks else start + 1.0, ticks.append)
+        assert board.link.next_due == start + 1.0
+        clock.advance(0.999)
+        _settle(board)
+        assert ticks == []
+        clock.advance(0.001)
+        assert wait_for(lambda: bool(ticks))
+        assert ticks == [start + 1.0]
+    finally:
+        board.close()
+        if reactor is not None:
+            reactor.stop()
+
+
+def test_a_board_and_its_loop_share_one_clock() -> None:
+    reactor = Reactor(clock=FakeClock()).start()
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(1)
+        transport = open_transport(f"tcp://127.0.0.1:{listener.getsockname()[1]}")
+        try:
+            with pytest.raises(ValueError, match="one clock"):
+                Board(transport, reactor=reactor, clock=FakeClock())
+        finally:
+            transport.close()
+            reactor.stop()
 
 
 # ---- the probe budget (pure: fakes for the session, daemon and board) -------------------------

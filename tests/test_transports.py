@@ -14,7 +14,7 @@ import pytest
 
 from missing_link import BadURL, Board, LinkLost, TransportBroken, TransportClosed, open_board
 from missing_link.board.runtime import BoardRuntime
-from missing_link.transport import open_transport
+from missing_link.transport import FdTransport, open_transport
 from missing_link.transport import usb as usb_transport
 from missing_link.transport.spy import SpyTransport
 from missing_link.virtual import make_sim
@@ -57,7 +57,7 @@ def test_real_links(serve: Serve, listen: str, tmp_path: Any) -> None:
         payload = bytes(range(256))[:255]  # every special byte escaped on a real link
         for _ in range(20):
             assert board.call("a2jEcho", payload).payload == payload
-        assert board.conn.decoder.stats.bad_checksums == 0
+        assert board.link_stats().bad_checksums == 0
 
 
 def test_socket_closed_vs_broken(serve: Serve) -> None:
@@ -242,9 +242,10 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
             peer.sendall(b"\x7e" * 40)
             time.sleep(0.02)  # the reader is late
             before_read = time.monotonic_ns()
-            assert t.read(1.0) == b"\x7e" * 40
-            assert sent <= t.last_rx_ns  # causal, kernel stamp or not
-            early += t.last_rx_ns < before_read
+            data, rx_ns, _first = t.read_stamped(1.0)
+            assert data == b"\x7e" * 40
+            assert sent <= rx_ns  # causal, kernel stamp or not
+            early += rx_ns < before_read
         # The kernel turns receive stamping on a little after the first socket asks (a deferred
         # static key): the first segments may come unstamped, and then our own stamp is used.
         assert early >= 3
@@ -253,8 +254,9 @@ def test_tcp_reads_are_stamped_when_the_bytes_arrived_not_when_read() -> None:
         peer.sendall(b"\x7e" * 40)
         time.sleep(0.02)
         before_read = time.monotonic_ns()
-        assert t.read(1.0) == b"\x7e" * 40
-        assert t.last_rx_ns >= before_read
+        data, rx_ns, first_rx_ns = t.read_stamped(1.0)
+        assert data == b"\x7e" * 40
+        assert rx_ns >= before_read and first_rx_ns == 0
     finally:
         t.close()
         peer.close()
@@ -283,8 +285,9 @@ def test_serial_reads_are_stamped_when_the_driver_counted_the_bytes() -> None:
             sent = time.monotonic_ns()
             os.write(master, b"\x7e" * 40)
             time.sleep(0.02)
-            assert t.read(1.0) == b"\x7e" * 40
-            assert sent <= t.last_rx_ns < read_started[-1]
+            data, rx_ns, _first = t.read_stamped(1.0)
+            assert data == b"\x7e" * 40
+            assert sent <= rx_ns < read_started[-1]
     finally:
         t.close()
         os.close(master)
@@ -307,10 +310,15 @@ def test_bytes_counted_at_the_wake_are_stamped_then_and_only_they() -> None:
         os.write(master, b"\x7f" * 5)  # arrives after the count
         second_sent = time.monotonic_ns()
         time.sleep(0.02)
-        assert t.read_ready() == b"\x7e" * 10  # type: ignore[attr-defined]
-        assert t.last_rx_ns <= counted_by  # stamped at the count, before the second write
-        assert t.read(1.0) == b"\x7f" * 5
-        assert t.last_rx_ns >= second_sent
+        assert isinstance(t, FdTransport)
+        data, rx_ns, first_rx_ns = t.read_ready()
+        assert data == b"\x7e" * 10
+        assert rx_ns <= counted_by  # stamped at the count, before the second write
+        assert first_rx_ns == 0  # (the count was not told when a wait returned)
+        data, rx_ns, first_rx_ns = t.read_stamped(1.0)
+        assert data == b"\x7f" * 5
+        assert rx_ns >= second_sent
+        assert 0 < first_rx_ns <= rx_ns  # its own wait returned when the first byte was there
     finally:
         t.close()
         os.close(master)
@@ -338,9 +346,9 @@ def test_a_clock_reply_heading_a_read_is_stamped_at_the_wake_and_stays_causal(
         board.handshake()
         heads = 0
         for _ in range(60):
-            board.transport.count_arrivals = True
+            board.link.transport.count_arrivals = True
             result = board.call_future("a2jClock", b"").result(2.0)
-            board.transport.count_arrivals = False
+            board.link.transport.count_arrivals = False
             t2, t3 = (int.from_bytes(result.payload[i : i + 8], "little") for i in (0, 8))
             assert result.sent_ns <= (t2 + 1) * 1000  # the request was sent before it arrived
             assert t3 * 1000 <= result.recv_ns

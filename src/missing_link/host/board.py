@@ -3,16 +3,16 @@ exchange clock stamps, get its SIFs (blocking API; :mod:`.aio` awaits the same e
 
 ``Board.open(url)`` reads the board's description in one handshake with one deadline and caps on
 every size (a board is untrusted): the function mapping (opcode 0, or ``a2jGetMappingMany`` when
-it does not fit a frame), the properties and the transducer descriptors.  Every call goes
-through the link engine (:mod:`.link`): blocking calls wait on its futures, and
-``call_future`` / ``clock_exchange_async`` hand the reply to a callback instead.
+it does not fit a frame), the properties and the transducer descriptors.  A board holds its link
+engine (:mod:`.link`, ``board.link``) and goes through it for every call: blocking calls wait on
+its futures, and ``call_future`` / ``clock_exchange_async`` hand the reply to a callback
+instead.  Whatever reads the link (its own thread, or a shared I/O loop) drives the engine, not
+the board.  Deadlines are on the board's clock (:mod:`.clock`; the system's unless given).
 """
 
 from __future__ import annotations
 
 import logging
-import struct
-import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
@@ -25,12 +25,14 @@ from ..errors import (
     MissingLinkError,
     UnknownFunction,
 )
-from ..j2a import BlobError, parse_mapping, parse_properties
+from ..j2a import BlobError, HostConnection, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
-from .link import DEFAULT_TIMEOUT, BoardLink, CallResult, ProgressFn
+from .clock import Clock
+from .link import DEFAULT_TIMEOUT, BoardLink, ProgressFn, SifHandler
 from .reactor import Reactor
+from .results import CallResult, LinkStats, exchange_of
 
 if TYPE_CHECKING:  # (loaded where used: a one-off call reads no descriptors, sets no keys)
     from ..descriptors import Transducer
@@ -47,10 +49,10 @@ TRANSFER_TIMEOUT = 120.0
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Board", "CallResult", "open_board"]
+__all__ = ["Board", "CallResult", "LinkStats", "open_board"]
 
 
-class Board(BoardLink):
+class Board:
     """A connected J2A board (blocking API).  Use :func:`open_board` or ``Board.open(url)``."""
 
     def __init__(
@@ -60,17 +62,102 @@ class Board(BoardLink):
         timeout: float = DEFAULT_TIMEOUT,
         window: int = 1,
         reactor: Reactor | None = None,
+        clock: Clock | None = None,
     ):
         """``reactor``: read this board in a shared I/O loop (the daemon's, for many boards)
         instead of a reader thread of its own; transports without a descriptor (memory, USB)
-        always get their own thread."""
+        always get their own thread.  ``clock``: what deadlines, timers and ``last_frame`` run
+        on (default: the loop's, else the system's; tests pass a FakeClock)."""
         self.functions: list[str] = []
         self.index: dict[str, int] = {}
         self.properties: dict[str, str] = {}
         self.transducers: list[Transducer] | None = None
         self.transds_text: str | None = None
         self._settings: BoardConfig | None = None
-        super().__init__(transport, timeout=timeout, window=window, reactor=reactor)
+        self._link = BoardLink(
+            transport,
+            timeout=timeout,
+            window=window,
+            reactor=reactor,
+            clock=clock,
+            name=lambda: self.name,
+        )
+
+    # ---- the link (board.link: the engine; the rest for callers not yet moved to it) --------
+    @property
+    def link(self) -> BoardLink:
+        """The link engine this board holds (what a loop drives; benchmarks step it)."""
+        return self._link
+
+    @property
+    def url(self) -> str:
+        return self._link.url
+
+    @property
+    def timeout(self) -> float:
+        """A call's timeout when it gives none (s)."""
+        return self._link.timeout
+
+    @property
+    def clock(self) -> Clock:
+        """What the board's deadlines, timers and ``last_frame`` run on."""
+        return self._link.clock
+
+    @property
+    def alive(self) -> bool:
+        return self._link.alive
+
+    @property
+    def last_frame(self) -> float:
+        """When the last intact frame (reply or SIF) arrived, on the board's clock (s)."""
+        return self._link.last_frame
+
+    @property
+    def batch_s(self) -> float:
+        """s its own reader gathers streaming SIFs for (see ``BoardLink.batch_s``)."""
+        return self._link.batch_s
+
+    @batch_s.setter
+    def batch_s(self, value: float) -> None:
+        self._link.batch_s = value
+
+    def link_stats(self) -> LinkStats:
+        """The link's counters now: frames, damage, calls, SIFs lost, the transport's own."""
+        return self._link.stats()
+
+    @property
+    def conn(self) -> HostConnection:
+        """The link's connection (read-only; counters: ``link_stats()``; the SIF seq after an
+        outage: ``link.expect_sif_seq``, ``link.count_lost_sifs``)."""
+        return self._link.conn
+
+    @property
+    def transport(self) -> Transport:
+        """The link's transport (read-only)."""
+        return self._link.transport
+
+    def on_sif(self, cmd: int | None, handler: SifHandler) -> None:
+        """Call ``handler(sif, host_receive_time)`` for SIFs with ``cmd`` (None: every SIF),
+        on the thread that reads the board."""
+        self._link.on_sif(cmd, handler)
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` when the link ends (closed or broken): ``BoardLink.on_close``."""
+        self._link.on_close(fn)
+
+    def set_ticker(
+        self, due: Callable[[], float | None] | None, tick: Callable[[float], None] | None = None
+    ) -> None:
+        """Periodic work on the thread that reads the board (``BoardLink.set_ticker``)."""
+        self._link.set_ticker(due, tick)
+
+    def reschedule(self) -> None:
+        """The ticker's ``due()`` moved: look at it again."""
+        self._link.reschedule()
+
+    def close(self) -> None:
+        """Close the link, fail pending calls, end its reading.  Idempotent."""
+        self._link.close()
 
     # ---- opening ---------------------------------------------------------------------------
     @classmethod
@@ -82,11 +169,12 @@ class Board(BoardLink):
         window: int = 1,
         describe: bool = True,
         handshake_timeout: float = HANDSHAKE_TIMEOUT,
+        clock: Clock | None = None,
     ) -> Board:
         """Open ``url`` and read the board's mapping, properties and transducer descriptors."""
-        board = cls(open_transport(url), timeout=timeout, window=window)
+        board = cls(open_transport(url), timeout=timeout, window=window, clock=clock)
         try:
-            board.handshake(describe=describe, deadline=time.monotonic() + handshake_timeout)
+            board.handshake(describe=describe, deadline=board.clock.monotonic() + handshake_timeout)
         except BaseException:
             board.close()
             raise
@@ -103,15 +191,16 @@ class Board(BoardLink):
         return "j2a.version" not in self.properties and "a2jGetMappingMany" not in self.index
 
     def handshake(self, *, describe: bool = True, deadline: float | None = None) -> None:
-        """Read the mapping, properties and descriptors, all by ``deadline`` (monotonic s;
-        default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap.  What the board
-        sends is validated here: errors name the board and the field."""
+        """Read the mapping, properties and descriptors, all by ``deadline`` (the board
+        clock's s; default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap.  What
+        the board sends is validated here: errors name the board and the field."""
+        clock = self.clock
         if deadline is None:
-            deadline = time.monotonic() + HANDSHAKE_TIMEOUT
-        total = deadline - time.monotonic()
+            deadline = clock.monotonic() + HANDSHAKE_TIMEOUT
+        total = deadline - clock.monotonic()
 
         def left(what: str) -> float:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - clock.monotonic()
             if remaining <= 0:
                 raise CallTimeout(self.name, what, f"handshake not done within {total:.1f} s")
             return remaining
@@ -135,7 +224,7 @@ class Board(BoardLink):
             # which tells a Part 2 board, whose a2jMany serves offsets past 255)
             self.functions, self.index = names, mapping_index(names)
             if "a2jGetMappingMany" in names:
-                full = self._wait(
+                full = self._link.wait(
                     self._read_future(
                         names.index("a2jGetMappingMany"),
                         "a2jGetMappingMany",
@@ -187,13 +276,13 @@ class Board(BoardLink):
     def call_future(
         self, name: str, payload: bytes = b"", timeout: float | None = None
     ) -> Future[CallResult]:
-        return self._start(
-            name, lambda now, t: self.conn.call(self._lookup(name), payload, now, t), timeout
+        return self._link.request(
+            name, lambda now, t: self._link.conn.call(self._lookup(name), payload, now, t), timeout
         )
 
     def call(self, name: str, payload: bytes = b"", timeout: float | None = None) -> CallResult:
         """Call a function by name; returns its return code and reply payload."""
-        return self._wait(self.call_future(name, payload, timeout), timeout)
+        return self._link.wait(self.call_future(name, payload, timeout), timeout)
 
     def clock_exchange(self, timeout: float | None = None, *, byte_ns: float = 0.0) -> Exchange:
         """One ``a2jClock`` round trip: host send/receive stamps and the board's two stamps.
@@ -202,7 +291,8 @@ class Board(BoardLink):
         one-stamp exchange (t2 = t3).  ``byte_ns``: time per byte on a UART link, so the reply's
         time on the wire is known (0: not a byte-serial link, or unknown)."""
         name = self._clock_function()
-        return self._exchange(name, self._wait(self._clock_call(name, timeout), timeout), byte_ns)
+        result = self._link.wait(self._clock_call(name, timeout), timeout)
+        return exchange_of(self.name, name, result, byte_ns)
 
     def clock_exchange_async(
         self,
@@ -218,7 +308,7 @@ class Board(BoardLink):
 
         def done(fut: Future[CallResult]) -> None:
             try:
-                got: Exchange | BaseException = self._exchange(name, fut.result(), byte_ns)
+                got: Exchange | BaseException = exchange_of(self.name, name, fut.result(), byte_ns)
             except MissingLinkError as e:
                 got = e
             try:
@@ -231,39 +321,20 @@ class Board(BoardLink):
     def _clock_call(self, name: str, timeout: float | None) -> Future[CallResult]:
         """The clock request, with the transport counting arrivals (a tighter t4) from before
         the request is written until its reply, error or timeout resolves it."""
-        self.transport.count_arrivals = True
+        self._link.transport.count_arrivals = True
         try:
             fut = self.call_future(name, b"", timeout)
         except BaseException:
-            self.transport.count_arrivals = False
+            self._link.transport.count_arrivals = False
             raise
         fut.add_done_callback(self._stop_counting)  # (first: before the caller's callbacks)
         return fut
 
     def _stop_counting(self, _fut: Future[CallResult]) -> None:
-        self.transport.count_arrivals = False
+        self._link.transport.count_arrivals = False
 
     def _clock_function(self) -> str:
         return "a2jClock" if "a2jClock" in self.index else "getTime"
-
-    def _exchange(self, name: str, result: CallResult, byte_ns: float) -> Exchange:
-        p = result.payload
-        if result.code != 0 or len(p) not in (8, 16):
-            raise FunctionFailed(self.name, name, result.code, p)
-        if len(p) == 16:
-            t2, t3 = struct.unpack("<QQ", p)
-        else:
-            (t2,) = struct.unpack("<Q", p)
-            t3 = t2
-        # On a byte-serial link, the request's bytes before t2 (SOF, seq, op, len, checksum)
-        # and the reply's after t3 (SOF, seq, code, len, payload, checksum) are on the wire in
-        # every exchange: known delays, not uncertainty.  When the reply headed a read, its
-        # first byte (only that one on the wire after t3) had arrived by ``head_ns``: the
-        # tighter of the two upper constraints is kept.
-        t4, down = result.recv_ns, int((5 + len(p)) * byte_ns)
-        if result.head_ns and result.head_ns - int(byte_ns) < t4 - down:
-            t4, down = result.head_ns, int(byte_ns)
-        return Exchange(result.sent_ns, t2, t3, t4, down, int(5 * byte_ns))
 
     def call_ok(self, name: str, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Call and require return code 0; returns the reply payload."""
@@ -275,10 +346,10 @@ class Board(BoardLink):
     def call_index(
         self, index: int, payload: bytes, label: str, timeout: float | None = None
     ) -> CallResult:
-        fut: Future[CallResult] = self._start(
-            label, lambda now, t: self.conn.call(index, payload, now, t), timeout
+        fut: Future[CallResult] = self._link.request(
+            label, lambda now, t: self._link.conn.call(index, payload, now, t), timeout
         )
-        return self._wait(fut, timeout)
+        return self._link.wait(fut, timeout)
 
     def read_many_future(
         self,
@@ -300,9 +371,9 @@ class Board(BoardLink):
         timeout: float | None = None,
         deadline: float | None = None,
     ) -> Future[bytes]:
-        return self._start(
+        return self._link.request(
             label,
-            lambda now, t: self.conn.read_many(
+            lambda now, t: self._link.conn.read_many(
                 target,
                 now,
                 t,
@@ -326,7 +397,7 @@ class Board(BoardLink):
     ) -> bytes:
         """Read a many-function's whole blob (a2jMany), chunk by chunk.  ``timeout`` is per
         chunk; ``deadline`` (CLOCK_MONOTONIC s) bounds the whole transfer."""
-        return self._wait(
+        return self._link.wait(
             self.read_many_future(
                 name, progress=progress, max_bytes=max_bytes, timeout=timeout, deadline=deadline
             ),
@@ -344,9 +415,9 @@ class Board(BoardLink):
         """Write ``data`` to a many-function; returns the function's status (0 = OK)."""
         target = self._lookup(name)
         try:
-            fut: Future[int] = self._start(
+            fut: Future[int] = self._link.request(
                 name,
-                lambda now, t: self.conn.write_many(
+                lambda now, t: self._link.conn.write_many(
                     target, data, now, t, progress=progress is not None, original=self.is_original
                 ),
                 timeout,
@@ -355,7 +426,7 @@ class Board(BoardLink):
             )
         except ValueError as e:  # a blob the board cannot take (the connection says why)
             raise CallError(self.name, name, str(e)) from None
-        return self._wait(fut, None)
+        return self._link.wait(fut, None)
 
     def describe(self) -> dict[str, Any]:
         """What ``missing-link info --json`` shows: functions, properties, transducers."""
@@ -420,6 +491,8 @@ def _check_properties(board: str, props: dict[str, str]) -> None:
             )
 
 
-def open_board(url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1) -> Board:
+def open_board(
+    url: str, *, timeout: float = DEFAULT_TIMEOUT, window: int = 1, clock: Clock | None = None
+) -> Board:
     """Open a board by URL and read its description (blocking)."""
-    return Board.open(url, timeout=timeout, window=window)
+    return Board.open(url, timeout=timeout, window=window, clock=clock)

@@ -9,14 +9,19 @@ replies resolve their futures, SIFs go to their handlers, progress to its callba
 connection state and the writes share one lock, so frames go out in seq order.
 
 Something must read the transport and drive the engine.  Either a reader thread of the link's
-own (``_reader``: a board opened on its own), or a shared I/O loop
-(:class:`~missing_link.host.reactor.Reactor`, the daemon's, for many boards).  A driver uses
-only the public verbs:
+own (``_reader``: a board opened on its own, or a transport without a descriptor), or a shared
+I/O loop (:class:`~missing_link.host.reactor.Reactor`, the daemon's, for many boards), which is
+handed the transport to read and this engine to drive.  A driver uses only the public verbs:
 
-* ``step(data, now_ns, rx_ns)`` - the bytes one read brought (maybe none), then due timers;
+* ``step(data, now_ns, rx_ns, first_rx_ns)`` - the bytes one read brought (maybe none) with the
+  stamps the read returned, then due timers; returns the SIFs decoded;
 * ``tick(now)`` - the periodic work (the clock probes) when ``next_due`` has passed;
 * ``finish(error)`` - the link ended: fail what is pending, run the close callbacks (once);
 * ``next_due`` and ``calls_waiting`` - when to come back, and whether a reply is awaited.
+
+Time comes from the link's :class:`~missing_link.host.clock.Clock` (call deadlines, tickers,
+``last_frame``); the read's stamps (t4) and the transport's write stamp (t1) are used only when
+that clock is the system's, whose timeline they are on.
 
 Every error path fails the pending futures and lets the reading end: nothing is left holding a
 lock or running.  SIF handlers run on the reading thread; keep them short.
@@ -26,10 +31,8 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from ..errors import (
@@ -51,8 +54,12 @@ from ..j2a import (
     TransferCompleted,
     TransferProgress,
 )
-from ..transport import Transport
+from ..transport import FdTransport, Transport
+from .clock import SYSTEM_CLOCK, Clock
 from .reactor import Reactor
+from .results import CallResult, LinkStats
+
+__all__ = ["DEFAULT_TIMEOUT", "BoardLink", "CallResult", "LinkStats", "ProgressFn", "SifHandler"]
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -64,19 +71,8 @@ SifHandler = Callable[[SifReceived, float], None]
 ProgressFn = Callable[[int, "int | None"], None]
 
 
-@dataclass(frozen=True)
-class CallResult:
-    code: int
-    payload: bytes
-    sent_ns: int = 0  #: CLOCK_MONOTONIC ns just before the request was written
-    recv_ns: int = 0  #: CLOCK_MONOTONIC ns when the read that completed the reply returned
-    #: CLOCK_MONOTONIC ns by which the reply's *first* byte had arrived, when known and earlier
-    #: (the reply headed a read whose wait returned then: the transport's ``first_rx_ns``); 0
-    head_ns: int = 0
-
-    @property
-    def ok(self) -> bool:
-        return self.code == 0
+def _nothing() -> None:
+    """(nothing to stop)"""
 
 
 class BoardLink:
@@ -89,13 +85,23 @@ class BoardLink:
         timeout: float = DEFAULT_TIMEOUT,
         window: int = 1,
         reactor: Reactor | None = None,
+        clock: Clock | None = None,
+        name: Callable[[], str] | None = None,
     ):
         """``reactor``: read this link in a shared I/O loop (the daemon's, for many boards)
         instead of a reader thread of its own; transports without a descriptor (memory, USB)
-        always get their own thread."""
+        always get their own thread.  ``clock``: what its timers run on (default: the loop's,
+        else the system's).  ``name()``: what errors call the board (default: its URL)."""
+        if clock is None:
+            clock = reactor.clock if reactor is not None else SYSTEM_CLOCK
+        elif reactor is not None and clock is not reactor.clock:
+            raise ValueError("a link and the loop that reads it run on one clock")
         self.transport = transport
         self.url = transport.url
         self.timeout = timeout
+        self.clock = clock
+        self._stamps = clock.real  # the transport's stamps are on this clock's timeline
+        self._name = name
         self.conn = HostConnection(window=window)
         self._lock = threading.Lock()
         # op -> (future, label for errors, progress callback, is a many-write)
@@ -107,7 +113,7 @@ class BoardLink:
         self._idle_until = 0.0  # the reader waits until then unless poked
         # Periodic work on the reading thread (clock-sync probes): (due() -> s or None, tick)
         self._ticker: tuple[Callable[[], float | None], Callable[[float], None]] | None = None
-        #: CLOCK_MONOTONIC s of the next call deadline or tick, kept up to date under the lock
+        #: the clock's s of the next call deadline or tick, kept up to date under the lock
         #: (a shared I/O loop reads it for its timeout without calling into each board)
         self.next_due: float | None = None
         #: s the reader waits after a read while SIFs stream in, to take several frames per
@@ -118,15 +124,18 @@ class BoardLink:
         self._batch_wake = threading.Event()
         self._stopping = False
         self._closed_reason: BaseException | None = None
-        #: CLOCK_MONOTONIC s when the last intact frame (reply or SIF) arrived: link liveness
-        self.last_frame = time.monotonic()
+        #: the clock's s when the last intact frame (reply or SIF) arrived: link liveness
+        self.last_frame = clock.monotonic()
         self._done = threading.Event()  # set when the link has ended and calls were failed
         self._finishing = threading.Lock()
-        fileno = getattr(transport, "fileno", None)
-        self._reactor = reactor if reactor is not None and fileno is not None else None
+        on_loop = reactor is not None and isinstance(transport, FdTransport)
+        self._reactor = reactor if on_loop else None
         self._thread: threading.Thread | None = None
+        # (a fake clock moved: the reader looks at its timers again; a loop watches for itself)
+        self._unwatch = clock.watch(transport.poke) if self._reactor is None else _nothing
         if self._reactor is not None:
-            self._reactor.add(self)
+            assert isinstance(transport, FdTransport)
+            self._reactor.add(self, transport)
         else:
             self._thread = threading.Thread(
                 target=self._reader, name=f"j2a:{self.url}", daemon=True
@@ -135,11 +144,11 @@ class BoardLink:
 
     @property
     def name(self) -> str:
-        """What errors call this board (:class:`~missing_link.host.board.Board` says more)."""
-        return self.url
+        """What errors call this board (its URL unless the owner names it)."""
+        return self.url if self._name is None else self._name()
 
-    # ---- requests (for the calls a subclass offers) -----------------------------------------
-    def _start(
+    # ---- requests (for the calls its owner offers) ------------------------------------------
+    def request(
         self,
         label: str,
         begin: Callable[[float, float], int],
@@ -148,13 +157,16 @@ class BoardLink:
         *,
         write: bool = False,
     ) -> Future[Any]:
+        """Start a request: ``begin(now, timeout)`` asks the connection for it (its op);
+        the future resolves with its result, or fails with the board's error, a timeout or
+        the link's end.  ``label`` names it in errors; ``write``: a many-write (its status)."""
         fut: Future[Any] = Future()
         with self._lock:
             if self._closed_reason is not None:
                 raise self._lost(label, self._closed_reason)
-            op = begin(time.monotonic(), timeout or self.timeout)
+            op = begin(self.clock.monotonic(), timeout or self.timeout)
             self._futures[op] = (fut, label, progress, write)
-            sent = time.monotonic_ns()
+            sent = self.clock.monotonic_ns()
             try:
                 self._flush()
             except (TransportBroken, TransportClosed) as e:
@@ -162,7 +174,7 @@ class BoardLink:
                 self._futures.pop(op, None)
                 raise self._lost(label, e) from e
             # the transport's stamp is taken right before the write syscall: later, tighter
-            self._sent[op] = max(sent, self.transport.last_write_ns)
+            self._sent[op] = max(sent, self.transport.last_write_ns) if self._stamps else sent
             timer = self.conn.get_timer()
             idle_until = self._idle_until
             self._update_due()
@@ -180,7 +192,8 @@ class BoardLink:
             return self._reactor.is_loop_thread()
         return threading.current_thread() is self._thread
 
-    def _wait(self, fut: Future[T], timeout: float | None) -> T:
+    def wait(self, fut: Future[T], timeout: float | None) -> T:
+        """Block for a request's result (never on the thread that reads the link)."""
         if self._reactor is not None and self._reactor.is_loop_thread():
             raise RuntimeError(
                 f"{self.url}: a blocking call from the I/O loop (a SIF handler) would wait for a "
@@ -213,22 +226,25 @@ class BoardLink:
     def _reader(self) -> None:
         """The board's own reader thread (when no shared I/O loop reads it)."""
         error: BaseException | None = None
+        clock = self.clock
         last_data = 0.0
         try:
             while not self._stopping:
-                self.tick(time.monotonic())
+                self.tick(clock.monotonic())
                 with self._lock:  # callers add requests under the lock; never read it bare
                     timer = self.next_due
-                    now = time.monotonic()
+                    now = clock.monotonic()
                     if timer is None:
                         wait = _IDLE if self.transport.wakes_on_close else _TICK
                     else:
                         wait = max(0.0, min(_TICK, timer - now))
                     # set under the lock: a caller that adds a timer after this sees it
                     self._idle_until = now + wait
-                data = self.transport.read(wait)
-                now = self.step(data, time.monotonic_ns(), self.transport.last_rx_ns)
+                data, rx_ns, first_rx_ns = self.transport.read_stamped(wait)
+                now_ns = clock.monotonic_ns()
+                self.step(data, now_ns, rx_ns, first_rx_ns)
                 if data and self.batch_s > 0:
+                    now = now_ns / 1e9
                     # Streaming (data twice within the window) and no call waiting: gather.
                     if now - last_data < 2 * self.batch_s and not self._futures:
                         self._batch_wake.clear()
@@ -242,18 +258,22 @@ class BoardLink:
             error = TransportBroken(f"{self.url}: reader failed: {e!r}")
         self.finish(error)
 
-    def step(self, data: bytes, now_ns: int, rx_ns: int) -> float:
-        """One turn of reading: the bytes read (maybe none) at ``now_ns`` (monotonic, right
-        after the read; ``rx_ns`` is the transport's own stamp if it has one), then whatever
-        timers are due.  Returns ``now`` in seconds.  Called by the reader thread or the
-        shared I/O loop, never both."""
+    def step(self, data: bytes, now_ns: int, rx_ns: int = 0, first_rx_ns: int = 0) -> int:
+        """One turn of reading: the bytes read (maybe none) at ``now_ns`` (the clock's, right
+        after the read) with the stamps the read returned (``Transport.read_stamped``: when
+        they had all arrived, and when the first had; 0: unknown), then whatever timers are
+        due.  Returns the SIFs decoded.  Called by the reader thread or the shared I/O loop,
+        never both."""
         now = now_ns / 1e9
-        if data and 0 < rx_ns <= now_ns:  # when the bytes arrived (t4): the transport's stamp
-            now_ns = rx_ns
-        head = self.transport.first_rx_ns if data else 0
+        head = 0
+        if data and self._stamps:  # when the bytes arrived (t4): the transport's stamps
+            if 0 < rx_ns <= now_ns:
+                now_ns = rx_ns
+            head = first_rx_ns
         lead: tuple[int, int] | None = None  # (op, head): a reply that headed this read
         with self._lock:
             timer = self.conn.get_timer()
+            sifs = self.conn.stats.sifs
             if data:
                 frames = self.conn.decoder.stats.frames
                 events = self.conn.receive_data(data, now, lead=0 < head < now_ns)
@@ -266,11 +286,12 @@ class BoardLink:
             if timer is not None and now >= timer:
                 events += self.conn.handle_timer(now)
             self._flush()
+            sifs = self.conn.stats.sifs - sifs
         if events:
             self._dispatch(events, now_ns / 1e9, now_ns, lead)
         with self._lock:
             self._update_due()
-        return now
+        return sifs
 
     def tick(self, now: float) -> None:
         """Run the ticker if it is due.  The reading thread calls this last before it waits
@@ -303,7 +324,7 @@ class BoardLink:
         self, due: Callable[[], float | None] | None, tick: Callable[[float], None] | None = None
     ) -> None:
         """Run ``tick(now)`` on the thread that reads this board (its own, or the shared I/O
-        loop) whenever ``due()`` (CLOCK_MONOTONIC s, None: nothing due) has passed: periodic
+        loop) whenever ``due()`` (the link clock's s, None: nothing due) has passed: periodic
         work that sends requests with ``call_future`` and handles the replies in callbacks,
         without a thread hand-off per request (the clock-sync probes).  ``tick`` must not
         block; ``due`` is called often and must be cheap.  ``set_ticker(None)`` removes it."""
@@ -336,8 +357,9 @@ class BoardLink:
                     else FailureReason.BROKEN
                 )
                 events = self.conn.close(reason, str(error))
-            self._dispatch(events, time.monotonic(), time.monotonic_ns())
+            self._dispatch(events, self.clock.monotonic(), self.clock.monotonic_ns())
             self._done.set()
+        self._unwatch()
         if self._stopping or isinstance(error, TransportBroken):
             self.transport.close()  # idempotent; the link is over either way
             release = getattr(self.transport, "release", None)
@@ -350,7 +372,8 @@ class BoardLink:
                 log.exception("close callback failed")
 
     def on_close(self, fn: Callable[[], None]) -> None:
-        """Call ``fn()`` on the reader thread when the link ends (closed or broken)."""
+        """Call ``fn()`` when the link ends (closed or broken), on the thread that ends it:
+        the reading thread when the link broke, else the one that closed it or the reader."""
         self._on_close.append(fn)
         if self._done.is_set():
             fn()
@@ -409,6 +432,23 @@ class BoardLink:
     @property
     def alive(self) -> bool:
         return not self._done.is_set()
+
+    def stats(self) -> LinkStats:
+        """The link's counters now (a snapshot: the reading goes on meanwhile)."""
+        with self._lock:
+            counts = {**self.conn.decoder.stats.as_dict(), **self.conn.stats.as_dict()}
+        return LinkStats(**counts, transport=self.transport.link_stats())
+
+    def expect_sif_seq(self, seq: int) -> None:
+        """The seq of the next SIF (the board's boot is the one before an outage): a gap from
+        it counts as SIFs lost."""
+        with self._lock:
+            self.conn.expect_sif_seq(seq)
+
+    def count_lost_sifs(self, n: int) -> None:
+        """SIFs lost that the seq cannot show (its whole wraps, from the board's own count)."""
+        with self._lock:
+            self.conn.stats.sifs_lost += n
 
     @property
     def calls_waiting(self) -> bool:

@@ -3,25 +3,31 @@ reader thread each.
 
 Theory of operation
 -------------------
-Each board link (:class:`~missing_link.host.link.DrivenLink`) on a descriptor (socket, pty, serial
-port) registers its transport's fd here; the loop drives it only through its public verbs
-(``step``, ``tick``, ``finish``, ``next_due``, ``calls_waiting``: the :class:`Driven` protocol),
-as aioquic's loop drives a QUIC connection.  The loop waits in one ``select`` for any board's
-bytes, the wake pipe, or the soonest call timer of any board.  A round then
+The loop is handed, for each board, two narrow things (as python-can's ``Notifier`` is handed
+buses): the descriptor it waits on and reads (a :class:`Readable`: a descriptor transport), and
+the link engine it drives (a :class:`Driven`: :class:`~missing_link.host.link.BoardLink`), only
+through its public verbs (``step``, ``tick``, ``finish``, ``next_due``, ``calls_waiting``), as
+aioquic's loop drives a QUIC connection.  It never looks inside either.  The loop waits in one
+``select`` for any board's bytes, the wake pipe, or the soonest timer of any board.  A round then
 
-1. for a board with a clock probe in flight, counts the bytes waiting the moment the wait
-   returns (``count_arrived``: clock sync's t4, before any other work of the round; a reply
-   that heads the read gets the moment the wait returned); then
-   reads every ready descriptor (each read stamped right after it, or at that count), so a
-   board's stamp does not wait for another board's processing;
-2. runs each board's ``step`` with its bytes (decode, replies to futures, SIFs to the sample
-   path, its due call timers);
+1. for a board with a clock probe in flight (its transport's ``count_arrivals``), counts the
+   bytes waiting the moment the wait returns (``count_arrived``: clock sync's t4, before any
+   other work of the round; a reply that heads the read gets the moment the wait returned);
+   then reads every ready descriptor (``read_ready``, which returns the bytes and their stamps:
+   right after the read, or at that count), so a board's stamp does not wait for another
+   board's processing;
+2. runs each board's ``step`` with its bytes and their stamps (decode, replies to futures, SIFs
+   to the sample path, its due call timers);
 3. ends boards whose link broke (``finish``: pending calls fail, close callbacks run);
 4. last, right before the next wait, in one pass over the boards (``_due_work``): due call
    timers of boards that had no bytes, then due *tickers* (``BoardLink.set_ticker``: the clock
    probes), so a probe's reply is read the moment it arrives, not after a round's work (which
    would lengthen every return trip alike: a bias no estimator can see); the same pass finds
    the soonest due time, the wait's timeout.
+
+Timers are on the loop's :class:`~missing_link.host.clock.Clock` (the boards it drives share
+it); a fake clock's ``advance`` pokes the loop.  The wake-up stamp handed to ``count_arrived``
+is a measurement on the transports' timeline (CLOCK_MONOTONIC), whatever the clock.
 
 Why: with a thread per board, every frame cost a wake-up, a select, a lock and an interpreter-lock
 hand-off between dozens of threads (the per-update cost grew with the number of boards); one loop
@@ -47,8 +53,8 @@ import time
 from typing import Protocol
 
 from ..errors import TransportBroken, TransportClosed
-from ..j2a import HostConnection
-from ..transport import Transport
+from ..transport import Received
+from .clock import SYSTEM_CLOCK, Clock
 
 log = logging.getLogger(__name__)
 
@@ -56,18 +62,34 @@ _IDLE = 1.0  # longest wait with no timer pending (new timers poke the loop anyw
 _SKIP_GATHERS = 100  # data rounds without gathering after a gather that brought < 2 SIFs
 
 
+class Readable(Protocol):
+    """What the loop waits on and reads: a descriptor transport (FdTransport)."""
+
+    #: a clock reply is awaited: count the bytes waiting the moment the wait returns
+    count_arrivals: bool
+
+    def fileno(self) -> int: ...
+
+    def count_arrived(self, woke_ns: int = 0) -> None: ...
+
+    def read_ready(self) -> Received:
+        """``(data, rx_ns, first_rx_ns)``: what arrived, and when (never blocks)."""
+        ...
+
+
 class Driven(Protocol):
-    """What the loop drives: a board link, through its public verbs only."""
+    """What the loop drives: a board's link engine, through its public verbs only."""
 
     url: str
-    transport: Transport
-    conn: HostConnection
-    next_due: float | None
+    next_due: float | None  #: the loop clock's s of the next call deadline or tick
 
     @property
     def calls_waiting(self) -> bool: ...
 
-    def step(self, data: bytes, now_ns: int, rx_ns: int) -> float: ...
+    def step(self, data: bytes, now_ns: int, rx_ns: int = 0, first_rx_ns: int = 0) -> int:
+        """The bytes one read brought (maybe none) and their stamps, then due timers; returns
+        the SIFs decoded."""
+        ...
 
     def tick(self, now: float) -> None: ...
 
@@ -110,8 +132,10 @@ class _Poller:
 
 
 class Reactor:
-    def __init__(self, batch_s: float = 0.0) -> None:
+    def __init__(self, batch_s: float = 0.0, *, clock: Clock = SYSTEM_CLOCK) -> None:
         self.batch_s = batch_s
+        #: what the loop's timers run on; a board read here takes the same one
+        self.clock = clock
         self._sel = _Poller()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -119,12 +143,14 @@ class Reactor:
         self._sel.register(self._wake_r)
         self._lock = threading.RLock()
         self._boards: dict[int, Driven] = {}
+        self._ports: dict[int, Readable] = {}
         # registrations counted, and the count at each board's: a descriptor number reused by a
         # board added while the loop waited is not read on the old one's readiness
         self._registrations = 0
         self._registered_at: dict[int, int] = {}
         self._poked = threading.Event()
         self._stopping = False
+        self._unwatch = clock.watch(self.poke)  # (a fake clock moved: look at the timers again)
         self._thread = threading.Thread(target=self._run, name="j2a:reactor", daemon=True)
         self.rounds = 0
         self.loop_errors = 0
@@ -137,11 +163,13 @@ class Reactor:
     def is_loop_thread(self) -> bool:
         return threading.current_thread() is self._thread
 
-    def add(self, board: Driven) -> None:
+    def add(self, board: Driven, port: Readable) -> None:
+        """Read ``port`` and drive ``board`` with what it brings, until ``remove(board)``."""
         with self._lock:
-            fd = board.transport.fileno()  # type: ignore[attr-defined]
+            fd = port.fileno()
             self._sel.register(fd)
             self._boards[fd] = board
+            self._ports[fd] = port
             self._registrations += 1
             self._registered_at[fd] = self._registrations
         self.poke()
@@ -156,6 +184,7 @@ class Reactor:
         for fd, b in list(self._boards.items()):
             if b is board:
                 del self._boards[fd]
+                del self._ports[fd]
                 self._registered_at.pop(fd, None)
                 try:
                     self._sel.unregister(fd)
@@ -171,6 +200,7 @@ class Reactor:
 
     def stop(self, timeout: float = 1.0) -> None:
         self._stopping = True
+        self._unwatch()
         self.poke()
         if self._thread.is_alive() and not self.is_loop_thread():
             self._thread.join(timeout)
@@ -180,6 +210,7 @@ class Reactor:
 
     # ---- the loop ------------------------------------------------------------------------------
     def _run(self) -> None:
+        clock = self.clock
         last_data = 0.0
         gathered = False  # the last wait was a gather
         skip = 0  # data rounds to come without a gather
@@ -193,16 +224,17 @@ class Reactor:
             waited_after = self._registrations
             try:
                 ready = self._sel.wait(timeout)
-                woke = time.monotonic_ns()  # (a clock reply heading a read was there by now)
+                # (a clock reply heading a read was there by now: on the transports' timeline)
+                woke = time.monotonic_ns()
             except (OSError, ValueError) as e:  # a descriptor closed under us: next round
                 log.debug("reactor: wait: %s", e)
                 ready, woke = [], 0
             try:
-                boards = self._boards
+                ports = self._ports
                 for fd in ready:  # first, before any other work: a clock reply's t4
-                    board = boards.get(fd)
-                    if board is not None and board.transport.count_arrivals:
-                        board.transport.count_arrived(woke)
+                    port = ports.get(fd)
+                    if port is not None and port.count_arrivals:
+                        port.count_arrived(woke)
                 sifs = self._round(ready, waited_after)
             except Exception:  # a bug here must not end every board's reading
                 self.loop_errors += 1
@@ -213,7 +245,7 @@ class Reactor:
                 # (one board at 500/s), so it only added a wake-up; skip it for a while.
                 skip = _SKIP_GATHERS
             gathered = False
-            now = time.monotonic()
+            now = clock.monotonic()
             if sifs and self.batch_s > 0:
                 if skip > 0:
                     skip -= 1
@@ -225,6 +257,7 @@ class Reactor:
                 last_data = now
         with self._lock:
             self._boards.clear()
+            self._ports.clear()
         self._sel.close()
         for fd in (self._wake_r, self._wake_w):
             try:
@@ -236,7 +269,8 @@ class Reactor:
         """Last before the wait, in one pass over the boards: call timeouts that are due, then
         tickers that are due (a probe sent here has its reply read the moment it arrives);
         returns how long the wait may be."""
-        now_ns = time.monotonic_ns()
+        clock = self.clock
+        now_ns = clock.monotonic_ns()
         now = now_ns / 1e9
         soonest = None
         broken: list[tuple[Driven, BaseException]] = []
@@ -244,7 +278,7 @@ class Reactor:
             for board in list(self._boards.values()):
                 due = board.next_due
                 if due is not None and now >= due:
-                    self._step(board, b"", now_ns, broken)  # call timers (none due: cheap)
+                    self._step(board, b"", now_ns, 0, 0, broken)  # call timers (none due: cheap)
                     board.tick(now)
                     due = board.next_due
                 if due is not None and (soonest is None or due < soonest):
@@ -254,7 +288,7 @@ class Reactor:
                 board.finish(why)
         if soonest is None:
             return _IDLE
-        return max(0.0, min(_IDLE, soonest - time.monotonic()))
+        return max(0.0, min(_IDLE, soonest - clock.monotonic()))
 
     def _calls_waiting(self) -> bool:
         return any(b.calls_waiting for b in list(self._boards.values()))
@@ -264,7 +298,7 @@ class Reactor:
         ``waited_after``: the registrations counted when the wait began."""
         self.rounds += 1
         with self._lock:
-            reads: list[tuple[Driven, bytes]] = []
+            reads: list[tuple[Driven, Received]] = []
             broken: list[tuple[Driven, BaseException]] = []
             for fd in ready:
                 if fd == self._wake_r:
@@ -278,15 +312,14 @@ class Reactor:
                 if board is None or self._registered_at[fd] > waited_after:
                     continue  # removed meanwhile, or its number reused by a new board
                 try:
-                    reads.append((board, board.transport.read_ready()))  # type: ignore[attr-defined]
+                    reads.append((board, self._ports[fd].read_ready()))
                 except (TransportBroken, TransportClosed) as exc:
                     broken.append((board, exc))
-            now_ns = time.monotonic_ns()
+            now_ns = self.clock.monotonic_ns()
             sifs = 0
-            for board, data in reads:
-                before = board.conn.stats.sifs
-                self._step(board, data, now_ns, broken)  # (its due call timers too)
-                sifs += board.conn.stats.sifs - before or 1  # (bytes without a whole SIF: 1)
+            for board, (data, rx_ns, first_rx_ns) in reads:
+                # (its due call timers too; bytes without a whole SIF count 1)
+                sifs += self._step(board, data, now_ns, rx_ns, first_rx_ns, broken) or 1
             for board, why in broken:
                 self._unregister(board)
                 board.finish(why)
@@ -294,12 +327,18 @@ class Reactor:
 
     @staticmethod
     def _step(
-        board: Driven, data: bytes, now_ns: int, broken: list[tuple[Driven, BaseException]]
-    ) -> None:
+        board: Driven,
+        data: bytes,
+        now_ns: int,
+        rx_ns: int,
+        first_rx_ns: int,
+        broken: list[tuple[Driven, BaseException]],
+    ) -> int:
         try:
-            board.step(data, now_ns, board.transport.last_rx_ns)
+            return board.step(data, now_ns, rx_ns, first_rx_ns)
         except (TransportBroken, TransportClosed) as e:  # a write in _flush failed
             broken.append((board, e))
         except Exception as e:  # a bug in one board's path must not stop the others
             log.exception("%s: reading failed", board.url)
             broken.append((board, TransportBroken(f"{board.url}: reader failed: {e!r}")))
+        return 0

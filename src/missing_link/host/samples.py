@@ -1,8 +1,9 @@
 """Samples: SIFs decoded with the board's transducer descriptors.
 
-Host time: until clock synchronisation is in place, ``host_rx`` is the host's CLOCK_MONOTONIC at
-the moment the SIF was received (the provisional mapping); ``board_us`` is the board's own stamp
-from the moment of measurement and is always exact.
+Host time: ``host_rx`` is when the SIF was received, on the board's clock (CLOCK_MONOTONIC s
+unless it was given another), not a clock-synchronised time (the daemon maps board stamps through
+clock sync: ``daemon/sample_path.py``); ``board_us`` is the board's own stamp from the moment of
+measurement and is always exact.
 """
 
 from __future__ import annotations

@@ -30,10 +30,12 @@ agree with each other but not with the map, or ``reset_confirm`` samples in a ro
 behind the newest mapped one and consistent with each other.  A sample is also refused when it
 would map later than ``now + glitch_us`` (nothing is measured in the future).
 
-``map(board_us)`` gives a sample's host time (CLOCK_MONOTONIC ns), a hard bound, the estimated
-(statistical) error next to it, and flags; it is the only call made from the sample path, and it
-is cheap.  ``now`` is always passed in; a lock makes ``map`` safe against a concurrent
-``on_exchange`` (the sample path and the prober run on different threads).
+``map_many(board_us)`` gives an update's host times (CLOCK_MONOTONIC ns), a hard bound, the
+estimated (statistical) error next to it, and flags; it is the only call the sample path makes,
+and it is cheap (``map`` is its one-stamp form).  ``now`` is always passed in.  In the daemon the
+sample path and the prober (a ticker, ``BoardLink.set_ticker``) both run on the thread that reads
+the board; a lock still makes ``map_many`` safe against an ``on_exchange`` from another thread
+(this class does not know who calls it).
 """
 
 from __future__ import annotations

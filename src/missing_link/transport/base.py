@@ -14,6 +14,9 @@ from abc import ABC, abstractmethod
 
 from ..errors import TransportBroken, TransportClosed
 
+#: what a stamped read returns: ``(data, rx_ns, first_rx_ns)`` (:meth:`Transport.read_stamped`)
+Received = tuple[bytes, int, int]
+
 
 class Transport(ABC):
     """A byte link to one board.  Thread rules: one reader thread, writes from any thread."""
@@ -25,6 +28,25 @@ class Transport(ABC):
         """Bytes that arrived, waiting at most ``timeout`` seconds; b"" when none came.
         Raises TransportBroken when the peer went away, TransportClosed after close()."""
 
+    def read_stamped(self, timeout: float | None) -> Received:
+        """:meth:`read`, with when the bytes came: ``(data, rx_ns, first_rx_ns)``.
+
+        ``rx_ns``: CLOCK_MONOTONIC ns by which every byte of ``data`` had arrived: right after
+        the read returned, or earlier where the transport knows better (TCP: the kernel's
+        receive stamp of the last segment the read took; the byte count at the wake-up, see
+        ``count_arrived``).  Never before the bytes arrived, so clock sync's t4 is a valid
+        upper constraint (the same user-space layer a board's shell stamps t2 at).
+
+        ``first_rx_ns``: by when the *first* byte had arrived, when that is known and earlier:
+        the wait that said the descriptor was readable returned then, and nothing read it in
+        between, so whatever came first was there.  A reply that heads the read was on its
+        way by then (t4 without the host's work between its wake-up and the byte count).
+        Known only while ``count_arrivals``; else 0.
+
+        Both 0 when the transport does not stamp (the caller stamps after the read); this
+        default stamps nothing."""
+        return self.read(timeout), 0, 0
+
     @abstractmethod
     def write(self, data: bytes) -> None:
         """Send all of ``data``; raises TransportBroken / TransportClosed."""
@@ -32,21 +54,9 @@ class Transport(ABC):
     #: CLOCK_MONOTONIC ns just before the newest write reached the OS (clock sync's t1); 0
     #: when the transport does not stamp (the caller's stamp is used)
     last_write_ns: int = 0
-    #: CLOCK_MONOTONIC ns right after the newest read returned: never earlier than the bytes'
-    #: arrival, so clock sync's t4 is a valid upper constraint (the same user-space layer a
-    #: board's shell stamps t2 at); 0 when the transport does not stamp
-    last_rx_ns: int = 0
-    #: set by ``_recv`` when it knows an earlier time by which every byte it read had arrived
-    #: (TCP: the kernel's receive stamp), for ``last_rx_ns``
-    arrived_ns: int = 0
-    #: CLOCK_MONOTONIC ns by which the *first* byte of the newest read had arrived, when that
-    #: is earlier than ``last_rx_ns``: the wait that said the descriptor was readable returned
-    #: then, and nothing read it in between, so whatever came first was there.  A reply that
-    #: heads the read was on its way by then (clock sync's t4 without the host's work between
-    #: its wake-up and the byte count).  Set only while ``count_arrivals``; else 0
-    first_rx_ns: int = 0
     #: set by the board while a clock exchange is in flight: the reader then counts the bytes
-    #: waiting the moment its wait returns (``count_arrived``), for a tighter t4
+    #: waiting the moment its wait returns (``count_arrived``), for a tighter t4 (and a TCP
+    #: link asks the kernel for its receive stamps)
     count_arrivals: bool = False
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
@@ -57,6 +67,10 @@ class Transport(ABC):
     def count_arrived(self, woke_ns: int = 0) -> None:  # noqa: B027 - descriptor transports
         """Right after a wait said bytes are there (it returned at ``woke_ns``): note how many,
         and when (see FdTransport)."""
+
+    def link_stats(self) -> dict[str, int]:
+        """What the link itself counts, by name (a signed link: the records it dropped); {}"""
+        return {}
 
     def write_frames(self, frames: list[bytes]) -> None:
         """Send whole frames.  Stream links join them; USB sends one transfer per frame."""
@@ -121,15 +135,17 @@ class FdTransport(Transport):
         if self._closed:
             raise TransportClosed(f"{self.url}: transport closed on this side")
 
-    def _recv(self, n: int) -> bytes:
-        return os.read(self._fd, n)
+    def _recv(self, n: int) -> tuple[bytes, int]:
+        """Up to ``n`` bytes, and an earlier CLOCK_MONOTONIC ns by which all of them had
+        arrived when the link knows one (TCP: the kernel's receive stamp), else 0."""
+        return os.read(self._fd, n), 0
 
     def count_arrived(self, woke_ns: int = 0) -> None:
         """Called the moment a wait said this descriptor is readable (it returned at
         ``woke_ns``), while a clock exchange is in flight: the bytes waiting now (FIONREAD) had
         all arrived by now, so the next ``read_ready`` takes exactly those and stamps them with
         this moment (t4), not with the end of the loop's work and the read that follow; and
-        the first of them had arrived by ``woke_ns`` (``first_rx_ns``)."""
+        the first of them had arrived by ``woke_ns`` (the read's ``first_rx_ns``)."""
         try:
             raw = fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0")
         except (OSError, ValueError):  # closed meanwhile: the read reports it
@@ -147,6 +163,9 @@ class FdTransport(Transport):
         return self._fd
 
     def read(self, timeout: float | None) -> bytes:
+        return self.read_stamped(timeout)[0]
+
+    def read_stamped(self, timeout: float | None) -> Received:
         self._check()
         try:
             ready, _, _ = select.select([self._fd, self._wake_r], [], [], timeout)
@@ -158,37 +177,36 @@ class FdTransport(Transport):
         if self._wake_r in ready:
             os.read(self._wake_r, 64)  # a poke: the reader has new timers to look at
         if self._fd not in ready:
-            return b""
+            return b"", 0, 0
         if self.count_arrivals:
             self.count_arrived(time.monotonic_ns())
         return self.read_ready()
 
-    def read_ready(self) -> bytes:
-        """Read what arrived on a descriptor that select() said is readable (never blocks)."""
+    def read_ready(self) -> Received:
+        """Read what arrived on a descriptor that a wait said is readable (never blocks):
+        ``(data, rx_ns, first_rx_ns)`` as :meth:`read_stamped` says."""
         self._check()
         counted, self._counted = self._counted, None
         try:
-            data = self._recv(65536 if counted is None else counted[0])
+            data, arrived = self._recv(65536 if counted is None else counted[0])
             # After the read, never before it: between select() returning and the read, this
             # thread can wait for the interpreter lock while another writes a request whose
             # reply then comes back in this same read; a stamp taken before would be earlier
             # than the request (measured: 10 µs "round trips", clock-sync bounds broken).
             now = time.monotonic_ns()
-            # An earlier stamp by which every byte of this read had arrived (TCP: the kernel's
-            # stamp of the last segment; else when count_arrived counted the bytes) is tighter
-            # and still valid; never trust it beyond our own stamp.
-            arrived = self.arrived_ns
-            if counted is not None and (arrived <= 0 or counted[1] < arrived):
-                arrived = counted[1]  # (the read took at most the bytes counted then)
-            self.last_rx_ns = arrived if 0 < arrived <= now else now
-            self.first_rx_ns = counted[2] if counted is not None else 0
-            self.arrived_ns = 0
         except (OSError, ValueError, TypeError) as e:  # TypeError: pyserial after close()
             self._check()
             raise TransportBroken(f"{self.url}: read failed: {e}") from e
         if not data:
             raise TransportBroken(f"{self.url}: the other side closed the link")
-        return data
+        # An earlier stamp by which every byte of this read had arrived (TCP: the kernel's
+        # stamp of the last segment; else when count_arrived counted the bytes) is tighter and
+        # still valid; never trust it beyond our own stamp.
+        if counted is None:
+            return data, arrived if 0 < arrived <= now else now, 0
+        if arrived <= 0 or counted[1] < arrived:
+            arrived = counted[1]  # (the read took at most the bytes counted then)
+        return data, arrived if 0 < arrived <= now else now, counted[2]
 
     def write(self, data: bytes) -> None:
         self._check()

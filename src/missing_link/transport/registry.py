@@ -2,7 +2,8 @@
 it, imported on first use (as python-can names its back ends), so opening a ``tcp://`` board
 never loads pyserial or pyusb.  Third-party transports register through the
 ``missing_link.transports`` entry-point group or :func:`register_transport`; ``spy+`` in front of
-any URL wraps it in :class:`~missing_link.transport.spy.SpyTransport`."""
+any URL wraps it in :class:`~missing_link.transport.spy.SpyTransport`, ``signed+`` (with
+``?key=FILE``) in :class:`~missing_link.transport.signed.SignedTransport`."""
 
 from __future__ import annotations
 

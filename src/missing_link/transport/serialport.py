@@ -27,14 +27,14 @@ class SerialTransport(FdTransport):
         super().__init__(url, port.fileno())
         self.port = port
 
-    def _recv(self, n: int) -> bytes:
+    def _recv(self, n: int) -> tuple[bytes, int]:
         try:
             data: bytes = self.port.read(max(1, min(n, self.port.in_waiting)))
         except serial.SerialException as e:
             # pyserial says "device reports readiness to read but returned no data" when the
             # other end of a pty or an unplugged USB serial device is gone.
             raise OSError(str(e)) from e
-        return data
+        return data, 0  # (no stamp of the driver's: the caller's, or the byte count's)
 
     def close(self) -> None:
         if not self._closed:

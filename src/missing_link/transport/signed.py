@@ -35,7 +35,7 @@ from ..board.signing import (
 )
 from ..errors import BadURL, TransportBroken
 from ..j2a.codec import Frame, FrameDecoder
-from .base import Transport
+from .base import Received, Transport
 
 #: seconds a new connection waits for the board's challenge
 GREETING_S = 5.0
@@ -116,14 +116,17 @@ class SignedTransport(Transport):
         )
 
     def read(self, timeout: float | None) -> bytes:
-        if self._early:
+        return self.read_stamped(timeout)[0]
+
+    def read_stamped(self, timeout: float | None) -> Received:
+        if self._early:  # (records that came with the board's challenge: no stamps of theirs)
             early, self._early = self._early, b""
-            return early
-        data = self.inner.read(timeout)
+            return early, 0, 0
+        data, rx_ns, first_rx_ns = self.inner.read_stamped(timeout)  # (the inner link's stamps)
         if not data:
-            return data
+            return data, rx_ns, first_rx_ns
         out: bytes = self._verifier.feed(data)
-        return out
+        return out, rx_ns, first_rx_ns
 
     def write(self, data: bytes) -> None:
         with self._wlock:
@@ -143,14 +146,6 @@ class SignedTransport(Transport):
     @property
     def last_write_ns(self) -> int:  # type: ignore[override]
         return self.inner.last_write_ns
-
-    @property
-    def last_rx_ns(self) -> int:  # type: ignore[override]
-        return self.inner.last_rx_ns
-
-    @property
-    def first_rx_ns(self) -> int:  # type: ignore[override]
-        return self.inner.first_rx_ns
 
     @property
     def wakes_on_close(self) -> bool:  # type: ignore[override]

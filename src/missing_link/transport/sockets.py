@@ -59,19 +59,19 @@ class SocketTransport(FdTransport):
         if not self._kernel_stamps:  # (with them, the kernel's stamp is earlier still)
             super().count_arrived(woke_ns)
 
-    def _recv(self, n: int) -> bytes:
+    def _recv(self, n: int) -> tuple[bytes, int]:
         if not (self._kernel_stamps and self.count_arrivals):
             # No clock reply expected: our own stamp after the read is good enough for samples
             # (their times come from the board), and recv costs ~1 µs less than recvmsg here.
-            return self.sock.recv(n)
+            return self.sock.recv(n), 0
         # When the bytes arrived, not when this thread got round to reading them: clock sync's
         # t4 without the host's wake-up and scheduling delay (the return trip's host share).
         data, stamp = recv_stamped(self.sock, n)
-        if stamp:
-            # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
-            offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
-            self.arrived_ns = stamp - offset
-        return data
+        if not stamp:
+            return data, 0
+        # realtime -> monotonic with the offset read now (NTP slews it by ppm at most)
+        offset = time.clock_gettime_ns(time.CLOCK_REALTIME) - time.monotonic_ns()
+        return data, stamp - offset
 
     def _send(self, data: memoryview) -> int:
         return self.sock.send(data)

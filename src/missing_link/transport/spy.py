@@ -54,6 +54,9 @@ class SpyTransport(Transport):
     def wakes_on_close(self) -> bool:  # type: ignore[override]
         return self.inner.wakes_on_close
 
+    def link_stats(self) -> dict[str, int]:
+        return self.inner.link_stats()
+
     def poke(self) -> None:
         self.inner.poke()
 
