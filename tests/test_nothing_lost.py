@@ -375,7 +375,8 @@ def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
 
 
 def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
-    r = ml("run", board_url, "--view", "--duration", "6")
+    # (a terminal's width in the environment says nothing of a pipe: nothing is cut)
+    r = ml("run", board_url, "--view", "--duration", "6", env={**os.environ, "COLUMNS": "80"})
     assert r.returncode == 0, r.stderr
     assert "\x1b[" not in r.stdout and "/thesis/quad" in r.stdout and "count" in r.stdout
 

@@ -210,6 +210,8 @@ def test_a_flood_of_clients_without_the_key_beside_the_daemon(
         st = d.status()[0]
     assert flood.connects >= 20 and all(ups), ups
     assert st["connects"] == 1 and st["failures"] == 0, st
+    # the signed link's own counters are among the board's (status, /diagnostics)
+    assert st["signed_records"] > 0 and st["signed_bad_tags"] == 0, st
 
 
 def test_the_hosts_wall_clock_does_not_matter(

@@ -181,7 +181,11 @@ class LiveView:
         from rich.console import Console
 
         t0 = time.monotonic()
-        console = Console(file=self.out, force_terminal=self.interactive)
+        # Not a terminal (a pipe, a log file): no width to fit, so nothing is cut.  $COLUMNS
+        # describes a terminal, not this file (and readline exports it in any process that
+        # loads it, so a child inherits a width that has nothing to do with its output).
+        width = None if self.interactive else PLAIN_WIDTH
+        console = Console(file=self.out, force_terminal=self.interactive, width=width)
 
         def done() -> bool:
             if duration is not None and time.monotonic() - t0 >= duration:
@@ -243,6 +247,10 @@ def _has_actuator(daemon: Any, board: str) -> bool:
 
 
 ELLIPSIS = "…"
+
+
+#: the width of the plain (not a terminal) view: wide enough that no value is cut
+PLAIN_WIDTH = 200
 
 
 def fit_names(names: Iterable[str], width: int) -> dict[str, str]:

@@ -84,7 +84,7 @@ class SamplePath:
         the board can tell how many it has sent (``count``, from ``a2jSifCount``)."""
         self.board = board
         if self.next_seq is not None and same_boot:
-            board.conn.expect_sif_seq(self.next_seq)
+            board.link.expect_sif_seq(self.next_seq)
             self._outage_count = count
         else:
             self._total = count
@@ -100,7 +100,7 @@ class SamplePath:
         if wraps:
             board = self.board
             if board is not None:
-                board.conn.stats.sifs_lost += 256 * wraps
+                board.link.count_lost_sifs(256 * wraps)
         self.outage_lost_sifs += lost
         self._outage_count = None
         return lost

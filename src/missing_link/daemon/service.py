@@ -46,7 +46,7 @@ from ..host.board import Board
 from ..host.config import Value, describe_keys
 from ..host.link import CallResult
 from ..host.reactor import Reactor
-from ..logs import SafeLog
+from ..logs import counts as log_counts
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
 from ..publishers.registry import make_publisher
@@ -402,9 +402,9 @@ class Daemon:
             extra = self.control.status() if self.control is not None else {}
             out.append({"publisher": "control", "level": 0, "message": "ok", **extra,
                         "commands_refused": sum(paths.values())})  # fmt: skip
-        if SafeLog.suppressed:
-            out.append({"publisher": "log", "level": 0, "message": "ok",
-                        "lines_held_back": SafeLog.suppressed})  # fmt: skip
+        held = log_counts()
+        if held["lines_held_back"] or held["tracebacks_folded"]:
+            out.append({"publisher": "log", "level": 0, "message": "ok", **held})
         return out
 
     def failures(self) -> list[str]:

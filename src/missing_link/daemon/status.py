@@ -12,7 +12,7 @@ modules own (sample path, settings, clock sync) stay the plain dicts those modul
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import astuple, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
@@ -49,26 +49,37 @@ class LinkCounters:
     timeouts: int = 0
     late_replies: int = 0
 
+    #: what the transport counts of its own (a signed link's dropped records: ``signed_*``)
+    transport: tuple[tuple[str, int], ...] = ()
+
     @classmethod
     def of(cls, board: Board) -> LinkCounters:
         """The counters of ``board``'s link now."""
-        d, c = board.conn.decoder.stats, board.conn.stats
+        s = board.link_stats()
         return cls(
-            frames=d.frames,
-            bad_checksums=d.bad_checksums,
-            bad_escapes=d.bad_escapes,
-            cut_frames=d.cut_frames,
-            junk_bytes=d.junk_bytes,
-            lost_sifs=c.sifs_lost,
-            timeouts=c.timeouts,
-            late_replies=c.late_replies,
+            frames=s.frames,
+            bad_checksums=s.bad_checksums,
+            bad_escapes=s.bad_escapes,
+            cut_frames=s.cut_frames,
+            junk_bytes=s.junk_bytes,
+            lost_sifs=s.sifs_lost,
+            timeouts=s.timeouts,
+            late_replies=s.late_replies,
+            transport=tuple(sorted(s.transport.items())),
         )
 
     def __add__(self, other: LinkCounters) -> LinkCounters:
-        return LinkCounters(*(a + b for a, b in zip(astuple(self), astuple(other), strict=True)))
+        summed = dict(self.transport)
+        for key, n in other.transport:
+            summed[key] = summed.get(key, 0) + n
+        counts = {f: getattr(self, f) + getattr(other, f) for f in _LINK_FIELDS}
+        return LinkCounters(**counts, transport=tuple(sorted(summed.items())))
 
     def to_json(self) -> dict[str, int]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {**{f: getattr(self, f) for f in _LINK_FIELDS}, **dict(self.transport)}
+
+
+_LINK_FIELDS = tuple(f.name for f in fields(LinkCounters) if f.name != "transport")
 
 
 @dataclass(frozen=True)
