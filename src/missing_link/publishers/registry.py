@@ -79,16 +79,16 @@ _REGISTERED: dict[str, Factory] = {}
 OPTIONS: dict[str, dict[str, str]] = {
     "bus": {"distro": "text"},
     "console": {"distro": "text", "rate_hz": "number"},
-    "mcap": {"distro": "text", "path": "text", "prefix": "text", "rotate_mb": "number",
+    "mcap": {"distro": "text", "path": "path", "prefix": "text", "rotate_mb": "number",
              "rotate_s": "number", "chunk_s": "number", "close_timeout": "number",
              "queue": "number"},
     "zenoh": {"distro": "text", "node": "text", "domain": "integer", "mode": "text",
-              "connect": "texts", "listen": "texts", "config": "text", "commands": "bool"},
+              "connect": "texts", "listen": "texts", "config": "path", "commands": "bool"},
     "foxglove": {"distro": "text", "name": "text", "host": "text", "port": "integer",
                  "origins": "texts"},
     "ros1": {"distro": "text", "node": "text", "master_uri": "text", "ros_ip": "text",
              "queue_size": "integer", "commands": "bool"},
-    "ros2": {"distro": "text", "node": "text", "prefix": "text", "depth": "integer",
+    "ros2": {"distro": "text", "node": "text", "prefix": "path", "depth": "integer",
              "commands": "bool"},
 }  # fmt: skip
 _RANGES = {"domain": (0, 232), "port": (0, 65535), "depth": (1, 100_000),
@@ -112,8 +112,9 @@ def check_options(name: str, options: dict[str, Any]) -> None:
             raise ConfigError(f"{at}: {value!r} is outside {_RANGES[key][0]}..{_RANGES[key][1]}")
 
 
-_KINDS = {"text": "a string", "number": "a number", "integer": "an integer",
-          "bool": "true or false", "texts": "a list of strings"}  # fmt: skip
+_KINDS = {"text": "a string", "path": "a string (a path)", "number": "a number",
+          "integer": "an integer", "bool": "true or false",
+          "texts": "a list of strings"}  # fmt: skip
 
 
 def _is(kind: str, value: Any) -> bool:
@@ -123,6 +124,8 @@ def _is(kind: str, value: Any) -> bool:
         return False
     if kind == "text":
         return isinstance(value, str)
+    if kind == "path":  # (a Path from code is one too)
+        return isinstance(value, (str, os.PathLike))
     if kind == "integer":
         return isinstance(value, int)
     if kind == "number":
