@@ -7,40 +7,45 @@ from __future__ import annotations
 import itertools
 import random
 import time
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
 from _calibration import est_stats
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.publishers.base import Publisher
 from missing_link.topics import Update
 from missing_link.virtual.clocks import DriftClock
 from missing_link.virtual.process import start_board_process, stop_process
 
+GAP_MS = 100.0  #: the board's boot gap at its reset
 
-def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> dict[str, float]:
+#: (host recv ns, host ns, error ns, bound ns, flags, estimated error ns) per sample
+Row = tuple[int, int, float, int, int, int]
+
+
+def whole_run(
+    link: str,
+    seconds: float,
+    seed: int,
+    reset_s: float = 18.0,
+    extra_publishers: Iterable[Publisher] = (),
+) -> dict[str, Any]:
     """The whole run as a user sees it: an independent check of every sample from 0.5 s after
     the first one, against a board clock with a random offset, skew of +-50..200 ppm, a drift
-    of the skew, and one reset (100 ms boot gap) ``reset_s`` in; 500 Hz samples."""
-    rng = random.Random(seed)
-    offset = rng.uniform(1e6, 1e9)
-    skew = rng.choice((-1, 1)) * rng.uniform(50, 200)
-    drift = rng.uniform(-0.5, 0.5)
-    gap_ms = 100.0
-    ref = time.monotonic_ns()
-    extra = [
-        *("--clock-offset-us", repr(offset), "--clock-skew-ppm", repr(skew)),
-        *("--clock-drift-ppm-per-s", repr(drift), "--clock-ref-ns", str(ref)),
-        *("--reset-at", repr(reset_s), "--boot-gap-ms", repr(gap_ms), "--rate", "500"),
-    ]
+    of the skew, and one reset (100 ms boot gap) ``reset_s`` in; 500 Hz samples.
+    ``extra_publishers`` see what the daemon publishes (the recorder: its clock records).
+    Besides the figures, the result has the run's ``truth`` (the board clock),
+    ``first_sample_ns``, ``answering_again_ns`` and the daemon's ``realtime_offset_ns``."""
+    truth, extra = _board_clock(seed, reset_s)
     listen = "pty" if link == "pty" else "tcp://127.0.0.1:0"
     proc, url = start_board_process("rate", seed, listen, extra=extra, name="w")
-    truth = DriftClock(offset, skew, drift, ref, [reset_s])
-    whole_run.truth = truth  # type: ignore[attr-defined]  # for diagnostics of a run
-    answering_again = truth.reset_ns[0] + gap_ms * 1e6
-    rows: list[tuple[int, int, float, int, int, int]] = []  # recv, host, err, bound, flags, est
+    answering_again = truth.reset_ns[0] + GAP_MS * 1e6
+    rows: list[Row] = []
     try:
-        with Daemon(Config(boards=[BoardSpec(url)])) as d:
+        with Daemon(Config(boards=[BoardSpec(url)]), extra_publishers=extra_publishers) as d:
             off = d.realtime_offset_ns
 
             def on_update(u: Update) -> None:
@@ -52,15 +57,41 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
                 )
 
             d.subscribe("/w/signal", on_update, queue=0)
-            t_end = ref + seconds * 1e9
+            t_end = truth.ref_ns + seconds * 1e9
             while time.monotonic_ns() < t_end:
                 time.sleep(0.2)
             st = d.status()[0]
     finally:
         stop_process(proc)
+    return {
+        **_figures(rows, answering_again),
+        "probes_per_s": st["sync_exchanges"] / seconds,
+        "resets": st["sync_resets"],
+        "truth": truth,
+        "first_sample_ns": rows[0][0],
+        "answering_again_ns": answering_again,
+        "realtime_offset_ns": off,
+    }
+
+
+def _board_clock(seed: int, reset_s: float) -> tuple[DriftClock, list[str]]:
+    """The board's clock for ``seed`` and the board process's arguments that make it."""
+    rng = random.Random(seed)
+    offset = rng.uniform(1e6, 1e9)
+    skew = rng.choice((-1, 1)) * rng.uniform(50, 200)
+    drift = rng.uniform(-0.5, 0.5)
+    ref = time.monotonic_ns()
+    extra = [
+        *("--clock-offset-us", repr(offset), "--clock-skew-ppm", repr(skew)),
+        *("--clock-drift-ppm-per-s", repr(drift), "--clock-ref-ns", str(ref)),
+        *("--reset-at", repr(reset_s), "--boot-gap-ms", repr(GAP_MS), "--rate", "500"),
+    ]
+    return DriftClock(offset, skew, drift, ref, [reset_s]), extra
+
+
+def _figures(rows: list[Row], answering_again: float) -> dict[str, Any]:
+    """The run's errors against the truth: synced samples from 0.5 s after the first one."""
     first = rows[0][0]
-    whole_run.first_sample_ns = first  # type: ignore[attr-defined]  # (replay_timesync.py)
-    whole_run.answering_again_ns = answering_again  # type: ignore[attr-defined]
     hosts = [r[1] for r in rows]
     not_increasing = sum(1 for a, b in itertools.pairwise(hosts) if b <= a)
     counted = [r for r in rows if r[0] >= first + 5e8 and not r[4] & 6]  # synced, not outliers
@@ -92,6 +123,4 @@ def whole_run(link: str, seconds: float, seed: int, reset_s: float = 18.0) -> di
         "recovery_ms": recovery,
         "unsynced": sum(1 for r in rows if r[4] & 6),
         "n": len(rows),
-        "probes_per_s": st["sync_exchanges"] / seconds,
-        "resets": st["sync_resets"],
     }

@@ -25,10 +25,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from missing_link.view import percentile
-
+from _patch import replace
 from bench_rpc import raw_echo_rate
 from missing_link.board.runtime import BoardRuntime, Transducer
+from missing_link.cli.view import percentile
 from missing_link.daemon import BoardSession, Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.descriptors import parse_transds
@@ -109,7 +109,7 @@ def throughput(seconds: float) -> tuple[float, float]:
     ctx = daemon.session_context()
     session = BoardSession(ctx, BoardSpec("memory://bench"))
     topic = Topic.for_transducer("/b/dist_ir", "b", t, "missing_link_msgs")
-    session.path.topics = {t.id: topic}
+    replace(session.path, "topics", {t.id: topic})  # (the session's own table, as at connect)
     ctx.declare(topic)
     got = [0]
     daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8), queue=0)

@@ -121,21 +121,23 @@ def _board(listen: str, seed: int, skew_ppm: float, sim_name: str = "rate", rate
     return proc, url, AffineClock(offset, skew_ppm)
 
 
+#: every how many exchanges each method takes one (its own probe rate at 10 Hz exchanges)
+EVERY = {"missing-link": 1, "px4": 1, "cristian": 10, "rosserial": 25}
+
+
 def real_same_exchanges(link: str, seconds: float) -> list[str]:
     proc, url, truth = _board("pty" if link == "pty" else "tcp://127.0.0.1:0", 11, 50.0)
     methods = {name: sim.METHODS[name]() for name in sim.METHODS}
-    every = {"missing-link": 1, "px4": 1, "cristian": 10, "rosserial": 25}
     errors: dict[str, list[float]] = {m: [] for m in methods}
     back = dict.fromkeys(methods, 0)
     last: dict[str, float] = {}
-    covered = total = 0
+    cover = [0, 0]  # (within the bound, with a bound)
     lock = threading.Lock()
     t_start = time.monotonic()
     try:
         with Board.open(url) as board:
 
             def on_sif(sif: SifReceived, now: float) -> None:
-                nonlocal covered, total
                 b = int.from_bytes(sif.payload[:8], "little")
                 true_ns = truth.host_ns(b)
                 warm = now - t_start > 10
@@ -151,31 +153,42 @@ def real_same_exchanges(link: str, seconds: float) -> list[str]:
                         if warm:
                             errors[name].append(h - true_ns)
                             if bound is not None:
-                                total += 1
-                                covered += abs(h - true_ns) <= bound
+                                cover[1] += 1
+                                cover[0] += abs(h - true_ns) <= bound
 
             board.on_sif(None, on_sif)
-            k = 0
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
-                now = time.monotonic()
-                try:
-                    ex = board.clock_exchange(1.0)
-                except CallTimeout:
-                    continue
-                with lock:
-                    for name, m in methods.items():
-                        if k % every[name] == 0:
-                            m.on_exchange(ex, now)
-                k += 1
-                time.sleep(0.1 * random.uniform(0.75, 1.25))
+            _probe(board, methods, lock, seconds)
     finally:
         stop_process(proc)
+    return _same_exchanges_rows(link, errors, back, cover)
+
+
+def _probe(board: Board, methods: dict[str, Any], lock: threading.Lock, seconds: float) -> None:
+    """Clock exchanges at about 10 Hz, each handed to the methods that take it."""
+    k = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        now = time.monotonic()
+        try:
+            ex = board.clock_exchange(1.0)
+        except CallTimeout:
+            continue
+        with lock:
+            for name, m in methods.items():
+                if k % EVERY[name] == 0:
+                    m.on_exchange(ex, now)
+        k += 1
+        time.sleep(0.1 * random.uniform(0.75, 1.25))
+
+
+def _same_exchanges_rows(
+    link: str, errors: dict[str, list[float]], back: dict[str, int], cover: list[int]
+) -> list[str]:
     out = []
     ours = float(np.percentile(np.abs(errors["missing-link"]), 99))
-    for name in methods:
+    for name in errors:
         e = np.abs(np.array(errors[name])) / 1000
-        cov = f"{covered / total * 100:.3f} %" if name == "missing-link" and total else "-"
+        cov = f"{cover[0] / cover[1] * 100:.3f} %" if name == "missing-link" and cover[1] else "-"
         out.append(
             f"| {link} | {name} (same exchanges) | {np.percentile(e, 50):.1f}"
             f" | {np.percentile(e, 99):.1f} | {e.max():.1f}"

@@ -5,19 +5,25 @@ whole-run p50 moves by 4 µs or more between runs here).
 
     .venv/bin/python bench/replay_timesync.py record [--runs 6] [--seconds 30] [--out DIR]
     .venv/bin/python bench/replay_timesync.py replay [--in DIR] [--set key=value,...]...
+    .venv/bin/python bench/replay_timesync.py floors [--in DIR]
 
 ``record`` runs the whole-run scenario of ``bench_timesync.py`` (a board process whose clock has
 a random offset, ±50-200 ppm skew, a drifting skew and a reset 18 s in, over a pty) with the
-daemon probing at a fixed 50 Hz, and writes every exchange with the board clock's parameters
-(one JSON file per run).  ``replay`` feeds each recording to a fresh ``ClockSync``: whenever
-the sync asks for a probe, it gets the first recorded exchange sent at or after that moment
-(so any schedule slower than 50 Hz can be replayed), and every 2 ms from 0.5 s after the first
-sample it maps the board's true reading and compares with the truth, as the whole-run bench
-does.  Each ``--set`` is one variant of ``SyncOptions`` (``default`` = none); ``--anchors`` adds
-the anchors' methods of ``virtual/syncsim.py`` (Cristian/micro-ROS, rosserial, PX4) on the same
-exchanges at their own probe rates.  Medians over the recordings; error bins by time since the
-first sample; "before the reset" counts only up to the board's reset (the anchor models, like
-the originals they stand for, have no reset detection beyond re-syncing)."""
+daemon probing at a fixed 50 Hz, and writes every exchange (as the daemon hands them to
+recordings) with the board clock's parameters (one JSON file per run); a run that did not probe
+at about 50 Hz stops it (the schedule is patched into the daemon: bench/_patch.py).
+
+``replay`` feeds each recording to a fresh ``ClockSync``: whenever the sync asks for a probe, it
+gets the first recorded exchange sent at or after that moment (so any schedule slower than 50 Hz
+can be replayed), and every 2 ms from 0.5 s after the first sample it maps the board's true
+reading and compares with the truth, as the whole-run bench does. Each ``--set`` is one variant
+of ``SyncOptions`` (``default`` = none); ``--anchors`` adds the anchors' methods of
+``virtual/syncsim.py`` (Cristian/micro-ROS, rosserial, PX4) on the same exchanges at their own
+probe rates. Medians over the recordings; error bins by time since the first sample; "before the
+reset" counts only up to the board's reset (the anchor models, like the originals they stand
+for, have no reset detection beyond re-syncing). ``floors`` gives each recording's one-way
+delays against the known clock (their 1st percentiles, and the bias half their difference gives
+an estimate that assumes the two trips alike)."""
 
 from __future__ import annotations
 
@@ -34,47 +40,79 @@ from typing import Any
 import numpy as np
 
 from _calibration import est_stats
-from missing_link.timesync import ClockSync, Exchange, SyncOptions
+from missing_link.publishers.base import Publisher
+from missing_link.ros.clock import ClockRecord
+from missing_link.timesync import Exchange, SyncOptions
+from missing_link.topics import Update
 from missing_link.virtual import syncsim as sim
 from missing_link.virtual.clocks import DriftClock
 
 BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
 
 
+#: the recorder's probe rate, and the least a recording must show to be kept
+RATE_HZ = 50.0
+MIN_RATE_HZ = 40.0
+
+
+class ClockRecorder(Publisher):
+    """Every clock exchange the daemon makes, as it hands them to recordings (``clock_record``:
+    one record per exchange the sync took, refused or not)."""
+
+    name = "clock-recorder"
+
+    def __init__(self) -> None:
+        self.records: list[ClockRecord] = []
+
+    def publish(self, update: Update) -> None:
+        pass
+
+    def clock_record(self, topic: str, record: ClockRecord) -> None:
+        self.records.append(record)
+
+    def exchanges(self, realtime_offset_ns: int) -> list[Exchange]:
+        """The exchanges, their host stamps back on CLOCK_MONOTONIC (records carry REALTIME)."""
+        off = realtime_offset_ns
+        return [
+            Exchange(r.t1_ns - off, r.t2_us, r.t3_us, r.t4_ns - off, r.down_min_ns, r.up_min_ns)
+            for r in self.records
+        ]
+
+
 def record(runs: int, seconds: float, out: Path, link: str = "pty") -> None:
-    import missing_link.daemon.session as session
+    import missing_link.daemon.session_clock as session_clock
+    from _patch import patched
     from _whole_run import whole_run
-    from missing_link.timesync import sync
 
-    # The sessions build their SyncOptions; the recorder gives them a fixed 50 Hz probe (a
-    # burst that never ends), so that any slower schedule can be replayed from the recording.
+    # The sessions build their SyncOptions in session_clock.py, with no parameter for the probe
+    # schedule: the recorder gives them a fixed 50 Hz (a burst that never ends), so that any
+    # slower schedule can be replayed from the recording.  The patch fails the bench if that
+    # name is gone or unused, and a recording whose rate is not ~50 Hz is not kept.
     def fixed_50hz(**kw: Any) -> SyncOptions:
-        return SyncOptions(**kw, burst_interval=0.02, interval=0.02, burst_count=10**9)
+        gap = 1 / RATE_HZ
+        return SyncOptions(**kw, burst_interval=gap, interval=gap, burst_count=10**9)
 
-    seen: list[Exchange] = []
-    on_exchange = sync.ClockSync.on_exchange
-
-    def keep(self: ClockSync, ex: Exchange, now: float) -> Any:
-        seen.append(ex)
-        return on_exchange(self, ex, now)
-
-    setattr(session, "SyncOptions", fixed_50hz)  # noqa: B010 - (a module's global, on purpose)
-    sync.ClockSync.on_exchange = keep  # type: ignore[method-assign]
-    try:
-        out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    with patched(session_clock, "SyncOptions", fixed_50hz):
         for k in range(runs):
-            seen.clear()
-            got = whole_run(link, seconds, 100 + k)
-            _save(out / f"run{100 + k}.json", vars(whole_run), seen)
-            print(f"run {k + 1}/{runs}: {len(seen)} exchanges (live p50 {got['p50']:.1f} µs)")
-    finally:
-        setattr(session, "SyncOptions", SyncOptions)  # noqa: B010
-        sync.ClockSync.on_exchange = on_exchange  # type: ignore[method-assign]
+            recorder = ClockRecorder()
+            got = whole_run(link, seconds, 100 + k, extra_publishers=[recorder])
+            seen = recorder.exchanges(got["realtime_offset_ns"])
+            rate = len(seen) / ((seen[-1].t4 - seen[0].t1) / 1e9) if len(seen) > 1 else 0.0
+            if rate < MIN_RATE_HZ:
+                raise SystemExit(
+                    f"replay_timesync: run {k + 1}: {rate:.1f} exchanges/s, not the "
+                    f"{RATE_HZ:g} Hz asked: the recorder's schedule was not applied (not saved)"
+                )
+            _save(out / f"run{100 + k}.json", got, seen)
+            print(
+                f"run {k + 1}/{runs}: {len(seen)} exchanges ({rate:.1f}/s; live p50 "
+                f"{got['p50']:.1f} µs)"
+            )
 
 
 def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
-    """One recording: the exchanges, the board clock's parameters and the run's moments (kept
-    on ``whole_run`` by the bench)."""
+    """One recording: the exchanges, the board clock's parameters and the run's moments."""
     truth = run["truth"]
     doc = {
         "truth": {
@@ -91,6 +129,35 @@ def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
     path.write_text(json.dumps(doc))
 
 
+def _truth(doc: dict[str, Any]) -> DriftClock:
+    tr = doc["truth"]
+    truth = DriftClock(tr["offset_us"], tr["skew_ppm"], tr["drift_ppm_per_s"], tr["ref_ns"], [])
+    truth.reset_ns = list(tr["resets_ns"])
+    return truth
+
+
+def floors(where: Path) -> None:
+    """Each recording's one-way delays against the board's known clock: the request's (t1 to
+    the board's t2) and the reply's (t3 to t4); the floor is the 1st percentile, and half the
+    difference of the floors is the bias it gives an estimate that assumes them equal."""
+    docs = _docs(where)
+    print("| recording | exchanges | request floor µs | reply floor µs | bias µs |")
+    print("|---|---|---|---|---|")
+    for name, doc in docs:
+        truth = _truth(doc)
+        up, down = [], []
+        for row in doc["exchanges"]:
+            ex = Exchange(*row)
+            boot = truth.boot_at(ex.t1)
+            if boot != truth.boot_at(ex.t4) or (boot and ex.t1 < doc["answering_again_ns"]):
+                continue  # (across the reset, or the board not answering yet)
+            up.append((truth.host_ns(ex.t2, boot) - ex.t1) / 1000)
+            down.append((ex.t4 - truth.host_ns(ex.t3, boot)) / 1000)
+        f_up, f_down = float(np.percentile(up, 1)), float(np.percentile(down, 1))
+        bias = (f_down - f_up) / 2
+        print(f"| {name} | {len(up)} | {f_up:.1f} | {f_down:.1f} | {bias:+.1f} |")
+
+
 def _map_at(method: Any, board_us: int, now: float) -> tuple[float, float, float] | None:
     """(host ns, bound ns, estimated error ns) as published: ours as the daemon's sample path
     maps (with ``now``, refusing stamps from the future); an anchor by its own map, without a
@@ -105,9 +172,7 @@ def _map_at(method: Any, board_us: int, now: float) -> tuple[float, float, float
 def replay_one(doc: dict[str, Any], method: Any) -> dict[str, Any]:
     """``method``: one of ``sim.METHODS`` (ours: ``sim.Ours``); it asks for its first probe at 0 s,
     which is the recording's first exchange."""
-    tr = doc["truth"]
-    truth = DriftClock(tr["offset_us"], tr["skew_ppm"], tr["drift_ppm_per_s"], tr["ref_ns"], [])
-    truth.reset_ns = list(tr["resets_ns"])
+    truth = _truth(doc)
     exs = [Exchange(*row) for row in doc["exchanges"]]
     sent = [e.t1 for e in exs]
     first, again = doc["first_sample_ns"], doc["answering_again_ns"]
@@ -180,11 +245,16 @@ def _us(x: float) -> str:
     return f"{x / 1e6:,.0f} s" if x >= 1e6 else f"{x:.1f}"
 
 
-def replay(where: Path, specs: list[str], anchors: bool) -> None:
-    options = {s: variant(s) for s in specs}  # (a bad --set fails before any output)
-    docs = [_load(p) for p in sorted(where.glob("run*.json"))]
+def _docs(where: Path) -> list[tuple[str, dict[str, Any]]]:
+    docs = [(p.stem, _load(p)) for p in sorted(where.glob("run*.json"))]
     if not docs:
         raise SystemExit(f"replay_timesync: no recordings in {where} (run `record` first)")
+    return docs
+
+
+def replay(where: Path, specs: list[str], anchors: bool) -> None:
+    options = {s: variant(s) for s in specs}  # (a bad --set fails before any output)
+    docs = [doc for _name, doc in _docs(where)]
     print(f"{len(docs)} recordings from {where}; medians over them, worst = the worst run\n")
     bins = " | ".join(f"p50 {lo:g}-{hi:g} s" if hi < 1e9 else f"p50 {lo:g} s-" for lo, hi in BINS)
     print(
@@ -232,10 +302,14 @@ def main() -> None:
     rep.add_argument("--in", dest="where", type=Path, default=Path("recordings/timesync"))
     rep.add_argument("--set", dest="specs", action="append", default=None)
     rep.add_argument("--anchors", action="store_true", help="the anchors' methods too")
+    flo = sub.add_parser("floors", help="each recording's one-way delay floors and their bias")
+    flo.add_argument("--in", dest="where", type=Path, default=Path("recordings/timesync"))
     a = ap.parse_args()
     if a.cmd == "record":
         sys.path.insert(0, str(Path(__file__).parent))
         record(a.runs, a.seconds, a.out, a.link)
+    elif a.cmd == "floors":
+        floors(a.where)
     else:
         replay(a.where, a.specs or ["default"], a.anchors)
 

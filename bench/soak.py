@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
@@ -119,23 +120,7 @@ def run(boards: int, seconds: float, rate: float, period: float, faults: bool) -
             k, fault = step % boards, FAULTS[(step // boards) % len(FAULTS)]
             step += 1
             done[fault] += 1
-            if fault == "freeze":
-                procs[k].send_signal(signal.SIGSTOP)
-                time.sleep(2.0)
-                procs[k].send_signal(signal.SIGCONT)
-            elif fault == "blackhole":
-                relays[k].blackhole(True)
-                time.sleep(2.0)
-                relays[k].blackhole(False)
-            elif fault == "corrupt":
-                relays[k].set_corrupt(1e-3)
-                time.sleep(5.0)
-                relays[k].set_corrupt(0.0)
-            else:
-                procs[k].kill()
-                procs[k].wait()
-                time.sleep(1.0)
-                procs[k], relays[k].upstream = start_board(f"b{k}", rate)
+            inject(fault, k, procs, relays, rate)
         # let every board come back before the books are closed
         d.wait_until_up(30)
         time.sleep(3.0)
@@ -146,7 +131,41 @@ def run(boards: int, seconds: float, rate: float, period: float, faults: bool) -
         p.wait(10)
     for r in relays:
         r.stop()
-    out: dict[str, float] = {
+    return {
+        **books(tallies, status),
+        "threads": end_res[0] - start_res[0],
+        "fds": end_res[1] - start_res[1],
+        "rss_mb": end_res[2] - start_res[2],
+        **{f"n_{f}": v for f, v in done.items()},
+    }
+
+
+def inject(
+    fault: str, k: int, procs: list[subprocess.Popen[str]], relays: list[FaultRelay], rate: float
+) -> None:
+    """One fault on board ``k``, and its end."""
+    if fault == "freeze":
+        procs[k].send_signal(signal.SIGSTOP)
+        time.sleep(2.0)
+        procs[k].send_signal(signal.SIGCONT)
+    elif fault == "blackhole":
+        relays[k].blackhole(True)
+        time.sleep(2.0)
+        relays[k].blackhole(False)
+    elif fault == "corrupt":
+        relays[k].set_corrupt(1e-3)
+        time.sleep(5.0)
+        relays[k].set_corrupt(0.0)
+    else:
+        procs[k].kill()
+        procs[k].wait()
+        time.sleep(1.0)
+        procs[k], relays[k].upstream = start_board(f"b{k}", rate)
+
+
+def books(tallies: list[Tally], status: list[dict[str, Any]]) -> dict[str, float]:
+    """What the subscribers counted, and what the daemon says it dropped and why."""
+    return {
         "received": sum(t.received for t in tallies),
         "counted": sum(t.counted for t in tallies),
         "counted_mod256": sum(t.counted_mod for t in tallies),
@@ -156,12 +175,7 @@ def run(boards: int, seconds: float, rate: float, period: float, faults: bool) -
         "stale_links": sum(s["stale_links"] for s in status),
         "outage_lost": sum(s["outage_lost_sifs"] for s in status),
         "reconnects": sum(s["connects"] - 1 for s in status),
-        "threads": end_res[0] - start_res[0],
-        "fds": end_res[1] - start_res[1],
-        "rss_mb": end_res[2] - start_res[2],
-        **{f"n_{f}": v for f, v in done.items()},
     }
-    return out
 
 
 def main() -> None:

@@ -4,6 +4,7 @@ running under real MicroPython."""
 
 from __future__ import annotations
 
+import random
 import subprocess
 import sys
 from pathlib import Path
@@ -13,9 +14,13 @@ import pytest
 from missing_link.daemon.config import ConfigError
 from missing_link.deploy.boardfile import load_board_file
 from missing_link.deploy.check import FlashError, verify
-from missing_link.deploy.flash import micropython_files
+from missing_link.deploy.flash import flash, micropython_files
+from missing_link.errors import MissingLinkError
+from missing_link.host.board import Board
+from missing_link.transport import open_transport
 
 from .helpers import FirmwareSim
+from .serial_board import SerialBoard
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
@@ -36,6 +41,74 @@ def board_file(tmp_path: Path, body: str) -> Path:
 SERVO_ONLY = """BOARD = {"name": "arm", "transducers": [
     {"name": "servo", "id": 3, "driver": "servo", "pin": 15}]}
 """
+
+
+WIFI = ROOT / "examples" / "boards" / "esp32-wifi.py"
+
+
+def _answers(url: str, key: Path) -> bool:
+    board = Board(open_transport(f"signed+{url}?key={key}"), timeout=3.0)
+    try:
+        board.handshake()
+        return board.properties["board.name"] == "wifi"
+    except MissingLinkError:
+        return False
+    finally:
+        board.close()
+
+
+@pytest.mark.micropython
+def test_the_key_reaches_the_board_and_a_new_key_replaces_the_old(tmp_path: Path) -> None:
+    """``flash --key`` with the real mpremote on a serial port whose other end is MicroPython's
+    own REPL and filesystem (tests/serial_board.py); the board's filesystem is read back after
+    the reset, and the firmware booted from it (board file and key as flashed) answers the
+    host that has the key, and not one with another key.  Flashed again with a new key (a leak),
+    the old key stops working."""
+    flash_dir = tmp_path / "flash"  # the board's flash, kept across power cycles
+    keys = [tmp_path / "first.key", tmp_path / "after-a-leak.key"]
+    for key in keys:
+        key.write_text(random.randbytes(32).hex() + "\n")
+    bf = load_board_file(WIFI)
+    for key, other in ((keys[0], keys[1]), (keys[1], keys[0])):
+        board = SerialBoard(flash_dir)
+        said: list[str] = []
+        try:
+            assert flash(bf, board.port, key=str(key), say=said.append) == 0
+            assert board.wait_gone(30) and board.was_reset  # (mpremote's `reset`)
+        finally:
+            board.close()
+        on_board = {
+            f.relative_to(flash_dir).as_posix(): f.read_bytes()
+            for f in flash_dir.rglob("*")
+            if f.is_file()
+        }
+        for c in micropython_files(bf, str(key)):  # every file, as it is here
+            assert on_board.get(c.remote) == c.local.read_bytes(), c.remote
+        assert on_board["mlkey.bin"] == key.read_bytes()
+        assert any("network board" in line for line in said)
+        sim = FirmwareSim(flash_dir / "board.py", files={"mlkey.bin": flash_dir / "mlkey.bin"})
+        try:
+            assert _answers(sim.url, key)
+            assert not _answers(sim.url, other)
+        finally:
+            sim.close()
+
+
+def test_keys_go_where_the_board_reads_them(tmp_path: Path) -> None:
+    key = tmp_path / "robot.key"
+    key.write_text(random.randbytes(32).hex() + "\n")
+    plain = tmp_path / "plain.py"  # a network board without a key: flashed, with a warning
+    plain.write_text(WIFI.read_text().replace(', "key_file": "mlkey.bin"', ""))
+    r = cli("flash", str(plain), "--dry-run")
+    assert r.returncode == 0 and ":mlkey.bin" not in r.stdout, r.stderr
+    assert r.stderr.startswith("missing-link: warning: ") and "unauthenticated" in r.stderr
+    assert r.stderr.count("\n") == 1
+    r = cli("flash", str(plain), "--dry-run", "--key", str(key))  # a key it would not read
+    assert r.returncode == 1 and "the link has no key_file" in r.stderr, r.stderr
+    r = cli("flash", str(WIFI), "--dry-run", "--key", str(key))
+    assert r.returncode == 0 and not r.stderr, r.stderr
+    assert f"fs cp {Path(r.stdout.split('fs cp -r ')[1].split()[0]).parent}/mlkey.bin" in r.stdout
+    assert r.stdout.index(":mlkey.bin") < r.stdout.index(":main.py")  # main.py last
 
 
 def test_only_the_drivers_the_board_uses_are_copied(tmp_path: Path) -> None:

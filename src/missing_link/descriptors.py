@@ -274,6 +274,36 @@ def parse_transds(text: str, board: str = "board") -> list[Transducer]:
     return check_unique(items, board)
 
 
+#: the largest file a user hands in as input (descriptors, a daemon or board configuration):
+#: far beyond any real one (a board's own descriptor blob is capped at 64 KiB)
+MAX_INPUT_FILE = 1 << 20
+
+
+def read_input_file(path: str, cap: int = MAX_INPUT_FILE) -> bytes:
+    """The bytes of a file given as input: a regular file of at most ``cap`` bytes.  A device,
+    a FIFO or a larger file is refused before it is read (``/dev/zero`` never ends, a FIFO
+    blocks): ValueError saying why; OSError as opening it raises it."""
+    import os
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)  # (a FIFO: no wait)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError("not a regular file")
+        if st.st_size > cap:
+            raise ValueError(f"{st.st_size} bytes; an input file has at most {cap}")
+        chunks, size = [], 0
+        while chunk := os.read(fd, cap + 1 - size):
+            chunks.append(chunk)
+            size += len(chunk)
+            if size > cap:  # (it grew since fstat)
+                raise ValueError(f"over {cap} bytes; an input file has at most {cap}")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
 def load_descriptor_file(path: str) -> list[Transducer]:
     """Descriptors given on the host (for original boards): a ``transds/1`` text file, or TOML
     with one ``[[transducer]]`` table per transducer (keys: the seven fields, then options)."""
@@ -282,9 +312,11 @@ def load_descriptor_file(path: str) -> list[Transducer]:
 
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        raw = read_input_file(path)
     except OSError as e:
         raise DescriptorError(path, f"cannot read descriptor file: {e.strerror}") from e
+    except ValueError as e:
+        raise DescriptorError(path, f"descriptor file refused: {e}") from None
     if p.suffix != ".toml":
         return parse_transds(raw.decode("utf-8", "replace"), path)
     try:

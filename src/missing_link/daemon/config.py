@@ -6,14 +6,18 @@ See ``examples/missing-link.toml`` for a complete, commented example.
 from __future__ import annotations
 
 import fnmatch
+import math
+import os
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..descriptors import read_input_file
 from ..errors import ConfigError
-from ..publishers.registry import known_publishers
+from ..publishers.registry import check_options, known_publishers
 from ..ros.msgs import DISTROS, check_package
 from ..text import is_token
 from ..topics import check_topic
@@ -149,6 +153,7 @@ class Config:
     source: str = "<defaults>"
 
 
+_TABLES = ("daemon", "board", "boards", "remap", "discover")
 _DAEMON_KEYS = {
     "publishers": list,
     "node": str,
@@ -191,39 +196,50 @@ def _type_name(t: Any) -> str:
     return {list: "list", str: "string"}.get(t, str(t.__name__))
 
 
+Fail = Callable[[str, str], ConfigError]
+
+
 def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
+    """A Config from a parsed TOML document; every wrong key, type or value is a ConfigError
+    naming the file, the table and the key (one line, never a traceback)."""
     cfg = Config(source=source)
 
     def fail(where: str, why: str) -> ConfigError:
         return ConfigError(f"{source}: {where}: {why}")
 
-    def check(table: dict[str, Any], allowed: dict[str, Any], where: str) -> None:
-        for key, value in table.items():
-            if key not in allowed:
-                raise fail(f"{where}.{key}", f"unknown key (known: {', '.join(allowed)})")
-            if not isinstance(value, allowed[key]) or isinstance(value, bool):
-                raise fail(
-                    f"{where}.{key}", f"expected a {_type_name(allowed[key])}, got {value!r}"
-                )
-            if key in _RANGES:
-                lo, hi = _RANGES[key]
-                if not lo <= value <= hi:
-                    raise fail(f"{where}.{key}", f"{value!r} is outside {lo:g}..{hi:g}")
-
-    known_tables = {"daemon", "board", "boards", "remap", "discover"}
     cfg.board_config = _parse_boards(doc.get("boards", {}), fail)
     if "discover" in doc:
         cfg.discover = _parse_discover(doc["discover"], fail)
-    daemon = doc.get("daemon", {})
-    if not isinstance(daemon, dict):
-        raise fail("daemon", "must be a table")
-    check(daemon, _DAEMON_KEYS, "daemon")
-    for key, value in daemon.items():
+    _parse_daemon(cfg, doc.get("daemon", {}), fail)
+    cfg.boards = _parse_board_tables(doc.get("board", []), fail)
+    cfg.remap = _parse_remap(doc.get("remap", {}), fail)
+    cfg.publisher_options = _parse_publisher_tables(doc, fail, source)
+    return cfg
+
+
+def _check_table(table: Any, allowed: dict[str, Any], where: str, fail: Fail) -> dict[str, Any]:
+    if not isinstance(table, dict):
+        raise fail(where, "must be a table")
+    for key, value in table.items():
+        if key not in allowed:
+            raise fail(f"{where}.{key}", f"unknown key (known: {', '.join(allowed)})")
+        if not isinstance(value, allowed[key]) or isinstance(value, bool):
+            raise fail(f"{where}.{key}", f"expected a {_type_name(allowed[key])}, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise fail(f"{where}.{key}", f"expected a finite number, got {value!r}")
+        if key in _RANGES:
+            lo, hi = _RANGES[key]
+            if not lo <= value <= hi:
+                raise fail(f"{where}.{key}", f"{value!r} is outside {lo:g}..{hi:g}")
+    return table
+
+
+def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
+    for key, value in _check_table(daemon, _DAEMON_KEYS, "daemon", fail).items():
         setattr(cfg, key, float(value) if type(value) is int else value)  # 1 -> 1.0 (seconds)
     if not all(isinstance(c, str) and c[:1] in ("/", "*") for c in cfg.commands):
         raise fail("daemon.commands", 'command topics or patterns, e.g. ["/rover/*/cmd"]')
-    if cfg.control and not cfg.control.startswith("/"):
-        raise fail("daemon.control", f'{cfg.control!r}: an absolute path of a socket, or ""')
+    _check_control(cfg.control, fail)
     if cfg.backoff_max < cfg.backoff_min:
         raise fail("daemon.backoff_max", f"{cfg.backoff_max:g} is below backoff_min")
     if cfg.distro not in DISTROS:
@@ -234,43 +250,88 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
         raise fail("daemon.package", str(e)) from None
     known_pubs = known_publishers()
     for name in cfg.publishers:
-        if name not in known_pubs:
+        if not isinstance(name, str) or name not in known_pubs:
             raise fail(
                 "daemon.publishers",
                 f"unknown publisher {name!r} (available: {', '.join(known_pubs)})",
             )
-    boards = doc.get("board", [])
+
+
+def runtime_dir() -> Path:
+    """The per-user directory of the default control endpoint (daemon/control.py's
+    ``default_control_path`` without ``$MISSING_LINK_CONTROL``): the one directory the daemon
+    may create for it (mode 0700)."""
+    run = os.environ.get("XDG_RUNTIME_DIR")
+    return Path(run) / "missing-link" if run else Path(f"/tmp/missing-link-{os.getuid()}")
+
+
+def _check_control(control: str | None, fail: Fail) -> None:
+    """``control``: "" (none) or an absolute socket path in a directory that exists, unless
+    it is the per-user runtime directory; no other directory is created for it."""
+    if not control:
+        return
+    if not control.startswith("/"):
+        raise fail("daemon.control", f'{control!r}: an absolute path of a socket, or ""')
+    parent = Path(control).parent
+    if parent != runtime_dir() and not parent.is_dir():
+        raise fail(
+            "daemon.control",
+            f"{control!r}: its directory {parent} does not exist (the daemon creates only "
+            f"{runtime_dir()}, its default; make the directory first)",
+        )
+
+
+def _parse_board_tables(boards: Any, fail: Fail) -> list[BoardSpec]:
     if not isinstance(boards, list):
         raise fail("board", "use [[board]] tables, one per board")
+    out = []
     for k, b in enumerate(boards, start=1):
         where = f"[[board]] #{k}"
-        check(b, _BOARD_KEYS, where)
+        _check_table(b, _BOARD_KEYS, where, fail)
         if "url" not in b:
             raise fail(where, "missing url")
         if "name" in b and not is_token(b["name"]):
             raise fail(f"{where}.name", f"{b['name']!r} is not a topic name ([a-z][a-z0-9_]*)")
-        cfg.boards.append(BoardSpec(**b))
-    remap = doc.get("remap", {})
+        out.append(BoardSpec(**b))
+    return out
+
+
+def _parse_remap(remap: Any, fail: Fail) -> dict[str, str]:
+    if not isinstance(remap, dict):
+        raise fail("remap", 'must be a table of "/old/topic" = "/new/topic"')
     for old, new in remap.items():
         try:
+            if not isinstance(new, str):
+                raise ValueError(f"expected a topic name like /board/sensor, got {new!r}")
             check_topic(old)
             check_topic(new)
         except ValueError as e:
             raise fail(f"remap.{old!r}", str(e)) from None
-        cfg.remap[old] = new
+    return dict(remap)
+
+
+def _parse_publisher_tables(
+    doc: dict[str, Any], fail: Fail, source: str
+) -> dict[str, dict[str, Any]]:
+    """Every other table is a publisher's options, checked against what it reads."""
+    known_pubs = known_publishers()
+    out = {}
     for table, value in doc.items():
-        if table in known_tables:
+        if table in _TABLES:
             continue
         if table not in known_pubs:
             raise fail(
                 table,
-                "unknown table (tables: daemon, board, boards, remap, discover, "
-                f"{', '.join(known_pubs)})",
+                f"unknown table (tables: {', '.join(_TABLES)}, {', '.join(known_pubs)})",
             )
         if not isinstance(value, dict):
             raise fail(table, "must be a table of publisher options")
-        cfg.publisher_options[table] = dict(value)
-    return cfg
+        try:
+            check_options(table, value)
+        except ConfigError as e:
+            raise ConfigError(f"{source}: {e}") from None
+        out[table] = dict(value)
+    return out
 
 
 _CONFIG_KEY = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
@@ -334,9 +395,11 @@ def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:
 
 def load_config(path: str) -> Config:
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_input_file(path).decode("utf-8")
     except OSError as e:
         raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+    except ValueError as e:  # (UnicodeDecodeError too)
+        raise ConfigError(f"{path}: refused: {e}") from None
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -15,6 +15,7 @@ from typing import Any
 from ..board.config import DEFAULT_FAILSAFE_MS, Key, crc16
 from ..board.runtime import Transducer
 from ..errors import ConfigError
+from .cgen import c_comment, c_text
 
 #: per driver, the CONFIG keys the C drivers apply at run time, and the call that applies them
 #: (``{name}``: the index of that key's value in v[]; ``{inst}``: which of the driver's
@@ -140,45 +141,10 @@ def generate_config(
     if 16 + 2 * slot > EEPROM[mcu]:
         raise ConfigError(f"{where}: the configuration record does not fit the {mcu}'s EEPROM")
     blob = keys_blob(keys)
-    index: dict[tuple[int, str], int] = {(a.k, a.key.key): i for i, a in enumerate(keys)}
-    rows, cases, checks, drivers_done = [], [], [], set()
-    safe_slots: dict[int, int] = {}  # transducer -> its place in the failsafe's table
-    for i, a in enumerate(keys):
-        key = a.key
-        if key.kind == "enum":
-            lo, hi = 0, len(key.limits) - 1
-        elif key.limits is None:
-            lo, hi = 0, 1
-        else:
-            lo, hi = (_raw(key.kind, x, None) for x in key.limits)
-        rows.append(
-            f"    {{{_KIND[key.kind]}, {1 if key.read_only else 0}, 0x{lo:08x}UL, 0x{hi:08x}UL, "
-            f"0x{_raw(key.kind, key.default, key.limits):08x}UL}}, /* {key.name} */"
-        )
-        sibling = {name: j for (k, name), j in index.items() if k == a.k}
-        if key.key == "enabled":
-            cases.append(
-                f"    case {i}: board_transducers[{a.k}].enabled = (uint8_t)v[{i}]; "
-                f"if (!v[{i}]) board_transducers[{a.k}].pending = 0; break;"
-            )
-        elif key.key in ("aligned", "phase"):
-            cases.append(f"    case {i}: {ALIGN[a.driver].format(**sibling)} break;")
-        elif key.key == "failsafe_ms":
-            slot = safe_slots.setdefault(a.k, len(safe_slots))
-            cases.append(f"    case {i}: board_failsafe_ms[{slot}] = (uint16_t)v[{i}]; break;")
-        elif not key.read_only:
-            drv = a.driver
-            apply = APPLY[drv][0].format(inst=a.inst, **sibling)
-            cases.append(f"    case {i}: {apply} break;")
-            if a.k not in drivers_done:
-                drivers_done.add(a.k)
-                conds = ([CHECK[drv]] if drv in CHECK else []) + (wiring or {}).get(a.k, [])
-                for cond, why in conds:
-                    checks.append(
-                        f'    if (!({cond.format(**sibling)})) return PSTR("{key.t.name}: {why}");'
-                    )
+    rows = [_key_row(a.key) for a in keys]
+    cases, checks = _apply_cases(keys, wiring or {})
     n = len(keys)
-    out = [
+    return [
         "/* run-time configuration (config.c): keys, limits and defaults from the board file */",
         f"const config_key_t board_config_keys[{max(n, 1)}] PROGMEM = {{",
         *rows,
@@ -204,5 +170,51 @@ def generate_config(
         *checks,
         "    return 0;",
         "}",
-    ]
-    return out, blob
+    ], blob
+
+
+def _key_row(key: Key) -> str:
+    """A key's row in the table: its kind, read-only flag, limits and default, raw."""
+    if key.kind == "enum":
+        lo, hi = 0, len(key.limits) - 1
+    elif key.limits is None:
+        lo, hi = 0, 1
+    else:
+        lo, hi = (_raw(key.kind, x, None) for x in key.limits)
+    return (
+        f"    {{{_KIND[key.kind]}, {1 if key.read_only else 0}, 0x{lo:08x}UL, 0x{hi:08x}UL, "
+        f"0x{_raw(key.kind, key.default, key.limits):08x}UL}}, /* {c_comment(key.name)} */"
+    )
+
+
+def _apply_cases(
+    keys: list[AvrKey], wiring: dict[int, list[tuple[str, str]]]
+) -> tuple[list[str], list[str]]:
+    """(the switch's case per key: what a set of it does, the checks a set must pass)."""
+    index: dict[tuple[int, str], int] = {(a.k, a.key.key): i for i, a in enumerate(keys)}
+    cases, checks, drivers_done = [], [], set()
+    safe_slots: dict[int, int] = {}  # transducer -> its place in the failsafe's table
+    for i, a in enumerate(keys):
+        key = a.key
+        sibling = {name: j for (k, name), j in index.items() if k == a.k}
+        if key.key == "enabled":
+            cases.append(
+                f"    case {i}: board_transducers[{a.k}].enabled = (uint8_t)v[{i}]; "
+                f"if (!v[{i}]) board_transducers[{a.k}].pending = 0; break;"
+            )
+        elif key.key in ("aligned", "phase"):
+            cases.append(f"    case {i}: {ALIGN[a.driver].format(**sibling)} break;")
+        elif key.key == "failsafe_ms":
+            slot = safe_slots.setdefault(a.k, len(safe_slots))
+            cases.append(f"    case {i}: board_failsafe_ms[{slot}] = (uint16_t)v[{i}]; break;")
+        elif not key.read_only:
+            drv = a.driver
+            apply = APPLY[drv][0].format(inst=a.inst, **sibling)
+            cases.append(f"    case {i}: {apply} break;")
+            if a.k not in drivers_done:
+                drivers_done.add(a.k)
+                conds = ([CHECK[drv]] if drv in CHECK else []) + wiring.get(a.k, [])
+                for cond, why in conds:
+                    text = c_text(f"{key.t.name}: {why}")
+                    checks.append(f"    if (!({cond.format(**sibling)})) return PSTR({text});")
+    return cases, checks

@@ -8,6 +8,8 @@ what the board file asks that the hardware cannot do is refused here, naming the
 
 from __future__ import annotations
 
+import struct
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -20,28 +22,11 @@ from .avrconfig import generate_config, keys_of
 from .avrdrivers import AVR_DRIVERS, Part, part_of
 from .avrpins import PINS
 from .boardfile import BoardFile
+from .cgen import c_comment, c_ident, c_string
 
 DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
       "int32_t": "DT_INT32", "uint32_t": "DT_UINT32", "float": "DT_FLOAT"}  # fmt: skip
 MAX_SIF_PAYLOAD = 120  # the TX ring (256) must hold a SIF's worst-case escaping
-
-
-def _c_string(data: bytes) -> str:
-    """A C string literal for arbitrary bytes (NULs included), split into lines."""
-    parts, line = [], ""
-    for b in data:
-        ch = chr(b)
-        if ch == "\\" or ch == '"':
-            line += "\\" + ch
-        elif 32 <= b < 127:
-            line += ch
-        else:
-            line += f"\\{b:03o}"  # always 3 octal digits: a digit after it stays a digit
-        if b in (0, 10) and len(line) > 60:
-            parts.append(f'"{line}"')
-            line = ""
-    parts.append(f'"{line}"')
-    return "\n    ".join(parts)
 
 
 def _props(pairs: list[tuple[str, str]]) -> bytes:
@@ -49,11 +34,25 @@ def _props(pairs: list[tuple[str, str]]) -> bytes:
 
 
 def _na_raw(dtype: str, na: float) -> str:
-    import struct
-
     code, size = DTYPES[dtype][0], DTYPES[dtype][1]
     raw = struct.pack("<" + code, na) + bytes(4 - size)
     return f"0x{struct.unpack('<I', raw)[0]:08x}UL"
+
+
+@dataclass
+class Parts:
+    """Every entry's part (avrdrivers.py), gathered in board file order."""
+
+    decls: list[str] = field(default_factory=list)
+    setup: list[str] = field(default_factory=list)
+    polls: list[str] = field(default_factory=list)
+    funcs: list[tuple[str, str]] = field(default_factory=list)  #: (J2A name, C function)
+    hardware: list[tuple[str, str, str]] = field(default_factory=list)  #: the trigger's
+    safe: list[tuple[int, str]] = field(default_factory=list)  #: (index, make_safe)
+    isrs: list[str] = field(default_factory=list)
+    checks: dict[int, list[tuple[str, str]]] = field(default_factory=dict)
+    lines: list[str] = field(default_factory=lambda: ["transds/1"])  #: the descriptor
+    described: list[tuple[int, dict[str, Any], Transducer, type]] = field(default_factory=list)
 
 
 def generate_avr(bf: BoardFile) -> str:
@@ -61,57 +60,103 @@ def generate_avr(bf: BoardFile) -> str:
     where = str(bf.path)
     if not bf.is_avr:
         raise ConfigError(f"{where}: mcu {bf.mcu!r} is not an AVR (atmega328p/2560/32u4)")
+    c_ident(bf.name, f"{where}: name")
+    parts = collect_parts(bf, where)
+    n = len(bf.transducers)
+    out = [*_head(bf), *parts.decls, *parts.isrs]
+    out += [
+        f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
+        f"const uint8_t board_transducer_count = {n};",
+        "",
+    ]
+    out += _blobs(bf, parts.lines)
+    config_c, _blob = generate_config(keys_of(parts.described, where), bf.mcu, where, parts.checks)
+    out += [*config_c, ""]
+    out += _failsafe_table(bf, parts.safe)
+    out += _hardware_dispatch(parts)
+    out += _function_table(parts.funcs)
+    out += _setup_and_poll(parts)
+    return "\n".join(out)
+
+
+def collect_parts(bf: BoardFile, where: str) -> Parts:
+    """Each entry checked against the AVR runtime and turned into its part of the C."""
     pins = PINS[bf.mcu]
-    board = bf.board
     count: dict[str, int] = {}
-    decls, setup, polls, funcs, lines = [], [], [], [], ["transds/1"]
-    hardware: list[tuple[str, str, str]] = []  # timed calls the hardware makes (the trigger's)
-    safe: list[tuple[int, str]] = []  # (transducer index, make_safe): the failsafe's actuators
-    isrs: list[str] = []
-    checks: dict[int, list[tuple[str, str]]] = {}
-    described: list[tuple[int, dict[str, Any], Transducer, type]] = []
+    parts = Parts()
     for k, e in enumerate(bf.transducers):
-        drv, name = e["driver"], e["name"]
-        at = f"{where}: {name}"
+        drv = e["driver"]
+        at = f"{where}: {c_ident(e['name'], f'{where}: transducers[{k}] name')}"
         if drv not in AVR_DRIVERS:
             known = ", ".join(AVR_DRIVERS)
             raise ConfigError(f"{at}: driver {drv} is not in the AVR runtime ({known})")
         inst = count.get(drv, 0)
-        if inst >= AVR_DRIVERS[drv]:
-            most = AVR_DRIVERS[drv]
+        most = AVR_DRIVERS[drv]
+        if inst >= most:
             raise ConfigError(
                 f"{at}: {'a second' if most == 1 else f'more than {most}'} {drv}: the AVR "
                 f"runtime has {most} (fixed hardware)"
             )
         count[drv] = inst + 1
-        cls = driver_class(drv)
-        t = describe(e, cls)
-        described.append((k, e, t, cls))
-        if t.dtype not in DT:
-            raise ConfigError(f"{at}: type {t.dtype} is not supported on AVR")
-        if t.chan_count * (8 + DTYPES[t.dtype][1]) > MAX_SIF_PAYLOAD:
-            raise ConfigError(f"{at}: its SIF would exceed {MAX_SIF_PAYLOAD} bytes on AVR")
-        lines.append(t.descriptor_line())
-        size = DTYPES[t.dtype][1]
-        decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
-        decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
-        part: Part = part_of(k, e, t, pins, bf.mcu, inst, at)
-        setup += part.setup
-        polls += part.polls
-        decls += part.decls
-        funcs += part.funcs
-        hardware += part.hardware
-        isrs += part.isrs
-        if part.make_safe:
-            safe.append((k, part.make_safe))
-        if part.checks:
-            checks[k] = part.checks
-        na = _na_raw(t.dtype, t.na)
-        decls.append(f"/* transducer {k}: {name} */")
-        decls.append(
-            f"#define T_{k} {{{t.tid}, {DT[t.dtype]}, {t.chan_count}, {size}, {na}, 0, "
-            f"stamps_{k}, values_{k}, 0, 1}}"
-        )
+        try:
+            _add_entry(parts, k, e, inst, pins, bf.mcu, at)
+        except (ValueError, TypeError, KeyError, struct.error) as err:  # a dict no loader checked
+            raise ConfigError(f"{at}: {err}") from None
+    return parts
+
+
+def _add_entry(
+    parts: Parts, k: int, e: dict[str, Any], inst: int, pins: Any, mcu: str, at: str
+) -> None:
+    cls = driver_class(e["driver"])
+    t = describe(e, cls)
+    parts.described.append((k, e, t, cls))
+    if t.dtype not in DT:
+        raise ConfigError(f"{at}: type {t.dtype} is not supported on AVR")
+    if t.chan_count * (8 + DTYPES[t.dtype][1]) > MAX_SIF_PAYLOAD:
+        raise ConfigError(f"{at}: its SIF would exceed {MAX_SIF_PAYLOAD} bytes on AVR")
+    parts.lines.append(t.descriptor_line())
+    parts.decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
+    parts.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
+    part: Part = part_of(k, e, t, pins, mcu, inst, at)
+    for call, _fn in part.funcs:
+        c_ident(call, f"{at}: call")
+    parts.setup += part.setup
+    parts.polls += part.polls
+    parts.decls += part.decls
+    parts.funcs += part.funcs
+    parts.hardware += part.hardware
+    parts.isrs += part.isrs
+    if part.make_safe:
+        parts.safe.append((k, part.make_safe))
+    if part.checks:
+        parts.checks[k] = part.checks
+    size = DTYPES[t.dtype][1]
+    parts.decls.append(f"/* transducer {k}: {t.name} */")
+    parts.decls.append(
+        f"#define T_{k} {{{t.tid}, {DT[t.dtype]}, {t.chan_count}, {size}, "
+        f"{_na_raw(t.dtype, t.na)}, 0, stamps_{k}, values_{k}, 0, 1}}"
+    )
+
+
+#: the C runtime's headers (firmware/avr/src)
+HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"builtins.h"', '"config.h"',
+           '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
+           '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
+
+
+def _head(bf: BoardFile) -> list[str]:
+    name = c_comment(bf.path.name)
+    return [
+        f"/* Generated by `missing-link gen-firmware` from {name}: do not edit. */",
+        *(f"#include {h}" for h in HEADERS),
+        "",
+    ]
+
+
+def _blobs(bf: BoardFile, lines: list[str]) -> list[str]:
+    """The descriptor and the properties (clock.epoch, set per boot, in RAM between)."""
+    board = bf.board
     transds = ("\n".join(lines) + "\n").encode()
     head = (
         _props(
@@ -126,36 +171,15 @@ def generate_avr(bf: BoardFile) -> str:
     )
     fw = str(board.get("fw_version", "0.2.0"))
     tail = b"\0" + _props([("clock.res_us", "1"), ("fw.version", fw)])
-    n = len(bf.transducers)
-    out = [
-        "/* Generated by `missing-link gen-firmware` from " + bf.path.name + ": do not edit. */",
-        "#include <avr/interrupt.h>",
-        "#include <avr/pgmspace.h>",
-        "#include <string.h>",
-        '#include "builtins.h"',
-        '#include "config.h"',
-        '#include "drivers.h"',
-        '#include "failsafe.h"',
-        '#include "gps_nmea.h"',
-        '#include "hbridge.h"',
-        '#include "hcsr04.h"',
-        '#include "runtime.h"',
-        '#include "stepper.h"',
-        '#include "timing.h"',
-        "",
-        *decls,
-        *isrs,
-        f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
-        f"const uint8_t board_transducer_count = {n};",
-        "",
-        f"static const char transds[] PROGMEM = {_c_string(transds)};",
+    return [
+        f"static const char transds[] PROGMEM = {c_string(transds)};",
         f"static uint16_t transds_len(void) {{ return {len(transds)}; }}",
         "static uint8_t transds_at(uint16_t i) { return pgm_read_byte(transds + i); }",
         "const blob_t board_transds_blob = {transds_len, transds_at};",
         "",
         "/* properties: the fixed head and tail in flash, clock.epoch (per boot) in RAM between */",
-        f"static const char props_head[] PROGMEM = {_c_string(head)};",
-        f"static const char props_tail[] PROGMEM = {_c_string(tail)};",
+        f"static const char props_head[] PROGMEM = {c_string(head)};",
+        f"static const char props_tail[] PROGMEM = {c_string(tail)};",
         f"#define HEAD {len(head)}",
         f"#define TAIL {len(tail)}",
         "static uint16_t props_len(void) { return HEAD + strlen(clock_epoch) + TAIL; }",
@@ -169,62 +193,89 @@ def generate_avr(bf: BoardFile) -> str:
         "const blob_t board_properties_blob = {props_len, props_at};",
         "",
     ]
-    config_c, _blob = generate_config(keys_of(described, where), bf.mcu, where, checks)
-    out += [*config_c, ""]
-    # the failsafe's actuators (failsafe.c): their names for its debug text, their make_safe
-    for k, _fn in safe:
-        out.append(f'static const char safe_name_{k}[] PROGMEM = "{bf.transducers[k]["name"]}";')
+
+
+def _failsafe_table(bf: BoardFile, safe: list[tuple[int, str]]) -> list[str]:
+    """The failsafe's actuators (failsafe.c): their names for its debug text, their make_safe."""
+    out = [
+        f"static const char safe_name_{k}[] PROGMEM = "
+        f"{c_string(str(bf.transducers[k]['name']).encode())};"
+        for k, _fn in safe
+    ]
     rows = ", ".join(f"{{{k}, safe_name_{k}, {fn}}}" for k, fn in safe)
-    out += [
+    ms = ", ".join(str(int(bf.transducers[k].get("failsafe_ms", 500))) for k, _f in safe)
+    return [
+        *out,
         f"static const failsafe_entry_t failsafe_table[{max(len(safe), 1)}] PROGMEM = {{{rows}}};",
-        f"uint16_t board_failsafe_ms[{max(len(safe), 1)}] = "
-        f"{{{', '.join(str(int(bf.transducers[k].get('failsafe_ms', 500))) for k, _f in safe)}}};"
+        f"uint16_t board_failsafe_ms[{max(len(safe), 1)}] = {{{ms}}};"
         " /* the board file's; config.c sets them at run time */",
         "",
     ]
-    if hardware:  # (the trigger's function index: builtins, then the board's own functions)
-        index = {name: 11 + j for j, (name, _fn) in enumerate(funcs)}
-        out += [
-            "static uint8_t hardware(uint8_t fn, uint64_t tick, const uint8_t *payload, "
-            "uint8_t n) {",
-            *(
-                f"    if (fn == {index[call]} && {enabled}) return {fn}(payload, n, tick);"
-                for call, enabled, fn in hardware
-            ),
-            "    return 0;",
-            "}",
-            "",
-        ]
-    for j, (fname, _fn) in enumerate(funcs):
-        out.append(f'static const char fname_{j}[] PROGMEM = "{fname}";')
-    own = "".join(f", {{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs))
-    own += ", {n_at, KIND_PLAIN, timing_at, 0}, {n_align_info, KIND_PLAIN, timing_info, 0}"
-    own += ", {n_goodbye, KIND_PLAIN, failsafe_goodbye, 0}"
-    own += ", {n_failsafe, KIND_PLAIN, failsafe_info, 0}"
-    own += ", {n_config_keys, KIND_BLOB, 0, &board_config_keys_blob}"
-    own += ", {n_config_get, KIND_PLAIN, config_get, 0}, {n_config_set, KIND_PLAIN, config_set, 0}"
-    own += ", {n_config_reset, KIND_PLAIN, config_reset, 0}"
-    out += [
-        'static const char n_at[] PROGMEM = "a2jAt";',
-        'static const char n_align_info[] PROGMEM = "a2jAlignInfo";',
-        'static const char n_goodbye[] PROGMEM = "a2jGoodbye";',
-        'static const char n_failsafe[] PROGMEM = "a2jFailsafe";',
-        'static const char n_config_keys[] PROGMEM = "a2jConfigKeys";',
-        'static const char n_config_get[] PROGMEM = "a2jConfigGet";',
-        'static const char n_config_set[] PROGMEM = "a2jConfigSet";',
-        'static const char n_config_reset[] PROGMEM = "a2jConfigReset";',
-        f"const function_t board_functions[] PROGMEM = {{BUILTIN_FUNCTIONS{own}}};",
-        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(funcs) + 8};",
+
+
+def _hardware_dispatch(parts: Parts) -> list[str]:
+    """The timed calls the hardware makes (the trigger's), by function index: the builtins,
+    then the board's own functions."""
+    if not parts.hardware:
+        return []
+    index = {name: 11 + j for j, (name, _fn) in enumerate(parts.funcs)}
+    return [
+        "static uint8_t hardware(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n) {",
+        *(
+            f"    if (fn == {index[call]} && {enabled}) return {fn}(payload, n, tick);"
+            for call, enabled, fn in parts.hardware
+        ),
+        "    return 0;",
+        "}",
         "",
-        "void board_setup(void) {",
     ]
-    out += [f"    {line}" for line in setup]
-    out += [f"    failsafe_init(failsafe_table, board_failsafe_ms, {len(safe)});"]
-    out += ["    config_boot(); /* the saved configuration, if any (config.c) */"]
-    out += ["}", "", "void board_poll(uint64_t now) {"]
-    out += [f"    {line}" for line in polls] or ["    (void)now;"]
-    out += ["}", ""]
-    return "\n".join(out)
+
+
+#: the functions every board has after its own (J2A name, kind, C function, blob)
+FIXED_FUNCTIONS = (
+    ("a2jAt", "KIND_PLAIN", "timing_at", "0"),
+    ("a2jAlignInfo", "KIND_PLAIN", "timing_info", "0"),
+    ("a2jGoodbye", "KIND_PLAIN", "failsafe_goodbye", "0"),
+    ("a2jFailsafe", "KIND_PLAIN", "failsafe_info", "0"),
+    ("a2jConfigKeys", "KIND_BLOB", "0", "&board_config_keys_blob"),
+    ("a2jConfigGet", "KIND_PLAIN", "config_get", "0"),
+    ("a2jConfigSet", "KIND_PLAIN", "config_set", "0"),
+    ("a2jConfigReset", "KIND_PLAIN", "config_reset", "0"),
+)
+
+
+def _function_table(funcs: list[tuple[str, str]]) -> list[str]:
+    """The J2A function table: the builtins, the board's own (their names escaped as C strings
+    besides being identifiers), then the fixed ones."""
+    out = [
+        f"static const char fname_{j}[] PROGMEM = {c_string(fname.encode())};"
+        for j, (fname, _fn) in enumerate(funcs)
+    ]
+    rows = [f"{{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs)]
+    for j, (name, kind, fn, blob) in enumerate(FIXED_FUNCTIONS):
+        out.append(f"static const char n_fixed_{j}[] PROGMEM = {c_string(name.encode())};")
+        rows.append(f"{{n_fixed_{j}, {kind}, {fn}, {blob}}}")
+    return [
+        *out,
+        f"const function_t board_functions[] PROGMEM = {{BUILTIN_FUNCTIONS, {', '.join(rows)}}};",
+        f"const uint8_t board_function_count = BUILTIN_COUNT + {len(rows)};",
+        "",
+    ]
+
+
+def _setup_and_poll(parts: Parts) -> list[str]:
+    return [
+        "void board_setup(void) {",
+        *(f"    {line}" for line in parts.setup),
+        f"    failsafe_init(failsafe_table, board_failsafe_ms, {len(parts.safe)});",
+        "    config_boot(); /* the saved configuration, if any (config.c) */",
+        "}",
+        "",
+        "void board_poll(uint64_t now) {",
+        *([f"    {line}" for line in parts.polls] or ["    (void)now;"]),
+        "}",
+        "",
+    ]
 
 
 def write_avr(bf: BoardFile, out_dir: Path) -> list[Path]:
@@ -236,5 +287,6 @@ def write_avr(bf: BoardFile, out_dir: Path) -> list[Path]:
     link = bf.board.get("link", {})
     baud = int(link.get("baudrate", 115200))
     mk = out_dir / "board.mk"
-    mk.write_text(f"MCU = {bf.mcu}\nBAUD = {baud}\nNAME = {bf.name}\n")
+    name = c_ident(bf.name, f"{bf.path}: name")  # (a make variable: nothing but a name)
+    mk.write_text(f"MCU = {bf.mcu}\nBAUD = {baud}\nNAME = {name}\n")
     return [c, mk]

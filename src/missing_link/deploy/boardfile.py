@@ -7,18 +7,42 @@ from __future__ import annotations
 
 import ast
 import inspect
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..board.drivers import DRIVERS, driver_class
 from ..board.dtypes import DTYPES
-from ..board.firmware import RESERVED
-from ..errors import ConfigError
+from ..board.firmware import RESERVED, describe
+from ..descriptors import MAX_NAME, check_unique, read_input_file
+from ..errors import ConfigError, DescriptorError
 from ..text import is_token
 
 MCUS = ("rp2040", "esp32", "esp32s3", "atmega328p", "atmega2560", "atmega32u4")
 AVR_MCUS = ("atmega328p", "atmega2560", "atmega32u4")
+BOARD_KEYS = ("name", "model", "mcu", "serial", "fw_version", "link", "buses", "transducers",
+              "config_file")  # fmt: skip
+#: the keys of each kind of link (board/link.py open_link and signed)
+LINK_KEYS = {
+    "usb": ("kind", "baudrate"),
+    "uart": ("kind", "id", "baudrate", "tx", "rx", "rxbuf"),
+    "tcp": ("kind", "port", "key_file", "boot_file", "replay_file"),
+}
+LINK_INTS = {"id": (0, 15), "baudrate": (300, 10_000_000), "tx": (0, 255), "rx": (0, 255),
+             "rxbuf": (16, 65536), "port": (1, 65535)}  # fmt: skip
+BUS_INTS = {"id": (0, 15), "scl": (0, 255), "sda": (0, 255), "freq": (1000, 5_000_000)}
+#: a J2A function name, pasted as it stands into the generated C and the function table
+IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}\Z")
+#: the firmware's own functions (a2jEcho, a2jAt, ...): no board file entry may take one
+BUILTIN_NAME = re.compile(r"a2j[A-Z]")
+#: a file on the board's filesystem, in its root: no directories, no way out of the flash stage
+FILE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}\Z")
+#: property text (board.model, ...): printable ASCII, never the NUL that separates properties
+PROPERTY_TEXT = re.compile(r"[ -~]{1,64}\Z")
+#: descriptor text (prefix, model, option values): no , or = that separate its fields
+DESCRIPTOR_TEXT = re.compile(r"[ -+\--<>-~]{1,64}\Z")
 
 
 @dataclass(frozen=True)
@@ -51,11 +75,13 @@ def load_board_file(path: str | Path) -> BoardFile:
     p = Path(path)
     where = str(p)
     try:
-        tree = ast.parse(p.read_text(encoding="utf-8"), filename=where)
+        tree = ast.parse(read_input_file(where).decode("utf-8"), filename=where)
     except OSError as e:
         raise ConfigError(f"{where}: cannot read: {e.strerror or e}") from None
     except SyntaxError as e:
         raise ConfigError(f"{where}:{e.lineno}: not Python: {e.msg}") from None
+    except ValueError as e:  # not a regular file, too large, not UTF-8, a NUL byte
+        raise ConfigError(f"{where}: refused: {e}") from None
     value = None
     for node in tree.body:
         if (
@@ -78,66 +104,208 @@ def load_board_file(path: str | Path) -> BoardFile:
 
 
 def check_board(board: dict[str, Any], where: str) -> None:
+    """Every key of the board file, its type and its form; ConfigError names the first wrong one.
+
+    A board file is input, not code: what ends up in generated C, in the J2A function table, in
+    the descriptor or property text, or on the board's filesystem is checked here by form
+    (identifiers, plain file names, text without separators), and every value by type."""
+    unknown = sorted(set(board) - set(BOARD_KEYS))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r} (keys: {', '.join(BOARD_KEYS)})")
     name = board.get("name")
-    if not isinstance(name, str) or not is_token(name):
+    if not isinstance(name, str) or not is_token(name) or len(name) > MAX_NAME:
         raise ConfigError(f"{where}: name must be a topic token like 'front' (got {name!r})")
     mcu = board.get("mcu", "rp2040")
     if mcu not in MCUS:
         raise ConfigError(f"{where}: mcu {mcu!r} is not one of {', '.join(MCUS)}")
-    link = board.get("link", {"kind": "usb"})
-    if not isinstance(link, dict) or link.get("kind", "usb") not in ("usb", "uart", "tcp"):
+    for key in ("model", "serial", "fw_version"):
+        if key in board:
+            _text(board[key], f"{where}: {key}", PROPERTY_TEXT)
+    if "config_file" in board:
+        _file_name(board["config_file"], f"{where}: config_file")
+    _check_link(board.get("link", {"kind": "usb"}), mcu, where)
+    buses = board.get("buses", {})
+    _check_buses(buses, where)
+    entries = board.get("transducers")
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"{where}: transducers must be a non-empty list")
+    lines: list[tuple[str, str]] = []
+    calls: set[str] = set()
+    for k, t in enumerate(entries):
+        lines.append(_check_entry(t, k, buses, calls, where))
+    try:  # the descriptor as the host will read it from the board: every rule of the host's
+        check_unique(lines, where)
+    except DescriptorError as e:
+        raise ConfigError(str(e)) from None
+
+
+def _check_link(link: Any, mcu: str, where: str) -> None:
+    if not isinstance(link, dict) or link.get("kind", "usb") not in LINK_KEYS:
         raise ConfigError(
             f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}} or "
             "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'}"
         )
-    if link.get("kind") == "tcp" and mcu in AVR_MCUS:
+    kind = link.get("kind", "usb")
+    if kind == "tcp" and mcu in AVR_MCUS:
         raise ConfigError(f"{where}: the AVR runtime has no network link (tcp)")
-    buses = board.get("buses", {})
+    for key, value in link.items():
+        at = f"{where}: link {key}"
+        if key not in LINK_KEYS[kind]:
+            raise ConfigError(
+                f"{at}: not a key of a {kind} link (keys: {', '.join(LINK_KEYS[kind])})"
+            )
+        if key in ("key_file", "boot_file", "replay_file"):
+            _file_name(value, at)
+        elif key in LINK_INTS:
+            lo, hi = LINK_INTS[key]
+            if not (value is None and key in ("tx", "rx")):
+                _integer(value, at, lo, hi)
+
+
+def _check_buses(buses: Any, where: str) -> None:
     if not isinstance(buses, dict):
         raise ConfigError(f"{where}: buses must be a dict of name -> settings")
-    entries = board.get("transducers")
-    if not isinstance(entries, list) or not entries:
-        raise ConfigError(f"{where}: transducers must be a non-empty list")
-    names: set[str] = set()
-    ids: set[int] = set()
-    for k, t in enumerate(entries):
-        at = f"{where}: transducers[{k}]"
-        if not isinstance(t, dict):
-            raise ConfigError(f"{at}: must be a dict")
-        tname = t.get("name")
-        if not isinstance(tname, str) or not is_token(tname):
-            raise ConfigError(f"{at}: name must be a topic token (got {tname!r})")
-        at = f"{where}: {tname}"
-        tid = t.get("id")
-        if not isinstance(tid, int) or not 0 <= tid <= 239:
-            raise ConfigError(f"{at}: id must be 0..239 (got {tid!r})")
-        if tname in names or tid in ids:
-            raise ConfigError(f"{at}: name or id used twice")
-        names.add(tname)
-        ids.add(tid)
-        drv = t.get("driver")
-        if drv not in DRIVERS:
-            raise ConfigError(f"{at}: driver {drv!r} is not one of {', '.join(sorted(DRIVERS))}")
-        if "dtype" in t and t["dtype"] not in DTYPES:
-            raise ConfigError(f"{at}: dtype {t['dtype']!r} is not a J2A type")
-        if "bus" in t and t["bus"] not in buses:
-            raise ConfigError(f"{at}: bus {t['bus']!r} is not in buses")
-        cls = driver_class(drv)
-        params = inspect.signature(cls.__init__).parameters
-        accepted = [n for n in params if n not in ("self", "machine", "clock", "i2c")]
-        required = [
-            n
-            for n, prm in params.items()
-            if n in accepted and prm.default is inspect.Parameter.empty
-        ]
-        options = [key for key in t if key not in RESERVED]
-        for key in options:
-            if key not in accepted:
-                raise ConfigError(
-                    f"{at}: driver {drv} has no option {key!r} (options: {', '.join(accepted)})"
-                )
-        for key in required:
-            if key not in t:
-                raise ConfigError(f"{at}: driver {drv} needs {key!r}")
-        if "i2c" in params and "bus" not in t:
-            raise ConfigError(f"{at}: driver {drv} is on I2C: give its bus")
+    for bus, cfg in buses.items():
+        at = f"{where}: bus {bus!r}"
+        if not isinstance(bus, str) or not is_token(bus) or not isinstance(cfg, dict):
+            raise ConfigError(f"{at}: a bus is 'name': {{'kind': 'i2c', 'id': 0, ...}}")
+        for key, value in cfg.items():
+            if key == "kind":
+                if value != "i2c":
+                    raise ConfigError(f"{at}: kind {value!r}: only i2c buses are supported")
+            elif key in BUS_INTS:
+                _integer(value, f"{at} {key}", *BUS_INTS[key])
+            else:
+                raise ConfigError(f"{at}: unknown key {key!r} (keys: kind, {', '.join(BUS_INTS)})")
+
+
+def _check_entry(
+    t: Any, k: int, buses: dict[str, Any], calls: set[str], where: str
+) -> tuple[str, str]:
+    """One transducer entry; returns (where, its descriptor line) for the host's checks."""
+    at = f"{where}: transducers[{k}]"
+    if not isinstance(t, dict):
+        raise ConfigError(f"{at}: must be a dict")
+    tname = t.get("name")
+    if not isinstance(tname, str) or not is_token(tname) or len(tname) > MAX_NAME:
+        raise ConfigError(f"{at}: name must be a topic token (got {tname!r})")
+    at = f"{where}: {tname}"
+    tid = t.get("id")
+    if isinstance(tid, bool) or not isinstance(tid, int) or not 0 <= tid <= 239:
+        raise ConfigError(f"{at}: id must be 0..239 (got {tid!r})")
+    drv = t.get("driver")
+    if not isinstance(drv, str) or drv not in DRIVERS:
+        raise ConfigError(f"{at}: driver {drv!r} is not one of {', '.join(sorted(DRIVERS))}")
+    cls = driver_class(drv)
+    _check_reserved(t, at, cls, buses, calls)
+    _check_driver_options(t, at, drv, cls)
+    return at, describe(t, cls).descriptor_line()
+
+
+def _check_reserved(
+    t: dict[str, Any], at: str, cls: type, buses: dict[str, Any], calls: set[str]
+) -> None:
+    """The keys every entry may have (board/firmware.py RESERVED), by type and form."""
+    if "dtype" in t and t["dtype"] not in DTYPES:
+        raise ConfigError(f"{at}: dtype {t['dtype']!r} is not a J2A type")
+    if "bus" in t and (not isinstance(t["bus"], str) or t["bus"] not in buses):
+        raise ConfigError(f"{at}: bus {t['bus']!r} is not in buses")
+    for key in ("prefix", "model"):
+        if key in t:
+            _text(t[key], f"{at}: {key}", DESCRIPTOR_TEXT)
+    if "na" in t:
+        _number(t["na"], f"{at}: na", finite=False)
+    if "call" in t:
+        call = t["call"]
+        if not hasattr(cls, "command"):
+            raise ConfigError(f"{at}: call: only an actuator has a function to call")
+        if not isinstance(call, str) or not IDENT.match(call) or BUILTIN_NAME.match(call):
+            raise ConfigError(
+                f"{at}: call must be a function name like 'a2j_set_servo' (letters, digits, _; "
+                f"at most 32; not a2j + a capital, the firmware's own), not {call!r}"
+            )
+    if hasattr(cls, "command"):
+        call = t.get("call", "a2j_set_" + t["name"])
+        if call in calls:
+            raise ConfigError(f"{at}: call {call!r} is used twice")
+        calls.add(call)
+    if "failsafe_ms" in t:
+        if not hasattr(cls, "make_safe"):
+            raise ConfigError(f"{at}: failsafe_ms: only an actuator with a safe state has one")
+        _integer(t["failsafe_ms"], f"{at}: failsafe_ms", 0, 60000)
+    options = t.get("options", {})
+    if not isinstance(options, dict):
+        raise ConfigError(f"{at}: options must be a dict of descriptor options")
+    for key, value in options.items():
+        if not isinstance(key, str) or not is_token(key):
+            raise ConfigError(f"{at}: options: {key!r} is not a key like 'frame_id'")
+        if isinstance(value, str):
+            _text(value, f"{at}: options {key}", DESCRIPTOR_TEXT)
+        else:
+            _number(value, f"{at}: options {key}")
+
+
+def _check_driver_options(t: dict[str, Any], at: str, drv: str, cls: type) -> None:
+    """The driver's own keys: its constructor's parameters, typed by their defaults."""
+    params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
+    accepted = [n for n in params if n not in ("self", "machine", "clock", "i2c")]
+    enums = {key: limits for key, kind, limits, _ro in getattr(cls, "CONFIG", ()) if kind == "enum"}
+    for key in t:
+        if key in RESERVED:
+            continue
+        if key not in accepted:
+            raise ConfigError(
+                f"{at}: driver {drv} has no option {key!r} (options: {', '.join(accepted)})"
+            )
+        _typed(t[key], params[key].default, f"{at}: {key}")
+        if key in enums and t[key] not in enums[key]:
+            choices = ", ".join(repr(c) for c in enums[key])
+            raise ConfigError(f"{at}: {key} is one of {choices}, not {t[key]!r}")
+    for key in accepted:
+        if params[key].default is inspect.Parameter.empty and key not in t:
+            raise ConfigError(f"{at}: driver {drv} needs {key!r}")
+    if "i2c" in params and "bus" not in t:
+        raise ConfigError(f"{at}: driver {drv} is on I2C: give its bus")
+
+
+def _typed(value: Any, default: Any, at: str) -> None:
+    """A driver option of the type its default has (a pin, with no default, is an integer)."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{at}: expected true or false (True/False), got {value!r}")
+    elif isinstance(default, str):
+        if value is not None:
+            _text(value, at, DESCRIPTOR_TEXT)
+    elif isinstance(default, (int, float)):  # (a rate of 25 may be 12.5)
+        _number(value, at)
+    elif not (default is None and value is None):
+        _integer(value, at, 0, 255)  # pins and port numbers, with no default or None
+
+
+def _text(value: Any, at: str, form: re.Pattern[str]) -> None:
+    if not isinstance(value, str) or not form.match(value):
+        raise ConfigError(
+            f"{at}: expected text of at most 64 printable ASCII characters"
+            f"{'' if form is PROPERTY_TEXT else ' without , or ='}, got {value!r}"
+        )
+
+
+def _file_name(value: Any, at: str) -> None:
+    ok = isinstance(value, str) and FILE_NAME.match(value) and value != "lib"
+    if not ok or value.endswith(".py"):  # (the board runs .py files: board.py, main.py, ...)
+        raise ConfigError(
+            f"{at}: a file in the board's root like 'mlkey.bin' (letters, digits, _ . -; no "
+            f"directories, not lib or a .py), not {value!r}"
+        )
+
+
+def _number(value: Any, at: str, finite: bool = True) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{at}: expected a number, got {value!r}")
+    if finite and not math.isfinite(value):
+        raise ConfigError(f"{at}: expected a finite number, got {value!r}")
+
+
+def _integer(value: Any, at: str, lo: int, hi: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ConfigError(f"{at}: expected an integer {lo}..{hi}, got {value!r}")

@@ -2,10 +2,12 @@
 that it answers.
 
 MicroPython boards (RP2040, ESP32): the board runtime, the drivers the board file uses, the
-board file (as ``/board.py``) and ``main.py`` are staged in a temporary directory and copied with
-mpremote (``fs cp -r``), then the board is reset; mpremote's own "\\r\\x03\\x03" stops a running
-firmware first (see board/firmware.py).  AVR boards (``mcu = atmega...``): the firmware is
-generated and built (``gen-firmware``, ``make -C firmware/avr``) and written with avrdude.
+board file (as ``/board.py``), the signing key (``--key``, as the link's ``key_file``) and
+``main.py`` are staged in a temporary directory and every one of them is copied with mpremote
+(``fs cp``; a new key replaces the old one), then the board is reset; mpremote's own
+"\\r\\x03\\x03" stops a running firmware first (see board/firmware.py).  AVR boards
+(``mcu = atmega...``): the firmware is generated and built (``gen-firmware``, ``make -C
+firmware/avr``) and written with avrdude.
 Then the port is opened as a J2A link and the board's name and transducers are compared with the
 board file.  ``--dry-run`` prints every file and command without touching the board."""
 
@@ -39,24 +41,38 @@ class Copy:
     remote: str  #: path on the board
 
 
-def micropython_files(bf: BoardFile) -> list[Copy]:
-    """Everything that goes on a MicroPython board for this board file, in copy order."""
+def micropython_files(bf: BoardFile, key: str | None = None) -> list[Copy]:
+    """Everything that goes on a MicroPython board for this board file, in copy order: the
+    runtime and drivers in ``lib``, the board file as ``board.py``, the signing key (``key``) as
+    the link's ``key_file``, and ``main.py`` last (the board boots only complete)."""
     out = [Copy(BOARD_PKG / name, f"lib/mlboard/{name}") for name in RUNTIME]
     out.append(Copy(BOARD_PKG / "drivers" / "__init__.py", "lib/mlboard/drivers/__init__.py"))
     for drv in bf.drivers():
         module = drivers_pkg.DRIVERS[drv][0]
         out.append(Copy(BOARD_PKG / "drivers" / f"{module}.py", f"lib/mlboard/drivers/{module}.py"))
     out.append(Copy(bf.path.resolve(), "board.py"))
+    if key is not None:  # (a plain name in the board's root: boardfile.py checks it)
+        key_file = str(bf.board.get("link", {}).get("key_file", ""))
+        out.append(Copy(Path(key).expanduser().resolve(), key_file))
     out.append(Copy(BOARD_PKG / "main.py", "main.py"))
     return out
 
 
-def mpremote_command(port: str, stage: Path, mpremote: list[str]) -> list[str]:
+def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[str]) -> list[str]:
+    """One mpremote run that copies every staged file (``lib`` as a tree, every other file by
+    name, in ``files``' order: main.py last), then resets the board."""
     cmd = [*mpremote, "connect", port]
-    cmd += ["fs", "cp", "-r", str(stage / "lib"), ":", "+"]
-    cmd += ["fs", "cp", str(stage / "board.py"), ":board.py", "+"]
-    cmd += ["fs", "cp", str(stage / "main.py"), ":main.py", "+", "reset"]
-    return cmd
+    tops: list[str] = []
+    for c in files:
+        top = c.remote.split("/", 1)[0]
+        if top not in tops:
+            tops.append(top)
+    for top in tops:
+        if any(c.remote.startswith(top + "/") for c in files):
+            cmd += ["fs", "cp", "-r", str(stage / top), ":", "+"]
+        else:
+            cmd += ["fs", "cp", str(stage / top), f":{top}", "+"]
+    return [*cmd, "reset"]
 
 
 def stage_files(files: list[Copy], stage: Path) -> None:
@@ -66,6 +82,36 @@ def stage_files(files: list[Copy], stage: Path) -> None:
         shutil.copyfile(c.local, dst)
 
 
+def _warn(text: str) -> None:
+    print(f"missing-link: warning: {text}", file=sys.stderr)
+
+
+def check_key(bf: BoardFile, port: str, key: str | None, warn: Callable[[str], None]) -> None:
+    """The key goes where the board reads it, over USB only; a network link without one is
+    unauthenticated J2A, said so."""
+    link = bf.board.get("link", {})
+    key_file = link.get("key_file")
+    if key:  # over USB only: never over a network (docs/signing.md)
+        if "://" in port and not port.startswith("serial://"):
+            raise FlashError(f"--key goes over USB only, not {port}")
+        if not key_file:
+            raise FlashError(
+                f"--key: {bf.path}: the link has no key_file, so the board would not use the "
+                "key (a network link: {'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'})"
+            )
+        from ..transport.signed import load_key
+
+        load_key(key)  # (a key that does not load fails here, not on the board)
+    elif key_file:
+        raise FlashError(f"{bf.path}: the link has a key_file: give the key with --key")
+    elif link.get("kind") == "tcp":
+        warn(
+            f"{bf.path}: a tcp link without a key_file: J2A unauthenticated on the network, "
+            f"anyone who reaches port {link.get('port', 5000)} commands the board (make a key "
+            "with `missing-link key new`, add 'key_file' to the link: docs/signing.md)"
+        )
+
+
 def flash(
     bf: BoardFile,
     port: str,
@@ -73,6 +119,7 @@ def flash(
     dry_run: bool = False,
     mpremote: list[str] | None = None,
     say: Callable[[str], None] = print,
+    warn: Callable[[str], None] = _warn,
     check: bool = True,
     key: str | None = None,
 ) -> int:
@@ -80,22 +127,13 @@ def flash(
         if key:
             raise FlashError("--key: the AVR runtime has no network link to sign")
         return flash_avr(bf, port, dry_run=dry_run, say=say, check=check)
-    files = micropython_files(bf)
-    link = bf.board.get("link", {})
-    if key:  # over USB only: never over a network (docs/signing.md)
-        if "://" in port and not port.startswith("serial://"):
-            raise FlashError(f"--key goes over USB only, not {port}")
-        from ..transport.signed import load_key
-
-        load_key(key)  # (a key that does not load fails here, not on the board)
-        files.append(Copy(Path(key).resolve(), str(link.get("key_file", "mlkey.bin"))))
-    elif link.get("key_file"):
-        raise FlashError(f"{bf.path}: the link has a key_file: give the key with --key")
+    check_key(bf, port, key, warn)
+    files = micropython_files(bf, key or None)
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
     with tempfile.TemporaryDirectory(prefix="missing-link-flash-") as tmp:
         stage = Path(tmp)
-        cmd = mpremote_command(port, stage, mp)
+        cmd = mpremote_command(port, stage, files, mp)
         if dry_run:
             say(f"would copy to {port} ({bf.mcu}, MicroPython):")
             for c in files:
@@ -105,20 +143,26 @@ def flash(
             return 0
         stage_files(files, stage)
         say(f"copying {len(files)} files to {port} with mpremote ...")
-        try:
-            r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-        except FileNotFoundError:
-            raise FlashError(f"cannot run {mp[0]}: pip install mpremote") from None
-        except subprocess.TimeoutExpired:
-            raise FlashError(f"mpremote on {port} took over 300 s") from None
-        if r.returncode != 0:
-            tail = (r.stderr or r.stdout).strip().splitlines()
-            raise FlashError(f"mpremote failed on {port}: {tail[-1] if tail else r.returncode}")
+        _run_mpremote(cmd, port)
+    link = bf.board.get("link", {})
     if check and link.get("kind") == "tcp":
+        key_arg = "?key=KEYFILE" if link.get("key_file") else ""
         say(
             "a network board: check it once it joined its network: missing-link info "
-            f"signed+tcp://HOST:{link.get('port', 5000)}?key=KEYFILE"
+            f"{'signed+' if key_arg else ''}tcp://HOST:{link.get('port', 5000)}{key_arg}"
         )
     elif check:
         say(verify(url, bf))
     return 0
+
+
+def _run_mpremote(cmd: list[str], port: str) -> None:
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    except FileNotFoundError:
+        raise FlashError(f"cannot run {cmd[0]}: pip install mpremote") from None
+    except subprocess.TimeoutExpired:
+        raise FlashError(f"mpremote on {port} took over 300 s") from None
+    if r.returncode != 0:
+        tail = (r.stderr or r.stdout).strip().splitlines()
+        raise FlashError(f"mpremote failed on {port}: {tail[-1] if tail else r.returncode}")

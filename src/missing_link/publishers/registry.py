@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import math
 import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ..errors import ConfigError
 from .base import Publisher, PublisherError
 
 Factory = Callable[[dict[str, Any]], Publisher]
@@ -68,6 +70,67 @@ BUILTIN: dict[str, Entry] = {
     ),
 }
 _REGISTERED: dict[str, Factory] = {}
+
+#: every option each built-in publisher reads (its ``[name]`` table in the daemon's config), by
+#: type: a key not here is a typo the publisher would ignore (``[zenoh] comands = false`` left
+#: commands on), so it is an error naming the key.  ``distro`` (all) and ``node`` (the ROS
+#: faces) come from ``[daemon]`` unless the table sets them.  tests/test_config_faces.py reads
+#: each publisher's source and holds this table to what it reads.
+OPTIONS: dict[str, dict[str, str]] = {
+    "bus": {"distro": "text"},
+    "console": {"distro": "text", "rate_hz": "number"},
+    "mcap": {"distro": "text", "path": "path", "prefix": "text", "rotate_mb": "number",
+             "rotate_s": "number", "chunk_s": "number", "close_timeout": "number",
+             "queue": "number"},
+    "zenoh": {"distro": "text", "node": "text", "domain": "integer", "mode": "text",
+              "connect": "texts", "listen": "texts", "config": "path", "commands": "bool"},
+    "foxglove": {"distro": "text", "name": "text", "host": "text", "port": "integer",
+                 "origins": "texts"},
+    "ros1": {"distro": "text", "node": "text", "master_uri": "text", "ros_ip": "text",
+             "queue_size": "integer", "commands": "bool"},
+    "ros2": {"distro": "text", "node": "text", "prefix": "path", "depth": "integer",
+             "commands": "bool"},
+}  # fmt: skip
+_RANGES = {"domain": (0, 232), "port": (0, 65535), "depth": (1, 100_000),
+           "queue_size": (1, 100_000)}  # fmt: skip
+
+
+def check_options(name: str, options: dict[str, Any]) -> None:
+    """Refuse an unknown key or a value of the wrong type in a built-in publisher's options
+    (ConfigError naming ``[name] key``); a third-party publisher checks its own."""
+    known = OPTIONS.get(name)
+    if known is None or name in _REGISTERED:
+        return
+    for key, value in options.items():
+        at = f"[{name}].{key}"
+        kind = known.get(key)
+        if kind is None:
+            raise ConfigError(f"{at}: unknown key (keys of [{name}]: {', '.join(known)})")
+        if not _is(kind, value):
+            raise ConfigError(f"{at}: expected {_KINDS[kind]}, got {value!r}")
+        if key in _RANGES and not _RANGES[key][0] <= value <= _RANGES[key][1]:
+            raise ConfigError(f"{at}: {value!r} is outside {_RANGES[key][0]}..{_RANGES[key][1]}")
+
+
+_KINDS = {"text": "a string", "path": "a string (a path)", "number": "a number",
+          "integer": "an integer", "bool": "true or false",
+          "texts": "a list of strings"}  # fmt: skip
+
+
+def _is(kind: str, value: Any) -> bool:
+    if kind == "bool":
+        return isinstance(value, bool)
+    if isinstance(value, bool):
+        return False
+    if kind == "text":
+        return isinstance(value, str)
+    if kind == "path":  # (a Path from code is one too)
+        return isinstance(value, (str, os.PathLike))
+    if kind == "integer":
+        return isinstance(value, int)
+    if kind == "number":
+        return isinstance(value, (int, float)) and math.isfinite(value)
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
 
 
 def register_publisher(name: str, factory: Factory) -> None:
@@ -126,7 +189,9 @@ def unavailable(name: str) -> str | None:
 
 
 def make_publisher(name: str, options: dict[str, Any]) -> Publisher:
-    """Start publisher ``name`` with ``options``; ``PublisherError`` when it cannot be had."""
+    """Start publisher ``name`` with ``options``; ``PublisherError`` when it cannot be had,
+    ``ConfigError`` for an option it does not know or of the wrong type."""
+    check_options(name, options)  # (the config file's are checked when it is read, too)
     factory = _REGISTERED.get(name)
     if factory is None:
         why = unavailable(name)

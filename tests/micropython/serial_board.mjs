@@ -1,0 +1,110 @@
+// A MicroPython board as mpremote sees it on its serial port: MicroPython 1.27's own REPL (the
+// WebAssembly port's event-driven REPL: the friendly REPL, Ctrl-C, the raw REPL with Ctrl-A,
+// Ctrl-B and Ctrl-D soft reset) and its own filesystem.  tests/serial_board.py puts a pty in front
+// of it, so mpremote runs unchanged against a serial device.
+//
+//   node serial_board.mjs FLASHDIR
+//
+// stdin is the board's RX, stdout its TX (bytes).  FLASHDIR is the board's flash: the filesystem
+// is loaded from it at power-on and written back to it at a hard reset (`machine.reset()`, what
+// `mpremote reset` runs) and at power-off (stdin closed).  A hard reset prints "RESET" on stderr
+// and ends the process, as a USB board leaves the bus when it resets.
+//
+// One thing is not MicroPython's: raw-paste mode (Ctrl-E 'A' Ctrl-A) is declined with "R\x00",
+// as a board whose firmware does not offer it: this port's raw-paste reads stdin in a blocking
+// loop, which a callback-driven port cannot feed.  mpremote then uses the standard raw REPL.
+import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
+import { mkdirSync, readdirSync, readFileSync, rmSync, statSync, writeFileSync } from "node:fs";
+import { dirname, join } from "node:path";
+import { fileURLToPath } from "node:url";
+
+const here = dirname(fileURLToPath(import.meta.url));
+const flashDir = process.argv[2];
+
+let tail = ""; // the last bytes sent, to know where the REPL is
+let raw = false; // in the raw REPL
+let atPrompt = false; // the raw REPL waits for a new command
+function tx(bytes) {
+  process.stdout.write(Buffer.from(bytes));
+  tail = (tail + Buffer.from(bytes).toString("latin1")).slice(-64);
+  if (tail.includes("raw REPL; CTRL-B to exit\r\n")) raw = true;
+  if (tail.endsWith(">>> ")) raw = false;
+  atPrompt = raw && tail.endsWith(">");
+}
+
+let resetAsked = false;
+const mp = await loadMicroPython({ linebuffer: false, stdout: tx, stderr: tx });
+mp.registerJsModule("machine", {
+  reset: () => {
+    resetAsked = true;
+  },
+});
+
+function load(dir, at) {
+  for (const name of readdirSync(dir)) {
+    const p = join(dir, name);
+    if (statSync(p).isDirectory()) {
+      mp.FS.mkdir(at + name);
+      load(p, at + name + "/");
+    } else {
+      mp.FS.writeFile(at + name, readFileSync(p));
+    }
+  }
+}
+function save(at, dir) {
+  mkdirSync(dir, { recursive: true });
+  for (const name of mp.FS.readdir(at)) {
+    if (name === "." || name === "..") continue;
+    const path = at + name;
+    if (mp.FS.isDir(mp.FS.stat(path).mode)) save(path + "/", join(dir, name));
+    else writeFileSync(join(dir, name), mp.FS.readFile(path));
+  }
+}
+function powerOff() {
+  rmSync(flashDir, { recursive: true, force: true });
+  save("/flash/", flashDir);
+}
+
+// the board's filesystem: /flash of the runtime, mounted at / as a board mounts its flash
+mkdirSync(flashDir, { recursive: true });
+mp.FS.mkdir("/flash");
+load(flashDir, "/flash/");
+mp.runPython(readFileSync(join(here, "serial_board_fs.py"), "utf8"));
+mp.replInit(); // the banner and the friendly REPL, as at boot without a main.py
+
+function feed(c) {
+  const ret = mp.replProcessChar(c);
+  if (ret & 0x100) {
+    // PYEXEC_FORCED_EXIT: a soft reset, as a port's main loop does it (the REPL comes back in
+    // the mode it was in)
+    tx(Buffer.from("MPY: soft reboot\r\n"));
+    mp.replInit();
+  }
+  if (resetAsked) {
+    powerOff();
+    process.stderr.write("RESET\n");
+    process.exit(0);
+  }
+}
+
+let held = []; // a raw-paste request being recognised
+process.stdin.on("data", (data) => {
+  for (const c of data) {
+    if ((held.length === 0 && atPrompt && c === 0x05) || (held.length === 1 && c === 0x41)) {
+      held.push(c);
+      continue;
+    }
+    if (held.length === 2 && c === 0x01) {
+      held = [];
+      tx(Buffer.from("R\x00", "latin1"));
+      continue;
+    }
+    for (const h of held) feed(h);
+    held = [];
+    feed(c);
+  }
+});
+process.stdin.on("end", () => {
+  powerOff();
+  process.exit(0);
+});
