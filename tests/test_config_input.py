@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.config import Config, ConfigError, parse_config, runtime_dir
+from missing_link.daemon.config import Config, ConfigError, parse_config
+from missing_link.daemon.control import runtime_dir
 from missing_link.errors import DescriptorError
 from missing_link.publishers.registry import BUILTIN, OPTIONS
 
@@ -138,7 +139,7 @@ def test_control_creates_no_directory(tmp_path: Path) -> None:
     ok = parse_config({"daemon": {"control": str(tmp_path / "control.sock")}})  # it exists
     assert ok.control == str(tmp_path / "control.sock")
     # the per-user runtime directory is the one the daemon makes itself (mode 0700)
-    mine = parse_config({"daemon": {"control": str(runtime_dir() / "control.sock")}})
+    mine = parse_config({"daemon": {"control": str(Path(runtime_dir()) / "control.sock")}})
     assert mine.control is not None and mine.control.endswith("control.sock")
     r = run_config(tmp_path, f'[daemon]\ncontrol = "{where}/c.sock"\n[[board]]\nurl = "x"\n')
     assert r.returncode == 2 and "does not exist" in r.stderr and r.stderr.count("\n") == 1

@@ -31,7 +31,7 @@ from missing_link.daemon.control import (
     call_timeout,
     check_endpoint,
 )
-from missing_link.errors import ConfigError
+from missing_link.errors import ConfigError, MissingLinkError
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
 
@@ -73,6 +73,15 @@ def test_an_endpoint_that_is_not_ours_is_refused(tmp_path: Path, caplog: Any) ->
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="making another user's files needs root")
+def test_the_endpoint_makes_no_directory_but_its_own(tmp_path: Path) -> None:
+    """Only the per-user runtime directory is made for the socket: a control path anywhere
+    else needs its directory to exist (no mkdir -p on a path from a config or the API)."""
+    where = tmp_path / "a" / "b" / "control.sock"
+    with pytest.raises(MissingLinkError, match="make it first"):
+        ControlServer(str(where), {})
+    assert not (tmp_path / "a").exists()
+
+
 def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
     """Another user made the directory first and answers on it with lies: the client asks
     nothing there, and the daemon does not bind there (it runs without the endpoint)."""

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import fnmatch
 import math
-import os
 import re
 import tomllib
 from collections.abc import Callable
@@ -21,6 +20,7 @@ from ..publishers.registry import check_options, known_publishers
 from ..ros.msgs import DISTROS, check_package
 from ..text import is_token
 from ..topics import check_topic
+from .control import runtime_dir
 
 
 @dataclass
@@ -257,14 +257,6 @@ def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
             )
 
 
-def runtime_dir() -> Path:
-    """The per-user directory of the default control endpoint (daemon/control.py's
-    ``default_control_path`` without ``$MISSING_LINK_CONTROL``): the one directory the daemon
-    may create for it (mode 0700)."""
-    run = os.environ.get("XDG_RUNTIME_DIR")
-    return Path(run) / "missing-link" if run else Path(f"/tmp/missing-link-{os.getuid()}")
-
-
 def _check_control(control: str | None, fail: Fail) -> None:
     """``control``: "" (none) or an absolute socket path in a directory that exists, unless
     it is the per-user runtime directory; no other directory is created for it."""
@@ -273,7 +265,7 @@ def _check_control(control: str | None, fail: Fail) -> None:
     if not control.startswith("/"):
         raise fail("daemon.control", f'{control!r}: an absolute path of a socket, or ""')
     parent = Path(control).parent
-    if parent != runtime_dir() and not parent.is_dir():
+    if parent != Path(runtime_dir()) and not parent.is_dir():
         raise fail(
             "daemon.control",
             f"{control!r}: its directory {parent} does not exist (the daemon creates only "

@@ -73,15 +73,19 @@ class NotOurs(MissingLinkError):
     """A control endpoint (or its directory) that someone else owns or can write to."""
 
 
+def runtime_dir() -> str:
+    """The per-user directory of the default endpoint, ``$XDG_RUNTIME_DIR/missing-link``, else
+    ``/tmp/missing-link-<uid>``: the one directory the daemon creates for it (mode 0700)."""
+    run = os.environ.get("XDG_RUNTIME_DIR")
+    return os.path.join(run, "missing-link") if run else f"/tmp/missing-link-{os.getuid()}"
+
+
 def default_control_path() -> str:
-    """``$MISSING_LINK_CONTROL``, else ``$XDG_RUNTIME_DIR/missing-link/control.sock``, else
-    ``/tmp/missing-link-<uid>/control.sock``."""
+    """``$MISSING_LINK_CONTROL``, else ``control.sock`` in :func:`runtime_dir`."""
     env = os.environ.get("MISSING_LINK_CONTROL")
     if env:
         return env
-    run = os.environ.get("XDG_RUNTIME_DIR")
-    base = os.path.join(run, "missing-link") if run else f"/tmp/missing-link-{os.getuid()}"
-    return os.path.join(base, "control.sock")  # (os.path: a one-off call skips pathlib)
+    return os.path.join(runtime_dir(), "control.sock")  # (os.path: a one-off call skips pathlib)
 
 
 def check_endpoint(path: str, uid: int | None = None) -> None:
@@ -302,14 +306,18 @@ def _depth(line: bytes) -> int:
 
 
 def _bind(path: str) -> socket.socket:
-    """A socket only this user can reach: its directory 0700 (made if missing: the last part
-    only), the socket 0600, both checked to be ours (``check_endpoint``).  An endpoint another
-    daemon answers on is not taken over (MissingLinkError); a stale one is."""
+    """A socket only this user can reach: its directory 0700 (made only when it is the
+    per-user :func:`runtime_dir`; any other must exist), the socket 0600, both checked to be
+    ours (``check_endpoint``).  An endpoint another daemon answers on is not taken over
+    (MissingLinkError); a stale one is."""
     from pathlib import Path
 
     p = Path(path)
     try:
-        p.parent.mkdir(mode=0o700, exist_ok=True)
+        if os.path.abspath(p.parent) == os.path.abspath(runtime_dir()):
+            p.parent.mkdir(mode=0o700, exist_ok=True)
+        elif not p.parent.is_dir():
+            raise FileNotFoundError(errno.ENOENT, f"no directory {p.parent} (make it first)")
     except OSError as e:
         raise MissingLinkError(f"control endpoint {path}: {e.strerror or e}") from None
     check_endpoint(path)
