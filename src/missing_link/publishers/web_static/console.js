@@ -267,8 +267,9 @@ function draw(t, now) {
   if (!t.plot) {
     const series = [{}].concat(t.ys.map((_, c) => ({
       label: t.ys.length === 1 ? t.meta.name : `ch${c}`, stroke: `hsl(${(c * 47) % 360} 70% 45%)`, width: 1.5,
+      spanGaps: true,  // (N/A between values: a sonar group's turn is a gap, not a break)
     })));
-    t.plot = new uPlot({ width, height: 150, series, legend: { show: t.ys.length <= 8 },
+    t.plot = new uPlot({ width, height: 150, series, legend: { show: t.ys.length <= 8, live: false },
       scales: { x: { time: true } }, cursor: { drag: { x: false, y: false } } }, [t.xs, ...t.ys], t.plotBox);
   }
   if (Math.abs(t.plot.width - width) > 20) t.plot.setSize({ width, height: 150 });
@@ -281,11 +282,12 @@ function showActuator(t) {
   if (!S.commands || !t.meta.command || t.act) return;
   const b = ensureBoard(t.meta.board);
   const id = boardId(t.meta.board) + "-cmd-" + t.meta.name;
-  const input = el("input", { id, type: "number", step: "any", required: "" });
+  const input = el("input", { id, type: "number", step: "any", required: "", "aria-describedby": id + "-d" });
   const msg = el("span", { class: "message", role: "status" });
-  const form = el("form", { class: "actuator" },
-    el("label", { for: id, text: `${t.meta.name} command${t.meta.unit ? " (" + t.meta.unit + ")" : ""}` }),
-    input, el("button", { type: "submit", text: "Send" }), msg);
+  const form = el("form", { class: "actuator", novalidate: "" },
+    el("label", { for: id, text: `${t.meta.name} command` }), input,
+    el("span", { id: id + "-d", class: "muted", text: `a raw ${t.meta.dtype}, as the board takes it` }),
+    el("button", { type: "submit", text: "Send" }), msg);
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const r = await ask("command", { topic: t.meta.command, value: Number(input.value) });
