@@ -200,6 +200,7 @@ def test_configuration_all_or_nothing_save_and_reset(serve: Any, tmp_path: Path)
         {"op": "config", "id": 3, "board": "board_b", "set": {}, "save": True},
         {"op": "reset", "id": 4, "board": "board_b"},
     ]  # fmt: skip
+    erase = [{"op": "reset", "id": 5, "board": "board_b", "erase": True}]
     with console(serve, store=str(tmp_path / "flash")) as (d, _face):
         before = d.board_config("board_b")["dist_us.rate_hz"]
         _h, _t, one, two, three, four = asyncio.run(_session(_face, ops))
@@ -209,6 +210,10 @@ def test_configuration_all_or_nothing_save_and_reset(serve: Any, tmp_path: Path)
         assert three["ok"] and three["values"]["dist_ir.rate_hz"] == 7
         assert four["ok"] and four["values"]["dist_ir.rate_hz"] == 25
         view = _face.model.snapshot()["config"]["board_b"]
+        _h, _t, five = asyncio.run(_session(_face, erase))
+        erased = _face.model.snapshot()["config"]["board_b"]
+    assert five["ok"] and erased["state"] == ["defaults"]  # (nothing saved)
+    assert {k["key"]: k["saved"] for k in erased["keys"]}["dist_ir.rate_hz"] is None
     key = {k["key"]: k for k in view["keys"]}["dist_ir.rate_hz"]
     # the board says a saved configuration differs from what runs; which values it holds the
     # console knows because it saw the running values when nothing differed (after the save)

@@ -120,8 +120,8 @@ def page(browser: Any, rig: tuple[str, dict[str, str]]) -> Iterator[Any]:
     page = browser.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(rig[0])
     page.started = time.monotonic()  # type: ignore[attr-defined]
+    page.goto(rig[0])
     yield page
     assert not errors, errors
     page.close()

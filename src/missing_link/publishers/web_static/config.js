@@ -11,6 +11,8 @@ function showConfig(board, view) {
   if (!form) form = buildConfig(parts.config, board, id);
   const tbody = form.querySelector("tbody");
   const rows = new Map([...tbody.rows].map((r) => [r.dataset.key, r]));
+  const now = new Set(view.keys.map((k) => k.key));
+  for (const [key, row] of rows) if (!now.has(key)) row.remove();  // (another board file since)
   for (const k of view.keys) {
     let row = rows.get(k.key);
     if (!row) { row = configRow(id, k); tbody.append(row); }
@@ -33,7 +35,9 @@ function buildConfig(box, board, id) {
     el("div", { class: "buttons" },
       el("button", { type: "submit", text: "Apply" }),
       el("button", { type: "button", text: "Save", onclick: () => send(board, form, msg, "save") }),
-      el("button", { type: "button", text: "Reset", onclick: () => send(board, form, msg, "reset") })),
+      el("button", { type: "button", text: "Reset", onclick: () => send(board, form, msg, "reset") }),
+      el("input", { type: "checkbox", id: `${id}-erase`, class: "erase" }),
+      el("label", { for: `${id}-erase`, text: "Reset also forgets the saved configuration" })),
     msg);
   form.addEventListener("submit", (ev) => { ev.preventDefault(); send(board, form, msg, "apply"); });
   box.append(el("h3", { text: "Configuration" }), form);
@@ -76,6 +80,7 @@ function changed(board, form) {
   for (const k of view.keys) {
     if (k.read_only) continue;
     const input = form.querySelector(`[id="${CSS.escape(boardId(board) + "-cfg-" + k.key)}"]`);
+    if (!input) continue;
     const v = k.kind === "bool" ? input.checked : input.value.trim();
     if (k.kind === "bool" ? v !== Boolean(k.value) : v !== String(k.value)) out[k.key] = v;
   }
@@ -85,7 +90,7 @@ function changed(board, form) {
 async function send(board, form, msg, what) {
   const set = changed(board, form);
   let r;
-  if (what === "reset") r = await ask("reset", { board });
+  if (what === "reset") r = await ask("reset", { board, erase: form.querySelector(".erase").checked });
   else if (what === "apply" && Object.keys(set).length === 0) r = { ok: true, text: "nothing changed" };
   else r = await ask("config", { board, set, save: what === "save" });
   const words = { apply: "applied", save: "saved on the board", reset: "the defaults again" };
@@ -94,7 +99,10 @@ async function send(board, form, msg, what) {
     const view = S.config.get(board);
     for (const k of view.keys) if (k.key in r.values) k.value = r.values[k.key];
     showConfig(board, view);
-    for (const k of view.keys) setInput(form.querySelector(`[id="${CSS.escape(boardId(board) + "-cfg-" + k.key)}"]`), k);
+    for (const k of view.keys) {
+      const input = form.querySelector(`[id="${CSS.escape(boardId(board) + "-cfg-" + k.key)}"]`);
+      if (input) setInput(input, k);
+    }
   }
   msg.textContent = r.ok ? (r.text || words[what] + (Object.keys(set).length ? ": " +
     Object.entries(set).map(([k, v]) => `${k} = ${v}`).join(", ") : "")) : r.text;
