@@ -78,6 +78,8 @@ def test_options_refuse_a_network_address_without_tls_and_token(tmp_path: Path) 
     assert parse_options({"commands": False}).commands is False
     with pytest.raises(ConfigError, match="commands"):
         parse_options({"commands": "yes"})
+    with pytest.raises(ConfigError, match="comands: unknown key"):
+        parse_options({"comands": False})
     short = tmp_path / "short"
     short.write_text("abc")
     short.chmod(0o600)

@@ -14,10 +14,10 @@ log time ns, payload); no client publishing, parameters, services or assets.
 The front door (gate.py, shared with the web console): a browser says where a page came from in
 ``Origin``; a client with an ``Origin`` not in ``origins`` is refused (HTTP 403) and counted
 (``refused_origins``); native clients send none and are admitted.  At most ``MAX_CLIENTS`` at
-once (more: 503, counted).  What an admitted
-client sends is taken only when it is a subscribe or unsubscribe that checks (or another
-read-only operation, ignored); anything else is dropped and counted (``dropped_messages``), never
-logged as sent.  Every refusal is logged through ``logs.SafeLog`` (cleaned, rate-limited).
+once (more: 503, counted).  What an admitted client sends is taken only when it is a subscribe
+or unsubscribe that checks (or another read-only operation, ignored); anything else is dropped
+and counted (``dropped_messages``), never logged as sent.  Every refusal is logged through
+``logs.SafeLog`` (cleaned, rate-limited).
 
 Threads: ``add_channel`` and ``log`` are called from any thread (a board's reader) and never
 block: messages wait in a bounded inbox that the view's own asyncio loop fans out to the

@@ -124,8 +124,15 @@ def _strings(opts: Mapping[str, Any], key: str) -> list[str]:
     return list(v)
 
 
+#: the [web] table's keys (``distro``: the daemon hands every publisher one; unused here)
+KEYS = ("host", "port", "commands", "cert", "key", "token_file", "origins", "hosts", "name")
+
+
 def parse_options(opts: Mapping[str, Any]) -> WebOptions:
     """The ``[web]`` table (and what ``--web`` put in it); ConfigError naming the key."""
+    for k in opts:
+        if k not in (*KEYS, "distro"):  # (a typo in `commands` must not leave them on)
+            raise ConfigError(f"[web] {k}: unknown key (known: {', '.join(KEYS)})")
     o = WebOptions(origins=_strings(opts, "origins"), hosts=_strings(opts, "hosts"))
     o.host = str(opts.get("host", DEFAULT_HOST))
     port = opts.get("port", DEFAULT_PORT)
