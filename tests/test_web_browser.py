@@ -97,6 +97,7 @@ def browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
         ctx = p.chromium.launch_persistent_context(
             str(profile), executable_path=CHROMIUM, args=FLAGS, headless=True,
             viewport={"width": 1200, "height": 900}, reduced_motion="reduce",
+            ignore_https_errors=True,  # (the TLS test's certificate is from a CA of its own)
         )  # fmt: skip
         yield ctx
         ctx.close()
@@ -250,3 +251,31 @@ FORGE = """async () => {
     ws.onmessage = (ev) => { const m = JSON.parse(ev.data); if (m.op === "reply") ok(m); };
   });
 }"""
+
+
+def test_a_token_console_asks_for_a_login_over_tls(browser: Any, tmp_path: Path) -> None:
+    from playwright.sync_api import expect
+
+    certs = tmp_path / "certs"
+    script = Path(__file__).resolve().parent.parent / "examples" / "security" / "make-certs.sh"
+    subprocess.run(["sh", str(script), str(certs)], check=True, capture_output=True, timeout=60)
+    token = tmp_path / "token"
+    subprocess.run([sys.executable, "-m", "missing_link", "key", "new", str(token)], check=True)
+    web = f'cert = "{certs / "daemon.pem"}"\nkey = "{certs / "daemon.key"}"\n'
+    web += f'token_file = "{token}"'
+    with daemon(tmp_path, {"board_a": "encoder_servo"}, web) as (url, _env):
+        assert url.startswith("https://127.0.0.1:")
+        page = browser.new_page()
+        page.goto(url)
+        expect(page.get_by_role("heading", name="Log in")).to_be_visible()
+        assert page.get_by_role("region", name="board_a").count() == 0
+        field = page.get_by_label("Token")
+        field.fill("not-the-token")
+        field.press("Enter")
+        expect(page.get_by_role("alert")).to_have_text("Wrong token.")
+        field.fill(token.read_text().strip())
+        field.press("Enter")
+        expect(board(page, "board_a").locator(".state")).to_have_text("up", timeout=10000)
+        assert page.evaluate("document.cookie") == ""  # (HttpOnly: no script reads the session)
+        assert token.read_text().strip() not in page.url
+        page.close()
