@@ -167,6 +167,14 @@ def _run(sp: Parser) -> None:
         help="live view for Foxglove on ws://127.0.0.1:PORT (8765)",
     )
     sp.add_argument(
+        "--web",
+        nargs="?",
+        const="127.0.0.1:8080",
+        metavar="ADDR:PORT",
+        help="the device console in a browser at http://ADDR:PORT/ (127.0.0.1:8080; another "
+        "address needs TLS and a token in [web] of --config: docs/web.md)",
+    )
+    sp.add_argument(
         "--duration", type=seconds_arg, default=0, help="stop after S seconds (0 = run)"
     )
     sp.add_argument(
@@ -322,6 +330,13 @@ def _router(sp: Parser) -> None:
 
 def _demo(sp: Parser) -> None:
     sp.add_argument("--duration", type=seconds_arg, default=20.0, help="seconds to run (20)")
+    sp.add_argument(
+        "--web",
+        default="127.0.0.1:8080",
+        metavar="ADDR:PORT",
+        help="the device console at http://ADDR:PORT/ (127.0.0.1:8080; another free port if "
+        "that one is taken; 'off': none)",
+    )
     sp.add_argument("--record", default="recordings", help="recording directory (recordings)")
     sp.add_argument("--seed", type=int, default=0)
 

@@ -14,4 +14,4 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.duration < 1:
         print("missing-link: error: --duration must be at least 1 s", file=sys.stderr)
         return EXIT_USAGE
-    return run_demo(duration=args.duration, seed=args.seed, record=args.record)
+    return run_demo(duration=args.duration, seed=args.seed, record=args.record, web=args.web)

@@ -43,12 +43,27 @@ def _foxglove(port: int | None) -> Any:
         return FoxglovePublisher({"port": 0})
 
 
+def _web(addr: str | None) -> Any:
+    """The device console at ``addr`` (another free port if that one is taken; None: none)."""
+    if addr is None or addr == "off":
+        return None
+    from ..publishers.base import PublisherError
+    from ..publishers.web import WebPublisher, parse_addr
+
+    host, port = parse_addr(addr)
+    try:
+        return WebPublisher({"host": host, "port": port})
+    except PublisherError:  # port taken: any free one will do for a demo
+        return WebPublisher({"host": host, "port": 0})
+
+
 def run_demo(
     duration: float = 20.0,
     seed: int = 0,
     record: str = "recordings",
     out: TextIO = sys.stdout,
     foxglove_port: int | None = 8765,
+    web: str | None = None,
 ) -> int:
     print(
         "missing-link demo: the thesis test rig on two virtual boards (own processes, ptys)",
@@ -70,9 +85,16 @@ def run_demo(
             publisher_options={"mcap": {"path": record, "prefix": "demo"}},
         )
         fox = _foxglove(foxglove_port)
-        with Daemon(cfg, [fox] if fox is not None else []) as daemon:
+        console = _web(web)
+        extra = [p for p in (fox, console) if p is not None]
+        with Daemon(cfg, extra) as daemon:
             if fox is not None:
                 print(f"  live view for Foxglove: open connection {fox.url}", file=out)
+            if console is not None:
+                from ..publishers.web import context_of
+
+                console.attach(context_of(daemon))
+                print(f"  device console in a browser: {console.url}", file=out)
             if not daemon.wait_until_up(10.0):
                 raise MissingLinkError(f"boards did not come up: {daemon.status()}")
             view = LiveView(daemon, out, title="missing-link demo")

@@ -31,6 +31,13 @@ def build_config(args: argparse.Namespace) -> Any:
         if "foxglove" not in cfg.publishers:
             cfg.publishers.append("foxglove")
         cfg.publisher_options.setdefault("foxglove", {})["port"] = args.foxglove
+    if args.web is not None:
+        from ..publishers.web import parse_addr
+
+        if "web" not in cfg.publishers:
+            cfg.publishers.append("web")
+        web = cfg.publisher_options.setdefault("web", {})
+        web["host"], web["port"] = parse_addr(args.web)
     if args.record:
         if "mcap" not in cfg.publishers:
             cfg.publishers.append("mcap")
@@ -66,6 +73,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..daemon import Daemon
 
     daemon = Daemon(build_config(args))  # config, URL and descriptor errors: exit 2, at once
+    attach_web(daemon)
     given = list(daemon.sessions)  # (boards found by --auto come and go; these were asked for)
     stop = threading.Event()
     interrupted = []
@@ -123,6 +131,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     if interrupted:
         return EXIT_INTERRUPTED
     return EXIT_FAIL if failures else code
+
+
+def attach_web(daemon: Any) -> None:
+    """Hand the web console (if the daemon has one) the daemon's public verbs it uses."""
+    for p in daemon.publishers:
+        if p.name == "web" and hasattr(p, "attach"):
+            from ..publishers.web import context_of
+
+            p.attach(context_of(daemon))
 
 
 def _wait_watching(daemon: Any, stop: threading.Event, duration: float | None) -> None:

@@ -4,7 +4,8 @@
 - :mod:`.registry` - names -> module and class, imported on first use; what each needs
 - :mod:`.bus` (in-process), :mod:`.console`, :mod:`.mcap` (rosbag2 + MCAP; :mod:`.recover`
   salvages a dead recording), :mod:`.zenoh` (ROS 2 via rmw_zenoh's wire format), :mod:`.ros2`
-  (rclpy), :mod:`.ros1` (rospy), :mod:`.foxglove` (live WebSocket)
+  (rclpy), :mod:`.ros1` (rospy), :mod:`.foxglove` (live WebSocket), :mod:`.web` (the device
+  console in a browser; :mod:`.gate`: the front door both share)
 
 More arrive as plugins through the ``missing_link.publishers`` entry-point group.
 """

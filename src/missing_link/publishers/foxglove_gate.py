@@ -11,12 +11,13 @@ speaks the protocol's subset it needs itself (``foxglove.websocket.v1``, under t
 new channels, ``subscribe``/``unsubscribe``, binary message data (opcode 1: subscription id,
 log time ns, payload); no client publishing, parameters, services or assets.
 
-The front door: a browser says where a page came from in ``Origin``; a client with an ``Origin``
-not in ``origins`` is refused (HTTP 403) and counted (``refused_origins``); native clients send
-none and are admitted.  At most ``MAX_CLIENTS`` at once (more: 503, counted).  What an admitted
-client sends is taken only when it is a subscribe or unsubscribe that checks (or another
-read-only operation, ignored); anything else is dropped and counted (``dropped_messages``), never
-logged as sent.  Every refusal is logged through ``logs.SafeLog`` (cleaned, rate-limited).
+The front door (gate.py, shared with the web console): a browser says where a page came from in
+``Origin``; a client with an ``Origin`` not in ``origins`` is refused (HTTP 403) and counted
+(``refused_origins``); native clients send none and are admitted.  At most ``MAX_CLIENTS`` at
+once (more: 503, counted).  What an admitted client sends is taken only when it is a subscribe
+or unsubscribe that checks (or another read-only operation, ignored); anything else is dropped
+and counted (``dropped_messages``), never logged as sent.  Every refusal is logged through
+``logs.SafeLog`` (cleaned, rate-limited).
 
 Threads: ``add_channel`` and ``log`` are called from any thread (a board's reader) and never
 block: messages wait in a bounded inbox that the view's own asyncio loop fans out to the
@@ -36,7 +37,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-from ..text import safe_text
+from .gate import FrontDoor
 
 log = logging.getLogger(__name__)
 
@@ -71,10 +72,8 @@ class LiveView:
     ) -> None:
         import websockets  # noqa: F401 - (imported here: a view that is not asked costs nothing)
 
-        self.origins = frozenset(origins)
+        self.door = FrontDoor("foxglove", origins, MAX_CLIENTS)
         self.name = name
-        self.refused_origins = 0
-        self.refused_clients = 0
         self.dropped_messages = 0
         self.dropped = 0
         self._channels: dict[int, dict[str, Any]] = {}
@@ -95,6 +94,14 @@ class LiveView:
         self._ready.wait(10)
         if self._error is not None:
             raise self._error
+
+    @property
+    def refused_origins(self) -> int:
+        return self.door.refused_origins
+
+    @property
+    def refused_clients(self) -> int:
+        return self.door.refused_clients
 
     @property
     def clients(self) -> int:
@@ -170,19 +177,7 @@ class LiveView:
             await self._stop
 
     def _check(self, connection: Any, request: Any) -> Any:
-        origin = request.headers.get("Origin")
-        if origin is not None and origin not in self.origins:
-            self.refused_origins += 1
-            log.warning(
-                "foxglove: a client from %s refused: its Origin is not in [foxglove] origins",
-                safe_text(origin, 100),
-            )
-            return connection.respond(403, "Origin not allowed\n")
-        if len(self._clients) >= MAX_CLIENTS:
-            self.refused_clients += 1
-            log.warning("foxglove: a client refused: %d are connected already", MAX_CLIENTS)
-            return connection.respond(503, "Too many clients\n")
-        return None
+        return self.door.check(connection, request, len(self._clients))
 
     async def _handle(self, ws: Any) -> None:
         client = _Client(ws)

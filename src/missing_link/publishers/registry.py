@@ -55,6 +55,9 @@ BUILTIN: dict[str, Entry] = {
         ("websockets", "rosbags"),
         "pip install websockets",
     ),
+    "web": Entry(
+        "missing_link.publishers.web", "WebPublisher", ("websockets",), "pip install websockets"
+    ),
     "ros1": Entry(
         "missing_link.publishers.ros1",
         "Ros1Publisher",

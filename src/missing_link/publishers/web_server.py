@@ -1,0 +1,388 @@
+"""The web console's one listener: the page's files and its WebSocket on one port, over TLS
+where configured (websockets' asyncio server; plain HTTP GETs are answered in
+``process_request``).  Its own thread and asyncio loop; the daemon's threads only touch the
+model (web_model.py).
+
+Theory of operation
+-------------------
+Every request passes the front door first (gate.py: the ``Host`` a loopback console answers to,
+the ``Origin`` - the page's own, or one listed - and at most ``MAX_CLIENTS`` pages).  Then:
+
+* ``/`` and ``/static/NAME``: the page and its assets, from a table made at start (no path from
+  a request ever reaches the file system), with a strict Content-Security-Policy (scripts,
+  styles and connections from this origin only);
+* ``/session``: whether a login is needed and done (JSON); ``/login``: the token in the
+  ``Authorization: Bearer`` header (never in a URL) is checked in constant time and answered with
+  an ``HttpOnly``, ``SameSite=Strict`` session cookie (``Secure`` over TLS); failures are counted,
+  and after ``LOGIN_FAILURES`` in ``LOGIN_WINDOW_S`` every login is refused (429) until the
+  window ends; ``/logout`` ends the session;
+* ``/ws``: the WebSocket, for a session (or a Bearer token) where a token is set.
+
+A page gets a ``hello`` (everything: model.snapshot) and then a ``tick`` every ``TICK_S`` (what
+arrived, thinned; the status, polled from the daemon while pages are open).  A page that reads
+too slowly has its oldest ticks dropped (counted).  What a page sends is one JSON operation at a
+time - ``config`` (set, all or nothing; ``save``), ``reset``, ``command`` - answered with a
+``reply``; board calls run on worker threads, never on the loop.  Anything else is dropped and
+counted, never logged as sent.  Commands go through the daemon's gate (daemon/commands.py): where
+this face's ``commands`` is off, the gate refuses and counts them, and the page shows no
+actuator controls.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import logging
+import secrets
+import ssl
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from importlib import resources
+from typing import Any
+
+from ..errors import ConfigError, MissingLinkError
+from ..text import safe_text
+from ..topics import Command
+from .gate import FrontDoor
+from .web_model import ConsoleModel
+
+log = logging.getLogger(__name__)
+
+TICK_S = 0.2
+MAX_CLIENTS = 16
+MAX_CLIENT_MESSAGE = 16384
+BACKLOG = 50  #: ticks waiting for one page (10 s)
+LOGIN_FAILURES, LOGIN_WINDOW_S = 5, 60.0
+SESSION_S = 12 * 3600.0
+COOKIE = "ml_session"
+TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+         ".css": "text/css; charset=utf-8", ".png": "image/png", ".txt": "text/plain"}  # fmt: skip
+CSP = (
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+    "connect-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
+)
+
+
+def static_files() -> dict[str, tuple[bytes, str]]:
+    """URL path -> (bytes, content type): every file the console serves, read at start."""
+    files: dict[str, tuple[bytes, str]] = {}
+    root = resources.files("missing_link.publishers") / "web_static"
+    for item in root.iterdir():
+        suffix = "." + item.name.rsplit(".", 1)[-1]
+        if item.is_file() and suffix in TYPES:
+            files[f"/static/{item.name}"] = (item.read_bytes(), TYPES[suffix])
+    files["/"] = files["/static/index.html"]
+    return files
+
+
+class _Page:
+    def __init__(self, ws: Any) -> None:
+        self.ws = ws
+        self.out: deque[str] = deque()
+        self.wake = asyncio.Event()
+
+
+class WebServer:
+    def __init__(self, model: ConsoleModel, options: Any, commands_on: Callable[[], bool]) -> None:
+        import websockets  # noqa: F401 - (fails here, in the constructor, if it is missing)
+
+        self.model = model
+        self.opts = options
+        self.commands_on = commands_on
+        self.files = static_files()
+        loopback_only = not options.token  # (a token: TLS names the host; rebinding is moot)
+        self.door = FrontDoor(
+            "web", options.origins, MAX_CLIENTS, same_origin=True,
+            scheme="https" if options.tls else "http",
+            hosts=options.hosts if loopback_only else None,
+        )  # fmt: skip
+        self.ctx: Any = None
+        self._pages: set[_Page] = set()
+        self._sessions: dict[str, float] = {}  # session id -> expiry (monotonic)
+        self._failures: deque[float] = deque()
+        self.logins_refused = 0
+        self.dropped_messages = 0
+        self.dropped = 0
+        self.commands_sent = 0
+        self.port = 0
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._stop: asyncio.Future[None] | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="web-console", daemon=True)
+        self._thread.start()
+        self._ready.wait(10)
+        if self._error is not None:
+            raise self._error
+
+    @property
+    def attached(self) -> bool:
+        return self.ctx is not None
+
+    @property
+    def clients(self) -> int:
+        return len(self._pages)
+
+    def attach(self, ctx: Any) -> None:
+        self.ctx = ctx
+
+    def close(self) -> None:
+        stop = self._stop
+        if stop is not None:
+            try:
+                self._loop.call_soon_threadsafe(_finish, stop)
+            except RuntimeError:  # (the loop has closed)
+                pass
+        self._thread.join(5)
+
+    # ---- the loop -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._serve())
+        except BaseException as e:  # noqa: BLE001 - said to the constructor
+            self._error = e
+            self._ready.set()
+        finally:
+            self._loop.close()
+
+    def _ssl(self) -> ssl.SSLContext | None:
+        if not self.opts.tls:
+            return None
+        ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        try:
+            ctx.load_cert_chain(self.opts.cert, self.opts.key)
+        except (OSError, ssl.SSLError) as e:
+            raise ConfigError(f"[web] cert/key: cannot load {self.opts.cert}: {e}") from None
+        return ctx
+
+    async def _serve(self) -> None:
+        from websockets.asyncio.server import serve
+
+        self._stop = self._loop.create_future()
+        async with serve(
+            self._handle,
+            self.opts.host,
+            self.opts.port,
+            ssl=self._ssl(),
+            process_request=self._http,
+            max_size=MAX_CLIENT_MESSAGE,
+            server_header=None,
+            logger=_quiet_logger(),
+        ) as server:
+            self.port = int(next(iter(server.sockets)).getsockname()[1])
+            self._ready.set()
+            ticker = asyncio.ensure_future(self._tick())
+            try:
+                await self._stop
+            finally:
+                ticker.cancel()
+                await asyncio.gather(ticker, return_exceptions=True)
+
+    async def _tick(self) -> None:
+        while True:
+            await asyncio.sleep(TICK_S)
+            if not self._pages:
+                continue
+            try:
+                if self.ctx is not None:
+                    self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
+                msg = json.dumps(self.model.drain(time.time()), separators=(",", ":"))
+            except Exception:  # a bug of ours: said (logs.py limits it), the console goes on
+                log.exception("web: a tick failed")
+                continue
+            for page in list(self._pages):
+                if len(page.out) >= BACKLOG:
+                    page.out.popleft()
+                    self.dropped += 1
+                page.out.append(msg)
+                page.wake.set()
+
+    # ---- HTTP ---------------------------------------------------------------------------------
+    def _http(self, connection: Any, request: Any) -> Any:
+        path = request.path.split("?", 1)[0]
+        if getattr(request, "method", "GET") != "GET":
+            return self._respond(405, b"GET only\n", "text/plain")
+        why = self.door.refusal(request, len(self._pages) if path == "/ws" else 0)
+        if why is not None:
+            return self._respond(why[0], why[1].encode(), "text/plain")
+        authed = self._authenticated(request)
+        if path == "/ws":
+            return None if authed else self._respond(401, b"Log in first\n", "text/plain")
+        if path == "/session":
+            body = {"token": bool(self.opts.token), "authenticated": authed, "name": self.opts.name}
+            return self._respond(200, json.dumps(body).encode(), "application/json")
+        if path == "/login":
+            return self._login(request)
+        if path == "/logout":
+            resp = self._respond(204, b"", "text/plain")
+            sid = _cookie(request.headers.get("Cookie", ""))
+            self._sessions.pop(sid or "", None)
+            resp.headers["Set-Cookie"] = f"{COOKIE}=; Path=/; Max-Age=0; HttpOnly; SameSite=Strict"
+            return resp
+        found = self.files.get(path)
+        if found is None:
+            return self._respond(404, b"Not found\n", "text/plain")
+        return self._respond(200, *found)
+
+    def _respond(self, status: int, body: bytes, ctype: str) -> Any:
+        from websockets.datastructures import Headers
+        from websockets.http11 import Response
+
+        reason = {200: "OK", 204: "No Content", 401: "Unauthorized", 403: "Forbidden",
+                  404: "Not Found", 405: "Method Not Allowed", 421: "Misdirected Request",
+                  429: "Too Many Requests", 503: "Service Unavailable"}.get(status, "")  # fmt: skip
+        headers = Headers(
+            [("Content-Type", ctype), ("Content-Length", str(len(body))),
+             ("Content-Security-Policy", CSP), ("X-Content-Type-Options", "nosniff"),
+             ("Referrer-Policy", "no-referrer"), ("Cache-Control", "no-store"),
+             ("Connection", "close")]
+        )  # fmt: skip
+        return Response(status, reason, headers, body)
+
+    def _authenticated(self, request: Any) -> bool:
+        if not self.opts.token:
+            return True
+        auth = request.headers.get("Authorization", "")
+        if auth.startswith("Bearer ") and self._token_ok(auth[7:].strip()):
+            return True
+        sid = _cookie(request.headers.get("Cookie", ""))
+        expiry = self._sessions.get(sid or "")
+        return expiry is not None and expiry > time.monotonic()
+
+    def _token_ok(self, given: str) -> bool:
+        return hmac.compare_digest(given.encode(), self.opts.token.encode())
+
+    def _login(self, request: Any) -> Any:
+        now = time.monotonic()
+        while self._failures and self._failures[0] < now - LOGIN_WINDOW_S:
+            self._failures.popleft()
+        auth = request.headers.get("Authorization", "")
+        if not self.opts.token:
+            return self._respond(204, b"", "text/plain")
+        if len(self._failures) >= LOGIN_FAILURES:
+            self.logins_refused += 1
+            return self._respond(429, b"Too many failed logins: wait a minute\n", "text/plain")
+        if not (auth.startswith("Bearer ") and self._token_ok(auth[7:].strip())):
+            self._failures.append(now)
+            self.logins_refused += 1
+            log.warning("web: a login refused (wrong token)")  # (never what was given)
+            return self._respond(401, b"Wrong token\n", "text/plain")
+        sid = secrets.token_urlsafe(32)
+        self._sessions = {s: e for s, e in self._sessions.items() if e > now}
+        self._sessions[sid] = now + SESSION_S
+        resp = self._respond(204, b"", "text/plain")
+        secure = "; Secure" if self.opts.tls else ""
+        resp.headers["Set-Cookie"] = f"{COOKIE}={sid}; Path=/; HttpOnly; SameSite=Strict{secure}"
+        return resp
+
+    # ---- a page's WebSocket -------------------------------------------------------------------
+    async def _handle(self, ws: Any) -> None:
+        page = _Page(ws)
+        if self.ctx is not None:  # (the status now: polled only while pages are open)
+            self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
+        hello = {"op": "hello", "name": self.opts.name, "commands": self.commands_on(),
+                 "attached": self.attached, "window_s": 30, **self.model.snapshot()}  # fmt: skip
+        page.out.append(json.dumps(hello, separators=(",", ":")))
+        page.wake.set()
+        self._pages.add(page)
+        writer = asyncio.ensure_future(self._write(page))
+        try:
+            async for msg in ws:
+                reply = await self._take(msg)
+                if reply is None:
+                    self.dropped_messages += 1
+                    log.warning("web: a page's message dropped (not a console operation)")
+                else:
+                    page.out.append(json.dumps(reply))
+                    page.wake.set()
+        except Exception:  # noqa: BLE001 - a page's broken connection ends that page only
+            pass
+        finally:
+            self._pages.discard(page)
+            writer.cancel()
+            await asyncio.gather(writer, return_exceptions=True)
+
+    async def _write(self, page: _Page) -> None:
+        try:
+            while True:
+                await page.wake.wait()
+                page.wake.clear()
+                while page.out:
+                    await page.ws.send(page.out.popleft())
+        except Exception:  # noqa: BLE001 - the reader sees the connection end too
+            await page.ws.close()
+
+    async def _take(self, msg: Any) -> dict[str, Any] | None:
+        """A page's operation done, and its reply; None: not an operation of the console."""
+        if not isinstance(msg, str):
+            return None
+        try:
+            m = json.loads(msg)
+        except (ValueError, RecursionError):
+            return None
+        if not isinstance(m, dict) or not isinstance(m.get("id"), int):
+            return None
+        op, board = m.get("op"), m.get("board")
+        if op == "command":
+            return {"op": "reply", "id": m["id"], **self._command(m.get("topic"), m.get("value"))}
+        if op not in ("config", "reset") or not isinstance(board, str):
+            return None
+        values = m.get("set", {})
+        if not isinstance(values, dict) or not all(isinstance(k, str) for k in values):
+            return None
+        if op == "config" and not values and not m.get("save"):
+            return {"op": "reply", "id": m["id"], "ok": True, "text": "nothing to set"}
+        if self.ctx is None:
+            return {"op": "reply", "id": m["id"], "ok": False,
+                    "text": "this console is not attached to a daemon: read-only"}  # fmt: skip
+        ctx = self.ctx
+        if op == "reset":
+            call: Callable[[], Any] = lambda: ctx.reset_config(board, bool(m.get("erase")))  # noqa: E731
+        else:
+            save = bool(m.get("save"))
+            call = lambda: ctx.configure(board, values, save, by="web")  # noqa: E731
+        try:
+            result = await asyncio.to_thread(call)
+        except (ConfigError, MissingLinkError) as e:
+            return {"op": "reply", "id": m["id"], "ok": False, "text": safe_text(str(e), 300)}
+        return {"op": "reply", "id": m["id"], "ok": True, "values": result}
+
+    def _command(self, topic: Any, value: Any) -> dict[str, Any]:
+        deliver = self.model.deliver(topic) if isinstance(topic, str) else None
+        if deliver is None:
+            return {"ok": False, "text": "no such command topic"}
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            return {"ok": False, "text": "a command is one number"}
+        try:
+            deliver(Command([value]))  # (the daemon's gate: refused and counted where off)
+        except ValueError as e:
+            return {"ok": False, "text": safe_text(str(e), 300)}
+        if not self.commands_on():
+            return {"ok": False, "text": "commands are off on this console ([web] commands)"}
+        self.commands_sent += 1
+        return {"ok": True, "text": "sent"}
+
+
+def _quiet_logger() -> logging.Logger:
+    """websockets' logger for the console: never DEBUG, whatever the root's level, since its
+    DEBUG lines may carry handshake headers (a session cookie)."""
+    logger = logging.getLogger(__name__ + ".websockets")
+    logger.setLevel(logging.INFO)
+    return logger
+
+
+def _finish(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
+
+
+def _cookie(header: str) -> str | None:
+    for part in header.split(";"):
+        name, _, value = part.strip().partition("=")
+        if name == COOKIE:
+            return value
+    return None
