@@ -100,6 +100,7 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     and by name go through the daemon's control endpoint (a 0600 socket in a 0700 directory),
     a set is seen by the daemon's own status, and errors keep their exit codes."""
     control = tmp_path / "run" / "control.sock"
+    control.parent.mkdir(mode=0o700)  # (no directory is made for a control path but the default)
     env = {**os.environ, "MISSING_LINK_CONTROL": str(control)}
     proc, url = start_board_process("thesis", 5, "pty")
     daemon = subprocess.Popen(

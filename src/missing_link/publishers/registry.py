@@ -93,6 +93,9 @@ OPTIONS: dict[str, dict[str, str]] = {
              "queue_size": "integer", "commands": "bool"},
     "ros2": {"distro": "text", "node": "text", "prefix": "path", "depth": "integer",
              "commands": "bool"},
+    "web": {"distro": "text", "host": "text", "port": "integer", "commands": "bool",
+            "cert": "path", "key": "path", "token_file": "path", "origins": "texts",
+            "hosts": "texts", "name": "text"},
 }  # fmt: skip
 _RANGES = {"domain": (0, 232), "port": (0, 65535), "depth": (1, 100_000),
            "queue_size": (1, 100_000)}  # fmt: skip

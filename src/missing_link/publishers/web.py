@@ -32,6 +32,7 @@ from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError
 from .gate import is_loopback
+from .registry import check_options
 from .web_model import ConsoleModel
 
 log = logging.getLogger(__name__)
@@ -117,46 +118,27 @@ def _read_token(path: str) -> str:
     return token
 
 
-def _strings(opts: Mapping[str, Any], key: str) -> list[str]:
-    v = opts.get(key, [])
-    if not isinstance(v, list) or not all(isinstance(o, str) for o in v):
-        raise ConfigError(f'[web] {key}: a list of strings, like ["https://robot.lab:8443"]')
-    return list(v)
-
-
-#: the [web] table's keys (``distro``: the daemon hands every publisher one; unused here)
-KEYS = ("host", "port", "commands", "cert", "key", "token_file", "origins", "hosts", "name")
-
-
 def parse_options(opts: Mapping[str, Any]) -> WebOptions:
     """The ``[web]`` table (and what ``--web`` put in it); ConfigError naming the key."""
-    for k in opts:
-        if k not in (*KEYS, "distro"):  # (a typo in `commands` must not leave them on)
-            raise ConfigError(f"[web] {k}: unknown key (known: {', '.join(KEYS)})")
-    o = WebOptions(origins=_strings(opts, "origins"), hosts=_strings(opts, "hosts"))
+    # keys and types by the registry's table, as on every face (a typo in `commands` must
+    # not leave them on)
+    check_options("web", dict(opts))
+    o = WebOptions(origins=list(opts.get("origins", [])), hosts=list(opts.get("hosts", [])))
     o.host = str(opts.get("host", DEFAULT_HOST))
-    port = opts.get("port", DEFAULT_PORT)
-    if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
-        raise ConfigError(f"[web] port: a port number 0..65535, got {port!r}")
-    o.port = port
+    o.port = int(opts.get("port", DEFAULT_PORT))
     o.name = str(opts.get("name", o.name))
-    for k in ("cert", "key", "token_file"):
-        if k in opts and not isinstance(opts[k], str):
-            raise ConfigError(f"[web] {k}: a file name")
     o.cert, o.key = str(opts.get("cert", "")), str(opts.get("key", ""))
     if bool(o.cert) != bool(o.key):
         raise ConfigError("[web] cert and key: give both (PEM files) or neither")
     if opts.get("token_file"):
-        o.token = _read_token(str(opts["token_file"]))
+        o.token = _read_token(str(opts.get("token_file")))
     loopback = is_loopback(o.host)
     if not loopback and not (o.tls and o.token):
         raise ConfigError(
             f"[web] host {o.host}: not loopback, so the console needs TLS (cert, key) and a "
             "token (token_file): docs/web.md"
         )
-    commands = opts.get("commands", loopback)
-    if not isinstance(commands, bool):
-        raise ConfigError(f"[web] commands: expected true or false, got {commands!r}")
+    commands = bool(opts.get("commands", loopback))
     o.commands = commands
     return o
 
