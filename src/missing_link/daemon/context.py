@@ -18,6 +18,7 @@ from typing import Any
 from ..descriptors import Transducer
 from ..host.config import ConfigKey, Value
 from ..host.reactor import Reactor
+from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 from .config import Config
@@ -50,3 +51,5 @@ class SessionContext:
     )
     #: (board, values): its configuration changed (the faces follow)
     config_changed: Callable[[str, dict[str, Value]], None] = lambda board, values: None
+    #: a board came up (validated, topics declared): its description, for recordings
+    describe_board: Callable[[BoardDescription], None] = lambda record: None

@@ -409,7 +409,16 @@ class Daemon:
             record_clock=self._record_clock,
             offer_config=self._offer_config,
             config_changed=self._config_changed,
+            describe_board=lambda record: self._fan("board_description", record),
         )
+
+    def _fan(self, hook: str, *args: Any) -> None:  # (a publisher that raises: as _publish)
+        for p in self.publishers:
+            try:
+                getattr(p, hook)(*args)
+            except Exception:
+                self.publish_errors += 1
+                log.exception("publisher %s failed in %s", p.name, hook)
 
     def _declare(self, topic: Topic) -> None:
         for p in self.publishers:
@@ -436,12 +445,16 @@ class Daemon:
                 log.exception("publisher %s failed on a clock record", p.name)
 
     def _add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
+        def sent(value: Any) -> None:  # (what the actuator refuses raises: not recorded)
+            handler(value)
+            self._fan("command_sent", name, topic, value, time.time_ns())
+
         gate = self.commands  # (who may command what: commands.py)
-        self.bus.add_command(name, gate.wrap("bus", True, name, handler))
+        self.bus.add_command(name, gate.wrap("bus", True, name, sent))
         for p in self.publishers:
             try:
                 p.add_command_topic(
-                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, handler)
+                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, sent)
                 )
             except Exception:  # (as _declare)
                 self.publish_errors += 1

@@ -51,6 +51,7 @@ from typing import Any
 from ..descriptors import load_descriptor_file
 from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
+from ..ros.board_record import BoardDescription
 from ..ros.clock import clock_topic
 from ..ros.standard import StandardMapping, mapping_for
 from ..timesync.sync import ClockSync
@@ -280,6 +281,8 @@ class BoardSession:
                         self.name, f"actuator {t.name} names call={t.call}, which the board lacks"
                     )
                 self.ctx.add_command(f"{topic_name}/cmd", topic, self.actuators.handler(t))
+        self.ctx.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
+            board.properties, transducers, [topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
