@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from ..errors import BadURL, ConfigError, DescriptorError, MissingLinkError
 from ..logs import install as install_log
 from ..version import __version__
-from . import configure, demo, deploy, msgs, router, run, talk, virtual
+from . import configure, demo, deploy, msgs, replay, router, run, talk, virtual
 from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
 
-GROUPS = (talk, configure, msgs, run, deploy, virtual, router, demo)
+GROUPS = (talk, configure, msgs, run, deploy, virtual, replay, router, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:
