@@ -457,10 +457,16 @@ def record_replay(bag: Path, out: Path, *args: str) -> tuple[Path, str, list[int
     return again, "".join(lines), steered
 
 
+#: where both clock maps have settled: the first estimate comes within 0.5 s, the published map
+#: reaches a new one within tau (0.5 s) at up to 500 ppm; measured, the spacing differs by up to
+#: ~300 µs at 0.5-0.8 s (the original map still converging), by 0.6-4.2 µs from 1.5 s on
+SETTLED_NS = 1_500_000_000
+
+
 def spacing(orig: list[int], new: list[int]) -> tuple[int, int]:
     """Consecutive samples' host-time spacing, original vs replay: (worst |difference| ns,
-    pairs compared), from 0.5 s after the first sample (the sync's first estimate)."""
-    start = orig[0] + 500_000_000
+    pairs compared), from ``SETTLED_NS`` after the first sample."""
+    start = orig[0] + SETTLED_NS
     worst, n = 0, 0
     for k in range(1, len(orig)):
         if orig[k - 1] >= start:
@@ -470,9 +476,10 @@ def spacing(orig: list[int], new: list[int]) -> tuple[int, int]:
 
 
 def clock_bound(bag: dict[str, list[tuple[int, Any]]], board: str) -> float:
-    """The largest hard bound of the board's clock map from 0.5 s after its first exchange."""
+    """The largest hard bound of the board's clock map from ``SETTLED_NS`` after its first
+    exchange: each host time is within it of the truth, a spacing within twice it."""
     records = bag[f"/{board}/clock"]
-    start = records[0][0] + 500_000_000
+    start = records[0][0] + SETTLED_NS
     return max(m.bound_ns for t, m in records if t >= start and m.bound_ns >= 0)
 
 
@@ -491,7 +498,7 @@ def test_the_demo_replayed_is_the_demo(tmp_path: Path) -> None:
     for topic, rows in before.items():
         assert after[topic] == rows, topic  # the same count, the same values, in order
         board = topic.split("/")[1]
-        bound = clock_bound(original, board) + clock_bound(again, board)
+        bound = 2 * (clock_bound(original, board) + clock_bound(again, board))
         orig_t = [t for t, _m in original[topic]]
         new_t = [t for t, _m in again[topic]]
         worst, pairs = spacing(orig_t, new_t)

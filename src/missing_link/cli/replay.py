@@ -50,6 +50,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"LISTENING {b.server.url}", flush=True)
     for b in replay.boards:
         print(f"replay: {b.name} at {b.server.url}: {b.recorded.samples} samples", file=sys.stderr)
+        if b.recorded.changed:
+            print(f"replay: {b.name} came up again with other descriptors in the recording; "
+                  "the first are served", file=sys.stderr)  # fmt: skip
     how = f" at {args.rate:g}x" if args.rate != 1 else ""
     print(f"replay: {replay.span_s:.1f} s of recording{how}{', looped' if args.loop else ''};"
           f" it starts {args.lead:g} s after a host's first request", file=sys.stderr)  # fmt: skip
