@@ -1,5 +1,6 @@
 """A recorded board clock, played back (``missing-link replay``).  Pure: clock records in, board
-time as a function of host time out; the caller passes ``now``.
+time as a function of host time out; the caller passes ``now`` (a lock keeps the timeline's
+one start from racing between boards).
 
 Theory of operation
 -------------------
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -142,12 +144,14 @@ class Timeline:
         self.loop = loop
         self.m0 = now_ns + self.lead_ns  # until started: the clock is not read by any host
         self.started = False
+        self._lock = threading.Lock()  # (every board's thread may be the first to start it)
 
     def start(self, now_ns: int) -> None:
         """The first request from a host: the recording starts ``lead_s`` after it."""
-        if not self.started:
-            self.started = True
-            self.m0 = now_ns + self.lead_ns
+        with self._lock:
+            if not self.started:
+                self.m0 = now_ns + self.lead_ns
+                self.started = True
 
     def at(self, now_ns: int) -> tuple[int, float]:
         """(pass, recording host ns) at replay monotonic ``now_ns``."""
