@@ -11,11 +11,13 @@ refuses and counts.
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 from ..host.config import ConfigKey, Value
 from ..publishers.base import Publisher
 from ..publishers.bus import Bus
+from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 from .commands import CommandGate
@@ -56,13 +58,31 @@ class Fanout:
                 self.errors += 1
                 log.exception("publisher %s failed on a clock record", p.name)
 
+    def describe_board(self, record: BoardDescription) -> None:
+        for p in self.publishers:
+            try:
+                p.board_description(record)
+            except Exception:  # (as declare)
+                self.errors += 1
+                log.exception("publisher %s failed on %s's description", p.name, record.board)
+
     def add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
+        def sent(value: Any) -> None:  # (what the actuator refuses raises: not recorded)
+            handler(value)
+            now = time.time_ns()
+            for p in self.publishers:
+                try:
+                    p.command_sent(name, topic, value, now)
+                except Exception:  # (as declare)
+                    self.errors += 1
+                    log.exception("publisher %s failed on a command to %s", p.name, name)
+
         gate = self.gate  # (who may command what: commands.py)
-        self.bus.add_command(name, gate.wrap("bus", True, name, handler))
+        self.bus.add_command(name, gate.wrap("bus", True, name, sent))
         for p in self.publishers:
             try:
                 p.add_command_topic(
-                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, handler)
+                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, sent)
                 )
             except Exception:  # (as declare)
                 self.errors += 1

@@ -429,6 +429,7 @@ class Daemon:
             record_clock=self.fanout.record_clock,
             offer_config=self.fanout.offer_config,
             config_changed=self.fanout.config_changed,
+            describe_board=self.fanout.describe_board,
         )
 
     def _diagnostics(self) -> None:

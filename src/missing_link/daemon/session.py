@@ -64,6 +64,7 @@ from ..descriptors import load_descriptor_file
 from ..errors import BoardError, LinkLost, MissingLinkError
 from ..host.board import Board
 from ..host.link import CallResult
+from ..ros.board_record import BoardDescription
 from ..ros.clock import clock_topic
 from ..timesync.sync import ClockSync
 from ..topics import Topic
@@ -285,6 +286,9 @@ class BoardSession:
             self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
             declared,
         )  # fmt: skip
+        self.ctx.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
+            board.properties, transducers,
+            [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch

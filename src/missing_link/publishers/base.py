@@ -10,6 +10,7 @@ from typing import Any
 
 from ..errors import MissingLinkError
 from ..host.config import ConfigKey, Value
+from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 
@@ -48,6 +49,15 @@ class Publisher:
     def clock_record(self, topic: str, record: ClockRecord) -> None:
         """One clock exchange of a board and the map after it (``ros/clock.py``), a few per
         second per board: recordings keep them on ``topic``.  Default: nothing."""
+
+    def board_description(self, record: BoardDescription) -> None:
+        """A board came up: its function table, properties and descriptors, and its topics
+        (``ros/board_record.py``): recordings keep it for ``replay``.  Default: nothing."""
+
+    def command_sent(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
+        """A face handed the actuator on ``name`` (of ``topic``'s type) a command it took:
+        ``value`` as the face gave it (a value, a list, an ``Update`` or a ``Command``), at host
+        time ``now_ns`` (CLOCK_REALTIME).  Recordings keep it.  Default: nothing."""
 
     def close(self) -> None:
         """Flush and release everything.  Idempotent; must not block for long, whatever
