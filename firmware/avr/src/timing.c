@@ -9,6 +9,8 @@
  * no valid map, past, beyond what the map vouches for, queue full, no such function.  A call
  * the hardware can make on its own at the tick (the trigger: Timer2's compare A, trigger.c)
  * is handed to it; every other one runs from the main loop when due (its latency: the loop's).
+ * A call not yet carried out is dropped, counted, when the host is gone (timing_cancel, from
+ * failsafe.c: a2jGoodbye, or a host silent for the shortest failsafe_ms).
  * a2jAlignInfo: [B map valid][I map age ms][I unaligned samples][I done][I refused].
  */
 #include "timing.h"
@@ -25,8 +27,9 @@ static uint8_t host_map_set;
 static uint64_t map_b0;
 static int64_t map_h0;
 static int32_t map_ppb;
-uint32_t timing_unaligned, timing_done, timing_refused;
+uint32_t timing_unaligned, timing_done, timing_refused, timing_cancelled;
 uint8_t (*timing_hardware)(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n);
+uint8_t (*timing_hardware_held)(uint8_t drop);
 
 static struct {
     uint64_t tick;
@@ -183,6 +186,35 @@ void timing_poll(uint64_t now) {
             timing_done++;
         }
     }
+}
+
+uint8_t timing_pending(void) {
+    uint8_t n = timing_hardware_held ? timing_hardware_held(0) : 0;
+    for (uint8_t i = 0; i < TIMED_QUEUE; i++) n += queue[i].used;
+    return n;
+}
+
+void timing_cancel(const char *why, uint32_t ms) {
+    uint8_t n = timing_hardware_held ? timing_hardware_held(1) : 0;
+    for (uint8_t i = 0; i < TIMED_QUEUE; i++) {
+        n += queue[i].used;
+        queue[i].used = 0;
+    }
+    if (!n) return;
+    timing_cancelled += n;
+    uint8_t text[24];
+    runtime_debug_P(PSTR("timing: "));
+    text[utoa_at(text, 0, n)] = 0;
+    runtime_debug((const char *)text);
+    runtime_debug_P(n == 1 ? PSTR(" timed call dropped (") : PSTR(" timed calls dropped ("));
+    runtime_debug_P(why);
+    if (ms != 0xFFFFFFFFUL) {
+        uint8_t k = say(text, PSTR(" for "));
+        k = utoa_at(text, k, ms);
+        text[k + say(text + k, PSTR(" ms"))] = 0;
+        runtime_debug((const char *)text);
+    }
+    runtime_debug_P(PSTR(");"));
 }
 
 uint8_t timing_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {

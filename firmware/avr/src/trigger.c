@@ -38,6 +38,7 @@
 #include <avr/io.h>
 #include <avr/pgmspace.h>
 #include <string.h>
+#include <util/atomic.h>
 
 #include "drivers.h"
 #include "hal.h"
@@ -135,7 +136,24 @@ ISR(TIMER2_COMPA_vect) {
     aim(from, r);
 }
 
+/* timing_hardware_held (timing.c): a timed pulse taken and not yet begun (waiting to be armed,
+ * or armed and its rising edge not made), dropped when `drop` (the host is gone) */
+static uint8_t held(uint8_t drop) {
+    uint8_t n = 0;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        if (trig_timed && (trig_pending || trig_state == RISING)) {
+            n = 1;
+            if (drop) {
+                trig_pending = 0;
+                if (trig_state == RISING) finish();
+            }
+        }
+    }
+    return n;
+}
+
 void trigger_init(transducer_t *t, uint16_t pulse_us) {
+    timing_hardware_held = held;
     trig_t = t;
     trig_pulse_us = pulse_us;
     PORTB &= (uint8_t)~_BV(TRIG_BIT);

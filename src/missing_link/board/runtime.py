@@ -99,7 +99,7 @@ class BoardRuntime:
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
         self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
-        self.last_frame_us = 0  # when the last frame from the host came (the failsafe's)
+        self.last_frame_us = 0  # when the last intact frame came from the host (the failsafe's)
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -234,10 +234,10 @@ class BoardRuntime:
 
     def poll(self):
         now = self.clock()
-        if self.timing is not None:
-            self.timing.poll(now)  # timed calls first: they are due at a tick
         if self.failsafe is not None:
-            self.failsafe.poll(now)
+            self.failsafe.poll(now)  # first: a silent host's timed calls are dropped, not run
+        if self.timing is not None:
+            self.timing.poll(now)  # then timed calls: they are due at a tick
         for t in self.transducers:
             if t._poll is not None and t.enabled:
                 t._poll(now)
@@ -302,8 +302,9 @@ class BoardRuntime:
         self._last_byte_us = self.clock() if rx_us is None else rx_us
         for ev in self.parser.feed(data):
             tag = ev[0]
-            self.last_frame_us = self._last_byte_us  # the host is there (the failsafe)
             if tag == EV_REQUEST:
+                # an intact frame: the host is there (the failsafe; line noise is not)
+                self.last_frame_us = self._last_byte_us
                 self._dispatch(ev[1], ev[2], ev[3])
             elif ev[1] is not None:
                 if tag == EV_CUT:
