@@ -139,8 +139,10 @@ def _echo(board: Board) -> Callable[[], object]:
 def _held_or_counted(
     rig: AvrSim, late: int, rise: float, fall: float, tick: float, width: int
 ) -> None:
-    """An edge on its tick (within one, 0.5 µs) or counted (trigger_late past ``late``) and late
-    by less than a quarter wrap, never early; the fall ``width`` after the rise, the same way."""
+    """An edge on its tick (within one, 0.5 µs), or counted (trigger_late past ``late``) and
+    late, never early: forced in the interrupt (by about as much as it was late) or armed late by
+    a main loop held up (by the link, a loaded simulator); the fall ``width`` after the rise,
+    or forced a little later (never shorter)."""
     if 0 <= rise - tick <= 0.5 and abs(fall - rise - width) <= 0.5:
         return
     assert _late_pulses(rig, _data_address(rig.elf, "trigger_late")) > late, (
@@ -149,7 +151,7 @@ def _held_or_counted(
         fall - rise,
         width,
     )
-    assert 0 <= rise - tick < 32, (rise - tick, width)
+    assert rise - tick >= 0, (rise - tick, width)
     assert -0.5 <= fall - rise - width < 32, (fall - rise, width)
 
 
@@ -158,33 +160,35 @@ def test_timed_edges_hold_their_tick_or_are_counted_with_host_and_link_loaded(
 ) -> None:
     """Issue 33.2: a compare written after the count had passed its value waited a whole Timer2
     wrap, so an edge whose interrupt came late (held off by the clock's 64-bit sums) landed
-    128 µs late, uncounted.  With the host loaded and echoes keeping the link busy, 100 timed
+    128 µs late, uncounted.  With the host loaded and echoes keeping the link busy, 60 timed
     pulses at random phases: each edge is on its tick or counted, never a wrap off.  144 µs is
     288 ticks, a wrap and the shortest last step (32 ticks) of the old scheme: about one such
-    fall in twelve came a wrap late.  (A pulse refused because the loaded host sent it too late
-    is skipped: that is the board's right answer, not what is tested here.)"""
+    fall in twelve came a wrap late.  (A pulse the board refuses because the loaded host sent it
+    too late, or after its map had expired, is not made: the board's right answer, not what is
+    tested here; another is tried, 200 at most.)"""
     board, b0 = mapped
     late_at = _data_address(rig.elf, "trigger_late")
     fn = board.index["a2j_trigger"]
     rng = random.Random(33)
-    made = 0
-    for _ in range(100):
+    made = tries = 0
+    while made < 60 and tries < 200:
+        tries += 1
         width = rng.choice((144, 144, 144, 144, 20, 300, 1000))
         now = board.clock_exchange(5.0).t3
         h0 = H0 + (now - b0) * 1000
         board.call_ok("a2jHostMap", struct.pack("<Qqi", now, h0, 0))  # (fresh: 10 s of life)
         want = now + 25_000 + rng.randrange(256)
         at = struct.pack("<qB", h0 + (want - now) * 1000, fn) + struct.pack("<H", width)
+        late = _late_pulses(rig, late_at)  # (before: a stalled host may read it after the pulse)
         r = board.call("a2jAt", at, 5.0)
         if r.code != 0:
-            assert r.payload.startswith(b"past by"), r
+            assert r.payload.startswith((b"past by", b"no valid host map")), r
             continue
         tick = int(struct.unpack("<Q", r.payload)[0])
-        late = _late_pulses(rig, late_at)
         rise, fall = _pulse_made(rig, tick, _echo(board))
         _held_or_counted(rig, late, rise, fall, tick, width)
         made += 1
-    assert made >= 75, made
+    assert made == 60, (made, tries)
 
 
 def test_pulses_commanded_now_are_made_and_hold_their_width(rig: AvrSim) -> None:

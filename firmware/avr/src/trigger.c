@@ -54,7 +54,13 @@
 #define COM_CLEAR _BV(COM2A1)
 #define MIN_STEP 64    /* timer ticks (32 µs): the shortest step but a final one */
 #define LEAD 8         /* timer ticks: the least a compare is written ahead of its match */
-#define ARM_US 20000UL /* a timed pulse is armed this long before its tick */
+#ifndef BOARD_BAUD
+#define BOARD_BAUD 115200UL
+#endif
+/* a timed pulse is armed this long before its tick: 20 ms, and twice the time a full TX ring
+ * (256 bytes, hal.c) takes to drain, for which a reply can hold the main loop up (64 ms at
+ * 115200 baud); armed later, it starts late (counted) */
+#define ARM_US (20000UL + 2 * (256UL * 10 * 1000000UL / BOARD_BAUD))
 
 enum { IDLE, RISING, FALLING };
 static transducer_t *trig_t;
@@ -136,12 +142,12 @@ ISR(TIMER2_COMPA_vect) {
     aim(from, r);
 }
 
-/* timing_hardware_held (timing.c): a timed pulse taken and not yet begun (waiting to be armed,
- * or armed and its rising edge not made), dropped when `drop` (the host is gone) */
-static uint8_t held(uint8_t drop) {
+/* timing_hardware_held (timing.c): a timed pulse due after `after`, taken and not yet begun
+ * (waiting to be armed, or armed and its rising edge not made), dropped when `drop` */
+static uint8_t held(uint8_t drop, int64_t after) {
     uint8_t n = 0;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-        if (trig_timed && (trig_pending || trig_state == RISING)) {
+        if (trig_timed && (trig_pending || trig_state == RISING) && (int64_t)trig_tick > after) {
             n = 1;
             if (drop) {
                 trig_pending = 0;

@@ -9,7 +9,9 @@
 // for the simulated world: a JSON string of Python code (setting `result`); each gets one line
 // back, "OK <repr(result)>" or "ERR <message>".  The firmware stepping its own loop, the bytes
 // of the link moved between the socket and the firmware as they come.  "BREAK" is printed when the
-// firmware stops for the REPL (two Ctrl-C between frames); the process then exits 0.
+// firmware stops for the REPL (the break between frames, board/wire.py), "CRASH" when it stops
+// on an exception; the simulated world stays there for control requests (what the firmware left
+// its devices doing) until stdin closes.
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
 import { readFileSync, readdirSync, statSync } from "node:fs";
 import { createServer } from "node:net";
@@ -64,6 +66,7 @@ const ctl = mp.globals.get("_ctl");
 const ident = mp.globals.get("_ident")();
 
 let sock = null;
+let stopped = false; // the firmware gave the REPL back: no more steps
 let pending = null; // the next run(): { immediate } or { timeout }
 function cancel() {
   if (pending === null) return;
@@ -77,12 +80,17 @@ function run() {
   try {
     out = tick();
   } catch (e) {
+    // as a board whose main.py raised: the firmware stops (its actuators made safe by then,
+    // board/firmware.py), the world stays for control requests
     process.stderr.write("firmware crashed: " + String(e) + "\n");
-    process.exit(3);
+    process.stdout.write("CRASH\n");
+    stopped = true;
+    return;
   }
   if (out === "BREAK") {
     process.stdout.write("BREAK\n");
-    process.exit(0);
+    stopped = true;
+    return;
   }
   if (out && sock) sock.write(Buffer.from(out, "hex"));
   schedule(Boolean(out));
@@ -90,7 +98,7 @@ function run() {
 // Step again at once after input or output (more may be queued), else at the drivers' next
 // deadline, at most 5 ms later (the firmware's own receive timeout needs a poll).
 function schedule(now) {
-  if (pending !== null && !now) return;
+  if (stopped || (pending !== null && !now)) return;
   cancel();
   const due = now ? 0 : dueUs();
   const ms = due < 0 ? 5 : Math.min(5, Math.floor(due / 1000));

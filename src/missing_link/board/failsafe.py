@@ -12,15 +12,16 @@
 # or goes limp, as its keys say - which reports it as a sample stamped when it happened; a line
 # goes to a2jDebug.  Only an armed actuator trips: one not commanded since it was last made
 # safe (or since boot) is safe already, and a board that waits for its host does not trip at
-# boot.  A host that means to go says so: a2jGoodbye makes every armed actuator safe at once.
+# boot.  A host that means to go says so: a2jGoodbye makes every armed actuator safe at once;
+# so does the firmware itself before it stops (a break to the REPL, a crash: firmware.py).
 # The daemon keeps a quiet link talking well within the shortest `failsafe_ms`
 # (daemon/failsafe.py), so only a host that is gone trips it.
 #
 # Timed calls (timing.py, a2jAt) are commands not yet carried out: a2jGoodbye drops them all, and
-# so does a host silent for the board's shortest non-zero `failsafe_ms` while any is queued
-# (whether or not an actuator is armed), before any falls due: nothing the host asked for moves
-# after it has gone.  (The same rule on AVR, failsafe.c: it cannot tell which actuator a timed
-# call is for, so none of the runtimes does.)
+# a host silent for the board's shortest non-zero `failsafe_ms` drops those due after that
+# (whether or not an actuator is armed; polled before the timed calls run): nothing the host
+# asked for moves after it has gone.  (The same rule on AVR, failsafe.c: it cannot tell which
+# actuator a timed call is for, so none of the runtimes does.)
 #
 # a2jFailsafe -> [I trips since boot][I ms since the last trip; 0xFFFFFFFF: none]
 
@@ -54,7 +55,7 @@ class Failsafe:
         if timing is not None and timing.pending():
             ms = self._shortest_ms()
             if ms and now - last >= ms * 1000:
-                timing.cancel(silent)
+                timing.cancel(silent, last + ms * 1000)  # (those due after it went)
 
     def _shortest_ms(self):
         # the shortest non-zero failsafe_ms of the board's actuators (0: none has one)
@@ -94,11 +95,16 @@ class Failsafe:
             return
         self.rt.debug("failsafe: %s safe (%s);" % (t.name, why))
 
-    def _goodbye(self, payload):
+    def stop(self, why):
+        # Nothing the board drives goes on: no timed call left (first: none may run meanwhile)
+        # and every armed actuator safe.  a2jGoodbye, and a shell about to stop (firmware.py).
         if self.rt.timing is not None:
-            self.rt.timing.cancel("the host said goodbye")  # (first: none may run meanwhile)
+            self.rt.timing.cancel(why)
         for t in list(self._armed):
-            self._trip(t, "the host said goodbye")
+            self._trip(t, why)
+
+    def _goodbye(self, payload):
+        self.stop("the host said goodbye")
         return 0, b""
 
     def _info(self, payload):

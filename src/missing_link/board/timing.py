@@ -23,7 +23,9 @@
 # * a queued call is a command the host gave and the board has not yet carried out: when the
 #   host is gone it must not be carried out at all.  cancel() drops the whole queue, counted
 #   (`cancelled`) and said in a2jDebug; the failsafe (failsafe.py) calls it on a2jGoodbye, and
-#   when the host has been silent (no intact frame) for the board's shortest failsafe_ms.
+#   when the host has been silent (no intact frame) for the board's shortest failsafe_ms: then
+#   for the calls due after that moment (one due until then, the host still there, runs, if
+#   late).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
 #                 [I timed calls refused]: what the daemon shows per board.
@@ -103,11 +105,13 @@ class Timing:
     def pending(self):
         return len(self._queue)
 
-    def cancel(self, why):
-        # Drop every queued call (the host that asked for them is gone): counted, said once.
-        n = len(self._queue)
+    def cancel(self, why, after=-1):
+        # Drop the queued calls due after board µs `after` (all by default): the host that asked
+        # for them is gone (since `after`).  Counted, said once.
+        keep = [e for e in self._queue if e[0] <= after]
+        n = len(self._queue) - len(keep)
         if n:
-            self._queue = []
+            self._queue = keep
             self.cancelled += n
             self.rt.debug("timing: %d timed call%s dropped (%s);" % (n, "" if n == 1 else "s", why))
         return n
