@@ -10,8 +10,8 @@ callables), never the daemon.  The daemon's own job is the fan-out and what sess
 on:
 
 * every ``Update`` a session makes goes to every publisher (``fanout.py``); a publisher that
-  raises is counted (``publish_errors``) and logged, never allowed to stop the sample path of
-  any board;
+  raises is counted by kind in its status (``errors``, ``error_kinds``; ``publish_errors`` sums
+  them) and logged once per kind, never allowed to stop the sample path of any board;
 * names are claimed daemon-wide (``claims.py``): a board name is held by one session (a second
   board that calls itself ``robot`` publishes as ``robot_2``, with a warning), and a message type
   name by one definition (a second board whose ``temp`` differs gets ``<Board>Temp``), so no
@@ -46,6 +46,7 @@ from ..host.board import Board
 from ..host.config import Value, describe_keys
 from ..host.link import CallResult
 from ..host.reactor import Reactor
+from ..logs import ErrorCounts
 from ..logs import counts as log_counts
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
@@ -91,11 +92,11 @@ class Daemon:
                 if name != "bus":
                     try:
                         self.publishers.append(make_publisher(name, self._options(name)))
-                    except (MissingLinkError, ConfigError):
+                    except MissingLinkError:  # (ConfigError too) already says what is wrong
                         raise
-                    except Exception as e:  # zenoh.ZError, a taken port, ...: one line
+                    except Exception as e:  # zenoh.ZError, a taken port, ...: raised, one line
                         raise PublisherError(f"publisher {name} cannot start: {e}") from e
-        except BaseException:
+        except BaseException:  # (broad, raised again: whatever stops the start, none is left)
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
             raise
@@ -125,7 +126,8 @@ class Daemon:
 
     @property
     def publish_errors(self) -> int:
-        """Calls into a publisher that raised (counted and logged by the fan-out)."""
+        """Calls into a publisher that raised (the fan-out's count; each publisher's status
+        has its own by kind)."""
         return self.fanout.errors
 
     def _options(self, name: str) -> dict[str, Any]:
@@ -207,8 +209,8 @@ class Daemon:
         for p in self.publishers:
             try:
                 p.close()
-            except Exception:
-                log.exception("closing publisher %s failed", p.name)
+            except Exception as e:  # noqa: BLE001 - one face that fails to close must not keep
+                p.faults.caught("close", e)  # the others open: counted, its traceback said
 
     def __enter__(self) -> Daemon:
         return self.start()
@@ -394,18 +396,35 @@ class Daemon:
                 st = p.status()
                 if p.takes_commands is not None:
                     st["commands_refused"] = self.commands.refused.get(p.name, 0)
+                if "errors" not in st:  # (a publisher of an application's, not on the base's)
+                    st.update(p.faults.to_json())
                 out.append(st)
-            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others
-                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}"})
+            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others:
+                p.faults.caught("status", e)  # shown as ERROR, counted, its traceback said once
+                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}",
+                            **p.faults.to_json()})  # fmt: skip
         paths = {k: v for k, v in self.commands.refused.items() if k in ("api", "control")}
         if self.control is not None or paths:  # commands refused on no face: still shown
             extra = self.control.status() if self.control is not None else {}
-            out.append({"publisher": "control", "level": 0, "message": "ok", **extra,
+            bugs = extra.get("errors", 0)
+            out.append({"publisher": "control", "level": 1 if bugs else 0,
+                        "message": "errors caught" if bugs else "ok", **extra,
                         "commands_refused": sum(paths.values())})  # fmt: skip
+        for part, faults in self._own_faults():
+            if faults.total:  # (the daemon's own threads: shown once they caught something)
+                out.append({"publisher": part, "level": 1, "message": "errors caught",
+                            **faults.to_json()})  # fmt: skip
         held = log_counts()
         if held["lines_held_back"] or held["tracebacks_folded"]:
             out.append({"publisher": "log", "level": 0, "message": "ok", **held})
         return out
+
+    def _own_faults(self) -> list[tuple[str, ErrorCounts]]:
+        """What the daemon's own threads caught: the I/O loop's, discovery's."""
+        own = [("reactor", self.reactor.faults)]
+        if self.discovery is not None:
+            own.append(("discovery", self.discovery.faults))
+        return own
 
     def failures(self) -> list[str]:
         """One line per publisher that failed for good (a recording that stopped writing)."""

@@ -197,15 +197,19 @@ class McapPublisher(RosPublisher):
                     if item:
                         self._handle(item)
                     self._maybe_close_chunk()
-                except Exception as e:  # noqa: BLE001 - any write failure is loud and counted
-                    self._fail(_describe(e, self.base))
-                    self._abandon_bag()
+                except Exception as e:  # noqa: BLE001 - any write failure is loud (ERROR) and
+                    self._failed(e, "write", _describe(e, self.base))  # counted; it goes on
         finally:
             try:
                 self._close_bag()
-            except Exception as e:  # noqa: BLE001
-                self._fail(f"closing the bag failed: {_describe(e, self.base)}")
-                self._abandon_bag()
+            except Exception as e:  # noqa: BLE001 - (as a write's)
+                self._failed(e, "close", f"closing the bag failed: {_describe(e, self.base)}")
+
+    def _failed(self, e: Exception, where: str, text: str) -> None:
+        if not isinstance(e, OSError):  # not the disk: a bug, counted by kind, traceback said
+            self.faults.caught(where, e)
+        self._fail(text)
+        self._abandon_bag()
 
     def _wait(self) -> float:
         if self._chunk_since is None:
@@ -245,8 +249,8 @@ class McapPublisher(RosPublisher):
         if writer is not None:
             try:
                 writer.abort()  # (closes the file; what its buffer still held may fail too)
-            except Exception as e:  # noqa: BLE001 - the count below says what is there
-                log.debug("mcap: closing the failed bag: %s", e)
+            except Exception as e:  # noqa: BLE001 - it failed already (said); the count below
+                log.debug("mcap: closing the failed bag: %s", e)  # says what is in it
         if not self._bag_messages or not self.bags:
             return
         try:

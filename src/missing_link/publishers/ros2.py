@@ -122,7 +122,7 @@ class Ros2Publisher(RosPublisher):
             self.node = rclpy.create_node(
                 str(opts.get("node", "missing_link")), context=self.context
             )
-        except Exception:
+        except Exception:  # (broad, raised again: the context must not outlive a failed start)
             rclpy.shutdown(context=self.context)
             raise
         self.params = RosParameters(self.node)  # boards' run-time configuration
@@ -143,10 +143,10 @@ class Ros2Publisher(RosPublisher):
     def _spin_executor(self) -> None:
         try:
             self.executor.spin()
-        except Exception as e:
-            if not self._closed:
+        except Exception as e:  # noqa: BLE001 - the executor's thread ends: ERROR in the status
+            if not self._closed:  # (and counted, said); while closing it is how spin ends
                 self.error = f"executor stopped: {e}"
-                log.exception("ros2 executor failed")
+                self.faults.caught("executor", e)
 
     # ---- types -------------------------------------------------------------------------------
     def _msg_class(self, type_name: str) -> Any | None:
@@ -238,11 +238,17 @@ class Ros2Publisher(RosPublisher):
         pub = self._pubs.get(update.topic.name)
         if pub is None or self._closed:
             return
+        # encoded out here: an encoder that raises is a bug, counted by kind by the fan-out
+        # (faults), never a drop
+        cdr = update.cdr
         try:
-            pub.publish(update.cdr)
-            self.published += 1
-        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): counted
+            pub.publish(cdr)
+        except TypeError:  # (what we handed it: a bug, for the fan-out to count)
+            raise
+        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): a drop, counted
             self.dropped += 1
+            return
+        self.published += 1
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         try:

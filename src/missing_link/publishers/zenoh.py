@@ -101,7 +101,7 @@ class ZenohPublisher(RosPublisher):
         self.node = str(opts.get("node", "missing_link"))
         mode = str(opts.get("mode", "peer"))
         if mode not in ("peer", "client"):
-            raise ValueError(f"zenoh.mode must be peer or client, not {mode!r}")
+            raise ConfigError(f"[zenoh] mode must be peer or client, not {mode!r}")
         connect = list(opts.get("connect", DEFAULT_CONNECT))
         listen = list(opts.get("listen", DEFAULT_LISTEN))
         check_endpoints("[zenoh] connect", connect)
@@ -222,9 +222,15 @@ class ZenohPublisher(RosPublisher):
         ent = self._entities.get(update.topic.name)
         if ent is None or self._closed:
             return
+        # ours out here: an encoder that raises is a bug, counted by kind by the fan-out
+        # (faults), never a drop
+        cdr = update.cdr
         ent.seq += 1
+        att = attachment(ent.seq, update.stamp_ns, ent.gid)
         try:
-            ent.pub.put(update.cdr, attachment=attachment(ent.seq, update.stamp_ns, ent.gid))
+            ent.pub.put(cdr, attachment=att)
+        except TypeError:  # (what we handed it: a bug, for the fan-out to count)
+            raise
         except Exception:  # noqa: BLE001 - a put zenoh refuses is a dropped message, counted
             self.dropped += 1
             return

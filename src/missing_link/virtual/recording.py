@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..descriptors import Transducer, parse_transds
-from ..errors import DescriptorError
+from ..errors import DescriptorError, MissingLinkError
 from ..publishers.recover import MCAP_MAGIC, complete_messages
 from ..ros.board_record import (
     CONFIG_TYPE,
@@ -43,7 +43,7 @@ from ..ros.msgs import CdrEncoder
 log = logging.getLogger(__name__)
 
 
-class RecordingError(ValueError):
+class RecordingError(MissingLinkError, ValueError):
     """A recording that cannot be replayed (the user's input): one line says why."""
 
 
