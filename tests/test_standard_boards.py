@@ -205,3 +205,24 @@ def _effort(u: Update, name: str) -> float | None:
 
 def _position(u: Update, name: str) -> float | None:
     return _field(u, name, "position")
+
+
+def test_a_joint_command_stamped_in_the_future_is_a_timed_one(robot: Daemon) -> None:
+    """Float64 has no header; a JointState command does: a future stamp is when to act."""
+    from types import SimpleNamespace
+
+    got = listen(robot, "/rig/servo/joint_states")
+    robot.bus.send("/rig/servo/command", 0.0)
+    assert wait_for(lambda: got and msg(got[-1]).position[0] == 0.0, 5)
+    got.clear()
+    at = time.time_ns() + 500_000_000
+    stamp = SimpleNamespace(sec=at // 10**9, nanosec=at % 10**9)
+    robot.bus.send(
+        "/joint_commands",
+        SimpleNamespace(header=SimpleNamespace(stamp=stamp), name=["pan"], position=[0.25]),
+    )
+    assert wait_for(lambda: got and msg(got[-1]).position[0] != 0.0, 5)
+    moved = next(u for u in got if msg(u).position[0] != 0.0)
+    # not before the asked host time (an untimed command would act 500 ms early): within the
+    # clock map's bound and the wasm port's clock, which counts whole milliseconds
+    assert moved.host_ns[0] >= at - moved.bound_ns - 1_000_000, (moved.host_ns[0] - at) / 1e6
