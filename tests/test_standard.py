@@ -301,3 +301,27 @@ def test_frame_id_from_the_host_the_descriptor_or_the_name_and_changeable() -> N
 
 def test_standard_types_off_per_transducer() -> None:
     assert maps(of_driver("vl53l0x"), options=StdOptions(standard=False)) == []
+
+
+@pytest.mark.parametrize("frame", ["", "a", "abc", "rig/imu"])
+@pytest.mark.parametrize("names", [[], ["x"], ["ab", "rover/wheel_l"]])
+def test_the_packed_joint_state_is_byte_for_byte_rosbags(frame: str, names: list[str]) -> None:
+    import numpy as np
+
+    from missing_link.ros.standard.joints import joint_state_cdr
+
+    T = STORE.types
+    n = len(names)
+    cases: list[Any] = [(None, None, None), ([1.5] * n, None, [-0.25] * n), ([0.0] * n,) * 3]
+    for fields in cases:
+        arrays = [np.array(f if f is not None else [], dtype=np.float64) for f in fields]
+        stamp = T["builtin_interfaces/msg/Time"](sec=1_700_000_001, nanosec=123)
+        msg = T["sensor_msgs/msg/JointState"](
+            header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame),
+            name=names,
+            position=arrays[0],
+            velocity=arrays[1],
+            effort=arrays[2],
+        )
+        want = bytes(STORE.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+        assert joint_state_cdr(1_700_000_001_000_000_123, frame, names, fields) == want

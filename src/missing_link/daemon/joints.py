@@ -49,6 +49,7 @@ from ..descriptors import Transducer
 from ..host.config import Value
 from ..publishers.base import Publisher
 from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
+from ..ros.standard.joints import joint_state_cdr
 from ..topics import Command, Topic, Update
 from .ros_config import JointsConfig, JointSpec
 
@@ -267,26 +268,14 @@ class Joints(Publisher):
             positions = [self.router.joint(k)[0] for k in range(len(self.router.names))]
         if not touched:
             return
-        cdr = self._message(stamp, [self.router.names[k] for k in touched], fields)
+        names = [self.router.names[k] for k in touched]
+        columns = tuple(list(col) for col in zip(*fields, strict=True))
+        cdr = joint_state_cdr(stamp, "", names, (columns[0], columns[1], columns[2]))
         n = len(positions)
         self._emit(Update(self.state_topic, [0] * n, [stamp] * n, positions, 0, 0,
                           update.recv_ns, cdr, stamp, update.bound_ns, update.est_error_ns,
                           update.clock_flags))  # fmt: skip
         self.published += 1
-
-    def _message(
-        self, ns: int, names: list[str], fields: list[tuple[float, float, float]]
-    ) -> bytes:
-        import numpy as np
-
-        T = self.typestore.types
-        sec, nsec = divmod(ns, 1_000_000_000)
-        header = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""
-        )
-        pos, vel, eff = (np.array(col, dtype=np.float64) for col in zip(*fields, strict=True))
-        msg = T[JOINT_STATE](header=header, name=names, position=pos, velocity=vel, effort=eff)
-        return bytes(self.typestore.serialize_cdr(msg, JOINT_STATE))
 
     # ---- commands in (a face's thread) ---------------------------------------------------------
     def on_command(self, msg: Any) -> None:

@@ -21,6 +21,7 @@ A field no joint of the message measures is empty; one that a joint lacks this t
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -36,11 +37,44 @@ Fields = tuple[list[float] | None, list[float] | None, list[float] | None]
 
 
 def joint_state(c: Ctx, ns: int, names: list[str], fields: Fields) -> bytes:
-    import numpy as np
+    return joint_state_cdr(ns, c.frame.value, names, fields)
 
-    pos, vel, eff = (np.array(f if f is not None else [], dtype=np.float64) for f in fields)
-    msg = c.T(JOINT_STATE)(header=c.header(ns), name=names, position=pos, velocity=vel, effort=eff)
-    return c.cdr(msg, JOINT_STATE)
+
+def joint_state_cdr(ns: int, frame_id: str, names: list[str], fields: Fields) -> bytes:
+    """A JointState in CDR, packed directly (an encoder's sample path runs at up to a kHz:
+    message objects cost ten times more); byte for byte what rosbags makes (the tests say so).
+    Offsets align relative to the data after the 4-byte encapsulation header."""
+    out = bytearray(b"\x00\x01\x00\x00")  # CDR, little endian
+    sec, nsec = divmod(ns, 1_000_000_000)
+    out += _TIME.pack(sec, nsec)
+    _string(out, frame_id)
+    _align(out, 4)
+    out += _U32.pack(len(names))
+    for name in names:
+        _string(out, name)
+    for values in fields:
+        vals = values or []
+        _align(out, 4)
+        out += _U32.pack(len(vals))
+        if vals:
+            _align(out, 8)
+            out += struct.pack(f"<{len(vals)}d", *vals)
+    return bytes(out)
+
+
+_TIME, _U32 = struct.Struct("<iI"), struct.Struct("<I")
+
+
+def _align(out: bytearray, n: int) -> None:
+    out += bytes((4 - len(out)) % n)
+
+
+def _string(out: bytearray, text: str) -> None:
+    data = text.encode()
+    _align(out, 4)
+    out += _U32.pack(len(data) + 1)
+    out += data
+    out += b"\0"
 
 
 def counts_per_rev(c: Ctx) -> float:
