@@ -20,8 +20,9 @@ Per SIF:
    An aligned transducer's time is held against its host-time grid (``grid``, set by the
    session from the configuration: alignment.py): one further from its instant than its bound
    allows is flagged ``OFF_GRID`` and counted (``off_grid_samples``);
-4. one ``Update`` to every publisher, and per channel one on the standard-type topic when the
-   transducer has one (``standard.py``).
+4. one ``Update`` to every publisher (unless the transducer's thesis-format topic is off:
+   ``quiet``), and on each of its standard-type topics (``ros/standard``) one per sample or
+   one per channel with a value, as the type is made.
 
 The session owns the supervision (connect, serve, reconnect) and sets ``topics``,
 ``standard`` and ``sync`` at each handshake; this class owns what happens to each sample.  It
@@ -59,7 +60,9 @@ class SamplePath:
         self.sync: ClockSync | None = None  #: the board's clock sync (None: none, receive times)
         self.board: Board | None = None  #: the board of the current connection
         self.topics: dict[int, Topic] = {}  # transducer id -> topic
-        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        #: transducer id -> its standard-type topics (``ros/standard``)
+        self.standard: dict[int, list[tuple[Topic, StandardMapping]]] = {}
+        self.quiet: set[int] = set()  #: transducers whose thesis-format topic is off
         self.samples = 0
         self.unknown_sifs = 0
         self.bad_sifs = 0
@@ -203,35 +206,49 @@ class SamplePath:
             flags,
         )
         self.samples += len(values) - missing
-        self.publish(update)
-        std = self.standard.get(cmd)
-        if std is not None and std[1].sample is not None:
-            self._publish_sample_type(std, board_us, host_ns, values, seq, recv_ns, update)
-        elif std is not None:
-            std_topic, mapping = std
-            for ch, v in enumerate(values):
-                if v is not None:
-                    try:
-                        cdr = mapping.build(ch, host_ns[ch], v)
-                    except (ValueError, OverflowError, struct.error):
-                        self.bad_sifs += 1  # a value the standard type cannot carry
-                        continue
-                    self.publish(
-                        Update(
-                            std_topic,
-                            [board_us[ch]],
-                            [host_ns[ch]],
-                            [v],
-                            seq,
-                            0,
-                            recv_ns,
-                            cdr,
-                            None,
-                            bound,
-                            est_error,
-                            flags,
-                        )
+        if cmd not in self.quiet:
+            self.publish(update)
+        for std in self.standard.get(cmd, ()):
+            if std[1].sample is not None:
+                self._publish_sample_type(std, board_us, host_ns, values, seq, recv_ns, update)
+            else:
+                self._publish_per_channel(std, board_us, host_ns, values, seq, recv_ns, update)
+
+    def _publish_per_channel(
+        self,
+        std: tuple[Topic, StandardMapping],
+        board_us: list[int],
+        host_ns: list[int],
+        values: list[Any],
+        seq: int,
+        recv_ns: int,
+        update: Update,
+    ) -> None:
+        """A standard type made per channel (Range, Bool): one message per channel with a value."""
+        std_topic, mapping = std
+        for ch, v in enumerate(values):
+            if v is not None:
+                try:
+                    cdr = mapping.build(ch, host_ns[ch], v)
+                except (ValueError, OverflowError, struct.error):
+                    self.bad_sifs += 1  # a value the standard type cannot carry
+                    continue
+                self.publish(
+                    Update(
+                        std_topic,
+                        [board_us[ch]],
+                        [host_ns[ch]],
+                        [v],
+                        seq,
+                        0,
+                        recv_ns,
+                        cdr,
+                        None,
+                        update.bound_ns,
+                        update.est_error_ns,
+                        update.clock_flags,
                     )
+                )
 
     def _publish_sample_type(
         self,
@@ -243,7 +260,8 @@ class SamplePath:
         recv_ns: int,
         update: Update,
     ) -> None:
-        """A standard type made from every channel at once (NavSatFix, MagneticField)."""
+        """A standard type made from every channel at once (Imu, JointState, NavSatFix, ...);
+        a builder that has nothing to say this time (a TimeReference off a PPS edge) says None."""
         std_topic, mapping = std
         assert mapping.sample is not None
         if not any(host_ns):
@@ -252,6 +270,8 @@ class SamplePath:
             cdr = mapping.sample(host_ns, values)
         except (ValueError, OverflowError, struct.error, TypeError):
             self.bad_sifs += 1  # values the standard type cannot carry
+            return
+        if cdr is None:
             return
         self.publish(
             Update(

@@ -61,6 +61,7 @@ from .context import SessionContext
 from .control import ControlServer, call_timeout
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .fanout import Fanout
+from .joints import Joints
 from .session import UP, BoardSession
 from .status import SessionStatus
 
@@ -109,6 +110,11 @@ class Daemon:
         self.typestore = typestore_for(config.distro)
         self.claims = Claims(config.package)
         self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
+        self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
+        if config.joints is not None and config.joints.joints:
+            self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
+                                 self.bus.send, self._actuator)  # fmt: skip
+            self.publishers.append(self.joints)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
         self._stop = threading.Event()
@@ -142,6 +148,8 @@ class Daemon:
         if self._started:
             return self
         self._started = True
+        if self.joints is not None:
+            self.joints.start(self.fanout.declare, self.fanout.add_command)
         self.reactor.start()
         for s in self.sessions:
             s.start()
@@ -323,6 +331,24 @@ class Daemon:
         topic = s.command_topic(called_function(function, payload, b.functions))
         if topic is not None:
             self.commands.check(by, topic)
+
+    def set_frame_id(self, board: str, transducer: str, frame_id: str) -> None:
+        """The ``frame_id`` of a transducer's standard messages from now on (ValueError for a
+        bad one, KeyError for a transducer the board has not described); every face follows
+        (the ``ros2`` face's parameter ``<board>.<transducer>.frame_id`` too)."""
+        frame = self.session(board).frames.get(transducer)
+        if frame is None:
+            raise KeyError(f"{board} has no transducer {transducer!r} with standard types")
+        frame.set(frame_id)
+
+    def _actuator(self, board: str, name: str) -> tuple[Any, Mapping[str, Value]] | None:
+        """An actuator of a board that is up, and its board's configuration (joints.py)."""
+        for s in self.sessions:
+            if s.name == board and s.state == UP:
+                for topic in s.topics.values():
+                    if topic.transducer.name == name and topic.transducer.is_actuator:
+                        return topic.transducer, s.settings.values
+        return None
 
     def board_config(self, board: str) -> dict[str, Value]:
         """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""

@@ -70,6 +70,7 @@ from ..host.link import CallResult
 from ..logs import ErrorCounts
 from ..ros.board_record import BoardDescription
 from ..ros.clock import clock_topic
+from ..ros.standard import FrameIds
 from ..timesync.sync import ClockSync
 from ..topics import Topic
 from ..transport import open_transport
@@ -139,6 +140,8 @@ class BoardSession:
         self._wake = threading.Event()
         self.actuators = Actuators(self._wake.set, self._set_error)
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
+        self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
+        self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
         self.settings = BoardSettings(
             SettingsContext(
                 name=lambda: self.name,
@@ -289,10 +292,11 @@ class BoardSession:
         self.path.sync = self.clock.sync
         declared = BoardTopics()  # (filled as declared: _disconnect withdraws what there is)
         self.path.topics, self.path.standard = declared.topics, declared.standard
-        self._actuator_calls = declared.calls
+        self.path.quiet = declared.quiet
+        self._actuator_calls, self._command_topics = declared.calls, declared.commands
         declare_topics(
             self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
-            declared,
+            declared, self.frames, lambda: self.settings.values,
         )  # fmt: skip
         self.ctx.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
             board.properties, transducers,
@@ -429,8 +433,8 @@ class BoardSession:
 
     def _disconnect(self) -> None:
         try:
-            for topic in self.topics.values():
-                self.ctx.remove_command(f"{topic.name}/cmd")
+            for name in self._command_topics:
+                self.ctx.remove_command(name)
         finally:
             board, self.board = self.board, None
             if board is not None:

@@ -33,7 +33,9 @@ class Publisher:
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
         """An actuator listens on ``name`` (messages of ``topic``'s type); publishers that reach
-        other processes subscribe there and call ``deliver(values)``.  Default: nothing."""
+        other processes subscribe there and call ``deliver(values)``: a thesis-format message
+        as a ``Command``, a standard type (``topic.standard``: ``std_msgs/msg/Float64``,
+        ``sensor_msgs/msg/JointState``) as the decoded message.  Default: nothing."""
 
     def publish(self, update: Update) -> None:
         raise NotImplementedError
