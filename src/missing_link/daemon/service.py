@@ -41,9 +41,9 @@ from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import load_descriptor_file
-from ..errors import BadURL, BoardError, ConfigError, MissingLinkError, without_prefix
+from ..errors import BadURL, BoardError, MissingLinkError, without_prefix
 from ..host.board import Board
-from ..host.config import Value, describe_keys
+from ..host.config import Value
 from ..host.link import CallResult
 from ..host.reactor import Reactor
 from ..logs import ErrorCounts
@@ -59,6 +59,7 @@ from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
 from .context import SessionContext
 from .control import ControlServer, call_timeout
+from .control_ops import control_handlers
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .fanout import Fanout
 from .joints import Joints
@@ -158,7 +159,9 @@ class Daemon:
             self.discovery.start()
         if self.config.control:
             try:
-                self.control = ControlServer(self.config.control, self.control_handlers())
+                self.control = ControlServer(
+                    self.config.control, control_handlers(self.session, self._up, self.call)
+                )
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
                             "only by another endpoint ([daemon] control)", e)  # fmt: skip
@@ -363,40 +366,6 @@ class Daemon:
 
     def reset_config(self, board: str, erase_saved: bool = False) -> dict[str, Value]:
         return self._up(board)[0].settings.reset(erase_saved)
-
-    def control_handlers(self) -> dict[str, Any]:
-        """What the control endpoint (control.py) serves: board name or URL in, JSON out."""
-
-        def find(r: dict[str, Any]) -> dict[str, Any]:
-            s = self.session(str(r["board"]))
-            return {"name": s.name, "url": s.spec.url, "state": s.state}
-
-        def info(r: dict[str, Any]) -> dict[str, Any]:
-            b = self._up(str(r["board"]))[1]
-            return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
-
-        def call(r: dict[str, Any]) -> dict[str, Any]:
-            payload = bytes.fromhex(str(r.get("payload", "")))
-            got = self.call(
-                str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control"
-            )
-            return {"code": got.code, "payload": got.payload.hex()}
-
-        def config(r: dict[str, Any]) -> dict[str, Any]:
-            s, b = self._up(str(r["board"]))
-            settings = s.settings
-            if r.get("reset"):
-                settings.reset(bool(r.get("erase")), by="control")
-            if r.get("set") or r.get("save"):
-                wanted = r.get("set") or {}
-                if not isinstance(wanted, dict):
-                    raise ConfigError("config: set must be an object of key: value")
-                settings.configure(wanted, bool(r.get("save")), by="control")
-            values = settings.read()
-            keys = describe_keys(b.settings.keys(), values)
-            return {"values": values, "keys": keys, "state": b.settings.state}
-
-        return {"find": find, "info": info, "call": call, "config": config}
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
