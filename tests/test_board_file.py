@@ -259,6 +259,9 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
     _one_line_exit_2(
         ml("board", "--file", wifi, "--flash", str(tmp_path), *listen), str(tmp_path / "mlkey.bin")
     )
+    assert ml("key", "new", str(tmp_path / "mlkey.bin")).returncode == 0
+    pty = ("--listen", "pty")
+    _one_line_exit_2(ml("board", "--file", wifi, "--flash", str(tmp_path), *pty), "signed", "pty")
     a_file = tmp_path / "a-file"
     a_file.write_text("")
     _one_line_exit_2(

@@ -120,6 +120,8 @@ def _board_file(args: argparse.Namespace) -> int:
             f"{args.file}: its link is signed (key_file {key}): the key goes in the board's "
             f"flash: missing-link key new {where}"
         )
+    if key and args.listen in ("pty", "pty://"):
+        raise ConfigError(f"{args.file}: its link is signed: serve it on tcp (or unix), not a pty")
     with tempfile.TemporaryDirectory(prefix="ml-flash-") as scratch:
         return _serve_board_file(args, board, bf.path, flash or Path(scratch), absent)
 
