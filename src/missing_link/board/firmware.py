@@ -24,7 +24,9 @@
 # first brings every armed actuator to its safe state and drops the timed calls (failsafe.stop),
 # so nothing it drove goes on without it.
 # Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
-# ms, a timed call wants its µs.
+# ms, a timed call wants its µs.  A turn ends at the loop's idle point, where the firmware
+# collects garbage itself when there is room before the next instant it must be on time for
+# (memory.py; MicroPython only: CPython has no heap to keep).
 
 import struct
 
@@ -32,6 +34,7 @@ from .clock import resolution_us
 from .config import RuntimeConfig
 from .drivers import driver_class
 from .failsafe import Failsafe
+from .memory import Memory
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
 from .timing import Timing
@@ -130,7 +133,17 @@ def build(board, machine, clock=None, store=None):
     rt.timing = Timing(rt)  # aligned sampling, timed calls (before the configuration's keys)
     rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone (ditto)
     rt.config = RuntimeConfig(rt, store)
+    heap = _heap()
+    if heap is not None:
+        rt.memory = Memory(rt, heap)  # (last: its first collection takes what the build left)
     return rt, drivers
+
+
+def _heap():
+    # MicroPython's gc (a heap to keep: memory.py), None on CPython
+    import gc
+
+    return gc if hasattr(gc, "mem_free") else None
 
 
 class Firmware:
@@ -160,6 +173,8 @@ class Firmware:
         out = rt.take_output()
         if out:
             self.link.write(out)
+        if rt.memory is not None:
+            rt.memory.poll(rt.clock())
 
     def _link_stats(self, payload):
         # [I records][I bad tags][I replayed][I junk bytes] (signing.py)

@@ -105,6 +105,7 @@ class BoardRuntime:
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
         self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
+        self.memory = None  # the heap's figures and garbage collection (memory.py: a2jMemory)
         self.last_frame_us = 0  # when the last intact frame came from the host (the failsafe's)
         self.sifs_dropped = 0
         self.sifs_sent = 0

@@ -26,6 +26,9 @@
 #   when the host has been silent (no intact frame) for the board's shortest failsafe_ms: then
 #   for the calls due after that moment (one due until then, the host still there, runs, if
 #   late).
+# * next_instant(now): the soonest board tick the board must be on time for (a timed call, or an
+#   aligned transducer's next grid instant; its measurement if that is due already), so that
+#   the firmware can keep its own pauses off it (a garbage collection: memory.py).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
 #                 [I timed calls refused]: what the daemon shows per board.
@@ -70,6 +73,25 @@ class Timing:
         h = self.host_at(now)
         k = (h - offset) // p + 1
         return self.rt.board_time_at(k * p + offset)
+
+    def next_instant(self, now):
+        # The soonest tick the board must be on time for (None: none): a timed call, or an
+        # aligned measurement (a driver that samples on the grid: its next instant after `now`,
+        # or the one it has not measured yet).
+        due = self.next_precise_us()
+        if not self.map_valid(now):
+            return due
+        for t in self.rt.transducers:
+            drv = t.driver
+            if not t.enabled or not getattr(drv, "aligned", False):
+                continue
+            at = self.next_grid(drv.period_us, drv.phase, now)
+            pending = drv.next_due_us()
+            if pending is not None and (at is None or pending < at):
+                at = pending
+            if at is not None and (due is None or at < due):
+                due = at
+        return due
 
     # ---- timed calls ----------------------------------------------------------------------------
     def _at(self, payload):

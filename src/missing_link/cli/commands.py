@@ -237,6 +237,9 @@ def _gen_firmware(sp: Parser) -> None:
     sp.add_argument("boardfile", help="board file with mcu = atmega328p, atmega2560 or atmega32u4")
     sp.add_argument("--target", choices=["avr"], default="avr", help="firmware target (avr)")
     sp.add_argument("--out", required=True, help="directory for board_gen.c and board.mk")
+    sp.add_argument(
+        "--no-fit-check", action="store_true", help="do not build it to check that it fits the MCU"
+    )
 
 
 def _board(sp: Parser) -> None:

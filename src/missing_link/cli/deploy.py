@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..deploy.boardfile import BoardFile
 
 
 def cmd_flash(args: argparse.Namespace) -> int:
@@ -40,6 +44,31 @@ def cmd_gen_firmware(args: argparse.Namespace) -> int:
     from ..deploy.boardfile import load_board_file
 
     bf = load_board_file(args.boardfile)
+    if not args.no_fit_check:
+        _check_fit(bf)
     for path in write_avr(bf, Path(args.out)):
         print(f"wrote {path}")
     return 0
+
+
+def _check_fit(bf: BoardFile) -> None:
+    """Build it in a scratch directory: a board file that cannot fit the MCU is refused (exit 2,
+    the numbers), after what the tables alone say is wrong with it (write_avr's own errors)."""
+    import shutil
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from ..deploy.avr import fit
+    from ..deploy.avrgen import write_avr
+
+    with tempfile.TemporaryDirectory(prefix="missing-link-gen-") as tmp:
+        write_avr(bf, Path(tmp))
+    if shutil.which("avr-gcc") is None:
+        print(
+            "missing-link: warning: cannot check that it fits the MCU: no avr-gcc (run "
+            "scripts/system-deps.sh; --no-fit-check skips the check)",
+            file=sys.stderr,
+        )
+        return
+    print(fit(bf).line())

@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # (what only listen and sync use is imported there: a call lo
 def cmd_info(args: argparse.Namespace) -> int:
     with reach(args.url, args.timeout) as board:
         if args.json:
-            emit_json(board.describe())
+            emit_json({**board.describe(), **_memory(board)})
             return 0
         kind = (
             "original (Part 1) board"
@@ -52,6 +52,19 @@ def cmd_info(args: argparse.Namespace) -> int:
             if t.unknown:
                 print(f"       unknown keys (ignored): {', '.join(t.unknown)}")
     return 0
+
+
+def _memory(board: Board | RemoteBoard) -> dict[str, Any]:
+    """{"memory": the board's own figures (a2jMemory, daemon/memory.py)} when it has them."""
+    from ..daemon.memory import FUNCTION, parse_memory
+
+    if FUNCTION not in board.functions:
+        return {}
+    result = board.call(FUNCTION, b"", timeout=None)
+    if result.code != 0:
+        return {"memory": f"{FUNCTION} returned {result.code:#04x}"}
+    figures = parse_memory(result.payload)
+    return {"memory": figures.problem or figures.to_json()}
 
 
 #: return values that mean success for built-ins whose OK is not 0 (spec 1.6)

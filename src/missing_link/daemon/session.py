@@ -84,6 +84,7 @@ from .context import SessionContext
 from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
 from .inflight import InFlight
 from .liveness import LinkWatch
+from .memory import MemoryInfo
 from .prober import ClockProber
 from .sample_path import SamplePath
 from .session_clock import ClockContext, SessionClock
@@ -129,7 +130,7 @@ class BoardSession:
                 probe_gap=ctx.probe_gap,
                 record_clock=ctx.record_clock,
                 on_error=self._probe_failed,
-                on_rtt=self._set_rtt,
+                on_rtt=lambda us: setattr(self, "rtt_us", us),
                 wants_map=lambda: bool(self.path.grid),
             )
         )
@@ -153,6 +154,7 @@ class BoardSession:
         )
         self.alignment = Alignment()
         self.failsafe = FailsafeInfo()
+        self.memory = MemoryInfo()  # the board's heap or stack (memory.py)
         self.keepalive = Keepalive()
         self._echo = InFlight("a2jEcho", self._echoed, self._call_failed)
         self._resets_seen = 0
@@ -362,6 +364,7 @@ class BoardSession:
                     if self.path.grid:  # the board's own account of its grid (alignment.py)
                         self.alignment.refresh(board, limit)
                     self.failsafe.refresh(board, self.settings.values, limit)
+                    self.memory.refresh(board, limit)
                 if self.prober is not None:
                     if turn.heartbeat:
                         self.prober.probe_now()  # answered (or timed out) on the reading thread
@@ -428,9 +431,6 @@ class BoardSession:
         if self.board is board:  # (a late reply of an earlier link says nothing now)
             self.error = text
 
-    def _set_rtt(self, us: float) -> None:
-        self.rtt_us = us
-
     def _disconnect(self) -> None:
         try:
             for name in self._command_topics:
@@ -467,7 +467,6 @@ class BoardSession:
         """The session's status now, typed; counters are cumulative over every connection."""
         b = self.board
         level, message = self.level()
-        sync = self.sync
         return SessionStatus(
             board=self.name,
             url=self.spec.url,
@@ -492,7 +491,8 @@ class BoardSession:
             aligned=Alignment.aligned(self.path.grid, self.path.topics),
             align_info=self.alignment.info,
             failsafe=self.failsafe.status,
-            sync=sync.status() if sync is not None else None,
+            memory=self.memory.status,
+            sync=self.sync.status() if self.sync is not None else None,
         )
 
     def status(self) -> dict[str, Any]:

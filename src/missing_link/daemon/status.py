@@ -5,9 +5,9 @@ goes into JSON as that string.  ``SessionStatus`` is one session's status at one
 ``to_json()`` gives the plain dict that ``Daemon.status()``, ``/diagnostics``, the ``run``
 summary and the live view read, with the keys (and their order) documented for them: the
 session's own, the link's counters, the sample path's, the commands', the errors caught (by
-kind: ``errors``, ``error_kinds``), the run-time
-configuration's, the alignment's, the failsafe's and the clock sync's.  The parts that other
-modules own (sample path, settings, clock sync) stay the plain dicts those modules give.
+kind: ``errors``, ``error_kinds``), the run-time configuration's, the alignment's, the
+failsafe's, the board's memory and the clock sync's.  The parts that other modules own
+(sample path, settings, clock sync) stay the plain dicts those modules give.
 """
 
 from __future__ import annotations
@@ -127,6 +127,41 @@ class AlignInfo:
 
 
 @dataclass(frozen=True)
+class MemoryStatus:
+    """The board's own memory figures (``a2jMemory``, daemon/memory.py), once read; ``problem``
+    when its reply made no sense.  A MicroPython board says its heap (bytes free now and at the
+    lowest, allocated) and its garbage collections (how many, the longest and the last in µs,
+    how many reached an instant it had to be on time for, how many it put off for one); an AVR
+    board its stack (bytes never touched since boot, of how many) and its static RAM."""
+
+    heap_free: int | None = None
+    heap_free_low: int | None = None
+    heap_alloc: int | None = None
+    gc_collections: int | None = None
+    gc_longest_us: int | None = None
+    gc_last_us: int | None = None
+    gc_overlaps: int | None = None
+    gc_deferred: int | None = None
+    stack_free_low: int | None = None
+    stack_size: int | None = None
+    ram_static: int | None = None
+    ram_size: int | None = None
+    problem: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        if self.problem:
+            return {"memory": self.problem}
+        return {
+            f.name: getattr(self, f.name)
+            for f in _MEMORY_FIELDS
+            if getattr(self, f.name) is not None
+        }
+
+
+_MEMORY_FIELDS = tuple(f for f in fields(MemoryStatus) if f.name != "problem")
+
+
+@dataclass(frozen=True)
 class SessionStatus:
     """One board session's status; counters are cumulative over every connection."""
 
@@ -153,6 +188,7 @@ class SessionStatus:
     aligned: str  #: the transducers sampled on the host-time grid, by name
     align_info: AlignInfo = field(default_factory=AlignInfo)  #: shown while anything is aligned
     failsafe: FailsafeStatus = field(default_factory=FailsafeStatus)
+    memory: MemoryStatus = field(default_factory=MemoryStatus)  #: the board's (a2jMemory)
     sync: Mapping[str, Any] | None = None  #: the clock sync's (None: the board has no clock)
 
     def to_json(self) -> dict[str, Any]:
@@ -181,5 +217,6 @@ class SessionStatus:
             "aligned": self.aligned,
             **(self.align_info.to_json() if self.aligned else {}),
             **self.failsafe.to_json(),
+            **self.memory.to_json(),
             **(self.sync if self.sync is not None else {"sync_state": "none"}),
         }

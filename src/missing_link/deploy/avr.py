@@ -1,6 +1,8 @@
 """AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file
-(``make -C firmware/avr``, which runs ``gen-firmware``) and write it with avrdude through the
-Arduino bootloader; then ``flash`` checks the board answers J2A as the board file says."""
+(``make -C firmware/avr``, which runs ``gen-firmware``), check that it fits the MCU's flash and
+RAM (avrsize.py: refused with the numbers before anything is written), and write it with avrdude
+through the Arduino bootloader; then ``flash`` checks the board answers J2A as the board file
+says.  ``gen-firmware`` builds it too, to refuse a board file that cannot fit (fit())."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from .avrsize import AvrSize, check
 from .boardfile import BoardFile
 from .check import FlashError, verify
 
@@ -33,10 +36,25 @@ def avrdude_command(mcu: str, port: str, hex_path: str | Path) -> list[str]:
 
 
 def make_command(bf: BoardFile, build: Path) -> list[str]:
+    """make, its own fit check off: the caller makes it (check()), to say it in one line."""
     return [
         "make", "-C", str(AVR_DIR), f"BOARD={bf.path.resolve()}", f"BUILD={build}",
-        f"PYTHON={sys.executable}",
+        f"PYTHON={sys.executable}", "CHECK=0",
     ]  # fmt: skip
+
+
+def build_checked(bf: BoardFile, build: Path) -> AvrSize:
+    """Build the firmware into ``build`` and check it fits (DoesNotFit, with the numbers)."""
+    if not AVR_DIR.is_dir():
+        raise FlashError(f"AVR builds need the missing-link source checkout ({AVR_DIR})")
+    _run(make_command(bf, build), "building the AVR firmware", 300)
+    return check(build / bf.name / "firmware.elf", bf.mcu, str(bf.path))
+
+
+def fit(bf: BoardFile) -> AvrSize:
+    """Whether ``bf``'s firmware fits its MCU, built in a scratch directory (gen-firmware)."""
+    with tempfile.TemporaryDirectory(prefix="missing-link-avr-fit-") as tmp:
+        return build_checked(bf, Path(tmp))
 
 
 def _run(cmd: list[str], what: str, timeout: float) -> str:
@@ -69,12 +87,7 @@ def flash_avr(
             say("would run: " + shlex.join(dude))
             say(f"then check that serial://{port} answers J2A as {bf.name!r}")
             return 0
-        if not AVR_DIR.is_dir():
-            raise FlashError(f"AVR flashing needs the missing-link source checkout ({AVR_DIR})")
-        out = _run(make, "building the AVR firmware", 300)
-        for line in out.splitlines():
-            if ": flash " in line:
-                say(line)  # the size line
+        say(build_checked(bf, build).line())  # (one that cannot fit stops here: DoesNotFit)
         say(f"writing {hex_path.name} to {port} with avrdude ...")
         _run(dude, f"avrdude on {port}", 300)
     if check:

@@ -1,8 +1,9 @@
 """``missing-link flash BOARDFILE``: put the firmware for a board file on the board and check
 that it answers.
 
-MicroPython boards (RP2040, ESP32): the board runtime, the drivers the board file uses, the
-board file (as ``/board.py``), the signing key (``--key``, as the link's ``key_file``) and
+MicroPython boards (RP2040, ESP32): a board file whose firmware cannot fit the board's heap is
+refused first, with the numbers (heap.py).  Then the board runtime, the drivers the board file
+uses, the board file (as ``/board.py``), the signing key (``--key``, as the link's ``key_file``) and
 ``main.py`` are staged in a temporary directory and every one of them is copied with mpremote
 (``fs cp``; a new key replaces the old one), then the board is reset; mpremote's own
 "\\r\\x03\\x03" stops a running firmware first (see board/firmware.py).  AVR boards
@@ -26,12 +27,13 @@ from ..board import drivers as drivers_pkg
 from .avr import flash_avr
 from .boardfile import BoardFile
 from .check import FlashError, verify
+from .heap import check_fit
 
 BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
-    "timing.py", "failsafe.py", "wire.py", "firmware.py", "link.py",
+    "timing.py", "failsafe.py", "memory.py", "wire.py", "firmware.py", "link.py",
 )  # fmt: skip
 
 
@@ -128,6 +130,7 @@ def flash(
             raise FlashError("--key: the AVR runtime has no network link to sign")
         return flash_avr(bf, port, dry_run=dry_run, say=say, check=check)
     check_key(bf, port, key, warn)
+    fit = check_fit(bf)  # (a board file that cannot fit is refused here: DoesNotFit)
     files = micropython_files(bf, key or None)
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
@@ -135,6 +138,8 @@ def flash(
         stage = Path(tmp)
         cmd = mpremote_command(port, stage, files, mp)
         if dry_run:
+            if fit is not None:
+                say(f"its firmware needs about {fit.need // 1024} KiB of the {bf.mcu}'s heap")
             say(f"would copy to {port} ({bf.mcu}, MicroPython):")
             for c in files:
                 say(f"  {c.local} -> :{c.remote}")

@@ -216,6 +216,7 @@ class VL53L0X:
 
     def __init__(self, bus, address=0x29):
         self.regs = bytearray(256)
+        self._view = memoryview(self.regs)
         self.regs[0xC0] = 0xEE
         self.regs[0x84] = 0x11
         self.distance_mm = 500
@@ -280,12 +281,13 @@ class VL53L0X:
             self.regs[0x1E], self.regs[0x1F] = (mm >> 8) & 0xFF, mm & 0xFF
             if not self._continuous:
                 self._ready_at = None
-        out = bytearray(self.regs[reg : reg + n])
+        # (as few allocations as a board's own read makes: the driver polls this in a loop, and
+        # under a board's heap the simulator's garbage is the firmware's to hold, host.mjs)
         if reg == 0x91 and self._paged():
-            out[0] = self.STOP
+            return bytes((self.STOP,)) + bytes(self._view[reg + 1 : reg + n])
         if reg == 0x00 and not self._paged() and self._ready_at is not None:
-            out[0] = 0x01  # ranging under way
-        return bytes(out)
+            return bytes((0x01,)) + bytes(self._view[reg + 1 : reg + n])  # ranging under way
+        return bytes(self._view[reg : reg + n])
 
 
 class HCSR04:

@@ -3,6 +3,7 @@
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
 //                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs]
+//                 [--heap BYTES] [--fast [--cpu-scale K] [--lead-ms MS]]
 //   node host.mjs BOARDFILE --run SCRIPT.py   (run SCRIPT with the same files and sim, then exit:
 //                                            the firmware benchmark)
 //
@@ -21,13 +22,26 @@
 // flash kept between runs.  Without it, /flash starts empty and is gone at exit.  --file puts a
 // file there (a signing key, as `flash --key` does).  --absent leaves those parts (transducer
 // names) unplugged (parts.py).  The simulator (this directory) is loaded as the package
-// `simworld`, its machine.py also as `machine`; the firmware as `mlboard`, as on a device.
+// `simworld`, its machine.py also as `machine`, simgc.py as `gc`; the firmware as `mlboard`,
+// as on a device.
+//
+// --heap BYTES: the firmware gets a board's fixed heap of BYTES (a Raspberry Pi Pico: 209936,
+// docs/hardware.md "Memory"): heap.mjs.  --fast: simulated time (fastclock.mjs, simtime.py): the
+// clock jumps over what the firmware sleeps and moves on by what its steps cost in CPU time
+// (times K, --cpu-scale), so simulated minutes pass in real seconds; the link still carries
+// every byte, at most 512 bytes into the firmware per step (as link.py's reads), and the steps
+// wait while a host has 64 KiB of output not taken; --lead-ms: and while the simulation is MS
+// ahead of the last bytes from a host (a board and its host go on together, however slow the
+// host: a host map it keeps fresh stays fresh).  A control line {"sim": "time"} answers the
+// simulated µs since the start, {"sim": "gc"} the collections so far (fastclock.mjs).
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
 import { createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
+import { FastClock } from "./fastclock.mjs";
+import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const args = process.argv.slice(2);
@@ -41,11 +55,17 @@ const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
 // --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 const mpyPath = opt("--mpy"); // where npm put MicroPython (the CLI finds it; else node resolves it)
+const heapArg = opt("--heap") === null ? null : Number(opt("--heap"));
+const fast = args.includes("--fast") ? new FastClock(Number(opt("--cpu-scale") ?? 1)) : null;
+const leadUs = opt("--lead-ms") === null ? null : Number(opt("--lead-ms")) * 1000;
+let heardAt = 0; // --lead-ms: simulated µs when bytes last came from a host
+if (heapArg !== null) quietGrowth();
 
 const { loadMicroPython } = await import(
   mpyPath ? pathToFileURL(mpyPath).href : "@micropython/micropython-webassembly-pyscript"
 );
 const mp = await loadMicroPython({
+  ...(heapArg !== null ? { heapsize: heapArg + SIM_ROOM } : {}),
   stdout: (line) => (runArg ? process.stdout : process.stderr).write((runArg ? "" : "mpy: ") + line + "\n"),
   stderr: (line) => process.stderr.write("mpy! " + line + "\n"),
 });
@@ -140,36 +160,64 @@ function writeThrough(dir) {
   });
 }
 
-const boot = [
+// the firmware's modules, each after those it imports (board/)
+const BOOT_ORDER = ["clock", "dtypes", "wire", "transducer", "runtime", "store", "config",
+  "timing", "failsafe", "memory", "drivers", "firmware", "link"];
+const bootPy = [
   "import sys",
   "sys.path.append('/lib')",
+  ...(fast ? ["import simworld.simtime", "sys.modules['time'] = simworld.simtime"] : []),
+  "import simworld.simgc",
+  "sys.modules['gc'] = simworld.simgc",
   "import simworld.machine",
   "sys.modules['machine'] = simworld.machine",
 ].join("\n");
 if (runArg) {
-  mp.runPython(boot + "\n" + readFileSync(runArg, "utf8"));
+  mp.runPython(bootPy + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
+mp.runPython(bootPy + "\nfrom simworld import mpyhost");
+if (heapArg !== null) {
+  const base = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
+  mp.runPython(
+    `import simworld.simgc\nsimworld.simgc.BASE = ${base}\n` +
+      `simworld.machine.WORLD.log_cap = 32\nmpyhost.watch_gc = ${fast ? "True" : "False"}`,
+  );
+}
+if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark() });
+// The firmware loads as on a board, but a module a call: this port collects only between calls
+// (simgc.py), where a board collects while it imports; then it is built from the board file.
+function boot(code) {
+  mp.runPython(`try:\n${code.replace(/^/gm, "    ")}\nexcept BaseException:\n` +
+    "    mpyhost.release()\n    raise");
+}
 mp.runPython(
-  boot + "\n" +
-  [
-    "from board import BOARD",
-    "import mlboard.clock, mlboard.firmware, mlboard.link",
-    "import mlboard",
-    "from simworld import mpyhost",
-    `mpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)})`,
-    "from simworld.mpyhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident",
-  ].join("\n"),
+  `import simworld.simgc\nsimworld.simgc.fast = ${fast ? "True" : "False"}` +
+    (fast ? "\nimport simjs" : ""),
+);
+boot("from board import BOARD");
+for (const m of BOOT_ORDER) boot(`import mlboard.${m}`);
+boot("from mlboard.drivers import driver_class\nfor _t in BOARD['transducers']:\n" +
+  "    driver_class(_t['driver'])");
+boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
+  `${fast ? ", simjs.mark" : ""})`);
+mp.runPython(
+  "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _due_us, _ctl, _ident",
 );
 const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
 const closed = mp.globals.get("_closed");
-const tick = mp.globals.get("_tick");
+const step = mp.globals.get("_step"); // (--fast: the connections' bytes go in with the step)
+const tick = fast ? () => fast.step((now, gc) => step(now, gc, feedSome())) : mp.globals.get("_tick");
 const dueUs = mp.globals.get("_due_us");
 const ctl = mp.globals.get("_ctl");
 const ident = mp.globals.get("_ident")();
 
 const conns = new Map(); // connection number -> socket: the firmware's link decides who stays
+const inbox = new Map(); // connection number -> bytes not fed yet (at most CHUNK a step)
+const ended = new Set(); // closed by the client: said to the firmware once its bytes are in
+const CHUNK = 512; // (link.py's TcpServer reads 512 bytes at a time)
+const BACKLOG = 64 * 1024; // --fast: output a host has not taken before the steps wait for it
 let nextConn = 1;
 let stopped = false; // the firmware gave the REPL back: no more steps
 let pending = null; // the next run(): { immediate } or { timeout }
@@ -179,10 +227,32 @@ function cancel() {
   else clearTimeout(pending.timeout);
   pending = null;
 }
+// At most CHUNK bytes of each connection into the firmware; --fast: as "n:hex" and "-n" (closed)
+// for the step to feed itself (mpyhost.py _step), else fed here.
+function feedSome() {
+  const toks = [];
+  for (const [n, buf] of inbox) {
+    if (buf.length) {
+      const hex = buf.subarray(0, CHUNK).toString("hex");
+      if (fast) toks.push(`${n}:${hex}`);
+      else feed(n, hex);
+      inbox.set(n, buf.subarray(CHUNK));
+    } else if (ended.has(n)) {
+      inbox.delete(n);
+      ended.delete(n);
+      if (fast) toks.push(`-${n}`);
+      else closed(n);
+    }
+  }
+  return toks.join(" ");
+}
+const waiting = () => [...inbox.values()].some((b) => b.length) || ended.size > 0;
 function run() {
   pending = null;
+  if (fast && leadUs !== null && !waiting() && fast.now - heardAt > leadUs) return; // (on data)
   let out;
   try {
+    if (!fast) feedSome();
     out = tick();
   } catch (e) {
     process.stderr.write("firmware crashed: " + String(e) + "\n");
@@ -197,21 +267,31 @@ function run() {
     stopped = true;
     return;
   }
+  let full = null; // --fast: a host that does not take its output holds the steps up
   for (const tok of out ? out.split(" ") : []) {
     if (tok[0] === "-") {
       const s = conns.get(Number(tok.slice(1)));
       conns.delete(Number(tok.slice(1)));
+      inbox.delete(Number(tok.slice(1)));
       if (s) s.destroy();
     } else {
       const at = tok.indexOf(":");
       const s = conns.get(Number(tok.slice(0, at)));
       if (s) s.write(Buffer.from(tok.slice(at + 1), "hex"));
+      if (s && fast && s.writableLength > BACKLOG) full = s;
     }
   }
-  schedule(Boolean(out));
+  if (full) {
+    full.once("drain", () => schedule(true));
+    full.once("close", () => schedule(true));
+    return;
+  }
+  if (fast && !out && !waiting()) fast.idle(); // (nothing to do: a board sleeps)
+  schedule(Boolean(out) || waiting() || fast !== null);
 }
 // Step again at once after input or output (more may be queued), else at the drivers' next
-// deadline, at most 5 ms later (the firmware's own receive timeout needs a poll).
+// deadline, at most 5 ms later (the firmware's own receive timeout needs a poll).  --fast: at
+// once (the clock has jumped already).
 function schedule(now) {
   if (stopped || (pending !== null && !now)) return;
   cancel();
@@ -224,13 +304,15 @@ const server = createServer((s) => {
   const n = nextConn++;
   conns.set(n, s);
   open(n);
+  inbox.set(n, Buffer.alloc(0));
   s.setNoDelay(true);
   s.on("data", (d) => {
-    feed(n, d.toString("hex"));
+    if (inbox.has(n)) inbox.set(n, Buffer.concat([inbox.get(n), d]));
+    if (fast) heardAt = fast.now;
     schedule(true);
   });
   s.on("close", () => {
-    if (conns.delete(n)) closed(n);
+    if (conns.delete(n) && inbox.has(n)) ended.add(n);
     schedule(true);
   });
   s.on("error", () => {});
@@ -244,10 +326,23 @@ server.listen(portArg, hostArg, () => {
   schedule(true);
 });
 
+// {"sim": "time"} / {"sim": "gc"}: the simulation's own figures (--fast), as JSON
+function simCtl(what) {
+  if (!fast) throw new Error("not a --fast simulation");
+  if (what === "time") return String(Math.floor(fast.now));
+  if (what === "gc") {
+    const { log, collections, gcUs, scale } = fast;
+    return JSON.stringify({ collections, log, us: gcUs, scale });
+  }
+  throw new Error(`no such figure: ${what}`);
+}
+
 const rl = createInterface({ input: process.stdin });
 rl.on("line", (line) => {
   try {
-    process.stdout.write("OK " + ctl(JSON.parse(line)) + "\n");
+    const req = JSON.parse(line);
+    const out = typeof req === "string" ? ctl(req, fast ? Math.floor(fast.now) : null) : simCtl(req.sim);
+    process.stdout.write("OK " + out + "\n");
   } catch (e) {
     process.stdout.write("ERR " + String(e).split("\n").join(" | ") + "\n");
   }

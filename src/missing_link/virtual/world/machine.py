@@ -41,6 +41,11 @@ except AttributeError:  # CPython: the same over CLOCK_MONOTONIC, as board/clock
         time.sleep(us / 1000000)
 
 
+# Under simulated time (host.mjs --fast: simtime.py) a bus transfer takes its bus time: a driver
+# that polls a part over I2C waits as long in simulated time as on a board.  In real time the
+# transfer takes what the interpreter takes.
+_advance = getattr(time, "advance", None)
+
 EIO = 5
 VREF = 3.3
 UNIQUE_ID = b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"
@@ -64,8 +69,8 @@ class World:
         self.pwms = {}  # pin -> PWM
         self.i2c = {}  # (bus, 7-bit address) -> device model
         self.adc_reads = 0
-        self.adc_log = []  # ticks_us of the newest ADC reads (at most 2000)
-        self.edges = {}  # pin -> [(ticks_us, level)] of an output's changes (at most 2000)
+        self.adc_log = []  # ticks_us of the newest ADC reads (at most log_cap)
+        self.edges = {}  # pin -> [(ticks_us, level)] of an output's changes (at most log_cap)
         self.watchers = {}  # pin -> [fn(level)]: devices that see the firmware drive a pin
         self.uarts = {}  # UART id -> UART
         self.uart_sources = {}  # UART id -> device producing its bytes (.produce(now_us))
@@ -73,6 +78,9 @@ class World:
         self.devices = {}  # transducer name -> its device model (devices.py), for tests
         self.floating = {}  # ADC pin -> (volts, noise state) of an input left open
         self.unique_id = UNIQUE_ID  # what machine.unique_id() says (the board's serial)
+        # entries kept in adc_log and each edges list: the simulator's own memory, which under
+        # a board's heap (host.mjs --heap) the firmware pays for, so it keeps fewer there
+        self.log_cap = 2000
 
     def pin(self, pin_id):
         st = self.pins.get(pin_id)
@@ -219,7 +227,7 @@ class Pin:
         if changed:
             log = WORLD.edges.setdefault(self.id, [])
             log.append((ticks_us(), level))
-            if len(log) > 2000:
+            if len(log) > WORLD.log_cap:
                 log.pop(0)
         st.level = level
         if changed:
@@ -240,7 +248,7 @@ class ADC:
     def read_u16(self):
         WORLD.adc_reads += 1
         WORLD.adc_log.append(ticks_us())
-        if len(WORLD.adc_log) > 2000:
+        if len(WORLD.adc_log) > WORLD.log_cap:
             WORLD.adc_log.pop(0)
         v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
         code12 = int(v / VREF * 4095 + 0.5)
@@ -291,6 +299,11 @@ class I2C:
         self.id = bus_id
         self.freq = freq
 
+    def _bus(self, nbytes):
+        # address and data bytes, 9 bits each, and start/stop (simulated time only)
+        if _advance is not None:
+            _advance((nbytes + 1) * 9 * 1000000 // self.freq + 1)
+
     def _dev(self, addr):
         dev = WORLD.i2c.get((self.id, addr))
         if dev is None or not dev.ack():
@@ -301,19 +314,23 @@ class I2C:
         return sorted(a for (b, a), d in WORLD.i2c.items() if b == self.id and d.ack())
 
     def writeto_mem(self, addr, reg, buf):
+        self._bus(1 + len(buf))
         self._dev(addr).write(reg, bytes(buf))
 
     def readfrom_mem(self, addr, reg, n):
+        self._bus(3 + n)  # (the register written, a repeated start, the address again)
         return bytes(self._dev(addr).read(reg, n))
 
     def writeto(self, addr, buf, stop=True):
         buf = bytes(buf)
+        self._bus(len(buf))
         dev = self._dev(addr)
         if buf:
             dev.write(buf[0], buf[1:])
         return len(buf)
 
     def readfrom(self, addr, n, stop=True):
+        self._bus(n)
         return bytes(self._dev(addr).read(None, n))
 
 

@@ -6,12 +6,19 @@ host.mjs imports the board file and the firmware (`mlboard`, as on a device) and
 start(): nothing here names a module outside the world.  node's TCP connections are the link's
 (SimServer: as link.py's TcpServer on a device): _open(n), _feed(n, hex), _closed(n) say what
 happened to connection n; _tick() runs one firmware step and returns what to send and close
-("n:hex" and "-n", space-separated); _ctl(src) runs test code against WORLD and returns repr()
-of `result` (reboot() restarts the firmware on the same filesystem and devices).  The board's
-filesystem (its flash: a saved configuration, a key) is the current directory.
+("n:hex" and "-n", space-separated); _ctl(src, sim_us) runs test code against WORLD and returns
+repr() of `result` (reboot() restarts the firmware on the same filesystem and devices).  The
+board's filesystem (its flash: a saved configuration, a key) is the current directory.
+
+Fast mode (host.mjs --fast, simtime.py): _step(now, last_gc_us, inputs) feeds the connections'
+bytes and runs _tick at simulated µs `now`, and says what the host needs to move the clock on:
+"SLEPT REQ AT CLK0 AUTO DUE|" before the output (µs slept in the step; collections it asked for
+(simgc.py) and where, µs into the step; the board clock at the step's start; whether a
+collection nobody asked for ran after the step before, seen from the heap's allocated bytes
+when watch_gc is set: two heap scans a step; µs to the drivers' next deadline, -1 none).
 """
 
-from . import devices, machine
+from . import devices, machine, simgc, simtime
 from .machine import WORLD
 from .parts import populate
 
@@ -58,11 +65,23 @@ class SimServer:
 
 
 wire = SimServer()  # node's connections
-_sim = {}  # what start() made: board, mlboard, link, fw, rt, stopped
+_sim = {}  # what start() made: board, mlboard, link, fw, rt, stopped; fast mode: alloc_end
+watch_gc = False  # fast mode: tell collections nobody asked for (two heap scans a step)
+spare = None  # --heap: room held back so that a MemoryError can still be said (heap.mjs)
 
 
-def start(board, mlboard, absent=()):
+def release():
+    # The firmware failed (a MemoryError, perhaps): the room held back goes to the interpreter
+    # at once (a list cleared shrinks its array), so the error can be told to node: this port
+    # converts it in a heap where nothing has been collected yet, and hangs if it cannot.
+    if spare is not None:
+        spare.clear()
+
+
+def start(board, mlboard, absent=(), mark=None):
     # The world from the board file, less its absent parts; the firmware on node's connections.
+    # mark: fast mode's mark of the interpreter's CPU time at the end of a step (host.mjs)
+    _sim["mark"] = mark
     populate(board, absent)
     if board.get("link", {}).get("key_file"):  # a network board: signed records (signing.py)
         clock = mlboard.clock.default_clock()
@@ -81,6 +100,7 @@ def reboot():
 
 
 def _open(n):
+    _sim["alloc_end"] = None
     wire.new.append(n)
     wire.rx[n] = bytearray()
 
@@ -103,9 +123,40 @@ def _tick():
     except _sim["mlboard"].firmware.BreakIn:
         _sim["stopped"] = True
         return "BREAK"
+    except BaseException:
+        release()
+        raise
     out = " ".join(wire.out)
     wire.out = []
     return out
+
+
+def _step(now, last_gc_us, inputs):
+    # One fast-mode step at simulated µs `now` (wrapped), with what came from the connections
+    # ("n:hex" and "-n" for closed, as _feed and _closed; all within the step, so nothing runs
+    # in the interpreter between two steps but the collection the last one left)
+    auto = 0
+    if watch_gc:
+        end = _sim.get("alloc_end")
+        auto = 1 if end is not None and simgc._gc.mem_alloc() < end else 0
+    simtime.set_now(now)
+    simgc.last_us = last_gc_us
+    simgc.requested = 0
+    simgc.at = 0
+    for tok in inputs.split() if inputs else ():
+        if tok[0] == "-":
+            _closed(int(tok[1:]))
+        else:
+            i = tok.index(":")
+            _feed(int(tok[:i]), tok[i + 1 :])
+    clk0 = _sim["rt"].clock() if not _sim["stopped"] else 0
+    out = _tick()
+    due = -1 if _sim["stopped"] else _due_us()
+    if watch_gc:
+        _sim["alloc_end"] = simgc._gc.mem_alloc()
+    _sim["mark"]()  # (host.mjs: the interpreter's CPU time at the end of the step)
+    head = "%d %d %d %d %d %d|" % (simtime.slept(), simgc.requested, simgc.at, clk0, auto, due)
+    return head + out
 
 
 def _due_us():
@@ -114,8 +165,9 @@ def _due_us():
     return -1 if due is None else max(0, due - rt.clock())
 
 
-def _ctl(src):
+def _ctl(src, sim_us=None):
     env = {
+        "sim_us": sim_us,  # fast mode: simulated µs since the start (host.mjs)
         "WORLD": WORLD,
         "fw": _sim["fw"],
         "rt": _sim["rt"],
@@ -125,6 +177,7 @@ def _ctl(src):
         "result": None,
     }
     exec(src, env)
+    _sim["alloc_end"] = None  # (its own allocations and frees: no sign of a collection)
     return repr(env["result"])
 
 

@@ -1,0 +1,148 @@
+"""Memory on the real parts (issue 36, item 4): the MicroPython firmware of the rover and the
+thesis rig runs ten simulated minutes in the heap a Raspberry Pi Pico has free after MicroPython
+boots, its garbage collections never on an instant it must be on time for; the board says its
+heap's figures (a2jMemory) and the daemon and ``info --json`` show them.
+
+The firmware runs in the real MicroPython interpreter (WebAssembly port) with the simulator's
+``--heap`` (a board's fixed heap: heap.mjs) and ``--fast`` (simulated time: fastclock.mjs),
+served by a host that decodes every SIF (memory_soak.py)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from missing_link.board.timing import MAP_LIFE_US
+from missing_link.deploy.heap import FREE_HEAP
+from missing_link.host.board import Board
+
+from .memory_soak import FastSim, SoakResult, grid_hits, soak
+
+ROOT = Path(__file__).resolve().parent.parent
+BOARDS = ROOT / "examples" / "boards"
+PICO = FREE_HEAP["rp2040"]
+MINUTES = 10
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
+
+
+def _rover_commands(board: Board, turn: int) -> int:
+    """The rover's host: the motors back and forth, the mast round, the wheels turning."""
+    if turn % 20:
+        return 0
+    speed = struct.pack("<f", 0.6 if turn % 40 else -0.6)
+    board.call_ok("a2j_motor_l", speed)
+    board.call_ok("a2j_motor_r", speed)
+    board.call_ok("a2j_mast", struct.pack("<f", (turn // 20) % 4 * 0.25))
+    return 3
+
+
+def _rig_commands(board: Board, turn: int) -> int:
+    """The rig's host: the servo swept, the camera triggered at a host time (a timed call)."""
+    if turn % 20:
+        return 0
+    board.call_ok("a2j_set_servo", struct.pack("<b", (turn // 20) % 200 - 100))
+    now = board.clock_exchange(30).t3
+    at = struct.pack("<qB", (now + 50_000) * 1000, board.index["a2j_trigger"])
+    board.call_ok("a2jAt", at + struct.pack("<H", 100))
+    return 2
+
+
+def _turn_wheels(sim: FastSim, pins: list[tuple[int, int]]) -> Callable[[Board, int], int]:
+    def act(board: Board, turn: int) -> int:
+        if turn % 50 == 0:
+            for a, b in pins:
+                sim.ctl(f"WORLD.encoder_steps({a}, {b}, {turn % 37 + 1})")
+        return 0
+
+    return act
+
+
+Soaked = tuple[SoakResult, dict[str, Any], FastSim]
+
+
+def _soaked(
+    board_file: str,
+    aligned: list[str],
+    commands: Callable[[Board, int], int],
+    wheels: list[tuple[int, int]],
+) -> Soaked:
+    sim = FastSim(BOARDS / board_file, PICO)
+    try:
+        turn_wheels = _turn_wheels(sim, wheels)
+        res = soak(sim, MINUTES * 60, aligned, lambda b, t: commands(b, t) + turn_wheels(b, t))
+        gc = sim.figure("gc")
+        assert sim.ctl("result = 1") == 1  # (the firmware still steps: no CRASH, no BREAK)
+    finally:
+        sim.close()
+    return res, gc, sim
+
+
+def _check_soak(res: SoakResult, sim: FastSim, rates: dict[str, float]) -> None:
+    err = "".join(sim.stderr)
+    assert "MemoryError" not in err and "crashed" not in err, err[-2000:]
+    assert "memory" not in res.debug.lower(), res.debug
+    seconds = res.board_us / 1e6
+    assert seconds >= MINUTES * 60
+    for name, rate in rates.items():  # every sensor sampled at its rate, with values
+        assert res.valid[name] >= 0.95 * rate * seconds, (name, res.valid[name], rate)
+    m = res.memory
+    assert m.problem == "" and m.heap_free is not None and m.heap_free_low is not None
+    assert 0 < m.heap_free_low <= m.heap_free <= PICO
+    assert m.heap_alloc is not None and m.heap_free + m.heap_alloc <= PICO
+    assert m.gc_collections is not None and m.gc_collections >= seconds * 5  # (every 100 ms)
+    assert m.gc_overlaps == 0 and m.gc_longest_us and m.gc_longest_us > 0
+
+
+def _check_grid(res: SoakResult, gc: dict[str, Any], periods_us: list[int]) -> None:
+    """No collection, the firmware's or the allocator's, on an aligned instant while a map
+    vouched for the grid; the allocator's own only before the host mapped the board's clock."""
+    assert res.maps and res.align[0] == 1  # (the map was valid at the end)
+    spans = [(a, b) for a, b, _kind in gc["log"]]
+    assert len(spans) == gc["collections"]["req"] + gc["collections"]["auto"]
+    assert grid_hits(spans, periods_us, res.maps, MAP_LIFE_US) == []
+    late = [x for x in gc["log"] if x[2] == "auto" and x[0] >= res.maps[0]]
+    assert late == [], late
+
+
+def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
+    aligned = ["compass", "wheel_l", "wheel_r"]  # 50 Hz: an instant every 20 ms
+    res, gc, sim = _soaked("rover.py", aligned, _rover_commands, [(2, 3), (6, 7)])
+    _check_soak(res, sim, {"compass": 50, "wheel_l": 50, "wheel_r": 50, "sonar": 10,
+                               "tof": 10, "gps": 1})  # fmt: skip
+    assert res.commands > 0 and res.valid["motor_l"] > 0 and res.valid["mast"] > 0
+    _check_grid(res, gc, [20_000])
+
+
+def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
+    aligned = ["imu", "dist_ir", "wheel"]  # 100, 25 and 50 Hz: an instant every 10 ms
+    res, gc, sim = _soaked("thesis-rig.py", aligned, _rig_commands, [(2, 3)])
+    _check_soak(res, sim, {"imu": 100, "dist_ir": 25, "wheel": 50, "sonar": 10})
+    assert res.commands > 0 and res.valid["camera"] > 0 and res.align[3] > 0  # timed calls ran
+    _check_grid(res, gc, [10_000, 40_000, 20_000])
+
+
+def test_a_board_file_too_big_for_a_pico_runs_out_of_heap_there(tmp_path: Path) -> None:
+    """The check flash makes is the simulator's verdict too: a board file whose estimate is
+    over a Pico's heap (deploy/heap.py) fails with MemoryError under it."""
+    big = tmp_path / "big.py"
+    entries = [
+        {"name": f"imu{i}", "id": i, "driver": "mpu6050", "bus": "i2c0", "rate_hz": 10}
+        for i in range(60)
+    ]
+    board = {"name": "big", "mcu": "rp2040", "buses": {"i2c0": {"id": 0, "scl": 5, "sda": 4}},
+             "transducers": entries}  # fmt: skip
+    big.write_text("BOARD = " + json.dumps(board) + "\n")
+    dry = subprocess.run(
+        [sys.executable, "-m", "missing_link", "flash", str(big), "--port", "/dev/null",
+         "--dry-run"], capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert dry.returncode == 2 and "heap" in dry.stderr, dry.stderr
+    with pytest.raises(RuntimeError, match="MemoryError"):
+        FastSim(big, PICO).close()
