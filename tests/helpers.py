@@ -134,11 +134,18 @@ class FirmwareSim:
     ROOT = Path(__file__).resolve().parent.parent
     HOST = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
 
-    def __init__(self, board_file: Path | str, files: dict[str, Path] | None = None) -> None:
-        """``files``: put on the board's filesystem (name -> local file), as flash would."""
+    def __init__(
+        self,
+        board_file: Path | str,
+        files: dict[str, Path] | None = None,
+        args: list[str] | None = None,
+    ) -> None:
+        """``files``: put on the board's filesystem (name -> local file), as flash would;
+        ``args``: more of host.mjs's (``--seed N``, ``--lib DIR``, ``--dial HOST:PORT``)."""
         if shutil.which("node") is None:
             raise RuntimeError("node is required: run `make node`")
         extra = [x for name, path in (files or {}).items() for x in ("--file", f"{name}={path}")]
+        extra += args or []
         self.proc = subprocess.Popen(
             ["node", str(self.HOST), str(board_file), *extra],
             stdin=subprocess.PIPE,

@@ -1,7 +1,10 @@
 // Runs a missing-link MicroPython firmware under the real MicroPython interpreter (WebAssembly
 // port, from npm) with simulated peripherals, and serves its J2A link on a TCP port on 127.0.0.1.
 //
-//   node host.mjs BOARDFILE [--port N]
+//   node host.mjs BOARDFILE [--port N] [--seed N] [--lib DIR] [--dial HOST:PORT]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the source tree;
+//   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py)
 //   node host.mjs BOARDFILE --run SCRIPT.py   (run SCRIPT with the same files and sim, then exit:
 //                                            the firmware benchmark)
 //
@@ -15,7 +18,7 @@
 // (what the firmware left its devices doing) until stdin closes.
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
 import { readFileSync, readdirSync, statSync } from "node:fs";
-import { createServer } from "node:net";
+import { connect as dialTcp, createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
@@ -26,6 +29,9 @@ const args = process.argv.slice(2);
 const boardFile = args[0];
 const portArg = args.indexOf("--port") >= 0 ? Number(args[args.indexOf("--port") + 1]) : 0;
 const runArg = args.indexOf("--run") >= 0 ? args[args.indexOf("--run") + 1] : null;
+const seedArg = args.indexOf("--seed") >= 0 ? Number(args[args.indexOf("--seed") + 1]) : null;
+const libArg = args.indexOf("--lib") >= 0 ? args[args.indexOf("--lib") + 1] : null;
+const dialArg = args.indexOf("--dial") >= 0 ? args[args.indexOf("--dial") + 1] : null;
 // --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 
@@ -46,7 +52,7 @@ function copyTree(src, dst) {
   }
 }
 mp.FS.mkdir("/lib");
-copyTree(join(root, "src", "missing_link", "board"), "/lib/mlboard");
+copyTree(libArg ?? join(root, "src", "missing_link", "board"), "/lib/mlboard");
 mp.FS.writeFile("/lib/machine.py", readFileSync(join(here, "machine.py")));
 mp.FS.writeFile("/lib/simdevices.py", readFileSync(join(here, "devices.py")));
 mp.FS.writeFile("/lib/simhost.py", readFileSync(join(here, "host.py")));
@@ -59,7 +65,11 @@ if (runArg) {
   mp.runPython("import sys\nsys.path.append('/lib')\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-mp.runPython("import sys\nsys.path.append('/lib')\nfrom simhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident\n");
+const seed = seedArg === null ? "" : `import machine\nmachine.seed_unique_id(${Math.trunc(seedArg)})\n`;
+const dialTo = dialArg === null ? "" :
+  `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
+  `link.pop("port", None)\nboard.BOARD["link"] = link\n`;
+mp.runPython("import sys\nsys.path.append('/lib')\n" + seed + dialTo + "from simhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident\n");
 const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
 const closed = mp.globals.get("_closed");
@@ -97,7 +107,9 @@ function run() {
     return;
   }
   for (const tok of out ? out.split(" ") : []) {
-    if (tok[0] === "-") {
+    if (tok[0] === "+") {
+      dial(tok.slice(1));
+    } else if (tok[0] === "-") {
       const s = conns.get(Number(tok.slice(1)));
       conns.delete(Number(tok.slice(1)));
       if (s) s.destroy();
@@ -119,10 +131,8 @@ function schedule(now) {
   pending = ms <= 0 ? { immediate: setImmediate(run) } : { timeout: setTimeout(run, ms) };
 }
 
-const server = createServer((s) => {
-  const n = nextConn++;
-  conns.set(n, s);
-  open(n);
+// A connection's bytes to the firmware, and its end (the firmware may have closed it first).
+function attach(n, s) {
   s.setNoDelay(true);
   s.on("data", (d) => {
     feed(n, d.toString("hex"));
@@ -133,6 +143,28 @@ const server = createServer((s) => {
     schedule(true);
   });
   s.on("error", () => {});
+}
+
+// The firmware dials ("n:HOST:PORT", board/dial.py): the connection is the firmware's once up
+// (open), or it failed (closed, never opened).
+function dial(spec) {
+  const n = spec.slice(0, spec.indexOf(":"));
+  const host = spec.slice(spec.indexOf(":") + 1, spec.lastIndexOf(":"));
+  const port = spec.slice(spec.lastIndexOf(":") + 1);
+  const s = dialTcp({ host, port: Number(port) });
+  conns.set(Number(n), s);
+  s.on("connect", () => {
+    if (conns.has(Number(n))) open(Number(n));
+    schedule(true);
+  });
+  attach(Number(n), s);
+}
+
+const server = createServer((s) => {
+  const n = nextConn++;
+  conns.set(n, s);
+  open(n);
+  attach(n, s);
 });
 server.listen(portArg, "127.0.0.1", () => {
   process.stdout.write(`LISTEN ${server.address().port} ${ident}\n`);

@@ -1,8 +1,10 @@
 # The simulator's side inside MicroPython: the firmware from the board file on a link whose bytes
 # the node host moves, with the world's devices created from the same board file.
-# node's TCP connections are the link's (SimServer: as link.py's TcpServer on a device):
+# node's TCP connections are the link's (SimServer: as link.py's TcpServer on a device, and its
+# SocketNet when the board dials: {"kind": "tcp", "dial": "HOST:PORT"}, board/dial.py):
 # _open(n), _feed(n, hex), _closed(n) say what happened to connection n; _tick() runs one
-# firmware step and returns what to send and close ("n:hex" and "-n", space-separated);
+# firmware step and returns what to send, close and dial ("n:hex", "-n" and "+n:HOST:PORT",
+# space-separated);
 # _ctl(src) runs test code against WORLD and returns repr() of `result` (reboot() restarts the
 # firmware on the same filesystem and devices).
 
@@ -14,12 +16,30 @@ from mlboard.firmware import BreakIn, Firmware
 
 
 class SimServer:
-    # the TcpServer interface (link.py) over the connections node moves the bytes of
+    # the TcpServer interface (link.py) over the connections node moves the bytes of; and
+    # SocketNet's connect/connected, whose connections node makes (numbered from DIALED, apart
+    # from those it accepts)
+    DIALED = 1 << 20
+
     def __init__(self):
         self.new = []
         self.rx = {}  # open connection -> bytes received
         self.ended = []  # closed by the client (what they sent is read first)
-        self.out = []  # "n:hex" to send, "-n" to close
+        self.out = []  # "n:hex" to send, "-n" to close, "+n:HOST:PORT" to dial
+        self.dialing = {}  # n -> True while node makes the connection
+        self._dials = self.DIALED
+
+    def connect(self, host, port):
+        n = self._dials
+        self._dials += 1
+        self.dialing[n] = True
+        self.out.append("+%d:%s:%d" % (n, host, port))
+        return n
+
+    def connected(self, n):
+        if n in self.rx:
+            return True
+        return False if n in self.dialing else None
 
     def accept(self):
         return self.new.pop(0) if self.new else None
@@ -44,7 +64,7 @@ class SimServer:
         return True
 
     def drop(self, n):
-        if self.rx.pop(n, None) is not None:
+        if self.rx.pop(n, None) is not None or self.dialing.pop(n, None):
             self.out.append("-%d" % n)
 
     def wait(self, us):
@@ -87,24 +107,37 @@ def _populate(board):
             WORLD.devices[t["name"]] = dev
 
 
-_populate(BOARD)
-wire = SimServer()  # node's connections
-if BOARD.get("link", {}).get("key_file"):  # a network board: signed records (signing.py)
+def _link(wire, cfg):
+    # as open_link on a device, over node's connections: a board that dials (dial.py) or
+    # listens; signed records when it has a key (signing.py), else one host at a time, the
+    # newest (a cable has one)
     from mlboard.clock import default_clock
     from mlboard.link import network_link
 
-    _clock = default_clock()
-    link = network_link(wire, BOARD["link"], lambda: _clock() // 1000)
-else:  # one host at a time, the newest (a cable has one)
-    from mlboard.link import TcpLink
+    clock = default_clock()
 
-    link = TcpLink(server=wire)
+    def clock_ms():
+        return clock() // 1000
+
+    if cfg.get("dial"):
+        from mlboard.dial import dial_server
+
+        return network_link(dial_server(wire, cfg, clock_ms), cfg, clock_ms)
+    return network_link(wire, cfg, clock_ms)
+
+
+_populate(BOARD)
+wire = SimServer()  # node's connections
+link = _link(wire, BOARD.get("link", {}))
 fw = Firmware(BOARD, machine, link)
 rt = fw.runtime
 stopped = False
 
 
 def _open(n):
+    if wire.dialing.pop(n, None):  # (a connection the board made: up)
+        wire.rx[n] = bytearray()
+        return
     wire.new.append(n)
     wire.rx[n] = bytearray()
 
@@ -115,6 +148,8 @@ def _feed(n, h):
 
 
 def _closed(n):
+    if wire.dialing.pop(n, None):  # (a dial that failed: the board tries again later)
+        return
     if n in wire.rx:
         wire.ended.append(n)
 

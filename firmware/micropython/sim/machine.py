@@ -320,8 +320,18 @@ def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     return dev.pulse(pulse_level, timeout_us)
 
 
+_UID = [b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"]
+
+
+def seed_unique_id(seed):
+    # each simulated board its own chip id (host.mjs --seed N): 8 bytes, as an RP2040's flash id
+    import hashlib
+
+    _UID[0] = hashlib.sha256(("missing-link sim board %d" % seed).encode()).digest()[:8]
+
+
 def unique_id():
-    return b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"
+    return _UID[0]
 
 
 def freq():

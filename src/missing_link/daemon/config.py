@@ -21,6 +21,7 @@ from ..ros.msgs import DISTROS, check_package
 from ..text import is_token
 from ..topics import check_topic
 from .control import runtime_dir
+from .listen_spec import ListenSpec, parse_listen
 
 
 @dataclass
@@ -122,6 +123,10 @@ class DiscoverSpec:
         return f"{' '.join(self.ports)} ({who}{', serial ' + self.serial if self.serial else ''})"
 
 
+#: a board.id as a board states it and a config names it: printable ASCII, no spaces
+BOARD_ID = re.compile(r"[!-~]{1,64}\Z")
+
+
 @dataclass
 class Config:
     boards: list[BoardSpec] = field(default_factory=list)
@@ -150,7 +155,24 @@ class Config:
     control: str | None = None
     #: the command topics that take commands at all, from any face (patterns; daemon/commands.py)
     commands: list[str] = field(default_factory=lambda: ["**"])
+    #: board name -> the board.id it is ([boards.<name>] id): the board keeps its name, topics
+    #: and configuration whatever port or link it comes on
+    board_ids: dict[str, str] = field(default_factory=dict)
+    #: accept boards that dial in here (``run --listen``; listener.py)
+    listen: str | None = None
+    #: which boards that dial in are taken: "any", or "known" (those with an id above)
+    accept: str = "any"
     source: str = "<defaults>"
+
+    def name_of_id(self, board_id: str) -> str | None:
+        """The configured name of the board whose board.id is ``board_id``."""
+        for name, known in self.board_ids.items():
+            if known == board_id:
+                return name
+        return None
+
+    def listen_spec(self) -> ListenSpec | None:
+        return parse_listen(self.listen) if self.listen else None
 
 
 _TABLES = ("daemon", "board", "boards", "remap", "discover")
@@ -165,6 +187,8 @@ _DAEMON_KEYS = {
     "probe_budget": (int, float),
     "control": str,
     "commands": list,
+    "listen": str,
+    "accept": str,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -207,7 +231,7 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
     def fail(where: str, why: str) -> ConfigError:
         return ConfigError(f"{source}: {where}: {why}")
 
-    cfg.board_config = _parse_boards(doc.get("boards", {}), fail)
+    cfg.board_config, cfg.board_ids = _parse_boards(doc.get("boards", {}), fail)
     if "discover" in doc:
         cfg.discover = _parse_discover(doc["discover"], fail)
     _parse_daemon(cfg, doc.get("daemon", {}), fail)
@@ -240,6 +264,13 @@ def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
     if not all(isinstance(c, str) and c[:1] in ("/", "*") for c in cfg.commands):
         raise fail("daemon.commands", 'command topics or patterns, e.g. ["/rover/*/cmd"]')
     _check_control(cfg.control, fail)
+    if cfg.accept not in ("any", "known"):
+        raise fail("daemon.accept", f'{cfg.accept!r}: "any" or "known" (ids in [boards.NAME])')
+    if cfg.listen is not None:
+        try:
+            parse_listen(cfg.listen)
+        except ValueError as e:  # (BadURL too: the key file)
+            raise fail("daemon.listen", str(e)) from None
     if cfg.backoff_max < cfg.backoff_min:
         raise fail("daemon.backoff_max", f"{cfg.backoff_max:g} is below backoff_min")
     if cfg.distro not in DISTROS:
@@ -329,18 +360,25 @@ def _parse_publisher_tables(
 _CONFIG_KEY = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
 
 
-def _parse_boards(table: Any, fail: Any) -> dict[str, dict[str, bool | int | float | str]]:
-    """``[boards.<name>.config]``: keys ``"<transducer>.<key>" = value`` per board name (checked
-    against the board's own table when it connects)."""
+Settings = dict[str, dict[str, bool | int | float | str]]
+
+
+def _parse_boards(table: Any, fail: Any) -> tuple[Settings, dict[str, str]]:
+    """``[boards.<name>]``: ``id = "..."`` (the board.id of the board so named) and
+    ``[boards.<name>.config]``, keys ``"<transducer>.<key>" = value`` (checked against the
+    board's own table when it connects)."""
     if not isinstance(table, dict):
         raise fail("boards", "must be tables like [boards.thesis.config]")
-    out: dict[str, dict[str, bool | int | float | str]] = {}
+    out: Settings = {}
+    ids: dict[str, str] = {}
     for name, sub in table.items():
         where = f"boards.{name}"
         if not is_token(name):
             raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
-        if not isinstance(sub, dict) or set(sub) - {"config"}:
-            raise fail(where, "has one table: config ([boards.NAME.config])")
+        if not isinstance(sub, dict) or set(sub) - {"config", "id"}:
+            raise fail(where, 'has an id ("...") and a table config ([boards.NAME.config])')
+        if "id" in sub:
+            ids[name] = _board_id(sub["id"], ids, f"{where}.id", fail)
         values = sub.get("config", {})
         if not isinstance(values, dict):
             raise fail(f"{where}.config", 'must be a table of "transducer.key" = value')
@@ -350,7 +388,16 @@ def _parse_boards(table: Any, fail: Any) -> dict[str, dict[str, bool | int | flo
             if not isinstance(value, (bool, int, float, str)):
                 raise fail(f"{where}.config.{key}", f"expected a value, got {value!r}")
         out[name] = dict(values)
-    return out
+    return out, ids
+
+
+def _board_id(value: Any, ids: dict[str, str], where: str, fail: Any) -> str:
+    if not isinstance(value, str) or not BOARD_ID.match(value):
+        raise fail(where, f"a board.id (printable ASCII without spaces, 1..64), not {value!r}")
+    for other, known in ids.items():
+        if known == value:
+            raise fail(where, f"{value!r} is the id of boards.{other} already")
+    return value
 
 
 def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:
