@@ -25,7 +25,7 @@ from missing_link.daemon.config import BoardSpec, parse_config
 from missing_link.daemon.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
 from missing_link.daemon.listener import Mailbox
-from missing_link.deploy.boardfile import check_board
+from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import BadURL, ConfigError
 
 from .helpers import FirmwareSim, wait_for
@@ -155,6 +155,8 @@ def test_board_files_name_where_the_board_dials(link: dict[str, Any], message: s
         check_board(board, "wifi.py")
     board["link"] = {"kind": "tcp", "dial": "10.0.0.1:7000", "key_file": "mlkey.bin"}
     check_board(board, "wifi.py")
+    example = load_board_file(ROOT / "examples" / "boards" / "esp32-dial.py")
+    assert example.board["link"]["dial"] == "192.168.1.10:7000"
 
 
 # ---- the daemon's side: where it listens, and which session a board goes to ------------------

@@ -20,7 +20,7 @@ from missing_link.daemon.config import BoardSpec, Config, parse_config
 from missing_link.deploy.boardfile import load_board_file
 from missing_link.deploy.check import FlashError, verify
 from missing_link.deploy.flash import firmware_hash as staged_hash
-from missing_link.deploy.flash import micropython_files, stage_files
+from missing_link.deploy.flash import flash, micropython_files
 from missing_link.errors import ConfigError
 from missing_link.host.board import Board
 from missing_link.publishers.base import Publisher
@@ -29,6 +29,7 @@ from missing_link.virtual import make_sim, start_board_thread
 from missing_link.virtual.server import BoardServer
 
 from .helpers import AvrSim, FirmwareSim, wait_for
+from .serial_board import SerialBoard
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD_PKG = ROOT / "src" / "missing_link" / "board"
@@ -84,18 +85,32 @@ def test_micropython_boards_state_their_chips_id_and_the_hash_of_their_files() -
 
 @pytest.mark.micropython
 def test_flash_computes_the_hash_the_flashed_board_states(tmp_path: Path) -> None:
-    """The runtime files ``flash`` copies, staged as they go on the board, run under MicroPython
-    from there (host.mjs --lib): the board's fw.hash is what flash computed before copying, and
-    the check after flashing compares it (a board that runs other files is refused)."""
+    """``flash`` with the real mpremote into MicroPython's own REPL and filesystem
+    (tests/serial_board.py), over a board flashed before with a driver this board file does not
+    use: that file is gone, and the firmware booted from the flashed files (host.mjs --lib)
+    states the fw.hash flash computed before copying; the check after flashing compares it (a
+    board that runs other files is refused)."""
+    flash_dir = tmp_path / "flash"
+    stale = flash_dir / "lib" / "mlboard" / "drivers" / "stale.py"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("x = 1\n")
     bf = load_board_file(RIG)
-    files = micropython_files(bf)
-    stage_files(files, tmp_path)
-    want = staged_hash(files)
+    want = staged_hash(micropython_files(bf))
     assert want != tree_hash(str(BOARD_PKG))  # (only the drivers it uses: other files)
-    sim = FirmwareSim(RIG, args=["--lib", str(tmp_path / "lib" / "mlboard")])
+    board = SerialBoard(flash_dir)
+    said: list[str] = []
     try:
-        said = verify(sim.url, bf, expect={"fw.hash": want})
-        assert f"fw.hash {want}" in said and "board.id " in said
+        assert flash(bf, board.port, check=False, say=said.append) == 0
+        assert board.wait_gone(30) and board.was_reset
+    finally:
+        board.close()
+    assert not stale.exists()
+    lib = flash_dir / "lib" / "mlboard"
+    assert tree_hash(str(lib)) == want
+    sim = FirmwareSim(RIG, args=["--lib", str(lib)])
+    try:
+        said_ok = verify(sim.url, bf, expect={"fw.hash": want})
+        assert f"fw.hash {want}" in said_ok and "board.id " in said_ok
         with pytest.raises(FlashError, match=r"the board says fw.hash '[0-9a-f]{16}', "):
             verify(sim.url, bf, timeout=3.0, expect={"fw.hash": "0" * 16})
     finally:
@@ -252,7 +267,10 @@ def test_two_boards_that_state_one_id_are_both_shown_with_a_warning() -> None:
         ({"boards": {"a": {"id": 5}}}, "boards.a.id: a board.id"),
         ({"boards": {"a": {"id": "has space"}}}, "boards.a.id: a board.id"),
         ({"boards": {"a": {"id": "x"}, "b": {"id": "x"}}}, "'x' is the id of boards.a already"),
-        ({"boards": {"a": {"serial": "x"}}}, 'has an id ("...") and a table config'),
+        (
+            {"boards": {"a": {"serial": "x"}}},
+            "has one table: config ([boards.NAME.config]), and an id",
+        ),
     ],
 )
 def test_ids_in_the_config_are_checked(doc: dict[str, Any], message: str) -> None:

@@ -376,7 +376,7 @@ def _parse_boards(table: Any, fail: Any) -> tuple[Settings, dict[str, str]]:
         if not is_token(name):
             raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
         if not isinstance(sub, dict) or set(sub) - {"config", "id"}:
-            raise fail(where, 'has an id ("...") and a table config ([boards.NAME.config])')
+            raise fail(where, 'has one table: config ([boards.NAME.config]), and an id = "..."')
         if "id" in sub:
             ids[name] = _board_id(sub["id"], ids, f"{where}.id", fail)
         values = sub.get("config", {})

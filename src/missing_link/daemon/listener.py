@@ -17,8 +17,9 @@ sockets, not threads).  That thread:
    the session of that id, a new one, or a refusal such as ``accept = "known"``).
 
 Anything that goes wrong is one line and a count by kind (``refused``: why), said once per
-kind and address; nothing a board sends ends a thread.  A board is known by its id, never by
-its address: the address it came from is only shown (``address`` in the status).
+kind and message (whatever port the board dialed from); nothing a board sends ends a thread.
+A board is known by its id, never by its address: the address it came from is only shown
+(``address`` in the status).
 
 :class:`Mailbox` is where a board waits for its session: the session takes it on its own
 thread, as it would open a link by URL (session.py).
@@ -209,11 +210,12 @@ class Listener:
         return board
 
     def _refuse(self, kind: str, why: str, address: str) -> None:
+        said = (kind, why.replace(address, "ADDRESS"))  # (a board dials from a new port)
         with self._lock:
             self.refused[kind] = self.refused.get(kind, 0) + 1
-            first = (kind, why) not in self._said and len(self._said) < 256
+            first = said not in self._said and len(self._said) < 256
             if first:
-                self._said.add((kind, why))
+                self._said.add(said)
         # the same refusal again (a board that redials every few seconds) is said once
         log.log(logging.WARNING if first else logging.DEBUG, "%s: %s: %s (%s)", self.url, kind,
                 why, address)  # fmt: skip

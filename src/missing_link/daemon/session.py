@@ -246,7 +246,6 @@ class BoardSession:
         self.state = SessionState.STOPPED
 
     def _failed(self, e: Exception) -> None:
-        self.failures += 1
         if isinstance(e, MissingLinkError):
             text = str(e)
             line = text if text.startswith(self.spec.url) else f"{self.spec.url}: {text}"
@@ -254,11 +253,11 @@ class BoardSession:
             # status and /diagnostics always carry it
             log.log(logging.DEBUG if text == self.error else logging.WARNING, "%s", line)
             self.error = text
-            return
-        # A bug (ours, or a board case nobody validated yet): counted by kind, its traceback
-        # logged the first time; the status carries the line
-        self.error = f"internal error: {type(e).__name__}: {e}"
-        self.faults.caught("session", e, "session (retrying with backoff)")
+        else:  # A bug (ours, or a board case nobody validated yet): counted by kind, its
+            # traceback logged the first time; the status carries the line
+            self.error = f"internal error: {type(e).__name__}: {e}"
+            self.faults.caught("session", e, "session (retrying with backoff)")
+        self.failures += 1  # (after the error: who sees the count sees why)
 
     def _own(self, board: Board) -> None:
         self.board = board  # owned before the handshake: stop() closes it at once

@@ -89,7 +89,25 @@ def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[s
             cmd += ["fs", "cp", "-r", str(stage / top), ":", "+"]
         else:
             cmd += ["fs", "cp", str(stage / top), f":{top}", "+"]
+        if top == LIB.split("/", 1)[0]:
+            cmd += ["exec", prune_code(files), "+"]
     return [*cmd, "reset"]
+
+
+def prune_code(files: list[Copy]) -> str:
+    """MicroPython that removes the files under ``lib/mlboard`` that this flash did not put
+    there (a driver an earlier board file used): the runtime is then exactly the files
+    ``firmware_hash`` hashed, and the board's fw.hash says so.  Nothing else is touched."""
+    keep = sorted(c.remote[len(LIB) :] for c in files if c.remote.startswith(LIB))
+    return (
+        f"import os\nkeep = {tuple(keep)!r}\ndef prune(rel):\n"
+        f"    for name in os.listdir({LIB.rstrip('/')!r} + rel):\n"
+        "        path = rel + '/' + name\n"
+        f"        full = {LIB.rstrip('/')!r} + path\n"
+        "        if os.stat(full)[0] & 0x4000:\n            prune(path)\n"
+        "        elif path[1:] not in keep:\n            os.remove(full)\n"
+        "prune('')\n"
+    )
 
 
 def stage_files(files: list[Copy], stage: Path) -> None:
