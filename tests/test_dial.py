@@ -246,6 +246,8 @@ def test_a_board_goes_to_the_session_of_its_id(dialins: tuple[DialIns, list[Fake
     assert len(made) == 2 and made[1].box.waiting is twin and back.alive
     # no id, or (accept = "known") an id the config does not name: refused, saying why
     assert "states no board.id" in str(d.hand_over(FakeBoard("e4", board_id="")))  # type: ignore[arg-type]
+    odd = d.hand_over(FakeBoard("e4", board_id="a\x1b[2Jb"))  # type: ignore[arg-type]
+    assert odd is not None and "not 1..64 printable ASCII" in odd and len(made) == 2
     d.config.accept = "known"
     why = d.hand_over(FakeBoard("e5", board_id="b9"))  # type: ignore[arg-type]
     assert why is not None and '[boards.NAME] id = "b9"' in why and len(made) == 2

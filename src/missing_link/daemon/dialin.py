@@ -7,7 +7,8 @@ Theory of operation
 Each id has the sessions of the boards that dialed in with it (one, normally), each with its
 :class:`~missing_link.daemon.listener.Mailbox`.  A board that states id X goes:
 
-* refused, when it states no id, or when ``[daemon] accept = "known"`` and no
+* refused, when it states no id (or one that is not 1..64 printable characters), or when
+  ``[daemon] accept = "known"`` and no
   ``[boards.NAME] id = "X"`` names it (the board dials again later: board/dial.py's backoff);
 * to a session of X whose link is the same boot of the same board (the same ``clock.epoch``:
   it lost its connection and dialed again before the old one was noticed): that old link is
@@ -33,7 +34,7 @@ from typing import Any
 from ..errors import MissingLinkError
 from ..host.board import Board
 from ..host.reactor import Reactor
-from .config import BoardSpec, Config
+from .config import BOARD_ID, BoardSpec, Config
 from .listen_spec import ListenSpec
 from .listener import Listener, ListenerContext, Mailbox
 from .session import UP, BoardSession
@@ -98,6 +99,8 @@ class DialIns:
         board_id = props.get("board.id") or props.get("board.serial", "")
         if not board_id:
             return "it states no board.id (nor board.serial): a board is known by its id"
+        if not BOARD_ID.match(board_id):  # (untrusted: it names a session, a URL, a warning)
+            return f"board.id {board_id[:80]!r} is not 1..64 printable ASCII without spaces"
         name = self.config.name_of_id(board_id)
         if name is None and self.config.accept == "known":
             return (
