@@ -27,6 +27,8 @@ from missing_link.daemon.listen_spec import parse_listen
 from missing_link.daemon.listener import Mailbox
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import BadURL, ConfigError
+from missing_link.virtual import make_sim
+from missing_link.virtual.server import BoardServer
 
 from .helpers import FirmwareSim, wait_for
 
@@ -251,6 +253,35 @@ def test_a_board_goes_to_the_session_of_its_id(dialins: tuple[DialIns, list[Fake
     d.config.accept = "known"
     why = d.hand_over(FakeBoard("e5", board_id="b9"))  # type: ignore[arg-type]
     assert why is not None and '[boards.NAME] id = "b9"' in why and len(made) == 2
+
+
+def test_a_flood_of_clients_costs_the_listener_nothing_it_keeps() -> None:
+    """Clients that connect and say nothing or junk: at most MAX_PENDING are greeted at once,
+    the rest closed at once; all counted by kind; a board that dials afterwards gets in."""
+    from missing_link.daemon.listener import MAX_PENDING
+
+    with listening("tcp://127.0.0.1:0") as d:
+        assert d.dialins is not None
+        port = d.dialins.listener.port
+        held = [socket.create_connection(("127.0.0.1", port)) for _ in range(MAX_PENDING + 3)]
+        held[0].sendall(os.urandom(300))
+        try:
+            st = d.dialins.status
+            assert wait_for(lambda: "busy x3" in st()["refused_kinds"], 10), st()
+            assert st()["accepted"] == MAX_PENDING
+        finally:
+            for s in held:
+                s.close()
+        assert wait_for(lambda: "handshake failed x8" in d.dialins.status()["refused_kinds"], 20)
+        server = BoardServer(make_sim("rangers", seed=2), f"tcp://127.0.0.1:{port}", dial=True)
+        thread = threading.Thread(target=server.serve_forever, daemon=True)
+        thread.start()
+        try:
+            assert wait_for(lambda: d.sessions and d.wait_until_up(0.1), 20), d.status()
+            assert d.dialins.status()["errors"] == 0 and d.sessions[0].name == "board_b"
+        finally:
+            server.stop()
+            thread.join(5)
 
 
 # ---- MicroPython boards dialing a real daemon ---------------------------------------------------

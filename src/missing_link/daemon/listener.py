@@ -149,25 +149,35 @@ class Listener:
                 if not ready:
                     continue
                 sock, peer = self._sock.accept()
-            except OSError as e:  # (closed by stop(); else out of descriptors: said, goes on)
+            except (OSError, ValueError) as e:  # (closed by stop(); else out of descriptors)
                 if not self._stop.is_set():
-                    self._refuse("accept failed", f"{e.strerror or e}", "-")
+                    self._refuse("accept failed", f"{getattr(e, 'strerror', None) or e}", "-")
                     self._stop.wait(_POLL_S)
                 continue
+            try:
+                self._take(sock, f"tcp://{peer[0]}:{peer[1]}")
+            except Exception as e:  # noqa: BLE001 - (no thread to start: said, counted; the
+                sock.close()  # listener goes on)
+                self.faults.caught("accept", e, "taking a board that dialed in")
+
+    def _take(self, sock: socket.socket, address: str) -> None:
+        """A connection to greet on a thread of its own, unless MAX_PENDING are greeted."""
+        with self._lock:
+            busy = self._pending >= MAX_PENDING
+            if not busy:
+                self._pending += 1
+        if busy:
+            sock.close()
+            self._refuse("busy", f"{MAX_PENDING} connections greeted already", address)
+            return
+        self.accepted += 1
+        try:
+            threading.Thread(target=self._serve_one, args=(sock, address),
+                             name=f"dial-in:{address}", daemon=True).start()  # fmt: skip
+        except BaseException:  # (broad, raised again: the slot is given back)
             with self._lock:
-                busy = self._pending >= MAX_PENDING
-                if not busy:
-                    self._pending += 1
-            address = f"tcp://{peer[0]}:{peer[1]}"
-            if busy:
-                sock.close()
-                self._refuse("busy", f"{MAX_PENDING} connections greeted already", address)
-                continue
-            self.accepted += 1
-            threading.Thread(
-                target=self._serve_one, args=(sock, address), name=f"dial-in:{address}",
-                daemon=True,
-            ).start()  # fmt: skip
+                self._pending -= 1
+            raise
 
     def _serve_one(self, sock: socket.socket, address: str) -> None:
         try:
