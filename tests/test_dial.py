@@ -362,6 +362,28 @@ def test_micropython_boards_dial_in_and_one_comes_back_as_itself(tmp_path: Path)
 
 
 @pytest.mark.micropython
+def test_a_board_dials_again_when_its_daemon_comes_back(tmp_path: Path) -> None:
+    """The daemon stops (the board hears goodbye, its connection ends) and another starts on
+    the same port a while later: the board, dialing with backoff meanwhile, comes up there."""
+    first = listening("tcp://127.0.0.1:0").start()
+    assert first.dialins is not None
+    port = first.dialins.listener.port
+    sim = FirmwareSim(dialing_board(tmp_path, port), args=["--seed", "5"])
+    try:
+        assert wait_for(lambda: first.sessions and first.wait_until_up(0.1), 20), first.status()
+        first.stop()
+        assert wait_for(lambda: sim.ctl("result = fw.link.server.dials") >= 3, 20)
+        with listening(f"tcp://127.0.0.1:{port}") as again:
+            assert wait_for(lambda: again.sessions and again.wait_until_up(0.1), 30)
+            assert again.status()[0]["board_id"] == chip_id(5)
+            dials, connects = sim.ctl("result = (fw.link.server.dials, fw.link.server.connects)")
+            assert connects == 2 and dials > connects  # (refused meanwhile, dialed again)
+    finally:
+        first.stop()
+        sim.close()
+
+
+@pytest.mark.micropython
 def test_known_boards_only_and_two_boards_with_one_id(tmp_path: Path) -> None:
     """``accept = "known"``: a board whose id the config does not name is refused (and dials
     again later); two boards with one chip id are both shown, with the warning."""
