@@ -8,8 +8,8 @@ Each id has the sessions of the boards that dialed in with it (one, normally), e
 :class:`~missing_link.daemon.listener.Mailbox`.  A board that states id X goes:
 
 * refused, when it states no id (or one that is not 1..64 printable characters), or when
-  ``[daemon] accept = "known"`` and no
-  ``[boards.NAME] id = "X"`` names it (the board dials again later: board/dial.py's backoff);
+  ``[daemon] accept = "known"`` and no ``[boards.NAME] id = "X"`` names it (the board dials
+  again later: board/dial.py's backoff);
 * to a session of X whose link is the same boot of the same board (the same ``clock.epoch``:
   it lost its connection and dialed again before the old one was noticed): that old link is
   closed and the session takes the new one at once;
