@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import itertools
 import json
 import queue
 import shutil
@@ -126,6 +127,9 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+_SIM_SEEDS = itertools.count(1000)
+
+
 class FirmwareSim:
     """The MicroPython firmware from a board file, under the real MicroPython interpreter (node,
     WebAssembly port) with simulated peripherals (src/missing_link/virtual/world), its J2A link on a
@@ -134,11 +138,20 @@ class FirmwareSim:
     ROOT = Path(__file__).resolve().parent.parent
     HOST = ROOT / "src" / "missing_link" / "virtual" / "world" / "host.mjs"
 
-    def __init__(self, board_file: Path | str, files: dict[str, Path] | None = None) -> None:
-        """``files``: put on the board's filesystem (name -> local file), as flash would."""
+    def __init__(
+        self,
+        board_file: Path | str,
+        files: dict[str, Path] | None = None,
+        args: list[str] | None = None,
+    ) -> None:
+        """``files``: put on the board's filesystem (name -> local file), as flash would;
+        ``args``: more of host.mjs's (``--seed N``, ``--lib DIR``, ``--dial HOST:PORT``)."""
         if shutil.which("node") is None:
             raise RuntimeError("node is required: run `make node`")
         extra = [x for name, path in (files or {}).items() for x in ("--file", f"{name}={path}")]
+        extra += args or []
+        if "--seed" not in extra:  # (each simulated chip its own machine.unique_id(): board.id)
+            extra += ["--seed", str(next(_SIM_SEEDS))]
         self.proc = subprocess.Popen(
             ["node", str(self.HOST), str(board_file), *extra],
             stdin=subprocess.PIPE,

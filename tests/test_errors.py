@@ -418,6 +418,9 @@ OUTSIDE = {
     # the board runtime runs on MicroPython (it does not ship errors.py); BreakIn is the REPL's
     # Ctrl-C on the board's own console, control flow rather than an error
     "missing_link.board.firmware.BreakIn",
+    # a virtual board's power switched off: unwinds the firmware's own loop like a power cut, a
+    # BaseException so that no `except Exception` in the firmware can catch it (control flow)
+    "missing_link.virtual.boardfile.PowerOff",
 }
 
 

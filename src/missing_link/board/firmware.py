@@ -32,6 +32,7 @@ from .clock import resolution_us
 from .config import RuntimeConfig
 from .drivers import driver_class
 from .failsafe import Failsafe
+from .identity import machine_id
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
 from .timing import Timing
@@ -43,13 +44,6 @@ SPIN_US = 2000
 
 class BreakIn(Exception):
     pass
-
-
-def _serial(machine):
-    try:
-        return "".join("%02x" % b for b in machine.unique_id())
-    except Exception:  # noqa: BLE001 - a port without unique_id: the board file must name it
-        return "unknown"
 
 
 def open_buses(board, machine):
@@ -97,12 +91,14 @@ def build(board, machine, clock=None, store=None):
     # -> (runtime, {transducer name: driver}); store: where the configuration is saved
     # (default: the file named by the board file's `config_file`)
     name = board["name"]
+    uid = machine_id(machine)  # board.id: the chip's (a port without one: the board file's serial)
     rt = BoardRuntime(
         name,
         board.get("model", "missing-link micropython board"),
-        board.get("serial") or _serial(machine),
+        board.get("serial") or uid or "unknown",
         fw_version=board.get("fw_version", "0.2.0"),
         clock=clock,
+        board_id=uid or board.get("serial") or "unknown",
     )
     rt.set_property("clock.res_us", str(resolution_us(rt.clock)))
     buses = open_buses(board, machine)

@@ -27,6 +27,7 @@
 import struct
 
 from .clock import default_clock, new_epoch
+from .identity import runtime_hash
 from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
     EV_BREAK,
@@ -84,6 +85,8 @@ class BoardRuntime:
         epoch=None,
         builtins=True,
         part2=True,
+        board_id=None,
+        fw_hash=None,
     ):
         self.clock = clock if clock is not None else default_clock()
         self.parser = FrameParser()
@@ -128,9 +131,14 @@ class BoardRuntime:
         self.set_property("board.name", name)
         self.set_property("board.model", model)
         self.set_property("board.serial", serial)
+        if part2:  # who it is and what it runs (identity.py; the 2014 firmware had neither)
+            self.set_property("board.id", board_id or serial)
         self.set_property("clock.epoch", epoch if epoch is not None else new_epoch())
         self.set_property("clock.res_us", "1")
         self.set_property("fw.version", fw_version)
+        fw_hash = runtime_hash() if fw_hash is None and part2 else fw_hash
+        if fw_hash:
+            self.set_property("fw.hash", fw_hash)
 
     # ---- configuration -------------------------------------------------------------------
     def _add(self, name, kind, handler):

@@ -57,14 +57,21 @@ def build_config(args: argparse.Namespace) -> Any:
         if args.any_usb:
             spec.any_usb, spec.vid, spec.pid = True, None, None
         cfg.discover = spec
+    if args.listen:
+        from ..daemon.listen_spec import parse_listen
+
+        parse_listen(args.listen)  # (BadURL: exit 2, at once)
+        cfg.listen = args.listen
+    if args.accept:
+        cfg.accept = args.accept
     if cfg.control is None:  # (config/call/info reach the boards through it: docs/cli.md)
         from ..daemon.control import default_control_path
 
         cfg.control = default_control_path()
-    if not cfg.boards and cfg.discover is None:
+    if not cfg.boards and cfg.discover is None and cfg.listen is None:
         raise BadURL(
             "no boards: give URLs on the command line, [[board]] tables or [discover] in "
-            "--config, or --auto"
+            "--config, --auto, or --listen for boards that dial in"
         )
     return cfg
 
@@ -101,6 +108,10 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(f"missing-link: {p.name} at {url}", file=sys.stderr)
         if daemon.control is not None:
             print(f"missing-link: control endpoint {daemon.control.path}", file=sys.stderr)
+        if daemon.dialins is not None:
+            accept = daemon.config.accept
+            print(f"missing-link: boards dial in at {daemon.dialins.listener.url} "
+                  f"(accept {accept})", file=sys.stderr)  # fmt: skip
         if args.wait_up and not daemon.wait_until_up(args.wait_up):
             for s in daemon.sessions:
                 if s.state != "up":

@@ -61,9 +61,10 @@ def cmd_board(args: argparse.Namespace) -> int:
     try:
         server = BoardServer(
             runtime,
-            args.listen,
+            args.dial or args.listen,
             resets=resets,
             rebuild=lambda: make_sim(args.sim, seed=args.seed, **extra),
+            dial=bool(args.dial),
         )
     except OSError as e:
         print(
@@ -77,9 +78,14 @@ def cmd_board(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
-    print(f"LISTENING {server.url}", flush=True)
+    print(_ready(server.url), flush=True)
     server.serve_forever()
     return 0
+
+
+def _ready(url: str) -> str:
+    """The line a board prints once it serves: LISTENING URL, or DIALING URL (board --dial)."""
+    return f"DIALING {url[5:]}" if url.startswith("dial ") else f"LISTENING {url}"
 
 
 #: the sim-only options and what they are when not given
@@ -95,6 +101,10 @@ def _board_file(args: argparse.Namespace) -> int:
     from ..deploy.boardfile import load_board_file
     from ..errors import ConfigError
 
+    if args.dial:
+        raise ConfigError(
+            "--dial goes with --sim for now; a board file that dials names its host in its link"
+        )
     given = [k for k, default in _SIM_ONLY.items() if getattr(args, k) != default]
     if given:
         flag = "--" + given[0].replace("_", "-")
@@ -177,14 +187,14 @@ def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
     seeded SEED.., one LISTENING line each: benchmarks load the host, not N board processes."""
     from ..virtual import BoardServer, make_sim
 
-    if not args.listen.startswith("tcp://") or not args.listen.endswith(":0"):
-        print("missing-link: error: --count needs --listen tcp://HOST:0", file=sys.stderr)
+    if not args.dial and not (args.listen.startswith("tcp://") and args.listen.endswith(":0")):
+        print("missing-link: error: --count needs --listen tcp://HOST:0 or --dial", file=sys.stderr)
         return EXIT_USAGE
     base = extra.pop("name", None) or args.sim
     servers = []
     for k in range(args.count):
         runtime = make_sim(args.sim, seed=args.seed + k, name=f"{base}_{k}", **extra)
-        servers.append(BoardServer(runtime, args.listen))
+        servers.append(BoardServer(runtime, args.dial or args.listen, dial=bool(args.dial)))
     threads = [
         threading.Thread(target=s.serve_forever, name=f"board:{s.url}", daemon=True)
         for s in servers
@@ -199,7 +209,7 @@ def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     for s in servers:
-        print(f"LISTENING {s.url}", flush=True)
+        print(_ready(s.url), flush=True)
     done.wait()
     for s in servers:
         s.stop()

@@ -20,6 +20,10 @@
 - :mod:`.actuators` - commands for a board's actuators, latest wins; timed ones at their time
 - :mod:`.commands` - who may move the robot: the allow-list, on every path to an actuator
 - :mod:`.discovery` - boards found as their serial ports appear (``run --auto``)
+- :mod:`.listener`, :mod:`.dialin` - boards that dial in (``run --listen``), each to its session
+  by its ``board.id``; :mod:`.listen_spec` - where; :mod:`.session_link` - how a session gets
+  its board (by URL, or handed over)
+- :mod:`.health` - the daemon's rows besides its boards (publishers, control, listener)
 - :mod:`.config` - the TOML configuration, validated
 """
 

@@ -80,3 +80,9 @@ class SessionContext:
     clock: SupervisorClock = MONOTONIC
     #: a board came up (validated, topics declared): its description, for recordings
     describe_board: Callable[[BoardDescription], None] = lambda record: None
+    #: (owner, board.id, owner's URL) -> a warning when another connected board states it too
+    claim_id: Callable[[object, str, str], str | None] = lambda owner, board_id, url: None
+    #: (owner): its board is gone
+    release_id: Callable[[object], None] = lambda owner: None
+    #: (owner) -> the warning while another connected board states its board.id, else None
+    id_conflict: Callable[[object], str | None] = lambda owner: None

@@ -1,9 +1,13 @@
 """AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file
-(``make -C firmware/avr``, which runs ``gen-firmware``) and write it with avrdude through the
-Arduino bootloader; then ``flash`` checks the board answers J2A as the board file says."""
+(``make -C firmware/avr``, which runs ``gen-firmware`` and stamps the image with a board.id and
+its fw.hash: avrstamp.py) and write it with avrdude through the Arduino bootloader; then
+``flash`` checks the board answers J2A as the board file says, with the fw.hash it was stamped
+with (and the id, when ``--id`` forced one).  The id reaches the EEPROM through the image: the
+bootloaders write flash only (identity.c)."""
 
 from __future__ import annotations
 
+import re
 import shlex
 import subprocess
 import sys
@@ -11,6 +15,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from .avrstamp import check_id
 from .boardfile import BoardFile
 from .check import FlashError, verify
 
@@ -32,11 +37,18 @@ def avrdude_command(mcu: str, port: str, hex_path: str | Path) -> list[str]:
     ]  # fmt: skip
 
 
-def make_command(bf: BoardFile, build: Path) -> list[str]:
+def make_command(bf: BoardFile, build: Path, board_id: str | None = None) -> list[str]:
+    """``board_id``: stamped forced (the board takes it over the id it has); without it, a
+    fresh random id, taken only by a board that has none (a re-flash keeps its id)."""
+    ident = [f"ID={check_id(board_id)}", "FORCE_ID=1"] if board_id else []
     return [
         "make", "-C", str(AVR_DIR), f"BOARD={bf.path.resolve()}", f"BUILD={build}",
-        f"PYTHON={sys.executable}",
+        f"PYTHON={sys.executable}", *ident,
     ]  # fmt: skip
+
+
+#: the stamp's line in make's output (avrstamp.py)
+STAMPED = re.compile(r"stamped: fw\.hash ([0-9a-f]{16}), board\.id (\S+)")
 
 
 def _run(cmd: list[str], what: str, timeout: float) -> str:
@@ -57,27 +69,40 @@ def _run(cmd: list[str], what: str, timeout: float) -> str:
 
 
 def flash_avr(
-    bf: BoardFile, port: str, *, dry_run: bool, say: Callable[[str], None], check: bool
+    bf: BoardFile,
+    port: str,
+    *,
+    dry_run: bool,
+    say: Callable[[str], None],
+    check: bool,
+    board_id: str | None = None,
 ) -> int:
     with tempfile.TemporaryDirectory(prefix="missing-link-avr-") as tmp:
         build = Path(tmp)
         hex_path = build / bf.name / "firmware.hex"
-        make = make_command(bf, build)
+        make = make_command(bf, build, board_id)
         dude = avrdude_command(bf.mcu, port, hex_path)
         if dry_run:
             say(f"would build the C firmware for {bf.mcu}: " + shlex.join(make))
             say("would run: " + shlex.join(dude))
-            say(f"then check that serial://{port} answers J2A as {bf.name!r}")
+            say(f"then check that serial://{port} answers J2A as {bf.name!r}, with the fw.hash "
+                "of the image" + (f" and board.id {board_id}" if board_id else ""))  # fmt: skip
             return 0
         if not AVR_DIR.is_dir():
             raise FlashError(f"AVR flashing needs the missing-link source checkout ({AVR_DIR})")
         out = _run(make, "building the AVR firmware", 300)
         for line in out.splitlines():
-            if ": flash " in line:
-                say(line)  # the size line
+            if ": flash " in line or line.startswith("stamped: "):
+                say(line)  # the size line, the stamp's
+        stamped = STAMPED.search(out)
+        if stamped is None:
+            raise FlashError("building the AVR firmware: no stamp line (fw.hash, board.id)")
         say(f"writing {hex_path.name} to {port} with avrdude ...")
         _run(dude, f"avrdude on {port}", 300)
     if check:
         baud = int(bf.board.get("link", {}).get("baudrate", 115200))
-        say(verify(f"serial://{port}?baud={baud}", bf))
+        expect = {"fw.hash": stamped.group(1)}
+        if board_id:  # (else the board keeps the id it had, if any)
+            expect["board.id"] = board_id
+        say(verify(f"serial://{port}?baud={baud}", bf, expect=expect))
     return 0

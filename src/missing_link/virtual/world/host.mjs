@@ -2,7 +2,12 @@
 // port, from npm) with simulated peripherals, and serves its J2A link on a TCP port.
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
-//                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs]
+//                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
+//                 [--dial HOST:PORT]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
+//   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py;
+//   --no-dial: it listens on --port even when its board file's link dials: board --file)
 //   node host.mjs BOARDFILE --run SCRIPT.py   (run SCRIPT with the same files and sim, then exit:
 //                                            the firmware benchmark)
 //
@@ -24,7 +29,7 @@
 // `simworld`, its machine.py also as `machine`; the firmware as `mlboard`, as on a device.
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
-import { createServer } from "node:net";
+import { connect as dialTcp, createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
@@ -38,6 +43,10 @@ const hostArg = opt("--host") ?? "127.0.0.1";
 const runArg = opt("--run");
 const flashDir = opt("--flash");
 const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
+const seedArg = opt("--seed");
+const libArg = opt("--lib");
+const dialArg = opt("--dial");
+const noDial = args.includes("--no-dial");
 // --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 const mpyPath = opt("--mpy"); // where npm put MicroPython (the CLI finds it; else node resolves it)
@@ -62,7 +71,7 @@ function copyTree(src, dst) {
   }
 }
 mp.FS.mkdir("/lib");
-copyTree(join(here, "..", "..", "board"), "/lib/mlboard");
+copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
 copyTree(here, "/lib/simworld");
 mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
@@ -150,11 +159,16 @@ if (runArg) {
   mp.runPython(boot + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
+const seed = seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
+const dialTo = dialArg !== null ?
+  `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
+  `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
+  noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
 mp.runPython(
-  boot + "\n" +
+  boot + "\n" + seed + dialTo +
   [
     "from board import BOARD",
-    "import mlboard.clock, mlboard.firmware, mlboard.link",
+    "import mlboard.clock, mlboard.dial, mlboard.firmware, mlboard.link",
     "import mlboard",
     "from simworld import mpyhost",
     `mpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)})`,
@@ -198,7 +212,9 @@ function run() {
     return;
   }
   for (const tok of out ? out.split(" ") : []) {
-    if (tok[0] === "-") {
+    if (tok[0] === "+") {
+      dial(tok.slice(1));
+    } else if (tok[0] === "-") {
       const s = conns.get(Number(tok.slice(1)));
       conns.delete(Number(tok.slice(1)));
       if (s) s.destroy();
@@ -220,10 +236,8 @@ function schedule(now) {
   pending = ms <= 0 ? { immediate: setImmediate(run) } : { timeout: setTimeout(run, ms) };
 }
 
-const server = createServer((s) => {
-  const n = nextConn++;
-  conns.set(n, s);
-  open(n);
+// A connection's bytes to the firmware, and its end (the firmware may have closed it first).
+function attach(n, s) {
   s.setNoDelay(true);
   s.on("data", (d) => {
     feed(n, d.toString("hex"));
@@ -234,6 +248,28 @@ const server = createServer((s) => {
     schedule(true);
   });
   s.on("error", () => {});
+}
+
+// The firmware dials ("n:HOST:PORT", board/dial.py): the connection is the firmware's once up
+// (open), or it failed (closed, never opened).
+function dial(spec) {
+  const n = Number(spec.slice(0, spec.indexOf(":")));
+  const host = spec.slice(spec.indexOf(":") + 1, spec.lastIndexOf(":"));
+  const port = Number(spec.slice(spec.lastIndexOf(":") + 1));
+  const s = dialTcp({ host, port });
+  conns.set(n, s);
+  s.on("connect", () => {
+    if (conns.has(n)) open(n);
+    schedule(true);
+  });
+  attach(n, s);
+}
+
+const server = createServer((s) => {
+  const n = nextConn++;
+  conns.set(n, s);
+  open(n);
+  attach(n, s);
 });
 server.on("error", (e) => {
   process.stderr.write(`cannot listen on ${hostArg}:${portArg}: ${e.message}\n`);
