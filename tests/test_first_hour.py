@@ -254,7 +254,9 @@ def test_console_shows_scaled_values_in_their_unit() -> None:
     )
     out = io.StringIO()
     topic = Topic.for_transducer("/b/servo", "b", servo, "missing_link_msgs")
-    ConsolePublisher({}, out=out).publish(Update(topic, [1], [5], [20], 0, 0, 0))
+    ConsolePublisher({}, out=out).publish(
+        Update.build(topic=topic, board_us=[1], host_ns=[5], values=[20], seq=0, lost=0, recv_ns=0)
+    )
     assert out.getvalue().rstrip().endswith("/b/servo [14.17] deg (raw [20])")
 
 
