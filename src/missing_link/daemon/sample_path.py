@@ -121,7 +121,7 @@ class SamplePath:
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
         """The SIF handler (the board's reading thread), for every sample: locals, not
         attributes, the common sample inline, the rare cases (outage, clamps, N/A channels,
-        grids, no clock map, standard types) in the helpers below."""
+        grids, standard types) in the helpers below."""
         cmd, seq, payload, lost = sif
         self.next_seq = seq + 1
         total = self._total
@@ -187,8 +187,10 @@ class SamplePath:
         self.samples += len(values) - missing
         self.publish(update)
         std = self.standard.get(cmd)
-        if std is not None:
-            self._publish_standard(std, update)
+        if std is not None and std[1].sample is not None:
+            self._publish_sample_type(std, update)
+        elif std is not None:
+            self._publish_per_channel(std, update)
 
     def _held(
         self,
@@ -231,24 +233,27 @@ class SamplePath:
             est_error = round(math.hypot(est_error, shift))  # ... and the estimate
         return [h + shift if h else 0 for h in host_ns], newest + shift, bound, est_error
 
-    def _publish_standard(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
-        """The same sample on its standard-type topic: one message of every channel at once
-        (NavSatFix, MagneticField), or one per channel with a value."""
+    def _publish_sample_type(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
+        """A standard type made from every channel at once (NavSatFix, MagneticField)."""
         std_topic, mapping = std
+        assert mapping.sample is not None
         host_ns, values = update.host_ns, update.values
-        if mapping.sample is not None:
-            if not any(host_ns):
-                return  # every channel N/A: nothing to say
-            try:
-                cdr = mapping.sample(host_ns, values)
-            except (ValueError, OverflowError, struct.error, TypeError):
-                self._cannot_carry(std_topic)  # values the standard type cannot carry
-                return
-            self.publish(
-                self._standard_update(std_topic, update, update.board_us, host_ns, values, cdr)
-            )
+        if not any(host_ns):
+            return  # every channel N/A: nothing to say
+        try:
+            cdr = mapping.sample(host_ns, values)
+        except (ValueError, OverflowError, struct.error, TypeError):
+            self._cannot_carry(std_topic)  # values the standard type cannot carry
             return
-        for ch, v in enumerate(values):
+        self.publish(
+            self._standard_update(std_topic, update, update.board_us, host_ns, values, cdr)
+        )
+
+    def _publish_per_channel(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
+        """A standard type made per channel (Range): one message per channel with a value."""
+        std_topic, mapping = std
+        host_ns = update.host_ns
+        for ch, v in enumerate(update.values):
             if v is not None:
                 try:
                     cdr = mapping.build(ch, host_ns[ch], v)
