@@ -9,7 +9,6 @@ import os
 import signal
 import struct
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,19 +25,15 @@ from missing_link.host.config import ConfigRefused
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import AvrSim, FirmwareSim, wait_for
+from .helpers import ML, AvrRig, AvrSim, FirmwareSim, ml, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.avr
 
 
 @pytest.fixture
-def rig(avr_build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(avr_build, avr_build / "mega_rover" / "firmware.elf", rover=True)
-    try:
-        yield sim
-    finally:
-        sim.close()
+def rig(avr_rig: AvrRig) -> AvrSim:
+    return avr_rig("mega_rover", rover=True)
 
 
 @pytest.fixture
@@ -159,16 +154,12 @@ def test_the_daemon_says_goodbye_and_a_killed_one_trips_the_failsafe(
     env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
 
     def drive() -> bool:  # through the daemon's control endpoint, as a user would
-        r = subprocess.run(
-            [sys.executable, "-m", "missing_link", "call", "mega_rover", "a2j_motor_r",
-             "--value", "0.75"],
-            capture_output=True, text=True, timeout=30, env=env,
-        )  # fmt: skip
+        r = ml("call", "mega_rover", "a2j_motor_r", "--value", "0.75", timeout=30, env=env)
         return r.returncode == 0
 
     for kill in (signal.SIGTERM, signal.SIGKILL):
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg)],
+            [*ML, "run", "--config", str(cfg)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,

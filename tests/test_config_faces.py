@@ -11,8 +11,6 @@ import os
 import re
 import stat
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -22,13 +20,7 @@ from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_con
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import wait_for
-
-ML = [sys.executable, "-m", "missing_link"]
-
-
-def cli(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, env=env, timeout=60)
+from .helpers import ML, ml, wait_for
 
 
 def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_path: Path) -> None:
@@ -57,7 +49,8 @@ def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_pat
             assert wait_for(lambda: d.status()[0]["sync_resets"] >= 1, 10)  # the board reset
             assert wait_for(lambda: "board reset" in d.status()[0]["config_changed_by"], 5)
             assert d.board_config("thesis")["servo.min_deg"] == -45
-            time.sleep(1.0)
+            n = len(got)
+            wait_for(lambda: len(got) >= n + 5, 10)  # (the first of them perhaps on its way)
             recent = [u.board_us[0] for u in got[-4:]]
             gaps = [b - a for a, b in itertools.pairwise(recent)]
             assert all(150_000 <= g <= 250_000 for g in gaps), gaps  # 5 Hz after the reset too
@@ -114,27 +107,27 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
         assert wait_for(lambda: control.exists(), 15)
         assert stat.S_IMODE(os.stat(control).st_mode) == 0o600
         assert stat.S_IMODE(os.stat(control.parent).st_mode) == 0o700
-        r = cli("info", url, "--json", env=env)
+        r = ml("info", url, "--json", env=env)
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["name"] == "thesis"  # (not "Could not exclusively lock")
-        r = cli("call", "thesis", "a2jEcho", "--hex", "0102", "--json", env=env)
+        r = ml("call", "thesis", "a2jEcho", "--hex", "0102", "--json", env=env)
         assert r.returncode == 0 and json.loads(r.stdout)["payload"] == "0102", r.stderr
-        r = cli("config", url, "dist_ir.rate_hz=4", "servo.enabled=false", env=env)
+        r = ml("config", url, "dist_ir.rate_hz=4", "servo.enabled=false", env=env)
         assert r.returncode == 0, r.stderr
         shown = dict(re.split(r"\s+= ", line, maxsplit=1) for line in r.stdout.splitlines())
         assert shown["dist_ir.rate_hz"] == "4" and shown["servo.enabled"] == "false", r.stdout
-        r = cli("config", "thesis", "dist_ir.rate_hz=40", env=env)
+        r = ml("config", "thesis", "dist_ir.rate_hz=40", env=env)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "0.1..26" in r.stderr
-        r = cli("config", "thesis", "servo.min_deg=50", "servo.max_deg=10", env=env)
+        r = ml("config", "thesis", "servo.min_deg=50", "servo.max_deg=10", env=env)
         assert r.returncode == 2 and "min_deg < max_deg" in r.stderr, r.stderr
-        r = cli("config", "thesis", "--json", "-v", env=env)
+        r = ml("config", "thesis", "--json", "-v", env=env)
         got = json.loads(r.stdout)
         assert got["values"]["dist_ir.rate_hz"] == 4.0 and got["values"]["servo.min_deg"] == -90
         assert got["state"] == "changed" and got["keys"][0]["allowed"] == "true or false"
-        r = cli("call", "thesis", "a2j_set_servo", "--value", "10", env=env)
+        r = ml("call", "thesis", "a2j_set_servo", "--value", "10", env=env)
         assert r.returncode == 1 and "disabled" in r.stderr, r.stderr
-        r = cli("config", "nosuchboard", env=env)
+        r = ml("config", "nosuchboard", env=env)
         assert r.returncode == 2 and "not a board URL" in r.stderr
     finally:
         daemon.terminate()

@@ -9,7 +9,6 @@ from __future__ import annotations
 import ast
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +19,8 @@ from missing_link.daemon.control import runtime_dir
 from missing_link.errors import DescriptorError
 from missing_link.publishers.registry import BUILTIN, OPTIONS
 
+from .helpers import ml
+
 ROOT = Path(__file__).resolve().parent.parent
 PUBLISHERS = ROOT / "src" / "missing_link" / "publishers"
 
@@ -27,12 +28,7 @@ PUBLISHERS = ROOT / "src" / "missing_link" / "publishers"
 def run_config(tmp_path: Path, text: str) -> subprocess.CompletedProcess[str]:
     cfg = tmp_path / "ml.toml"
     cfg.write_text(text)
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--config", str(cfg), "--duration", "1"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    return ml("run", "--config", str(cfg), "--duration", "1", timeout=60)
 
 
 @pytest.mark.parametrize(
@@ -119,12 +115,7 @@ def test_a_descriptor_file_that_is_a_device_or_huge_is_refused_at_once(tmp_path:
             Daemon(cfg)
     r = run_config(tmp_path, '[[board]]\nurl = "tcp://127.0.0.1:9"\ndescriptors = "/dev/zero"\n')
     assert r.returncode == 2 and "not a regular file" in r.stderr and r.stderr.count("\n") == 1
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--config", "/dev/zero"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = ml("run", "--config", "/dev/zero", timeout=60)
     assert r.returncode == 2 and "/dev/zero: refused: not a regular file" in r.stderr
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -23,7 +22,7 @@ from missing_link.daemon.config import (
 from missing_link.daemon.discovery import PortMatcher
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import wait_for
+from .helpers import ml, wait_for
 
 PICO = 0x2E8A
 
@@ -122,12 +121,7 @@ def test_discover_table_in_the_config() -> None:
 
 
 def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--duration", "1.5"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = ml("run", "--auto", "--duration", "1.5", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "discovering boards on /dev/ttyACM* /dev/ttyUSB* usb://*" in r.stderr
 
@@ -182,18 +176,20 @@ def test_by_default_only_known_j2a_boards_are_probed() -> None:
 
 
 def test_run_auto_takes_the_filters_and_says_what_it_probes() -> None:
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "2341:*",
-         "--port", "/dev/ttyACM*", "--duration", "0.5"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+    r = ml(
+        "run",
+        "--auto",
+        "--usb-id",
+        "2341:*",
+        "--port",
+        "/dev/ttyACM*",
+        "--duration",
+        "0.5",
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     assert "discovering boards on /dev/ttyACM* (USB 2341:*)" in r.stderr
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "zz",
-         "--duration", "1"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+    r = ml("run", "--auto", "--usb-id", "zz", "--duration", "1", timeout=60)
     assert r.returncode == 2 and "--usb-id 'zz' is not a USB id" in r.stderr
 
 

@@ -9,7 +9,6 @@ import os
 import signal
 import struct
 import subprocess
-import sys
 import time
 from concurrent.futures import Future
 from pathlib import Path
@@ -22,7 +21,7 @@ from missing_link.host.board import Board
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.virtual import make_sim
 
-from .helpers import board_process, wait_for
+from .helpers import ML, board_process, ml, wait_for
 
 
 class Clock:
@@ -103,21 +102,15 @@ def test_a_killed_daemon_trips_the_failsafe(tmp_path: Path) -> None:
             f'[[board]]\nurl = "{url}"\n[boards.thesis.config]\n"servo.safe" = "limp"\n'
         )
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg)],
+            [*ML, "run", "--config", str(cfg)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
         )
         env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
         try:
-            assert wait_for(
-                lambda: subprocess.run(
-                    [sys.executable, "-m", "missing_link", "call", "thesis", "a2j_set_servo",
-                     "--value", "40"],
-                    capture_output=True, timeout=30, env=env,
-                ).returncode == 0,
-                30,
-            )  # fmt: skip
+            servo = ("call", "thesis", "a2j_set_servo", "--value", "40")
+            assert wait_for(lambda: ml(*servo, timeout=30, env=env).returncode == 0, 30)
             time.sleep(0.5)
             p.send_signal(signal.SIGKILL)
             p.wait(10)

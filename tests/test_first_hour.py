@@ -12,7 +12,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,13 +19,7 @@ from typing import Any
 
 import pytest
 
-from .helpers import board_process, wait_for
-
-ML = [sys.executable, "-m", "missing_link"]
-
-
-def ml(*args: str, timeout: float = 60, **kw: Any) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout, **kw)
+from .helpers import ML, board_process, ml, wait_for
 
 
 @contextmanager
@@ -90,7 +83,8 @@ def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
     assert "Connection refused" in line and "Traceback" not in r.stderr
 
 
-def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
+def test_run_exits_1_when_another_daemon_holds_the_port(tmp_path: Path) -> None:
+    env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
     board = subprocess.Popen(
         [*ML, "board", "--sim", "rangers", "--listen", "pty"], stdout=subprocess.PIPE, text=True
     )
@@ -98,12 +92,15 @@ def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
         assert board.stdout is not None
         url = board.stdout.readline().split()[1]
         first = subprocess.Popen(
-            [*ML, "run", url, "--duration", "8", "-p", "bus", "--wait-up", "5"],
+            [*ML, "run", url, "--duration", "60", "-p", "bus", "--wait-up", "30"],
             stderr=subprocess.PIPE,
             text=True,
+            env=env,
         )
         try:
-            time.sleep(2.5)  # the first daemon has the port (serial ports are locked exclusively)
+            # the first daemon has the port (serial ports are locked exclusively): its board is
+            # up, asked through its control endpoint
+            wait_for(lambda: ml("info", "board_b", timeout=30, env=env).returncode == 0, 60)
             r = ml("run", url, "--duration", "2", "-p", "bus")
         finally:
             first.terminate()
@@ -116,12 +113,15 @@ def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
     assert line.startswith(f"missing-link: error: {url}: never up: ") and "lock" in line
 
 
-def test_run_exits_2_on_bad_input_and_130_on_ctrl_c() -> None:
+def test_run_exits_2_on_bad_input_and_130_on_ctrl_c(tmp_path: Path) -> None:
     r = ml("run", "bogus://x", "--duration", "1")
     assert r.returncode == 2 and "unknown transport 'bogus'" in r.stderr
     with board_process("--sim", "rangers") as url:
-        p = subprocess.Popen([*ML, "run", url, "-p", "bus"], stderr=subprocess.PIPE, text=True)
-        time.sleep(2.0)
+        env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
+        p = subprocess.Popen(
+            [*ML, "run", url, "-p", "bus"], stderr=subprocess.PIPE, text=True, env=env
+        )
+        wait_for(lambda: ml("info", "board_b", timeout=30, env=env).returncode == 0, 60)  # up
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=20)
     assert p.returncode == 130, err

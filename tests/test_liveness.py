@@ -34,7 +34,7 @@ from missing_link.virtual import make_sim
 from missing_link.virtual.faults import FaultRelay
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import AvrSim, FirmwareSim, wait_for
+from .helpers import AvrRig, FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
@@ -290,12 +290,11 @@ def test_a_frozen_micropython_board_is_found_while_calls_are_out(tmp_path: Path)
         sim.close()
 
 
-def test_a_frozen_avr_board_is_found_while_calls_are_out(avr_build: Path, tmp_path: Path) -> None:
-    rig = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf")
+def test_a_frozen_avr_board_is_found_while_calls_are_out(avr_rig: AvrRig, tmp_path: Path) -> None:
+    rig = avr_rig("uno_rig")
     try:
         found_while_busy(
             Rig(rig.url, signaller(rig.proc), "/uno_rig/servo/cmd"), tmp_path, uart_baud=115200
         )
     finally:
         rig.proc.send_signal(signal.SIGCONT)
-        rig.close()

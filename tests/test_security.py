@@ -24,7 +24,7 @@ from missing_link.logs import SafeLog
 from missing_link.publishers.zenoh_config import loopback_only
 from missing_link.topics import Update
 
-from .helpers import board_process, free_port, wait_for
+from .helpers import ML, board_process, free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 LISTENER = Path(__file__).with_name("ros2_listener.py")
@@ -85,7 +85,7 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Pa
         subprocess.run(["sh", str(MAKE_CERTS), str(d), str(port)], check=True, capture_output=True)
     with board_process("--sim", "thesis") as url:
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(ours / "daemon.toml"),
+            [*ML, "run", "--config", str(ours / "daemon.toml"),
              url],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip

@@ -18,7 +18,7 @@ from missing_link.publishers.zenoh import attachment, data_key, dds_type
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import free_port
+from .helpers import ML, free_port
 
 HERE = Path(__file__).resolve().parent
 LISTENER = HERE / "ros2_listener.py"
@@ -139,7 +139,7 @@ def test_three_processes_through_a_router(tmp_path: Path) -> None:
     separate machines; the consumer knows only the router's address."""
     rport = free_port()
     router = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "router", "--listen", f"tcp/127.0.0.1:{rport}"],
+        [*ML, "router", "--listen", f"tcp/127.0.0.1:{rport}"],
         stdout=subprocess.PIPE,
         text=True,
     )
