@@ -163,7 +163,7 @@ def mcap_rate(n: int) -> tuple[float, float, float]:
             pub.publish(u)
         pub.close()
         ours = n / (time.perf_counter() - t0)
-        assert pub.messages == n and pub.dropped == 0
+        assert pub.messages_by_topic[topic.name] == n and pub.dropped == 0
         size = sum(f.stat().st_size for f in Path(tmp).rglob("*.mcap"))
         from rosbags.rosbag2 import StoragePlugin, Writer
 

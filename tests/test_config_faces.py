@@ -77,7 +77,7 @@ def test_bad_keys_in_the_config_file_are_a_warning_and_the_board_runs() -> None:
     ("doc", "said"),
     [
         ({"boards": {"Thesis": {"config": {}}}}, "not a board name"),
-        ({"boards": {"thesis": {"cfg": {}}}}, "has one table: config"),
+        ({"boards": {"thesis": {"cfg": {}}}}, "has two tables: config and ros"),
         ({"boards": {"thesis": {"config": {"rate": 1}}}}, "<transducer>.<key>"),
         ({"boards": {"thesis": {"config": {"a.b": [1]}}}}, "expected a value"),
         ({"daemon": {"control": "relative.sock"}}, "absolute path"),

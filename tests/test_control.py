@@ -288,7 +288,7 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
     assert {"commands", "command_errors", "rtt_us", "warnings", "clock_epoch", "map_pushes",
             "configurable", "aligned", "failsafe_trips", "failsafe_last_trip_ms",
             "sync_state"} <= set(st)  # fmt: skip
-    assert len(st) == 59  # (a thesis board: with its failsafe; 57 without one)
+    assert len(st) == 61  # (a thesis board: with its failsafe; 59 without one)
     snap = d.snapshots()[0]  # the same, typed
     assert list(snap.to_json()) == list(st) and snap.state == "up" and snap.link.frames > 0
     assert json.loads(json.dumps(st)) == st  # plain JSON

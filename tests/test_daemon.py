@@ -43,11 +43,12 @@ def test_two_lines_give_an_application_its_board(serve: Serve) -> None:
             "/thesis/dist_us",
             "/thesis/dist_us/range",
             "/thesis/quad",
+            "/thesis/quad/joint_states",
             "/thesis/servo",
             "/thesis/servo/joint_states",
             "/thesis/trigger",
         ]
-        assert robot.bus.command_topics == ["/thesis/servo/cmd"]
+        assert robot.bus.command_topics == ["/thesis/servo/cmd", "/thesis/servo/command"]
     finally:
         robot.stop()
 
@@ -306,7 +307,7 @@ def test_standard_types_one_message_per_channel(serve: Serve, tmp_path: Path) ->
     assert frames <= {f"thesis/dist_ir/{k}" for k in range(8)} and len(frames) > 1
     assert store.deserialize_cdr(us[0].cdr, "sensor_msgs/msg/Range").radiation_type == 0
     joint = store.deserialize_cdr(servo[-1].cdr, "sensor_msgs/msg/JointState")
-    assert joint.name == ["thesis/servo/0"]
+    assert joint.name == ["thesis/servo"]
     (bag,) = mcap.bags  # type: ignore[attr-defined]
     with AnyReader([bag], default_typestore=store) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
@@ -319,13 +320,13 @@ def test_unsupported_standard_type_is_reported_not_fatal(serve: Serve, tmp_path:
     desc = tmp_path / "d.toml"
     desc.write_text(
         '[[transducer]]\nname="quad"\nid=13\nprefix="quad"\nmodel="HEDS-6500"\nchan_count=1\n'
-        'type="int16_t"\nna=-1\nros="sensor_msgs/msg/Imu"\n'
+        'type="int16_t"\nna=-1\nros="sensor_msgs/msg/LaserScan"\n'
     )
     with Daemon(Config(boards=[BoardSpec(server.url, descriptors=str(desc))])) as d:
         got: list[Update] = []
         d.subscribe("/original/quad", got.append)
         assert wait_for(lambda: len(got) > 2)
-        assert "ros=sensor_msgs/msg/Imu is not supported" in d.status()[0]["warnings"]
+        assert "ros=sensor_msgs/msg/LaserScan is not supported" in d.status()[0]["warnings"]
 
 
 def test_all_na_update_is_logged_at_host_realtime() -> None:

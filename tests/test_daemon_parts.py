@@ -146,7 +146,7 @@ def test_a_value_a_standard_type_cannot_carry_is_counted_and_said_once(
         raise ValueError(f"{value} is out of range")
 
     path.topics[1] = topic
-    path.standard[1] = (std, StandardMapping("sensor_msgs/msg/Range", "std", refuse))
+    path.standard[1] = [(std, StandardMapping("sensor_msgs/msg/Range", "std", refuse))]
     now = time.monotonic()
     with caplog.at_level(logging.WARNING, logger="missing_link.daemon.sample_path"):
         for seq in range(3):

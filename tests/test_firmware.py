@@ -177,12 +177,14 @@ def test_values_are_mapped_into_host_time(daemon: Rig) -> None:
     assert u.bound_ns > 0  # the 1 ms tick of the wasm clock is in the bound
 
 
-def test_two_ctrl_c_between_frames_give_the_repl_back() -> None:
+def test_the_break_between_frames_gives_the_repl_back() -> None:
+    """Ctrl-C twice, "repl", Enter (what `missing-link flash` sends before mpremote takes
+    over; tests/test_board_safety.py: what does not stop it)."""
     s = FirmwareSim(RIG)
     try:
         host, port = s.url[len("tcp://") :].split(":")
         with socket.create_connection((host, int(port)), timeout=5) as c:
-            c.sendall(b"\r\x03\x03")  # what mpremote sends before it takes over
+            c.sendall(b"\r\x03\x03repl\r")
             assert s.next_line(10) == "BREAK"
     finally:
         s.close()

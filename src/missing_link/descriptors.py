@@ -18,8 +18,11 @@ NAME_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
 MAX_NAME = 64
 ROS_TYPE_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9]*\Z")
 FIELDS = ("name", "id", "prefix", "model", "chan_count", "type", "na")
-KNOWN_KEYS = ("unit", "scale", "offset", "min", "max", "rate_hz", "kind", "call", "ros", "frame_id")
-_FLOAT_KEYS = ("scale", "offset", "min", "max", "rate_hz")
+KNOWN_KEYS = (
+    "unit", "scale", "offset", "min", "max", "rate_hz", "kind", "call", "ros", "frame_id",
+    "counts_per_rev",
+)  # fmt: skip
+_FLOAT_KEYS = ("scale", "offset", "min", "max", "rate_hz", "counts_per_rev")
 
 
 @dataclass(frozen=True)

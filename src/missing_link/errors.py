@@ -1,4 +1,12 @@
-"""Errors: each says whose fault it was, the state of the link, and what to do next."""
+"""Errors: each says whose fault it was, the state of the link, and what to do next.
+
+One tree: every exception class missing-link defines derives from :class:`MissingLinkError`
+(``tests/test_errors.py`` walks the package), so ``except MissingLinkError`` catches whatever
+it raises on purpose.  Errors in the user's input are ``ValueError`` too (``BadURL``,
+``ConfigError``), so callers that catch ``ValueError`` keep working.  A bug (ours or a case a
+board's data reached unvalidated) is any other exception: where a thread must outlive it, it
+is counted by kind and logged once (``logs.ErrorCounts``).
+"""
 
 from __future__ import annotations
 
@@ -23,7 +31,7 @@ class BadURL(MissingLinkError, ValueError):
     """A board URL cannot be understood (the caller's input)."""
 
 
-class ConfigError(ValueError):
+class ConfigError(MissingLinkError, ValueError):
     """A configuration, board file or option is invalid (the user's input): the message says
     where and why."""
 

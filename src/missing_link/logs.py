@@ -18,6 +18,12 @@ goes through it: ours, and asyncio's, websockets', zenoh's, rclpy's.  For every 
 
 :func:`counts` returns what was held back and folded since start (the daemon shows it on
 ``/diagnostics``).  Pure apart from the clock it is handed; ``install`` is the shell.
+
+:class:`ErrorCounts` is the other half: where an exception is caught so that a thread goes on
+(a supervisor, the I/O loop, a publisher's thread, the fan-out), it is counted *by kind* (its
+class and where it was caught), the first of each kind is logged with its traceback and the
+rest are only counted, and ``to_json()`` puts the counts in the status and ``/diagnostics``.
+Nothing is spent on it while nothing fails.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import IO, Any
 
 from .text import safe_text
@@ -97,8 +104,8 @@ class SafeLog(logging.Filter):
                 return False
         try:
             text = record.getMessage()
-        except Exception:  # noqa: BLE001 - a record whose arguments do not fit its format
-            text = str(record.msg)
+        except Exception:  # noqa: BLE001 - arguments that do not fit the format: said as is
+            text = f"{record.msg} (its arguments did not fit: {record.args!r})"
         text = " | ".join(x for x in text.splitlines() if x.strip())  # (one line, still readable)
         record.msg, record.args = safe_text(text, self.limit) + note, None
         self._traceback(record)
@@ -134,6 +141,84 @@ def counts() -> dict[str, Any]:
         "tracebacks_folded": SafeLog.folded,
         "held_back_from": ", ".join(f"{name} {n}" for name, n in top),
     }
+
+
+@dataclass
+class ErrorKind:
+    """One kind of caught exception: how often, and the first one."""
+
+    kind: str  #: ``ValueError in publish``: its class and where it was caught
+    count: int
+    first: str  #: the first one's message and where it was raised (``codec.py:88 encode``)
+    traceback: str  #: the first one's traceback
+
+
+MAX_KINDS = 32  #: kinds kept apart per counter; more are counted under ``OTHER``
+OTHER = "other kinds"
+
+
+class ErrorCounts:
+    """Exceptions caught where a thread must go on, counted by kind; the first of each kind is
+    logged (``log``, with its traceback: ``name`` says whose), the rest only counted.  Safe to
+    call from any thread; costs nothing until something fails."""
+
+    def __init__(self, log: logging.Logger, name: str = "") -> None:
+        self.log, self.name = log, name
+        self.total = 0  #: every exception counted
+        self._kinds: dict[str, ErrorKind] = {}
+        self._lock = threading.Lock()
+
+    def caught(self, where: str, exc: BaseException, what: str = "") -> None:
+        """Count ``exc``, caught at ``where`` (``publish``, ``reactor round``); ``what``: a
+        line for the log that says what failed (default: ``where``)."""
+        kind = f"{type(exc).__name__} in {where}"
+        with self._lock:
+            self.total += 1
+            known = self._kinds.get(kind)
+            if known is None and len(self._kinds) >= MAX_KINDS:
+                kind = OTHER
+                known = self._kinds.get(kind)
+            if known is not None:
+                known.count += 1
+                return
+            tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+            self._kinds[kind] = ErrorKind(kind, 1, _first(exc), tb)
+        who = f"{self.name}: " if self.name else ""
+        # (formatted here: the log filter tells kinds apart by their text, so one kind's first
+        # line is never held back for another's)
+        self.log.error(f"{who}{what or where} failed ({kind}: counted, said once)", exc_info=exc)
+
+    def kinds(self) -> list[ErrorKind]:
+        """The kinds so far, most frequent first (copies)."""
+        with self._lock:
+            out = [ErrorKind(k.kind, k.count, k.first, k.traceback) for k in self._kinds.values()]
+        return sorted(out, key=lambda k: -k.count)
+
+    def summary(self, limit: int = 5) -> str:
+        """One line: ``ValueError in publish x3 (bad value at codec.py:88 encode); ...``."""
+        kinds = self.kinds()
+        text = "; ".join(f"{k.kind} x{k.count} ({k.first})" for k in kinds[:limit])
+        if len(kinds) > limit:
+            text += f"; {len(kinds) - limit} more kinds"
+        return text
+
+    def to_json(self) -> dict[str, Any]:
+        """For a status: ``errors`` (how many were caught) and ``error_kinds`` (``summary``)."""
+        if not self.total:
+            return {"errors": 0, "error_kinds": ""}
+        return {"errors": self.total, "error_kinds": self.summary()}
+
+
+def _first(exc: BaseException) -> str:
+    """An exception's message and the place it was raised, in one short line."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    at = ""
+    if tb is not None:
+        code = tb.tb_frame.f_code
+        at = f" at {code.co_filename.rsplit('/', 1)[-1]}:{tb.tb_lineno} {code.co_name}"
+    return safe_text(f"{exc}{at}" if str(exc) else at.strip(), 160)
 
 
 _installed: logging.Handler | None = None

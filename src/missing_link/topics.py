@@ -15,6 +15,7 @@ from typing import Any, NamedTuple
 
 from .descriptors import Transducer
 from .ros.msgs import CdrEncoder, msgdef, type_name
+from .ros.standard import FrameId
 
 TOPIC_RE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+\Z")
 
@@ -35,6 +36,9 @@ class Topic:
     msgdef: str
     encoder: CdrEncoder | None = field(repr=False)  #: None: updates bring their own CDR
     standard: bool = False  #: a standard ROS type (already known to every typestore)
+    #: a standard type's frame id, changeable while it runs (a face may offer it: ROS 2
+    #: parameters); None: none (thesis-format topics, commands)
+    frame: FrameId | None = field(default=None, repr=False)
 
     @classmethod
     def for_transducer(
@@ -60,10 +64,16 @@ class Topic:
 
     @classmethod
     def standard_type(
-        cls, name: str, board: str, t: Transducer, type_name: str, typestore: Any
+        cls,
+        name: str,
+        board: str,
+        t: Transducer,
+        type_name: str,
+        typestore: Any,
+        frame: FrameId | None = None,
     ) -> Topic:
         text, _ = typestore.generate_msgdef(type_name, ros_version=2)
-        return cls(check_topic(name), board, t, type_name, text, None, standard=True)
+        return cls(check_topic(name), board, t, type_name, text, None, standard=True, frame=frame)
 
 
 class Command(NamedTuple):

@@ -226,7 +226,9 @@ static double board_us_at(avr_cycle_count_t c) {
 /* OC2A (the trigger's pin) as the datasheet has it, from the registers: Timer2 counts from the
  * cycle its clock was started, one count per 8 cycles (prescaler 8, the only one the firmware
  * uses); a compare match (the count going from OCR2A to OCR2A + 1) applies COM2A to the pin:
- * toggle, clear or set; COM2A = 0 hands the pin back to PORTB.  The rig does not take the pin
+ * toggle, clear or set; COM2A = 0 hands the pin back to PORTB.  A write of FOC2A (TCCR2B bit 7,
+ * a strobe that reads 0: the rig clears it) forces that at once, without a flag, as the datasheet
+ * has it (simavr 1.6 ignores it).  The rig does not take the pin
  * from simavr's timer: 1.6 also drives it at every overflow in normal mode (its PWM modes'
  * behaviour; fixed upstream since).  Checked after every instruction with the registers as they
  * were before it, so a match is placed on its exact cycle. */
@@ -241,6 +243,15 @@ static void trig_edge(uint8_t level, avr_cycle_count_t at) {
     else trig_fall = at;
 }
 
+/* a compare match (or one forced) with compare mode `com`: toggle, clear or set; 0: none */
+static void oc2a_apply(uint8_t com, avr_cycle_count_t at) {
+    if (!com) return;
+    if (com == 1) oc2a ^= 1;
+    else if (com == 2) oc2a = 0;
+    else oc2a = 1;
+    trig_edge(oc2a, at);
+}
+
 static void trig_watch(void) {
     enum { TCCR2A = 0xB0, TCCR2B = 0xB1, OCR2A = 0xB3, PORTB = 0x25 };
     if (!t2_start) {
@@ -250,16 +261,15 @@ static void trig_watch(void) {
     uint64_t n0 = (t2_seen - t2_start) / 8, n1 = (avr->cycle - t2_start) / 8; /* counts so far */
     if (com2a_was && n1 > n0) {
         uint64_t to = (uint64_t)((uint8_t)(ocr2a_was + 1) - (uint8_t)(n0 + 1)) & 0xFF; /* counts */
-        if (to < n1 - n0) { /* the count reached OCR2A + 1 in this instruction */
-            if (com2a_was == 1) oc2a ^= 1;
-            else if (com2a_was == 2) oc2a = 0;
-            else oc2a = 1;
-            trig_edge(oc2a, t2_start + (n0 + 1 + to) * 8);
-        }
+        if (to < n1 - n0) oc2a_apply(com2a_was, t2_start + (n0 + 1 + to) * 8); /* the count reached OCR2A + 1 */
     }
     t2_seen = avr->cycle;
     ocr2a_was = avr->data[OCR2A];
     com2a_was = avr->data[TCCR2A] >> 6;
+    if (avr->data[TCCR2B] & 0x80) { /* FOC2A: a strobe (it reads 0), the compare mode applied now */
+        avr->data[TCCR2B] &= 0x7F;
+        oc2a_apply(com2a_was, avr->cycle);
+    }
     if (!com2a_was) trig_edge((avr->data[PORTB] >> trig_pin) & 1, avr->cycle);
 }
 

@@ -1,7 +1,10 @@
 /* The failsafe: see board/failsafe.py (Python) for the theory of operation; the same keys
  * (`failsafe_ms` per actuator), functions (a2jGoodbye, a2jFailsafe) and debug texts.  An
  * actuator is armed by a command it takes and trips once when the host has been silent for its
- * failsafe_ms (runtime.c notes every frame from the host). */
+ * failsafe_ms (runtime.c notes every intact frame from the host).  Timed calls not yet carried
+ * out (timing.c) are dropped on a2jGoodbye, and those due after the moment the host had been
+ * silent for the shortest failsafe_ms: a timed call names a function, not an actuator, so the
+ * shortest guards them all. */
 #include "failsafe.h"
 
 #include <avr/pgmspace.h>
@@ -9,6 +12,7 @@
 
 #include "hal.h"
 #include "runtime.h"
+#include "timing.h"
 
 #define NO_SILENCE 0xFFFFFFFFUL
 
@@ -57,9 +61,15 @@ void failsafe_arm(uint8_t k) {
 
 void failsafe_poll(uint64_t now) {
     uint64_t last = runtime_last_frame_us;
-    for (uint8_t i = 0; i < count; i++)
+    uint16_t least = 0; /* the shortest non-zero failsafe_ms */
+    for (uint8_t i = 0; i < count; i++) {
+        if (ms[i] && (!least || ms[i] < least)) least = ms[i];
         if (ms[i] && (armed & (1 << i)) && now - last >= (uint64_t)ms[i] * 1000)
             trip(i, PSTR("no frame from the host"), (uint32_t)((now - last) / 1000));
+    }
+    uint64_t gone = last + (uint64_t)least * 1000; /* the host is gone since */
+    if (least && now >= gone && timing_pending()) /* the timed calls due after that */
+        timing_cancel(PSTR("no frame from the host"), (uint32_t)((now - last) / 1000), (int64_t)gone);
 }
 
 uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
@@ -67,6 +77,7 @@ uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *ou
     (void)n;
     (void)out;
     *out_n = 0;
+    timing_cancel(PSTR("the host said goodbye"), NO_SILENCE, -1); /* (first: none runs meanwhile) */
     for (uint8_t i = 0; i < count; i++)
         if (armed & (1 << i)) trip(i, PSTR("the host said goodbye"), NO_SILENCE);
     return 0;

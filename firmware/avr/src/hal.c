@@ -11,7 +11,10 @@
  * The UART: received bytes go into a ring by interrupt, each stamped with the raw timer and the
  * low byte of the wrap count (cheap enough for 1 Mbaud, no 64-bit maths in the interrupt, 3 bytes
  * of RAM per entry; a byte is read within 5 s, so the low byte is enough); bytes to send go
- * through a TX ring drained by the data-register-empty interrupt. */
+ * through a TX ring drained by the data-register-empty interrupt.
+ *
+ * Interrupts are held off only to take a snapshot of the counts (tens of cycles), never for the
+ * 64-bit sums: the trigger's compare interrupt (trigger.c) must run within its step's lead. */
 #include "hal.h"
 
 #include <avr/interrupt.h>
@@ -49,16 +52,22 @@ void board_clock_init(void) {
     TIMSK1 |= _BV(TOIE1);
 }
 
-/* the clock at `wraps` (within 256 of clock_wraps) and `ticks` (interrupts off) */
-static uint64_t clock_of(uint32_t wraps, uint16_t ticks) {
-    int32_t d = (int32_t)(wraps - clock_wraps) * (int32_t)CLOCK_PERIOD_US;
-    return clock_base_us + (uint64_t)(int64_t)d + (ticks >> 1);
+/* The clock at `wraps` (within 256 of `now_wraps`) and `ticks`, from a snapshot of the
+ * interrupt's counts (`base` = clock_base_us when clock_wraps was `now_wraps`): the arithmetic
+ * runs with interrupts on, so the trigger's compare interrupt (trigger.c) is never held off by it */
+static uint64_t clock_from(uint64_t base, uint32_t now_wraps, uint32_t wraps, uint16_t ticks) {
+    int32_t d = (int32_t)(wraps - now_wraps) * (int32_t)CLOCK_PERIOD_US;
+    return base + (uint64_t)(int64_t)d + (ticks >> 1);
 }
 
 uint64_t clock_at(uint32_t wraps, uint16_t ticks) {
-    uint64_t t;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = clock_of(wraps, ticks); }
-    return t;
+    uint64_t base;
+    uint32_t now_wraps;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        base = clock_base_us;
+        now_wraps = clock_wraps;
+    }
+    return clock_from(base, now_wraps, wraps, ticks);
 }
 
 uint32_t clock_wraps_at(uint16_t ticks) {
@@ -68,10 +77,17 @@ uint32_t clock_wraps_at(uint16_t ticks) {
 }
 
 uint64_t board_clock_from_isr(void) {
-    uint32_t w = clock_wraps;
     uint16_t t = TCNT1;
-    if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) w++; /* wrapped, interrupt not yet run */
-    return clock_of(w, t);
+    uint64_t base = clock_base_us;
+    if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US; /* wrapped, not yet counted */
+    return base + (t >> 1);
+}
+
+uint64_t clock_ticks_from_isr(void) {
+    uint16_t t = TCNT1;
+    uint64_t base = clock_base_us;
+    if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US;
+    return (base << 1) + t; /* (a wrap: 20000 µs, 40000 ticks) */
 }
 
 uint8_t clock_wait_prepare(uint64_t at_us, clock_wait_t *w) {
@@ -89,9 +105,17 @@ uint8_t clock_wait_prepare(uint64_t at_us, clock_wait_t *w) {
 }
 
 uint64_t board_clock(void) {
-    uint64_t now;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { now = board_clock_from_isr(); }
-    return now;
+    /* interrupts off for the snapshot only (a few dozen cycles), the sums after */
+    uint64_t base;
+    uint16_t t;
+    uint8_t wrapped;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        base = clock_base_us;
+        t = TCNT1;
+        wrapped = TIFR1 & _BV(TOV1);
+    }
+    if (wrapped && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US; /* wrapped, not yet counted */
+    return base + (t >> 1);
 }
 
 /* ---- UART ---------------------------------------------------------------------------------- */
@@ -178,16 +202,25 @@ void link_init(uint32_t baud) {
 }
 
 uint8_t link_read(uint8_t *b, uint64_t *rx_us) {
-    uint8_t ok = 0;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+    uint8_t ok = 0, w8 = 0;
+    uint16_t t = 0;
+    uint32_t now_wraps = 0;
+    uint64_t base = 0;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { /* the byte and the counts; the sums after */
         if (rx_tail != rx_head) {
             *b = rx_buf[rx_tail];
-            uint32_t w = (clock_wraps & ~0xFFUL) | rx_wraps[rx_tail];
-            if (w > clock_wraps + 1) w -= 256; /* the byte came before the last 256-wrap */
-            *rx_us = clock_of(w, rx_ticks[rx_tail]);
+            w8 = rx_wraps[rx_tail];
+            t = rx_ticks[rx_tail];
+            base = clock_base_us;
+            now_wraps = clock_wraps;
             rx_tail = (rx_tail + 1) & (RX_SIZE - 1);
             ok = 1;
         }
+    }
+    if (ok) {
+        uint32_t w = (now_wraps & ~0xFFUL) | w8;
+        if (w > now_wraps + 1) w -= 256; /* the byte came before the last 256-wrap */
+        *rx_us = clock_from(base, now_wraps, w, t);
     }
     return ok;
 }

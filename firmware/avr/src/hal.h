@@ -9,6 +9,7 @@
 void board_clock_init(void);
 uint64_t board_clock(void);           /* µs since boot, 64 bit, never wraps */
 uint64_t board_clock_from_isr(void);  /* the same, with interrupts already off */
+uint64_t clock_ticks_from_isr(void);  /* Timer1's ticks (0.5 µs) since it started, irqs off */
 /* Timer1's wraps when it read ``ticks`` just now, counting one still pending (irqs off) */
 uint32_t clock_wraps_at(uint16_t ticks);
 /* the clock at a count read earlier: Timer1's wraps (within 256 of now) and ticks */

@@ -54,8 +54,8 @@ int main(void) {
 #endif
         }
         uint64_t now = board_clock();
-        timing_poll(now); /* timed calls first: they are due at a tick (timing.c) */
-        failsafe_poll(now);
+        failsafe_poll(now); /* first: a silent host's timed calls are dropped, not run */
+        timing_poll(now);   /* then the timed calls that are due (timing.c) */
         runtime_poll();
     }
 }

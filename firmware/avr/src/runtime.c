@@ -223,8 +223,8 @@ void runtime_feed(uint8_t b, uint64_t rx_us) {
     last_byte_us = rx_us;
     uint8_t ev = frame_parser_feed(&parser, b);
     if (ev == EV_NONE) return;
-    runtime_last_frame_us = rx_us; /* the host is there (failsafe.c) */
     if (ev == EV_REQUEST) {
+        runtime_last_frame_us = rx_us; /* an intact frame: the host is there (failsafe.c) */
         request_us = rx_us;
         dispatch(parser.seq, parser.op, parser.buf, parser.n);
     } else if (parser.has_seq) {

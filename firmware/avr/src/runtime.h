@@ -67,7 +67,7 @@ void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us);
 void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us);
 void runtime_debug(const char *text);
 void runtime_debug_P(const char *text); /* from flash */
-extern uint64_t runtime_last_frame_us;  /* when the last frame from the host came (failsafe.c) */
+extern uint64_t runtime_last_frame_us;  /* when the last intact frame came (failsafe.c) */
 
 extern uint32_t sifs_dropped, sifs_sent, sif_total, calls;
 extern char clock_epoch[9];

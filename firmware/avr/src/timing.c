@@ -3,12 +3,16 @@
  * Theory of operation
  * -------------------
  * The host's map of this board's clock (a2jHostMap: <Q board us><q host ns><i rate - 1, ppb>)
- * converts both ways in 64-bit integer maths (floor division, as Python's //).  A map vouches
- * for board times within MAP_LIFE_US of its reference.  a2jAt [q host ns][B function][payload]
+ * converts both ways in 64-bit integer maths (floor division, as Python's //); a map with a
+ * rate off by more than 10 % or references beyond those sums is refused, the one before kept.
+ * A map vouches for board times within MAP_LIFE_US of its reference.  a2jAt [q host ns][B function][payload]
  * calls a plain function at the tick the host time maps to (reply: 0 + [Q tick]) or refuses:
  * no valid map, past, beyond what the map vouches for, queue full, no such function.  A call
  * the hardware can make on its own at the tick (the trigger: Timer2's compare A, trigger.c)
  * is handed to it; every other one runs from the main loop when due (its latency: the loop's).
+ * A call not yet carried out is dropped, counted, when the host is gone (timing_cancel, from
+ * failsafe.c: all on a2jGoodbye; those due after the moment the host had been silent for the
+ * shortest failsafe_ms).
  * a2jAlignInfo: [B map valid][I map age ms][I unaligned samples][I done][I refused].
  */
 #include "timing.h"
@@ -20,13 +24,16 @@
 #include "runtime.h"
 
 #define FAR_NS 100000000000LL /* 100 s */
+#define MAX_PPB 100000000L     /* a host map's rate: within 10 % of 1 (board/runtime.py) */
+#define MAX_HOST_NS (1LL << 62)
 
 static uint8_t host_map_set;
 static uint64_t map_b0;
 static int64_t map_h0;
 static int32_t map_ppb;
-uint32_t timing_unaligned, timing_done, timing_refused;
+uint32_t timing_unaligned, timing_done, timing_refused, timing_cancelled;
 uint8_t (*timing_hardware)(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n);
+uint8_t (*timing_hardware_held)(uint8_t drop, int64_t after);
 
 static struct {
     uint64_t tick;
@@ -49,13 +56,28 @@ static int64_t floor_div(int64_t a, int64_t b) { /* b > 0 */
     return (a % b != 0 && a < 0) ? q - 1 : q;
 }
 
+static uint8_t say(uint8_t *out, const char *text);
+
 uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
+    /* every field checked, as board/runtime.py: a map the host got wrong is refused (the one
+     * before kept); a rate of -1e9 ppb divided by zero in timing_board_at */
     *out_n = 0;
     if (n == 20) {
-        map_b0 = get_u64(in);
-        map_h0 = (int64_t)get_u64(in + 8);
-        map_ppb = (int32_t)((uint32_t)in[16] | ((uint32_t)in[17] << 8) | ((uint32_t)in[18] << 16) |
-                            ((uint32_t)in[19] << 24));
+        uint64_t b0 = get_u64(in);
+        int64_t h0 = (int64_t)get_u64(in + 8);
+        int32_t ppb = (int32_t)((uint32_t)in[16] | ((uint32_t)in[17] << 8) | ((uint32_t)in[18] << 16) |
+                                ((uint32_t)in[19] << 24));
+        if (ppb < -MAX_PPB || ppb > MAX_PPB) {
+            *out_n = say(out, PSTR("rate off by more than 10 % (ppb)"));
+            return 0xFF;
+        }
+        if (b0 > (uint64_t)INT64_MAX || h0 < -MAX_HOST_NS || h0 > MAX_HOST_NS) {
+            *out_n = say(out, PSTR("board us beyond 2^63 or host ns beyond +-2^62"));
+            return 0xFF;
+        }
+        map_b0 = b0;
+        map_h0 = h0;
+        map_ppb = ppb;
         host_map_set = 1;
         return 0;
     }
@@ -66,6 +88,7 @@ uint8_t host_map_fn(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) 
         *out_n = 20;
         return 0;
     }
+    if (n) *out_n = say(out, PSTR("expects <Q board us><q host ns><i ppb> or nothing"));
     return 0xFF;
 }
 
@@ -183,6 +206,37 @@ void timing_poll(uint64_t now) {
             timing_done++;
         }
     }
+}
+
+uint8_t timing_pending(void) {
+    uint8_t n = timing_hardware_held ? timing_hardware_held(0, -1) : 0;
+    for (uint8_t i = 0; i < TIMED_QUEUE; i++) n += queue[i].used;
+    return n;
+}
+
+void timing_cancel(const char *why, uint32_t ms, int64_t after) {
+    uint8_t n = timing_hardware_held ? timing_hardware_held(1, after) : 0;
+    for (uint8_t i = 0; i < TIMED_QUEUE; i++) {
+        if (queue[i].used && (int64_t)queue[i].tick > after) {
+            queue[i].used = 0;
+            n++;
+        }
+    }
+    if (!n) return;
+    timing_cancelled += n;
+    uint8_t text[24];
+    runtime_debug_P(PSTR("timing: "));
+    text[utoa_at(text, 0, n)] = 0;
+    runtime_debug((const char *)text);
+    runtime_debug_P(n == 1 ? PSTR(" timed call dropped (") : PSTR(" timed calls dropped ("));
+    runtime_debug_P(why);
+    if (ms != 0xFFFFFFFFUL) {
+        uint8_t k = say(text, PSTR(" for "));
+        k = utoa_at(text, k, ms);
+        text[k + say(text + k, PSTR(" ms"))] = 0;
+        runtime_debug((const char *)text);
+    }
+    runtime_debug_P(PSTR(");"));
 }
 
 uint8_t timing_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {

@@ -463,3 +463,17 @@ class Motor:
         if a == 0:
             return -b, "drive"
         return a - b, "shoot-through"
+
+
+class BatteryPack:
+    # A battery pack behind a resistor divider (pack + -> r_top -> pin -> r_bottom -> ground):
+    # the ADC pin sees volts * r_bottom / (r_top + r_bottom).  The pack's voltage is what a test
+    # sets (set_volts); discharge, sag under load and the divider's tolerance are not modelled.
+    def __init__(self, pin, r_top=10000.0, r_bottom=3300.0, volts=7.4):
+        self.pin = pin
+        self.divider = r_bottom / (r_top + r_bottom)
+        self.set_volts(volts)
+
+    def set_volts(self, volts):
+        self.volts = volts
+        WORLD.volts[self.pin] = volts * self.divider

@@ -10,8 +10,9 @@
 // back, "OK <repr(result)>" or "ERR <message>".  The firmware stepping its own loop, the bytes
 // of each connection moved between its socket and the firmware as they come (the firmware's
 // link, as on a device, decides which connection is its host and closes the others).  "BREAK"
-// is printed when the firmware stops for the REPL (two Ctrl-C between frames); the process then
-// exits 0.
+// is printed when the firmware stops for the REPL (the break between frames, board/wire.py),
+// "CRASH" when it stops on an exception; the simulated world stays there for control requests
+// (what the firmware left its devices doing) until stdin closes.
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
 import { readFileSync, readdirSync, statSync } from "node:fs";
 import { createServer } from "node:net";
@@ -69,6 +70,7 @@ const ident = mp.globals.get("_ident")();
 
 const conns = new Map(); // connection number -> socket: the firmware's link decides who stays
 let nextConn = 1;
+let stopped = false; // the firmware gave the REPL back: no more steps
 let pending = null; // the next run(): { immediate } or { timeout }
 function cancel() {
   if (pending === null) return;
@@ -83,11 +85,16 @@ function run() {
     out = tick();
   } catch (e) {
     process.stderr.write("firmware crashed: " + String(e) + "\n");
-    process.exit(3);
+    // as a board whose main.py raised: the firmware stops (its actuators made safe by then,
+    // board/firmware.py), the world stays for control requests
+    process.stdout.write("CRASH\n");
+    stopped = true;
+    return;
   }
   if (out === "BREAK") {
     process.stdout.write("BREAK\n");
-    process.exit(0);
+    stopped = true;
+    return;
   }
   for (const tok of out ? out.split(" ") : []) {
     if (tok[0] === "-") {
@@ -105,7 +112,7 @@ function run() {
 // Step again at once after input or output (more may be queued), else at the drivers' next
 // deadline, at most 5 ms later (the firmware's own receive timeout needs a poll).
 function schedule(now) {
-  if (pending !== null && !now) return;
+  if (stopped || (pending !== null && !now)) return;
   cancel();
   const due = now ? 0 : dueUs();
   const ms = due < 0 ? 5 : Math.min(5, Math.floor(due / 1000));

@@ -83,6 +83,9 @@ def _populate(board):
             dev = simdevices.StepperDriver(t["step_pin"], t["dir_pin"], t.get("enable_pin"))
         elif drv == "hbridge":
             dev = simdevices.Motor(t.get("pwm_pin"), t.get("dir_pin"), t.get("in1"), t.get("in2"))
+        elif drv == "battery":
+            r = (t.get("r_top", 10000.0), t.get("r_bottom", 3300.0))
+            dev = simdevices.BatteryPack(t["pin"], r[0], r[1])
         if dev is not None:
             WORLD.devices[t["name"]] = dev
 

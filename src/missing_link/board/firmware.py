@@ -15,10 +15,14 @@
 # Firmware.run() repeats it for ever, sleeping on the link until input or the next driver
 # deadline.  The simulator calls step() itself.
 #
-# The way back to the REPL: main.py turns Ctrl-C off (a 0x03 inside a frame is data), so two
-# 0x03 bytes in a row *between* frames (where J2A never sends them) stop the firmware and give
-# the REPL back, with Ctrl-C re-enabled.  mpremote and pyboard.py send exactly "\r\x03\x03"
-# before they take over, so `mpremote` and `missing-link flash` work on a running board.
+# The way back to the REPL: the link turns Ctrl-C off (a 0x03 inside a frame is data), and the
+# break is a sequence between frames that line noise does not make: "\x03\x03repl" then CR or
+# LF (wire.BREAK: Ctrl-C twice, "repl", Enter in a terminal).  Two bytes 0x03 used to be enough,
+# and three bytes of noise (aa 03 03) stopped a board with its actuators running.  mpremote's own
+# "\r\x03" does not stop the firmware: `missing-link flash` sends the break first
+# (docs/hardware.md, "Flashing").  Whatever stops the firmware - the break, or an exception -
+# first brings every armed actuator to its safe state and drops the timed calls (failsafe.stop),
+# so nothing it drove goes on without it.
 # Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
 # ms, a timed call wants its µs.
 
@@ -34,7 +38,6 @@ from .timing import Timing
 
 RESERVED = ("name", "id", "driver", "prefix", "model", "dtype", "na", "call", "bus", "options",
             "failsafe_ms")  # fmt: skip
-BREAK = 0x03
 SPIN_US = 2000
 
 
@@ -137,15 +140,22 @@ class Firmware:
         self.link = link
         if hasattr(link, "stats"):  # a signed link: what it dropped, for the host to see
             self.runtime.add_function("a2jLinkStats", self._link_stats)
-        self._breaks = 0
 
     def step(self):
+        try:
+            self._turn()
+        except BaseException as e:  # noqa: BLE001 - made safe, then on its way (re-raised)
+            why = "the break to the REPL" if isinstance(e, BreakIn) else "%s" % e
+            self.runtime.failsafe.stop("the firmware stops: %s" % why)
+            raise
+
+    def _turn(self):
         rt = self.runtime
         data = self.link.read()
         if data:
-            rx_us = rt.clock()  # a2jClock's t2: before the break check's pass over the bytes
-            self._check_break(data)
-            rt.feed(data, rx_us)
+            rt.feed(data, rt.clock())  # (a2jClock's t2: as the bytes came)
+            if rt.breaks:
+                raise BreakIn()
         rt.poll()
         out = rt.take_output()
         if out:
@@ -156,15 +166,6 @@ class Firmware:
         s = self.link.stats()
         n = [v & 0xFFFFFFFF for v in (s["records"], s["bad_tags"], s["replayed"], s["junk"])]
         return 0, struct.pack("<IIII", n[0], n[1], n[2], n[3])
-
-    def _check_break(self, data):
-        for b in data:
-            if b == BREAK and not self.runtime.parser.in_frame():
-                self._breaks += 1
-                if self._breaks >= 2:
-                    raise BreakIn()
-            else:
-                self._breaks = 0
 
     def run(self):
         rt = self.runtime
@@ -193,5 +194,6 @@ def main(board=None):
     try:
         Firmware(board, machine, link).run()
     except BreakIn:
-        link.close()
         print("missing-link firmware stopped: REPL")
+    finally:
+        link.close()  # (Ctrl-C on again: after a crash too)

@@ -29,6 +29,7 @@ import struct
 from .clock import default_clock, new_epoch
 from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
+    EV_BREAK,
     EV_CHECKSUM,
     EV_CUT,
     EV_ESCAPE,
@@ -49,6 +50,11 @@ ERR_ESCAPE = 0xF4
 MANY_CHUNK = 249
 INTERBYTE_TIMEOUT_US = 10000
 SIF_QUEUE_LIMIT = 64
+# what a host map (a2jHostMap) may say: a rate within 10 % of 1 (crystals: 0.01 %, an RC
+# oscillator: a few %), references within the 64-bit sums of the AVR firmware
+MAX_PPB = 100000000
+MAX_BOARD_US = (1 << 63) - 1
+MAX_HOST_NS = 1 << 62
 
 _PLAIN = 0
 _MANY = 1
@@ -99,10 +105,11 @@ class BoardRuntime:
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
         self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
-        self.last_frame_us = 0  # when the last frame from the host came (the failsafe's)
+        self.last_frame_us = 0  # when the last intact frame came from the host (the failsafe's)
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
+        self.breaks = 0  # the break between frames (wire.py): the shell's to act on (firmware.py)
         self.add_function("a2jGetMapping", self._get_mapping)
         self.add_function("a2jMany", self._many)
         if builtins:
@@ -234,10 +241,10 @@ class BoardRuntime:
 
     def poll(self):
         now = self.clock()
-        if self.timing is not None:
-            self.timing.poll(now)  # timed calls first: they are due at a tick
         if self.failsafe is not None:
-            self.failsafe.poll(now)
+            self.failsafe.poll(now)  # first: a silent host's timed calls are dropped, not run
+        if self.timing is not None:
+            self.timing.poll(now)  # then timed calls: they are due at a tick
         for t in self.transducers:
             if t._poll is not None and t.enabled:
                 t._poll(now)
@@ -302,9 +309,12 @@ class BoardRuntime:
         self._last_byte_us = self.clock() if rx_us is None else rx_us
         for ev in self.parser.feed(data):
             tag = ev[0]
-            self.last_frame_us = self._last_byte_us  # the host is there (the failsafe)
             if tag == EV_REQUEST:
+                # an intact frame: the host is there (the failsafe; line noise is not)
+                self.last_frame_us = self._last_byte_us
                 self._dispatch(ev[1], ev[2], ev[3])
+            elif tag == EV_BREAK:
+                self.breaks += 1
             elif ev[1] is not None:
                 if tag == EV_CUT:
                     self._error(ev[1], ERR_TIMEOUT, DIAG_CUT)
@@ -390,12 +400,21 @@ class BoardRuntime:
 
     def _host_map_fn(self, payload):
         # The host's current map (board µs -> host ns), so the board can act at a host time:
-        # <Q board µs><q host ns><i rate - 1 in ppb>.  Empty payload: read it back.
+        # <Q board µs><q host ns><i rate - 1 in ppb>.  Empty payload: read it back.  Every field
+        # is checked (the same on AVR, timing.c): a map the host got wrong is refused, saying
+        # why, and the one before is kept; a rate of -1e9 ppb once divided by zero.
         if len(payload) == 16 + 4:
-            self.host_map = struct.unpack("<Qqi", payload)
+            b0, h0, ppb = struct.unpack("<Qqi", payload)
+            if not -MAX_PPB <= ppb <= MAX_PPB:
+                return 0xFF, b"rate off by more than 10 % (ppb)"
+            if b0 > MAX_BOARD_US or not -MAX_HOST_NS <= h0 <= MAX_HOST_NS:
+                return 0xFF, b"board us beyond 2^63 or host ns beyond +-2^62"
+            self.host_map = (b0, h0, ppb)
             return 0, b""
         if not payload and self.host_map is not None:
             return 0, struct.pack("<Qqi", *self.host_map)
+        if payload:
+            return 0xFF, b"expects <Q board us><q host ns><i ppb> or nothing"
         return 0xFF, b""
 
     def board_time_at(self, host_ns):

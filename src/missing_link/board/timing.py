@@ -20,6 +20,12 @@
 #   stops sleeping for the last stretch).  While a call runs, `acting_tick` is the tick it was
 #   due at: a driver that models a timer-compare output (the virtual boards' trigger) acts at
 #   that tick, however late the process got round to it.
+# * a queued call is a command the host gave and the board has not yet carried out: when the
+#   host is gone it must not be carried out at all.  cancel() drops the whole queue, counted
+#   (`cancelled`) and said in a2jDebug; the failsafe (failsafe.py) calls it on a2jGoodbye, and
+#   when the host has been silent (no intact frame) for the board's shortest failsafe_ms: then
+#   for the calls due after that moment (one due until then, the host still there, runs, if
+#   late).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
 #                 [I timed calls refused]: what the daemon shows per board.
@@ -40,6 +46,7 @@ class Timing:
         self.unaligned = 0
         self.done = 0
         self.refused = 0
+        self.cancelled = 0  # queued calls dropped: the host said goodbye or went silent
         self._queue = []  # (board tick, handler, payload), soonest first
         self.acting_tick = None  # while a timed call runs: the tick it was due at
         runtime.add_function("a2jAt", self._at)
@@ -94,6 +101,20 @@ class Timing:
         self._queue.append((tick, rt.functions[index][2], payload[9:]))
         self._queue.sort(key=_first)
         return 0, struct.pack("<Q", tick)
+
+    def pending(self):
+        return len(self._queue)
+
+    def cancel(self, why, after=-1):
+        # Drop the queued calls due after board µs `after` (all by default): the host that asked
+        # for them is gone (since `after`).  Counted, said once.
+        keep = [e for e in self._queue if e[0] <= after]
+        n = len(self._queue) - len(keep)
+        if n:
+            self._queue = keep
+            self.cancelled += n
+            self.rt.debug("timing: %d timed call%s dropped (%s);" % (n, "" if n == 1 else "s", why))
+        return n
 
     def next_precise_us(self):
         return self._queue[0][0] if self._queue else None

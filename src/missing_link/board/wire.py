@@ -13,6 +13,11 @@
 # reports it (with the seq if it had arrived) and starts again at that marker.  feed() returns a
 # list of events; the runtime answers errors with error frames (0xF2/0xF3/0xF4), as the original.
 #
+# Between frames (hunting, or in an ignored SIF frame) bytes are junk, except the break: BREAK
+# then CR or LF, all between frames, is EV_BREAK (the MicroPython firmware's way back to the
+# REPL, firmware.py).  J2A never sends bytes between frames, and line noise does not spell seven
+# given bytes (2^-56 a try); no marker may come between them.
+#
 # The host side has its own, throughput-oriented decoder (missing_link.j2a.codec); the test suite
 # cross-checks the two with random frames in both directions.
 
@@ -25,6 +30,9 @@ EV_REQUEST = 0
 EV_CUT = 1
 EV_CHECKSUM = 2
 EV_ESCAPE = 3
+EV_BREAK = 4
+
+BREAK = b"\x03\x03repl"  # then CR or LF: Ctrl-C twice, "repl", Enter (docs/hardware.md)
 
 _HUNT = 0
 _SEQ = 1
@@ -90,6 +98,7 @@ class FrameParser:
         self.junk = 0
         self.errors = 0
         self.frames = 0
+        self._between = bytearray()  # the last bytes between frames (the break's)
 
     def in_frame(self):
         return self.state != _HUNT and self.state != _IGNORE
@@ -115,12 +124,17 @@ class FrameParser:
                     events.append((EV_CUT, self.seq if self.state > _SEQ else None, 0, None))
                 self.esc = False
                 self.state = _SEQ if b == SOF else _IGNORE
+                self._between = bytearray()
                 continue
             st = self.state
-            if st == _HUNT:
-                self.junk += 1
-                continue
-            if st == _IGNORE:
+            if st == _HUNT or st == _IGNORE:
+                if st == _HUNT:
+                    self.junk += 1
+                if (b == 13 or b == 10) and bytes(self._between) == BREAK:
+                    events.append((EV_BREAK, None, 0, None))
+                self._between.append(b)
+                if len(self._between) > len(BREAK):
+                    self._between = self._between[1:]
                 continue
             if self.esc:
                 self.esc = False

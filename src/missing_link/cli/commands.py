@@ -341,6 +341,36 @@ def _demo(sp: Parser) -> None:
     sp.add_argument("--seed", type=int, default=0)
 
 
+def _replay_rate(text: str) -> float:
+    value = positive(text)
+    if not 0.01 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"{text}: the rate goes from 0.01 to 1000")
+    return value
+
+
+def _replay_listen(text: str) -> str:
+    if text in ("pty", "pty://") or text.startswith("tcp://"):
+        return text
+    raise argparse.ArgumentTypeError(f"{text!r}: listen on pty or tcp://HOST:PORT")
+
+
+def _replay(sp: Parser) -> None:
+    sp.add_argument("recording", nargs="+", help="bag directories or .mcap files, in order")
+    sp.add_argument("--rate", type=_replay_rate, default=1.0, help="times as fast as recorded (1)")
+    sp.add_argument("--loop", action="store_true", help="start again after the end (a reset)")
+    sp.add_argument(
+        "--listen", type=_replay_listen, default="pty", help="pty (default) or tcp://127.0.0.1:0"
+    )
+    sp.add_argument("--board", action="append", metavar="NAME", help="only this board (repeatable)")
+    sp.add_argument(
+        "--lead",
+        type=positive,
+        default=1.0,
+        metavar="S",
+        help="the recording starts S s after a host's first request (1): time to sync",
+    )
+
+
 COMMANDS = (
     Command("info", "functions, properties and transducers of a board", "talk:cmd_info", _info),
     Command("call", "call a board function by name", "talk:cmd_call", _call),
@@ -372,6 +402,12 @@ COMMANDS = (
         _gen_firmware,
     ),
     Command("board", "run a virtual board", "virtual:cmd_board", _board),
+    Command(
+        "replay",
+        "play a recording back as the boards that made it",
+        "replay:cmd_replay",
+        _replay,
+    ),
     Command(
         "relay", "a fault-injecting relay in front of a board (tests)", "virtual:cmd_relay", _relay
     ),

@@ -36,11 +36,12 @@ def _foxglove(port: int | None) -> Any:
     """The Foxglove live view on ``port`` (another free port if that one is taken)."""
     if port is None:
         return None
+    from ..publishers.base import PublisherError
     from ..publishers.foxglove import FoxglovePublisher
 
     try:
         return FoxglovePublisher({"port": port})
-    except Exception:  # noqa: BLE001 - port taken: any free one will do for a demo
+    except PublisherError:  # port taken: any free one will do for a demo (a bug: raised)
         return FoxglovePublisher({"port": 0})
 
 

@@ -173,6 +173,7 @@ def print_summary(daemon: Any, out: Any) -> None:
                 ("clock_outliers", "clock outliers"),
                 ("bad_checksums", "bad checksums"),
                 ("stale_links", "stale links"),
+                ("errors", "errors caught"),
             )
             if s.get(k)
         ]
@@ -195,10 +196,12 @@ def print_summary(daemon: Any, out: Any) -> None:
         elif "messages" in st:
             bits.append(f"{st['messages']} messages")
         bits.append(f"{st.get('dropped', 0)} dropped")
+        if st.get("errors"):  # (bugs caught, by kind: the log has each kind's traceback)
+            bits.append(f"{st['errors']} errors caught: {st['error_kinds']}")
         bags = getattr(p, "bags", None)
         if bags:
             bits.append("recorded " + ", ".join(str(b) for b in bags))
-        if p.name != "bus" or st.get("dropped"):
+        if p.name != "bus" or st.get("dropped") or st.get("errors"):
             print(f"missing-link: publisher {p.name}: {', '.join(bits)}", file=out)
 
 

@@ -227,7 +227,9 @@ def _configured_rates(daemon: Any) -> dict[str, str]:
     out: dict[str, str] = {}
     for s in daemon.sessions:
         values = s.settings.values
-        for topic in list(s.topics.values()) + [std for std, _ in s.path.standard.values()]:
+        for topic in list(s.topics.values()) + [
+            std for lst in s.path.standard.values() for std, _ in lst
+        ]:
             t = topic.transducer.name
             if values.get(f"{t}.enabled") is False:
                 out[topic.name] = "off"

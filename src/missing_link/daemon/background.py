@@ -9,18 +9,19 @@ more than one such thread per session.
 
 from __future__ import annotations
 
-import logging
 import threading
 from collections.abc import Callable
 
-log = logging.getLogger(__name__)
+from ..logs import ErrorCounts
 
 
 class Background:
-    def __init__(self, name: str, work: Callable[[], None]) -> None:
-        """``name``: the thread's; ``work()``: what to run (its exceptions are logged)."""
+    def __init__(self, name: str, work: Callable[[], None], faults: ErrorCounts) -> None:
+        """``name``: the thread's; ``work()``: what to run; ``faults``: where its exceptions
+        are counted (by kind, the first of each logged)."""
         self.name = name
         self._work = work
+        self._faults = faults
         self._lock = threading.Lock()
         self._owed = 0  # requests not yet run
         self._running = False
@@ -43,6 +44,6 @@ class Background:
                 self._owed = 0
             try:
                 self._work()
-            except Exception:  # a bug here must not stop the next request's run
-                log.exception("%s failed", self.name)
+            except Exception as e:  # noqa: BLE001 - a bug must not stop the next request's run
+                self._faults.caught("background work", e, self.name)
             self.runs += 1

@@ -18,9 +18,11 @@ from ..descriptors import read_input_file
 from ..errors import ConfigError
 from ..publishers.registry import check_options, known_publishers
 from ..ros.msgs import DISTROS, check_package
+from ..ros.standard import StdOptions
 from ..text import is_token
 from ..topics import check_topic
 from .control import runtime_dir
+from .ros_config import JointsConfig, parse_joints, parse_ros
 
 
 @dataclass
@@ -150,10 +152,31 @@ class Config:
     control: str | None = None
     #: the command topics that take commands at all, from any face (patterns; daemon/commands.py)
     commands: list[str] = field(default_factory=lambda: ["**"])
+    #: every transducer's standard types beside its thesis-format topic (ros/standard), and
+    #: the thesis-format topics: either can be turned off daemon-wide or per transducer
+    standard_types: bool = True
+    thesis_types: bool = True
+    #: host-side keys per board and transducer ([boards.<name>.ros.<transducer>]: frame_id, ...)
+    ros: dict[str, dict[str, StdOptions]] = field(default_factory=dict)
+    #: the robot-level JointState in and out ([joints]; daemon/joints.py), None: none
+    joints: JointsConfig | None = None
     source: str = "<defaults>"
 
+    def std_options(self, board: str, transducer: str) -> StdOptions:
+        """The host-side keys of one transducer, with the daemon-wide switches applied."""
+        o = self.ros.get(board, {}).get(transducer, StdOptions())
+        if self.standard_types and self.thesis_types:
+            return o
+        return StdOptions(
+            o.frame_id,
+            o.standard and self.standard_types,
+            o.thesis and self.thesis_types,
+            o.counts_per_rev,
+            o.field_of_view,
+        )
 
-_TABLES = ("daemon", "board", "boards", "remap", "discover")
+
+_TABLES = ("daemon", "board", "boards", "remap", "discover", "joints")
 _DAEMON_KEYS = {
     "publishers": list,
     "node": str,
@@ -165,6 +188,8 @@ _DAEMON_KEYS = {
     "probe_budget": (int, float),
     "control": str,
     "commands": list,
+    "standard_types": bool,
+    "thesis_types": bool,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -207,7 +232,9 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
     def fail(where: str, why: str) -> ConfigError:
         return ConfigError(f"{source}: {where}: {why}")
 
-    cfg.board_config = _parse_boards(doc.get("boards", {}), fail)
+    cfg.board_config, cfg.ros = _parse_boards(doc.get("boards", {}), fail)
+    if "joints" in doc:
+        cfg.joints = parse_joints(doc["joints"], fail, _check_table)
     if "discover" in doc:
         cfg.discover = _parse_discover(doc["discover"], fail)
     _parse_daemon(cfg, doc.get("daemon", {}), fail)
@@ -223,7 +250,9 @@ def _check_table(table: Any, allowed: dict[str, Any], where: str, fail: Fail) ->
     for key, value in table.items():
         if key not in allowed:
             raise fail(f"{where}.{key}", f"unknown key (known: {', '.join(allowed)})")
-        if not isinstance(value, allowed[key]) or isinstance(value, bool):
+        if not isinstance(value, allowed[key]) or (
+            isinstance(value, bool) and allowed[key] is not bool
+        ):
             raise fail(f"{where}.{key}", f"expected a {_type_name(allowed[key])}, got {value!r}")
         if isinstance(value, float) and not math.isfinite(value):
             raise fail(f"{where}.{key}", f"expected a finite number, got {value!r}")
@@ -329,18 +358,22 @@ def _parse_publisher_tables(
 _CONFIG_KEY = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
 
 
-def _parse_boards(table: Any, fail: Any) -> dict[str, dict[str, bool | int | float | str]]:
+def _parse_boards(
+    table: Any, fail: Any
+) -> tuple[dict[str, dict[str, bool | int | float | str]], dict[str, dict[str, StdOptions]]]:
     """``[boards.<name>.config]``: keys ``"<transducer>.<key>" = value`` per board name (checked
-    against the board's own table when it connects)."""
+    against the board's own table when it connects); ``[boards.<name>.ros.<transducer>]``: the
+    host-side keys of its standard types (docs/ros.md)."""
     if not isinstance(table, dict):
         raise fail("boards", "must be tables like [boards.thesis.config]")
     out: dict[str, dict[str, bool | int | float | str]] = {}
+    ros: dict[str, dict[str, StdOptions]] = {}
     for name, sub in table.items():
         where = f"boards.{name}"
         if not is_token(name):
             raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
-        if not isinstance(sub, dict) or set(sub) - {"config"}:
-            raise fail(where, "has one table: config ([boards.NAME.config])")
+        if not isinstance(sub, dict) or set(sub) - {"config", "ros"}:
+            raise fail(where, "has two tables: config and ros ([boards.NAME.config])")
         values = sub.get("config", {})
         if not isinstance(values, dict):
             raise fail(f"{where}.config", 'must be a table of "transducer.key" = value')
@@ -350,7 +383,9 @@ def _parse_boards(table: Any, fail: Any) -> dict[str, dict[str, bool | int | flo
             if not isinstance(value, (bool, int, float, str)):
                 raise fail(f"{where}.config.{key}", f"expected a value, got {value!r}")
         out[name] = dict(values)
-    return out
+        if "ros" in sub:
+            ros[name] = parse_ros(sub["ros"], f"{where}.ros", fail, _check_table)
+    return out, ros
 
 
 def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:

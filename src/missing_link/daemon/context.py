@@ -20,6 +20,7 @@ from typing import Any, Protocol
 from ..descriptors import Transducer
 from ..host.config import ConfigKey, Value
 from ..host.reactor import Reactor
+from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
 from .config import Config
@@ -77,3 +78,5 @@ class SessionContext:
     config_changed: Callable[[str, dict[str, Value]], None] = lambda board, values: None
     #: what the supervisor reads the time from and sleeps on (liveness.py)
     clock: SupervisorClock = MONOTONIC
+    #: a board came up (validated, topics declared): its description, for recordings
+    describe_board: Callable[[BoardDescription], None] = lambda record: None

@@ -52,6 +52,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
+from ..logs import ErrorCounts
 from ..text import safe_text
 
 log = logging.getLogger(__name__)
@@ -176,6 +177,8 @@ class ControlServer:
         self.refused = 0  #: requests that were not JSON, too big or deep, or of no known op
         self.busy = 0  #: connections turned away: every slot taken
         self.accept_errors = 0  #: accepts that failed (out of descriptors: EMFILE, ...)
+        #: bugs met serving a request, by kind (its answer says "internal error")
+        self.faults = ErrorCounts(log, "control")
         self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
         self._sock = _bind(path)
         self._stop = threading.Event()
@@ -186,17 +189,18 @@ class ControlServer:
         if self._stop.is_set():
             return
         self._stop.set()
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError):  # (not connected: the close below ends the accept)
             self._sock.shutdown(socket.SHUT_RDWR)
         self._sock.close()
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError):  # (gone already: someone tidied up)
             os.unlink(self.path)
         self._thread.join(1.0)
 
     def status(self) -> dict[str, Any]:
         """What ``publisher_status`` shows of the endpoint."""
         return {"requests": self.requests, "refused_requests": self.refused,
-                "busy": self.busy, "accept_errors": self.accept_errors}  # fmt: skip
+                "busy": self.busy, "accept_errors": self.accept_errors,
+                **self.faults.to_json()}  # fmt: skip
 
     def _accept(self) -> None:
         pause = _ACCEPT_PAUSE[0]
@@ -245,8 +249,8 @@ class ControlServer:
             _send(conn, answer)
         except OSError:
             pass  # (a client that went, or was too slow: its slot is free again)
-        except Exception:  # a bug of ours: said; the endpoint goes on
-            log.exception("control: serving a client failed")
+        except Exception as e:  # noqa: BLE001 - a bug of ours: counted, said once; the
+            self.faults.caught("serving a client", e)  # endpoint goes on
         finally:
             conn.close()
             self._slots.release()
@@ -264,8 +268,8 @@ class ControlServer:
             return handler(request)
         except (MissingLinkError, ConfigError, KeyError, TypeError, ValueError) as e:
             return {"error": safe_text(str(e), 400), "kind": error_kind(e)}
-        except Exception as e:  # a bug answers; it does not end the endpoint
-            log.exception("control: %s failed", safe_text(str(op), 40))
+        except Exception as e:  # noqa: BLE001 - a bug answers (and is counted, said once); it
+            self.faults.caught(f"op {safe_text(str(op), 20)}", e)  # does not end the endpoint
             return {"error": f"internal error: {type(e).__name__}: {e}", "kind": "board"}
 
 
@@ -365,7 +369,7 @@ def _read_line(conn: socket.socket, cap: int, deadline: float) -> bytes | None:
 
 
 def _send(conn: socket.socket, answer: dict[str, Any]) -> None:
-    with contextlib.suppress(OSError):
+    with contextlib.suppress(OSError):  # (a client that went or is too slow: no one to tell)
         conn.sendall(json.dumps(answer).encode() + b"\n")
 
 

@@ -32,6 +32,7 @@ from typing import Any
 
 from ..errors import MissingLinkError
 from ..host.board import Board
+from ..logs import ErrorCounts
 from .config import BoardSpec, DiscoverSpec, PortInfo
 
 log = logging.getLogger("missing_link.discovery")
@@ -109,6 +110,8 @@ class DiscoveryService:
         self.not_j2a: dict[str, str] = {}  # device -> why the probe failed
         self.boards: dict[str, str] = {}  # device -> URL of its session
         self.appeared = self.vanished = self.scan_errors = 0
+        #: listings that failed, by kind (the daemon's status shows them)
+        self.faults = ErrorCounts(log, "discovery")
         self._stop = threading.Event()
         self._kick = threading.Event()
         self._thread = threading.Thread(target=self._run, name="discovery", daemon=True)
@@ -133,7 +136,8 @@ class DiscoveryService:
             self._observer = pyudev.MonitorObserver(monitor, callback=lambda _dev: self.kick())
             self._observer.start()
             self.events = "udev"
-        except Exception as e:  # noqa: BLE001 - no pyudev / no libudev / no netlink: poll
+        except Exception as e:  # noqa: BLE001 - no pyudev/libudev/netlink: poll (said once,
+            # and the status's events says "polling")
             log.info("discovery: no udev events (%s): listing every %g s", e, self.spec.interval)
 
     def stop(self, timeout: float = 1.0) -> None:
@@ -143,7 +147,7 @@ class DiscoveryService:
             try:
                 self._observer.stop()
             except Exception as e:  # noqa: BLE001 - stopping must not fail the daemon's stop
-                log.debug("discovery: stopping the udev observer: %s", e)
+                self.faults.caught("stopping udev events", e)
         if self._thread.is_alive():
             self._thread.join(timeout)
 
@@ -151,9 +155,9 @@ class DiscoveryService:
         while not self._stop.is_set():
             try:
                 self.scan()
-            except Exception as e:  # noqa: BLE001 - discovery must outlive any one listing
-                self.scan_errors += 1
-                log.warning("discovery: listing ports failed: %s", e)
+            except Exception as e:  # noqa: BLE001 - discovery must outlive any one listing:
+                self.scan_errors += 1  # counted by kind, the first of each said
+                self.faults.caught("listing ports", e)
             self._kick.wait(self.spec.interval)
             self._kick.clear()
 

@@ -77,7 +77,7 @@ def wait_goodbye(fut: Future[CallResult] | None, limit: float = GOODBYE_TIMEOUT_
         return
     try:
         fut.result(max(0.0, limit))
-    except (MissingLinkError, TimeoutError):
+    except (MissingLinkError, TimeoutError):  # (unanswered: the board trips on its own)
         pass
 
 

@@ -7,12 +7,12 @@ turn), and one that queued a call on every tick would build a backlog.  Each kin
 supervisor makes (the keepalive, the heartbeat echo, the board's failsafe and alignment counts)
 is an ``InFlight``: ``start`` sends it unless one is still out, and the reply (or the error) is
 handed to a callback on the thread that reads the board.  A closed link fails every pending
-call, so a slot is never held past its link.
+call, so a slot is never held past its link.  An exception from a callback (a bug: a board's
+reply is checked there) is counted by kind in the link's ``faults``, which the session shows.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -20,8 +20,6 @@ from concurrent.futures import Future
 from ..errors import MissingLinkError
 from ..host.board import Board
 from ..host.link import CallResult
-
-log = logging.getLogger(__name__)
 
 
 class InFlight:
@@ -62,7 +60,7 @@ class InFlight:
             self._on_error(e)
             return False
         self.sent += 1
-        fut.add_done_callback(lambda f: self._done(token, f))
+        fut.add_done_callback(lambda f: self._done(token, f, board))
         return True
 
     def _release(self, token: int) -> None:
@@ -70,17 +68,23 @@ class InFlight:
             if token == self._token:
                 self._busy = False
 
-    def _done(self, token: int, fut: Future[CallResult]) -> None:
+    def _done(self, token: int, fut: Future[CallResult], board: Board) -> None:
+        # (on the reading thread: nothing may escape, or concurrent.futures logs it and the
+        # count is lost)
         self._release(token)
         try:
             result = fut.result()
         except MissingLinkError as e:
-            self._on_error(e)
+            try:
+                self._on_error(e)
+            except Exception as bug:  # noqa: BLE001 - a callback's bug: counted, said once
+                board.link.faults.caught(f"{self.function} error callback", bug)
             return
-        except Exception:  # a bug of ours, said; the reading thread goes on
-            log.exception("%s: unexpected failure", self.function)
+        except Exception as e:  # noqa: BLE001 - a future failed with a bug: counted, said once
+            board.link.faults.caught(self.function, e)
             return
         try:
             self._on_reply(result)
-        except Exception:  # (as above: a board's reply may be anything)
-            log.exception("%s: handling the reply failed", self.function)
+        except Exception as e:  # noqa: BLE001 - (as above: a board's reply may be anything)
+            what = f"handling the {self.function} reply"
+            board.link.faults.caught(f"{self.function} reply", e, what)

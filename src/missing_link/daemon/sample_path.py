@@ -20,8 +20,9 @@ Per SIF:
    An aligned transducer's time is held against its host-time grid (``grid``, set by the
    session from the configuration: alignment.py): one further from its instant than its bound
    allows is flagged ``OFF_GRID`` and counted (``off_grid_samples``);
-4. one ``Update`` to every publisher, and per channel one on the standard-type topic when the
-   transducer has one (``standard.py``).
+4. one ``Update`` to every publisher (unless the transducer's thesis-format topic is off:
+   ``quiet``), and on each of its standard-type topics (``ros/standard``) one per sample or
+   one per channel with a value, as the type is made.
 
 The session owns the supervision (connect, serve, reconnect) and sets ``topics``,
 ``standard`` and ``sync`` at each handshake; this class owns what happens to each sample.  It
@@ -59,7 +60,9 @@ class SamplePath:
         self.sync: ClockSync | None = None  #: the board's clock sync (None: none, receive times)
         self.board: Board | None = None  #: the board of the current connection
         self.topics: dict[int, Topic] = {}  # transducer id -> topic
-        self.standard: dict[int, tuple[Topic, StandardMapping]] = {}  # id -> standard-type topic
+        #: transducer id -> its standard-type topics (``ros/standard``)
+        self.standard: dict[int, list[tuple[Topic, StandardMapping]]] = {}
+        self.quiet: set[int] = set()  #: transducers whose thesis-format topic is off
         self.samples = 0
         self.unknown_sifs = 0
         self.bad_sifs = 0
@@ -185,12 +188,13 @@ class SamplePath:
             clock_flags=flags,
         )
         self.samples += len(values) - missing
-        self.publish(update)
-        std = self.standard.get(cmd)
-        if std is not None and std[1].sample is not None:
-            self._publish_sample_type(std, update)
-        elif std is not None:
-            self._publish_per_channel(std, update)
+        if cmd not in self.quiet:
+            self.publish(update)
+        for std in self.standard.get(cmd, ()):
+            if std[1].sample is not None:
+                self._publish_sample_type(std, update)
+            else:
+                self._publish_per_channel(std, update)
 
     def _held(
         self,
@@ -234,7 +238,8 @@ class SamplePath:
         return [h + shift if h else 0 for h in host_ns], newest + shift, bound, est_error
 
     def _publish_sample_type(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
-        """A standard type made from every channel at once (NavSatFix, MagneticField)."""
+        """A standard type made from every channel at once (Imu, JointState, NavSatFix, ...);
+        a builder that has nothing to say this time (a TimeReference off a PPS edge) says None."""
         std_topic, mapping = std
         assert mapping.sample is not None
         host_ns, values = update.host_ns, update.values
@@ -245,12 +250,14 @@ class SamplePath:
         except (ValueError, OverflowError, struct.error, TypeError):
             self._cannot_carry(std_topic)  # values the standard type cannot carry
             return
+        if cdr is None:
+            return
         self.publish(
             self._standard_update(std_topic, update, update.board_us, host_ns, values, cdr)
         )
 
     def _publish_per_channel(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
-        """A standard type made per channel (Range): one message per channel with a value."""
+        """A standard type made per channel (Range, Bool): one message per channel with a value."""
         std_topic, mapping = std
         host_ns = update.host_ns
         for ch, v in enumerate(update.values):

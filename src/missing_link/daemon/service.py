@@ -10,8 +10,8 @@ callables), never the daemon.  The daemon's own job is the fan-out and what sess
 on:
 
 * every ``Update`` a session makes goes to every publisher (``fanout.py``); a publisher that
-  raises is counted (``publish_errors``) and logged, never allowed to stop the sample path of
-  any board;
+  raises is counted by kind in its status (``errors``, ``error_kinds``; ``publish_errors`` sums
+  them) and logged once per kind, never allowed to stop the sample path of any board;
 * names are claimed daemon-wide (``claims.py``): a board name is held by one session (a second
   board that calls itself ``robot`` publishes as ``robot_2``, with a warning), and a message type
   name by one definition (a second board whose ``temp`` differs gets ``<Board>Temp``), so no
@@ -41,11 +41,12 @@ from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import load_descriptor_file
-from ..errors import BadURL, BoardError, ConfigError, MissingLinkError, without_prefix
+from ..errors import BadURL, BoardError, MissingLinkError, without_prefix
 from ..host.board import Board
-from ..host.config import Value, describe_keys
+from ..host.config import Value
 from ..host.link import CallResult
 from ..host.reactor import Reactor
+from ..logs import ErrorCounts
 from ..logs import counts as log_counts
 from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, Subscription
@@ -58,8 +59,10 @@ from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
 from .context import SessionContext
 from .control import ControlServer, call_timeout
+from .control_ops import control_handlers
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .fanout import Fanout
+from .joints import Joints
 from .session import UP, BoardSession
 from .status import SessionStatus
 
@@ -91,11 +94,11 @@ class Daemon:
                 if name != "bus":
                     try:
                         self.publishers.append(make_publisher(name, self._options(name)))
-                    except (MissingLinkError, ConfigError):
+                    except MissingLinkError:  # (ConfigError too) already says what is wrong
                         raise
-                    except Exception as e:  # zenoh.ZError, a taken port, ...: one line
+                    except Exception as e:  # zenoh.ZError, a taken port, ...: raised, one line
                         raise PublisherError(f"publisher {name} cannot start: {e}") from e
-        except BaseException:
+        except BaseException:  # (broad, raised again: whatever stops the start, none is left)
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
             raise
@@ -108,6 +111,11 @@ class Daemon:
         self.typestore = typestore_for(config.distro)
         self.claims = Claims(config.package)
         self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
+        self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
+        if config.joints is not None and config.joints.joints:
+            self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
+                                 self.bus.send, self._actuator)  # fmt: skip
+            self.publishers.append(self.joints)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
         self._stop = threading.Event()
@@ -125,7 +133,8 @@ class Daemon:
 
     @property
     def publish_errors(self) -> int:
-        """Calls into a publisher that raised (counted and logged by the fan-out)."""
+        """Calls into a publisher that raised (the fan-out's count; each publisher's status
+        has its own by kind)."""
         return self.fanout.errors
 
     def _options(self, name: str) -> dict[str, Any]:
@@ -140,6 +149,8 @@ class Daemon:
         if self._started:
             return self
         self._started = True
+        if self.joints is not None:
+            self.joints.start(self.fanout.declare, self.fanout.add_command)
         self.reactor.start()
         for s in self.sessions:
             s.start()
@@ -148,7 +159,9 @@ class Daemon:
             self.discovery.start()
         if self.config.control:
             try:
-                self.control = ControlServer(self.config.control, self.control_handlers())
+                self.control = ControlServer(
+                    self.config.control, control_handlers(self.session, self._up, self.call)
+                )
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
                             "only by another endpoint ([daemon] control)", e)  # fmt: skip
@@ -207,8 +220,8 @@ class Daemon:
         for p in self.publishers:
             try:
                 p.close()
-            except Exception:
-                log.exception("closing publisher %s failed", p.name)
+            except Exception as e:  # noqa: BLE001 - one face that fails to close must not keep
+                p.faults.caught("close", e)  # the others open: counted, its traceback said
 
     def __enter__(self) -> Daemon:
         return self.start()
@@ -322,6 +335,24 @@ class Daemon:
         if topic is not None:
             self.commands.check(by, topic)
 
+    def set_frame_id(self, board: str, transducer: str, frame_id: str) -> None:
+        """The ``frame_id`` of a transducer's standard messages from now on (ValueError for a
+        bad one, KeyError for a transducer the board has not described); every face follows
+        (the ``ros2`` face's parameter ``<board>.<transducer>.frame_id`` too)."""
+        frame = self.session(board).frames.get(transducer)
+        if frame is None:
+            raise KeyError(f"{board} has no transducer {transducer!r} with standard types")
+        frame.set(frame_id)
+
+    def _actuator(self, board: str, name: str) -> tuple[Any, Mapping[str, Value]] | None:
+        """An actuator of a board that is up, and its board's configuration (joints.py)."""
+        for s in self.sessions:
+            if s.name == board and s.state == UP:
+                for topic in s.topics.values():
+                    if topic.transducer.name == name and topic.transducer.is_actuator:
+                        return topic.transducer, s.settings.values
+        return None
+
     def board_config(self, board: str) -> dict[str, Value]:
         """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""
         return self._up(board)[0].settings.read()
@@ -335,40 +366,6 @@ class Daemon:
 
     def reset_config(self, board: str, erase_saved: bool = False) -> dict[str, Value]:
         return self._up(board)[0].settings.reset(erase_saved)
-
-    def control_handlers(self) -> dict[str, Any]:
-        """What the control endpoint (control.py) serves: board name or URL in, JSON out."""
-
-        def find(r: dict[str, Any]) -> dict[str, Any]:
-            s = self.session(str(r["board"]))
-            return {"name": s.name, "url": s.spec.url, "state": s.state}
-
-        def info(r: dict[str, Any]) -> dict[str, Any]:
-            b = self._up(str(r["board"]))[1]
-            return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
-
-        def call(r: dict[str, Any]) -> dict[str, Any]:
-            payload = bytes.fromhex(str(r.get("payload", "")))
-            got = self.call(
-                str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control"
-            )
-            return {"code": got.code, "payload": got.payload.hex()}
-
-        def config(r: dict[str, Any]) -> dict[str, Any]:
-            s, b = self._up(str(r["board"]))
-            settings = s.settings
-            if r.get("reset"):
-                settings.reset(bool(r.get("erase")), by="control")
-            if r.get("set") or r.get("save"):
-                wanted = r.get("set") or {}
-                if not isinstance(wanted, dict):
-                    raise ConfigError("config: set must be an object of key: value")
-                settings.configure(wanted, bool(r.get("save")), by="control")
-            values = settings.read()
-            keys = describe_keys(b.settings.keys(), values)
-            return {"values": values, "keys": keys, "state": b.settings.state}
-
-        return {"find": find, "info": info, "call": call, "config": config}
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -394,18 +391,35 @@ class Daemon:
                 st = p.status()
                 if p.takes_commands is not None:
                     st["commands_refused"] = self.commands.refused.get(p.name, 0)
+                if "errors" not in st:  # (a publisher of an application's, not on the base's)
+                    st.update(p.faults.to_json())
                 out.append(st)
-            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others
-                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}"})
+            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others:
+                p.faults.caught("status", e)  # shown as ERROR, counted, its traceback said once
+                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}",
+                            **p.faults.to_json()})  # fmt: skip
         paths = {k: v for k, v in self.commands.refused.items() if k in ("api", "control")}
         if self.control is not None or paths:  # commands refused on no face: still shown
             extra = self.control.status() if self.control is not None else {}
-            out.append({"publisher": "control", "level": 0, "message": "ok", **extra,
+            bugs = extra.get("errors", 0)
+            out.append({"publisher": "control", "level": 1 if bugs else 0,
+                        "message": "errors caught" if bugs else "ok", **extra,
                         "commands_refused": sum(paths.values())})  # fmt: skip
+        for part, faults in self._own_faults():
+            if faults.total:  # (the daemon's own threads: shown once they caught something)
+                out.append({"publisher": part, "level": 1, "message": "errors caught",
+                            **faults.to_json()})  # fmt: skip
         held = log_counts()
         if held["lines_held_back"] or held["tracebacks_folded"]:
             out.append({"publisher": "log", "level": 0, "message": "ok", **held})
         return out
+
+    def _own_faults(self) -> list[tuple[str, ErrorCounts]]:
+        """What the daemon's own threads caught: the I/O loop's, discovery's."""
+        own = [("reactor", self.reactor.faults)]
+        if self.discovery is not None:
+            own.append(("discovery", self.discovery.faults))
+        return own
 
     def failures(self) -> list[str]:
         """One line per publisher that failed for good (a recording that stopped writing)."""
@@ -429,6 +443,7 @@ class Daemon:
             record_clock=self.fanout.record_clock,
             offer_config=self.fanout.offer_config,
             config_changed=self.fanout.config_changed,
+            describe_board=self.fanout.describe_board,
         )
 
     def _diagnostics(self) -> None:

@@ -8,10 +8,13 @@ A supervisor thread runs the session through these states::
          \\--any failure (no board, bad or hostile board, bug)--> backoff
     any state --stop()--> stopped
 
-A board is untrusted.  The supervisor catches *every* exception: the first time a given failure
-happens its traceback is logged (a bug of ours shows once, not every backoff), ``error`` gets one
-line, and the session backs off (``backoff_min`` doubling to ``backoff_max``) and tries again.
-Nothing a board sends can end the thread.
+A board is untrusted.  The supervisor catches *every* exception: ``error`` gets one line, and
+the session backs off (``backoff_min`` doubling to ``backoff_max``) and tries again.  A
+``MissingLinkError`` (the board, the link) is said once per new message; anything else is a bug
+(ours, or a board case nobody validated yet), counted by kind in ``faults`` with whatever the
+board's reading thread caught (SIF handlers, callbacks: ``Board(faults=...)``), its first of a
+kind logged with the traceback; the status shows them (``errors``, ``error_kinds``).  Nothing a
+board sends can end the thread.
 
 ``connecting`` opens the transport and owns the :class:`~missing_link.host.board.Board` *before* the
 handshake, so ``stop()`` can close it at once.  The handshake has one overall deadline
@@ -64,7 +67,10 @@ from ..descriptors import load_descriptor_file
 from ..errors import BoardError, LinkLost, MissingLinkError
 from ..host.board import Board
 from ..host.link import CallResult
+from ..logs import ErrorCounts
+from ..ros.board_record import BoardDescription
 from ..ros.clock import clock_topic
+from ..ros.standard import FrameIds
 from ..timesync.sync import ClockSync
 from ..topics import Topic
 from ..transport import open_transport
@@ -128,11 +134,14 @@ class BoardSession:
             )
         )
         self._past = LinkCounters()  # link counters of earlier connections (cumulative)
-        self._logged: set[str] = set()  # failures whose traceback was logged once
+        #: bugs caught by the supervisor and on the board's reading thread, by kind (cumulative)
+        self.faults = ErrorCounts(log, spec.url)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self.actuators = Actuators(self._wake.set, self._set_error)
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
+        self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
+        self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
         self.settings = BoardSettings(
             SettingsContext(
                 name=lambda: self.name,
@@ -148,7 +157,9 @@ class BoardSession:
         self._echo = InFlight("a2jEcho", self._echoed, self._call_failed)
         self._resets_seen = 0
         # the file's keys again after a reset: calls to wait for, so not on the supervisor
-        self._reapply = Background(f"session:{spec.url}:config", self.settings.on_reset)
+        self._reapply = Background(
+            f"session:{spec.url}:config", self.settings.on_reset, self.faults
+        )
         self._thread = threading.Thread(
             target=self._supervise, name=f"session:{spec.url}", daemon=True
         )
@@ -216,8 +227,8 @@ class BoardSession:
                 board = self._connect()
                 delay = self.ctx.config.backoff_min
                 self.serve(board)
-            except Exception as e:  # noqa: BLE001 - nothing a board does may end this thread
-                self._failed(e)
+            except Exception as e:  # noqa: BLE001 - nothing a board does may end this thread:
+                self._failed(e)  # one line in error; a bug also counted by kind, said once
             finally:
                 self._disconnect()
             if self._stop.is_set():
@@ -237,18 +248,19 @@ class BoardSession:
             log.log(logging.DEBUG if text == self.error else logging.WARNING, "%s", line)
             self.error = text
             return
-        # A bug (ours, or a board case nobody validated yet): the traceback once, then one line.
+        # A bug (ours, or a board case nobody validated yet): counted by kind, its traceback
+        # logged the first time; the status carries the line
         self.error = f"internal error: {type(e).__name__}: {e}"
-        key = f"{type(e).__name__}: {e}"
-        if key in self._logged:
-            log.warning("%s: %s (again)", self.spec.url, self.error)
-        else:
-            self._logged.add(key)
-            log.exception("%s: session failed; retrying with backoff", self.spec.url)
+        self.faults.caught("session", e, "session (retrying with backoff)")
 
     def _connect(self) -> Board:
         spec = self.spec
-        board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=self.ctx.reactor)
+        board = Board(
+            open_transport(spec.url),
+            timeout=spec.timeout,
+            reactor=self.ctx.reactor,
+            faults=self.faults,  # (what its reading thread catches, counted with ours)
+        )
         board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         self.board = board  # owned before the handshake: stop() closes it at once
         if self._stop.is_set():
@@ -280,11 +292,15 @@ class BoardSession:
         self.path.sync = self.clock.sync
         declared = BoardTopics()  # (filled as declared: _disconnect withdraws what there is)
         self.path.topics, self.path.standard = declared.topics, declared.standard
-        self._actuator_calls = declared.calls
+        self.path.quiet = declared.quiet
+        self._actuator_calls, self._command_topics = declared.calls, declared.commands
         declare_topics(
             self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
-            declared,
+            declared, self.frames, lambda: self.settings.values,
         )  # fmt: skip
+        self.ctx.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
+            board.properties, transducers,
+            [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
         self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
         self.epoch = epoch
@@ -417,8 +433,8 @@ class BoardSession:
 
     def _disconnect(self) -> None:
         try:
-            for topic in self.topics.values():
-                self.ctx.remove_command(f"{topic.name}/cmd")
+            for name in self._command_topics:
+                self.ctx.remove_command(name)
         finally:
             board, self.board = self.board, None
             if board is not None:
@@ -432,7 +448,7 @@ class BoardSession:
             return None
         try:
             payload = board.call_ok("a2jSifCount", timeout=self.spec.timeout)
-        except MissingLinkError:
+        except MissingLinkError:  # (no count: an outage's loss is counted modulo 256 then)
             return None
         return int.from_bytes(payload[:8], "little") if len(payload) >= 8 else None
 
@@ -443,6 +459,8 @@ class BoardSession:
             return Level.ERROR, self.error or self.state.value
         if self.warnings:
             return Level.WARN, "; ".join(self.warnings)
+        if self.faults.total:  # (a bug caught: up, but not as it should be)
+            return Level.WARN, f"up; {self.faults.total} errors caught (error_kinds)"
         return Level.OK, "up"
 
     def snapshot(self) -> SessionStatus:
@@ -465,6 +483,7 @@ class BoardSession:
             samples=self.path.counters(),
             commands=self.commands,
             command_errors=self.command_errors,
+            errors=self.faults.to_json(),
             rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
             warnings="; ".join(self.warnings),
             clock_epoch=self.epoch,

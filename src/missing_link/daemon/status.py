@@ -4,7 +4,8 @@
 goes into JSON as that string.  ``SessionStatus`` is one session's status at one moment, typed;
 ``to_json()`` gives the plain dict that ``Daemon.status()``, ``/diagnostics``, the ``run``
 summary and the live view read, with the keys (and their order) documented for them: the
-session's own, the link's counters, the sample path's, the commands', the run-time
+session's own, the link's counters, the sample path's, the commands', the errors caught (by
+kind: ``errors``, ``error_kinds``), the run-time
 configuration's, the alignment's, the failsafe's and the clock sync's.  The parts that other
 modules own (sample path, settings, clock sync) stay the plain dicts those modules give.
 """
@@ -143,6 +144,7 @@ class SessionStatus:
     samples: Mapping[str, Any]  #: the sample path's counters (sample_path.py)
     commands: int
     command_errors: int
+    errors: Mapping[str, Any]  #: bugs caught, by kind (``ErrorCounts.to_json``)
     rtt_us: int | None
     warnings: str
     clock_epoch: str
@@ -170,6 +172,7 @@ class SessionStatus:
             **self.samples,
             "commands": self.commands,
             "command_errors": self.command_errors,
+            **self.errors,
             "rtt_us": self.rtt_us,
             "warnings": self.warnings,
             "clock_epoch": self.clock_epoch,

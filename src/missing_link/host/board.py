@@ -12,7 +12,6 @@ the board.  Deadlines are on the board's clock (:mod:`.clock`; the system's unle
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
@@ -27,6 +26,7 @@ from ..errors import (
 )
 from ..j2a import BlobError, HostConnection, parse_mapping, parse_properties
 from ..j2a.blobs import mapping_index
+from ..logs import ErrorCounts
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
 from .clock import Clock
@@ -47,8 +47,6 @@ MAX_TRANSDS = 64 << 10
 #: a read_many without a deadline of its own must end within this (s)
 TRANSFER_TIMEOUT = 120.0
 
-log = logging.getLogger(__name__)
-
 __all__ = ["Board", "CallResult", "LinkStats", "open_board"]
 
 
@@ -63,11 +61,13 @@ class Board:
         window: int = 1,
         reactor: Reactor | None = None,
         clock: Clock | None = None,
+        faults: ErrorCounts | None = None,
     ):
         """``reactor``: read this board in a shared I/O loop (the daemon's, for many boards)
         instead of a reader thread of its own; transports without a descriptor (memory, USB)
         always get their own thread.  ``clock``: what deadlines, timers and ``last_frame`` run
-        on (default: the loop's, else the system's; tests pass a FakeClock)."""
+        on (default: the loop's, else the system's; tests pass a FakeClock).  ``faults``: where
+        exceptions caught on its reading thread are counted (``BoardLink``)."""
         self.functions: list[str] = []
         self.index: dict[str, int] = {}
         self.properties: dict[str, str] = {}
@@ -81,6 +81,7 @@ class Board:
             reactor=reactor,
             clock=clock,
             name=lambda: self.name,
+            faults=faults,
         )
 
     # ---- the link (board.link: the engine; the rest for callers not yet moved to it) --------
@@ -175,7 +176,7 @@ class Board:
         board = cls(open_transport(url), timeout=timeout, window=window, clock=clock)
         try:
             board.handshake(describe=describe, deadline=board.clock.monotonic() + handshake_timeout)
-        except BaseException:
+        except BaseException:  # (broad, and raised again: Ctrl-C too must not leak the link)
             board.close()
             raise
         return board
@@ -313,8 +314,8 @@ class Board:
                 got = e
             try:
                 callback(got)
-            except Exception:
-                log.exception("%s: clock exchange callback failed", self.url)
+            except Exception as e:  # noqa: BLE001 - a callback's bug must not end the reading
+                self._link.faults.caught("clock exchange callback", e)
 
         self._clock_call(name, timeout).add_done_callback(done)
 
@@ -324,7 +325,7 @@ class Board:
         self._link.transport.count_arrivals = True
         try:
             fut = self.call_future(name, b"", timeout)
-        except BaseException:
+        except BaseException:  # (broad, and raised again: whatever failed, stop counting)
             self._link.transport.count_arrivals = False
             raise
         fut.add_done_callback(self._stop_counting)  # (first: before the caller's callbacks)

@@ -24,7 +24,10 @@ Time comes from the link's :class:`~missing_link.host.clock.Clock` (call deadlin
 that clock is the system's, whose timeline they are on.
 
 Every error path fails the pending futures and lets the reading end: nothing is left holding a
-lock or running.  SIF handlers run on the reading thread; keep them short.
+lock or running.  SIF handlers run on the reading thread; keep them short.  An exception from a
+handler, a callback or the ticker (a bug: a board's data is checked before it gets there) does
+not end the reading: it is counted by kind in ``faults`` (the session's, when it made the
+board: its status shows them) and its first of a kind logged with the traceback.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from ..j2a import (
     TransferCompleted,
     TransferProgress,
 )
+from ..logs import ErrorCounts
 from ..transport import FdTransport, Transport
 from .clock import SYSTEM_CLOCK, Clock
 from .reactor import Reactor
@@ -75,6 +79,11 @@ def _nothing() -> None:
     """(nothing to stop)"""
 
 
+def _named(fn: Callable[..., Any]) -> str:
+    """A callable as a log line names it: ``SamplePath.on_sif``."""
+    return str(getattr(fn, "__qualname__", None) or repr(fn))
+
+
 class BoardLink:
     """One board's link: the engine under :class:`~missing_link.host.board.Board`."""
 
@@ -87,17 +96,22 @@ class BoardLink:
         reactor: Reactor | None = None,
         clock: Clock | None = None,
         name: Callable[[], str] | None = None,
+        faults: ErrorCounts | None = None,
     ):
         """``reactor``: read this link in a shared I/O loop (the daemon's, for many boards)
         instead of a reader thread of its own; transports without a descriptor (memory, USB)
         always get their own thread.  ``clock``: what its timers run on (default: the loop's,
-        else the system's).  ``name()``: what errors call the board (default: its URL)."""
+        else the system's).  ``name()``: what errors call the board (default: its URL).
+        ``faults``: where exceptions caught on its reading thread are counted (default: its
+        own; a session hands its own, which outlives the link)."""
         if clock is None:
             clock = reactor.clock if reactor is not None else SYSTEM_CLOCK
         elif reactor is not None and clock is not reactor.clock:
             raise ValueError("a link and the loop that reads it run on one clock")
         self.transport = transport
         self.url = transport.url
+        #: exceptions caught on the reading thread (handlers, callbacks, ticker), by kind
+        self.faults = faults if faults is not None else ErrorCounts(log, self.url)
         self.timeout = timeout
         self.clock = clock
         self._stamps = clock.real  # the transport's stamps are on this clock's timeline
@@ -253,8 +267,8 @@ class BoardLink:
                     last_data = now
         except (TransportBroken, TransportClosed) as e:
             error = e
-        except BaseException as e:
-            log.exception("%s: reader thread failed", self.url)
+        except BaseException as e:  # noqa: BLE001 - whatever ends the reading, calls fail
+            self.faults.caught("reader thread", e, "reading")
             error = TransportBroken(f"{self.url}: reader failed: {e!r}")
         self.finish(error)
 
@@ -305,8 +319,8 @@ class BoardLink:
             return
         try:
             ticker[1](now)
-        except Exception:  # a bug in the periodic work must not end the reading
-            log.exception("%s: tick failed", self.url)
+        except Exception as e:  # noqa: BLE001 - a bug in the ticker must not end the reading
+            self.faults.caught("tick", e, "the ticker")
         with self._lock:
             self._update_due()
 
@@ -368,8 +382,8 @@ class BoardLink:
         for fn in self._on_close:
             try:
                 fn()
-            except Exception:
-                log.exception("close callback failed")
+            except Exception as e:  # noqa: BLE001 - one bug must not keep the others from running
+                self.faults.caught("close callback", e, f"close callback {_named(fn)}")
 
     def on_close(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` when the link ends (closed or broken), on the thread that ends it:
@@ -388,15 +402,15 @@ class BoardLink:
                 for h in any_sif if by is None else (*by, *any_sif):
                     try:
                         h(ev, now)
-                    except Exception:
-                        log.exception("SIF handler %r failed", h)
+                    except Exception as e:  # noqa: BLE001 - a handler's bug must not end the reading
+                        self.faults.caught("SIF handler", e, f"SIF handler {_named(h)}")
             elif isinstance(ev, TransferProgress):
                 entry = self._futures.get(ev.op)
                 if entry and entry[2]:
                     try:
                         entry[2](ev.done, ev.total)
-                    except Exception:
-                        log.exception("progress callback failed")
+                    except Exception as e:  # noqa: BLE001 - (as a SIF handler's: the caller's callback)
+                        self.faults.caught("progress callback", e, "progress callback")
             elif isinstance(ev, FrameDamaged):
                 log.debug("%s: damaged frame: %s", self.url, ev.error)
             else:

@@ -37,6 +37,11 @@ one carries more; any request written ends it at once (``poke``), so replies and
 read late.  A gather that brought fewer than two SIFs (a stream slower than the window) only
 added a wake-up; the next 100 data rounds then go without one.
 
+Nothing ends the loop but ``stop()``: an exception in a board's ``step`` (a bug: the bytes are a
+board's, but the engine checks them) ends that board's link (``finish`` with a broken link) and
+is counted in the board's ``faults``; one in the loop's own work is counted in the loop's
+``faults`` (the daemon shows them).  Each kind is logged once, with its traceback.
+
 Blocking calls must not be made on this thread (a SIF handler calling ``board.call``): the reply
 could only be read by the thread that waits for it; the link raises instead of deadlocking.
 Registration is under a lock the loop holds while it processes a round, so when ``remove()``
@@ -53,6 +58,7 @@ import time
 from typing import Protocol
 
 from ..errors import TransportBroken, TransportClosed
+from ..logs import ErrorCounts
 from ..transport import Received
 from .clock import SYSTEM_CLOCK, Clock
 
@@ -82,6 +88,7 @@ class Driven(Protocol):
 
     url: str
     next_due: float | None  #: the loop clock's s of the next call deadline or tick
+    faults: ErrorCounts  #: where the loop counts what its ``step`` raised
 
     @property
     def calls_waiting(self) -> bool: ...
@@ -153,7 +160,13 @@ class Reactor:
         self._unwatch = clock.watch(self.poke)  # (a fake clock moved: look at the timers again)
         self._thread = threading.Thread(target=self._run, name="j2a:reactor", daemon=True)
         self.rounds = 0
-        self.loop_errors = 0
+        #: exceptions in the loop's own work (timers, a round), by kind
+        self.faults = ErrorCounts(log, "reactor")
+
+    @property
+    def loop_errors(self) -> int:
+        """Exceptions in the loop's own work, counted (``faults`` has them by kind)."""
+        return self.faults.total
 
     def start(self) -> Reactor:
         if not self._thread.is_alive():
@@ -188,7 +201,7 @@ class Reactor:
                 self._registered_at.pop(fd, None)
                 try:
                     self._sel.unregister(fd)
-                except (KeyError, ValueError, OSError):
+                except (KeyError, ValueError, OSError):  # (closed already: nothing to undo)
                     pass
 
     def poke(self) -> None:
@@ -217,9 +230,8 @@ class Reactor:
         while not self._stopping:
             try:
                 timeout = self._due_work()
-            except Exception:  # a bug here must not end every board's reading
-                self.loop_errors += 1
-                log.exception("reactor: timers failed")
+            except Exception as e:  # noqa: BLE001 - a bug must not end every board's reading
+                self.faults.caught("timers", e, "the loop's timers")
                 timeout = _IDLE
             waited_after = self._registrations
             try:
@@ -236,9 +248,8 @@ class Reactor:
                     if port is not None and port.count_arrivals:
                         port.count_arrived(woke)
                 sifs = self._round(ready, waited_after)
-            except Exception:  # a bug here must not end every board's reading
-                self.loop_errors += 1
-                log.exception("reactor: round failed")
+            except Exception as e:  # noqa: BLE001 - (as the timers')
+                self.faults.caught("round", e, "a round of reads")
                 sifs = 0
             if gathered and sifs < 2:
                 # The gather brought one sample or none: the stream is slower than the window
@@ -262,7 +273,7 @@ class Reactor:
         for fd in (self._wake_r, self._wake_w):
             try:
                 os.close(fd)
-            except OSError:
+            except OSError:  # (closed already)
                 pass
 
     def _due_work(self) -> float:
@@ -305,7 +316,7 @@ class Reactor:
                     try:
                         while os.read(self._wake_r, 4096):
                             pass
-                    except (BlockingIOError, OSError):
+                    except (BlockingIOError, OSError):  # (drained: the pokes are read)
                         pass
                     continue
                 board = self._boards.get(fd)
@@ -315,6 +326,9 @@ class Reactor:
                     reads.append((board, self._ports[fd].read_ready()))
                 except (TransportBroken, TransportClosed) as exc:
                     broken.append((board, exc))
+                except Exception as exc:  # noqa: BLE001 - a transport's bug: its link ends
+                    board.faults.caught("read", exc, "reading")  # (its ready fd would spin)
+                    broken.append((board, TransportBroken(f"{board.url}: read failed: {exc!r}")))
             now_ns = self.clock.monotonic_ns()
             sifs = 0
             for board, (data, rx_ns, first_rx_ns) in reads:
@@ -338,7 +352,7 @@ class Reactor:
             return board.step(data, now_ns, rx_ns, first_rx_ns)
         except (TransportBroken, TransportClosed) as e:  # a write in _flush failed
             broken.append((board, e))
-        except Exception as e:  # a bug in one board's path must not stop the others
-            log.exception("%s: reading failed", board.url)
+        except Exception as e:  # noqa: BLE001 - a bug in one board's path: its link ends
+            board.faults.caught("step", e, "reading")  # (counted where the board's are)
             broken.append((board, TransportBroken(f"{board.url}: reader failed: {e!r}")))
         return 0

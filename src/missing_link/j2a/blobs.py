@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 
+from ..errors import MissingLinkError
 from ..text import clean
 
 MANY_HEADER = struct.Struct("<BBI")  # target/return, flags, offset
@@ -14,7 +15,7 @@ FLAG_LAST = 0x01
 FLAG_WRITE = 0x02
 
 
-class BlobError(ValueError):
+class BlobError(MissingLinkError, ValueError):
     """A mapping or property blob from a board is malformed (the board's fault)."""
 
 

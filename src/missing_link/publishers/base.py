@@ -1,17 +1,28 @@
 """The publisher interface: what the daemon hands every face (topics, updates, command topics,
 diagnostics).  ``publish`` runs on a board's reading thread: it must not block (queue work to a
 thread of your own).  Publishers are found by name through :mod:`.registry`.
+
+Two numbers keep a face honest: ``dropped`` (messages the transport or a queue could not take:
+a full queue, congestion, a write the library refused) and ``faults`` (exceptions: a bug, such
+as an encoder that raises; counted by kind, the first of each logged with its traceback).  An
+exception that escapes a call into a publisher is counted in its ``faults`` by the daemon's
+fan-out; one caught on a publisher's own thread is counted there by the publisher.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
 from ..host.config import ConfigKey, Value
+from ..logs import ErrorCounts
+from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
+
+log = logging.getLogger(__name__)
 
 
 class Publisher:
@@ -22,7 +33,9 @@ class Publisher:
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
         """An actuator listens on ``name`` (messages of ``topic``'s type); publishers that reach
-        other processes subscribe there and call ``deliver(values)``.  Default: nothing."""
+        other processes subscribe there and call ``deliver(values)``: a thesis-format message
+        as a ``Command``, a standard type (``topic.standard``: ``std_msgs/msg/Float64``,
+        ``sensor_msgs/msg/JointState``) as the decoded message.  Default: nothing."""
 
     def publish(self, update: Update) -> None:
         raise NotImplementedError
@@ -49,6 +62,15 @@ class Publisher:
         """One clock exchange of a board and the map after it (``ros/clock.py``), a few per
         second per board: recordings keep them on ``topic``.  Default: nothing."""
 
+    def board_description(self, record: BoardDescription) -> None:
+        """A board came up: its function table, properties and descriptors, and its topics
+        (``ros/board_record.py``): recordings keep it for ``replay``.  Default: nothing."""
+
+    def command_sent(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
+        """A face handed the actuator on ``name`` (of ``topic``'s type) a command it took:
+        ``value`` as the face gave it (a value, a list, an ``Update`` or a ``Command``), at host
+        time ``now_ns`` (CLOCK_REALTIME).  Recordings keep it.  Default: nothing."""
+
     def close(self) -> None:
         """Flush and release everything.  Idempotent; must not block for long, whatever
         state the publisher is in."""
@@ -63,14 +85,26 @@ class Publisher:
     #: messages this publisher had to drop (queue full, congestion, failed writes)
     dropped: int = 0
 
+    @property
+    def faults(self) -> ErrorCounts:
+        """Exceptions in this face (a bug, not a drop), by kind; made on first use, so a
+        publisher needs no ``__init__`` of the base."""
+        faults: ErrorCounts | None = self.__dict__.get("_faults")
+        if faults is None:  # (setdefault: two threads that race here get the same one)
+            faults = self.__dict__.setdefault("_faults", ErrorCounts(log, f"publisher {self.name}"))
+        return faults
+
     def status(self) -> dict[str, Any]:
-        """One line of health for /diagnostics, ``Daemon.publisher_status()`` and summaries."""
+        """One line of health for /diagnostics, ``Daemon.publisher_status()`` and summaries:
+        ERROR when it failed for good, WARN when it caught errors (``errors``, ``error_kinds``)."""
+        caught = self.faults.total
         return {
             "publisher": self.name,
-            "level": 2 if self.error else 0,
-            "message": self.error or "ok",
+            "level": 2 if self.error else 1 if caught else 0,
+            "message": self.error or (f"{caught} errors caught (error_kinds)" if caught else "ok"),
             "error": self.error,
             "dropped": self.dropped,
+            **self.faults.to_json(),
         }
 
 

@@ -6,12 +6,13 @@ A slow subscriber must not slow a board: by default each subscription has its ow
 behind, the oldest updates are dropped and counted (``Subscription.dropped``, the bus's
 ``dropped``, ``/diagnostics``).  ``queue=0`` calls the callback inline on the board's reader
 thread instead: no thread hop, but a slow callback then delays that board.  A callback that
-raises is counted (``errors``) and its first traceback logged; it never ends a thread."""
+raises is counted (the subscription's ``errors``; by kind in the bus's ``faults``: its status's
+``error_kinds``) and the first of each kind logged with its traceback; it never ends a
+thread."""
 
 from __future__ import annotations
 
 import functools
-import logging
 import re
 import threading
 from collections import deque
@@ -21,7 +22,6 @@ from typing import Any
 from ..topics import Topic, Update
 from .base import Publisher
 
-log = logging.getLogger(__name__)
 Callback = Callable[[Update], None]
 CommandHandler = Callable[[Any], None]
 
@@ -89,10 +89,10 @@ class Subscription:
         try:
             self.callback(update)
             self.delivered += 1
-        except Exception:
-            self.errors += 1
-            if self.errors == 1:
-                log.exception("bus subscriber %r on %s failed", self.callback, update.topic.name)
+        except Exception as e:  # noqa: BLE001 - an application's callback must not end the
+            self.errors += 1  # board's reading or this thread: counted by kind, said once
+            what = f"subscriber {self.callback!r} on {update.topic.name}"
+            self.bus.faults.caught(f"callback on {self.pattern}", e, what)
 
     def cancel(self) -> None:
         self.bus._unsubscribe(self)

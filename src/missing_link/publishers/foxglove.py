@@ -41,7 +41,11 @@ class FoxglovePublisher(RosPublisher):
         host = str(opts.get("host", "127.0.0.1"))
         try:
             self.view = LiveView(
-                host, int(opts.get("port", 8765)), origins, str(opts.get("name", "missing-link"))
+                host,
+                int(opts.get("port", 8765)),
+                origins,
+                str(opts.get("name", "missing-link")),
+                faults=self.faults,
             )
         except OSError as e:
             raise PublisherError(f"foxglove: cannot listen on {host}: {e}") from None

@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from ..logs import ErrorCounts
 from .gate import FrontDoor
 
 log = logging.getLogger(__name__)
@@ -68,9 +69,17 @@ class _Client:
 
 class LiveView:
     def __init__(
-        self, host: str, port: int, origins: Sequence[str], name: str = "missing-link"
+        self,
+        host: str,
+        port: int,
+        origins: Sequence[str],
+        name: str = "missing-link",
+        faults: ErrorCounts | None = None,
     ) -> None:
+        """``faults``: where bugs met on the view's loop are counted (the publisher's)."""
         import websockets  # noqa: F401 - (imported here: a view that is not asked costs nothing)
+
+        self.faults = faults if faults is not None else ErrorCounts(log, "foxglove view")
 
         self.door = FrontDoor("foxglove", origins, MAX_CLIENTS)
         self.name = name
@@ -153,7 +162,9 @@ class LiveView:
         asyncio.set_event_loop(self._loop)
         try:
             self._loop.run_until_complete(self._serve(host, port))
-        except BaseException as e:  # noqa: BLE001 - said to the constructor
+        except BaseException as e:  # noqa: BLE001 - before it is ready: raised by the constructor;
+            if self._ready.is_set():  # later (a bug): counted, its traceback said once
+                self.faults.caught("view loop", e)
             self._error = e
             self._ready.set()
         finally:
@@ -180,6 +191,8 @@ class LiveView:
         return self.door.check(connection, request, len(self._clients))
 
     async def _handle(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
         client = _Client(ws)
         info = {"op": "serverInfo", "name": self.name, "capabilities": [],
                 "metadata": {}, "sessionId": self._session}  # fmt: skip
@@ -195,14 +208,18 @@ class LiveView:
                 if not self._take(client, msg):
                     self.dropped_messages += 1
                     log.warning("foxglove: a client message dropped (not a view operation)")
-        except Exception:  # noqa: BLE001 - a client's broken connection ends the client only
+        except (ConnectionClosed, OSError):  # a client's broken connection ends the client only
             pass
+        except Exception as e:  # noqa: BLE001 - a bug serving a client ends that client only:
+            self.faults.caught("client", e)  # counted, said once
         finally:
             self._clients.discard(client)
             writer.cancel()
             await asyncio.gather(writer, return_exceptions=True)
 
     async def _write(self, client: _Client) -> None:
+        from websockets.exceptions import ConnectionClosed
+
         try:
             while True:
                 await client.wake.wait()
@@ -210,7 +227,10 @@ class LiveView:
                 while client.control or client.data:
                     q = client.control if client.control else client.data
                     await client.ws.send(q.popleft())
-        except Exception:  # noqa: BLE001 - the reader sees the connection end too
+        except (ConnectionClosed, OSError):  # the reader sees the connection end too
+            await client.ws.close()
+        except Exception as e:  # noqa: BLE001 - a bug: counted, said once; that client ends
+            self.faults.caught("client writer", e)
             await client.ws.close()
 
     def _advertise(self, channels: list[dict[str, Any]]) -> None:

@@ -28,6 +28,14 @@ write fails, the bag is abandoned and its file read back with the streaming read
 uses: ``recorded`` becomes what the file holds, the rest of the bag's messages (the open chunk
 that never reached the disk, ~``chunk_s`` of data) go to ``dropped``.  So after a full disk,
 ``recover`` restores exactly ``recorded`` messages, and ``messages - recorded`` are in ``dropped``.
+
+What a replay needs (``replay = true``, the default; ``ros/board_record.py``).  Besides the
+topics, the recorder keeps per board its description (when it comes up, and again at the start
+of every bag), its configuration (when read, and after every change), the actuator commands the
+daemon took (``/<board>/<actuator>/cmd``, the actuator's own type) and the board stamps of its
+samples: batched per board and written just before the writer closes a chunk, into that chunk
+(the writer closes a chunk itself before it would outgrow rosbags' 1 MiB, with room for the
+stamps), so a chunk holds its samples' stamps and a file cut by SIGKILL keeps both or neither.
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import struct
 import tempfile
 import threading
 import time
@@ -43,14 +52,20 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..host.config import ConfigKey, Value
+from ..ros.board_record import MESSAGES, BoardDescription
 from ..ros.clock import CLOCK_MSG, CLOCK_TYPE, ClockRecord, clock_record_cdr
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
 from .base import PublisherError
+from .mcap_replay import ReplayRecords, command_values
 from .recover import count_complete
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)
+#: rosbags closes a chunk once it is past this; the writer closes it first, stamps included
+CHUNK_BYTES = 2**20
+_RECORD = 64  # a message's record and index entry, at most, besides its data
 
 
 def _option(opts: dict[str, Any], key: str, default: float, lo: float, hi: float) -> float:
@@ -76,6 +91,11 @@ class McapPublisher(RosPublisher):
         size = _option(opts, "queue", 200_000, 1, 1e9)
         super().__init__(str(opts.get("distro", "jazzy")))
         self.prefix = str(opts.get("prefix", "missing_link"))
+        replay = opts.get("replay", True)
+        if not isinstance(replay, bool):
+            raise ConfigError(f"[mcap] replay = {replay!r}: expected true or false")
+        #: what a replay needs (mcap_replay.py); None: not recorded
+        self._replay: ReplayRecords | None = ReplayRecords() if replay else None
         _check_writable(self.base)
         self._q: queue.Queue[tuple[Any, ...] | None] = queue.Queue(int(size))
         self.bags: list[Path] = []
@@ -87,7 +107,8 @@ class McapPublisher(RosPublisher):
         self.dropped = 0
         self.error = ""
         self._topics: dict[str, Topic] = {}
-        self._clock_topics: set[str] = set()  # boards' clock records (ros/clock.py)
+        self._own: dict[str, str] = {}  # topic -> type of our records (clock, replay's)
+        self._last_stamp = 0  # the newest log time written (a stamps batch is logged at it)
         self._writer: Any = None
         self._conns: dict[str, Any] = {}
         self._bytes = 0
@@ -102,13 +123,31 @@ class McapPublisher(RosPublisher):
         self._put(("topic", topic))
 
     def publish(self, update: Update) -> None:
-        self._put(("msg", update.topic.name, update.stamp_ns, update.cdr))
+        self._put(("msg", update.topic.name, update.stamp_ns, update.cdr, update))
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         self._put(("diag", now_ns, cdr))
 
     def clock_record(self, topic: str, record: ClockRecord) -> None:
-        self._put(("clock", topic, record.t4_ns, clock_record_cdr(record)))
+        self._put(("own", topic, CLOCK_TYPE, record.t4_ns, clock_record_cdr(record)))
+
+    def board_description(self, record: BoardDescription) -> None:
+        if self._replay is not None:
+            self._put(("replay", "describe", time.time_ns(), record))
+
+    def add_config(
+        self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: Any
+    ) -> None:
+        if self._replay is not None:
+            self._put(("replay", "config", time.time_ns(), (board, keys, values)))
+
+    def config_changed(self, board: str, values: dict[str, Value]) -> None:
+        if self._replay is not None:
+            self._put(("replay", "config", time.time_ns(), (board, None, values)))
+
+    def command_sent(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
+        if self._replay is not None:
+            self._put(("replay", "command", now_ns, (name, topic, value)))
 
     def _put(self, item: tuple[Any, ...]) -> None:
         if self._closed:
@@ -158,15 +197,19 @@ class McapPublisher(RosPublisher):
                     if item:
                         self._handle(item)
                     self._maybe_close_chunk()
-                except Exception as e:  # noqa: BLE001 - any write failure is loud and counted
-                    self._fail(_describe(e, self.base))
-                    self._abandon_bag()
+                except Exception as e:  # noqa: BLE001 - any write failure is loud (ERROR) and
+                    self._failed(e, "write", _describe(e, self.base))  # counted; it goes on
         finally:
             try:
                 self._close_bag()
-            except Exception as e:  # noqa: BLE001
-                self._fail(f"closing the bag failed: {_describe(e, self.base)}")
-                self._abandon_bag()
+            except Exception as e:  # noqa: BLE001 - (as a write's)
+                self._failed(e, "close", f"closing the bag failed: {_describe(e, self.base)}")
+
+    def _failed(self, e: Exception, where: str, text: str) -> None:
+        if not isinstance(e, OSError):  # not the disk: a bug, counted by kind, traceback said
+            self.faults.caught(where, e)
+        self._fail(text)
+        self._abandon_bag()
 
     def _wait(self) -> float:
         if self._chunk_since is None:
@@ -182,6 +225,11 @@ class McapPublisher(RosPublisher):
         since = self._chunk_since
         if since is None or time.monotonic() - since < self.chunk_s:
             return
+        self._close_chunk()
+
+    def _close_chunk(self) -> None:
+        """Write the pending stamps, then the chunk and its indexes, and flush the file."""
+        self._write_stamps()
         storage = getattr(self._writer, "storage", None)
         if storage is not None and hasattr(storage, "close_chunk") and storage.chunk.bio.tell():
             storage.close_chunk()  # rosbags' MCAP storage: write the chunk and its indexes
@@ -201,8 +249,8 @@ class McapPublisher(RosPublisher):
         if writer is not None:
             try:
                 writer.abort()  # (closes the file; what its buffer still held may fail too)
-            except Exception as e:  # noqa: BLE001 - the count below says what is there
-                log.debug("mcap: closing the failed bag: %s", e)
+            except Exception as e:  # noqa: BLE001 - it failed already (said); the count below
+                log.debug("mcap: closing the failed bag: %s", e)  # says what is in it
         if not self._bag_messages or not self.bags:
             return
         try:
@@ -225,29 +273,92 @@ class McapPublisher(RosPublisher):
         if self._writer is None or self._due_rotation():
             self._rotate()
         if kind == "msg":
-            _, name, stamp, data = item
+            _, name, stamp, data, update = item
             conn = self._conns.get(name)
             if conn is None:
                 return
-        elif kind == "clock":
-            _, name, stamp, data = item
-            if name not in self._clock_topics:
-                self._clock_topics.add(name)
-                self._connect_clock(name)
-            conn = self._conns[name]
+            replay = self._replay
+            stamped = replay is not None and update.topic.encoder is not None
+            self._write(name, conn, stamp, data, 3 + 8 * len(update.board_us) if stamped else 0)
+            if stamped:  # (a thesis-format topic: a replay derives the standard ones again)
+                assert replay is not None
+                replay.sample(update.topic, update.seq, update.board_us)
+        elif kind == "own":
+            _, name, type_name, stamp, data = item
+            self._write(name, self._connect_own(name, type_name), stamp, data)
+        elif kind == "replay":
+            self._handle_replay(item[1], item[2], item[3])
         else:
             _, stamp, data = item
-            name, conn = DIAG_TOPIC, self._conns[DIAG_TOPIC]
+            self._write(DIAG_TOPIC, self._conns[DIAG_TOPIC], stamp, data, count=False)
+
+    def _handle_replay(self, what: str, stamp: int, arg: Any) -> None:
+        replay = self._replay
+        assert replay is not None
+        if what == "describe":
+            records = [replay.describe(arg)]
+        elif what == "config":
+            got = replay.config(*arg)
+            records = [got] if got is not None else []
+        else:
+            name, topic, value = arg
+            self._command(name, topic, value, stamp)
+            return
+        for name, type_name, data in records:
+            self._write(name, self._connect_own(name, type_name), stamp, data)
+
+    def _command(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
+        """An actuator command on ``name``, in the actuator's own (thesis) type: ``times[0]``
+        is when it was for, as a command message says it (topics.py, ``Command``)."""
+        if topic.encoder is None:
+            return
+        values, at = command_values(value, now_ns)
+        n = topic.transducer.chan_count
+        values = (values + [None] * n)[:n]
+        try:
+            data = topic.encoder.encode([at] + [0] * (n - 1), values)
+        except (struct.error, TypeError, OverflowError):
+            self.dropped += 1  # (the daemon took it: a value our encoder cannot carry is a bug)
+            return
+        if name not in self._conns:
+            topic.register_type(self.typestore)
+            self._conns[name] = self._writer.add_connection(
+                name, topic.type_name, typestore=self.typestore
+            )
+            self._own[name] = topic.type_name
+        self._write(name, self._conns[name], now_ns, data)
+
+    def _write(
+        self, name: str, conn: Any, stamp: int, data: bytes, also: int = 0, count: bool = True,
+        room: bool = True,
+    ) -> None:  # fmt: skip
+        """Write one message (``also``: bytes of stamps it brings); the chunk is closed first
+        when it would outgrow rosbags' limit with the pending stamps (they stay with it).
+        ``room`` False: the pending stamps themselves (their room is kept)."""
+        storage = getattr(self._writer, "storage", None)
+        chunk = getattr(storage, "chunk", None)
+        if room and self._replay is not None and chunk is not None:
+            pending = self._replay.pending_bytes + also + 2 * _RECORD
+            if chunk.bio.tell() + len(data) + pending > CHUNK_BYTES:
+                self._close_chunk()
         # counted before the write: a write that fails may still have put it in the file
         # (the read-back after a failure says; see _abandon_bag)
         self.messages += 1
         self._bag_messages += 1
         self._writer.write(conn, stamp, data)
-        if kind != "diag":
+        self._last_stamp = max(self._last_stamp, stamp)
+        if count:
             self.messages_by_topic[name] = self.messages_by_topic.get(name, 0) + 1
         if self._chunk_since is None:
             self._chunk_since = time.monotonic()
         self._bytes += len(data) + 32
+
+    def _write_stamps(self) -> None:
+        if self._replay is None or self._writer is None:
+            return
+        for name, type_name, data in self._replay.take_stamps():
+            conn = self._connect_own(name, type_name)
+            self._write(name, conn, self._last_stamp, data, room=False)
 
     def _due_rotation(self) -> bool:
         if self.rotate_bytes and self._bytes >= self.rotate_bytes:
@@ -274,8 +385,11 @@ class McapPublisher(RosPublisher):
         )
         for topic in self._topics.values():
             self._connect(topic)
-        for name in self._clock_topics:
-            self._connect_clock(name)
+        for name, type_name in self._own.items():
+            self._connect_own(name, type_name)
+        if self._replay is not None:  # every bag replays alone
+            for name, type_name, data in self._replay.again():
+                self._write(name, self._connect_own(name, type_name), time.time_ns(), data)
 
     def _connect(self, topic: Topic) -> None:
         if topic.name in self._conns:
@@ -285,21 +399,30 @@ class McapPublisher(RosPublisher):
             topic.name, topic.type_name, typestore=self.typestore
         )
 
-    def _connect_clock(self, name: str) -> None:
-        if name in self._conns:
-            return
-        if CLOCK_TYPE not in self.typestore.types:
+    def _connect_own(self, name: str, type_name: str) -> Any:
+        """The connection of one of our records' topics (clock, replay's), made on first use."""
+        conn = self._conns.get(name)
+        if conn is not None:
+            return conn
+        if type_name not in self.typestore.types:
             from rosbags.typesys import get_types_from_msg
 
-            self.typestore.register(get_types_from_msg(CLOCK_MSG, CLOCK_TYPE))
-        self._conns[name] = self._writer.add_connection(name, CLOCK_TYPE, typestore=self.typestore)
+            text = CLOCK_MSG if type_name == CLOCK_TYPE else MESSAGES[type_name]
+            self.typestore.register(get_types_from_msg(text, type_name))
+        self._own[name] = type_name
+        conn = self._conns[name] = self._writer.add_connection(
+            name, type_name, typestore=self.typestore
+        )
+        return conn
 
     def _close_bag(self) -> None:
-        """Close the bag (its last chunk, indexes, footer): every message is in the file.  When
-        this raises, the writer is still set, so ``_abandon_bag`` closes and counts the file."""
+        """Close the bag (its stamps, last chunk, indexes, footer): every message is in the
+        file.  When this raises, the writer is still set, so ``_abandon_bag`` closes and
+        counts the file."""
         writer = self._writer
         if writer is None:
             return
+        self._write_stamps()
         writer.close()
         self._writer = None
         self._flushed()

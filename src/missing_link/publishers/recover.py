@@ -9,8 +9,8 @@ size cap (``MAX_CHUNK``, and ``MAX_RATIO`` times its compressed size: a 32 KB zs
 claims a gigabyte is refused before any work, one that grows past what it claims is stopped
 there); a damaged chunk is skipped, not the rest of the file; a channel whose schema does not
 parse or cannot be written loses its own messages (counted, said once), not what was salvaged
-of the others.  What is wrong with the file is a :class:`RecoverError` (a ``ValueError``: the
-CLI's exit 2), one line.
+of the others.  What is wrong with the file is a :class:`RecoverError` (a ``MissingLinkError``
+and a ``ValueError``: the CLI's exit 2), one line.
 """
 
 from __future__ import annotations
@@ -24,13 +24,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from ..errors import MissingLinkError
+
 log = logging.getLogger(__name__)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK = 64 * 2**20  #: bytes of one chunk's records, decompressed, at most
 MAX_RATIO = 200  #: ... and at most this many times its compressed size (beyond 1 MiB)
 
 
-class RecoverError(ValueError):
+class RecoverError(MissingLinkError, ValueError):
     """The file cannot be recovered (the user's input): the message says why, in one line."""
 
 
@@ -189,7 +191,8 @@ def _write_bag(dest: Path, messages: Iterator[tuple[Any, Any, Any]], lost: Count
                     conn = conns[key] = writer.add_connection(
                         ch.topic, schema.name, msgdef=text, rihs01=ts.hash_rihs01(schema.name)
                     )
-                except Exception as e:  # noqa: BLE001 - a hostile schema: its channel is lost
+                except Exception as e:  # noqa: BLE001 - a hostile schema: its channel is lost,
+                    # its messages counted (lost) and said in one line with the reason
                     refused[key] = safe_text(f"{type(e).__name__}: {e}", 120)
             if conn is None:
                 lost[f"{safe_text(ch.topic, 100)} ({refused[key]})"] += 1

@@ -84,7 +84,7 @@ OPTIONS: dict[str, dict[str, str]] = {
     "console": {"distro": "text", "rate_hz": "number"},
     "mcap": {"distro": "text", "path": "path", "prefix": "text", "rotate_mb": "number",
              "rotate_s": "number", "chunk_s": "number", "close_timeout": "number",
-             "queue": "number"},
+             "queue": "number", "replay": "bool"},
     "zenoh": {"distro": "text", "node": "text", "domain": "integer", "mode": "text",
               "connect": "texts", "listen": "texts", "config": "path", "commands": "bool"},
     "foxglove": {"distro": "text", "name": "text", "host": "text", "port": "integer",

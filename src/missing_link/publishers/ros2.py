@@ -43,6 +43,7 @@ from typing import Any
 from ..host.config import ConfigKey, Value
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..ros.msgs import ROS_TYPES
+from ..ros.standard import FrameId
 from ..topics import Command, Topic, Update
 from .base import PublisherError
 from .ros2_params import RosParameters
@@ -122,10 +123,13 @@ class Ros2Publisher(RosPublisher):
             self.node = rclpy.create_node(
                 str(opts.get("node", "missing_link")), context=self.context
             )
-        except Exception:
+        except Exception:  # (broad, raised again: the context must not outlive a failed start)
             rclpy.shutdown(context=self.context)
             raise
         self.params = RosParameters(self.node)  # boards' run-time configuration
+        self._frames: dict[str, FrameId] = {}  # "<board>.<transducer>.frame_id" -> FrameId
+        self._frame_setting = threading.local()
+        self.node.add_on_set_parameters_callback(self._on_frame_set)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._pubs: dict[str, Any] = {}
@@ -143,10 +147,10 @@ class Ros2Publisher(RosPublisher):
     def _spin_executor(self) -> None:
         try:
             self.executor.spin()
-        except Exception as e:
-            if not self._closed:
+        except Exception as e:  # noqa: BLE001 - the executor's thread ends: ERROR in the status
+            if not self._closed:  # (and counted, said); while closing it is how spin ends
                 self.error = f"executor stopped: {e}"
-                log.exception("ros2 executor failed")
+                self.faults.caught("executor", e)
 
     # ---- types -------------------------------------------------------------------------------
     def _msg_class(self, type_name: str) -> Any | None:
@@ -191,6 +195,8 @@ class Ros2Publisher(RosPublisher):
         cls = self._class_for(topic)
         if cls is None:
             return
+        if topic.frame is not None:
+            self._frame_parameter(topic)
         with self._lock:
             if self._closed or topic.name in self._pubs:
                 return
@@ -198,6 +204,9 @@ class Ros2Publisher(RosPublisher):
             self._pubs[topic.name] = self.node.create_publisher(cls, topic.name, qos)
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        if topic.standard:
+            self._standard_command(name, topic, deliver)
+            return
         cls = self._class_for(topic)
         if cls is None:
             return
@@ -219,6 +228,85 @@ class Ros2Publisher(RosPublisher):
                 cls, name, on_command, self.qos, raw=True
             )
 
+    def _standard_command(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        """A command topic of a standard type (``std_msgs/msg/Float64`` per actuator, the
+        robot's ``JointState`` commands): the message, decoded by rosbags, to the handler."""
+        cls = self._class_for(topic)
+        if cls is None:
+            return
+        type_name = topic.type_name
+
+        def on_command(raw: bytes) -> None:
+            try:
+                deliver(self.typestore.deserialize_cdr(raw, type_name))
+            except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
+                self.dropped += 1
+                log.warning("ros2: command on %s refused: %s", name, e)
+
+        with self._lock:
+            if self._closed or name in self._subs:
+                return
+            self._subs[name] = self.node.create_subscription(
+                cls, name, on_command, self.qos, raw=True
+            )
+
+    def _frame_parameter(self, topic: Topic) -> None:
+        """``<board>.<transducer>.frame_id``: a string parameter of the node that sets the
+        frame id of the transducer's standard messages, and follows a change made elsewhere
+        (``Daemon.set_frame_id``).  After a reconnect the value set here is kept."""
+        frame = topic.frame
+        assert frame is not None
+        name = f"{topic.board}.{topic.transducer.name}.frame_id"
+        with self._lock:
+            known = self._frames.get(name)
+            if self._closed or known is frame:
+                return
+            self._frames[name] = frame
+        if known is None:
+            from rcl_interfaces.msg import ParameterDescriptor
+
+            what = f"frame_id of {name[: -len('.frame_id')]}'s standard messages"
+            self._frame_quiet(lambda: self.node.declare_parameter(
+                name, frame.value, ParameterDescriptor(description=what)))  # fmt: skip
+        else:
+            value = str(self.node.get_parameter(name).value)
+            if value != frame.value and known.set_at_run_time:
+                frame.set(value)  # (a reconnect: the value set at run time is kept)
+        frame.listeners.append(lambda value: self._frame_follow(name, value))
+
+    def _frame_quiet(self, fn: Callable[[], Any]) -> None:
+        self._frame_setting.on = True  # (not a change from a client: not handed back)
+        try:
+            fn()
+        finally:
+            self._frame_setting.on = False
+
+    def _frame_follow(self, name: str, value: str) -> None:
+        from rclpy.parameter import Parameter
+
+        if self._closed or getattr(self._frame_setting, "on", False):
+            return
+        if self.node.get_parameter(name).value != value:
+            self._frame_quiet(lambda: self.node.set_parameters([Parameter(name, value=value)]))
+
+    def _on_frame_set(self, params: list[Any]) -> Any:
+        from rcl_interfaces.msg import SetParametersResult
+
+        if getattr(self._frame_setting, "on", False):
+            return SetParametersResult(successful=True)
+        for p in params:
+            frame = self._frames.get(p.name)
+            if frame is None:
+                continue  # (a board's configuration key: ros2_params.py)
+            self._frame_setting.on = True  # (its listener must not set it again)
+            try:
+                frame.set(p.value)
+            except ValueError as e:
+                return SetParametersResult(successful=False, reason=str(e))
+            finally:
+                self._frame_setting.on = False
+        return SetParametersResult(successful=True)
+
     def add_config(
         self,
         board: str,
@@ -238,11 +326,17 @@ class Ros2Publisher(RosPublisher):
         pub = self._pubs.get(update.topic.name)
         if pub is None or self._closed:
             return
+        # encoded out here: an encoder that raises is a bug, counted by kind by the fan-out
+        # (faults), never a drop
+        cdr = update.cdr
         try:
-            pub.publish(update.cdr)
-            self.published += 1
-        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): counted
+            pub.publish(cdr)
+        except TypeError:  # (what we handed it: a bug, for the fan-out to count)
+            raise
+        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): a drop, counted
             self.dropped += 1
+            return
+        self.published += 1
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         try:

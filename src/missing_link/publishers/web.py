@@ -153,7 +153,7 @@ class WebPublisher(Publisher):
         self.takes_commands = self.options.commands
         self.model = ConsoleModel()
         try:
-            self.server = WebServer(self.model, self.options, self._commands_on)
+            self.server = WebServer(self.model, self.options, self._commands_on, self.faults)
         except OSError as e:
             raise PublisherError(f"web: cannot listen on {self.options.host}: {e}") from None
         self.options.port = self.server.port

@@ -44,6 +44,7 @@ from importlib import resources
 from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
+from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
 from .gate import FrontDoor
@@ -86,8 +87,17 @@ class _Page:
 
 
 class WebServer:
-    def __init__(self, model: ConsoleModel, options: Any, commands_on: Callable[[], bool]) -> None:
+    def __init__(
+        self,
+        model: ConsoleModel,
+        options: Any,
+        commands_on: Callable[[], bool],
+        faults: ErrorCounts,
+    ) -> None:
+        """``faults``: where bugs met on the console's loop are counted (the publisher's)."""
         import websockets  # noqa: F401 - (fails here, in the constructor, if it is missing)
+
+        self.faults = faults
 
         self.model = model
         self.opts = options
@@ -143,7 +153,9 @@ class WebServer:
         asyncio.set_event_loop(self._loop)
         try:
             self._loop.run_until_complete(self._serve())
-        except BaseException as e:  # noqa: BLE001 - said to the constructor
+        except BaseException as e:  # noqa: BLE001 - before it is ready: raised by the constructor;
+            if self._ready.is_set():  # later (a bug): counted, its traceback said once
+                self.faults.caught("server loop", e)
             self._error = e
             self._ready.set()
         finally:
@@ -191,8 +203,8 @@ class WebServer:
                 if self.ctx is not None:
                     self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
                 msg = json.dumps(self.model.drain(time.time()), separators=(",", ":"))
-            except Exception:  # a bug of ours: said (logs.py limits it), the console goes on
-                log.exception("web: a tick failed")
+            except Exception as e:  # noqa: BLE001 - a bug of ours: counted, said once; the
+                self.faults.caught("tick", e)  # console goes on
                 continue
             for page in list(self._pages):
                 if len(page.out) >= BACKLOG:
@@ -281,16 +293,20 @@ class WebServer:
 
     # ---- a page's WebSocket -------------------------------------------------------------------
     async def _handle(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
         page = _Page(ws)
-        if self.ctx is not None:  # (the status now: polled only while pages are open)
-            self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
-        hello = {"op": "hello", "name": self.opts.name, "commands": self.commands_on(),
-                 "attached": self.attached, "window_s": 30, **self.model.snapshot()}  # fmt: skip
-        page.out.append(json.dumps(hello, separators=(",", ":")))
-        page.wake.set()
-        self._pages.add(page)
-        writer = asyncio.ensure_future(self._write(page))
+        writer: asyncio.Future[None] | None = None
         try:
+            if self.ctx is not None:  # (the status now: polled only while pages are open)
+                self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
+            hello = {"op": "hello", "name": self.opts.name, "commands": self.commands_on(),
+                     "attached": self.attached, "window_s": 30,
+                     **self.model.snapshot()}  # fmt: skip
+            page.out.append(json.dumps(hello, separators=(",", ":")))
+            page.wake.set()
+            self._pages.add(page)
+            writer = asyncio.ensure_future(self._write(page))
             async for msg in ws:
                 reply = await self._take(msg)
                 if reply is None:
@@ -299,21 +315,29 @@ class WebServer:
                 else:
                     page.out.append(json.dumps(reply))
                     page.wake.set()
-        except Exception:  # noqa: BLE001 - a page's broken connection ends that page only
+        except (ConnectionClosed, OSError):  # a page's broken connection ends that page only
             pass
+        except Exception as e:  # noqa: BLE001 - a bug serving a page ends that page only:
+            self.faults.caught("page", e)  # counted, said once
         finally:
             self._pages.discard(page)
-            writer.cancel()
-            await asyncio.gather(writer, return_exceptions=True)
+            if writer is not None:
+                writer.cancel()
+                await asyncio.gather(writer, return_exceptions=True)
 
     async def _write(self, page: _Page) -> None:
+        from websockets.exceptions import ConnectionClosed
+
         try:
             while True:
                 await page.wake.wait()
                 page.wake.clear()
                 while page.out:
                     await page.ws.send(page.out.popleft())
-        except Exception:  # noqa: BLE001 - the reader sees the connection end too
+        except (ConnectionClosed, OSError):  # the reader sees the connection end too
+            await page.ws.close()
+        except Exception as e:  # noqa: BLE001 - a bug: counted, said once; that page ends
+            self.faults.caught("page writer", e)
             await page.ws.close()
 
     async def _take(self, msg: Any) -> dict[str, Any] | None:

@@ -119,3 +119,22 @@ def clock_record_cdr(r: ClockRecord) -> bytes:
         + epoch
         + bytes((r.result,))
     )
+
+
+def clock_record_from_cdr(data: bytes) -> ClockRecord:
+    """The record ``clock_record_cdr`` made (a ValueError for bytes that are not one)."""
+    try:
+        head = _HEAD.unpack_from(data)
+        (n,) = struct.unpack_from("<I", data, _HEAD.size)
+        start = _HEAD.size + 4
+        raw = data[start : start + n]
+        if n < 1 or len(raw) != n or len(data) < start + n + 1 or raw[-1:] != b"\0":
+            raise ValueError("clock record with a damaged epoch")
+        result = data[start + n]
+    except struct.error as e:
+        raise ValueError(f"clock record: {e}") from None
+    if head[0][:2] != b"\x00\x01":
+        raise ValueError("clock record: not little-endian CDR")
+    t1, t2, t3, t4, up, down, b, h, skew, bound, err, points = head[1:]
+    epoch = raw[:-1].decode("utf-8", "replace")
+    return ClockRecord(t1, t2, t3, t4, up, down, b, h, skew, bound, err, points, epoch, result)

@@ -96,7 +96,7 @@ def write_package(
         if os.path.exists(root):
             shutil.rmtree(root)
         os.rename(tmp, root)
-    except BaseException:
+    except BaseException:  # (broad, raised again: whatever stops it, nothing half-made stays)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return [os.path.join(root, name) for name in sorted(files)]

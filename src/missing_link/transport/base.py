@@ -113,7 +113,7 @@ class FdTransport(Transport):
     def poke(self) -> None:
         try:
             os.write(self._wake_w, b"x")
-        except OSError:
+        except OSError:  # (full: poked already; or released)
             pass
 
     def release(self) -> None:
@@ -125,7 +125,7 @@ class FdTransport(Transport):
                 setattr(self, name, -1)
                 try:
                     os.close(fd)
-                except OSError:
+                except OSError:  # (closed already)
                     pass
 
     def __del__(self) -> None:

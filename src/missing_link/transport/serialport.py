@@ -42,7 +42,7 @@ class SerialTransport(FdTransport):
             self._wake_reader()
             try:
                 self.port.close()
-            except (OSError, serial.SerialException):
+            except (OSError, serial.SerialException):  # (gone already: closing must not fail)
                 pass
 
 

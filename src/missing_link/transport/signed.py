@@ -51,7 +51,7 @@ def load_key(path: str) -> bytes:
     if len(text) == 64:
         try:
             return bytes.fromhex(text.decode())
-        except ValueError:
+        except ValueError:  # (not hex: 32 raw bytes, or the error below)
             pass
     if len(raw) == 32:
         return raw
@@ -72,7 +72,7 @@ class SignedTransport(Transport):
         self._wlock = threading.Lock()
         try:
             session, split, early = self._greet(key, greeting_s)
-        except BaseException:
+        except BaseException:  # (broad, raised again: a failed greeting must not leak the link)
             inner.close()
             raise
         self._signer = Signer(session, HOST_LINK)

@@ -82,7 +82,7 @@ class SocketTransport(FdTransport):
             self._wake_reader()
             try:
                 self.sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
+            except OSError:  # (not connected any more: closed below all the same)
                 pass
             self.sock.close()
 

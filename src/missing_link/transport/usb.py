@@ -38,7 +38,7 @@ def j2a_interface(dev: Any) -> Any | None:
     try:
         cfg = dev.get_active_configuration()
     except Exception:  # noqa: BLE001 - pyusb/backends raise various errors for unconfigured devices
-        try:
+        try:  # (an answer, not an error: such a device is not a J2A board)
             cfg = next(iter(dev))
         except Exception:  # noqa: BLE001 - same: such a device has no interface to offer
             return None
@@ -80,8 +80,8 @@ class USBTransport(Transport):
         try:
             if dev.is_kernel_driver_active(self._intf):
                 dev.detach_kernel_driver(self._intf)
-        except (NotImplementedError, usb.core.USBError):
-            pass
+        except (NotImplementedError, usb.core.USBError):  # (no driver to detach here: the
+            pass  # claim below says whether the interface is ours)
         try:
             usb.util.claim_interface(dev, self._intf)
         except usb.core.USBError as e:
@@ -134,8 +134,8 @@ class USBTransport(Transport):
         try:
             self._usb.util.release_interface(self._dev, self._intf)
             self._usb.util.dispose_resources(self._dev)
-        except Exception:  # noqa: BLE001 - the device may already be gone; closing must not fail
-            pass
+        except Exception:  # noqa: BLE001 - the device may already be gone (unplugged: why the
+            pass  # link closes); closing must not fail, and the link's end is said already
 
 
 def open_usb(url: str, query: dict[str, str], usb: Any | None = None) -> USBTransport:
@@ -165,5 +165,5 @@ def open_usb(url: str, query: dict[str, str], usb: Any | None = None) -> USBTran
 def usb_serial(dev: Any) -> str | None:
     try:
         return str(dev.serial_number) if dev.serial_number is not None else None
-    except Exception:  # noqa: BLE001 - string descriptors need permissions some users lack
-        return None
+    except Exception:  # noqa: BLE001 - string descriptors need permissions some users lack:
+        return None  # an answer (serial unknown), not an error

@@ -244,8 +244,10 @@ class Servo(_Driver):
             self.limits[key] = int(value)
 
     def make_safe(self) -> None:
-        """The failsafe: stop where it is (hold) or let go (limp)."""
-        self.target = self.position
+        """The failsafe, as the firmware's servo (board/drivers/servo.py, AVR drivers.c): hold
+        keeps the last pulse (the horn goes on to the last command and stays there), limp stops
+        the pulses (the horn stays where it is, reported as N/A).  Nothing is reset, so what a
+        late command did after the host had gone shows here as on the firmware."""
         self.limp = self.safe == "limp"
         self.emit(0, None if self.limp else self.reported())
 

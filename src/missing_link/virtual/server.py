@@ -235,10 +235,16 @@ class BoardServer:
 
     def _turn(self, data: bytes, rx_us: int | None = None) -> tuple[bytes, list[bytes]]:
         """One turn of the board's process loop: feed input, run drivers, return output as
-        (replies, SIF frames)."""
-        if data:
-            self.runtime.feed(data, rx_us)
-        self.runtime.poll()
+        (replies, SIF frames).  An exception stops the board, as it stops the firmware
+        (board/firmware.py): every armed actuator made safe first."""
+        try:
+            if data:
+                self.runtime.feed(data, rx_us)
+            self.runtime.poll()
+        except BaseException as e:
+            if self.runtime.failsafe is not None:
+                self.runtime.failsafe.stop(f"the firmware stops: {e}")
+            raise
         out: tuple[bytes, list[bytes]] = self.runtime.take_frames()
         return out
 

@@ -41,10 +41,10 @@ def _common(rt: BoardRuntime, seed: int) -> None:
 
 
 def _add_encoders(rt: BoardRuntime, seed: int) -> None:
-    rt.add_transducer(
-        Transducer("quad", 0, "quad", "HEDS-6500", 2, "int16_t", -1, unit="count", kind="sensor"),
-        QuadEncoders(rng_for(seed, "quad")),
-    )
+    # (500 CPR with x4 decoding: QuadEncoders)
+    quad = Transducer("quad", 0, "quad", "HEDS-6500", 2, "int16_t", -1, unit="count",
+                      kind="sensor", counts_per_rev="2000")  # fmt: skip
+    rt.add_transducer(quad, QuadEncoders(rng_for(seed, "quad")))
 
 
 def _add_servo(rt: BoardRuntime, seed: int) -> Servo:

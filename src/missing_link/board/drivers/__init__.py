@@ -30,6 +30,7 @@ DRIVERS = {
     "stepper": ("stepper", "Stepper"),
     "hcsr04": ("hcsr04", "HCSR04"),
     "vl53l0x": ("vl53l0x", "VL53L0X"),
+    "battery": ("battery", "Battery"),
 }
 
 

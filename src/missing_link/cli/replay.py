@@ -1,0 +1,68 @@
+"""``replay``: a recording played back as the boards that made it (virtual/replay.py)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from .common import EXIT_FAIL, EXIT_USAGE
+
+PROGRESS_S = 5.0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from ..errors import BadURL
+    from ..virtual.recording import RecordingError
+    from ..virtual.replay_serve import Replay
+
+    try:
+        replay = Replay(args.recording, rate=args.rate, loop=args.loop, listen=args.listen,
+                        boards=args.board, lead_s=args.lead)  # fmt: skip
+    except (FileNotFoundError, RecordingError, BadURL, ValueError) as e:
+        print(f"missing-link: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as e:
+        print(f"missing-link: error: cannot listen on {args.listen}: {e.strerror or e}",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAIL
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: done.set())
+    signal.signal(signal.SIGINT, lambda *a: done.set())
+    replay.start()
+    for b in replay.boards:
+        print(f"LISTENING {b.server.url}", flush=True)
+    for b in replay.boards:
+        print(f"replay: {b.name} at {b.server.url}: {b.recorded.samples} samples", file=sys.stderr)
+        if b.recorded.changed:
+            print(f"replay: {b.name} came up again with other descriptors in the recording; "
+                  "the first are served", file=sys.stderr)  # fmt: skip
+    how = f" at {args.rate:g}x" if args.rate != 1 else ""
+    print(f"replay: {replay.span_s:.1f} s of recording{how}{', looped' if args.loop else ''};"
+          f" it starts {args.lead:g} s after a host's first request", file=sys.stderr)  # fmt: skip
+    return _serve(replay, done)
+
+
+def _serve(replay: Any, done: threading.Event) -> int:
+    said_done, said_errors = False, 0
+    next_progress = time.monotonic() + PROGRESS_S
+    while not done.wait(0.1):
+        errors = replay.errors()
+        for line in errors[said_errors:]:
+            print(f"missing-link: error: {line}", file=sys.stderr)
+        said_errors = len(errors)
+        if replay.finished and not said_done:
+            said_done = True
+            print("replay: finished; the boards stay up until Ctrl-C", file=sys.stderr, flush=True)
+        elif time.monotonic() >= next_progress and not said_done:
+            next_progress += PROGRESS_S
+            sent = ", ".join(f"{b.name} {b.runtime.sent}" for b in replay.boards)
+            print(f"replay: {replay.position_s():.1f} of {replay.span_s:.1f} s, SIFs sent: "
+                  f"{sent}", file=sys.stderr, flush=True)  # fmt: skip
+    replay.stop()
+    for b in replay.boards:
+        print(f"replay: {b.summary()}", file=sys.stderr)
+    return EXIT_FAIL if replay.errors() else 0

@@ -1,0 +1,57 @@
+"""What the control endpoint (control.py) serves for a daemon: a board name or URL in, JSON out.
+
+The daemon hands these handlers three of its verbs (find a session, a session that is up with
+its board, a gated call), never itself; control.py serves them on its socket.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from ..errors import ConfigError
+from ..host.board import Board
+from ..host.config import describe_keys
+from ..host.link import CallResult
+from .session import BoardSession
+
+Handler = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+def control_handlers(
+    session: Callable[[str], BoardSession],
+    up: Callable[[str], tuple[BoardSession, Board]],
+    call: Callable[..., CallResult],
+) -> dict[str, Handler]:
+    """``session(board)``: its session; ``up(board)``: the session and its board, or
+    BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
+    through the daemon's allow-list."""
+
+    def find(r: dict[str, Any]) -> dict[str, Any]:
+        s = session(str(r["board"]))
+        return {"name": s.name, "url": s.spec.url, "state": s.state}
+
+    def info(r: dict[str, Any]) -> dict[str, Any]:
+        b = up(str(r["board"]))[1]
+        return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
+
+    def do_call(r: dict[str, Any]) -> dict[str, Any]:
+        payload = bytes.fromhex(str(r.get("payload", "")))
+        got = call(str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control")
+        return {"code": got.code, "payload": got.payload.hex()}
+
+    def config(r: dict[str, Any]) -> dict[str, Any]:
+        s, b = up(str(r["board"]))
+        settings = s.settings
+        if r.get("reset"):
+            settings.reset(bool(r.get("erase")), by="control")
+        if r.get("set") or r.get("save"):
+            wanted = r.get("set") or {}
+            if not isinstance(wanted, dict):
+                raise ConfigError("config: set must be an object of key: value")
+            settings.configure(wanted, bool(r.get("save")), by="control")
+        values = settings.read()
+        keys = describe_keys(b.settings.keys(), values)
+        return {"values": values, "keys": keys, "state": b.settings.state}
+
+    return {"find": find, "info": info, "call": do_call, "config": config}

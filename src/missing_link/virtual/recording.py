@@ -1,0 +1,236 @@
+"""A recording read for ``missing-link replay``: per board what it was (description,
+configuration, clock records) and, in a second pass, its samples as the SIFs it sent.
+
+Both passes read the MCAP file(s) in file order with the streaming reader ``recover`` uses
+(publishers/recover.py): every complete record, so a file cut by SIGKILL reads too, and a
+damaged chunk costs only itself.  The file is input, not ours to trust: a record that does not
+decode is counted and skipped, never raised past here; what makes a replay impossible (no
+board description in it) is a :class:`RecordingError`, one line.
+
+A sample is a thesis-format message (host times and values) paired with its entry in the
+board's ``BoardStamps`` (board stamps and SIF seq, ros/board_record.py): the k-th entry for a
+topic with the k-th message on it.  The recorder writes a chunk's stamps into that chunk, so
+pairs are complete; samples left without stamps at the end (a recording made without them,
+or cut inside a chunk) are counted (``unstamped``) and not replayed.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from collections import Counter, deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..descriptors import Transducer, parse_transds
+from ..errors import DescriptorError, MissingLinkError
+from ..publishers.recover import MCAP_MAGIC, complete_messages
+from ..ros.board_record import (
+    CONFIG_TYPE,
+    DESCRIPTION_TYPE,
+    STAMPS_TYPE,
+    BoardDescription,
+    ConfigRecord,
+    config_from_cdr,
+    description_from_cdr,
+    stamps_from_cdr,
+)
+from ..ros.clock import CLOCK_TYPE, ClockRecord, clock_record_from_cdr, clock_topic
+from ..ros.msgs import CdrEncoder
+
+log = logging.getLogger(__name__)
+
+
+class RecordingError(MissingLinkError, ValueError):
+    """A recording that cannot be replayed (the user's input): one line says why."""
+
+
+@dataclass
+class RecordedBoard:
+    description: BoardDescription
+    transducers: dict[str, Transducer]  #: thesis-format topic -> its transducer
+    #: every configuration recorded, with its host time: the first, then each change
+    configs: list[tuple[int, ConfigRecord]] = field(default_factory=list)
+    clock: list[ClockRecord] = field(default_factory=list)
+    samples: int = 0  #: samples with board stamps
+    first_ns: int | None = None  #: the recording's host time of its first sample
+    last_ns: int = 0
+    anchor: tuple[int, int] | None = None  #: (host ns, board µs) of its first stamped sample
+    changed: bool = False  #: it came up again with other descriptors (the first are served)
+
+    @property
+    def name(self) -> str:
+        return self.description.board
+
+    @property
+    def config(self) -> ConfigRecord | None:
+        """The configuration the board had when the recording began."""
+        return self.configs[0][1] if self.configs else None
+
+
+@dataclass
+class Recording:
+    files: list[Path]
+    boards: dict[str, RecordedBoard]
+    damaged: int = 0  #: records that did not decode (skipped)
+    skipped_chunks: int = 0
+
+
+@dataclass(frozen=True)
+class RecordedSif:
+    log_ns: int  #: the recording's host time of the sample (its newest channel)
+    transducer: Transducer
+    board_us: tuple[int, ...]
+    raw: tuple[Any, ...]  #: the values as the SIF carried them (N/A as the N/A value)
+    seq: int
+
+
+def mcap_files(paths: list[str]) -> list[Path]:
+    """The MCAP files of bag directories or files, in the order given."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: no such file or directory")
+        found = sorted(p.glob("*.mcap")) if p.is_dir() else [p]
+        if not found:
+            raise RecordingError(f"{p}: no .mcap file in it")
+        for f in found:
+            with open(f, "rb") as stream:
+                if stream.read(8) != MCAP_MAGIC:
+                    raise RecordingError(f"{f}: not an MCAP file (no MCAP magic at its start)")
+        files += found
+    return files
+
+
+def open_recording(paths: list[str]) -> Recording:
+    """The first pass: every board's description, configuration, clock records and samples'
+    span."""
+    files = mcap_files(paths)
+    rec = Recording(files, {})
+    clocks: dict[str, list[ClockRecord]] = {}
+    spans: dict[str, tuple[int, int]] = {}
+    skipped: Counter[str] = Counter()
+    for schema, ch, msg in complete_messages(files, skipped):
+        try:
+            _first_pass(rec, schema.name, ch.topic, msg, clocks, spans)
+        except (ValueError, struct.error, DescriptorError) as e:
+            rec.damaged += 1
+            log.debug("%s: a damaged record skipped: %s", ch.topic, e)
+    rec.skipped_chunks = skipped["chunks"]
+    if not rec.boards:
+        raise RecordingError(
+            f"{files[0]}: no board description in it (recorded before replay existed, or with "
+            "[mcap] replay = false): nothing to replay"
+        )
+    for board in rec.boards.values():
+        board.clock = clocks.get(clock_topic(board.name, set(board.description.transducer_names)),
+                                 [])  # fmt: skip
+        got = [spans[t] for t in board.transducers if t in spans]
+        if got:
+            board.first_ns = min(a for a, _ in got)
+            board.last_ns = max(b for _, b in got)
+    return rec
+
+
+def _first_pass(
+    rec: Recording,
+    kind: str,
+    topic: str,
+    msg: Any,
+    clocks: dict[str, list[ClockRecord]],
+    spans: dict[str, tuple[int, int]],
+) -> None:
+    if kind == DESCRIPTION_TYPE:
+        d = description_from_cdr(msg.data)
+        known = rec.boards.get(d.board)
+        if known is None:
+            ts = parse_transds(d.transds, d.board)
+            if len(ts) != len(d.topics):
+                raise ValueError(f"{d.board}: {len(ts)} transducers, {len(d.topics)} topics")
+            rec.boards[d.board] = RecordedBoard(d, dict(zip(d.topics, ts, strict=True)))
+        elif (known.description.transds, known.description.topics) != (d.transds, d.topics):
+            known.changed = True
+    elif kind == CONFIG_TYPE:
+        c = config_from_cdr(msg.data)
+        board = rec.boards.get(c.board)
+        if board is not None:
+            board.configs.append((msg.log_time, c))
+    elif kind == CLOCK_TYPE:
+        clocks.setdefault(topic, []).append(clock_record_from_cdr(msg.data))
+    elif kind == STAMPS_TYPE:
+        s = stamps_from_cdr(msg.data)
+        board = rec.boards.get(s.board)
+        if board is not None:
+            board.samples += len(s.topic)
+            if board.anchor is None and s.board_us:
+                board.anchor = (msg.log_time, s.board_us[0])
+    else:
+        lo, hi = spans.get(topic, (msg.log_time, msg.log_time))
+        spans[topic] = (min(lo, msg.log_time), max(hi, msg.log_time))
+
+
+@dataclass
+class PairStats:
+    sifs: int = 0
+    unstamped: int = 0  #: samples without board stamps (not replayed)
+    unmatched: int = 0  #: stamps without their sample
+    damaged: int = 0
+
+
+def recorded_sifs(rec: Recording, name: str, stats: PairStats) -> Iterator[RecordedSif]:
+    """The second pass: board ``name``'s samples in the order it sent them."""
+    board = rec.boards[name]
+    decoders = {topic: CdrEncoder(t).struct for topic, t in board.transducers.items()}
+    waiting: dict[str, deque[tuple[int, tuple[Any, ...]]]] = {t: deque() for t in decoders}
+    entries: deque[tuple[str, int, tuple[int, ...]]] = deque()  # (topic, seq, stamps)
+
+    def pairs() -> Iterator[RecordedSif]:
+        while entries and waiting[entries[0][0]]:
+            topic, seq, stamps = entries.popleft()
+            log_ns, raw = waiting[topic].popleft()
+            stats.sifs += 1
+            yield RecordedSif(log_ns, board.transducers[topic], stamps, raw, seq)
+
+    for schema, ch, msg in complete_messages(rec.files):
+        topic = ch.topic
+        try:
+            if topic in decoders:
+                n = board.transducers[topic].chan_count
+                waiting[topic].append((msg.log_time, decoders[topic].unpack(msg.data)[-n:]))
+            elif schema.name == STAMPS_TYPE:
+                s = stamps_from_cdr(msg.data)
+                if s.board != name:
+                    continue
+                entries.extend(_entries(s.topics, s.topic, s.seq, s.board_us, board))
+            else:
+                continue
+        except (ValueError, struct.error) as e:
+            stats.damaged += 1
+            log.debug("%s: a damaged record skipped: %s", topic, e)
+            continue
+        yield from pairs()
+    stats.unstamped += sum(len(q) for q in waiting.values())
+    stats.unmatched += len(entries)
+
+
+def _entries(
+    topics: tuple[str, ...],
+    index: tuple[int, ...],
+    seqs: tuple[int, ...],
+    board_us: tuple[int, ...],
+    board: RecordedBoard,
+) -> list[tuple[str, int, tuple[int, ...]]]:
+    out = []
+    at = 0
+    for i, seq in zip(index, seqs, strict=True):
+        t = board.transducers.get(topics[i])
+        if t is None:
+            raise ValueError(f"stamps for {topics[i]}, which is not a topic of {board.name}")
+        n = t.chan_count
+        if at + n > len(board_us):
+            raise ValueError("stamps shorter than their samples' channels")
+        out.append((topics[i], seq, board_us[at : at + n]))
+        at += n
+    return out
