@@ -28,7 +28,7 @@ from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
 ROOT = Path(__file__).resolve().parent.parent
 AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
-pytestmark = pytest.mark.avr
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 
 
 @pytest.fixture

@@ -26,7 +26,7 @@ from missing_link.transport import open_transport
 
 from .helpers import AvrRig, AvrSim, wait_for
 
-pytestmark = pytest.mark.avr
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 H0 = 1_795_000_000_000_000_000 + 3_456_789  # host ns of the pushed map's reference (any epoch)
 
 

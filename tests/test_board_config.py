@@ -185,6 +185,7 @@ def test_a_disabled_transducer_sends_nothing_and_its_actuator_refuses() -> None:
         thread.join(5)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_new_rate_shows_within_one_period() -> None:
     rt = make_sim("rate", 1, rate_hz=20.0)
     server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")

@@ -52,6 +52,7 @@ TWO_WITH_ONE_CALL = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("board", "said"),
     [
@@ -98,6 +99,7 @@ def test_a_wrong_board_file_is_one_line_exit_2(
     assert said in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_a_board_file_that_is_no_file_is_refused_before_it_is_read(tmp_path: Path) -> None:
     big = tmp_path / "big.py"
     big.write_text("BOARD = {'name': 'a', 'transducers': []}\n" + "#" * (2 << 20))
@@ -129,6 +131,7 @@ def test_the_generator_refuses_what_no_loader_checked(tmp_path: Path) -> None:
         write_avr(BoardFile(tmp_path / "raw.py", {**board, "name": "x\nCC = evil"}), tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_code_in_a_board_file_never_compiles_into_the_avr_firmware(tmp_path: Path) -> None:
     """The whole pipeline a user runs (make -C firmware/avr, which runs gen-firmware, then

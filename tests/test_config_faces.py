@@ -23,6 +23,7 @@ from missing_link.virtual.process import start_board_process, stop_process
 from .helpers import ML, ml, wait_for
 
 
+@pytest.mark.slow
 def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_path: Path) -> None:
     """[boards.<name>.config] at every connect; a board that resets (its clock starts over, the
     link stays) forgot them, and gets them again; the topic's rate follows."""
@@ -58,6 +59,7 @@ def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_pat
         stop_process(proc)
 
 
+@pytest.mark.slow
 def test_bad_keys_in_the_config_file_are_a_warning_and_the_board_runs() -> None:
     proc, url = start_board_process("thesis", 3, "pty")
     try:
@@ -88,6 +90,7 @@ def test_config_file_errors_name_the_table_and_key(doc: dict[str, object], said:
         parse_config(doc, "robot.toml")
 
 
+@pytest.mark.slow
 def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     """The daemon holds a pty board (its serial port locked); info, call and config by URL
     and by name go through the daemon's control endpoint (a 0600 socket in a 0700 directory),
@@ -136,6 +139,7 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     assert not control.exists(), err  # removed when the daemon stops
 
 
+@pytest.mark.slow
 def test_daemon_call_and_configure_from_python() -> None:
     proc, url = start_board_process("thesis", 6, "pty")
     try:

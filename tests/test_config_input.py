@@ -31,6 +31,7 @@ def run_config(tmp_path: Path, text: str) -> subprocess.CompletedProcess[str]:
     return ml("run", "--config", str(cfg), "--duration", "1", timeout=60)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("text", "said"),
     [
@@ -100,6 +101,7 @@ def test_the_known_keys_are_the_keys_each_publisher_reads() -> None:
         assert set(OPTIONS[name]) - read <= {"distro", "node"}, (name, set(OPTIONS[name]) - read)
 
 
+@pytest.mark.slow
 def test_a_descriptor_file_that_is_a_device_or_huge_is_refused_at_once(tmp_path: Path) -> None:
     big = tmp_path / "big.toml"
     big.write_bytes(b"#" * (2 << 20))
@@ -119,6 +121,7 @@ def test_a_descriptor_file_that_is_a_device_or_huge_is_refused_at_once(tmp_path:
     assert r.returncode == 2 and "/dev/zero: refused: not a regular file" in r.stderr
 
 
+@pytest.mark.slow
 def test_control_creates_no_directory(tmp_path: Path) -> None:
     where = tmp_path / "made" / "by" / "the" / "config"
     with pytest.raises(ConfigError, match="does not exist"):

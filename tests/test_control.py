@@ -82,6 +82,7 @@ def test_the_endpoint_makes_no_directory_but_its_own(tmp_path: Path) -> None:
     assert not (tmp_path / "a").exists()
 
 
+@pytest.mark.slow
 def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
     """Another user made the directory first and answers on it with lies: the client asks
     nothing there, and the daemon does not bind there (it runs without the endpoint)."""
@@ -141,6 +142,7 @@ for line in sys.stdin:
 """
 
 
+@pytest.mark.slow
 def test_the_endpoint_recovers_once_descriptors_are_free(tmp_path: Path) -> None:
     """Every descriptor of the daemon's process taken: accepting fails (EMFILE) and is tried
     again, so the endpoint answers once some are free.  (A thread blocked in accept holds one
@@ -221,6 +223,7 @@ def test_call_timeouts_are_checked_and_clamped() -> None:
             call_timeout(bad)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_idle_clients_do_not_lock_others_out(held: Any) -> None:
     _d, path = held
     idle = []
@@ -248,6 +251,7 @@ def test_idle_clients_do_not_lock_others_out(held: Any) -> None:
 
 
 # ---- the allow-list ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_control_call_keeps_the_allow_list(held: Any) -> None:
     d, path = held
     servo: list[Update] = []

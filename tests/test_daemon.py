@@ -81,6 +81,7 @@ def test_pattern_subscription_and_remap(serve: Serve) -> None:
         assert "/front/quad" not in names
 
 
+@pytest.mark.slow
 def test_broken_board_does_not_stop_others_and_reconnects(serve: Serve) -> None:
     good = serve("rangers")
     proc, url = start_board_process("encoder_servo", 2, "tcp://127.0.0.1:0")
@@ -158,6 +159,7 @@ def test_recording_read_back_by_independent_readers(serve: Serve, tmp_path: Path
         assert reader2.get_header().profile == "ros2"
 
 
+@pytest.mark.slow
 def test_crashed_recording_is_recovered(tmp_path: Path) -> None:
     """A daemon process killed with SIGKILL mid-recording: recover salvages its messages."""
     proc, url = start_board_process("thesis", 4, "pty")
@@ -193,6 +195,7 @@ def test_crashed_recording_is_recovered(tmp_path: Path) -> None:
         assert len(reader.deserialize(raw, conn.msgtype).values) == 2
 
 
+@pytest.mark.slow
 def test_clean_shutdown_on_sigterm_writes_complete_bag(tmp_path: Path) -> None:
     proc, url = start_board_process("rangers", 4, "pty")
     rec = tmp_path / "rec"

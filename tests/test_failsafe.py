@@ -14,6 +14,8 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, cast
 
+import pytest
+
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.failsafe import goodbye, keepalive_s
@@ -79,6 +81,7 @@ def test_an_actuator_goes_safe_after_its_silence_and_on_goodbye() -> None:
     assert "the host said goodbye" in call(rt, "a2jDebug")[1].decode()
 
 
+@pytest.mark.slow
 def test_the_daemon_keeps_a_quiet_link_alive() -> None:
     """Nothing commanded for 2 s: the daemon's keepalive (a third of the shortest failsafe_ms)
     keeps the board from tripping; the status shows the board's count."""
@@ -94,6 +97,7 @@ def test_the_daemon_keeps_a_quiet_link_alive() -> None:
         assert d.status()[0]["failsafe_trips"] == 0
 
 
+@pytest.mark.slow
 def test_a_killed_daemon_trips_the_failsafe(tmp_path: Path) -> None:
     with board_process("--sim", "thesis") as url:
         cfg = tmp_path / "d.toml"

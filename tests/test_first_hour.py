@@ -39,6 +39,7 @@ def tmpfs(where: Path, size: str) -> Iterator[Path]:
 
 
 # ---- 1. a full disk: recorded + dropped, and recover restores exactly the recorded ------------
+@pytest.mark.slow
 def test_a_full_disk_counts_every_message_it_could_not_keep(tmp_path: Path) -> None:
     with (
         tmpfs(tmp_path / "disk", "1m") as disk,
@@ -66,6 +67,7 @@ def free_tcp_url() -> str:
         return f"tcp://127.0.0.1:{s.getsockname()[1]}"
 
 
+@pytest.mark.slow
 def test_run_exits_0_when_its_boards_ran() -> None:
     with board_process("--sim", "rangers") as url:
         r = ml("run", url, "--duration", "2", "-p", "bus")
@@ -73,6 +75,7 @@ def test_run_exits_0_when_its_boards_ran() -> None:
     assert "never up" not in r.stderr
 
 
+@pytest.mark.slow
 def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
     url = free_tcp_url()
     with board_process("--sim", "rangers") as good:
@@ -83,6 +86,7 @@ def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
     assert "Connection refused" in line and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_run_exits_1_when_another_daemon_holds_the_port(tmp_path: Path) -> None:
     env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
     board = subprocess.Popen(
@@ -113,6 +117,7 @@ def test_run_exits_1_when_another_daemon_holds_the_port(tmp_path: Path) -> None:
     assert line.startswith(f"missing-link: error: {url}: never up: ") and "lock" in line
 
 
+@pytest.mark.slow
 def test_run_exits_2_on_bad_input_and_130_on_ctrl_c(tmp_path: Path) -> None:
     r = ml("run", "bogus://x", "--duration", "1")
     assert r.returncode == 2 and "unknown transport 'bogus'" in r.stderr
@@ -129,6 +134,7 @@ def test_run_exits_2_on_bad_input_and_130_on_ctrl_c(tmp_path: Path) -> None:
 
 
 # ---- 3. create-msgs for a daemon with several boards --------------------------------------------
+@pytest.mark.slow
 def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
     tmp_path: Path,
 ) -> None:
@@ -169,6 +175,7 @@ def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
     assert daemon_types <= set(second[1])
 
 
+@pytest.mark.slow
 def test_create_msgs_qualifies_a_differing_type_like_the_daemon(tmp_path: Path, serve: Any) -> None:
     from missing_link.daemon import Daemon
     from missing_link.daemon.config import BoardSpec, Config
@@ -223,6 +230,7 @@ def test_subscribing_before_the_board_is_up_is_fine(serve: Any) -> None:
         d.subscribe("/thesis/quad", lambda u: None)  # the board may come up later
 
 
+@pytest.mark.slow
 def test_call_value_is_what_send_sends_and_board_text_is_text(serve: Any) -> None:
     """``call --value 40`` packs 40 as the servo's int8 (``--hex 40`` is 0x40 = 64); a
     board's error text is shown as text, in the one error line too."""
@@ -260,6 +268,7 @@ def test_console_shows_scaled_values_in_their_unit() -> None:
     assert out.getvalue().rstrip().endswith("/b/servo [14.17] deg (raw [20])")
 
 
+@pytest.mark.slow
 def test_a_failed_connect_names_its_board_once_and_prints_nothing_else() -> None:
     probe = (
         "import missing_link\n"
@@ -275,6 +284,7 @@ def test_a_failed_connect_names_its_board_once_and_prints_nothing_else() -> None
     assert line.count(url) == 1 and "not up within 1.5 s: cannot connect" in line
 
 
+@pytest.mark.slow
 def test_zenoh_says_where_it_is_and_that_nothing_answers() -> None:
     with board_process("--sim", "rangers") as url:
         port = free_tcp_url().rsplit(":", 1)[1]

@@ -54,6 +54,7 @@ def _answers(url: str, key: Path) -> bool:
         board.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_the_key_reaches_the_board_and_a_new_key_replaces_the_old(tmp_path: Path) -> None:
     """``flash --key`` with the real mpremote on a serial port whose other end is MicroPython's
@@ -91,6 +92,7 @@ def test_the_key_reaches_the_board_and_a_new_key_replaces_the_old(tmp_path: Path
             sim.close()
 
 
+@pytest.mark.slow
 def test_keys_go_where_the_board_reads_them(tmp_path: Path) -> None:
     key = tmp_path / "robot.key"
     key.write_text(random.randbytes(32).hex() + "\n")
@@ -117,6 +119,7 @@ def test_only_the_drivers_the_board_uses_are_copied(tmp_path: Path) -> None:
     assert all(c.local.exists() for c in micropython_files(bf))
 
 
+@pytest.mark.slow
 def test_dry_run_lists_files_and_the_mpremote_command() -> None:
     r = ml("flash", str(RIG), "--port", "/dev/ttyACM7", "--dry-run")
     assert r.returncode == 0, r.stderr
@@ -124,6 +127,7 @@ def test_dry_run_lists_files_and_the_mpremote_command() -> None:
     assert "mpremote connect /dev/ttyACM7 fs cp -r" in r.stdout and "+ reset" in r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("body", "message"),
     [
@@ -159,6 +163,7 @@ def test_board_file_errors_are_one_line_exit_2(tmp_path: Path, body: str, messag
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_real_mpremote_on_a_missing_port_is_one_line_exit_1(tmp_path: Path) -> None:
     r = ml("flash", str(board_file(tmp_path, SERVO_ONLY)), "--port", str(tmp_path / "ttyACM9"))
     assert r.returncode == 1, r.stderr
@@ -166,6 +171,7 @@ def test_real_mpremote_on_a_missing_port_is_one_line_exit_1(tmp_path: Path) -> N
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
     sim = FirmwareSim(RIG)
     try:
@@ -180,6 +186,7 @@ def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 
 
+@pytest.mark.slow
 def test_avr_dry_run_shows_the_build_and_avrdude() -> None:
     r = ml("flash", str(UNO), "--port", "/dev/ttyACM3", "--dry-run")
     assert r.returncode == 0, r.stderr
@@ -187,6 +194,7 @@ def test_avr_dry_run_shows_the_build_and_avrdude() -> None:
     assert "avrdude -p m328p -c arduino -P /dev/ttyACM3 -b 115200 -D -U flash:w:" in r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Path) -> None:
     r = ml("flash", str(UNO), "--port", str(tmp_path / "ttyACM9"))
@@ -197,6 +205,7 @@ def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Pa
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
     from missing_link.deploy.avrgen import generate_avr
 

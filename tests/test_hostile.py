@@ -228,6 +228,7 @@ def test_type_collisions_are_qualified_and_recordings_read_back(
     assert counts.get("/board_a/temp", 0) > 5 and counts.get("/board_b/temp", 0) > 5
 
 
+@pytest.mark.slow
 def test_create_msgs_refuses_type_name_collisions(tmp_path: Path) -> None:
     text = "transds/1\nsonar_1,0,srf,SRF02,1,uint16_t,0\nsonar1,1,srf,SRF02,1,int32_t,0\n"
     f = tmp_path / "clash.txt"
@@ -241,6 +242,7 @@ def test_create_msgs_refuses_type_name_collisions(tmp_path: Path) -> None:
         parse_transds(text, "b")
 
 
+@pytest.mark.slow
 def test_board_strings_are_cleaned_before_files_and_terminals(serve: Serve, tmp_path: Path) -> None:
     server = serve(make_sim("hostile_strings", seed=1), listen="tcp://127.0.0.1:0")
     r = ml("info", server.url, timeout=30)
@@ -261,6 +263,7 @@ def test_board_strings_are_cleaned_before_files_and_terminals(serve: Serve, tmp_
 
 
 # ---- links that go bad ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_frozen_board_is_declared_lost_and_comes_back(
     board_process: Callable[..., tuple[subprocess.Popen[str], str]],
 ) -> None:
@@ -294,6 +297,7 @@ def test_frozen_board_is_declared_lost_and_comes_back(
         assert all(u.lost == 0 for u in steady[1:])
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_half_open_link_is_found_and_reconnected(serve: Serve) -> None:
     server = serve(make_sim("rate", seed=1, name="far", rate_hz=100.0), listen="tcp://127.0.0.1:0")
     with FaultRelay(server.url) as relay, daemon_for(BoardSpec(relay.url)) as d:
@@ -311,6 +315,7 @@ def test_half_open_link_is_found_and_reconnected(serve: Serve) -> None:
         assert session.connects >= 2 and session.stale_links >= 1
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_corruption_is_counted_and_the_session_lives(serve: Serve) -> None:
     server = serve(
         make_sim("rate", seed=1, name="noisy", rate_hz=500.0), listen="tcp://127.0.0.1:0"
@@ -336,6 +341,7 @@ def test_corruption_is_counted_and_the_session_lives(serve: Serve) -> None:
     assert sum(u.lost for u in got[1:]) <= st["lost_sifs"]
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_glitch_stamps_are_outliers_never_future_host_times(serve: Serve) -> None:
     server = serve(make_sim("hostile_glitch", seed=1, every=40, rate_hz=400.0))
     with daemon_for(BoardSpec(server.url)) as d:
@@ -425,6 +431,7 @@ def test_virtual_board_keeps_replies_when_the_host_does_not_read() -> None:
     b.close()
 
 
+@pytest.mark.slow
 def test_relay_cli_forwards_and_reports(serve: Serve) -> None:
     server = serve("thesis", listen="tcp://127.0.0.1:0")
     p = subprocess.Popen(
@@ -445,6 +452,7 @@ def test_relay_cli_forwards_and_reports(serve: Serve) -> None:
     assert p.returncode == 0 and "forwarded" in err
 
 
+@pytest.mark.slow
 def test_relay_rejects_bad_arguments() -> None:
     r = ml("relay", "tcp://127.0.0.1:1", "--corrupt", "2")
     assert r.returncode == 2 and "probability" in r.stderr and "Traceback" not in r.stderr
@@ -456,6 +464,7 @@ def test_board_error_names_the_board(serve: Serve) -> None:
         Board.open(server.url)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_outage_losses_are_counted_exactly_past_256(serve: Serve) -> None:
     """An outage of thousands of SIFs: the 8-bit seq alone would count them modulo 256; the
     board's a2jSifCount makes the count exact."""

@@ -103,6 +103,7 @@ def on_disk(rec: Path, topic: str) -> int:
     return sum(1 for _s, channel, _m in complete_messages(files) if channel.topic == topic)
 
 
+@pytest.mark.slow
 def test_sigkill_loses_at_most_about_a_second(tmp_path: Path) -> None:
     cfg = tmp_path / "rec.toml"
     cfg.write_text(f'[mcap]\nchunk_s = 0.5\npath = "{tmp_path / "rec"}"\n')
@@ -150,6 +151,7 @@ def small_disk(tmp_path: Path) -> Iterator[tuple[Path, Callable[[], None] | None
     yield where, limit
 
 
+@pytest.mark.slow
 def test_full_disk_is_loud_and_never_hangs(tmp_path: Path) -> None:
     with (
         small_disk(tmp_path) as (disk, limit),
@@ -174,6 +176,7 @@ def test_full_disk_is_loud_and_never_hangs(tmp_path: Path) -> None:
     assert re.search(r"publisher mcap: \d+ messages, [1-9]\d* dropped", err), err
 
 
+@pytest.mark.slow
 def test_recording_that_cannot_start_is_an_error_at_startup(tmp_path: Path) -> None:
     ro = tmp_path / "ro"
     ro.mkdir()
@@ -197,6 +200,7 @@ def test_recording_that_cannot_start_is_an_error_at_startup(tmp_path: Path) -> N
             subprocess.run(["umount", "-l", str(ro)], check=False)
 
 
+@pytest.mark.slow
 def test_publisher_queue_drops_are_shown(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text(f'[mcap]\nqueue = 50\npath = "{tmp_path / "rec"}"\n')
@@ -249,6 +253,7 @@ def board_url() -> Iterator[str]:
         yield url
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "code", "words"),
     [
@@ -274,11 +279,13 @@ def test_cli_errors_are_one_line(
     assert words in one_line_error(r, code)
 
 
+@pytest.mark.slow
 def test_call_accepts_echo_and_any_code(board_url: str) -> None:
     assert ml("call", board_url, "a2jEcho", "--hex", "0102").returncode == 0  # 0xBA is its OK
     assert ml("call", board_url, "a2j_set_servo", "--hex", "4040", "--any-code").returncode == 0
 
 
+@pytest.mark.slow
 def test_run_missing_descriptor_file_and_bad_config_stop_at_once(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text('[[board]]\nurl = "tcp://127.0.0.1:1"\ndescriptors = "nope.toml"\n')
@@ -289,6 +296,7 @@ def test_run_missing_descriptor_file_and_bad_config_stop_at_once(tmp_path: Path)
     assert time.monotonic() - t0 < 30  # not retrying for ever
 
 
+@pytest.mark.slow
 def test_board_listen_errors(tmp_path: Path) -> None:
     busy = free_port()
     import socket
@@ -307,6 +315,7 @@ def test_board_listen_errors(tmp_path: Path) -> None:
     assert precious.read_text() == "keep me"
 
 
+@pytest.mark.slow
 def test_create_msgs_is_all_or_nothing_and_keeps_user_packages(tmp_path: Path) -> None:
     long_name = "a" * 300
     desc = tmp_path / "d.txt"
@@ -327,6 +336,7 @@ def test_create_msgs_is_all_or_nothing_and_keeps_user_packages(tmp_path: Path) -
     assert not [p for p in (tmp_path / "ws").iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow
 def test_recover_garbage_is_an_error_and_leaves_nothing(tmp_path: Path) -> None:
     junk = tmp_path / "x.mcap"
     junk.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))
@@ -335,6 +345,7 @@ def test_recover_garbage_is_an_error_and_leaves_nothing(tmp_path: Path) -> None:
     assert not (tmp_path / "x_recovered").exists()
 
 
+@pytest.mark.slow
 def test_run_ctrl_c_exits_130_with_a_summary(board_url: str, tmp_path: Path) -> None:
     env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
     p = subprocess.Popen(
@@ -349,6 +360,7 @@ def test_run_ctrl_c_exits_130_with_a_summary(board_url: str, tmp_path: Path) -> 
 
 
 # ---- 5. the live view -------------------------------------------------------------------------
+@pytest.mark.slow
 def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
     master, slave = pty.openpty()
     os.set_blocking(master, False)
@@ -376,6 +388,7 @@ def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
     assert " us " not in text  # one unit style
 
 
+@pytest.mark.slow
 def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
     # (a terminal's width in the environment says nothing of a pipe: nothing is cut)
     r = ml("run", board_url, "--view", "--duration", "6", env={**os.environ, "COLUMNS": "80"})
@@ -383,11 +396,13 @@ def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
     assert "\x1b[" not in r.stdout and "/thesis/quad" in r.stdout and "count" in r.stdout
 
 
+@pytest.mark.slow
 def test_open_board_still_works_alongside(board_url: str) -> None:
     with Board.open(board_url) as b:
         assert b.call("a2jEcho", b"hi").payload == b"hi"
 
 
+@pytest.mark.slow
 def test_bad_zenoh_endpoint_is_a_config_error(tmp_path: Path) -> None:
     cfg = tmp_path / "z.toml"
     cfg.write_text('[zenoh]\nconnect = ["tcp://127.0.0.1:7447"]\n')

@@ -124,6 +124,7 @@ def run_recover(*args: str) -> tuple[int, str, int]:
     return p.returncode, err, usage.ru_maxrss
 
 
+@pytest.mark.slow
 def test_a_zstd_bomb_is_stopped_by_the_size_cap(tmp_path: Path) -> None:
     """A 32 KB chunk that decompresses to a gigabyte: claimed (refused before any work) or
     hidden behind a small claim (stopped one byte past it); the messages around it are
@@ -152,6 +153,7 @@ def test_a_zstd_bomb_is_stopped_by_the_size_cap(tmp_path: Path) -> None:
     assert "Traceback" not in err and not (tmp_path / "none").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "content",
     [

@@ -12,7 +12,6 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -57,9 +56,8 @@ from missing_link.virtual.faults import FaultRelay, Faults
 from missing_link.virtual.replay_clock import Clock, ClockModel, Timeline
 from missing_link.virtual.replay_serve import Replay
 
-from .helpers import wait_for
+from .helpers import ML, ml, wait_for
 
-ML = [sys.executable, "-m", "missing_link"]
 STORE = get_typestore(Stores.ROS2_JAZZY)
 for _name, _text in {**MESSAGES, CLOCK_TYPE: CLOCK_MSG}.items():
     STORE.register(get_types_from_msg(_text, _name))
@@ -292,6 +290,7 @@ def _sifs_in(d: Daemon) -> int:
         ("/clock", "/stamps", "/description", "/config")))  # fmt: skip
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_replay_is_the_recording_again(recorded: Path, tmp_path: Path) -> None:
     original = read_bag(recorded)
 
@@ -326,6 +325,7 @@ def test_a_replay_is_the_recording_again(recorded: Path, tmp_path: Path) -> None
     assert "3 command(s) taken (servo 3)" in summary["board_a"], summary
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_replayed_board_takes_configuration_and_says_what_it_cannot(
     recorded: Path, tmp_path: Path
 ) -> None:
@@ -352,6 +352,7 @@ def test_a_replayed_board_takes_configuration_and_says_what_it_cannot(
     assert values(again)["/board_b/dist_ir"] == original["/board_b/dist_ir"]
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     """The fault relay between the daemon and a replayed board: damage is counted, the board
     stays up and samples go on (values are not compared: a damaged frame passes the 8-bit
@@ -373,6 +374,7 @@ def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     assert got and status["state"] == "up", status
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_looped_replay_is_a_board_that_restarts(recorded: Path, tmp_path: Path) -> None:
     replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_b"], rate=4,
                     loop=True, lead_s=0.3).start()  # fmt: skip
@@ -389,10 +391,6 @@ def test_a_looped_replay_is_a_board_that_restarts(recorded: Path, tmp_path: Path
 
 
 # ---- the command line -------------------------------------------------------------------------
-def ml(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout)
-
-
 def one_line(r: subprocess.CompletedProcess[str], code: int) -> str:
     assert r.returncode == code, (r.returncode, r.stderr)
     assert "Traceback" not in r.stderr
@@ -400,6 +398,7 @@ def one_line(r: subprocess.CompletedProcess[str], code: int) -> str:
     return line
 
 
+@pytest.mark.slow
 def test_what_cannot_be_replayed_is_one_line(recorded: Path, tmp_path: Path) -> None:
     assert "no such file" in one_line(ml("replay", str(tmp_path / "nothing")), 2)
     junk = tmp_path / "junk.mcap"

@@ -23,6 +23,8 @@ from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import ML, free_port
 
+pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
+
 HERE = Path(__file__).resolve().parent
 HAVE_ROS1 = shutil.which("roscore") is not None and Path("/usr/bin/python3").exists()
 
@@ -31,7 +33,7 @@ if not HAVE_ROS1:
         raise RuntimeError(
             "ML_REQUIRE_ROS1=1 but roscore is missing: scripts/system-deps.sh --ros1"
         )
-    pytestmark = pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")
+    pytestmark += [pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")]
 
 
 @contextmanager

@@ -22,6 +22,8 @@ import pytest
 
 from .helpers import ml
 
+pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
+
 ROOT = Path(__file__).resolve().parents[1]
 ROS2_PY = Path(os.environ.get("ML_ROS2_PYTHON") or ROOT / ".venv-ros2" / "bin" / "python")
 LISTENER = Path(__file__).with_name("ros2_rclpy_listener.py")
@@ -30,7 +32,7 @@ PROFILE = Path(__file__).with_name("fastdds_loopback.xml")
 if not ROS2_PY.exists():
     if os.environ.get("ML_REQUIRE_ROS2") == "1":
         raise RuntimeError(f"ML_REQUIRE_ROS2=1 but {ROS2_PY} is missing: make ros2")
-    pytestmark = pytest.mark.skip(reason=f"ROS 2 wheels not installed ({ROS2_PY}; make ros2)")
+    pytestmark += [pytest.mark.skip(reason=f"ROS 2 wheels not installed ({ROS2_PY}; make ros2)")]
 
 
 def ros_env(**extra: str) -> dict[str, str]:

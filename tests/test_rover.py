@@ -28,7 +28,7 @@ from .helpers import FirmwareSim, wait_for
 ROOT = Path(__file__).resolve().parent.parent
 ROVER = ROOT / "examples" / "boards" / "rover.py"
 STORE = get_typestore(Stores.ROS2_JAZZY)
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

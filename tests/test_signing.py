@@ -270,6 +270,7 @@ def test_a_hello_with_another_key_is_answered_and_counted() -> None:
     assert got[-8:] != hmac.new(bytes(32), got[:-8], hashlib.sha256).digest()[:8]
 
 
+@pytest.mark.slow
 def test_keys_are_made_and_put_on_boards_over_usb_only(tmp_path: Path) -> None:
     import os
     import stat

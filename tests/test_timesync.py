@@ -406,6 +406,7 @@ def test_host_map_and_board_time_at() -> None:
 
 
 # ---- end to end: the daemon against a board whose clock truth is known -------------------------
+@pytest.mark.slow  # (seconds of real time)
 def test_daemon_maps_samples_within_their_bound(serve) -> None:  # type: ignore[no-untyped-def]
     clock = AffineClock(7_654_321_000.0, 50.0)
     server = serve(make_sim("rate", 3, rate_hz=500, clock=clock), "tcp://127.0.0.1:0")
@@ -417,8 +418,9 @@ def test_daemon_maps_samples_within_their_bound(serve) -> None:  # type: ignore[
         def settled() -> bool:
             st = d.status()[0]
             skew_off = abs(st.get("skew_ppm", 1e9) - 50)
-            return len(updates) > 500 and st.get("sync_exchanges", 0) > 20 and skew_off < 50
+            return len(updates) >= 1500 and st.get("sync_exchanges", 0) > 20 and skew_off < 50
 
+        # (3 s of samples, as many as the 0.999 below was set against, however loaded we are)
         wait_for(settled, 30)
         status = d.status()[0]
         off = d.realtime_offset_ns
@@ -497,6 +499,7 @@ def test_two_boards_trigger_at_one_host_time(serve) -> None:  # type: ignore[no-
         assert 0 <= clocks[i].host_ns(fired[name][0]) - mono_target < 50_000_000
 
 
+@pytest.mark.slow
 def test_cli_sync_reports_the_board_clock() -> None:
     proc, url = start_board_process(
         "rate",
@@ -594,6 +597,7 @@ def test_repeated_steers_reach_the_estimate_within_tau() -> None:
     assert pm.at(end) == pytest.approx(moved.host_at(end), abs=1.0)
 
 
+@pytest.mark.slow
 def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
     """A board process whose clock drifts and that resets 3 s in (100 ms boot gap, link kept):
     per topic, host times strictly increase through it, synced samples are within their bound,
@@ -615,13 +619,10 @@ def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
             off = d.realtime_offset_ns
             d.subscribe("/r/signal", got.append, queue=0)
 
-            def recovered() -> bool:  # the reset (3 s in) found, and synced samples after it
-                resets = d.status()[0].get("sync_resets", 0)
-                return resets >= 1 and any(
-                    u.recv_ns > back_at and not u.clock_flags & NOT_SYNCED for u in reversed(got)
-                )
-
-            wait_for(recovered, 30, step=0.1)
+            # the whole scenario: 3 s, the reset, and ~3 s after it (the misses right at the
+            # reset are held against a run of this length: not a wait for a condition)
+            while time.monotonic_ns() < ref + 6e9:
+                time.sleep(0.1)
             st = d.status()[0]
     finally:
         stop_process(proc)

@@ -282,6 +282,7 @@ def _certs(tmp: Path) -> Path:
     return tmp
 
 
+@pytest.mark.slow
 def test_tls_and_a_token_session(serve: Any, tmp_path: Path, caplog: Any) -> None:
     certs = _certs(tmp_path / "certs")
     tok = tmp_path / "token"
@@ -317,6 +318,7 @@ def test_tls_and_a_token_session(serve: Any, tmp_path: Path, caplog: Any) -> Non
     assert server_side and not [m for m in server_side if TOKEN in m or sid in m]
 
 
+@pytest.mark.slow
 def test_demo_serves_the_console(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [*ML, "demo", "--duration", "8", "--web", "127.0.0.1:0",
