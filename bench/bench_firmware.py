@@ -33,7 +33,7 @@ def main() -> None:
     from missing_link.deploy.boardfile import load_board_file
     from missing_link.deploy.flash import micropython_files
 
-    host = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
+    host = ROOT / "src" / "missing_link" / "virtual" / "world" / "host.mjs"
     mpy = run(["node", str(host), str(RIG), "--run", str(PROBE)])
     ref = run([sys.executable, str(PROBE), str(ROOT / "src")])
     files = micropython_files(load_board_file(RIG))

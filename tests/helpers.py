@@ -142,11 +142,11 @@ def free_port() -> int:
 
 class FirmwareSim:
     """The MicroPython firmware from a board file, under the real MicroPython interpreter (node,
-    WebAssembly port) with simulated peripherals (firmware/micropython/sim), its J2A link on a
+    WebAssembly port) with simulated peripherals (src/missing_link/virtual/world), its J2A link on a
     TCP port.  ``ctl(code)`` runs Python against the simulated world and returns ``result``."""
 
     ROOT = Path(__file__).resolve().parent.parent
-    HOST = ROOT / "firmware" / "micropython" / "sim" / "host.mjs"
+    HOST = ROOT / "src" / "missing_link" / "virtual" / "world" / "host.mjs"
 
     def __init__(self, board_file: Path | str, files: dict[str, Path] | None = None) -> None:
         """``files``: put on the board's filesystem (name -> local file), as flash would."""

@@ -1,9 +1,9 @@
 """The thesis's remaining parts on the MicroPython firmware (examples/boards/rover.py) under the
 real MicroPython interpreter, each driver against a device simulated at its interface from its
-datasheet (firmware/micropython/sim/devices.py): a GPS's NMEA bytes and PPS edges at a UART and a
-pin, a compass's registers, an H-bridge's PWM inputs, a step/dir driver counting pulses, an
-HC-SR04's echo, a VL53L0X's registers; and the failsafe stopping the motors when the host is
-gone."""
+datasheet (src/missing_link/virtual/world/devices.py): a GPS's NMEA bytes and PPS edges at a
+UART and a pin, a compass's registers, an H-bridge's PWM inputs, a step/dir driver counting
+pulses, an HC-SR04's echo, a VL53L0X's registers; and the failsafe stopping the motors when the
+host is gone."""
 
 from __future__ import annotations
 

@@ -240,9 +240,30 @@ def _gen_firmware(sp: Parser) -> None:
 
 
 def _board(sp: Parser) -> None:
-    sp.add_argument("--sim", required=True, help="thesis, encoder_servo, rangers, original or rate")
+    what = sp.add_mutually_exclusive_group(required=True)
+    what.add_argument("--sim", help="thesis, encoder_servo, rangers, original or rate")
+    what.add_argument(
+        "--file",
+        metavar="BOARDFILE",
+        help="run this board file, every part simulated from its datasheet (examples/boards/)",
+    )
     sp.add_argument(
         "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
+    )
+    sp.add_argument(
+        "--runtime",
+        choices=["cpython", "micropython"],
+        help="--file: our runtime on CPython (default) or our firmware under MicroPython (node)",
+    )
+    sp.add_argument(
+        "--absent",
+        metavar="PART,...",
+        help="--file: leave these parts (transducer names) unplugged",
+    )
+    sp.add_argument(
+        "--flash",
+        metavar="DIR",
+        help="--file: the board's flash (saved configuration, keys), kept between runs",
     )
     sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
     sp.add_argument("--name", help="board.name property (default: the sim's)")

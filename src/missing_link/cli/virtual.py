@@ -1,11 +1,14 @@
-"""``board`` (a virtual board) and ``relay`` (a fault-injecting relay): boards to test with."""
+"""``board`` (a virtual board: a sim, or any board file) and ``relay`` (a fault-injecting relay):
+boards to test with."""
 
 from __future__ import annotations
 
 import argparse
 import signal
 import sys
+import tempfile
 import threading
+from pathlib import Path
 from typing import Any
 
 from .common import EXIT_FAIL, EXIT_USAGE
@@ -45,7 +48,11 @@ def _sim_options(args: argparse.Namespace) -> dict[str, Any]:
 def cmd_board(args: argparse.Namespace) -> int:
     from ..virtual import BoardServer, make_sim
 
+    if args.file is not None:
+        return _board_file(args)
     try:
+        if args.runtime or args.absent or args.flash:
+            raise ValueError("--runtime, --absent and --flash go with --file BOARDFILE")
         extra = _sim_options(args)
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
@@ -79,6 +86,96 @@ def cmd_board(args: argparse.Namespace) -> int:
     print(f"LISTENING {server.url}", flush=True)
     server.serve_forever()
     return 0
+
+
+#: the sim-only options and what they are when not given
+_SIM_ONLY = {"name": None, "config_file": None, "rate": None, "channels": None,
+             "clock_offset_us": None, "clock_skew_ppm": None, "clock_drift_ppm_per_s": None,
+             "clock_ref_ns": None, "reset_at": None, "count": 1}  # fmt: skip
+
+
+def _board_file(args: argparse.Namespace) -> int:
+    """``board --file BOARDFILE``: the board file's firmware on CPython or under MicroPython,
+    every part simulated (missing_link.virtual.boardfile, .mpyboard).  Bad input (the file,
+    --absent, --flash, a missing node) is ConfigError: one line, exit 2 (main.py)."""
+    from ..deploy.boardfile import load_board_file
+    from ..errors import ConfigError
+
+    given = [k for k, default in _SIM_ONLY.items() if getattr(args, k) != default]
+    if given:
+        flag = "--" + given[0].replace("_", "-")
+        raise ConfigError(f"{flag} goes with --sim, not --file")
+    bf = load_board_file(args.file)
+    board = dict(bf.board)
+    names = [t["name"] for t in bf.transducers]
+    absent = [a.strip() for a in (args.absent or "").split(",") if a.strip()]
+    unknown = [a for a in absent if a not in names]
+    if unknown:
+        raise ConfigError(
+            f"--absent {unknown[0]}: no such part in {args.file} (parts: {', '.join(names)})"
+        )
+    flash = Path(args.flash) if args.flash else None
+    if flash is not None:
+        if flash.exists() and not flash.is_dir():
+            raise ConfigError(f"--flash {flash}: not a directory")
+        flash.mkdir(parents=True, exist_ok=True)
+    key = board.get("link", {}).get("key_file")
+    if key and (flash is None or not (flash / key).is_file()):
+        where = f"{flash / key}" if flash is not None else f"DIR/{key} and give --flash DIR"
+        raise ConfigError(
+            f"{args.file}: its link is signed (key_file {key}): the key goes in the board's "
+            f"flash: missing-link key new {where}"
+        )
+    if key and args.listen in ("pty", "pty://"):
+        raise ConfigError(f"{args.file}: its link is signed: serve it on tcp (or unix), not a pty")
+    with tempfile.TemporaryDirectory(prefix="ml-flash-") as scratch:
+        return _serve_board_file(args, board, bf.path, flash or Path(scratch), absent)
+
+
+def _serve_board_file(
+    args: argparse.Namespace, board: dict[str, Any], path: Path, flash: Path, absent: list[str]
+) -> int:
+    from ..errors import MissingLinkError
+
+    try:
+        if args.runtime == "micropython":
+            from ..virtual.mpyboard import MicroPythonBoard
+
+            server: Any = MicroPythonBoard(path, args.listen, flash if args.flash else None, absent)
+        else:
+            from ..virtual.boardfile import BoardFileBoard
+
+            server = BoardFileBoard(board, args.listen, flash, absent)
+    except MissingLinkError:
+        raise  # (bad input: exit 2; cannot listen, did not start: exit 1; main.py says it)
+    except Exception as e:  # noqa: BLE001 - the firmware failed at boot: one line, exit 1
+        print(f"missing-link: error: {args.file}: the firmware stopped: {_why(e)}", file=sys.stderr)
+        return EXIT_FAIL
+
+    def stop(signum: int, frame: object) -> None:
+        server.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    print(f"LISTENING {server.url}", flush=True)
+    try:
+        server.serve_forever()
+    except MissingLinkError as e:
+        print(f"missing-link: error: {args.file}: {e}", file=sys.stderr)
+        return EXIT_FAIL
+    except Exception as e:  # noqa: BLE001 - the firmware stopped: said in one line, exit 1
+        print(f"missing-link: error: {args.file}: the firmware stopped: {_why(e)}", file=sys.stderr)
+        return EXIT_FAIL
+    return 0
+
+
+def _why(e: BaseException) -> str:
+    """An exception in one line, with where it was raised (the board file's firmware)."""
+    tb = e.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    where = f" ({Path(tb.tb_frame.f_code.co_filename).name}:{tb.tb_lineno})" if tb else ""
+    return f"{type(e).__name__}: {e}{where}"
 
 
 def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:

@@ -6,6 +6,8 @@
 - :mod:`.clocks` - board clocks whose truth is known (offset, skew, drift, resets)
 - :mod:`.server` - a board runtime served on tcp, unix, a pty or memory
 - :mod:`.process` - a virtual board in a process of its own
+- :mod:`.boardfile` - any board file as a virtual board on CPython; :mod:`.mpyboard` - the same
+  under MicroPython in node; :mod:`.world` - the simulated machine and parts they run on
 - :mod:`.faults` - the fault relay (corruption, delay, loss, black hole)
 - :mod:`.syncsim` - the clock-sync simulation: link models, anchor methods, runner
 - :mod:`.original` - the 2014 firmware's a2jMany, offset bug and all

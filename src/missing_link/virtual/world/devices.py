@@ -1,17 +1,16 @@
-# The simulated devices at their interfaces, for the firmware's drivers under the real
-# MicroPython (machine.py holds the pins, buses and UARTs they sit on).  Each follows its
-# datasheet with its own tables and arithmetic, so a driver is checked against the part, not
-# against itself; what a model leaves out is said in its comment.  Tests reach them through
-# WORLD (WORLD.i2c[(bus, address)], WORLD.uart_sources[id], WORLD.pulses[pin], WORLD.devices).
+"""The simulated devices at their interfaces, for the firmware's drivers under MicroPython or
+CPython (machine.py holds the pins, buses and UARTs they sit on).  Each follows its datasheet
+with its own tables and arithmetic, so a driver is checked against the part, not against
+itself; what a model leaves out is said in its comment.  Tests reach them through WORLD
+(WORLD.i2c[(bus, address)], WORLD.uart_sources[id], WORLD.pulses[pin], WORLD.devices); parts.py
+puts them where a board file says they are wired.  The MicroPython subset only.
+"""
 
-import math
-import time
-
-from machine import WORLD
+from .machine import WORLD, sleep_us, ticks_add, ticks_diff, ticks_us
 
 
 def _now_us():
-    return time.ticks_us()
+    return ticks_us()
 
 
 class SRF02:
@@ -35,7 +34,7 @@ class SRF02:
     def ack(self):
         if self._busy_until is None:
             return True
-        if time.ticks_diff(_now_us(), self._busy_until) >= 0:
+        if ticks_diff(_now_us(), self._busy_until) >= 0:
             self._busy_until = None
             return True
         return False
@@ -49,7 +48,7 @@ class SRF02:
             self.rangings += 1
             cm = self.distance_cm if self.echo else 0
             self._range = {0x50: int(cm / 2.54), 0x51: int(cm), 0x52: int(cm * 58.3)}[cmd]
-            self._busy_until = time.ticks_add(_now_us(), self.BUSY_US)
+            self._busy_until = ticks_add(_now_us(), self.BUSY_US)
             return
         self._seq.append(cmd)
         if self._seq[:3] == [0xA0, 0xAA, 0xA5][: len(self._seq[:3])] and len(self._seq) == 4:
@@ -114,8 +113,6 @@ class MPU6050:
         if reg == 0x3B:
             return self._sample()[:n]
         return self.regs[reg : reg + n]
-
-
 
 
 def _bytes_i16(values, big):
@@ -258,13 +255,13 @@ class VL53L0X:
         elif r == 0x0B and b & 1:
             self.regs[0x13] = 0
             if self._continuous:
-                self._ready_at = time.ticks_add(_now_us(), self.BUDGET_US)
+                self._ready_at = ticks_add(_now_us(), self.BUDGET_US)
         else:
             self.regs[r] = b
 
     def _start(self, continuous, ranging):
         self._continuous = continuous
-        self._ready_at = time.ticks_add(_now_us(), self.BUDGET_US)
+        self._ready_at = ticks_add(_now_us(), self.BUDGET_US)
         if ranging:
             self.rangings += 1
             if not self._stop_ok:
@@ -275,7 +272,7 @@ class VL53L0X:
 
     def read(self, reg, n):
         reg = 0 if reg is None else reg
-        ready = self._ready_at is not None and time.ticks_diff(_now_us(), self._ready_at) >= 0
+        ready = self._ready_at is not None and ticks_diff(_now_us(), self._ready_at) >= 0
         if ready and not self.regs[0x13]:
             self.regs[0x13] = 0x04
             self.regs[0x14] = self._status << 3
@@ -320,15 +317,15 @@ class HCSR04:
 
     def pulse(self, level, timeout_us):
         if not self._armed or level != 1:
-            time.sleep_us(timeout_us)
+            sleep_us(timeout_us)
             return -2
         self._armed = False
         self.rangings += 1
         width = self.echo_us()
         if width > timeout_us:
-            time.sleep_us(timeout_us)
+            sleep_us(timeout_us)
             return -1
-        time.sleep_us(int(width))
+        sleep_us(int(width))
         return int(width + 0.5)
 
 
@@ -393,7 +390,7 @@ class GpsReceiver:
         return out.encode()
 
     def produce(self, now):
-        sec = time.ticks_diff(now, self._t0) // 1000000
+        sec = ticks_diff(now, self._t0) // 1000000
         if sec > self._sec:
             self._sec = sec
             if self.pps_pin is not None:
@@ -405,7 +402,7 @@ class GpsReceiver:
             rest = self._out[self._fed :]  # (a slow reader: the line was still busy)
             self._out = rest + self._sentences(sec)
             self._out_t0, self._fed = now, 0
-        due = time.ticks_diff(now, self._out_t0) * self.baud // 10000000 + 1
+        due = ticks_diff(now, self._out_t0) * self.baud // 10000000 + 1
         if due > self._fed:
             chunk = self._out[self._fed : due]
             self._fed += len(chunk)

@@ -1,23 +1,49 @@
-# A `machine` module for MicroPython's WebAssembly port whose peripherals are simulated at their
-# interfaces, so the firmware's drivers run byte for byte as on a board.
-#
-# Pins keep a level and an IRQ handler; a level change made by the world (an encoder phase, a
-# bouncing bumper) calls the handler at once, as an interrupt between two bytecodes would.
-# ADC.read_u16 converts the voltage the world puts on the pin as a 12-bit converter does (RP2040)
-# and scales it to 16 bit.  PWM keeps frequency and duty as set.  I2C dispatches to device models
-# by (bus, address); an absent or busy device does not acknowledge: OSError(EIO), as rp2.
-# UART keeps what the world sent (a device at the other end produces it when the firmware looks)
-# and what the firmware wrote; time_pulse_us asks the device driving that pin for its pulse.
-# The device models (devices.py: SRF02, MPU-6050, compasses, VL53L0X, HC-SR04, a GPS receiver,
-# a stepper driver; here the Sharp ranger's curve) follow their datasheets, with their own
-# tables: the drivers are checked against them, not against themselves.
-#
-# WORLD holds everything; a test drives it through the simulator host's control channel.
+"""A `machine` module whose peripherals are simulated at their interfaces, so the firmware's
+drivers run byte for byte as on a board: under MicroPython's WebAssembly port (node, host.mjs)
+and under CPython (`missing-link board --file ... --runtime cpython`, virtual/boardfile.py).
+
+Pins keep a level and an IRQ handler; a level change made by the world (an encoder phase, a
+bouncing bumper) calls the handler at once, as an interrupt between two bytecodes would.
+ADC.read_u16 converts the voltage the world puts on the pin as a 12-bit converter does (RP2040)
+and scales it to 16 bit; a floating pin (its part absent) wanders, as an open input picks up
+whatever is near.  PWM keeps frequency and duty as set.  I2C dispatches to device models by
+(bus, address); an absent or busy device does not acknowledge: OSError(EIO), as rp2.  UART keeps
+what the world sent (a device at the other end produces it when the firmware looks) and what
+the firmware wrote; time_pulse_us asks the device driving that pin for its pulse (none there:
+it waits out its timeout, as on a board).  The device models (devices.py: SRF02, MPU-6050,
+compasses, VL53L0X, HC-SR04, a GPS receiver, a stepper driver; here the Sharp ranger's curve)
+follow their datasheets, with their own tables: the drivers are checked against them, not
+against themselves.
+
+WORLD holds everything; a test drives it through the simulator host's control channel.  The
+MicroPython subset only (this file runs inside the board's interpreter).
+"""
 
 import time
 
+try:  # MicroPython: the port's tick counter (it wraps; ticks_diff copes)
+    ticks_us = time.ticks_us
+    ticks_add = time.ticks_add
+    ticks_diff = time.ticks_diff
+    sleep_us = time.sleep_us
+except AttributeError:  # CPython: the same over CLOCK_MONOTONIC, as board/clock.py reads it there
+
+    def ticks_us():
+        return time.monotonic_ns() // 1000
+
+    def ticks_add(t, delta):
+        return t + delta
+
+    def ticks_diff(a, b):
+        return a - b
+
+    def sleep_us(us):
+        time.sleep(us / 1000000)
+
+
 EIO = 5
 VREF = 3.3
+UNIQUE_ID = b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"
 
 
 class _PinState:
@@ -45,6 +71,8 @@ class World:
         self.uart_sources = {}  # UART id -> device producing its bytes (.produce(now_us))
         self.pulses = {}  # pin -> device answering time_pulse_us on it (.pulse(level, timeout))
         self.devices = {}  # transducer name -> its device model (devices.py), for tests
+        self.floating = {}  # ADC pin -> (volts, noise state) of an input left open
+        self.unique_id = UNIQUE_ID  # what machine.unique_id() says (the board's serial)
 
     def pin(self, pin_id):
         st = self.pins.get(pin_id)
@@ -93,7 +121,25 @@ class World:
     def adc_volts(self, pin_id):
         if pin_id in self.sharp:
             return sharp_volts(self.sharp[pin_id])
+        if pin_id in self.floating:
+            return self._wander(pin_id)
         return self.volts.get(pin_id, 0.0)
+
+    def float_adc(self, pin_id):
+        # the pin's part is absent: the input is left open
+        self.floating[pin_id] = (VREF / 2, (0x9E3779B9 ^ (pin_id * 2654435761)) & 0xFFFFFFFF or 1)
+
+    def _wander(self, pin_id):
+        # An open ADC input: no datasheet says what it reads (the sample capacitor's charge,
+        # what couples in from neighbours); here a random walk over the whole range in steps of
+        # up to 0.2 V (xorshift32 seeded by the pin: every run reads the same).
+        v, s = self.floating[pin_id]
+        s ^= (s << 13) & 0xFFFFFFFF
+        s ^= s >> 17
+        s ^= (s << 5) & 0xFFFFFFFF
+        v = min(VREF, max(0.0, v + ((s & 0xFFFF) / 65535 - 0.5) * 0.4))
+        self.floating[pin_id] = (v, s)
+        return v
 
     def pulse_us(self, pin_id):
         p = self.pwms.get(pin_id)
@@ -172,7 +218,7 @@ class Pin:
         changed = level != st.level
         if changed:
             log = WORLD.edges.setdefault(self.id, [])
-            log.append((time.ticks_us(), level))
+            log.append((ticks_us(), level))
             if len(log) > 2000:
                 log.pop(0)
         st.level = level
@@ -193,7 +239,7 @@ class ADC:
 
     def read_u16(self):
         WORLD.adc_reads += 1
-        WORLD.adc_log.append(time.ticks_us())
+        WORLD.adc_log.append(ticks_us())
         if len(WORLD.adc_log) > 2000:
             WORLD.adc_log.pop(0)
         v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
@@ -292,7 +338,7 @@ class UART:
     def _produce(self):
         src = WORLD.uart_sources.get(self.id)
         if src is not None:
-            src.produce(time.ticks_us())
+            src.produce(ticks_us())
 
     def any(self):
         self._produce()
@@ -315,13 +361,14 @@ class UART:
 def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     # -2: no pulse started within the timeout, -1: it did not end within it (MicroPython's)
     dev = WORLD.pulses.get(pin.id)
-    if dev is None:
+    if dev is None:  # nothing drives the pin: the wait runs out, as on a board
+        sleep_us(timeout_us)
         return -1 if WORLD.pin(pin.id).level == pulse_level else -2
     return dev.pulse(pulse_level, timeout_us)
 
 
 def unique_id():
-    return b"\xe6\x60\x58\x38\x83\x2a\x4d\x2f"
+    return WORLD.unique_id
 
 
 def freq():

@@ -1,0 +1,337 @@
+"""Any board file as a virtual board on CPython: the board's own firmware (board/firmware.py's
+Firmware, its drivers, its run loop, its link code: signed records too) on the simulated world
+of world/ (a `machine` module with the parts of the board file simulated from their
+datasheets), served on ``tcp://HOST:PORT``, ``unix:///PATH`` or ``pty``.
+
+Theory of operation
+-------------------
+The firmware runs as on a device: ``Firmware.run()`` steps the runtime and sleeps on its link
+until input or the drivers' next deadline, at the pace of the host's clock (the board clock is
+CLOCK_MONOTONIC in µs, and the simulated devices keep the same time).  Its link is what the
+board file's link would be on a network board: link.py's TcpLink (one host at a time, the
+newest) or, with a ``key_file``, SignedLink, over a :class:`SocketServer` that has link.py's
+TcpServer interface on a socket of this machine; or, for ``pty``, a :class:`PtyLink` (USB CDC:
+one host, who may close and reopen the port unseen).  A board file's own link kind and port
+are not used: ``--listen`` says where the board is.
+
+The flash is a directory: the saved configuration (the board file's ``config_file``) and the
+link's files (``key_file``, ``boot_file``) live there, kept between runs when the caller names
+one (``--flash DIR``), else in a directory that goes with the process.
+
+:meth:`BoardFileBoard.stop` is the power switch: the next turn of the loop raises
+:class:`PowerOff` from the link, the firmware makes its actuators safe on the way out
+(firmware.py) and :meth:`serve_forever` returns.  Whatever else ends the firmware (a driver's
+exception) leaves serve_forever with it.  The world is one per process (world/machine.py's
+WORLD): one board file per process.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import socket
+import stat
+import tty
+from collections.abc import Collection
+from pathlib import Path
+from typing import Any, Protocol
+from urllib.parse import urlsplit
+
+from ..board.firmware import Firmware
+from ..board.link import TcpLink, network_link
+from ..board.store import FileStore
+from ..errors import BadURL, ConfigError, MissingLinkError
+from .world import machine
+from .world.parts import populate
+
+LINK_FILES = ("key_file", "boot_file", "replay_file")
+
+
+class ListenError(MissingLinkError):
+    """The listener could not be made (the port is taken, the path is not writable)."""
+
+
+class PowerOff(BaseException):
+    """The board's power was switched off (stop()): not an error of the firmware's."""
+
+
+class Power:
+    """On until off(); a pipe wakes the loop's wait when it goes off."""
+
+    def __init__(self) -> None:
+        self.on = True
+        self.wake_r, self.wake_w = os.pipe()
+        os.set_blocking(self.wake_r, False)
+        os.set_blocking(self.wake_w, False)
+
+    def check(self) -> None:
+        if not self.on:
+            raise PowerOff()
+
+    def off(self) -> None:
+        self.on = False
+        try:
+            os.write(self.wake_w, b"x")
+        except OSError:  # (the pipe is full: it wakes anyway)
+            pass
+
+    def close(self) -> None:
+        os.close(self.wake_r)
+        os.close(self.wake_w)
+
+
+def _wait(fds: list[int], power: Power, us: int) -> list[int]:
+    ready, _, _ = select.select([*fds, power.wake_r], [], [], max(0, us) / 1e6)
+    return ready
+
+
+class SocketServer:
+    """link.py's TcpServer interface on a listening socket of this machine: connections by
+    number; a send that cannot go out within SEND_S closes the connection (a host that
+    vanished must not stall the firmware's loop, and with it the failsafe), as on a device."""
+
+    SEND_S = 0.5
+
+    def __init__(self, listener: socket.socket, power: Power) -> None:
+        self.listener = listener
+        self.power = power
+        self.conns: dict[int, socket.socket] = {}
+        self._next = 1
+
+    def accept(self) -> int | None:
+        self.power.check()
+        if not _wait([self.listener.fileno()], self.power, 0):
+            return None
+        try:
+            conn, _addr = self.listener.accept()
+        except OSError:  # (the client is gone again)
+            return None
+        conn.settimeout(self.SEND_S)
+        if conn.family == socket.AF_INET:
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        n = self._next
+        self._next += 1
+        self.conns[n] = conn
+        return n
+
+    def recv(self, n: int) -> bytes | None:
+        conn = self.conns.get(n)
+        if conn is None:
+            return b""
+        if not _wait([conn.fileno()], self.power, 0):
+            return None
+        try:
+            data = conn.recv(4096)
+        except OSError:
+            data = b""
+        if not data:
+            self.drop(n)
+        return data
+
+    def send(self, n: int, data: bytes) -> bool:
+        conn = self.conns.get(n)
+        if conn is None:
+            return False
+        try:
+            conn.sendall(data)
+        except OSError:
+            self.drop(n)
+            return False
+        return True
+
+    def drop(self, n: int) -> None:
+        conn = self.conns.pop(n, None)
+        if conn is not None:
+            conn.close()
+
+    def wait(self, us: int) -> None:
+        fds = [self.listener.fileno(), *(c.fileno() for c in self.conns.values())]
+        _wait(fds, self.power, us)
+
+    def close(self) -> None:
+        for n in list(self.conns):
+            self.drop(n)
+        if self.listener.family == socket.AF_UNIX:
+            try:
+                os.unlink(self.listener.getsockname())
+            except OSError:
+                pass
+        self.listener.close()
+
+
+class Pty:
+    """A pseudo-terminal whose far end hosts open as ``serial:///dev/pts/N``, both ends raw at
+    once (a cooked pty echoes the board's frames back).  The far end is kept open, so a host
+    closing the port is not an end of file; output a host does not read waits up to SEND_S,
+    then is dropped (counted), as on a port with nobody reading."""
+
+    SEND_S = 0.5
+
+    def __init__(self) -> None:
+        self.master, self._slave = os.openpty()
+        tty.setraw(self.master)
+        tty.setraw(self._slave)
+        os.set_blocking(self.master, False)
+        self.url = f"serial://{os.ttyname(self._slave)}"
+        self.dropped = 0
+
+    def read(self) -> bytes | None:
+        try:
+            return os.read(self.master, 4096) or None
+        except BlockingIOError:
+            return None
+        except OSError as e:
+            if e.errno == errno.EIO:  # no host has the port open
+                return None
+            raise
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                view = view[os.write(self.master, view) :]
+            except BlockingIOError:
+                _, ready, _ = select.select([], [self.master], [], self.SEND_S)
+                if not ready:
+                    self.dropped += len(view)
+                    return
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
+
+
+class PtyLink(Pty):
+    """The board's link on a pty, as a board's USB CDC port: one host at a time."""
+
+    def __init__(self, power: Power) -> None:
+        super().__init__()
+        self.power = power
+
+    def read(self) -> bytes | None:
+        self.power.check()
+        return super().read()
+
+    def wait(self, us: int) -> None:
+        _wait([self.master], self.power, us)
+
+
+class _Link(Protocol):
+    def read(self) -> bytes | None: ...
+    def write(self, data: bytes) -> None: ...
+    def wait(self, us: int) -> None: ...
+    def close(self) -> None: ...
+
+
+def listener(url: str) -> tuple[socket.socket, str]:
+    """A listening socket for ``tcp://HOST:PORT`` (0: any free port) or ``unix:///PATH``, and the
+    URL a host opens; BadURL for anything else, ListenError when it cannot be bound."""
+    scheme = url.split("://", 1)[0]
+    if scheme == "tcp":
+        parts = urlsplit(url)
+        host = parts.hostname or "127.0.0.1"
+        try:
+            port = parts.port or 0
+        except ValueError as e:
+            raise BadURL(f"{url!r}: bad port") from e
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        where: Any = (host, port)
+    elif scheme == "unix":
+        path = urlsplit(url).path
+        if not path:
+            raise BadURL(f"{url!r}: expected unix:///path")
+        if os.path.exists(path):
+            if not stat.S_ISSOCK(os.stat(path).st_mode):
+                raise ListenError(f"cannot listen on {url}: {path} exists and is not a socket")
+            os.unlink(path)  # a stale socket of an earlier run: nothing else is removed
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        where = path
+    else:
+        raise BadURL(f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path or pty")
+    try:
+        sock.bind(where)
+        sock.listen(2)
+    except OSError as e:
+        sock.close()
+        raise ListenError(f"cannot listen on {url}: {e.strerror or e}") from None
+    if scheme == "unix":
+        return sock, f"unix://{where}"
+    return sock, f"tcp://{host}:{sock.getsockname()[1]}"
+
+
+def flash_files(board: dict[str, Any], flash: Path) -> dict[str, Any]:
+    """The board file's link settings with its files (key, boot count) in the flash; a key
+    the link names but the flash lacks is a ConfigError saying how to make one."""
+    link = dict(board.get("link", {}))
+    for key in LINK_FILES:
+        if key in link:
+            link[key] = str(flash / link[key])
+    key_file = link.get("key_file")
+    if key_file and not Path(key_file).is_file():
+        raise ConfigError(
+            f"the board file's link is signed: put its key in the flash "
+            f"(missing-link key new {key_file}), or use --flash DIR with {Path(key_file).name}"
+        )
+    return link
+
+
+class BoardFileBoard:
+    """``board`` (a checked board file's dict) on the simulated world, served on ``listen``;
+    ``url`` is what a host opens.  ``flash``: the board's flash directory; ``absent``: the
+    transducer names whose parts are left unplugged (world/parts.py)."""
+
+    def __init__(
+        self,
+        board: dict[str, Any],
+        listen: str,
+        flash: Path,
+        absent: Collection[str] = (),
+    ) -> None:
+        if machine.WORLD.devices or machine.WORLD.pins:
+            raise RuntimeError("one board file per process: the simulated world is taken")
+        link_cfg = flash_files(board, flash)
+        if listen in ("pty", "pty://") and link_cfg.get("key_file"):
+            raise ConfigError(
+                "a board file with a signed link (key_file) is served on tcp or unix, not pty"
+            )
+        populate(board, set(absent))
+        self.power = Power()
+        self._closed = False
+        self.link: _Link | None = None
+        try:
+            if listen in ("pty", "pty://"):
+                pty = PtyLink(self.power)
+                self.link, self.url = pty, pty.url
+            else:
+                sock, self.url = listener(listen)
+                server = SocketServer(sock, self.power)
+                self.link = TcpLink(server=server)
+                if link_cfg.get("key_file"):
+                    clock = machine.ticks_us
+                    self.link = network_link(server, link_cfg, lambda: clock() // 1000)
+            store = FileStore(str(flash / board.get("config_file", "mlconfig.bin")))
+            self.firmware = Firmware(board, machine, self.link, store=store)
+        except BaseException:
+            self.close()
+            raise
+
+    def serve_forever(self) -> None:
+        """Run the firmware until stop() (returns) or until it stops on its own (raises)."""
+        try:
+            self.firmware.run()
+        except PowerOff:
+            pass
+        finally:
+            self.close()
+
+    def stop(self) -> None:
+        self.power.off()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self.link is not None:
+                self.link.close()
+            self.power.close()

@@ -1,0 +1,214 @@
+"""Any board file as a virtual board under MicroPython: our real firmware in the real
+interpreter (1.27, WebAssembly port from npm, under Node.js: world/host.mjs) on the simulated
+world of world/, its link on a TCP port of this machine.
+
+Theory of operation
+-------------------
+:class:`MicroPythonBoard` starts ``node host.mjs BOARDFILE`` and waits for its ``LISTEN``
+line; the board is then up.  Node serves the firmware's link on ``--listen``'s TCP port.  For
+``pty`` this process opens the pseudo-terminal and relays its bytes to one connection of its
+own to node's port on 127.0.0.1, kept for the board's life: the firmware sees one host on a
+cable, as on USB CDC.  Node's stdin stays open (it is the simulator's control channel; closing
+it powers the board off) and its stderr (the firmware's prints, the interpreter's errors) is
+this process's.  ``CRASH`` or ``BREAK`` on node's stdout means the firmware stopped (an
+exception, the break to the REPL): serve_forever() raises :class:`FirmwareStopped`.
+
+Node and the npm package are found before anything starts (:func:`find_micropython`): the
+package in ``node_modules`` of the current directory or one above it, or of the checkout this
+module is in (``make node`` puts it there).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import select
+import shutil
+import socket
+import subprocess
+import threading
+from collections.abc import Collection
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from ..errors import BadURL, ConfigError, MissingLinkError
+from .boardfile import Pty
+
+HOST_MJS = Path(__file__).resolve().parent / "world" / "host.mjs"
+MPY_ENTRY = Path("@micropython") / "micropython-webassembly-pyscript" / "micropython.mjs"
+START_TIMEOUT_S = 60.0
+
+
+class FirmwareStopped(MissingLinkError):
+    """The firmware under MicroPython stopped (an exception, the break to the REPL)."""
+
+
+def find_micropython() -> tuple[str, Path]:
+    """(node, the npm MicroPython module); ConfigError saying `make node` if either is missing."""
+    node = shutil.which("node")
+    places = [Path.cwd(), *Path.cwd().parents, *Path(__file__).resolve().parents]
+    entries = [p / "node_modules" / MPY_ENTRY for p in places]
+    entry = next((e for e in entries if e.exists()), None)
+    if node is None:
+        raise ConfigError("--runtime micropython needs Node.js (node): run `make node`")
+    if entry is None:
+        raise ConfigError(
+            "--runtime micropython needs MicroPython from npm in node_modules here or above: "
+            "run `make node` (a checkout) or `npm install "
+            "@micropython/micropython-webassembly-pyscript@1.27.0`"
+        )
+    return node, entry
+
+
+def _tcp_address(listen: str) -> tuple[str, int]:
+    if not listen.startswith("tcp://"):
+        raise BadURL(
+            f"cannot listen on {listen!r} under MicroPython: use tcp://127.0.0.1:PORT or pty"
+        )
+    parts = urlsplit(listen)
+    try:
+        return parts.hostname or "127.0.0.1", parts.port or 0
+    except ValueError as e:
+        raise BadURL(f"{listen!r}: bad port") from e
+
+
+class MicroPythonBoard:
+    """The board file at ``board_file`` under MicroPython, served on ``listen`` (tcp or pty);
+    ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged."""
+
+    def __init__(
+        self,
+        board_file: Path,
+        listen: str,
+        flash: Path | None,
+        absent: Collection[str] = (),
+    ) -> None:
+        node, entry = find_micropython()
+        pty = listen in ("pty", "pty://")
+        host, port = ("127.0.0.1", 0) if pty else _tcp_address(listen)
+        cmd = [node, str(HOST_MJS), str(board_file), "--port", str(port), "--host", host]
+        cmd += ["--mpy", str(entry)]
+        if flash is not None:
+            cmd += ["--flash", str(flash)]
+        if absent:
+            cmd += ["--absent", ",".join(absent)]
+        self._relay: _PtyRelay | None = None
+        # (a session of its own: a terminal's Ctrl-C is this process's to handle, not node's)
+        self.proc = subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True
+        )
+        self.lines: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._pump, name="board:node", daemon=True).start()
+        try:
+            first = self.lines.get(timeout=START_TIMEOUT_S)
+        except queue.Empty:
+            first = None
+        if first is None or not first.startswith("LISTEN "):
+            self.close()
+            raise MissingLinkError(f"the firmware did not start under MicroPython (got {first!r})")
+        _, node_port, self.ident = first.split(" ", 2)
+        if pty:
+            self._relay = _PtyRelay(int(node_port))
+            self.url = self._relay.url
+        else:
+            self.url = f"tcp://{host}:{node_port}"
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line.rstrip("\n"))
+        self.lines.put(None)
+
+    def serve_forever(self) -> None:
+        """Until stop() (returns) or the firmware stops (FirmwareStopped)."""
+        relay = None
+        if self._relay is not None:
+            relay = threading.Thread(target=self._relay.run, name="board:pty", daemon=True)
+            self._relay.running = True
+            relay.start()
+        try:
+            while True:
+                line = self.lines.get()
+                if line is None:
+                    code = self.proc.wait()
+                    if code != 0:
+                        raise FirmwareStopped(f"the MicroPython host ended (exit {code})")
+                    return
+                if line in ("CRASH", "BREAK"):
+                    why = "an exception (above)" if line == "CRASH" else "the break to the REPL"
+                    raise FirmwareStopped(f"the firmware stopped under MicroPython: {why}")
+        finally:
+            self.close()
+            if relay is not None:
+                relay.join(2)
+
+    def stop(self) -> None:
+        """Power off: node's stdin closes and node ends (the flash is on disk already)."""
+        try:
+            if self.proc.stdin is not None:
+                self.proc.stdin.close()
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        self.stop()
+        if self._relay is not None:
+            self._relay.stop()
+        try:
+            self.proc.wait(5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
+
+
+class _PtyRelay:
+    """A pseudo-terminal whose bytes go to and from one connection to node's port: the
+    firmware sees one host on a cable; hosts that open and close the pty are not seen."""
+
+    def __init__(self, port: int) -> None:
+        self.pty = Pty()
+        self.url = self.pty.url
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock.settimeout(Pty.SEND_S)
+        self.wake_r, self.wake_w = os.pipe()
+        self.running = False
+        self._lock = threading.Lock()  # (stop() and the relay's own end may meet)
+
+    def run(self) -> None:
+        sock = self.sock.fileno()
+        try:
+            while True:
+                ready, _, _ = select.select([self.pty.master, sock, self.wake_r], [], [])
+                if self.wake_r in ready:
+                    return
+                if sock in ready:
+                    data = self.sock.recv(4096)
+                    if not data:
+                        return  # node closed the connection: the board is gone
+                    self.pty.write(data)
+                if self.pty.master in ready:
+                    got = self.pty.read()
+                    if got:
+                        self.sock.sendall(got)
+        except OSError:  # (node gone, or a send it did not take within SEND_S)
+            return
+        finally:
+            self.close()
+
+    def stop(self) -> None:
+        if not self.running:  # (never started: nothing to wake)
+            self.close()
+            return
+        with self._lock:
+            if self.wake_w >= 0:
+                os.write(self.wake_w, b"x")
+
+    def close(self) -> None:
+        with self._lock:
+            if self.wake_r >= 0:
+                self.sock.close()
+                self.pty.close()
+                os.close(self.wake_r)
+                os.close(self.wake_w)
+                self.wake_r = self.wake_w = -1
