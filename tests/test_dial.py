@@ -161,6 +161,7 @@ def test_board_files_name_where_the_board_dials(link: dict[str, Any], message: s
     assert example.board["link"]["dial"] == "192.168.1.10:7000"
 
 
+@pytest.mark.slow
 # ---- the daemon's side: where it listens, and which session a board goes to ------------------
 def test_listening_off_loopback_needs_signing(tmp_path: Path) -> None:
     assert parse_listen("tcp://127.0.0.1:7000").loopback
@@ -319,6 +320,7 @@ def samples(d: Daemon, name: str) -> int:
     return next((s["samples"] for s in d.status() if s["board"] == name), 0)
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_boards_dial_in_and_one_comes_back_as_itself(tmp_path: Path) -> None:
     """Two boards (their own chip ids) dial a daemon on loopback; the config names them by id
@@ -361,6 +363,7 @@ def test_micropython_boards_dial_in_and_one_comes_back_as_itself(tmp_path: Path)
                 sim.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_a_board_dials_again_when_its_daemon_comes_back(tmp_path: Path) -> None:
     """The daemon stops (the board hears goodbye, its connection ends) and another starts on
@@ -383,6 +386,7 @@ def test_a_board_dials_again_when_its_daemon_comes_back(tmp_path: Path) -> None:
         sim.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_known_boards_only_and_two_boards_with_one_id(tmp_path: Path) -> None:
     """``accept = "known"``: a board whose id the config does not name is refused (and dials
@@ -405,6 +409,7 @@ def test_known_boards_only_and_two_boards_with_one_id(tmp_path: Path) -> None:
                 sim.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_a_signed_board_dials_in_and_another_key_is_refused(tmp_path: Path) -> None:
     """The daemon greets the board that connected (HELLO out, its CHALLENGE checked), as it
@@ -443,6 +448,7 @@ def board_process(*args: str) -> subprocess.Popen[str]:
     return proc
 
 
+@pytest.mark.slow
 def test_a_virtual_board_dials_in_and_comes_back_after_a_restart() -> None:
     with listening("tcp://127.0.0.1:0") as d:
         assert d.dialins is not None

@@ -24,7 +24,7 @@ from .helpers import FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 Rig = tuple[Daemon, dict[str, list[Update]]]
 
 

@@ -63,6 +63,7 @@ def test_a_virtual_board_is_known_by_its_seed_and_runs_this_runtime() -> None:
     assert "board.id" not in make_sim("original").properties
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_boards_state_their_chips_id_and_the_hash_of_their_files() -> None:
     """Two simulated chips (host.mjs --seed) have their own machine.unique_id(); fw.hash is the
@@ -83,6 +84,7 @@ def test_micropython_boards_state_their_chips_id_and_the_hash_of_their_files() -
             sim.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_flash_computes_the_hash_the_flashed_board_states(tmp_path: Path) -> None:
     """``flash`` with the real mpremote into MicroPython's own REPL and filesystem
@@ -117,6 +119,7 @@ def test_flash_computes_the_hash_the_flashed_board_states(tmp_path: Path) -> Non
         sim.close()
 
 
+@pytest.mark.slow
 # ---- AVR: the id in the EEPROM, stamped at flash time ------------------------------------------
 @pytest.mark.avr
 def test_avr_id_goes_into_the_eeprom_and_survives_a_reflash(
@@ -159,6 +162,7 @@ def test_avr_id_goes_into_the_eeprom_and_survives_a_reflash(
     assert firmware_hash(image.replace(h1.encode(), FW_HASH_PLACEHOLDER.encode())) == h1
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_avr_properties_are_parsed_by_the_host_byte_for_byte(avr_build: Path) -> None:
     """The properties blob of the AVR firmware, read raw: every key once, board.id in it."""

@@ -293,6 +293,11 @@ def _board(sp: Parser) -> None:
         default=0,
         help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED)",
     )
+    _sim_options(sp)
+
+
+def _sim_options(sp: Parser) -> None:
+    """``board --sim``'s own options (a hand-written sim: its name, count, rate, clock)."""
     sp.add_argument("--name", help="board.name property (default: the sim's)")
     sp.add_argument(
         "--count",

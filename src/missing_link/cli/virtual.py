@@ -14,6 +14,37 @@ from typing import Any
 from .common import EXIT_FAIL, EXIT_USAGE
 
 
+def _sim_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``make_sim``'s keyword arguments from the command line (ValueError: a usage error)."""
+    extra: dict[str, Any] = {"name": args.name} if args.name else {}
+    if args.config_file:
+        if args.sim not in ("thesis", "encoder_servo", "rangers", "rate", "aligned"):
+            raise ValueError(f"--config-file: the {args.sim} board has no configuration")
+        extra["config_file"] = args.config_file
+    if args.rate or args.channels:
+        if args.sim not in ("rate", "aligned") or (args.channels and args.sim != "rate"):
+            raise ValueError("--rate goes with --sim rate or aligned, --channels with rate")
+        extra["rate_hz"] = args.rate or (100.0 if args.sim == "rate" else 50.0)
+        if args.sim == "rate":
+            extra["channels"] = args.channels or 1
+    drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
+    if drifting:
+        from ..virtual.clocks import DriftClock
+
+        extra["clock"] = DriftClock(
+            args.clock_offset_us or 0.0,
+            args.clock_skew_ppm or 0.0,
+            args.clock_drift_ppm_per_s or 0.0,
+            args.clock_ref_ns,
+            args.reset_at,
+        )
+    elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
+        from ..virtual.clocks import AffineClock
+
+        extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
+    return extra
+
+
 def cmd_board(args: argparse.Namespace) -> int:
     from ..virtual import BoardServer, make_sim
 
@@ -22,32 +53,7 @@ def cmd_board(args: argparse.Namespace) -> int:
     try:
         if args.runtime or args.absent or args.flash:
             raise ValueError("--runtime, --absent and --flash go with --file BOARDFILE")
-        extra: dict[str, Any] = {"name": args.name} if args.name else {}
-        if args.config_file:
-            if args.sim not in ("thesis", "encoder_servo", "rangers", "rate", "aligned"):
-                raise ValueError(f"--config-file: the {args.sim} board has no configuration")
-            extra["config_file"] = args.config_file
-        if args.rate or args.channels:
-            if args.sim not in ("rate", "aligned") or (args.channels and args.sim != "rate"):
-                raise ValueError("--rate goes with --sim rate or aligned, --channels with rate")
-            extra["rate_hz"] = args.rate or (100.0 if args.sim == "rate" else 50.0)
-            if args.sim == "rate":
-                extra["channels"] = args.channels or 1
-        drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
-        if drifting:
-            from ..virtual.clocks import DriftClock
-
-            extra["clock"] = DriftClock(
-                args.clock_offset_us or 0.0,
-                args.clock_skew_ppm or 0.0,
-                args.clock_drift_ppm_per_s or 0.0,
-                args.clock_ref_ns,
-                args.reset_at,
-            )
-        elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
-            from ..virtual.clocks import AffineClock
-
-            extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
+        extra = _sim_options(args)
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
