@@ -418,6 +418,10 @@ OUTSIDE = {
     # the board runtime runs on MicroPython (it does not ship errors.py); BreakIn is the REPL's
     # Ctrl-C on the board's own console, control flow rather than an error
     "missing_link.board.firmware.BreakIn",
+    # (the same runtime: the OSErrors its drivers raise for a part that is not the one they
+    # drive, or never gets ready, so its log names the fault: board/log.py)
+    "missing_link.board.log.NoReady",
+    "missing_link.board.log.WrongPart",
 }
 
 

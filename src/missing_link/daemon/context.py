@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..descriptors import Transducer
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..host.reactor import Reactor
 from ..ros.board_record import BoardDescription
@@ -80,3 +81,5 @@ class SessionContext:
     clock: SupervisorClock = MONOTONIC
     #: a board came up (validated, topics declared): its description, for recordings
     describe_board: Callable[[BoardDescription], None] = lambda record: None
+    #: a line of a board's log (``board_log.py``), to every publisher
+    log: Callable[[LogLine], None] = lambda line: None

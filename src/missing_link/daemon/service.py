@@ -49,7 +49,7 @@ from ..host.reactor import Reactor
 from ..logs import ErrorCounts
 from ..logs import counts as log_counts
 from ..publishers.base import Publisher, PublisherError
-from ..publishers.bus import Bus, Callback, Subscription
+from ..publishers.bus import Bus, Callback, LogCallback, Subscription
 from ..publishers.registry import make_publisher
 from ..ros.msgs import typestore_for
 from ..topics import Command
@@ -236,6 +236,13 @@ class Daemon:
                 f"no topic {topic!r}: every board is up and none has it (topics: {known})"
             )
         return self.bus.subscribe(topic, callback, queue=queue, latest=latest)
+
+    def subscribe_logs(
+        self, callback: LogCallback, board: str = "*", *, queue: int = 10_000
+    ) -> Subscription:
+        """``callback(line)`` for every line of the logs of ``board`` (a name or a pattern),
+        typed (``host/board_log.py``), as ``subscribe`` delivers (docs/board-log.md)."""
+        return self.bus.subscribe_logs(callback, board, queue=queue)
 
     def _all_boards_known(self) -> bool:
         """Every board there will be is up (no discovery adding more): a topic that none has
@@ -449,6 +456,7 @@ class Daemon:
             offer_config=self.fanout.offer_config,
             config_changed=self.fanout.config_changed,
             describe_board=self.fanout.describe_board,
+            log=self.fanout.log,
         )
 
     def _diagnostics(self) -> None:

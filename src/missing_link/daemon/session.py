@@ -111,7 +111,7 @@ class BoardSession:
         self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
-        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
+        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
@@ -358,6 +358,7 @@ class BoardSession:
                     if self.path.grid:  # the board's own account of its grid (alignment.py)
                         self.alignment.refresh(board, limit)
                     self.failsafe.refresh(board, self.settings.values, limit)
+                    self.path.log.refresh(board, limit)  # the board's log counts (board_log.py)
                 if self.prober is not None:
                     if turn.heartbeat:
                         self.prober.probe_now()  # answered (or timed out) on the reading thread

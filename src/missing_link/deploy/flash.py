@@ -31,7 +31,7 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
-    "timing.py", "failsafe.py", "wire.py", "firmware.py", "link.py",
+    "timing.py", "failsafe.py", "wire.py", "firmware.py", "link.py", "log.py",
 )  # fmt: skip
 
 
