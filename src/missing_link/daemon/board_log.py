@@ -9,7 +9,7 @@ The sample path hands every log SIF (cmd ``LOG_CMD``) here, on the board's readi
 line is decoded (``host/board_log.py``); its board stamp becomes a host time through the clock
 sync's estimate (never after the line arrived; its arrival before the first estimate); it is
 counted by level, the lines the board dropped before it (its ``dropped``) are added up, and it
-goes to ``publish`` and to the logger ``missing_link.board.<name>`` at its level (the root
+goes to ``publish`` and to the logger ``missing_link.boards.<name>`` at its level (the root
 filter of ``logs.py`` cleans and rate-limits what reaches the terminal).  A fault line (said
 once on the board) is remembered by its source and kind.
 
@@ -96,10 +96,10 @@ class BoardLogPath:
     def _emit(self, line: LogLine) -> None:
         key = LEVEL_KEYS.get(line.level, "log_error")
         self.by_level[key] += 1
-        logging.getLogger(f"missing_link.board.{line.board}").log(
-            line.level,
-            f"[{line.board}] {line.level_name} {line.text}",  # (formatted: the
-        )  # log filter tells lines apart by their text, so one line never holds back another)
+        # (formatted here: the log filter tells lines apart by their text, so one line never
+        # holds back another)
+        text = f"[{line.board}] {line.level_name} {line.text}"
+        logging.getLogger(f"missing_link.boards.{line.board}").log(line.level, text)
         self.publish(line)
 
     # ---- the board's counts ------------------------------------------------------------------

@@ -15,7 +15,7 @@ import struct
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ..board.log import LOG_CMD, SOURCE_BOARD, decode_line
 from ..text import safe_text
@@ -76,19 +76,6 @@ class LogLine:
     @property
     def level_name(self) -> str:
         return LEVELS.get(self.level, str(self.level))
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "board": self.board,
-            "level": self.level_name,
-            "text": self.text,
-            "source": self.source,
-            "kind": self.kind,
-            "board_us": self.board_us,
-            "host_ns": self.host_ns,
-            "dropped": self.dropped,
-            "earlier": self.earlier,
-        }
 
 
 def compose(source: str, kind: int, text: str, dropped: int) -> str:
