@@ -69,14 +69,6 @@ def encode_line(stamp_us, level, source, kind, dropped, text):
     return struct.pack(HEAD, stamp_us, level, source, kind, min(dropped, 0xFFFF)) + data
 
 
-def decode_line(payload):
-    # -> (board µs, level, source, kind, dropped, text bytes); ValueError when too short
-    if len(payload) < HEAD_LEN:
-        raise ValueError("a log line has a 13-byte head, got %d bytes" % len(payload))
-    stamp, level, source, kind, dropped = struct.unpack(HEAD, payload[:HEAD_LEN])
-    return stamp, level, source, kind, dropped, bytes(payload[HEAD_LEN:])
-
-
 class BoardLog:
     def __init__(self, clock, send=None):
         self.clock = clock

@@ -244,14 +244,16 @@ class BoardRuntime:
         return seq
 
     def _queue_sif(self, transducer, now):
-        self.queue_sif(transducer.tid, transducer.encode_sif(now))
+        payload = transducer.encode_sif(now)
+        frame = encode_frame(SOS, self.next_sif_seq(), transducer.tid, payload)
+        if len(self._sifs) >= SIF_QUEUE_LIMIT:
+            self._sifs.pop(0)
+            self.sifs_dropped += 1
+        self._sifs.append(frame)
 
     def _queue_log(self, payload):
-        self.queue_sif(LOG_CMD, payload)
-
-    def queue_sif(self, cmd, payload):
-        # One SIF with the board's next seq; the oldest goes (counted) when nobody drains them.
-        frame = encode_frame(SOS, self.next_sif_seq(), cmd, payload)
+        # a log line (log.py): a SIF like any other, with the same seq and the same queue
+        frame = encode_frame(SOS, self.next_sif_seq(), LOG_CMD, payload)
         if len(self._sifs) >= SIF_QUEUE_LIMIT:
             self._sifs.pop(0)
             self.sifs_dropped += 1

@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from ..board.log import LOG_CMD, SOURCE_BOARD, decode_line
+from ..board.log import HEAD, HEAD_LEN, LOG_CMD, SOURCE_BOARD
 from ..text import safe_text
 
 if TYPE_CHECKING:
@@ -84,6 +84,15 @@ def compose(source: str, kind: int, text: str, dropped: int) -> str:
     if not said and dropped:
         said = f"{dropped} log line{'s' if dropped != 1 else ''} dropped on the board (its budget)"
     return safe_text(f"{source}: {said}" if source else said, TEXT_LIMIT)
+
+
+def decode_line(payload: bytes) -> tuple[int, int, int, int, int, bytes]:
+    """A log SIF's payload -> (board µs, level, source, kind, dropped, text bytes), as
+    board/log.py's ``encode_line`` made it; ValueError when it is shorter than its head."""
+    if len(payload) < HEAD_LEN:
+        raise ValueError(f"a log line has a {HEAD_LEN}-byte head, got {len(payload)} bytes")
+    stamp, level, source, kind, dropped = struct.unpack(HEAD, payload[:HEAD_LEN])
+    return stamp, level, source, kind, dropped, bytes(payload[HEAD_LEN:])
 
 
 def parse_line(
