@@ -321,12 +321,15 @@ def test_the_daemon_says_it_everywhere_and_counts_it(
         assert early.text.startswith("probe: not answering (before this host was there; ")
         probe.flood = 100  # said now: a burst, the rest counted, the count said
         assert wait_for(lambda: any(x.dropped for x in got), 10)
-        assert wait_for(lambda: d.status()[0]["log_dropped"] == 100 - BURST, 10)
+        dropped = rt.log.dropped  # (the board's own count)
+        assert wait_for(lambda: d.status()[0]["log_dropped"] == dropped, 10)
         status = d.status()[0]
         web.set_status(d.status(), [])
     said = [x for x in got if x.text.startswith("probe: line ")]
-    assert len(said) == BURST and sum(x.dropped for x in got) == 100 - BURST
-    assert status["log_info"] == BURST and status["log_warn"] == 2  # the fault, the count
+    # the burst: 8 lines, 7 when the fault's own line took one less than 250 ms before
+    assert BURST - 1 <= len(said) <= BURST
+    assert len(said) + sum(x.dropped for x in got) == 100 == len(said) + dropped  # all counted
+    assert status["log_info"] == len(said) and status["log_warn"] == 2  # the fault, the count
     assert status["log_faults"].startswith("probe not answering x")
     assert int(status["log_faults"].split(" x")[1]) > 3  # counted on the board since
     assert f"[probe_board] WARN {early.text}" in caplog.text  # the console line (stderr)
