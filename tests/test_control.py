@@ -291,8 +291,8 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
                                "junk_bytes", "lost_sifs", "timeouts", "late_replies"]  # fmt: skip
     assert {"commands", "command_errors", "rtt_us", "warnings", "clock_epoch", "map_pushes",
             "configurable", "aligned", "failsafe_trips", "failsafe_last_trip_ms",
-            "sync_state"} <= set(st)  # fmt: skip
-    assert len(st) == 65  # (a thesis board: with its failsafe; 63 without one)
+            "sync_state", "log_warn", "log_dropped", "log_faults"} <= set(st)  # fmt: skip
+    assert len(st) == 73  # (a thesis board: with its failsafe; 71 without one)
     snap = d.snapshots()[0]  # the same, typed
     assert list(snap.to_json()) == list(st) and snap.state == "up" and snap.link.frames > 0
     assert json.loads(json.dumps(st)) == st  # plain JSON

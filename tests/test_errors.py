@@ -421,6 +421,10 @@ OUTSIDE = {
     # a virtual board's power switched off: unwinds the firmware's own loop like a power cut, a
     # BaseException so that no `except Exception` in the firmware can catch it (control flow)
     "missing_link.virtual.boardfile.PowerOff",
+    # (the same runtime: the OSErrors its drivers raise for a part that is not the one they
+    # drive, or never gets ready, so its log names the fault: board/log.py)
+    "missing_link.board.log.NoReady",
+    "missing_link.board.log.WrongPart",
 }
 
 

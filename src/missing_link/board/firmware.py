@@ -22,7 +22,7 @@
 # "\r\x03" does not stop the firmware: `missing-link flash` sends the break first
 # (docs/hardware.md, "Flashing").  Whatever stops the firmware - the break, or an exception -
 # first brings every armed actuator to its safe state and drops the timed calls (failsafe.stop),
-# so nothing it drove goes on without it.
+# so nothing it drove goes on without it; a crash is said in the log (ERROR) on its way out.
 # Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
 # ms, a timed call wants its µs.
 
@@ -33,6 +33,7 @@ from .config import RuntimeConfig
 from .drivers import driver_class
 from .failsafe import Failsafe
 from .identity import machine_id
+from .log import ERROR
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
 from .timing import Timing
@@ -126,6 +127,7 @@ def build(board, machine, clock=None, store=None):
     rt.timing = Timing(rt)  # aligned sampling, timed calls (before the configuration's keys)
     rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone (ditto)
     rt.config = RuntimeConfig(rt, store)
+    rt.add_function("a2jLogInfo", rt.log.info)  # the log's counts (log.py), last in the table
     return rt, drivers
 
 
@@ -143,7 +145,20 @@ class Firmware:
         except BaseException as e:  # noqa: BLE001 - made safe, then on its way (re-raised)
             why = "the break to the REPL" if isinstance(e, BreakIn) else "%s" % e
             self.runtime.failsafe.stop("the firmware stops: %s" % why)
+            if not isinstance(e, BreakIn):
+                self._last_words("%s: %s" % (type(e).__name__, e))
             raise
+
+    def _last_words(self, why):
+        # A crash: the host hears why (the log, ERROR), if the link still takes it.
+        rt = self.runtime
+        rt.log.line(ERROR, "the firmware stops: %s" % why)
+        try:
+            out = rt.take_output()
+            if out:
+                self.link.write(out)
+        except Exception:  # noqa: BLE001 - best effort: the firmware stops all the same
+            pass
 
     def _turn(self):
         rt = self.runtime

@@ -24,6 +24,9 @@ Per SIF:
    ``quiet``), and on each of its standard-type topics (``ros/standard``) one per sample or
    one per channel with a value, as the type is made.
 
+A log SIF (the board's log, cmd ``LOG_CMD``) counts in 1 like any SIF, then goes to the board's
+log path (``board_log.py``), which hands its lines to ``log``.
+
 The session owns the supervision (connect, serve, reconnect) and sets ``topics``,
 ``standard`` and ``sync`` at each handshake; this class owns what happens to each sample.  It
 knows nothing of the daemon: it is handed ``publish`` (every update goes there) and the offset
@@ -38,12 +41,15 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
+from ..board.log import LOG_CMD
 from ..host.board import Board
+from ..host.board_log import LogLine
 from ..j2a import SifReceived
 from ..ros.standard import StandardMapping
 from ..timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ..topics import Topic, Update
 from .alignment import off_grid
+from .board_log import BoardLogPath
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +59,14 @@ GRID_SLACK_NS = 100_000
 
 
 class SamplePath:
-    def __init__(self, publish: Callable[[Update], None], realtime_offset_ns: int) -> None:
+    def __init__(
+        self,
+        publish: Callable[[Update], None],
+        realtime_offset_ns: int,
+        log: Callable[[LogLine], None] = lambda line: None,
+    ) -> None:
         self.publish = publish
+        self.log = BoardLogPath(log, realtime_offset_ns)  #: the board's log (board_log.py)
         self.realtime_offset_ns = realtime_offset_ns
         self.name = ""  #: the board's topic name (for log lines)
         self.sync: ClockSync | None = None  #: the board's clock sync (None: none, receive times)
@@ -85,8 +97,13 @@ class SamplePath:
     def resume(self, board: Board, same_boot: bool, count: int | None) -> None:
         """At a handshake: ``same_boot`` (the board's clock epoch is the one before an outage)
         means the SIFs it sent meanwhile count as lost, modulo 256 from the seq, exactly when
-        the board can tell how many it has sent (``count``, from ``a2jSifCount``)."""
+        the board can tell how many it has sent (``count``, from ``a2jSifCount``).  The board's
+        log learns the names and reads the board's counts (a call: the supervisor's thread)."""
         self.board = board
+        lg = self.log
+        lg.name, lg.sync = self.name, self.sync
+        lg.names = {i: t.transducer.name for i, t in self.topics.items()}
+        lg.connect(board, board.properties.get("clock.epoch", ""), board.timeout)
         if self.next_seq is not None and same_boot:
             board.link.expect_sif_seq(self.next_seq)
             self._outage_count = count
@@ -119,6 +136,7 @@ class SamplePath:
             "host_time_clamps": self.host_time_clamps,
             "future_clamps": self.future_clamps,
             "off_grid_samples": self.off_grid_samples,
+            **self.log.counters(),
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
@@ -132,6 +150,9 @@ class SamplePath:
             if self._outage_count is not None:
                 lost = self._outage_loss(lost, total)
             self._total = total + 1 + lost
+        if cmd == LOG_CMD:
+            self.log.on_sif(payload, now_mono)
+            return
         topic = self.topics.get(cmd)
         if topic is None:
             self.unknown_sifs += 1

@@ -49,7 +49,7 @@ from ..host.link import CallResult
 from ..host.reactor import Reactor
 from ..logs import ErrorCounts
 from ..publishers.base import Publisher, PublisherError
-from ..publishers.bus import Bus, Callback, Subscription
+from ..publishers.bus import Bus, Callback, LogCallback, Subscription
 from ..publishers.registry import make_publisher
 from ..ros.msgs import typestore_for
 from ..topics import Command
@@ -261,6 +261,13 @@ class Daemon:
             )
         return self.bus.subscribe(topic, callback, queue=queue, latest=latest)
 
+    def subscribe_logs(
+        self, callback: LogCallback, board: str = "*", *, queue: int = 10_000
+    ) -> Subscription:
+        """``callback(line)`` for every line of the logs of ``board`` (a name or a pattern),
+        typed (``host/board_log.py``), as ``subscribe`` delivers (docs/board-log.md)."""
+        return self.bus.subscribe_logs(callback, board, queue=queue)
+
     def _all_boards_known(self) -> bool:
         """Every board there will be is up (no discovery adding more): a topic that none has
         now will not appear."""
@@ -436,6 +443,7 @@ class Daemon:
             claim_id=self.claims.claim_id,
             release_id=self.claims.release_id,
             id_conflict=self.claims.id_conflict,
+            log=self.fanout.log,
         )
 
     def _diagnostics(self) -> None:

@@ -65,8 +65,7 @@ import time
 from concurrent.futures import Future
 from typing import Any
 
-from ..descriptors import load_descriptor_file
-from ..errors import BoardError, LinkLost, MissingLinkError
+from ..errors import LinkLost, MissingLinkError
 from ..host.board import Board
 from ..host.link import CallResult
 from ..logs import ErrorCounts
@@ -78,7 +77,7 @@ from ..topics import Topic
 from .actuators import Actuators
 from .alignment import Alignment, grid_of
 from .background import Background
-from .board_topics import BoardTopics, declare_topics
+from .board_topics import BoardTopics, declare_topics, transducers_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
@@ -119,7 +118,7 @@ class BoardSession:
         self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
-        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
+        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
@@ -269,16 +268,7 @@ class BoardSession:
         board = LinkSource(spec, self.ctx.reactor, self.faults, self.mailbox).open(
             self._stop, self._own
         )
-        if spec.descriptors:
-            transducers = load_descriptor_file(spec.descriptors)
-        elif board.transducers is None:
-            raise BoardError(
-                board.name,
-                "original board without descriptors; give them with "
-                'descriptors = "FILE" in its [[board]] table',
-            )
-        else:
-            transducers = board.transducers
+        transducers = transducers_of(board.name, board.transducers, spec.descriptors or "")
         self.warnings = []
         self.identity = Identity.of(board.properties, board.url)
         twice = self.ctx.claim_id(self, self.identity.board_id, spec.url)
@@ -369,6 +359,7 @@ class BoardSession:
                     if self.path.grid:  # the board's own account of its grid (alignment.py)
                         self.alignment.refresh(board, limit)
                     self.failsafe.refresh(board, self.settings.values, limit)
+                    self.path.log.refresh(board, limit)  # the board's log counts (board_log.py)
                 if self.prober is not None:
                     if turn.heartbeat:
                         self.prober.probe_now()  # answered (or timed out) on the reading thread

@@ -142,7 +142,7 @@ def _add_entry(
 #: the C runtime's headers (firmware/avr/src)
 HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"builtins.h"', '"config.h"',
            '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
-           '"identity.h"', '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
+           '"identity.h"', '"log.h"', '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
 
 
 def _head(bf: BoardFile) -> list[str]:
@@ -265,6 +265,7 @@ FIXED_FUNCTIONS = (
     ("a2jConfigGet", "KIND_PLAIN", "config_get", "0"),
     ("a2jConfigSet", "KIND_PLAIN", "config_set", "0"),
     ("a2jConfigReset", "KIND_PLAIN", "config_reset", "0"),
+    ("a2jLogInfo", "KIND_PLAIN", "log_info", "0"),
 )
 
 
