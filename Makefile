@@ -1,4 +1,5 @@
-# missing-link: `make demo` and `make test` work on a fresh clone (Python >= 3.11, make, git).
+# missing-link: `make demo` and `make test` work on a fresh clone (Python >= 3.11, make, git);
+# `make check` is the quick inner loop (lint, types, the tests not marked slow).
 # Everything Python goes into .venv; the MicroPython test runtime comes from npm into node_modules.
 PYTHON ?= python3
 VENV   ?= .venv
@@ -17,7 +18,7 @@ ROS2_WHEELS := ros-kilted-rclpy ros-kilted-std-msgs ros-kilted-sensor-msgs \
 	ros-kilted-ament-cmake-ros-core catkin-pkg cmake
 DURATION ?= 20
 
-.PHONY: demo test lint typecheck unit bench venv node ros2 clean system-deps
+.PHONY: demo test check lint typecheck unit bench venv node ros2 clean system-deps
 
 venv: $(STAMP)
 
@@ -61,6 +62,11 @@ unit: venv system-deps node ros2
 	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(VENV)/bin/pytest -q
 
 test: lint typecheck unit
+
+# The inner loop: lint, types and the tests not marked slow (no board processes, MicroPython,
+# simavr, ROS or browsers: tests/*.py mark those), under a minute here.  `make test` runs all.
+check: lint typecheck
+	$(VENV)/bin/pytest -q -m "not slow"
 
 bench: venv ros2
 	$(PY) bench/bench_codec.py

@@ -144,7 +144,15 @@ def mcap_rate(n: int) -> tuple[float, float, float]:
     (t,) = parse_transds("transds/1\ndist_ir,1,sharp,GP2Y0A02YK,8,uint16_t,0,unit=mm\n")
     topic = Topic.for_transducer("/b/dist_ir", "b", t, "missing_link_msgs")
     updates = [
-        Update(topic, [i] * 8, [10**18 + i * 1000] * 8, [500 + i % 100] * 8, i & 0xFF, 0, i)
+        Update.build(
+            topic=topic,
+            board_us=[i] * 8,
+            host_ns=[10**18 + i * 1000] * 8,
+            values=[500 + i % 100] * 8,
+            seq=i & 0xFF,
+            lost=0,
+            recv_ns=i,
+        )
         for i in range(n)
     ]
     with tempfile.TemporaryDirectory() as tmp:

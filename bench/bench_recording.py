@@ -32,7 +32,7 @@ from missing_link.publishers.mcap import McapPublisher
 from missing_link.publishers.recover import complete_messages
 from missing_link.ros.board_record import BoardDescription
 from missing_link.ros.msgs import typestore_for
-from missing_link.ros.standard import mapping_for
+from missing_link.ros.standard import mappings_for
 from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
 
@@ -63,11 +63,14 @@ def demo_updates(seconds: float) -> tuple[list[tuple[str, Any]], int]:
             topic = Topic.for_transducer(f"/{name}/{t.name}", name, t, "missing_link_msgs")
             path.topics[t.id] = topic
             calls.append(("add_topic", topic))
-            m = mapping_for(t, name, store)
-            if m is not None:
+            try:
+                mappings = mappings_for(t, name, store)
+            except ValueError:  # (a mapping these sims cannot feed: as the daemon, none)
+                mappings = []
+            for m in mappings:
                 std = Topic.standard_type(f"/{name}/{t.name}/{m.suffix}", name, t, m.type_name,
                                           store)  # fmt: skip
-                path.standard[t.id] = (std, m)
+                path.standard.setdefault(t.id, []).append((std, m))
                 calls.append(("add_topic", std))
         calls.append(("describe", BoardDescription.of(name, "pty", [f[0] for f in rt.functions],
                       rt.properties, ts, [f"/{name}/{t.name}" for t in ts])))  # fmt: skip

@@ -202,7 +202,17 @@ def run_bus(n: int, paced_hz: float | None, queue: int = 0) -> dict[str, float]:
         if paced_hz:
             target = t0 + i / paced_hz
             pace(target)
-        bus.publish(Update(tp, [i] * 8, [now] * 8, [i] * 8, 0, 0, time.monotonic_ns()))
+        bus.publish(
+            Update.build(
+                topic=tp,
+                board_us=[i] * 8,
+                host_ns=[now] * 8,
+                values=[i] * 8,
+                seq=0,
+                lost=0,
+                recv_ns=time.monotonic_ns(),
+            )
+        )
     span = time.perf_counter() - t0
     deadline = time.monotonic() + 10
     while len(lat) + sub.dropped < n and time.monotonic() < deadline:

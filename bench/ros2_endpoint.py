@@ -52,7 +52,18 @@ def pub(n: int, hz: float) -> None:
             pace(target)
         sec, nsec = divmod(time.monotonic_ns(), 1_000_000_000)
         struct.pack_into("<iI", template, 4, sec, nsec)
-        p.publish(Update(topic, [i], [i], [500], 0, 0, 0, bytes(template)))
+        p.publish(
+            Update.build(
+                topic=topic,
+                board_us=[i],
+                host_ns=[i],
+                values=[500],
+                seq=0,
+                lost=0,
+                recv_ns=0,
+                cdr=bytes(template),
+            )
+        )
     sent_s = time.perf_counter() - t0
     time.sleep(1.0)
     p.close()

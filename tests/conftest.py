@@ -12,7 +12,7 @@ import pytest
 from missing_link.board.runtime import BoardRuntime
 from missing_link.virtual import BoardServer, make_sim, start_board_thread
 
-from .helpers import j2a_threads
+from .helpers import AvrRig, AvrSim, j2a_threads
 
 ROOT = Path(__file__).resolve().parent.parent
 AVR = ROOT / "firmware" / "avr"
@@ -84,3 +84,27 @@ def avr_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     assert r.returncode == 0, r.stdout + r.stderr
     return out
+
+
+@pytest.fixture
+def avr_rig(avr_build: Path) -> Iterator[AvrRig]:
+    """avr_rig(firmware, skew_ppm=..., rover=..., eeprom=...) -> an AvrSim running
+    ``BUILD/firmware/firmware.elf`` (``uno_rig``, ``mega_rover``, ``golden``), closed after the
+    test."""
+    sims: list[AvrSim] = []
+
+    def start(
+        firmware: str = "uno_rig",
+        *,
+        skew_ppm: float = 0.0,
+        eeprom: Path | None = None,
+        rover: bool = False,
+    ) -> AvrSim:
+        elf = avr_build / firmware / "firmware.elf"
+        sim = AvrSim(avr_build, elf, skew_ppm=skew_ppm, eeprom=eeprom, rover=rover)
+        sims.append(sim)
+        return sim
+
+    yield start
+    for sim in sims:
+        sim.close()

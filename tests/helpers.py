@@ -1,8 +1,12 @@
-"""Test helpers: a pipe transport to a board in a child process, thread checks."""
+"""Test helpers, each written once: waiting for a condition (``wait_for``), the command line
+(``ML``, ``ml``), board processes (``board_process``), the MicroPython and AVR firmware in their
+simulators (``FirmwareSim``, ``AvrSim``), a pipe transport to a board in a child process, thread
+checks."""
 
 from __future__ import annotations
 
 import ast
+import itertools
 import json
 import queue
 import shutil
@@ -105,14 +109,25 @@ def pump_lines(proc: subprocess.Popen[str], into: queue.Queue[str | None]) -> No
     threading.Thread(target=run, daemon=True).start()
 
 
-def wait_for(pred: Callable[[], object], timeout: float = 10.0) -> bool:
-    """Poll ``pred`` until it is true or ``timeout`` s passed (tests only: no thresholds)."""
+def wait_for(pred: Callable[[], object], timeout: float = 10.0, step: float = 0.02) -> bool:
+    """Poll ``pred`` every ``step`` s until it is true or ``timeout`` s passed; a last look
+    after that (tests only: the timeout is a bound on a hang, never a threshold)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if pred():
             return True
-        time.sleep(0.02)
+        time.sleep(step)
     return bool(pred())
+
+
+#: the command line as a user runs it, from this checkout with this Python
+ML = [sys.executable, "-m", "missing_link"]
+
+
+def ml(*args: str, timeout: float = 120, **kw: Any) -> subprocess.CompletedProcess[str]:
+    """``missing-link ARGS`` to its end, in a process of its own; output captured as text
+    (``kw``: more for subprocess.run, e.g. ``env``, ``input``)."""
+    return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def j2a_threads() -> list[threading.Thread]:
@@ -126,6 +141,9 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+_SIM_SEEDS = itertools.count(1000)
+
+
 class FirmwareSim:
     """The MicroPython firmware from a board file, under the real MicroPython interpreter (node,
     WebAssembly port) with simulated peripherals (src/missing_link/virtual/world), its J2A link on a
@@ -134,11 +152,20 @@ class FirmwareSim:
     ROOT = Path(__file__).resolve().parent.parent
     HOST = ROOT / "src" / "missing_link" / "virtual" / "world" / "host.mjs"
 
-    def __init__(self, board_file: Path | str, files: dict[str, Path] | None = None) -> None:
-        """``files``: put on the board's filesystem (name -> local file), as flash would."""
+    def __init__(
+        self,
+        board_file: Path | str,
+        files: dict[str, Path] | None = None,
+        args: list[str] | None = None,
+    ) -> None:
+        """``files``: put on the board's filesystem (name -> local file), as flash would;
+        ``args``: more of host.mjs's (``--seed N``, ``--lib DIR``, ``--dial HOST:PORT``)."""
         if shutil.which("node") is None:
             raise RuntimeError("node is required: run `make node`")
         extra = [x for name, path in (files or {}).items() for x in ("--file", f"{name}={path}")]
+        extra += args or []
+        if "--seed" not in extra:  # (each simulated chip its own machine.unique_id(): board.id)
+            extra += ["--seed", str(next(_SIM_SEEDS))]
         self.proc = subprocess.Popen(
             ["node", str(self.HOST), str(board_file), *extra],
             stdin=subprocess.PIPE,
@@ -245,6 +272,10 @@ class AvrSim:
                 f.close()
 
 
+#: the ``avr_rig`` fixture (conftest.py): avr_rig(firmware, skew_ppm=, eeprom=, rover=) -> AvrSim
+AvrRig = Callable[..., AvrSim]
+
+
 def read_blob_raw(exchange: Callable[[bytes], bytes], target: int, size: int) -> bytes:
     """Read a many-function's blob chunk by chunk with raw a2jMany requests (``exchange``:
     request bytes in, the board's output out), checking each reply echoes its offset and only
@@ -270,7 +301,7 @@ def read_blob_raw(exchange: Callable[[bytes], bytes], target: int, size: int) ->
 def board_process(*args: str) -> Iterator[str]:
     """``missing-link board ARGS`` on a free TCP port in a process of its own; yields its URL."""
     p = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "board", "--listen", "tcp://127.0.0.1:0", *args],
+        [*ML, "board", "--listen", "tcp://127.0.0.1:0", *args],
         stdout=subprocess.PIPE,
         text=True,
     )

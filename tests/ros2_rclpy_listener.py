@@ -4,7 +4,8 @@ is given, reads the ROS graph, optionally publishes commands, and prints one JSO
     python ros2_rclpy_listener.py --seconds 8 \
         --sub /thesis/dist_ir/range=sensor_msgs/msg/Range \
         --sub /diagnostics=diagnostic_msgs/msg/DiagnosticArray \
-        [--sensor-qos] [--cmd /thesis/servo/cmd=missing_link_msgs/msg/Servo=40]
+        [--sensor-qos] [--cmd /thesis/servo/cmd=missing_link_msgs/msg/Servo=40] \
+        [--until-text /rosout=tof]
 
 A command value VALUE@MS is a timed command: its times[0] is the host time MS ms after it is
 sent (CLOCK_REALTIME); the times sent are printed ("sent_at_ns").  It waits until every
@@ -64,7 +65,11 @@ def main() -> None:
     ap.add_argument(
         "--transient-local", action="store_true", help="ask for what was published before"
     )
+    ap.add_argument("--depth", type=int, default=1, help="history kept (--transient-local)")
     ap.add_argument("--until-value", help="TOPIC=VALUE: also wait until TOPIC carries VALUE")
+    ap.add_argument(
+        "--until-text", help="TOPIC=TEXT: also wait until a string field on TOPIC holds TEXT"
+    )
     a = ap.parse_args()
     rclpy.init()
     node = rclpy.create_node("independent_listener")
@@ -75,7 +80,7 @@ def main() -> None:
         qos: Any = qos_profile_sensor_data if a.sensor_qos else 10
         if a.transient_local:
             qos = QoSProfile(
-                depth=1,
+                depth=a.depth,
                 reliability=ReliabilityPolicy.RELIABLE,
                 durability=DurabilityPolicy.TRANSIENT_LOCAL,
             )
@@ -89,6 +94,7 @@ def main() -> None:
         pubs.append((node.create_publisher(msg_class(type_name), topic, 10), type_name, value))
     Time = importlib.import_module("builtin_interfaces.msg").Time
     wait_topic, wait_value = a.until_value.split("=") if a.until_value else (None, None)
+    text_topic, wait_text = a.until_text.split("=", 1) if a.until_text else (None, "")
     deadline = time.monotonic() + a.seconds
     next_cmd = 0.0
     while time.monotonic() < deadline:
@@ -111,6 +117,13 @@ def main() -> None:
             enough = enough and any(
                 wait_value is not None and float(wait_value) in s.get("values", [])
                 for s in got.get(wait_topic, [])
+            )
+        if text_topic is not None:
+            enough = enough and any(
+                wait_text in v
+                for s in got.get(text_topic, [])
+                for v in s.values()
+                if isinstance(v, str)
             )
         if enough:
             linger = time.monotonic() + 0.5  # what was sent alongside arrives too

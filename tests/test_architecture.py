@@ -1,4 +1,5 @@
-"""The house keeps its shape: no import circle, no file over 500 lines, imports only downward.
+"""The house keeps its shape: no import circle, no file over 500 lines, no function over 80 (in
+src/ and bench/), imports only downward.
 
 Every import counts (module level, inside functions, under ``TYPE_CHECKING``): a circle that is
 lazy at run time is still a circle for the reader.  The rooms, from the ground up (a room may
@@ -24,10 +25,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 SRC = ROOT / "src" / "missing_link"
 BENCH = ROOT / "bench"
 MAX_LINES = 500
+MAX_FUNCTION_LINES = 80
 
 FLOORS = {
     "version": 0,
@@ -172,6 +176,126 @@ def test_no_file_over_500_lines() -> None:
         if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
     }
     assert not long, f"files over {MAX_LINES} lines: {long}"
+
+
+def long_functions(paths: list[Path], limit: int = MAX_FUNCTION_LINES) -> dict[str, int]:
+    """``file:line name`` -> lines, for every function (methods and nested ones too) longer
+    than ``limit``, counted from its ``def`` (decorators aside) to its last line."""
+    found = {}
+    for path in paths:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > limit:
+                    found[f"{path.relative_to(ROOT)}:{node.lineno} {node.name}"] = n
+    return found
+
+
+#: ``path name`` of a function over the limit left for now, and why (take it out when it is split)
+WAIVED: dict[str, str] = {}
+
+
+def test_no_function_over_80_lines() -> None:
+    long = long_functions([*SRC.rglob("*.py"), *BENCH.glob("*.py")])
+    left = {k: n for k, n in long.items() if f"{k.split(':')[0]} {k.split()[-1]}" not in WAIVED}
+    assert not left, f"functions over {MAX_FUNCTION_LINES} lines: {left}"
+    gone = {w for w in WAIVED if not any(w == f"{k.split(':')[0]} {k.split()[-1]}" for k in long)}
+    assert not gone, f"waived but no longer over the limit (take them out of WAIVED): {gone}"
+
+
+def test_the_function_walk_counts_what_it_should() -> None:
+    tmp = ROOT / ".pytest_cache" / "arch_probe"
+    tmp.mkdir(parents=True, exist_ok=True)
+    path = tmp / "long.py"
+    body = "\n".join(f"        x{i} = {i}" for i in range(79))
+    path.write_text(
+        f"@dec\ndef short():\n    pass\n\nclass C:\n    def long(self):\n{body}\n"
+        "        async def inner():\n            pass\n"
+    )
+    # long: def + 79 lines + 2 of inner = 82; inner 2; short 2
+    assert long_functions([path]) == {".pytest_cache/arch_probe/long.py:6 long": 82}
+    assert long_functions([path], limit=1) == {
+        ".pytest_cache/arch_probe/long.py:2 short": 2,
+        ".pytest_cache/arch_probe/long.py:6 long": 82,
+        ".pytest_cache/arch_probe/long.py:86 inner": 2,
+    }
+
+
+#: what starts another process or a real component, by the name a test uses for it (helpers.py,
+#: conftest.py), and subprocess's verbs
+STARTS_PROCESSES = {
+    *("board_process", "start_board_process", "ml", "ML", "FirmwareSim", "HexLinePipe"),
+    *("AvrSim", "avr_rig", "avr_build", "SerialBoard", "sync_playwright", "ROS2_PY"),
+}
+SUBPROCESS = {"run", "Popen", "check_output", "check_call", "call"}
+#: quick children that make check keeps: a bare interpreter that imports the package
+QUICK_CHILDREN = {"test_architecture.py::test_the_face_imports_nothing_at_run_time"}
+
+
+def unmarked_process_tests(path: Path) -> list[str]:
+    """The tests of ``path`` that start a process (themselves, or through a function or fixture
+    of their module) without the ``slow`` mark (their own, or the module's ``pytestmark``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    funcs = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)}
+    module_slow = any(
+        isinstance(n, ast.Assign | ast.AugAssign)
+        and "pytestmark" in ast.unparse(n)
+        and "slow" in ast.unparse(n)
+        for n in tree.body
+    )
+
+    def starts(name: str, seen: frozenset[str] = frozenset()) -> bool:
+        fn = funcs[name]
+        used = {a.arg for a in fn.args.args + fn.args.kwonlyargs}
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Name):
+                used.add(node.id)
+            elif isinstance(node, ast.Attribute):
+                if ast.unparse(node.value) == "subprocess" and node.attr in SUBPROCESS:
+                    return True
+                used.add(node.attr)
+        if used & STARTS_PROCESSES:
+            return True
+        inner = (used & set(funcs)) - seen - {name}
+        return any(starts(n, seen | {name}) for n in inner)
+
+    out = []
+    for name, fn in funcs.items():
+        marked = module_slow or any("slow" in ast.unparse(d) for d in fn.decorator_list)
+        key = f"{path.name}::{name}"
+        if name.startswith("test_") and not marked and key not in QUICK_CHILDREN and starts(name):
+            out.append(key)
+    return out
+
+
+def test_tests_that_start_processes_are_marked_slow() -> None:
+    """``make check`` runs the tests not marked slow: none of them may start a board process,
+    MicroPython, simavr, ROS or a browser (docs/development.md)."""
+    here = Path(__file__).resolve().parent
+    found = [t for p in sorted(here.glob("test_*.py")) for t in unmarked_process_tests(p)]
+    assert not found, f"tests that start processes, not marked slow: {found}"
+
+
+@pytest.mark.parametrize(
+    ("source", "unmarked"),
+    [
+        ("def test_a():\n    ml('info')\n", ["probe.py::test_a"]),
+        ("import pytest\n@pytest.mark.slow\ndef test_a():\n    ml('info')\n", []),
+        ("def helper():\n    subprocess.Popen(['x'])\ndef test_a():\n    helper()\n", None),
+        ("def fix(avr_rig):\n    return 1\ndef test_a(fix):\n    pass\n", None),
+        ("pytestmark = [pytest.mark.slow]\ndef test_a(board_process):\n    pass\n", []),
+        ("def test_a(serve):\n    serve('thesis')\n", []),
+    ],
+)
+def test_the_process_walk_sees_helpers_and_fixtures(
+    source: str, unmarked: list[str] | None
+) -> None:
+    tmp = ROOT / ".pytest_cache" / "arch_probe"
+    tmp.mkdir(parents=True, exist_ok=True)
+    path = tmp / "probe.py"
+    path.write_text(source)
+    assert unmarked_process_tests(path) == (["probe.py::test_a"] if unmarked is None else unmarked)
 
 
 def test_every_room_has_a_floor() -> None:

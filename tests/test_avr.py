@@ -22,27 +22,18 @@ from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import AvrSim, read_blob_raw, wait_for
+from .helpers import AvrRig, AvrSim, read_blob_raw, wait_for
 from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
 
 ROOT = Path(__file__).resolve().parent.parent
 AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
-pytestmark = pytest.mark.avr
-
-
-@pytest.fixture(scope="module")
-def build(avr_build: Path) -> Path:
-    return avr_build
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 
 
 @pytest.fixture
-def rig(build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(build, build / "uno_rig" / "firmware.elf")
-    try:
-        yield sim
-    finally:
-        sim.close()
+def rig(avr_rig: AvrRig) -> AvrSim:
+    return avr_rig("uno_rig")
 
 
 def test_info_shows_the_descriptors_of_the_board_file(rig: AvrSim) -> None:
@@ -120,22 +111,17 @@ def test_servo_command_is_the_right_pulse_width(daemon: Rig, rig: AvrSim) -> Non
         assert period == pytest.approx(20_000, abs=1)  # 50 Hz frames, measured at the pin
 
 
-def test_clock_sync_finds_the_crystals_skew(build: Path) -> None:
+def test_clock_sync_finds_the_crystals_skew(avr_rig: AvrRig) -> None:
     """The simulated crystal runs 80 ppm fast (simulated time paced to host time x 1.00008);
     the daemon's skew estimate converges on it and its bound holds a UART link's width.  (The
     pacing itself wanders by tens of ppm over seconds on a loaded machine, and the pty bridge
     adds milliseconds of jitter: accuracy figures are the bench's business.)"""
-    sim = AvrSim(build, build / "uno_rig" / "firmware.elf", skew_ppm=80.0)
-    try:
-        with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0, uart_baud=115200)])) as d:
-            assert d.wait_until_up(20)
-            assert wait_for(lambda: abs(d.status()[0].get("skew_ppm", 0) - 80) < 30, 40), (
-                d.status()[0]
-            )
-            st = d.status()[0]
-            assert 0 < st["bound_us"] < 3000 and st["sync_resets"] == 0, st
-    finally:
-        sim.close()
+    sim = avr_rig("uno_rig", skew_ppm=80.0)
+    with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0, uart_baud=115200)])) as d:
+        assert d.wait_until_up(20)
+        assert wait_for(lambda: abs(d.status()[0].get("skew_ppm", 0) - 80) < 30, 40), d.status()[0]
+        st = d.status()[0]
+        assert 0 < st["bound_us"] < 3000 and st["sync_resets"] == 0, st
 
 
 def _frames(data: bytes) -> list[tuple[int, int, bytes]]:
@@ -181,8 +167,8 @@ def test_malformed_frames_get_the_right_error_frames(rig: AvrSim) -> None:
         t.close()
 
 
-def test_golden_vectors_against_the_avr_code(build: Path) -> None:
-    sim = AvrSim(build, build / "golden" / "firmware.elf")
+def test_golden_vectors_against_the_avr_code(avr_rig: AvrRig) -> None:
+    sim = avr_rig("golden")
     t = open_transport(sim.url)
     try:
 
@@ -214,4 +200,3 @@ def test_golden_vectors_against_the_avr_code(build: Path) -> None:
         assert now > 0
     finally:
         t.close()
-        sim.close()

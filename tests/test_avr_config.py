@@ -21,7 +21,7 @@ from .helpers import AvrSim, FirmwareSim
 
 ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
-pytestmark = pytest.mark.avr
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 
 
 def open_rig(build: Path, eeprom: Path) -> tuple[AvrSim, Board]:

@@ -18,7 +18,7 @@ from missing_link.transport import open_transport
 
 from .helpers import AvrSim
 
-pytestmark = pytest.mark.avr
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 H0 = 1_795_000_000_000_000_000
 
 

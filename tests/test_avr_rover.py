@@ -9,7 +9,6 @@ import os
 import signal
 import struct
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,19 +25,15 @@ from missing_link.host.config import ConfigRefused
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import AvrSim, FirmwareSim, wait_for
+from .helpers import ML, AvrRig, AvrSim, FirmwareSim, ml, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.avr
 
 
 @pytest.fixture
-def rig(avr_build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(avr_build, avr_build / "mega_rover" / "firmware.elf", rover=True)
-    try:
-        yield sim
-    finally:
-        sim.close()
+def rig(avr_rig: AvrRig) -> AvrSim:
+    return avr_rig("mega_rover", rover=True)
 
 
 @pytest.fixture
@@ -59,6 +54,7 @@ def motor(rig: AvrSim) -> tuple[float, int, float, int]:
     return float(a), int(da), float(b), int(db)
 
 
+@pytest.mark.slow
 def test_gps_on_the_second_uart_stamped_at_its_pps(rover: Daemon, rig: AvrSim) -> None:
     got = listen(rover, "gps")
     assert wait_for(lambda: len(got) >= 2, 10)
@@ -84,6 +80,7 @@ def test_gps_on_the_second_uart_stamped_at_its_pps(rover: Daemon, rig: AvrSim) -
     assert got[-1].values[:3] == [None, None, None]
 
 
+@pytest.mark.slow
 def test_hcsr04_echo_stamped_by_its_pin_change_interrupt(rover: Daemon, rig: AvrSim) -> None:
     got = listen(rover, "sonar")
     assert wait_for(lambda: len(got) >= 3, 5)
@@ -98,6 +95,7 @@ def test_hcsr04_echo_stamped_by_its_pin_change_interrupt(rover: Daemon, rig: Avr
     assert wait_for(lambda: len(got) >= n + 2 and got[-1].values == [None], 5)
 
 
+@pytest.mark.slow
 def test_motors_ramp_on_timer0_and_the_failsafe_stops_them(rover: Daemon, rig: AvrSim) -> None:
     got = listen(rover, "motor_l")
     rover.send("/mega_rover/motor_l/cmd", 0.5)
@@ -111,6 +109,7 @@ def test_motors_ramp_on_timer0_and_the_failsafe_stops_them(rover: Daemon, rig: A
         rover.configure("mega_rover", {"motor_l.stop": "brake"})
 
 
+@pytest.mark.slow
 def test_stepper_counts_and_the_servo_goes_limp_when_the_host_is_gone(rig: AvrSim) -> None:
     """A host drives the stepper, the motors and the servo, then goes silent: after
     failsafe_ms (300 ms for the motors, 500 for the others) the motors coast, the stepper lets
@@ -148,6 +147,7 @@ def test_stepper_counts_and_the_servo_goes_limp_when_the_host_is_gone(rig: AvrSi
         board.close()
 
 
+@pytest.mark.slow
 def test_the_daemon_says_goodbye_and_a_killed_one_trips_the_failsafe(
     avr_build: Path, rig: AvrSim, tmp_path: Path
 ) -> None:
@@ -159,16 +159,12 @@ def test_the_daemon_says_goodbye_and_a_killed_one_trips_the_failsafe(
     env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
 
     def drive() -> bool:  # through the daemon's control endpoint, as a user would
-        r = subprocess.run(
-            [sys.executable, "-m", "missing_link", "call", "mega_rover", "a2j_motor_r",
-             "--value", "0.75"],
-            capture_output=True, text=True, timeout=30, env=env,
-        )  # fmt: skip
+        r = ml("call", "mega_rover", "a2j_motor_r", "--value", "0.75", timeout=30, env=env)
         return r.returncode == 0
 
     for kill in (signal.SIGTERM, signal.SIGKILL):
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg)],
+            [*ML, "run", "--config", str(cfg)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -211,6 +207,7 @@ def test_gen_firmware_refuses_what_the_uno_cannot_do(
     assert str(f) in str(e.value) and ": x:" in str(e.value)  # names the file and the entry
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_the_same_keys_and_functions_as_the_micropython_firmware(rig: AvrSim) -> None:
     """The failsafe's and the new drivers' keys: byte for byte what the MicroPython firmware

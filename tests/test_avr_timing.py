@@ -24,19 +24,15 @@ from missing_link.timesync import OFF_GRID
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import AvrSim, wait_for
+from .helpers import AvrRig, AvrSim, wait_for
 
-pytestmark = pytest.mark.avr
+pytestmark = [pytest.mark.avr, pytest.mark.slow]
 H0 = 1_795_000_000_000_000_000 + 3_456_789  # host ns of the pushed map's reference (any epoch)
 
 
 @pytest.fixture
-def rig(avr_build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf", skew_ppm=40)
-    try:
-        yield sim
-    finally:
-        sim.close()
+def rig(avr_rig: AvrRig) -> AvrSim:
+    return avr_rig("uno_rig", skew_ppm=40)
 
 
 @pytest.fixture

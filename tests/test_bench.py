@@ -103,6 +103,7 @@ def test_a_patch_that_lands_nowhere_stops_the_bench() -> None:
     assert owner.state == 5
 
 
+@pytest.mark.slow
 def test_the_recorder_probes_at_50_hz_and_its_recording_replays(tmp_path: Path) -> None:
     def bench(*args: str) -> str:
         r = subprocess.run(

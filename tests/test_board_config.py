@@ -21,6 +21,7 @@ from missing_link.j2a.codec import SOF, encode_frame
 from missing_link.virtual import make_sim
 from missing_link.virtual.server import start_board_thread
 
+from .helpers import wait_for
 from .vectors import CONFIG_KEYS, CONFIG_VECTORS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -167,20 +168,24 @@ def test_a_disabled_transducer_sends_nothing_and_its_actuator_refuses() -> None:
             seen: list[int] = []
             board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
             board.configure({"dist_ir.enabled": False, "servo.enabled": "off"})
-            time.sleep(0.3)
             seen.clear()
-            time.sleep(0.5)
+            # two dist_us SIFs from later polls than the configure: every older SIF is here
+            wait_for(lambda: seen.count(2) >= 2)
+            seen.clear()
+            # ~0.5 s of the board's time: dist_us sends 75 SIFs/s (dist_ir 25 had it been on)
+            wait_for(lambda: seen.count(2) >= 36)
             assert 1 not in seen and 2 in seen  # no dist_ir SIF; dist_us goes on
             result = board.call("a2j_set_servo", b"\x10")
             assert result.code == 0xFF and b"disabled" in result.payload
             board.configure({"dist_ir.enabled": True})
-            time.sleep(0.3)
+            wait_for(lambda: 1 in seen)
             assert 1 in seen
     finally:
         server.stop()
         thread.join(5)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_new_rate_shows_within_one_period() -> None:
     rt = make_sim("rate", 1, rate_hz=20.0)
     server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
@@ -190,10 +195,10 @@ def test_a_new_rate_shows_within_one_period() -> None:
             board.on_sif(
                 0, lambda sif, now: stamps.append(struct.unpack_from("<Q", sif.payload)[0])
             )
-            time.sleep(0.5)
+            wait_for(lambda: len(stamps) >= 3)
             board.configure({"signal.rate_hz": 200})
             changed = rt.clock()
-            time.sleep(0.3)
+            wait_for(lambda: sum(s > changed for s in stamps) >= 40)  # (0.2 s at the new rate)
             after = [s for s in stamps if s > changed]
             assert after and after[0] - changed <= 5_000 + 2_000  # the new period (5 ms), + slack
             gaps = [b - a for a, b in itertools.pairwise(after)]

@@ -11,7 +11,6 @@ import os
 import queue
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -25,7 +24,7 @@ from missing_link.daemon.config import BoardSpec, Config
 from missing_link.deploy.boardfile import load_board_file
 from missing_link.topics import Update
 
-from .helpers import wait_for
+from .helpers import ML, ml, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARDS = sorted((ROOT / "examples" / "boards").glob("*.py"))
@@ -34,19 +33,6 @@ MPY_PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pysc
 #: drivers that report only when something changes (a switch: its level at boot goes out before
 #: any host is there); every other sensor reports by itself
 ON_CHANGE = {"digital"}
-
-
-def ml(
-    *args: str, env: dict[str, str] | None = None, cwd: Path | None = None
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=env,
-        cwd=cwd,
-    )
 
 
 class BoardProcess:
@@ -60,7 +46,7 @@ class BoardProcess:
             pytest.fail("node and the npm MicroPython package are required: run `make node`")
         self.err_path = tmp / f"{file.stem}-{runtime}-{time.monotonic_ns()}.err"
         self._err: IO[str] = self.err_path.open("w")
-        cmd = [sys.executable, "-m", "missing_link", "board", "--file", str(file)]
+        cmd = [*ML, "board", "--file", str(file)]
         cmd += ["--runtime", runtime, "--listen", listen, *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self._err, text=True)
         lines: queue.Queue[str] = queue.Queue()
@@ -232,6 +218,7 @@ def _one_line_exit_2(r: subprocess.CompletedProcess[str], *words: str) -> None:
         assert w in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
     rover = str(ROOT / "examples" / "boards" / "rover.py")
     listen = ("--listen", "tcp://127.0.0.1:0")
@@ -273,6 +260,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_micropython_without_node_says_make_node(tmp_path: Path) -> None:
     """No node on the PATH: one line saying `make node`, exit 2, before anything starts."""
     env = {**os.environ, "PATH": str(tmp_path)}  # (python itself is run by its full path)

@@ -16,6 +16,8 @@ from missing_link.deploy.avrgen import generate_avr, write_avr
 from missing_link.deploy.boardfile import BoardFile, load_board_file
 from missing_link.errors import ConfigError
 
+from .helpers import ml
+
 ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 #: C that runs at boot (.init8 is kept by the linker and runs before main), closing the string
@@ -24,12 +26,6 @@ INJECTED = (
     'a2j_set_servo"; __attribute__((naked, used, section(".init8"))) void ml_injected(void) '
     '{ DDRB = 0xFF; } static const char ml_z[] PROGMEM = "x'
 )
-
-
-def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", *args], capture_output=True, text=True, timeout=120
-    )
 
 
 def write_board(tmp_path: Path, board: dict[str, object], name: str = "board.py") -> Path:
@@ -56,6 +52,7 @@ TWO_WITH_ONE_CALL = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("board", "said"),
     [
@@ -97,16 +94,17 @@ def test_a_wrong_board_file_is_one_line_exit_2(
     with pytest.raises(ConfigError, match=None) as e:
         load_board_file(p)
     assert said in str(e.value) and str(p) in str(e.value)
-    r = cli("flash", str(p), "--dry-run")
+    r = ml("flash", str(p), "--dry-run")
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert said in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_a_board_file_that_is_no_file_is_refused_before_it_is_read(tmp_path: Path) -> None:
     big = tmp_path / "big.py"
     big.write_text("BOARD = {'name': 'a', 'transducers': []}\n" + "#" * (2 << 20))
     for path, said in (("/dev/zero", "not a regular file"), (str(big), "at most 1048576")):
-        r = cli("flash", path, "--dry-run")
+        r = ml("flash", path, "--dry-run")
         assert r.returncode == 2 and said in r.stderr and r.stderr.count("\n") == 1, r.stderr
 
 
@@ -133,6 +131,7 @@ def test_the_generator_refuses_what_no_loader_checked(tmp_path: Path) -> None:
         write_avr(BoardFile(tmp_path / "raw.py", {**board, "name": "x\nCC = evil"}), tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_code_in_a_board_file_never_compiles_into_the_avr_firmware(tmp_path: Path) -> None:
     """The whole pipeline a user runs (make -C firmware/avr, which runs gen-firmware, then

@@ -12,7 +12,7 @@ from missing_link.board.clock import WrappingClock
 from missing_link.board.runtime import INTERBYTE_TIMEOUT_US, BoardRuntime, Transducer
 from missing_link.board.wire import encode_frame as board_encode_frame
 from missing_link.board.wire import encode_frame_head, encode_frame_tail
-from missing_link.j2a import SOF, Frame, FrameDecoder, encode_frame, parse_mapping
+from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame, parse_mapping
 from missing_link.virtual.sims import original
 
 from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, SIF, VECTORS
@@ -111,8 +111,11 @@ def test_function_table_rules() -> None:
     rt.add_function("bad", lambda p: (0xF3, b""))  # reserved code: replaced by 0xFF
     rt.add_function("boom", lambda p: 1 / 0)
     rt.feed(encode_frame(SOF, 1, rt.index["bad"]) + encode_frame(SOF, 2, rt.index["boom"]))
-    a, b = frames(rt)
+    a, b, *said = frames(rt)
     assert a.opcode == 0xFF and b.opcode == 0xFF
+    # and each said once in the board's log (ERROR), after the replies (board/log.py)
+    assert [(f.kind, f.opcode, f.payload[8]) for f in said] == [(FrameKind.SOS, 0xFE, 40)] * 2
+    assert b"reserved code 243" in said[0].payload and b"ZeroDivisionError" in said[1].payload
     rt.feed(encode_frame(SOF, 3, rt.index["a2jDebug"]))
     (dbg,) = frames(rt)
     assert b"reserved" in dbg.payload and b"boom" in dbg.payload

@@ -165,6 +165,7 @@ def _past(now_us: Callable[[], int], tick: int) -> bool:
     return wait_for(lambda: now_us() >= tick + 500_000, 30)
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 @pytest.mark.parametrize("goodbye", [True, False], ids=["goodbye", "silence"])
 def test_micropython_a_timed_command_never_runs_after_the_host_has_gone(
@@ -186,6 +187,7 @@ def test_micropython_a_timed_command_never_runs_after_the_host_has_gone(
     assert mpy.ctl("result = (rt.timing.cancelled, rt.timing.done)") == (1, 0)
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_line_noise_does_not_keep_the_failsafe_from_tripping(mpy: FirmwareSim) -> None:
     board = Board(open_transport(mpy.url), timeout=5.0)
@@ -245,6 +247,7 @@ def _avr_now(rig: AvrSim) -> int:
     return int(rig.ctl("stats").split()[2])  # simulated µs (the board's clock starts after)
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 @pytest.mark.parametrize("goodbye", [True, False], ids=["goodbye", "silence"])
 def test_avr_a_timed_command_never_runs_after_the_host_has_gone(rig: AvrSim, goodbye: bool) -> None:
@@ -288,6 +291,7 @@ def _peek_u32(rig: AvrSim, symbol: str) -> int:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_avr_line_noise_does_not_keep_the_failsafe_from_tripping(rig: AvrSim) -> None:
     board = Board(open_transport(rig.url), timeout=5.0)
@@ -349,6 +353,7 @@ def test_virtual_a_bad_host_map_is_refused_and_nothing_stops() -> None:
     assert _call(rt, "a2jEcho", b"up")[1] == b"up"
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_a_bad_host_map_is_refused_and_nothing_stops(mpy: FirmwareSim) -> None:
     board = Board(open_transport(mpy.url), timeout=5.0)
@@ -363,6 +368,7 @@ def test_micropython_a_bad_host_map_is_refused_and_nothing_stops(mpy: FirmwareSi
         board.close()
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_avr_a_bad_host_map_is_refused_and_nothing_stops(rig: AvrSim) -> None:
     board = Board(open_transport(rig.url), timeout=5.0)
@@ -375,6 +381,7 @@ def test_avr_a_bad_host_map_is_refused_and_nothing_stops(rig: AvrSim) -> None:
         board.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_line_noise_does_not_stop_the_firmware_and_the_break_makes_it_safe(
     mpy: FirmwareSim,
@@ -404,6 +411,7 @@ def test_micropython_line_noise_does_not_stop_the_firmware_and_the_break_makes_i
     assert "failsafe: servo safe (the firmware stops: the break to the REPL);" in debug
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_micropython_a_crash_makes_the_actuators_safe_first(mpy: FirmwareSim) -> None:
     board = Board(open_transport(mpy.url), timeout=5.0)

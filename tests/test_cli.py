@@ -14,16 +14,9 @@ import pytest
 
 from missing_link.virtual.process import start_board_process, stop_process
 
+from .helpers import ml
+
 pytestmark = pytest.mark.slow
-
-
-def ml(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 @pytest.fixture(scope="module")

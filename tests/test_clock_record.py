@@ -120,6 +120,7 @@ def test_the_estimate_follows_how_well_the_offset_is_pinned(
     assert err <= pinned  # and the estimate still covers the offset's true error here
 
 
+@pytest.mark.slow
 def test_recorded_exchanges_retime_the_run_offline(tmp_path: Path) -> None:
     """A board process with a known clock over a pty, recorded: every update carries a bound
     and an estimated error; the bag (read with rosbags) has the board's clock record, whose

@@ -11,8 +11,6 @@ import os
 import re
 import stat
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -22,15 +20,10 @@ from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_con
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import wait_for
-
-ML = [sys.executable, "-m", "missing_link"]
+from .helpers import ML, ml, wait_for
 
 
-def cli(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, env=env, timeout=60)
-
-
+@pytest.mark.slow
 def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_path: Path) -> None:
     """[boards.<name>.config] at every connect; a board that resets (its clock starts over, the
     link stays) forgot them, and gets them again; the topic's rate follows."""
@@ -57,7 +50,8 @@ def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_pat
             assert wait_for(lambda: d.status()[0]["sync_resets"] >= 1, 10)  # the board reset
             assert wait_for(lambda: "board reset" in d.status()[0]["config_changed_by"], 5)
             assert d.board_config("thesis")["servo.min_deg"] == -45
-            time.sleep(1.0)
+            n = len(got)
+            wait_for(lambda: len(got) >= n + 5, 10)  # (the first of them perhaps on its way)
             recent = [u.board_us[0] for u in got[-4:]]
             gaps = [b - a for a, b in itertools.pairwise(recent)]
             assert all(150_000 <= g <= 250_000 for g in gaps), gaps  # 5 Hz after the reset too
@@ -65,6 +59,7 @@ def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_pat
         stop_process(proc)
 
 
+@pytest.mark.slow
 def test_bad_keys_in_the_config_file_are_a_warning_and_the_board_runs() -> None:
     proc, url = start_board_process("thesis", 3, "pty")
     try:
@@ -84,7 +79,7 @@ def test_bad_keys_in_the_config_file_are_a_warning_and_the_board_runs() -> None:
     ("doc", "said"),
     [
         ({"boards": {"Thesis": {"config": {}}}}, "not a board name"),
-        ({"boards": {"thesis": {"cfg": {}}}}, "has two tables: config and ros"),
+        ({"boards": {"thesis": {"cfg": {}}}}, "has two tables, config and ros"),
         ({"boards": {"thesis": {"config": {"rate": 1}}}}, "<transducer>.<key>"),
         ({"boards": {"thesis": {"config": {"a.b": [1]}}}}, "expected a value"),
         ({"daemon": {"control": "relative.sock"}}, "absolute path"),
@@ -95,6 +90,7 @@ def test_config_file_errors_name_the_table_and_key(doc: dict[str, object], said:
         parse_config(doc, "robot.toml")
 
 
+@pytest.mark.slow
 def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     """The daemon holds a pty board (its serial port locked); info, call and config by URL
     and by name go through the daemon's control endpoint (a 0600 socket in a 0700 directory),
@@ -114,27 +110,27 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
         assert wait_for(lambda: control.exists(), 15)
         assert stat.S_IMODE(os.stat(control).st_mode) == 0o600
         assert stat.S_IMODE(os.stat(control.parent).st_mode) == 0o700
-        r = cli("info", url, "--json", env=env)
+        r = ml("info", url, "--json", env=env)
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["name"] == "thesis"  # (not "Could not exclusively lock")
-        r = cli("call", "thesis", "a2jEcho", "--hex", "0102", "--json", env=env)
+        r = ml("call", "thesis", "a2jEcho", "--hex", "0102", "--json", env=env)
         assert r.returncode == 0 and json.loads(r.stdout)["payload"] == "0102", r.stderr
-        r = cli("config", url, "dist_ir.rate_hz=4", "servo.enabled=false", env=env)
+        r = ml("config", url, "dist_ir.rate_hz=4", "servo.enabled=false", env=env)
         assert r.returncode == 0, r.stderr
         shown = dict(re.split(r"\s+= ", line, maxsplit=1) for line in r.stdout.splitlines())
         assert shown["dist_ir.rate_hz"] == "4" and shown["servo.enabled"] == "false", r.stdout
-        r = cli("config", "thesis", "dist_ir.rate_hz=40", env=env)
+        r = ml("config", "thesis", "dist_ir.rate_hz=40", env=env)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "0.1..26" in r.stderr
-        r = cli("config", "thesis", "servo.min_deg=50", "servo.max_deg=10", env=env)
+        r = ml("config", "thesis", "servo.min_deg=50", "servo.max_deg=10", env=env)
         assert r.returncode == 2 and "min_deg < max_deg" in r.stderr, r.stderr
-        r = cli("config", "thesis", "--json", "-v", env=env)
+        r = ml("config", "thesis", "--json", "-v", env=env)
         got = json.loads(r.stdout)
         assert got["values"]["dist_ir.rate_hz"] == 4.0 and got["values"]["servo.min_deg"] == -90
         assert got["state"] == "changed" and got["keys"][0]["allowed"] == "true or false"
-        r = cli("call", "thesis", "a2j_set_servo", "--value", "10", env=env)
+        r = ml("call", "thesis", "a2j_set_servo", "--value", "10", env=env)
         assert r.returncode == 1 and "disabled" in r.stderr, r.stderr
-        r = cli("config", "nosuchboard", env=env)
+        r = ml("config", "nosuchboard", env=env)
         assert r.returncode == 2 and "not a board URL" in r.stderr
     finally:
         daemon.terminate()
@@ -143,6 +139,7 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     assert not control.exists(), err  # removed when the daemon stops
 
 
+@pytest.mark.slow
 def test_daemon_call_and_configure_from_python() -> None:
     proc, url = start_board_process("thesis", 6, "pty")
     try:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import ast
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +19,8 @@ from missing_link.daemon.control import runtime_dir
 from missing_link.errors import DescriptorError
 from missing_link.publishers.registry import BUILTIN, OPTIONS
 
+from .helpers import ml
+
 ROOT = Path(__file__).resolve().parent.parent
 PUBLISHERS = ROOT / "src" / "missing_link" / "publishers"
 
@@ -27,14 +28,10 @@ PUBLISHERS = ROOT / "src" / "missing_link" / "publishers"
 def run_config(tmp_path: Path, text: str) -> subprocess.CompletedProcess[str]:
     cfg = tmp_path / "ml.toml"
     cfg.write_text(text)
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--config", str(cfg), "--duration", "1"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    return ml("run", "--config", str(cfg), "--duration", "1", timeout=60)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("text", "said"),
     [
@@ -104,6 +101,7 @@ def test_the_known_keys_are_the_keys_each_publisher_reads() -> None:
         assert set(OPTIONS[name]) - read <= {"distro", "node"}, (name, set(OPTIONS[name]) - read)
 
 
+@pytest.mark.slow
 def test_a_descriptor_file_that_is_a_device_or_huge_is_refused_at_once(tmp_path: Path) -> None:
     big = tmp_path / "big.toml"
     big.write_bytes(b"#" * (2 << 20))
@@ -119,15 +117,11 @@ def test_a_descriptor_file_that_is_a_device_or_huge_is_refused_at_once(tmp_path:
             Daemon(cfg)
     r = run_config(tmp_path, '[[board]]\nurl = "tcp://127.0.0.1:9"\ndescriptors = "/dev/zero"\n')
     assert r.returncode == 2 and "not a regular file" in r.stderr and r.stderr.count("\n") == 1
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--config", "/dev/zero"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = ml("run", "--config", "/dev/zero", timeout=60)
     assert r.returncode == 2 and "/dev/zero: refused: not a regular file" in r.stderr
 
 
+@pytest.mark.slow
 def test_control_creates_no_directory(tmp_path: Path) -> None:
     where = tmp_path / "made" / "by" / "the" / "config"
     with pytest.raises(ConfigError, match="does not exist"):

@@ -35,7 +35,7 @@ from missing_link.errors import ConfigError, MissingLinkError
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
 
-from .helpers import wait_for
+from .helpers import ml, wait_for
 
 Serve = Callable[..., Any]
 FIND = {"op": "find", "board": "x"}
@@ -82,6 +82,7 @@ def test_the_endpoint_makes_no_directory_but_its_own(tmp_path: Path) -> None:
     assert not (tmp_path / "a").exists()
 
 
+@pytest.mark.slow
 def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
     """Another user made the directory first and answers on it with lies: the client asks
     nothing there, and the daemon does not bind there (it runs without the endpoint)."""
@@ -106,10 +107,7 @@ def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
         with pytest.raises(NotOurs, match=f"the socket belongs to uid {NOBODY}"):
             ask(path, FIND, 1.0)
         env = {**os.environ, "MISSING_LINK_CONTROL": path}
-        cli = subprocess.run(
-            [sys.executable, "-m", "missing_link", "call", "robot", "a2jEcho"],
-            capture_output=True, text=True, timeout=30, env=env,
-        )  # fmt: skip
+        cli = ml("call", "robot", "a2jEcho", timeout=30, env=env)
         assert cli.returncode != 0 and "Traceback" not in cli.stderr
         assert "the socket belongs to uid" in cli.stderr and len(cli.stderr.splitlines()) == 1
     finally:
@@ -144,6 +142,7 @@ for line in sys.stdin:
 """
 
 
+@pytest.mark.slow
 def test_the_endpoint_recovers_once_descriptors_are_free(tmp_path: Path) -> None:
     """Every descriptor of the daemon's process taken: accepting fails (EMFILE) and is tried
     again, so the endpoint answers once some are free.  (A thread blocked in accept holds one
@@ -224,6 +223,7 @@ def test_call_timeouts_are_checked_and_clamped() -> None:
             call_timeout(bad)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_idle_clients_do_not_lock_others_out(held: Any) -> None:
     _d, path = held
     idle = []
@@ -251,6 +251,7 @@ def test_idle_clients_do_not_lock_others_out(held: Any) -> None:
 
 
 # ---- the allow-list ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_control_call_keeps_the_allow_list(held: Any) -> None:
     d, path = held
     servo: list[Update] = []
@@ -268,10 +269,7 @@ def test_a_control_call_keeps_the_allow_list(held: Any) -> None:
         d.send("/thesis/servo/cmd", 40)
     assert ask(path, {**call, "function": "a2jEcho"})["code"] == 0xBA  # moving nothing: fine
     env = {**os.environ, "MISSING_LINK_CONTROL": path}
-    cli = subprocess.run(
-        [sys.executable, "-m", "missing_link", "call", "thesis", "a2j_set_servo", "--value", "40"],
-        capture_output=True, text=True, timeout=30, env=env,
-    )  # fmt: skip
+    cli = ml("call", "thesis", "a2j_set_servo", "--value", "40", timeout=30, env=env)
     assert cli.returncode != 0 and "not in [daemon] commands" in cli.stderr
     assert "Traceback" not in cli.stderr
     time.sleep(0.3)
@@ -293,8 +291,8 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
                                "junk_bytes", "lost_sifs", "timeouts", "late_replies"]  # fmt: skip
     assert {"commands", "command_errors", "rtt_us", "warnings", "clock_epoch", "map_pushes",
             "configurable", "aligned", "failsafe_trips", "failsafe_last_trip_ms",
-            "sync_state"} <= set(st)  # fmt: skip
-    assert len(st) == 61  # (a thesis board: with its failsafe; 59 without one)
+            "sync_state", "log_warn", "log_dropped", "log_faults"} <= set(st)  # fmt: skip
+    assert len(st) == 73  # (a thesis board: with its failsafe; 71 without one)
     snap = d.snapshots()[0]  # the same, typed
     assert list(snap.to_json()) == list(st) and snap.state == "up" and snap.link.frames > 0
     assert json.loads(json.dumps(st)) == st  # plain JSON

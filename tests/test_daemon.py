@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -21,16 +20,9 @@ from missing_link.daemon.config import BoardSpec, Config, ConfigError, load_conf
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
+from .helpers import ML, ml, wait_for
+
 Serve = Any
-
-
-def wait_for(pred: Any, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def test_two_lines_give_an_application_its_board(serve: Serve) -> None:
@@ -89,6 +81,7 @@ def test_pattern_subscription_and_remap(serve: Serve) -> None:
         assert "/front/quad" not in names
 
 
+@pytest.mark.slow
 def test_broken_board_does_not_stop_others_and_reconnects(serve: Serve) -> None:
     good = serve("rangers")
     proc, url = start_board_process("encoder_servo", 2, "tcp://127.0.0.1:0")
@@ -166,13 +159,14 @@ def test_recording_read_back_by_independent_readers(serve: Serve, tmp_path: Path
         assert reader2.get_header().profile == "ros2"
 
 
+@pytest.mark.slow
 def test_crashed_recording_is_recovered(tmp_path: Path) -> None:
     """A daemon process killed with SIGKILL mid-recording: recover salvages its messages."""
     proc, url = start_board_process("thesis", 4, "pty")
     rec = tmp_path / "rec"
     try:
         daemon = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", url, "--record", str(rec), "-p", "bus"],
+            [*ML, "run", url, "--record", str(rec), "-p", "bus"],
             stderr=subprocess.PIPE,
             text=True,
         )
@@ -189,12 +183,7 @@ def test_crashed_recording_is_recovered(tmp_path: Path) -> None:
         stop_process(proc)
     (bag,) = [p for p in rec.iterdir() if p.is_dir()]
     assert not (bag / "metadata.yaml").exists()  # the writer never finished
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "recover", str(bag)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = ml("recover", str(bag), timeout=60)
     assert r.returncode == 0, r.stderr
     count = int(r.stdout.split()[1])
     assert count > 100
@@ -206,26 +195,12 @@ def test_crashed_recording_is_recovered(tmp_path: Path) -> None:
         assert len(reader.deserialize(raw, conn.msgtype).values) == 2
 
 
+@pytest.mark.slow
 def test_clean_shutdown_on_sigterm_writes_complete_bag(tmp_path: Path) -> None:
     proc, url = start_board_process("rangers", 4, "pty")
     rec = tmp_path / "rec"
     try:
-        r = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "missing_link",
-                "run",
-                url,
-                "--record",
-                str(rec),
-                "--duration",
-                "1.5",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        r = ml("run", url, "--record", str(rec), "--duration", "1.5", timeout=60)
     finally:
         stop_process(proc)
     assert r.returncode == 0, r.stderr
@@ -285,7 +260,6 @@ def test_no_threads_left_after_stop(serve: Serve) -> None:
     server = serve("thesis")
     with Daemon(Config(boards=[BoardSpec(server.url)], publishers=["bus", "console"])) as d:
         assert d.wait_until_up()
-    time.sleep(0.1)
     left = [
         t.name
         for t in threading.enumerate()

@@ -4,10 +4,13 @@ declared topics) against a real virtual board."""
 
 from __future__ import annotations
 
+import logging
 import struct
 import time
 from collections.abc import Callable
 from typing import Any
+
+import pytest
 
 from missing_link.daemon.claims import Claims
 from missing_link.daemon.config import BoardSpec, Config
@@ -19,6 +22,7 @@ from missing_link.descriptors import Transducer, parse_transds
 from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
 from missing_link.ros.msgs import typestore_for
+from missing_link.ros.standard import StandardMapping
 from missing_link.timesync.sync import NOT_SYNCED, ClockSync, SyncOptions
 from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
@@ -106,6 +110,51 @@ def test_the_sample_path_publishes_into_a_list() -> None:
     counters = path.counters()
     assert counters["unknown_sifs"] == 1 and counters["bad_sifs"] == 1
     assert counters["host_time_clamps"] == 1 and counters["samples"] == 3
+
+
+def test_an_update_is_built_by_keyword_only() -> None:
+    """Board stamps and host times are both lists of ints: built by position they could swap
+    silently, so ``Update.build`` takes keywords and ``Update(...)`` takes nothing."""
+    (t,) = parse_transds("transds/1\nx,1,p,M,2,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    with pytest.raises(TypeError):
+        Update(topic, [1, 2], [5, 9], [20, 21], 0, 0, 0)  # type: ignore[call-arg]
+    u = Update.build(
+        topic=topic, board_us=[1, 2], host_ns=[5, 9], values=[20, 21], seq=3, lost=1, recv_ns=7
+    )
+    assert (u.board_us, u.host_ns, u.values, u.seq, u.lost, u.recv_ns) == (
+        [1, 2],
+        [5, 9],
+        [20, 21],
+        3,
+        1,
+        7,
+    )
+    assert (u.stamp_ns, u.bound_ns, u.est_error_ns, u.clock_flags) == (9, -1, -1, 0)
+
+
+def test_a_value_a_standard_type_cannot_carry_is_counted_and_said_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    published: list[Update] = []
+    path = SamplePath(published.append, realtime_offset_ns=0)
+    (t,) = parse_transds("transds/1\nx,1,p,M,1,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    std = Topic.for_transducer("/b/x/std", "b", t, "missing_link_msgs")
+
+    def refuse(ch: int, host_ns: int, value: Any) -> bytes:
+        raise ValueError(f"{value} is out of range")
+
+    path.topics[1] = topic
+    path.standard[1] = [(std, StandardMapping("sensor_msgs/msg/Range", "std", refuse))]
+    now = time.monotonic()
+    with caplog.at_level(logging.WARNING, logger="missing_link.daemon.sample_path"):
+        for seq in range(3):
+            path.on_sif(SifReceived(1, seq, struct.pack("<Qh", 5 + seq, 7), 0), now)
+    assert [u.topic for u in published] == [topic] * 3  # the sample itself still goes out
+    assert path.counters()["bad_sifs"] == 3
+    (said,) = [r for r in caplog.records if "cannot carry" in r.getMessage()]
+    assert said.exc_info is not None and "out of range" in str(said.exc_info[1])
 
 
 def test_a_prober_reports_through_its_context(serve: Serve) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -23,7 +22,7 @@ from missing_link.daemon.config import (
 from missing_link.daemon.discovery import PortMatcher
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import wait_for
+from .helpers import ml, wait_for
 
 PICO = 0x2E8A
 
@@ -75,6 +74,7 @@ def boards() -> Iterator[Callable[[str], tuple[subprocess.Popen[str], str]]]:
         stop_process(p)
 
 
+@pytest.mark.slow
 def test_boards_appear_vanish_and_come_back(boards) -> None:  # type: ignore[no-untyped-def]
     ports = Ports()
     spec = DiscoverSpec(ports=["/dev/pts/*"], vid=PICO, interval=0.1, probe_timeout=1.0)
@@ -121,13 +121,9 @@ def test_discover_table_in_the_config() -> None:
         parse_config({"discover": {"pattern": "x"}})
 
 
+@pytest.mark.slow
 def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--duration", "1.5"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = ml("run", "--auto", "--duration", "1.5", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "discovering boards on /dev/ttyACM* /dev/ttyUSB* usb://*" in r.stderr
 
@@ -147,6 +143,7 @@ def test_usb_devices_with_the_j2a_interface_are_listed() -> None:
     assert PortMatcher(DiscoverSpec()).update(ports)[0] == ports  # matched by default
 
 
+@pytest.mark.slow
 def test_a_kick_lists_at_once_and_udev_events_are_watched(boards) -> None:  # type: ignore[no-untyped-def]
     """With a 30 s listing interval a board still comes up at once when something kicks the
     loop (what udev's add/remove events do through pyudev; a container sends none, so the kick
@@ -181,22 +178,26 @@ def test_by_default_only_known_j2a_boards_are_probed() -> None:
         parse_config({"discover": {"ids": ["nope"]}})
 
 
+@pytest.mark.slow
 def test_run_auto_takes_the_filters_and_says_what_it_probes() -> None:
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "2341:*",
-         "--port", "/dev/ttyACM*", "--duration", "0.5"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+    r = ml(
+        "run",
+        "--auto",
+        "--usb-id",
+        "2341:*",
+        "--port",
+        "/dev/ttyACM*",
+        "--duration",
+        "0.5",
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     assert "discovering boards on /dev/ttyACM* (USB 2341:*)" in r.stderr
-    r = subprocess.run(
-        [sys.executable, "-m", "missing_link", "run", "--auto", "--usb-id", "zz",
-         "--duration", "1"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+    r = ml("run", "--auto", "--usb-id", "zz", "--duration", "1", timeout=60)
     assert r.returncode == 2 and "--usb-id 'zz' is not a USB id" in r.stderr
 
 
+@pytest.mark.slow
 def test_opening_a_serial_port_keeps_dtr_when_it_closes(boards) -> None:  # type: ignore[no-untyped-def]
     """HUPCL is cleared on open, so closing (a probe, a reconnect) leaves DTR as it is and the
     next open makes no edge (a pty carries no DTR line: the flag is what can be checked here)."""

@@ -9,11 +9,12 @@ import os
 import signal
 import struct
 import subprocess
-import sys
 import time
 from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, cast
+
+import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
@@ -22,7 +23,7 @@ from missing_link.host.board import Board
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.virtual import make_sim
 
-from .helpers import board_process, wait_for
+from .helpers import ML, board_process, ml, wait_for
 
 
 class Clock:
@@ -80,6 +81,7 @@ def test_an_actuator_goes_safe_after_its_silence_and_on_goodbye() -> None:
     assert "the host said goodbye" in call(rt, "a2jDebug")[1].decode()
 
 
+@pytest.mark.slow
 def test_the_daemon_keeps_a_quiet_link_alive() -> None:
     """Nothing commanded for 2 s: the daemon's keepalive (a third of the shortest failsafe_ms)
     keeps the board from tripping; the status shows the board's count."""
@@ -95,6 +97,7 @@ def test_the_daemon_keeps_a_quiet_link_alive() -> None:
         assert d.status()[0]["failsafe_trips"] == 0
 
 
+@pytest.mark.slow
 def test_a_killed_daemon_trips_the_failsafe(tmp_path: Path) -> None:
     with board_process("--sim", "thesis") as url:
         cfg = tmp_path / "d.toml"
@@ -103,21 +106,15 @@ def test_a_killed_daemon_trips_the_failsafe(tmp_path: Path) -> None:
             f'[[board]]\nurl = "{url}"\n[boards.thesis.config]\n"servo.safe" = "limp"\n'
         )
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg)],
+            [*ML, "run", "--config", str(cfg)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
         )
         env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
         try:
-            assert wait_for(
-                lambda: subprocess.run(
-                    [sys.executable, "-m", "missing_link", "call", "thesis", "a2j_set_servo",
-                     "--value", "40"],
-                    capture_output=True, timeout=30, env=env,
-                ).returncode == 0,
-                30,
-            )  # fmt: skip
+            servo = ("call", "thesis", "a2j_set_servo", "--value", "40")
+            assert wait_for(lambda: ml(*servo, timeout=30, env=env).returncode == 0, 30)
             time.sleep(0.5)
             p.send_signal(signal.SIGKILL)
             p.wait(10)

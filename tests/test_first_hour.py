@@ -12,7 +12,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,13 +19,7 @@ from typing import Any
 
 import pytest
 
-from .helpers import board_process, wait_for
-
-ML = [sys.executable, "-m", "missing_link"]
-
-
-def ml(*args: str, timeout: float = 60, **kw: Any) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout, **kw)
+from .helpers import ML, board_process, ml, wait_for
 
 
 @contextmanager
@@ -46,6 +39,7 @@ def tmpfs(where: Path, size: str) -> Iterator[Path]:
 
 
 # ---- 1. a full disk: recorded + dropped, and recover restores exactly the recorded ------------
+@pytest.mark.slow
 def test_a_full_disk_counts_every_message_it_could_not_keep(tmp_path: Path) -> None:
     with (
         tmpfs(tmp_path / "disk", "1m") as disk,
@@ -73,6 +67,7 @@ def free_tcp_url() -> str:
         return f"tcp://127.0.0.1:{s.getsockname()[1]}"
 
 
+@pytest.mark.slow
 def test_run_exits_0_when_its_boards_ran() -> None:
     with board_process("--sim", "rangers") as url:
         r = ml("run", url, "--duration", "2", "-p", "bus")
@@ -80,6 +75,7 @@ def test_run_exits_0_when_its_boards_ran() -> None:
     assert "never up" not in r.stderr
 
 
+@pytest.mark.slow
 def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
     url = free_tcp_url()
     with board_process("--sim", "rangers") as good:
@@ -90,7 +86,9 @@ def test_run_exits_1_when_nothing_listens_at_a_board_it_was_given() -> None:
     assert "Connection refused" in line and "Traceback" not in r.stderr
 
 
-def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
+@pytest.mark.slow
+def test_run_exits_1_when_another_daemon_holds_the_port(tmp_path: Path) -> None:
+    env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
     board = subprocess.Popen(
         [*ML, "board", "--sim", "rangers", "--listen", "pty"], stdout=subprocess.PIPE, text=True
     )
@@ -98,12 +96,15 @@ def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
         assert board.stdout is not None
         url = board.stdout.readline().split()[1]
         first = subprocess.Popen(
-            [*ML, "run", url, "--duration", "8", "-p", "bus", "--wait-up", "5"],
+            [*ML, "run", url, "--duration", "60", "-p", "bus", "--wait-up", "30"],
             stderr=subprocess.PIPE,
             text=True,
+            env=env,
         )
         try:
-            time.sleep(2.5)  # the first daemon has the port (serial ports are locked exclusively)
+            # the first daemon has the port (serial ports are locked exclusively): its board is
+            # up, asked through its control endpoint
+            wait_for(lambda: ml("info", "board_b", timeout=30, env=env).returncode == 0, 60)
             r = ml("run", url, "--duration", "2", "-p", "bus")
         finally:
             first.terminate()
@@ -116,12 +117,16 @@ def test_run_exits_1_when_another_daemon_holds_the_port() -> None:
     assert line.startswith(f"missing-link: error: {url}: never up: ") and "lock" in line
 
 
-def test_run_exits_2_on_bad_input_and_130_on_ctrl_c() -> None:
+@pytest.mark.slow
+def test_run_exits_2_on_bad_input_and_130_on_ctrl_c(tmp_path: Path) -> None:
     r = ml("run", "bogus://x", "--duration", "1")
     assert r.returncode == 2 and "unknown transport 'bogus'" in r.stderr
     with board_process("--sim", "rangers") as url:
-        p = subprocess.Popen([*ML, "run", url, "-p", "bus"], stderr=subprocess.PIPE, text=True)
-        time.sleep(2.0)
+        env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
+        p = subprocess.Popen(
+            [*ML, "run", url, "-p", "bus"], stderr=subprocess.PIPE, text=True, env=env
+        )
+        wait_for(lambda: ml("info", "board_b", timeout=30, env=env).returncode == 0, 60)  # up
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=20)
     assert p.returncode == 130, err
@@ -129,6 +134,7 @@ def test_run_exits_2_on_bad_input_and_130_on_ctrl_c() -> None:
 
 
 # ---- 3. create-msgs for a daemon with several boards --------------------------------------------
+@pytest.mark.slow
 def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
     tmp_path: Path,
 ) -> None:
@@ -169,6 +175,7 @@ def test_create_msgs_writes_every_boards_types_named_as_the_daemon_names_them(
     assert daemon_types <= set(second[1])
 
 
+@pytest.mark.slow
 def test_create_msgs_qualifies_a_differing_type_like_the_daemon(tmp_path: Path, serve: Any) -> None:
     from missing_link.daemon import Daemon
     from missing_link.daemon.config import BoardSpec, Config
@@ -223,6 +230,7 @@ def test_subscribing_before_the_board_is_up_is_fine(serve: Any) -> None:
         d.subscribe("/thesis/quad", lambda u: None)  # the board may come up later
 
 
+@pytest.mark.slow
 def test_call_value_is_what_send_sends_and_board_text_is_text(serve: Any) -> None:
     """``call --value 40`` packs 40 as the servo's int8 (``--hex 40`` is 0x40 = 64); a
     board's error text is shown as text, in the one error line too."""
@@ -254,10 +262,13 @@ def test_console_shows_scaled_values_in_their_unit() -> None:
     )
     out = io.StringIO()
     topic = Topic.for_transducer("/b/servo", "b", servo, "missing_link_msgs")
-    ConsolePublisher({}, out=out).publish(Update(topic, [1], [5], [20], 0, 0, 0))
+    ConsolePublisher({}, out=out).publish(
+        Update.build(topic=topic, board_us=[1], host_ns=[5], values=[20], seq=0, lost=0, recv_ns=0)
+    )
     assert out.getvalue().rstrip().endswith("/b/servo [14.17] deg (raw [20])")
 
 
+@pytest.mark.slow
 def test_a_failed_connect_names_its_board_once_and_prints_nothing_else() -> None:
     probe = (
         "import missing_link\n"
@@ -273,6 +284,7 @@ def test_a_failed_connect_names_its_board_once_and_prints_nothing_else() -> None
     assert line.count(url) == 1 and "not up within 1.5 s: cannot connect" in line
 
 
+@pytest.mark.slow
 def test_zenoh_says_where_it_is_and_that_nothing_answers() -> None:
     with board_process("--sim", "rangers") as url:
         port = free_tcp_url().rsplit(":", 1)[1]

@@ -41,6 +41,7 @@ def _imus(n: int) -> dict[str, object]:
                             for i in range(n)]}  # fmt: skip
 
 
+@pytest.mark.slow
 def test_flash_refuses_a_micropython_board_file_too_big_for_its_heap(tmp_path: Path) -> None:
     big = tmp_path / "big.py"
     big.write_text("BOARD = " + json.dumps(_imus(60)) + "\n")
@@ -78,6 +79,7 @@ def test_a_board_file_just_over_a_picos_heap_is_refused_and_just_under_is_not(
 
 
 @pytest.mark.micropython
+@pytest.mark.slow
 def test_the_heap_table_is_what_the_simulator_measures() -> None:
     """deploy/heap.py's figures, measured again (virtual/world/heapprobe.mjs): each within 10 %
     or 256 bytes (a driver that grew means the table is due again: heap.measure)."""
@@ -96,6 +98,7 @@ def test_the_heap_table_is_what_the_simulator_measures() -> None:
 
 
 @pytest.mark.avr
+@pytest.mark.slow
 def test_gen_firmware_refuses_an_avr_board_file_too_big_with_the_numbers(tmp_path: Path) -> None:
     bf = tmp_path / "uno_motor.py"
     bf.write_text(UNO_AND_A_MOTOR)
@@ -110,6 +113,7 @@ def test_gen_firmware_refuses_an_avr_board_file_too_big_with_the_numbers(tmp_pat
 
 
 @pytest.mark.avr
+@pytest.mark.slow
 def test_flash_refuses_an_avr_board_file_too_big_before_avrdude(tmp_path: Path) -> None:
     bf = tmp_path / "uno_motor.py"
     bf.write_text(UNO_AND_A_MOTOR)

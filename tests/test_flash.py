@@ -5,8 +5,6 @@ running under real MicroPython."""
 from __future__ import annotations
 
 import random
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,17 +17,11 @@ from missing_link.errors import MissingLinkError
 from missing_link.host.board import Board
 from missing_link.transport import open_transport
 
-from .helpers import FirmwareSim
+from .helpers import FirmwareSim, ml
 from .serial_board import SerialBoard
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
-
-
-def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "missing_link", *args], capture_output=True, text=True, timeout=120
-    )
 
 
 def board_file(tmp_path: Path, body: str) -> Path:
@@ -62,6 +54,7 @@ def _answers(url: str, key: Path) -> bool:
         board.close()
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_the_key_reaches_the_board_and_a_new_key_replaces_the_old(tmp_path: Path) -> None:
     """``flash --key`` with the real mpremote on a serial port whose other end is MicroPython's
@@ -99,18 +92,19 @@ def test_the_key_reaches_the_board_and_a_new_key_replaces_the_old(tmp_path: Path
             sim.close()
 
 
+@pytest.mark.slow
 def test_keys_go_where_the_board_reads_them(tmp_path: Path) -> None:
     key = tmp_path / "robot.key"
     key.write_text(random.randbytes(32).hex() + "\n")
     plain = tmp_path / "plain.py"  # a network board without a key: flashed, with a warning
     plain.write_text(WIFI.read_text().replace(', "key_file": "mlkey.bin"', ""))
-    r = cli("flash", str(plain), "--dry-run")
+    r = ml("flash", str(plain), "--dry-run")
     assert r.returncode == 0 and ":mlkey.bin" not in r.stdout, r.stderr
     assert r.stderr.startswith("missing-link: warning: ") and "unauthenticated" in r.stderr
     assert r.stderr.count("\n") == 1
-    r = cli("flash", str(plain), "--dry-run", "--key", str(key))  # a key it would not read
+    r = ml("flash", str(plain), "--dry-run", "--key", str(key))  # a key it would not read
     assert r.returncode == 1 and "the link has no key_file" in r.stderr, r.stderr
-    r = cli("flash", str(WIFI), "--dry-run", "--key", str(key))
+    r = ml("flash", str(WIFI), "--dry-run", "--key", str(key))
     assert r.returncode == 0 and not r.stderr, r.stderr
     assert f"fs cp {Path(r.stdout.split('fs cp -r ')[1].split()[0]).parent}/mlkey.bin" in r.stdout
     assert r.stdout.index(":mlkey.bin") < r.stdout.index(":main.py")  # main.py last
@@ -125,13 +119,15 @@ def test_only_the_drivers_the_board_uses_are_copied(tmp_path: Path) -> None:
     assert all(c.local.exists() for c in micropython_files(bf))
 
 
+@pytest.mark.slow
 def test_dry_run_lists_files_and_the_mpremote_command() -> None:
-    r = cli("flash", str(RIG), "--port", "/dev/ttyACM7", "--dry-run")
+    r = ml("flash", str(RIG), "--port", "/dev/ttyACM7", "--dry-run")
     assert r.returncode == 0, r.stderr
     assert ":lib/mlboard/drivers/srf02.py" in r.stdout and ":board.py" in r.stdout
     assert "mpremote connect /dev/ttyACM7 fs cp -r" in r.stdout and "+ reset" in r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("body", "message"),
     [
@@ -163,17 +159,19 @@ def test_board_file_errors_are_one_line_exit_2(tmp_path: Path, body: str, messag
     p = board_file(tmp_path, body)
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace("{", r"\{")):
         load_board_file(p)
-    r = cli("flash", str(p), "--dry-run")
+    r = ml("flash", str(p), "--dry-run")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_real_mpremote_on_a_missing_port_is_one_line_exit_1(tmp_path: Path) -> None:
-    r = cli("flash", str(board_file(tmp_path, SERVO_ONLY)), "--port", str(tmp_path / "ttyACM9"))
+    r = ml("flash", str(board_file(tmp_path, SERVO_ONLY)), "--port", str(tmp_path / "ttyACM9"))
     assert r.returncode == 1, r.stderr
     assert r.stderr.startswith("missing-link: error: mpremote failed on ")
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
     sim = FirmwareSim(RIG)
     try:
@@ -188,16 +186,18 @@ def test_verify_against_the_firmware_under_micropython(tmp_path: Path) -> None:
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 
 
+@pytest.mark.slow
 def test_avr_dry_run_shows_the_build_and_avrdude() -> None:
-    r = cli("flash", str(UNO), "--port", "/dev/ttyACM3", "--dry-run")
+    r = ml("flash", str(UNO), "--port", "/dev/ttyACM3", "--dry-run")
     assert r.returncode == 0, r.stderr
     assert "make -C" in r.stdout and "firmware/avr BOARD=" in r.stdout
     assert "avrdude -p m328p -c arduino -P /dev/ttyACM3 -b 115200 -D -U flash:w:" in r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.avr
 def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Path) -> None:
-    r = cli("flash", str(UNO), "--port", str(tmp_path / "ttyACM9"))
+    r = ml("flash", str(UNO), "--port", str(tmp_path / "ttyACM9"))
     assert "atmega328p: flash" in r.stdout  # built for real, size printed
     assert r.returncode == 1, r.stderr
     assert r.stderr.startswith("missing-link: error: avrdude on ")
@@ -205,6 +205,7 @@ def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Pa
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
     from missing_link.deploy.avrgen import generate_avr
 
@@ -214,5 +215,5 @@ def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
     body = UNO.read_text().replace('"pin": 9,', '"pin": 10,')
     with pytest.raises(ConfigError, match=r"the servo is on pin 9 \(OC1A\)"):
         generate_avr(load_board_file(board_file(tmp_path, body)))
-    r = cli("gen-firmware", str(RIG), "--out", str(tmp_path / "x"))
+    r = ml("gen-firmware", str(RIG), "--out", str(tmp_path / "x"))
     assert r.returncode == 2 and "is not an AVR" in r.stderr

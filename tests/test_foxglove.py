@@ -68,6 +68,7 @@ def test_websocket_client_decodes_a_sample(serve) -> None:  # type: ignore[no-un
     assert any(t.sec > 1_600_000_000 for t in msg.times)  # host time (CLOCK_REALTIME) stamps
 
 
+@pytest.mark.slow
 def test_official_foxglove_client_decodes_with_the_schema(serve) -> None:  # type: ignore[no-untyped-def]
     """The official protocol client (@foxglove/ws-protocol, under node) subscribes and decodes a
     DistIr message with the advertised ros2msg schema (@foxglove/rosmsg2-serialization)."""

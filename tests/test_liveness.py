@@ -34,7 +34,7 @@ from missing_link.virtual import make_sim
 from missing_link.virtual.faults import FaultRelay
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import AvrSim, FirmwareSim, wait_for
+from .helpers import AvrRig, FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
@@ -268,18 +268,21 @@ def found_while_busy(rig: Rig, tmp_path: Path, **spec: Any) -> None:
         assert d.status()[0]["stale_links"] == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sim", ["thesis", "rangers"])
 def test_a_frozen_virtual_board_is_found_while_calls_are_out(sim: str, tmp_path: Path) -> None:
     with board_proc(sim) as rig:
         found_while_busy(rig, tmp_path)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_a_half_open_link_is_found_while_calls_are_out(serve: Serve, tmp_path: Path) -> None:
     server = serve(make_sim("thesis", seed=2), listen="tcp://127.0.0.1:0")
     with FaultRelay(server.url) as relay:
         found_while_busy(Rig(relay.url, relay.blackhole, "/thesis/servo/cmd"), tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.micropython
 def test_a_frozen_micropython_board_is_found_while_calls_are_out(tmp_path: Path) -> None:
     sim = FirmwareSim(RIG)
@@ -290,12 +293,12 @@ def test_a_frozen_micropython_board_is_found_while_calls_are_out(tmp_path: Path)
         sim.close()
 
 
-def test_a_frozen_avr_board_is_found_while_calls_are_out(avr_build: Path, tmp_path: Path) -> None:
-    rig = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf")
+@pytest.mark.slow
+def test_a_frozen_avr_board_is_found_while_calls_are_out(avr_rig: AvrRig, tmp_path: Path) -> None:
+    rig = avr_rig("uno_rig")
     try:
         found_while_busy(
             Rig(rig.url, signaller(rig.proc), "/uno_rig/servo/cmd"), tmp_path, uart_baud=115200
         )
     finally:
         rig.proc.send_signal(signal.SIGCONT)
-        rig.close()

@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from missing_link.logs import SafeLog, counts, template
 
 from .helpers import board_process
@@ -97,6 +99,7 @@ def upgrade_then(port: int, frame: bytes) -> bool:
         return False
 
 
+@pytest.mark.slow
 def test_a_flooded_daemon_writes_a_bounded_stderr(tmp_path: Path) -> None:
     """200 tiny bad frame headers made 4,200 lines of tracebacks (14,000 through the old gate
     here) and fd exhaustion 66 MB of stderr in 100 s.  Now each writes a few lines."""

@@ -26,7 +26,7 @@ from .vectors import (
 
 ROOT = Path(__file__).resolve().parent.parent
 MPY_PKG = ROOT / "node_modules" / "@micropython" / "micropython-webassembly-pyscript"
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
 def _start(setup: str) -> HexLinePipe:

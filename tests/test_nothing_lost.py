@@ -14,7 +14,6 @@ import re
 import resource
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -29,15 +28,10 @@ from missing_link.host.aio import AsyncBoard
 from missing_link.host.board import Board
 from missing_link.virtual import make_sim
 
-from .helpers import board_process, free_port
+from .helpers import ML, board_process, free_port, ml, wait_for
 
 Serve = Callable[..., Any]
-ML = [sys.executable, "-m", "missing_link"]
 README = Path(__file__).resolve().parents[1] / "README.md"
-
-
-def ml(*args: str, timeout: float = 60, **kw: Any) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*ML, *args], capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def one_line_error(r: subprocess.CompletedProcess[str], code: int) -> str:
@@ -101,6 +95,15 @@ def count_messages(bag: Path, topic: str) -> tuple[int, int]:
     return n, newest
 
 
+def on_disk(rec: Path, topic: str) -> int:
+    """Complete messages on ``topic`` in the recording being written under ``rec`` now."""
+    from missing_link.publishers.recover import complete_messages
+
+    files = sorted(rec.glob("*/*.mcap"))
+    return sum(1 for _s, channel, _m in complete_messages(files) if channel.topic == topic)
+
+
+@pytest.mark.slow
 def test_sigkill_loses_at_most_about_a_second(tmp_path: Path) -> None:
     cfg = tmp_path / "rec.toml"
     cfg.write_text(f'[mcap]\nchunk_s = 0.5\npath = "{tmp_path / "rec"}"\n')
@@ -111,7 +114,8 @@ def test_sigkill_loses_at_most_about_a_second(tmp_path: Path) -> None:
             stderr=subprocess.PIPE,
             text=True,
         )
-        time.sleep(6.0)
+        # until seconds of data are on disk (complete records, as recover reads them)
+        wait_for(lambda: on_disk(tmp_path / "rec", "/r/signal") > 200 * 2, 60, step=0.2)
         killed_at = time.time_ns()
         p.send_signal(signal.SIGKILL)
         p.wait(10)
@@ -120,7 +124,7 @@ def test_sigkill_loses_at_most_about_a_second(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     n, newest = count_messages(tmp_path / "recovered", "/r/signal")
     lost_s = (killed_at - newest) / 1e9
-    print(f"SIGKILL after 6 s: {n} messages recovered, the newest {lost_s:.2f} s before the kill")
+    print(f"SIGKILL: {n} messages recovered, the newest {lost_s:.2f} s before the kill")
     assert n > 200 * 2  # seconds of data, not a 0-byte file
     assert lost_s < 2.0  # chunk_s = 0.5: the last chunk, plus the writer's wake-up
 
@@ -147,6 +151,7 @@ def small_disk(tmp_path: Path) -> Iterator[tuple[Path, Callable[[], None] | None
     yield where, limit
 
 
+@pytest.mark.slow
 def test_full_disk_is_loud_and_never_hangs(tmp_path: Path) -> None:
     with (
         small_disk(tmp_path) as (disk, limit),
@@ -171,6 +176,7 @@ def test_full_disk_is_loud_and_never_hangs(tmp_path: Path) -> None:
     assert re.search(r"publisher mcap: \d+ messages, [1-9]\d* dropped", err), err
 
 
+@pytest.mark.slow
 def test_recording_that_cannot_start_is_an_error_at_startup(tmp_path: Path) -> None:
     ro = tmp_path / "ro"
     ro.mkdir()
@@ -186,12 +192,7 @@ def test_recording_that_cannot_start_is_an_error_at_startup(tmp_path: Path) -> N
             r = ml("run", url, "--record", str(target), "--duration", "5")
             err = one_line_error(r, 1)
             assert f"cannot record to {target}" in err
-            r = subprocess.run(
-                [*ML, "demo", "--duration", "2", "--record", str(target)],
-                capture_output=True,
-                text=True,
-                timeout=60,
-            )
+            r = ml("demo", "--duration", "2", "--record", str(target), timeout=60)
             assert r.returncode == 1 and "demo FAILED: cannot record to" in r.stdout
             assert "finished OK" not in r.stdout
     finally:
@@ -199,6 +200,7 @@ def test_recording_that_cannot_start_is_an_error_at_startup(tmp_path: Path) -> N
             subprocess.run(["umount", "-l", str(ro)], check=False)
 
 
+@pytest.mark.slow
 def test_publisher_queue_drops_are_shown(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text(f'[mcap]\nqueue = 50\npath = "{tmp_path / "rec"}"\n')
@@ -219,7 +221,7 @@ def test_slow_bus_subscriber_is_bounded_and_counted(serve: Serve) -> None:
         slow = robot.subscribe("/rate/signal", lambda u: time.sleep(0.01), queue=100)
         fast: list[Any] = []
         robot.subscribe("/rate/signal", fast.append)
-        time.sleep(2.0)
+        wait_for(lambda: slow.dropped > 0 and len(fast) > 100, 30)
         assert slow.dropped > 0 and len(slow._items) <= 100
         assert robot.status()[0]["lost_sifs"] == 0  # the board never felt it
         values = [u.values[0] for u in fast]
@@ -235,7 +237,7 @@ def test_async_sifs_are_bounded_with_a_blocked_loop(serve: Serve) -> None:
         board = await AsyncBoard.open(server.url)
         async with board:
             q = board.sifs(maxsize=50)
-            time.sleep(1.0)  # the loop is blocked: nothing drains
+            wait_for(lambda: board.dropped > 1000, 30)  # (a blocked loop: nothing drains)
             handles = len(asyncio.get_running_loop()._ready)  # type: ignore[attr-defined]
             await asyncio.sleep(0.05)
             return q.qsize(), board.dropped, handles
@@ -251,6 +253,7 @@ def board_url() -> Iterator[str]:
         yield url
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "code", "words"),
     [
@@ -276,11 +279,13 @@ def test_cli_errors_are_one_line(
     assert words in one_line_error(r, code)
 
 
+@pytest.mark.slow
 def test_call_accepts_echo_and_any_code(board_url: str) -> None:
     assert ml("call", board_url, "a2jEcho", "--hex", "0102").returncode == 0  # 0xBA is its OK
     assert ml("call", board_url, "a2j_set_servo", "--hex", "4040", "--any-code").returncode == 0
 
 
+@pytest.mark.slow
 def test_run_missing_descriptor_file_and_bad_config_stop_at_once(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text('[[board]]\nurl = "tcp://127.0.0.1:1"\ndescriptors = "nope.toml"\n')
@@ -291,6 +296,7 @@ def test_run_missing_descriptor_file_and_bad_config_stop_at_once(tmp_path: Path)
     assert time.monotonic() - t0 < 30  # not retrying for ever
 
 
+@pytest.mark.slow
 def test_board_listen_errors(tmp_path: Path) -> None:
     busy = free_port()
     import socket
@@ -309,6 +315,7 @@ def test_board_listen_errors(tmp_path: Path) -> None:
     assert precious.read_text() == "keep me"
 
 
+@pytest.mark.slow
 def test_create_msgs_is_all_or_nothing_and_keeps_user_packages(tmp_path: Path) -> None:
     long_name = "a" * 300
     desc = tmp_path / "d.txt"
@@ -329,6 +336,7 @@ def test_create_msgs_is_all_or_nothing_and_keeps_user_packages(tmp_path: Path) -
     assert not [p for p in (tmp_path / "ws").iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow
 def test_recover_garbage_is_an_error_and_leaves_nothing(tmp_path: Path) -> None:
     junk = tmp_path / "x.mcap"
     junk.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))
@@ -337,9 +345,14 @@ def test_recover_garbage_is_an_error_and_leaves_nothing(tmp_path: Path) -> None:
     assert not (tmp_path / "x_recovered").exists()
 
 
-def test_run_ctrl_c_exits_130_with_a_summary(board_url: str) -> None:
-    p = subprocess.Popen([*ML, "run", board_url], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(3.0)
+@pytest.mark.slow
+def test_run_ctrl_c_exits_130_with_a_summary(board_url: str, tmp_path: Path) -> None:
+    env = {**os.environ, "MISSING_LINK_CONTROL": f"{tmp_path}/c.sock"}
+    p = subprocess.Popen(
+        [*ML, "run", board_url], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
+    )
+    # until the board is up (asked through the daemon's control endpoint, as a user would)
+    wait_for(lambda: ml("info", "thesis", timeout=30, env=env).returncode == 0, 60, step=0.2)
     p.send_signal(signal.SIGINT)
     _out, err = p.communicate(timeout=20)
     assert p.returncode == 130, err
@@ -347,6 +360,7 @@ def test_run_ctrl_c_exits_130_with_a_summary(board_url: str) -> None:
 
 
 # ---- 5. the live view -------------------------------------------------------------------------
+@pytest.mark.slow
 def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
     master, slave = pty.openpty()
     os.set_blocking(master, False)
@@ -374,6 +388,7 @@ def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
     assert " us " not in text  # one unit style
 
 
+@pytest.mark.slow
 def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
     # (a terminal's width in the environment says nothing of a pipe: nothing is cut)
     r = ml("run", board_url, "--view", "--duration", "6", env={**os.environ, "COLUMNS": "80"})
@@ -381,11 +396,13 @@ def test_run_view_plain_when_not_a_terminal(board_url: str) -> None:
     assert "\x1b[" not in r.stdout and "/thesis/quad" in r.stdout and "count" in r.stdout
 
 
+@pytest.mark.slow
 def test_open_board_still_works_alongside(board_url: str) -> None:
     with Board.open(board_url) as b:
         assert b.call("a2jEcho", b"hi").payload == b"hi"
 
 
+@pytest.mark.slow
 def test_bad_zenoh_endpoint_is_a_config_error(tmp_path: Path) -> None:
     cfg = tmp_path / "z.toml"
     cfg.write_text('[zenoh]\nconnect = ["tcp://127.0.0.1:7447"]\n')

@@ -29,6 +29,8 @@ BOARD_ALLOWED = {
     "board/link.py": {"time", "select", "sys", "socket", "os"},
     # ... and the file a saved configuration lives in
     "board/store.py": {"os"},
+    # ... and the firmware's own files, hashed for fw.hash
+    "board/identity.py": {"os"},
 }
 
 

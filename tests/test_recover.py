@@ -8,7 +8,6 @@ from __future__ import annotations
 import logging
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,8 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from rosbags.typesys import Stores, get_typestore
 
 from missing_link.publishers.recover import MAX_CHUNK, RecoverError, recover_bag
+
+from .helpers import ML
 
 MAGIC = b"\x89MCAP0\r\n"
 STRING = "string data\n"
@@ -111,7 +112,7 @@ def zstd_chunk(data: bytes, claimed: int) -> Chunk:
 def run_recover(*args: str) -> tuple[int, str, int]:
     """``missing-link recover ARGS`` in a process of its own: exit code, stderr, peak RSS (KiB)."""
     p = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "recover", *args],
+        [*ML, "recover", *args],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -123,6 +124,7 @@ def run_recover(*args: str) -> tuple[int, str, int]:
     return p.returncode, err, usage.ru_maxrss
 
 
+@pytest.mark.slow
 def test_a_zstd_bomb_is_stopped_by_the_size_cap(tmp_path: Path) -> None:
     """A 32 KB chunk that decompresses to a gigabyte: claimed (refused before any work) or
     hidden behind a small claim (stopped one byte past it); the messages around it are
@@ -151,6 +153,7 @@ def test_a_zstd_bomb_is_stopped_by_the_size_cap(tmp_path: Path) -> None:
     assert "Traceback" not in err and not (tmp_path / "none").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "content",
     [

@@ -12,7 +12,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -22,7 +21,9 @@ import pytest
 
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import free_port
+from .helpers import ML, free_port
+
+pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
 
 HERE = Path(__file__).resolve().parent
 HAVE_ROS1 = shutil.which("roscore") is not None and Path("/usr/bin/python3").exists()
@@ -32,7 +33,7 @@ if not HAVE_ROS1:
         raise RuntimeError(
             "ML_REQUIRE_ROS1=1 but roscore is missing: scripts/system-deps.sh --ros1"
         )
-    pytestmark = pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")
+    pytestmark += [pytest.mark.skip(reason="ROS 1 not installed (scripts/system-deps.sh --ros1)")]
 
 
 @contextmanager
@@ -58,7 +59,7 @@ def ros1_graph(tmp_path: Path, sim: str) -> Iterator[tuple[dict[str, str], str]]
             assert time.monotonic() < deadline, "roscore did not come up"
             time.sleep(0.3)
         daemon = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", url, "-p", "ros1", "--duration", "40"],
+            [*ML, "run", url, "-p", "ros1", "--duration", "40"],
             env=env,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,

@@ -20,6 +20,10 @@ from pathlib import Path
 
 import pytest
 
+from .helpers import ml
+
+pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
+
 ROOT = Path(__file__).resolve().parents[1]
 ROS2_PY = Path(os.environ.get("ML_ROS2_PYTHON") or ROOT / ".venv-ros2" / "bin" / "python")
 LISTENER = Path(__file__).with_name("ros2_rclpy_listener.py")
@@ -28,7 +32,7 @@ PROFILE = Path(__file__).with_name("fastdds_loopback.xml")
 if not ROS2_PY.exists():
     if os.environ.get("ML_REQUIRE_ROS2") == "1":
         raise RuntimeError(f"ML_REQUIRE_ROS2=1 but {ROS2_PY} is missing: make ros2")
-    pytestmark = pytest.mark.skip(reason=f"ROS 2 wheels not installed ({ROS2_PY}; make ros2)")
+    pytestmark += [pytest.mark.skip(reason=f"ROS 2 wheels not installed ({ROS2_PY}; make ros2)")]
 
 
 def ros_env(**extra: str) -> dict[str, str]:
@@ -297,13 +301,7 @@ def test_board_configuration_is_ros2_parameters_of_the_node(
         )
         assert r.returncode == 0, r.stderr[-3000:]
         got = json.loads(r.stdout.strip().splitlines()[-1])
-        board = subprocess.run(
-            [sys.executable, "-m", "missing_link", "config", "thesis", "--json"],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=60,
-        )
+        board = ml("config", "thesis", "--json", env=env, timeout=60)
     finally:
         err = stop(daemon)
     assert "thesis.servo.enabled" in got["names"], err[-3000:]

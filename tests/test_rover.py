@@ -28,7 +28,7 @@ from .helpers import FirmwareSim, wait_for
 ROOT = Path(__file__).resolve().parent.parent
 ROVER = ROOT / "examples" / "boards" / "rover.py"
 STORE = get_typestore(Stores.ROS2_JAZZY)
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
@@ -82,10 +82,15 @@ def test_gps_fix_from_nmea_stamped_at_its_pps_edge(rover: Daemon, sim: FirmwareS
 def test_gps_bad_checksums_are_counted_and_dropped(rover: Daemon, sim: FirmwareSim) -> None:
     before = sim.ctl("result = fw.drivers['gps'].checksum_errors")
     sim.ctl("WORLD.devices['gps'].bad_every = 2")  # every other sentence: every GGA
-    time.sleep(2.5)
+
+    def errors_now() -> int:
+        return int(sim.ctl("result = fw.drivers['gps'].checksum_errors"))
+
+    wait_for(lambda: errors_now() >= before + 2, 10)  # (the fix before them long published)
     got = listen(rover, "gps")
-    time.sleep(2.2)
-    errors = sim.ctl("result = fw.drivers['gps'].checksum_errors")
+    mark = errors_now()
+    wait_for(lambda: errors_now() >= mark + 2, 10)  # two GGAs more, none of them good
+    errors = errors_now()
     assert errors >= before + 2 and got == []  # no GGA passed its checksum: no sample
     sim.ctl("WORLD.devices['gps'].bad_every = 0; WORLD.devices['gps'].quality = 0")
     assert wait_for(lambda: len(got) >= 1, 5)

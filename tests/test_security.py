@@ -24,7 +24,7 @@ from missing_link.logs import SafeLog
 from missing_link.publishers.zenoh_config import loopback_only
 from missing_link.topics import Update
 
-from .helpers import board_process, free_port, wait_for
+from .helpers import ML, board_process, free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 LISTENER = Path(__file__).with_name("ros2_listener.py")
@@ -85,7 +85,7 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Pa
         subprocess.run(["sh", str(MAKE_CERTS), str(d), str(port)], check=True, capture_output=True)
     with board_process("--sim", "thesis") as url:
         p = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(ours / "daemon.toml"),
+            [*ML, "run", "--config", str(ours / "daemon.toml"),
              url],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
@@ -98,6 +98,7 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Pa
             p.wait(10)
 
 
+@pytest.mark.slow
 def test_the_setup_files_are_complete(secured: tuple[Path, Path]) -> None:
     ours, _ = secured
     cfg = parse_config(__import__("tomllib").loads((ours / "daemon.toml").read_text()))
@@ -108,6 +109,7 @@ def test_the_setup_files_are_complete(secured: tuple[Path, Path]) -> None:
     assert oct((ours / "ca.key").stat().st_mode)[-3:] == "600"
 
 
+@pytest.mark.slow
 def test_a_client_without_a_certificate_gets_nothing(secured: tuple[Path, Path]) -> None:
     ours, _ = secured
     bare = ours.parent / "bare.json5"
@@ -118,12 +120,14 @@ def test_a_client_without_a_certificate_gets_nothing(secured: tuple[Path, Path])
     assert code != 0 or samples(lines) == []
 
 
+@pytest.mark.slow
 def test_a_certificate_from_another_ca_gets_nothing(secured: tuple[Path, Path]) -> None:
     _, other = secured
     code, lines = watch_ir(other / "operator.json5", timeout=4)
     assert code != 0 or samples(lines) == []
 
 
+@pytest.mark.slow
 def test_the_viewer_sees_everything_but_cannot_command(secured: tuple[Path, Path]) -> None:
     ours, _ = secured
     code, lines = watch_ir(ours / "viewer.json5")
@@ -134,6 +138,7 @@ def test_the_viewer_sees_everything_but_cannot_command(secured: tuple[Path, Path
     assert servo_state(ours / "operator.json5") == []  # the servo never moved
 
 
+@pytest.mark.slow
 def test_the_operator_commands(secured: tuple[Path, Path]) -> None:
     ours, _ = secured
     command(ours / "operator.json5", 40)
@@ -147,6 +152,7 @@ def test_loopback_decides_the_default() -> None:
     assert not loopback_only(["tcp/192.168.1.5:7447"])
 
 
+@pytest.mark.slow
 def test_a_face_off_and_the_allow_list_refuse_and_count() -> None:
     port = free_port()
     with board_process("--sim", "thesis") as url:
@@ -217,6 +223,7 @@ def test_log_lines_are_made_safe_and_rate_limited() -> None:
 
 
 # ---- the Foxglove view: who may look, what a client may say -----------------------------------
+@pytest.mark.slow
 def test_the_foxglove_view_checks_origins_and_drops_what_it_does_not_serve(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -33,6 +33,8 @@ from missing_link.errors import BadURL
 from missing_link.j2a import SOF, encode_frame
 from missing_link.transport import check_url
 
+from .helpers import ml
+
 ROOT = Path(__file__).resolve().parent.parent
 WIFI = ROOT / "examples" / "boards" / "esp32-wifi.py"
 KEY = bytes(range(32))
@@ -268,26 +270,21 @@ def test_a_hello_with_another_key_is_answered_and_counted() -> None:
     assert got[-8:] != hmac.new(bytes(32), got[:-8], hashlib.sha256).digest()[:8]
 
 
+@pytest.mark.slow
 def test_keys_are_made_and_put_on_boards_over_usb_only(tmp_path: Path) -> None:
     import os
     import stat
-    import subprocess
-    import sys
 
-    ml = [sys.executable, "-m", "missing_link"]
     key = tmp_path / "robot.key"
-    r = subprocess.run([*ml, "key", "new", str(key)], capture_output=True, text=True, timeout=30)
+    r = ml("key", "new", str(key), timeout=30)
     assert r.returncode == 0 and len(bytes.fromhex(key.read_text().strip())) == 32
     assert stat.S_IMODE(os.stat(key).st_mode) == 0o600
-    r = subprocess.run([*ml, "key", "new", str(key)], capture_output=True, text=True, timeout=30)
+    r = ml("key", "new", str(key), timeout=30)
     assert r.returncode == 2 and "exists" in r.stderr
-    flash = [*ml, "flash", str(WIFI), "--dry-run"]
-    r = subprocess.run(flash, capture_output=True, text=True, timeout=30)
+    flash = ("flash", str(WIFI), "--dry-run")
+    r = ml(*flash, timeout=30)
     assert r.returncode != 0 and "give the key with --key" in r.stderr
-    r = subprocess.run([*flash, "--key", str(key)], capture_output=True, text=True, timeout=30)
+    r = ml(*flash, "--key", str(key), timeout=30)
     assert r.returncode == 0 and f"{key} -> :mlkey.bin" in r.stdout, r.stderr
-    r = subprocess.run(
-        [*flash, "--key", str(key), "--port", "tcp://10.0.0.5:5000"],
-        capture_output=True, text=True, timeout=30,
-    )  # fmt: skip
+    r = ml(*flash, "--key", str(key), "--port", "tcp://10.0.0.5:5000", timeout=30)
     assert r.returncode != 0 and "over USB only" in r.stderr and r.stderr.count("\n") == 1

@@ -131,6 +131,7 @@ def sim_port(sim: FirmwareSim) -> int:
 
 
 # ---- the MicroPython firmware -------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_signed_board_takes_nothing_unsigned(wifi: tuple[FirmwareSim, Path]) -> None:
     sim, key = wifi
     with pytest.raises(MissingLinkError):  # plain J2A: the connection is closed, no answer
@@ -145,6 +146,7 @@ def test_a_signed_board_takes_nothing_unsigned(wifi: tuple[FirmwareSim, Path]) -
         board.close()
 
 
+@pytest.mark.slow
 def test_an_attacker_between_host_and_board(wifi: tuple[FirmwareSim, Path]) -> None:
     sim, key = wifi
     relay = Relay(("127.0.0.1", sim_port(sim)))
@@ -186,6 +188,7 @@ def test_an_attacker_between_host_and_board(wifi: tuple[FirmwareSim, Path]) -> N
         board.close()
 
 
+@pytest.mark.slow
 def test_a_flood_of_clients_without_the_key_beside_the_daemon(
     wifi: tuple[FirmwareSim, Path],
 ) -> None:
@@ -214,6 +217,7 @@ def test_a_flood_of_clients_without_the_key_beside_the_daemon(
     assert st["signed_records"] > 0 and st["signed_bad_tags"] == 0, st
 
 
+@pytest.mark.slow
 def test_the_hosts_wall_clock_does_not_matter(
     wifi: tuple[FirmwareSim, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -230,6 +234,7 @@ def test_the_hosts_wall_clock_does_not_matter(
             sim.ctl("reboot()")
 
 
+@pytest.mark.slow
 def test_a_stale_replay_file_from_the_clock_days_locks_nobody_out(tmp_path: Path) -> None:
     """A board flashed before this version kept the newest host timestamp in mlreplay.txt; one
     from a host clock ten years ahead locked every host out, across restarts and flashes."""
@@ -244,6 +249,7 @@ def test_a_stale_replay_file_from_the_clock_days_locks_nobody_out(tmp_path: Path
         sim.close()
 
 
+@pytest.mark.slow
 def test_mismatches_are_named(wifi: tuple[FirmwareSim, Path], tmp_path: Path, serve) -> None:  # type: ignore[no-untyped-def]
     sim, _key = wifi
     other = new_key(tmp_path / "other.key")
@@ -295,6 +301,7 @@ class TcpBoard:
         self._thread.join(5)
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_the_firmwares_tcp_server_keeps_its_host(tmp_path: Path) -> None:
     key = new_key(tmp_path / "k")
     tb = TcpBoard(tmp_path, key)

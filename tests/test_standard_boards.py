@@ -24,7 +24,7 @@ from .helpers import FirmwareSim, wait_for
 from .standard_boards import POWER, RIG, ROVER, daemon_toml, virtual_board
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

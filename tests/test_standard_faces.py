@@ -28,13 +28,13 @@ from rosbags.typesys import Stores, get_typestore
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import parse_config
 
-from .helpers import FirmwareSim, free_port, wait_for
+from .helpers import ML, FirmwareSim, free_port, wait_for
 from .standard_boards import POWER, RIG, ROVER, daemon_toml, virtual_board
 
 HERE = Path(__file__).resolve().parent
 STORE = get_typestore(Stores.ROS2_JAZZY)
 HAVE_ROS1 = shutil.which("roscore") is not None and Path("/usr/bin/python3").exists()
-pytestmark = pytest.mark.micropython
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 STANDARD = {
     "/rig/imu/imu": "sensor_msgs/msg/Imu",
     "/rig/imu/temperature": "sensor_msgs/msg/Temperature",
@@ -172,7 +172,7 @@ def test_rospy_gets_the_standard_types_and_commands_with_float64(
             assert time.monotonic() < deadline, "roscore did not come up"
             time.sleep(0.3)
         daemon = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", "--config", str(cfg), "--duration", "60"],
+            [*ML, "run", "--config", str(cfg), "--duration", "60"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         subs = {**{t: ty.replace("/msg/", "/") for t, ty in STANDARD.items()},

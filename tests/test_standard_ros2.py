@@ -28,7 +28,7 @@ from .test_ros2 import ROS2_PY, ros_env, stop
 
 LISTENER = Path(__file__).with_name("ros2_standard_listener.py")
 PARAMS = Path(__file__).with_name("ros2_param_client.py")
-pytestmark = [pytest.mark.micropython]
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 if not ROS2_PY.exists():
     pytestmark.append(pytest.mark.skip(reason=f"ROS 2 wheels not installed ({ROS2_PY}; make ros2)"))
 SUBS = {

@@ -12,6 +12,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
+
+pytestmark = pytest.mark.slow  # (every test here starts a process: make check skips them)
+
 Serve = Callable[..., Any]
 
 #: what a one-off command must not pay for: the daemon's service and sessions, clock sync's

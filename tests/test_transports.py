@@ -325,6 +325,7 @@ def test_bytes_counted_at_the_wake_are_stamped_then_and_only_they() -> None:
         os.close(slave)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform != "linux", reason="a pty; SO_TIMESTAMPNS")
 @pytest.mark.parametrize("shared_loop", [False, True])
 @pytest.mark.parametrize("link", ["pty", "tcp"])

@@ -11,7 +11,6 @@ import os
 import re
 import ssl
 import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
@@ -29,6 +28,8 @@ from missing_link.errors import ConfigError
 from missing_link.publishers.web import WebPublisher, context_of, parse_addr, parse_options
 from missing_link.publishers.web_model import thin
 from missing_link.virtual.sims import rangers
+
+from .helpers import ML
 
 ROOT = Path(__file__).resolve().parent.parent
 STATIC = ROOT / "src" / "missing_link" / "publishers" / "web_static"
@@ -281,6 +282,7 @@ def _certs(tmp: Path) -> Path:
     return tmp
 
 
+@pytest.mark.slow
 def test_tls_and_a_token_session(serve: Any, tmp_path: Path, caplog: Any) -> None:
     certs = _certs(tmp_path / "certs")
     tok = tmp_path / "token"
@@ -316,9 +318,10 @@ def test_tls_and_a_token_session(serve: Any, tmp_path: Path, caplog: Any) -> Non
     assert server_side and not [m for m in server_side if TOKEN in m or sid in m]
 
 
+@pytest.mark.slow
 def test_demo_serves_the_console(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "demo", "--duration", "8", "--web", "127.0.0.1:0",
+        [*ML, "demo", "--duration", "8", "--web", "127.0.0.1:0",
          "--record", str(tmp_path / "rec")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
         env={**os.environ, "COLUMNS": "100"},

@@ -14,7 +14,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -26,6 +25,8 @@ import pytest
 
 from missing_link.daemon.config import BoardSpec
 from missing_link.virtual.process import start_board_process, stop_process
+
+from .helpers import ML, ml
 
 pytestmark = pytest.mark.slow
 
@@ -57,7 +58,7 @@ def daemon(
             proc, url = start_board_process(sim, 0, "tcp://127.0.0.1:0", name=name)
             procs.append(proc)
             urls.append(url)
-        cmd = [sys.executable, "-m", "missing_link", "run", *urls, "--config", str(config)]
+        cmd = [*ML, "run", *urls, "--config", str(config)]
         daemon_proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=env)
         lines: list[str] = []
         found = threading.Event()
@@ -167,10 +168,7 @@ def test_a_rate_set_with_the_keyboard_reaches_the_board(
     expect(b.get_by_role("status").filter(has_text="applied")).to_contain_text(
         "dist_ir.rate_hz = 5"
     )
-    out = subprocess.run(
-        [sys.executable, "-m", "missing_link", "config", "board_b"],
-        capture_output=True, text=True, env=rig[1], timeout=30,
-    )  # fmt: skip
+    out = ml("config", "board_b", env=rig[1], timeout=30)
     assert out.returncode == 0, out.stderr
     assert re.search(r"^dist_ir\.rate_hz = 5$", out.stdout, re.M), out.stdout
     # the buttons follow the fields in the focus order
@@ -260,7 +258,7 @@ def test_a_token_console_asks_for_a_login_over_tls(browser: Any, tmp_path: Path)
     script = Path(__file__).resolve().parent.parent / "examples" / "security" / "make-certs.sh"
     subprocess.run(["sh", str(script), str(certs)], check=True, capture_output=True, timeout=60)
     token = tmp_path / "token"
-    subprocess.run([sys.executable, "-m", "missing_link", "key", "new", str(token)], check=True)
+    subprocess.run([*ML, "key", "new", str(token)], check=True)
     web = f'cert = "{certs / "daemon.pem"}"\nkey = "{certs / "daemon.key"}"\n'
     web += f'token_file = "{token}"'
     with daemon(tmp_path, {"board_a": "encoder_servo"}, web) as (url, _env):

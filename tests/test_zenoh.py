@@ -18,7 +18,7 @@ from missing_link.publishers.zenoh import attachment, data_key, dds_type
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import free_port
+from .helpers import ML, free_port
 
 HERE = Path(__file__).resolve().parent
 LISTENER = HERE / "ros2_listener.py"
@@ -56,6 +56,7 @@ def zenoh_config(url: str, port: int) -> Config:
     )
 
 
+@pytest.mark.slow
 def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:  # type: ignore[no-untyped-def]
     server = serve("thesis", "tcp://127.0.0.1:0")
     port = free_port()
@@ -106,6 +107,7 @@ def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:
     assert commands >= 1  # the consumer's command reached the board's a2j_set_servo
 
 
+@pytest.mark.slow
 def test_a_late_subscriber_gets_the_actuators_state(serve) -> None:  # type: ignore[no-untyped-def]
     """The servo reports its state only when it changes; a transient-local subscriber that
     joins later still gets it (rmw_zenoh's way: an advanced publisher's cache)."""
@@ -134,12 +136,13 @@ def test_a_late_subscriber_gets_the_actuators_state(serve) -> None:  # type: ign
     assert token.endswith("/:1:,1:,:,:,,")  # transient local, keep last 1
 
 
+@pytest.mark.slow
 def test_three_processes_through_a_router(tmp_path: Path) -> None:
     """Router, board + daemon (``missing-link run``) and consumer: separate processes, as on
     separate machines; the consumer knows only the router's address."""
     rport = free_port()
     router = subprocess.Popen(
-        [sys.executable, "-m", "missing_link", "router", "--listen", f"tcp/127.0.0.1:{rport}"],
+        [*ML, "router", "--listen", f"tcp/127.0.0.1:{rport}"],
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -202,6 +205,7 @@ def test_distro_sets_the_type_hash_slot(distro: str) -> None:
 TRIGGER = "builtin_interfaces/Time[] times\\nuint16[] values"
 
 
+@pytest.mark.slow
 def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  # type: ignore[no-untyped-def]
     """A plain zenoh + rosbags consumer sends a thesis-format command whose times[0] is a host
     time 400 ms ahead: the board's trigger fires then (board/timing.py), reported as a sample
@@ -239,6 +243,7 @@ def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  #
     assert u.recv_ns / 1e9 > 0 and status["commands"] == 1
 
 
+@pytest.mark.slow  # (seconds of real time)
 def test_rejected_commands_are_counted_on_diagnostics(serve) -> None:  # type: ignore[no-untyped-def]
     """Commands that do not decode (an attacker's, a client with another message type) were
     counted in the publisher but shown nowhere: ~6,000 in one run, invisible.  Now they are

@@ -56,6 +56,7 @@ if TYPE_CHECKING:  # (for type checkers and readers; at run time see __getattr__
     )
     from .host.aio import AsyncBoard, open_board_async
     from .host.board import Board, open_board
+    from .host.board_log import LogLine
     from .host.link import CallResult
     from .host.samples import Sample, SampleDecoder
     from .transport.base import Transport
@@ -69,6 +70,7 @@ _WHERE = {
     "open_board_async": "host.aio",
     "Board": "host.board",
     "open_board": "host.board",
+    "LogLine": "host.board_log",
     "CallResult": "host.link",
     "Sample": "host.samples",
     "SampleDecoder": "host.samples",
@@ -111,6 +113,7 @@ __all__ = [
     "DescriptorError",
     "FunctionFailed",
     "LinkLost",
+    "LogLine",
     "MissingLinkError",
     "Sample",
     "SampleDecoder",

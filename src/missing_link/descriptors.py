@@ -6,6 +6,7 @@ import functools
 import math
 import re
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from .board.dtypes import DTYPES, FLOAT_TYPES, SIF_MAX_PAYLOAD
@@ -161,6 +162,35 @@ def parse_na(text: str, dtype: str) -> int | float:
     return value
 
 
+def _options(
+    fields: list[str], fail: Callable[[str, str], DescriptorError]
+) -> tuple[dict[str, str], dict[str, str]]:
+    """The optional key=value fields: (known, unknown), each checked as far as it is known."""
+    options: dict[str, str] = {}
+    unknown: dict[str, str] = {}
+    for extra in fields:
+        if "=" not in extra:
+            raise fail(extra or "(empty)", "optional fields are key=value")
+        key, value = (s.strip() for s in extra.split("=", 1))
+        target = options if key in KNOWN_KEYS else unknown
+        if key in options or key in unknown:
+            raise fail(key, "given twice")
+        target[key] = value
+    for key in _FLOAT_KEYS:
+        if key in options:
+            try:
+                float(options[key])
+            except ValueError:
+                raise fail(key, f"{options[key]!r} is not a number") from None
+    if options.get("kind", "sensor") not in ("sensor", "actuator"):
+        raise fail("kind", f"{options['kind']!r} is not sensor or actuator")
+    if options.get("kind") == "actuator" and not options.get("call"):
+        raise fail("call", "an actuator needs call=<function taking one value>")
+    if "ros" in options and not ROS_TYPE_RE.match(options["ros"]):
+        raise fail("ros", f"{options['ros']!r} is not a message type like sensor_msgs/msg/Range")
+    return options, unknown
+
+
 def parse_line(line: str, board: str = "board", where: str = "transducer") -> Transducer:
     """One descriptor line; ``where`` names it in errors (e.g. "transds line 3")."""
 
@@ -199,28 +229,7 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
         na = parse_na(na_s, dtype)
     except ValueError as e:
         raise fail("na", f"{na_s!r} is not a {dtype} value: {e}") from None
-    options: dict[str, str] = {}
-    unknown: dict[str, str] = {}
-    for extra in parts[7:]:
-        if "=" not in extra:
-            raise fail(extra or "(empty)", "optional fields are key=value")
-        key, value = (s.strip() for s in extra.split("=", 1))
-        target = options if key in KNOWN_KEYS else unknown
-        if key in options or key in unknown:
-            raise fail(key, "given twice")
-        target[key] = value
-    for key in _FLOAT_KEYS:
-        if key in options:
-            try:
-                float(options[key])
-            except ValueError:
-                raise fail(key, f"{options[key]!r} is not a number") from None
-    if options.get("kind", "sensor") not in ("sensor", "actuator"):
-        raise fail("kind", f"{options['kind']!r} is not sensor or actuator")
-    if options.get("kind") == "actuator" and not options.get("call"):
-        raise fail("call", "an actuator needs call=<function taking one value>")
-    if "ros" in options and not ROS_TYPE_RE.match(options["ros"]):
-        raise fail("ros", f"{options['ros']!r} is not a message type like sensor_msgs/msg/Range")
+    options, unknown = _options(parts[7:], fail)
     size = chan_count * (8 + DTYPES[dtype][1])
     if size > SIF_MAX_PAYLOAD:
         raise fail(

@@ -15,6 +15,7 @@
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
  *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   srf02_absent 1/0: the SRF02 taken off the bus (no acknowledge at all), or put back
  *   lag: "lag US", the furthest simulated time fell behind the host's since last asked
  *   trig: the trigger pin's edges (OC2A: Uno D11 / Mega D10): "trig EDGES RISE_US FALL_US", the last
  *         edges in the board's µs (its clock: Timer1, counted from the cycle it was started)
@@ -88,6 +89,7 @@ static struct {
     uint16_t range;
     uint64_t busy_until_us;
     int cm, echo;
+    int absent; /* taken off the bus: it acknowledges nothing */
     unsigned rangings, msgs;
     uint32_t last_msg;
 } srf = {.addr = 0x70, .cm = 100, .echo = 1};
@@ -137,7 +139,7 @@ static void srf_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
         srf.selected = 0;
         srf.index = 0;
         int busy = sim_us() < srf.busy_until_us; /* ranging: no acknowledge at all */
-        if ((v.u.twi.addr >> 1) == srf.addr && !busy) {
+        if ((v.u.twi.addr >> 1) == srf.addr && !busy && !srf.absent) {
             srf.selected = v.u.twi.addr;
             avr_raise_irq(to_avr, avr_twi_irq_msg(TWI_COND_ACK, srf.selected, 1));
         }
@@ -359,6 +361,9 @@ static void command(const char *cmd) {
         printf("ok\n");
     } else if (sscanf(cmd, "srf02 %d", &v) == 1) {
         srf.cm = v;
+        printf("ok\n");
+    } else if (sscanf(cmd, "srf02_absent %d", &v) == 1) {
+        srf.absent = v;
         printf("ok\n");
     } else if (sscanf(cmd, "echo %d", &v) == 1) {
         srf.echo = v;

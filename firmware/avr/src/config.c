@@ -22,6 +22,8 @@
 #include <avr/pgmspace.h>
 #include <string.h>
 
+#include "log.h"
+
 #define EE_BASE 16 /* (0..3: the boot counter of clock.epoch, main.c) */
 #define VERSION 1
 #define CONFIG_MAX 32 /* keys; the generator refuses more */
@@ -183,7 +185,10 @@ void config_boot(void) {
         if (!refuse(i, v, scratch)) cand[i] = v;
     }
     if (commit(cand, scratch) == 0) config_state |= ST_LOADED;
-    else runtime_debug("saved configuration refused;");
+    else {
+        runtime_debug("saved configuration refused;");
+        log_line_P(LOG_WARN, LOG_BOARD, PSTR("saved configuration refused"), 0);
+    }
 }
 
 /* ---- the J2A functions ------------------------------------------------------------------------ */

@@ -8,6 +8,7 @@
 #include <util/twi.h>
 
 #include "hal.h"
+#include "log.h"
 #include "schedule.h"
 #include "timing.h"
 
@@ -86,7 +87,10 @@ void quadrature_poll(uint64_t now) {
     moved = quad_moved;
     quad_bad = quad_moved = 0;
     sei();
-    if (bad) record_na(quad_t, 0, now);
+    if (bad) {
+        log_fault_P(quad_t->tid, FAULT_OVERRUN, 0);
+        record_na(quad_t, 0, now);
+    }
     else record(quad_t, 0, (uint32_t)count, moved ? stamp : now);
 }
 
@@ -252,7 +256,9 @@ void srf02_poll(uint64_t now) {
         if (!sched_due(&srf02_s, &now)) return;
         const uint8_t cmd = 0x51; /* range in cm */
         sched_wait(&srf02_s, &now); /* the command starts on the instant */
-        if (twi_transfer(0, &cmd, 1, 0, 0) != 0) {
+        uint8_t st = twi_transfer(0, &cmd, 1, 0, 0);
+        if (st != 0) { /* between rangings it answers: no acknowledge is an absent part */
+            log_fault_P(srf02_t->tid, st == 1 ? FAULT_NO_ANSWER : FAULT_BUS, 0);
             srf02_bus_errors++;
             record_na(srf02_t, 0, now);
             return;
@@ -265,9 +271,13 @@ void srf02_poll(uint64_t now) {
     if (now < srf02_check_us) return;
     uint8_t rev = 0xFF;
     uint8_t st = twi_transfer(0, 0, 0, &rev, 1);
-    if (st == 2) srf02_bus_errors++;
+    if (st == 2) {
+        log_fault_P(srf02_t->tid, FAULT_BUS, 0);
+        srf02_bus_errors++;
+    }
     if (st != 0 || rev == 0xFF) { /* still ranging */
         if (now - srf02_ping_us >= 100000UL) {
+            log_fault_P(srf02_t->tid, FAULT_TIMEOUT, 0);
             srf02_timeouts++;
             srf02_ranging = 0;
             record_na(srf02_t, 0, now);
@@ -279,6 +289,7 @@ void srf02_poll(uint64_t now) {
     srf02_ranging = 0;
     uint8_t r[2];
     if (twi_transfer(2, 0, 0, r, 2) != 0) {
+        log_fault_P(srf02_t->tid, FAULT_BUS, 0);
         srf02_bus_errors++;
         record_na(srf02_t, 0, now);
         return;

@@ -1,5 +1,6 @@
 /* The failsafe: see board/failsafe.py (Python) for the theory of operation; the same keys
- * (`failsafe_ms` per actuator), functions (a2jGoodbye, a2jFailsafe) and debug texts.  An
+ * (`failsafe_ms` per actuator), functions (a2jGoodbye, a2jFailsafe), debug texts and a log line
+ * (WARN) per trip.  An
  * actuator is armed by a command it takes and trips once when the host has been silent for its
  * failsafe_ms (runtime.c notes every intact frame from the host).  Timed calls not yet carried
  * out (timing.c) are dropped on a2jGoodbye, and those due after the moment the host had been
@@ -11,6 +12,7 @@
 #include <string.h>
 
 #include "hal.h"
+#include "log.h"
 #include "runtime.h"
 #include "timing.h"
 
@@ -35,6 +37,7 @@ static void trip(uint8_t i, const char *why, uint32_t silent_ms) {
     trips++;
     last_trip = board_clock();
     e.make_safe();
+    log_line_P(LOG_WARN, board_transducers[e.k].tid, PSTR("made safe: "), why);
     runtime_debug_P(PSTR("failsafe: "));
     runtime_debug_P(e.name);
     runtime_debug_P(PSTR(" safe ("));

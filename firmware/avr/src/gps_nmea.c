@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "hal.h"
+#include "log.h"
 
 #if defined(UDR1)
 #define RING 128 /* 133 ms of 9600 baud */
@@ -178,17 +179,22 @@ static void rmc(const char *b) {
     rmc_course = valid ? decimal(co, n, 100) : (int32_t)NA_I32;
 }
 
+static void bad_sentence(void) { /* dropped, counted; the first said (log.c) */
+    gps_checksum_errors++;
+    log_fault_P(gt->tid, FAULT_CHECKSUM, 0);
+}
+
 static void sentence(uint64_t at_us) {
     /* line: "$...*hh" without the "\r\n" */
     char *star = strchr(line, '*');
     if (!star || star + 3 != line + line_n) {
-        gps_checksum_errors++;
+        bad_sentence();
         return;
     }
     uint8_t hi = hex(star[1]), lo = hex(star[2]), c = 0;
     for (char *p = line + 1; p < star; p++) c ^= (uint8_t)*p;
     if (hi > 15 || lo > 15 || c != (uint8_t)(hi << 4 | lo)) {
-        gps_checksum_errors++;
+        bad_sentence();
         return;
     }
     *star = 0;
@@ -221,7 +227,7 @@ void gps_poll(uint64_t now) {
             line[line_n++] = (char)b;
         } else {
             in_line = 0;
-            gps_checksum_errors++; /* not NMEA: dropped */
+            bad_sentence(); /* not NMEA: dropped */
         }
     }
 }

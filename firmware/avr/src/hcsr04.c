@@ -5,9 +5,11 @@
 
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/pgmspace.h>
 #include <util/delay.h>
 
 #include "hal.h"
+#include "log.h"
 #include "schedule.h"
 
 #define MIN_MM 20
@@ -72,6 +74,8 @@ void hcsr04_poll(uint64_t now) {
     }
     if (state) {
         if (now > deadline) { /* no echo, or none that ended within the range */
+            /* (a module always answers a trigger: no echo at all is an absent one) */
+            if (state == 1) log_fault_P(ht->tid, FAULT_NO_ANSWER, 0);
             state = 0;
             hcsr04_timeouts++;
             record_na(ht, 0, now);

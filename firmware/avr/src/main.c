@@ -5,6 +5,7 @@
 
 #include "failsafe.h"
 #include "hal.h"
+#include "identity.h"
 #include "runtime.h"
 #include "timing.h"
 
@@ -38,6 +39,7 @@ int main(void) {
     link_init(BOARD_BAUD);
     runtime_init();
     epoch_init();
+    identity_init(); /* board.id: the stamp into the EEPROM at the first boot (identity.c) */
     board_setup();
     sei();
     for (;;) {

@@ -17,7 +17,9 @@
  * a2jEcho, a2jEchoMany, then Part 2 (a2jGetMappingMany, a2jGetTransds, a2jClock, a2jHostMap,
  * a2jSifCount), then the board's own functions.  a2jClock's t2 is the interrupt's stamp of the
  * request's last byte, t3 is taken just before the reply's first byte enters the TX ring.
- * No dynamic allocation; the one 255-byte scratch buffer is shared by replies and SIFs.
+ * No dynamic allocation; the one 255-byte scratch buffer is shared by replies and SIFs.  The
+ * board's log (log.c) writes its lines as SIFs of their own (runtime_sif_P), straight from
+ * flash: the scratch buffer may hold a reply in the making when a driver says something.
  */
 #include "builtins.h"
 
@@ -25,6 +27,7 @@
 #include <string.h>
 
 #include "hal.h"
+#include "log.h"
 #include "wire.h"
 
 static frame_parser_t parser;
@@ -214,6 +217,7 @@ static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
     uint8_t code = fn(in, n, scratch, &out_n);
     if (code >= 0xF0 && code <= 0xF4) {
         runtime_debug("reserved code;");
+        log_fault_P(LOG_BOARD, FAULT_BAD_REPLY, 0);
         code = 0xFF;
     }
     reply(seq, code, scratch, out_n);
@@ -273,6 +277,15 @@ static uint8_t flush_sif(transducer_t *t, uint64_t now) {
     return 1;
 }
 
+uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b) {
+    uint8_t an = a ? (uint8_t)strlen_P(a) : 0, bn = b ? (uint8_t)strlen_P(b) : 0;
+    if (link_tx_free() < FRAME_MAX((uint16_t)hn + an + bn)) return 0;
+    encode_frame_P(tx, SOS, sif_seq++, cmd, head, hn, a, an, b, bn);
+    sif_total++;
+    sifs_sent++;
+    return 1;
+}
+
 static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
     if (t->pending & (1u << ch)) {
         if (!flush_sif(t, stamp)) { /* no room: the older value goes, counted */
@@ -301,6 +314,7 @@ void runtime_poll(void) {
     for (uint8_t i = 0; i < board_transducer_count; i++) {
         if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);
     }
+    log_poll(now); /* a count of dropped log lines, when the budget has room (log.c) */
     if (frame_parser_in_frame(&parser) && now - last_byte_us > INTERBYTE_TIMEOUT_US) {
         if (frame_parser_abort(&parser) == EV_CUT && parser.has_seq)
             error_frame(parser.seq, ERR_TIMEOUT, DIAG_SILENCE);

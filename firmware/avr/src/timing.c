@@ -21,6 +21,7 @@
 #include <string.h>
 
 #include "hal.h"
+#include "log.h"
 #include "runtime.h"
 
 #define FAR_NS 100000000000LL /* 100 s */
@@ -224,6 +225,7 @@ void timing_cancel(const char *why, uint32_t ms, int64_t after) {
     }
     if (!n) return;
     timing_cancelled += n;
+    log_line_P(LOG_WARN, LOG_BOARD, PSTR("timed calls dropped: "), why);
     uint8_t text[24];
     runtime_debug_P(PSTR("timing: "));
     text[utoa_at(text, 0, n)] = 0;

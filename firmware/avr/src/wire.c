@@ -16,6 +16,8 @@
  */
 #include "wire.h"
 
+#include <avr/pgmspace.h>
+
 enum { HUNT = 0, S_SEQ, S_OP, S_LEN, S_DATA, S_CSUM, IGNORE };
 
 void frame_parser_init(frame_parser_t *p) {
@@ -113,6 +115,33 @@ static void put_escaped(byte_sink_t out, uint8_t b) {
     } else {
         out(b);
     }
+}
+
+static uint8_t put_flash(byte_sink_t out, const char *s, uint8_t n) {
+    uint8_t c = 0;
+    for (uint8_t i = 0; i < n; i++) {
+        uint8_t b = pgm_read_byte(s + i);
+        put_escaped(out, b);
+        c ^= b;
+    }
+    return c;
+}
+
+void encode_frame_P(byte_sink_t out, uint8_t start, uint8_t seq, uint8_t op, const uint8_t *head,
+                    uint8_t hn, const char *a, uint8_t an, const char *b, uint8_t bn) {
+    uint8_t n = (uint8_t)(hn + an + bn);
+    uint8_t c = seq ^ (uint8_t)(op + 11) ^ (uint8_t)(n + 97);
+    out(start);
+    put_escaped(out, seq);
+    put_escaped(out, op);
+    put_escaped(out, n);
+    for (uint8_t i = 0; i < hn; i++) {
+        put_escaped(out, head[i]);
+        c ^= head[i];
+    }
+    c ^= put_flash(out, a, an);
+    c ^= put_flash(out, b, bn);
+    put_escaped(out, c);
 }
 
 void encode_frame(byte_sink_t out, uint8_t start, uint8_t seq, uint8_t op,

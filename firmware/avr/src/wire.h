@@ -30,6 +30,10 @@ typedef void (*byte_sink_t)(uint8_t b);
 uint8_t frame_checksum(uint8_t seq, uint8_t op, const uint8_t *payload, uint8_t n);
 void encode_frame(byte_sink_t out, uint8_t start, uint8_t seq, uint8_t op,
                   const uint8_t *payload, uint8_t n);
+/* A frame whose payload is head[0..hn) then the flash strings a and b (0: none): the board's
+ * log lines (log.c), whose texts never leave flash. */
+void encode_frame_P(byte_sink_t out, uint8_t start, uint8_t seq, uint8_t op, const uint8_t *head,
+                    uint8_t hn, const char *a, uint8_t an, const char *b, uint8_t bn);
 /* Worst-case encoded size of a frame with n payload bytes (every byte escaped). */
 #define FRAME_MAX(n) (1u + 2u * (3u + (n) + 1u))
 #endif

@@ -30,9 +30,13 @@
 # Saving: a record [b"MLC" version][u16 schema crc][u8 count][values][u16 crc] written by the
 # store (a file written to a temporary name and renamed over the old one: a power cut leaves the
 # old or the new file, never half of one; the C runtime keeps two EEPROM slots).  A record whose
-# schema crc differs (another board file since) is not applied.
+# schema crc differs (another board file since) is not applied.  A store that fails (read, write
+# or erase) is the answer's reason and a fault in the board's log (log.py): said once (WARN),
+# every failure counted.
 
 import struct
+
+from .log import SOURCE_BOARD, STORAGE, WARN
 
 VERSION = 1
 MAGIC = b"MLC"
@@ -218,6 +222,7 @@ class RuntimeConfig:
             try:
                 self.store.erase()
             except Exception as e:  # noqa: BLE001 - a failing store is the answer, not a crash
+                self._storage_failed("erasing", e)
                 return 1, ("defaults applied, saved configuration not erased: %s" % e).encode()
             self.state &= ~ST_SAVED
         return 0, b""
@@ -262,10 +267,16 @@ class RuntimeConfig:
             return "this board has no storage for a configuration"
         try:
             self.store.write(self.record())
-        except Exception as e:  # noqa: BLE001
+        except Exception as e:  # noqa: BLE001 - the answer says it, and the log (counted)
+            self._storage_failed("saving", e)
             return "storage failed: %s" % e
         self.state |= ST_SAVED
         return None
+
+    def _storage_failed(self, doing, e):
+        # said once (WARN), every failure counted (log.py): the host's status shows it
+        text = "configuration storage failed %s: %s" % (doing, e)
+        self.rt.log.fault(SOURCE_BOARD, STORAGE, text, WARN)
 
     def _read(self):
         # The saved values' bytes, or None when there is no valid record for this schema.
@@ -273,7 +284,8 @@ class RuntimeConfig:
             return None
         try:
             rec = self.store.read()
-        except Exception:  # noqa: BLE001 - unreadable is the same as absent
+        except Exception as e:  # noqa: BLE001 - unreadable is the same as absent (and said)
+            self._storage_failed("reading", e)
             return None
         n = len(self.keys)
         if rec is None or len(rec) != 9 + 4 * n:
@@ -300,6 +312,7 @@ class RuntimeConfig:
             self.state |= ST_LOADED
         else:
             self.rt.debug("saved configuration refused;")
+            self.rt.log.line(WARN, "the saved configuration was refused: the defaults run")
 
 
 def _getter(t):

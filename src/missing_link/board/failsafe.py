@@ -10,10 +10,11 @@
 # hears no such frame from the host for its `failsafe_ms` is brought to its safe state by its
 # driver - a motor coasts or brakes, a stepper stops and lets go, a servo holds its last pulse
 # or goes limp, as its keys say - which reports it as a sample stamped when it happened; a line
-# goes to a2jDebug.  Only an armed actuator trips: one not commanded since it was last made
-# safe (or since boot) is safe already, and a board that waits for its host does not trip at
-# boot.  A host that means to go says so: a2jGoodbye makes every armed actuator safe at once;
-# so does the firmware itself before it stops (a break to the REPL, a crash: firmware.py).
+# goes to a2jDebug and the log (WARN; a make_safe that raises: ERROR, said once, counted).  Only
+# an armed actuator trips: one not commanded since it was last made safe (or since boot) is
+# safe already, and a board that waits for its host does not trip at boot.  A host that means
+# to go says so: a2jGoodbye makes every armed actuator safe at once; so does the firmware
+# itself before it stops (a break to the REPL, a crash: firmware.py).
 # The daemon keeps a quiet link talking well within the shortest `failsafe_ms`
 # (daemon/failsafe.py), so only a host that is gone trips it.
 #
@@ -26,6 +27,8 @@
 # a2jFailsafe -> [I trips since boot][I ms since the last trip; 0xFFFFFFFF: none]
 
 import struct
+
+from .log import ERROR, RAISED_SAFE, WARN
 
 DEFAULT_MS = 500
 
@@ -88,12 +91,16 @@ class Failsafe:
         self._armed.remove(t)
         self.trips += 1
         self._last_trip_us = self.rt.clock()
+        log = self.rt.log
         try:
             t.driver.make_safe()
         except Exception as e:  # noqa: BLE001 - the others must still be made safe
             self.rt.debug("failsafe: %s: %s;" % (t.name, e))
+            text = "making it safe raised %s: %s" % (type(e).__name__, e)
+            log.fault(t.tid, RAISED_SAFE, text, ERROR)  # said once, counted
             return
         self.rt.debug("failsafe: %s safe (%s);" % (t.name, why))
+        log.line(WARN, "made safe (%s)" % why, t.tid)
 
     def stop(self, why):
         # Nothing the board drives goes on: no timed call left (first: none may run meanwhile)

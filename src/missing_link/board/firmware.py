@@ -22,7 +22,7 @@
 # "\r\x03" does not stop the firmware: `missing-link flash` sends the break first
 # (docs/hardware.md, "Flashing").  Whatever stops the firmware - the break, or an exception -
 # first brings every armed actuator to its safe state and drops the timed calls (failsafe.stop),
-# so nothing it drove goes on without it.
+# so nothing it drove goes on without it; a crash is said in the log (ERROR) on its way out.
 # Within SPIN_US of a timed call (timing.py) the loop does not sleep: the link's wait counts in
 # ms, a timed call wants its µs.  A turn ends at the loop's idle point, where the firmware
 # collects garbage itself when there is room before the next instant it must be on time for
@@ -34,6 +34,8 @@ from .clock import resolution_us
 from .config import RuntimeConfig
 from .drivers import driver_class
 from .failsafe import Failsafe
+from .identity import machine_id
+from .log import ERROR
 from .memory import Memory
 from .runtime import BoardRuntime, Transducer
 from .store import FileStore
@@ -46,13 +48,6 @@ SPIN_US = 2000
 
 class BreakIn(Exception):
     pass
-
-
-def _serial(machine):
-    try:
-        return "".join("%02x" % b for b in machine.unique_id())
-    except Exception:  # noqa: BLE001 - a port without unique_id: the board file must name it
-        return "unknown"
 
 
 def open_buses(board, machine):
@@ -100,12 +95,14 @@ def build(board, machine, clock=None, store=None):
     # -> (runtime, {transducer name: driver}); store: where the configuration is saved
     # (default: the file named by the board file's `config_file`)
     name = board["name"]
+    uid = machine_id(machine)  # board.id: the chip's (a port without one: the board file's serial)
     rt = BoardRuntime(
         name,
         board.get("model", "missing-link micropython board"),
-        board.get("serial") or _serial(machine),
+        board.get("serial") or uid or "unknown",
         fw_version=board.get("fw_version", "0.2.0"),
         clock=clock,
+        board_id=uid or board.get("serial") or "unknown",
     )
     rt.set_property("clock.res_us", str(resolution_us(rt.clock)))
     buses = open_buses(board, machine)
@@ -133,6 +130,7 @@ def build(board, machine, clock=None, store=None):
     rt.timing = Timing(rt)  # aligned sampling, timed calls (before the configuration's keys)
     rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone (ditto)
     rt.config = RuntimeConfig(rt, store)
+    rt.add_function("a2jLogInfo", rt.log.info)  # the log's counts (log.py)
     heap = _heap()
     if heap is not None:
         rt.memory = Memory(rt, heap)  # (last: its first collection takes what the build left)
@@ -160,7 +158,20 @@ class Firmware:
         except BaseException as e:  # noqa: BLE001 - made safe, then on its way (re-raised)
             why = "the break to the REPL" if isinstance(e, BreakIn) else "%s" % e
             self.runtime.failsafe.stop("the firmware stops: %s" % why)
+            if not isinstance(e, BreakIn):
+                self._last_words("%s: %s" % (type(e).__name__, e))
             raise
+
+    def _last_words(self, why):
+        # A crash: the host hears why (the log, ERROR), if the link still takes it.
+        rt = self.runtime
+        rt.log.line(ERROR, "the firmware stops: %s" % why)
+        try:
+            out = rt.take_output()
+            if out:
+                self.link.write(out)
+        except Exception:  # noqa: BLE001 - best effort: the firmware stops all the same
+            pass
 
     def _turn(self):
         rt = self.runtime

@@ -4,6 +4,12 @@
 # timeout, close(): hand the port back to the REPL.  A TCP link with a `key_file` carries signed
 # records (signing.py): on a network, a board with a key takes nothing unsigned, and keeps the
 # host that proved the key whoever else connects.
+#
+# On TCP the board either listens ({"kind": "tcp", "port": 5000}: TcpServer, the host connects)
+# or dials ({"kind": "tcp", "dial": "HOST:PORT"}: DialServer, the board connects to a daemon
+# that runs `missing-link run --listen`, as a micro-ROS client dials its agent, and again with
+# backoff whenever the connection ends).  Both are the same connection table to TcpLink and
+# SignedLink: who connects changes, not who speaks J2A or who proves the key (docs/signing.md).
 
 import sys
 
@@ -73,44 +79,30 @@ class UartLink:
         self._uart.deinit()
 
 
-class TcpServer:
-    # Connections on one TCP port, by number: accept() -> a new connection's number or None,
-    # recv(n) -> the bytes there now, None (none yet) or b"" (closed: forgotten), send(n, data)
-    # -> False when it failed (then closed), drop(n), wait(µs): until input or the timeout,
-    # close().  Blocking sockets, read only when a poll says there are bytes; a send that
-    # cannot go out within SEND_S closes the connection (a host that vanished must not stall
-    # the firmware's loop, and with it the failsafe).
+class _Sockets:
+    # A table of open TCP connections by number: recv(n) -> the bytes there now, None (none
+    # yet) or b"" (closed: forgotten), send(n, data) -> False when it failed (then closed),
+    # drop(n), wait(µs): until input or the timeout.  Blocking sockets, read only when a poll
+    # says there are bytes; a send that cannot go out within SEND_S closes the connection (a
+    # host that vanished must not stall the firmware's loop, and with it the failsafe).
     SEND_S = 0.5
 
-    def __init__(self, port=5000, host="0.0.0.0"):
+    def __init__(self):
         import select
-        import socket
 
         self._select = select
-        self._srv = socket.socket()
-        self._srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self._srv.bind(socket.getaddrinfo(host, port)[0][-1])
-        self._srv.listen(2)
         self._conns = {}
         self._next = 1
+
+    def _number(self):
+        n = self._next
+        self._next += 1
+        return n
 
     def _ready(self, sock, ms=0):
         p = self._select.poll()
         p.register(sock, self._select.POLLIN)
         return bool(p.poll(ms))
-
-    def accept(self):
-        if not self._ready(self._srv):
-            return None
-        try:
-            conn, _addr = self._srv.accept()
-        except OSError:  # (out of sockets: the client is gone again)
-            return None
-        conn.settimeout(self.SEND_S)
-        n = self._next
-        self._next += 1
-        self._conns[n] = conn
-        return n
 
     def recv(self, n):
         conn = self._conns.get(n)
@@ -142,17 +134,132 @@ class TcpServer:
         if conn is not None:
             conn.close()
 
-    def wait(self, us):
+    def take(self, n):
+        # connection n's socket, handed over (a virtual board reads it in its own loop)
+        return self._conns.pop(n, None)
+
+    def _wait_on(self, socks, us):
         p = self._select.poll()
-        p.register(self._srv, self._select.POLLIN)
-        for conn in self._conns.values():
-            p.register(conn, self._select.POLLIN)
+        for sock in socks:
+            p.register(sock, self._select.POLLIN)
         p.poll(max(0, us // 1000))
+
+    def wait(self, us):
+        self._wait_on(list(self._conns.values()), us)
 
     def close(self):
         for n in list(self._conns):
             self.drop(n)
+
+
+class TcpServer(_Sockets):
+    # Connections on one TCP port, by number: accept() -> a new connection's number or None,
+    # and the table's recv, send, drop, wait (above); close().
+    def __init__(self, port=5000, host="0.0.0.0"):
+        import socket
+
+        super().__init__()
+        self._srv = socket.socket()
+        self._srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._srv.bind(socket.getaddrinfo(host, port)[0][-1])
+        self._srv.listen(2)
+
+    def accept(self):
+        if not self._ready(self._srv):
+            return None
+        try:
+            conn, _addr = self._srv.accept()
+        except OSError:  # (out of sockets: the client is gone again)
+            return None
+        conn.settimeout(self.SEND_S)
+        n = self._number()
+        self._conns[n] = conn
+        return n
+
+    def wait(self, us):
+        socks = list(self._conns.values())
+        socks.append(self._srv)
+        self._wait_on(socks, us)
+
+    def close(self):
+        super().close()
         self._srv.close()
+
+
+# errno of a connect that goes on in the background: EINPROGRESS (Linux 115, lwIP 119), EAGAIN
+_IN_PROGRESS = (115, 119, 11)
+
+
+class SocketNet(_Sockets):
+    # Outgoing TCP connections by number, none of them blocking the loop: connect(host, port)
+    # -> n at once; connected(n) -> True once it is up, False while on its way, None when it
+    # failed (forgotten); then the table's recv, send, drop, wait.  The host is an address
+    # (a name would be a DNS lookup, which blocks).
+    def __init__(self):
+        import socket
+
+        super().__init__()
+        self._socket = socket
+        self._dialing = {}  # n -> socket on its way (None: failed at once)
+
+    def connect(self, host, port):
+        n = self._number()
+        sock = self._socket.socket()
+        try:
+            addr = self._socket.getaddrinfo(host, port)[0][-1]
+            sock.setblocking(False)
+            sock.connect(addr)
+        except OSError as e:
+            if (e.args[0] if e.args else 0) not in _IN_PROGRESS:
+                sock.close()
+                sock = None
+        self._dialing[n] = sock
+        return n
+
+    def connected(self, n):
+        if n in self._conns:
+            return True
+        sock = self._dialing.get(n)
+        if sock is None:
+            self._dialing.pop(n, None)
+            return None
+        sel = self._select
+        p = sel.poll()
+        p.register(sock, sel.POLLOUT)
+        ev = p.poll(0)
+        if not ev:
+            return False
+        del self._dialing[n]
+        flags = ev[0][1]
+        if flags & (sel.POLLERR | sel.POLLHUP) or _refused(sock):
+            sock.close()
+            return None
+        sock.setblocking(True)
+        sock.settimeout(self.SEND_S)
+        self._conns[n] = sock
+        return True
+
+    def drop(self, n):
+        sock = self._dialing.pop(n, None)
+        if sock is not None:
+            sock.close()
+        super().drop(n)
+
+    def close(self):
+        for n in list(self._dialing):
+            self.drop(n)
+        super().close()
+
+
+def _refused(sock):
+    # a connect that failed, said by the socket (CPython's SO_ERROR; MicroPython says it with
+    # POLLERR/POLLHUP, and has no getsockopt)
+    getsockopt = getattr(sock, "getsockopt", None)
+    if getsockopt is None:
+        return False
+    import socket
+
+    return bool(getsockopt(socket.SOL_SOCKET, socket.SO_ERROR))
 
 
 class TcpLink:
@@ -264,7 +371,15 @@ def open_link(cfg, machine):
         from .clock import default_clock
 
         clock = default_clock()  # (extended to 64 bit: ticks_ms wraps in 12 days)
-        return network_link(TcpServer(cfg.get("port", 5000)), cfg, lambda: clock() // 1000)
+
+        def clock_ms():
+            return clock() // 1000
+
+        if cfg.get("dial"):
+            from .dial import dial_server
+
+            return network_link(dial_server(SocketNet(), cfg, clock_ms), cfg, clock_ms)
+        return network_link(TcpServer(cfg.get("port", 5000)), cfg, clock_ms)
     if kind == "usb":
         return StdioLink()
     if kind == "uart":

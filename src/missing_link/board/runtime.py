@@ -22,11 +22,18 @@
 # that already holds an unsent value flushes the transducer's SIF first, so no value is lost.
 # Drivers that need CPU time implement poll(now_us) and next_due_us().
 #
+# The board's log (log.py, rt.log) queues its lines with the SIFs, as SIFs of their own (cmd
+# LOG_CMD, the same seq).  A driver is handed `driver.log` (its transducer's faults: said once,
+# then counted); a function that raises, or answers what J2A cannot carry, is said once at ERROR
+# and counted there too, besides a2jDebug's text.
+#
 # MicroPython subset only: no dataclasses, no typing, no f-strings with '='.
 
 import struct
 
 from .clock import default_clock, new_epoch
+from .identity import runtime_hash
+from .log import BAD_REPLY, ERROR, LOG_CMD, RAISED_CALL, SOURCE_BOARD, BoardLog, SourceLog
 from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
     EV_BREAK,
@@ -84,6 +91,8 @@ class BoardRuntime:
         epoch=None,
         builtins=True,
         part2=True,
+        board_id=None,
+        fw_hash=None,
     ):
         self.clock = clock if clock is not None else default_clock()
         self.parser = FrameParser()
@@ -111,6 +120,8 @@ class BoardRuntime:
         self.sifs_sent = 0
         self.calls = 0
         self.breaks = 0  # the break between frames (wire.py): the shell's to act on (firmware.py)
+        # the board's log (log.py): lines and faults as log SIFs; none without Part 2
+        self.log = BoardLog(self.clock, self._queue_log if part2 else None)
         self.add_function("a2jGetMapping", self._get_mapping)
         self.add_function("a2jMany", self._many)
         if builtins:
@@ -129,9 +140,14 @@ class BoardRuntime:
         self.set_property("board.name", name)
         self.set_property("board.model", model)
         self.set_property("board.serial", serial)
+        if part2:  # who it is and what it runs (identity.py; the 2014 firmware had neither)
+            self.set_property("board.id", board_id or serial)
         self.set_property("clock.epoch", epoch if epoch is not None else new_epoch())
         self.set_property("clock.res_us", "1")
         self.set_property("fw.version", fw_version)
+        fw_hash = runtime_hash() if fw_hash is None and part2 else fw_hash
+        if fw_hash:
+            self.set_property("fw.hash", fw_hash)
 
     # ---- configuration -------------------------------------------------------------------
     def _add(self, name, kind, handler):
@@ -179,6 +195,10 @@ class BoardRuntime:
             transducer.driver = driver
             transducer._poll = getattr(driver, "poll", None)
             transducer._due = getattr(driver, "next_due_us", None)
+            try:
+                driver.log = SourceLog(self.log, transducer.tid)  # its faults (log.py)
+            except AttributeError:  # (a driver that takes no attributes logs nothing)
+                pass
             if hasattr(driver, "set_cb"):
 
                 def cb(channel, value, stamp_us=None, _t=transducer):
@@ -240,6 +260,14 @@ class BoardRuntime:
             self.sifs_dropped += 1
         self._sifs.append(frame)
 
+    def _queue_log(self, payload):
+        # a log line (log.py): a SIF like any other, with the same seq and the same queue
+        frame = encode_frame(SOS, self.next_sif_seq(), LOG_CMD, payload)
+        if len(self._sifs) >= SIF_QUEUE_LIMIT:
+            self._sifs.pop(0)
+            self.sifs_dropped += 1
+        self._sifs.append(frame)
+
     def poll(self):
         now = self.clock()
         if self.failsafe is not None:
@@ -252,6 +280,7 @@ class BoardRuntime:
         for t in self.transducers:
             if t._dirty:
                 self._queue_sif(t, now)
+        self.log.poll(now)  # a count of dropped log lines, when the budget has room
         if self.parser.in_frame() and now - self._last_byte_us > INTERBYTE_TIMEOUT_US:
             ev = self.parser.abort()
             if ev is not None and ev[1] is not None:
@@ -277,6 +306,9 @@ class BoardRuntime:
             t = self.failsafe.next_due_us()
             if t is not None and (due is None or t < due):
                 due = t
+        t = self.log.next_due_us()
+        if t is not None and (due is None or t < due):
+            due = t
         return due
 
     def take_output(self):
@@ -349,17 +381,26 @@ class BoardRuntime:
             code, reply = handler(payload)
         except Exception as e:  # noqa: BLE001 - a failing function must not stop the board
             self.debug("%s: %s;" % (_name, e))
+            self._raised(RAISED_CALL, _name, e)
             code, reply = 0xFF, b""
         if reply is None:  # a2jMany with a target beyond the table (spec 1.7)
             self._error(seq, ERR_INDEX, DIAG_INDEX)
             return
         if 0xF0 <= code <= 0xF4:
             self.debug("%s returned reserved code %d;" % (_name, code))
+            self.log.fault(
+                SOURCE_BOARD, BAD_REPLY, "%s returned reserved code %d" % (_name, code), ERROR
+            )
             code = 0xFF
         if len(reply) > 255:
             self.debug("%s: reply longer than 255 bytes;" % _name)
+            self.log.fault(SOURCE_BOARD, BAD_REPLY, "%s: reply over 255 bytes" % _name, ERROR)
             code, reply = 0xFF, b""
         self._reply(seq, code, reply)
+
+    def _raised(self, kind, where, e):
+        # code that raised, said once (ERROR) and counted: the board goes on (log.py)
+        self.log.fault(SOURCE_BOARD, kind, "%s raised %s: %s" % (where, type(e).__name__, e), ERROR)
 
     # ---- built-in functions ---------------------------------------------------------------
     def mapping_blob(self):
@@ -442,6 +483,7 @@ class BoardRuntime:
                 ret, last, data = handler(bool(flags & 2), bool(flags & 1), offset, payload[6:])
             except Exception as e:  # noqa: BLE001
                 self.debug("%s: %s;" % (name, e))
+                self._raised(RAISED_CALL, name, e)
                 ret, last, data = 0xFF, True, b""
         data = data[:MANY_CHUNK]
         head = bytes((ret & 0xFF, 1 if last else 0)) + payload[2:6]

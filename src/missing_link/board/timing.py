@@ -22,10 +22,10 @@
 #   that tick, however late the process got round to it.
 # * a queued call is a command the host gave and the board has not yet carried out: when the
 #   host is gone it must not be carried out at all.  cancel() drops the whole queue, counted
-#   (`cancelled`) and said in a2jDebug; the failsafe (failsafe.py) calls it on a2jGoodbye, and
-#   when the host has been silent (no intact frame) for the board's shortest failsafe_ms: then
-#   for the calls due after that moment (one due until then, the host still there, runs, if
-#   late).
+#   (`cancelled`) and said in a2jDebug and the log (WARN); the failsafe (failsafe.py) calls it
+#   on a2jGoodbye, and when the host has been silent (no intact frame) for the board's shortest
+#   failsafe_ms: then for the calls due after that moment (one due until then, the host still
+#   there, runs, if late).  A timed call that raises is said once (ERROR) and counted.
 # * next_instant(now): the soonest board tick the board must be on time for (a timed call, or an
 #   aligned transducer's next grid instant; its measurement if that is due already), so that
 #   the firmware can keep its own pauses off it (a garbage collection: memory.py).
@@ -36,6 +36,8 @@
 # Integer maths only (MicroPython's floats may be 32 bit; its ints are arbitrary precision).
 
 import struct
+
+from .log import ERROR, RAISED_TIMED, SOURCE_BOARD, WARN
 
 MAP_LIFE_US = 10000000
 QUEUE = 8
@@ -135,7 +137,9 @@ class Timing:
         if n:
             self._queue = keep
             self.cancelled += n
-            self.rt.debug("timing: %d timed call%s dropped (%s);" % (n, "" if n == 1 else "s", why))
+            text = "%d timed call%s dropped (%s)" % (n, "" if n == 1 else "s", why)
+            self.rt.debug("timing: %s;" % text)
+            self.rt.log.line(WARN, text)
         return n
 
     def next_precise_us(self):
@@ -151,6 +155,8 @@ class Timing:
                 self.done += 1
             except Exception as e:  # noqa: BLE001 - a failing action must not stop the board
                 self.rt.debug("timed call: %s;" % e)
+                text = "a timed call raised %s: %s" % (type(e).__name__, e)
+                self.rt.log.fault(SOURCE_BOARD, RAISED_TIMED, text, ERROR)  # said once, counted
             finally:
                 self.acting_tick = None
 

@@ -198,6 +198,18 @@ def _run(sp: Parser) -> None:
         help="--auto probes ports with this USB id (hex, PID may be *; repeatable), instead of "
         "the known J2A boards' (e.g. 2341:* for Arduinos running our firmware)",
     )
+    sp.add_argument(
+        "--listen",
+        metavar="URL",
+        help="accept boards that dial in (board file link {'kind': 'tcp', 'dial': 'ADDR:PORT'}): "
+        "tcp://127.0.0.1:PORT, or signed+tcp://ADDR:PORT?key=FILE off loopback (docs/signing.md)",
+    )
+    sp.add_argument(
+        "--accept",
+        choices=("any", "known"),
+        help="which boards that dial in are taken: any (default), or known: those whose board.id "
+        "a [boards.NAME] id of --config names",
+    )
     sp.add_argument("--port", action="append", metavar="GLOB", help="--auto looks at these devices")
     sp.add_argument("--serial", metavar="GLOB", help="--auto: only this USB serial number")
     sp.add_argument(
@@ -223,6 +235,11 @@ def _flash(sp: Parser) -> None:
         "--key",
         help="a signing key (missing-link key new) for a board on a network link: copied over "
         "USB as the board file's link key_file, never over the network (docs/signing.md)",
+    )
+    sp.add_argument(
+        "--id",
+        help="AVR: the board.id the board takes (into its EEPROM; default: it keeps the one it "
+        "has, a new board gets a random one); a MicroPython board's is its chip's",
     )
 
 
@@ -250,8 +267,13 @@ def _board(sp: Parser) -> None:
         metavar="BOARDFILE",
         help="run this board file, every part simulated from its datasheet (examples/boards/)",
     )
-    sp.add_argument(
-        "--listen", required=True, help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty"
+    where = sp.add_mutually_exclusive_group(required=True)
+    where.add_argument("--listen", help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty")
+    where.add_argument(
+        "--dial",
+        metavar="URL",
+        help="connect to a daemon that runs `run --listen` (tcp://HOST:PORT), again with "
+        "backoff whenever the connection ends (board/dial.py)",
     )
     sp.add_argument(
         "--runtime",
@@ -268,7 +290,17 @@ def _board(sp: Parser) -> None:
         metavar="DIR",
         help="--file: the board's flash (saved configuration, keys), kept between runs",
     )
-    sp.add_argument("--seed", type=int, default=0, help="random seed of the simulated signals")
+    sp.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED)",
+    )
+    _sim_options(sp)
+
+
+def _sim_options(sp: Parser) -> None:
+    """``board --sim``'s own options (a hand-written sim: its name, count, rate, clock)."""
     sp.add_argument("--name", help="board.name property (default: the sim's)")
     sp.add_argument(
         "--count",

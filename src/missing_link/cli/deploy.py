@@ -14,7 +14,8 @@ def cmd_flash(args: argparse.Namespace) -> int:
     from ..deploy.flash import flash
 
     bf = load_board_file(args.boardfile)
-    return flash(bf, args.port, dry_run=args.dry_run, check=not args.no_check, key=args.key)
+    return flash(bf, args.port, dry_run=args.dry_run, check=not args.no_check, key=args.key,
+                 board_id=args.id)  # fmt: skip
 
 
 def cmd_key_new(args: argparse.Namespace) -> int:

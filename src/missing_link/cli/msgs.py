@@ -12,11 +12,16 @@ import argparse
 import os
 import sys
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from ..descriptors import Transducer
 from ..errors import BadURL, ConfigError
 from ..host.board import Board
 from .common import EXIT_FAIL, EXIT_USAGE
+
+if TYPE_CHECKING:
+    from ..daemon.claims import Claims
+    from ..ros.package import Generated
 
 
 @dataclass(frozen=True)
@@ -76,8 +81,8 @@ def sources(args: argparse.Namespace) -> list[Source]:
 
 def cmd_create_msgs(args: argparse.Namespace) -> int:
     from ..daemon.claims import Claims
-    from ..ros.msgs import check_package, msg_text, msgdef, package_of
-    from ..ros.package import Generated, manifest_text, read_manifest, write_package
+    from ..ros.msgs import check_package, package_of
+    from ..ros.package import manifest_text, read_manifest, write_package
 
     try:
         check_package(args.package)
@@ -102,24 +107,7 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
         if warning:
             print(f"missing-link: {src.origin}: {warning}", file=sys.stderr)
         names.append(name)
-    # types of boards not given now stay (with those boards as their owners)
-    kept: dict[str, Generated] = {}
-    for type_short, g in (earlier[1] if earlier is not None else {}).items():
-        others = tuple(b for b in g.boards if b not in names)
-        if others or not g.boards:
-            kept[type_short] = Generated(others, g.definition, g.text)
-            claims.hold(f"{args.package}/msg/{type_short}", g.definition)
-    types: dict[str, Generated] = dict(kept)
-    made: set[str] = set()
-    for name, src in zip(names, boards, strict=True):
-        for t in src.transducers:
-            full, warning = claims.type(name, t)
-            if warning:
-                print(f"missing-link: {src.origin}: {warning}", file=sys.stderr)
-            short = full.rsplit("/", 1)[1]
-            owners = types[short].boards if short in types else ()
-            types[short] = Generated((*owners, name), msgdef(t, 2), msg_text(t, args.ros))
-            made.add(short)
+    kept, types, made = _types(claims, names, boards, earlier, args)
     files = package_of({k: g.text for k, g in types.items()}, args.package, args.ros)
     try:
         written = write_package(
@@ -139,6 +127,51 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
         return EXIT_FAIL
     for path in written:
         print(path)
+    _say_what_was_made(args, names, boards, kept, made)
+    if args.build:
+        _build(root, args.build)
+    return 0
+
+
+def _types(
+    claims: Claims,
+    names: list[str],
+    boards: list[Source],
+    earlier: tuple[int, dict[str, Generated]] | None,
+    args: argparse.Namespace,
+) -> tuple[dict[str, Generated], dict[str, Generated], set[str]]:
+    """The package's types: those of boards not given now, kept (with those boards as their
+    owners), and every given board's, claimed as the daemon claims them; (kept, all, made)."""
+    from ..ros.msgs import msg_text, msgdef
+    from ..ros.package import Generated
+
+    kept: dict[str, Generated] = {}
+    for type_short, g in (earlier[1] if earlier is not None else {}).items():
+        others = tuple(b for b in g.boards if b not in names)
+        if others or not g.boards:
+            kept[type_short] = Generated(others, g.definition, g.text)
+            claims.hold(f"{args.package}/msg/{type_short}", g.definition)
+    types: dict[str, Generated] = dict(kept)
+    made: set[str] = set()
+    for name, src in zip(names, boards, strict=True):
+        for t in src.transducers:
+            full, warning = claims.type(name, t)
+            if warning:
+                print(f"missing-link: {src.origin}: {warning}", file=sys.stderr)
+            short = full.rsplit("/", 1)[1]
+            owners = types[short].boards if short in types else ()
+            types[short] = Generated((*owners, name), msgdef(t, 2), msg_text(t, args.ros))
+            made.add(short)
+    return kept, types, made
+
+
+def _say_what_was_made(
+    args: argparse.Namespace,
+    names: list[str],
+    boards: list[Source],
+    kept: dict[str, Generated],
+    made: set[str],
+) -> None:
     boards_text = ", ".join(f"{n} ({s.origin})" for n, s in zip(names, boards, strict=True))
     print(
         f"{len(made)} message type(s) from {boards_text} in ROS {args.ros} package {args.package}"
@@ -157,16 +190,18 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
             f"({', '.join(only_kept)}; --fresh starts the package over)",
             file=sys.stderr,
         )
-    if args.build:
-        from ..ros.build import build_package
 
-        log = build_package(
-            root, args.build, progress=lambda line: print(f"  {line}", file=sys.stderr, flush=True)
-        )
-        print(
-            f"built and installed into {args.build} (log {log}); the daemon finds it with "
-            f'[ros2] prefix = "{os.path.abspath(args.build)}" or '
-            f"MISSING_LINK_ROS2_PREFIX={os.path.abspath(args.build)}",
-            file=sys.stderr,
-        )
-    return 0
+
+def _build(root: str, prefix: str) -> None:
+    """``--build``: build the package and install it into ``prefix`` (ros/build.py)."""
+    from ..ros.build import build_package
+
+    log = build_package(
+        root, prefix, progress=lambda line: print(f"  {line}", file=sys.stderr, flush=True)
+    )
+    print(
+        f"built and installed into {prefix} (log {log}); the daemon finds it with "
+        f'[ros2] prefix = "{os.path.abspath(prefix)}" or '
+        f"MISSING_LINK_ROS2_PREFIX={os.path.abspath(prefix)}",
+        file=sys.stderr,
+    )

@@ -17,6 +17,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from dataclasses import dataclass
 from typing import Any, TextIO
 
 from ..daemon import Daemon
@@ -58,6 +59,18 @@ def _web(addr: str | None) -> Any:
         return WebPublisher({"host": host, "port": 0})
 
 
+@dataclass
+class _Seen:
+    """What one demo run saw, read before the daemon closed."""
+
+    view: LiveView
+    status: list[dict[str, Any]]
+    publishers: list[dict[str, Any]]
+    failures: list[str]
+    mcap: Any
+    interrupted: bool
+
+
 def run_demo(
     duration: float = 20.0,
     seed: int = 0,
@@ -71,7 +84,6 @@ def run_demo(
         file=out,
     )
     procs: list[subprocess.Popen[str]] = []
-    interrupted = False
     try:
         proc_a, url_a = start_board_process("encoder_servo", seed, "pty", name="board_a")
         procs.append(proc_a)
@@ -85,99 +97,119 @@ def run_demo(
             publishers=["bus", "mcap"],
             publisher_options={"mcap": {"path": record, "prefix": "demo"}},
         )
-        fox = _foxglove(foxglove_port)
-        console = _web(web)
-        extra = [p for p in (fox, console) if p is not None]
-        with Daemon(cfg, extra) as daemon:
-            if fox is not None:
-                print(f"  live view for Foxglove: open connection {fox.url}", file=out)
-            if console is not None:
-                from ..publishers.web import context_of
-
-                console.attach(context_of(daemon))
-                print(f"  device console in a browser: {console.url}", file=out)
-            if not daemon.wait_until_up(10.0):
-                raise MissingLinkError(f"boards did not come up: {daemon.status()}")
-            view = LiveView(daemon, out, title="missing-link demo")
-
-            def steer(u: Update) -> None:
-                # The thesis test application: encoder count -> proportional servo deflection.
-                count = u.values[0]
-                if count is not None:
-                    step = max(-127, min(127, int(count) // COUNTS_PER_STEP))
-                    daemon.send(SERVO_CMD, step)
-
-            steering = daemon.subscribe(ENCODER_TOPIC, steer)
-            stop = threading.Event()
-            try:
-                view.run(stop, duration)
-            except KeyboardInterrupt:
-                interrupted = True
-            steering.cancel()  # no commands into boards that are closing
-            view.close()
-            status = daemon.status()
-            pub_status = daemon.publisher_status()
-            failures = daemon.failures()
-            mcap = next(p for p in daemon.publishers if p.name == "mcap")
-        bags = [str(b) for b in getattr(mcap, "bags", [])]
-        print("\nsummary", file=out)
-        for line in view.summary():
-            print(line, file=out)
-        for s in status:
-            print(
-                f"  board {s['board']}: {s['state']}, {s['frames']} frames, "
-                f"{s['bad_checksums']} bad checksums, {s['lost_sifs']} SIFs lost, "
-                f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} µs",
-                file=out,
-            )
-        for s in status:
-            if "bound_us" in s:
-                print(
-                    f"  clock {s['board']}: {s['sync_state']},"
-                    f" board clock {s['skew_ppm']:+.2f} ppm,"
-                    f" bound ±{s['bound_us']} µs, {s['sync_exchanges']} exchanges,"
-                    f" min RTT {s['sync_min_rtt_us']} µs",
-                    file=out,
-                )
-        servo_cmds = sum(s["commands"] for s in status)
-        dropped = getattr(mcap, "dropped", 0)
-        print(f"  servo commands sent: {servo_cmds}", file=out)
-        print(
-            f"  recording: {', '.join(bags) or 'nothing'} ({getattr(mcap, 'messages', 0)} "
-            f"messages, {dropped} dropped)",
-            file=out,
-        )
-        losses = {
-            k: sum(s.get(k, 0) for s in status)
-            for k in ("lost_sifs", "bad_sifs", "unknown_sifs", "clock_outliers")
-        }
-        print(
-            "  losses: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in losses.items()),
-            file=out,
-        )
-        print(
-            "  publishers: "
-            + ", ".join(f"{p['publisher']} {p.get('dropped', 0)} dropped" for p in pub_status),
-            file=out,
-        )
-        for line in failures:
-            print(f"  ERROR {line}", file=out)
-        expected = ["/board_a/quad", "/board_a/servo", "/board_b/dist_ir", "/board_b/dist_us"]
-        ok = (
-            not failures
-            and bool(bags)
-            and all(s["state"] == "up" for s in status)
-            and servo_cmds > 0
-            and all(n in view.stats and view.stats[n].count > 0 for n in expected)
-        )
+        seen = _run(cfg, duration, foxglove_port, web, out)
+        ok = _summary(seen, out)
     except MissingLinkError as e:
         print(f"demo FAILED: {e}", file=out)
         return 1
     finally:
         for p in procs:
             stop_process(p)
-    if interrupted:
+    if seen.interrupted:
         print("demo interrupted", file=out)
         return 130
     print("demo " + ("finished OK" if ok else "FAILED"), file=out)
     return 0 if ok else 1
+
+
+def _run(
+    cfg: Config, duration: float, foxglove_port: int | None, web: str | None, out: TextIO
+) -> _Seen:
+    """The daemon with its live faces, the thesis test application closing the loop, the live
+    view until ``duration`` or Ctrl-C."""
+    fox = _foxglove(foxglove_port)
+    console = _web(web)
+    extra = [p for p in (fox, console) if p is not None]
+    interrupted = False
+    with Daemon(cfg, extra) as daemon:
+        if fox is not None:
+            print(f"  live view for Foxglove: open connection {fox.url}", file=out)
+        if console is not None:
+            from ..publishers.web import context_of
+
+            console.attach(context_of(daemon))
+            print(f"  device console in a browser: {console.url}", file=out)
+        if not daemon.wait_until_up(10.0):
+            raise MissingLinkError(f"boards did not come up: {daemon.status()}")
+        view = LiveView(daemon, out, title="missing-link demo")
+
+        def steer(u: Update) -> None:
+            # The thesis test application: encoder count -> proportional servo deflection.
+            count = u.values[0]
+            if count is not None:
+                step = max(-127, min(127, int(count) // COUNTS_PER_STEP))
+                daemon.send(SERVO_CMD, step)
+
+        steering = daemon.subscribe(ENCODER_TOPIC, steer)
+        try:
+            view.run(threading.Event(), duration)
+        except KeyboardInterrupt:
+            interrupted = True
+        steering.cancel()  # no commands into boards that are closing
+        view.close()
+        return _Seen(
+            view=view,
+            status=daemon.status(),
+            publishers=daemon.publisher_status(),
+            failures=daemon.failures(),
+            mcap=next(p for p in daemon.publishers if p.name == "mcap"),
+            interrupted=interrupted,
+        )
+
+
+def _summary(seen: _Seen, out: TextIO) -> bool:
+    """The summary at the end; True when both boards stayed up, samples flowed, the servo
+    moved and the recording holds them."""
+    status, mcap = seen.status, seen.mcap
+    bags = [str(b) for b in getattr(mcap, "bags", [])]
+    print("\nsummary", file=out)
+    for line in seen.view.summary():
+        print(line, file=out)
+    for s in status:
+        print(
+            f"  board {s['board']}: {s['state']}, {s['frames']} frames, "
+            f"{s['bad_checksums']} bad checksums, {s['lost_sifs']} SIFs lost, "
+            f"{s['timeouts']} call timeouts, RTT {s['rtt_us']} µs",
+            file=out,
+        )
+    for s in status:
+        if "bound_us" in s:
+            print(
+                f"  clock {s['board']}: {s['sync_state']},"
+                f" board clock {s['skew_ppm']:+.2f} ppm,"
+                f" bound ±{s['bound_us']} µs, {s['sync_exchanges']} exchanges,"
+                f" min RTT {s['sync_min_rtt_us']} µs",
+                file=out,
+            )
+    servo_cmds = sum(s["commands"] for s in status)
+    dropped = getattr(mcap, "dropped", 0)
+    print(f"  servo commands sent: {servo_cmds}", file=out)
+    print(
+        f"  recording: {', '.join(bags) or 'nothing'} ({getattr(mcap, 'messages', 0)} "
+        f"messages, {dropped} dropped)",
+        file=out,
+    )
+    losses = {
+        k: sum(s.get(k, 0) for s in status)
+        for k in ("lost_sifs", "bad_sifs", "unknown_sifs", "clock_outliers")
+    }
+    print(
+        "  losses: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in losses.items()),
+        file=out,
+    )
+    print(
+        "  publishers: "
+        + ", ".join(f"{p['publisher']} {p.get('dropped', 0)} dropped" for p in seen.publishers),
+        file=out,
+    )
+    for line in seen.failures:
+        print(f"  ERROR {line}", file=out)
+    expected = ["/board_a/quad", "/board_a/servo", "/board_b/dist_ir", "/board_b/dist_us"]
+    stats = seen.view.stats
+    return (
+        not seen.failures
+        and bool(bags)
+        and all(s["state"] == "up" for s in status)
+        and servo_cmds > 0
+        and all(n in stats and stats[n].count > 0 for n in expected)
+    )

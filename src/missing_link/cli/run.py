@@ -7,10 +7,13 @@ import signal
 import sys
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import BadURL, ConfigError, without_prefix
 from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
+
+if TYPE_CHECKING:
+    from ..daemon import Daemon
 
 
 def build_config(args: argparse.Namespace) -> Any:
@@ -57,16 +60,45 @@ def build_config(args: argparse.Namespace) -> Any:
         if args.any_usb:
             spec.any_usb, spec.vid, spec.pid = True, None, None
         cfg.discover = spec
+    if args.listen:
+        from ..daemon.listen_spec import parse_listen
+
+        parse_listen(args.listen)  # (BadURL: exit 2, at once)
+        cfg.listen = args.listen
+    if args.accept:
+        cfg.accept = args.accept
     if cfg.control is None:  # (config/call/info reach the boards through it: docs/cli.md)
         from ..daemon.control import default_control_path
 
         cfg.control = default_control_path()
-    if not cfg.boards and cfg.discover is None:
+    if not cfg.boards and cfg.discover is None and cfg.listen is None:
         raise BadURL(
             "no boards: give URLs on the command line, [[board]] tables or [discover] in "
-            "--config, or --auto"
+            "--config, --auto, or --listen for boards that dial in"
         )
     return cfg
+
+
+def _announce(daemon: Daemon) -> None:
+    """What runs, and where each face is (stderr)."""
+    if daemon.discovery is not None:
+        what = daemon.discovery.spec.describe()
+        print(f"missing-link: discovering boards on {what}", file=sys.stderr)
+    print(
+        f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
+        f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
+        file=sys.stderr,
+    )
+    for p in daemon.publishers:
+        url = getattr(p, "url", None)
+        if url:
+            print(f"missing-link: {p.name} at {url}", file=sys.stderr)
+    if daemon.control is not None:
+        print(f"missing-link: control endpoint {daemon.control.path}", file=sys.stderr)
+    if daemon.dialins is not None:
+        accept = daemon.config.accept
+        print(f"missing-link: boards dial in at {daemon.dialins.listener.url} "
+              f"(accept {accept})", file=sys.stderr)  # fmt: skip
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -87,20 +119,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     code = 0
     with daemon:
-        if daemon.discovery is not None:
-            what = daemon.discovery.spec.describe()
-            print(f"missing-link: discovering boards on {what}", file=sys.stderr)
-        print(
-            f"missing-link: running {len(daemon.sessions)} board(s), publishers: "
-            f"{', '.join(p.name for p in daemon.publishers)} (Ctrl-C stops)",
-            file=sys.stderr,
-        )
-        for p in daemon.publishers:
-            url = getattr(p, "url", None)
-            if url:
-                print(f"missing-link: {p.name} at {url}", file=sys.stderr)
-        if daemon.control is not None:
-            print(f"missing-link: control endpoint {daemon.control.path}", file=sys.stderr)
+        _announce(daemon)
         if args.wait_up and not daemon.wait_until_up(args.wait_up):
             for s in daemon.sessions:
                 if s.state != "up":

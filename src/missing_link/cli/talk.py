@@ -142,18 +142,57 @@ def format_sample(s: Sample, unit: str | None) -> str:
     return f"{s.host_rx:14.6f}  {where} = {value}  @board {s.board_us} us{lost}"
 
 
+class _Printer:
+    """``listen``'s SIF handler (on the board's reading thread): decoded samples, or raw SIFs
+    from a board without descriptors, as lines or JSON objects, until ``--count``."""
+
+    def __init__(self, args: argparse.Namespace, board: Board, wanted: set[str]) -> None:
+        from ..host.samples import SampleDecoder
+
+        self.args = args
+        self.transducers = board.transducers or []
+        self.decoder = SampleDecoder(board.name, self.transducers)
+        self.units = {t.name: t.unit for t in self.transducers}
+        self.wanted = wanted
+        self.done = threading.Event()
+        self.count = 0
+        self._lock = threading.Lock()
+
+    def _said(self, sif: SifReceived, now: float) -> tuple[list[str], list[dict[str, object]]]:
+        if not self.transducers:
+            line = f"{now:14.6f}  sif cmd={sif.cmd} seq={sif.seq} lost={sif.lost}"
+            raw = {"cmd": sif.cmd, "seq": sif.seq, "lost": sif.lost, "payload": sif.payload.hex()}
+            return [f"{line} {sif.payload.hex()}"], [{**raw, "host_rx": now}]
+        samples = [
+            s
+            for s in self.decoder.decode(sif, now, keep_missing=self.args.missing)
+            if not self.wanted or s.transducer in self.wanted
+        ]
+        lines = [format_sample(s, self.units.get(s.transducer)) for s in samples]
+        return lines, [s.to_json() for s in samples]
+
+    def on_sif(self, sif: SifReceived, now: float) -> None:
+        import json
+
+        args = self.args
+        with self._lock:
+            if self.done.is_set():
+                return
+            lines, objs = self._said(sif, now)
+            for line, obj in zip(lines, objs, strict=True):
+                if args.count and self.count >= args.count:
+                    self.done.set()
+                    return
+                print(json.dumps(obj) if args.json else line, flush=False)
+                self.count += 1
+            sys.stdout.flush()
+            if args.count and self.count >= args.count:
+                self.done.set()
+
+
 def cmd_listen(args: argparse.Namespace) -> int:
-    import json
-
-    from ..host.samples import SampleDecoder
-
-    done = threading.Event()
-    count = 0
-    lock = threading.Lock()
     with open_url(args) as board:
-        transducers = board.transducers or []
-        decoder = SampleDecoder(board.name, transducers)
-        units = {t.name: t.unit for t in transducers}
+        units = {t.name: t.unit for t in board.transducers or []}
         wanted = set(args.transducer or [])
         unknown = wanted - set(units)
         if unknown:
@@ -164,48 +203,9 @@ def cmd_listen(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return EXIT_USAGE
-
-        def on_sif(sif: SifReceived, now: float) -> None:
-            nonlocal count
-            with lock:
-                if done.is_set():
-                    return
-                if not transducers:
-                    lines = [
-                        f"{now:14.6f}  sif cmd={sif.cmd} seq={sif.seq} lost={sif.lost}"
-                        f" {sif.payload.hex()}"
-                    ]
-                    objs: list[dict[str, object]] = [
-                        {
-                            "cmd": sif.cmd,
-                            "seq": sif.seq,
-                            "lost": sif.lost,
-                            "payload": sif.payload.hex(),
-                            "host_rx": now,
-                        }
-                    ]
-                else:
-                    samples = [
-                        s
-                        for s in decoder.decode(sif, now, keep_missing=args.missing)
-                        if not wanted or s.transducer in wanted
-                    ]
-                    lines = [format_sample(s, units.get(s.transducer)) for s in samples]
-                    objs = [s.to_json() for s in samples]
-                for line, obj in zip(lines, objs, strict=True):
-                    if args.count and count >= args.count:
-                        done.set()
-                        return
-                    if args.json:
-                        print(json.dumps(obj), flush=False)
-                    else:
-                        print(line, flush=False)
-                    count += 1
-                sys.stdout.flush()
-                if args.count and count >= args.count:
-                    done.set()
-
-        board.on_sif(None, on_sif)
+        printer = _Printer(args, board, wanted)
+        done = printer.done
+        board.on_sif(None, printer.on_sif)
         deadline = time.monotonic() + args.duration if args.duration else None
         while not done.is_set() and board.alive:
             if deadline is not None and time.monotonic() >= deadline:

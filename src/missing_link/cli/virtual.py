@@ -14,6 +14,37 @@ from typing import Any
 from .common import EXIT_FAIL, EXIT_USAGE
 
 
+def _sim_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``make_sim``'s keyword arguments from the command line (ValueError: a usage error)."""
+    extra: dict[str, Any] = {"name": args.name} if args.name else {}
+    if args.config_file:
+        if args.sim not in ("thesis", "encoder_servo", "rangers", "rate", "aligned"):
+            raise ValueError(f"--config-file: the {args.sim} board has no configuration")
+        extra["config_file"] = args.config_file
+    if args.rate or args.channels:
+        if args.sim not in ("rate", "aligned") or (args.channels and args.sim != "rate"):
+            raise ValueError("--rate goes with --sim rate or aligned, --channels with rate")
+        extra["rate_hz"] = args.rate or (100.0 if args.sim == "rate" else 50.0)
+        if args.sim == "rate":
+            extra["channels"] = args.channels or 1
+    drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
+    if drifting:
+        from ..virtual.clocks import DriftClock
+
+        extra["clock"] = DriftClock(
+            args.clock_offset_us or 0.0,
+            args.clock_skew_ppm or 0.0,
+            args.clock_drift_ppm_per_s or 0.0,
+            args.clock_ref_ns,
+            args.reset_at,
+        )
+    elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
+        from ..virtual.clocks import AffineClock
+
+        extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
+    return extra
+
+
 def cmd_board(args: argparse.Namespace) -> int:
     from ..virtual import BoardServer, make_sim
 
@@ -22,32 +53,7 @@ def cmd_board(args: argparse.Namespace) -> int:
     try:
         if args.runtime or args.absent or args.flash:
             raise ValueError("--runtime, --absent and --flash go with --file BOARDFILE")
-        extra: dict[str, Any] = {"name": args.name} if args.name else {}
-        if args.config_file:
-            if args.sim not in ("thesis", "encoder_servo", "rangers", "rate", "aligned"):
-                raise ValueError(f"--config-file: the {args.sim} board has no configuration")
-            extra["config_file"] = args.config_file
-        if args.rate or args.channels:
-            if args.sim not in ("rate", "aligned") or (args.channels and args.sim != "rate"):
-                raise ValueError("--rate goes with --sim rate or aligned, --channels with rate")
-            extra["rate_hz"] = args.rate or (100.0 if args.sim == "rate" else 50.0)
-            if args.sim == "rate":
-                extra["channels"] = args.channels or 1
-        drifting = args.clock_drift_ppm_per_s or args.reset_at or args.clock_ref_ns is not None
-        if drifting:
-            from ..virtual.clocks import DriftClock
-
-            extra["clock"] = DriftClock(
-                args.clock_offset_us or 0.0,
-                args.clock_skew_ppm or 0.0,
-                args.clock_drift_ppm_per_s or 0.0,
-                args.clock_ref_ns,
-                args.reset_at,
-            )
-        elif args.clock_offset_us is not None or args.clock_skew_ppm is not None:
-            from ..virtual.clocks import AffineClock
-
-            extra["clock"] = AffineClock(args.clock_offset_us or 0.0, args.clock_skew_ppm or 0.0)
+        extra = _sim_options(args)
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
@@ -61,9 +67,10 @@ def cmd_board(args: argparse.Namespace) -> int:
     try:
         server = BoardServer(
             runtime,
-            args.listen,
+            args.dial or args.listen,
             resets=resets,
             rebuild=lambda: make_sim(args.sim, seed=args.seed, **extra),
+            dial=bool(args.dial),
         )
     except OSError as e:
         print(
@@ -77,9 +84,14 @@ def cmd_board(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
-    print(f"LISTENING {server.url}", flush=True)
+    print(_ready(server.url), flush=True)
     server.serve_forever()
     return 0
+
+
+def _ready(url: str) -> str:
+    """The line a board prints once it serves: LISTENING URL, or DIALING URL (board --dial)."""
+    return f"DIALING {url[5:]}" if url.startswith("dial ") else f"LISTENING {url}"
 
 
 #: the sim-only options and what they are when not given
@@ -95,6 +107,10 @@ def _board_file(args: argparse.Namespace) -> int:
     from ..deploy.boardfile import load_board_file
     from ..errors import ConfigError
 
+    if args.dial:
+        raise ConfigError(
+            "--dial goes with --sim for now; a board file that dials names its host in its link"
+        )
     given = [k for k, default in _SIM_ONLY.items() if getattr(args, k) != default]
     if given:
         flag = "--" + given[0].replace("_", "-")
@@ -177,14 +193,14 @@ def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
     seeded SEED.., one LISTENING line each: benchmarks load the host, not N board processes."""
     from ..virtual import BoardServer, make_sim
 
-    if not args.listen.startswith("tcp://") or not args.listen.endswith(":0"):
-        print("missing-link: error: --count needs --listen tcp://HOST:0", file=sys.stderr)
+    if not args.dial and not (args.listen.startswith("tcp://") and args.listen.endswith(":0")):
+        print("missing-link: error: --count needs --listen tcp://HOST:0 or --dial", file=sys.stderr)
         return EXIT_USAGE
     base = extra.pop("name", None) or args.sim
     servers = []
     for k in range(args.count):
         runtime = make_sim(args.sim, seed=args.seed + k, name=f"{base}_{k}", **extra)
-        servers.append(BoardServer(runtime, args.listen))
+        servers.append(BoardServer(runtime, args.dial or args.listen, dial=bool(args.dial)))
     threads = [
         threading.Thread(target=s.serve_forever, name=f"board:{s.url}", daemon=True)
         for s in servers
@@ -199,7 +215,7 @@ def _serve_many(args: argparse.Namespace, extra: dict[str, Any]) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     for s in servers:
-        print(f"LISTENING {s.url}", flush=True)
+        print(_ready(s.url), flush=True)
     done.wait()
     for s in servers:
         s.stop()

@@ -17,10 +17,16 @@
 - :mod:`.background` - what the supervisor asks for but must not wait for (re-applying keys)
 - :mod:`.failsafe` - the host's side of a board's failsafe: keepalive, goodbye, its trip count
 - :mod:`.control` - the local control endpoint (``missing-link config``, ``info``, ``call``)
+- :mod:`.control_ops` - what that endpoint serves, from three of the daemon's verbs
 - :mod:`.actuators` - commands for a board's actuators, latest wins; timed ones at their time
 - :mod:`.commands` - who may move the robot: the allow-list, on every path to an actuator
 - :mod:`.discovery` - boards found as their serial ports appear (``run --auto``)
-- :mod:`.config` - the TOML configuration, validated
+- :mod:`.listener`, :mod:`.dialin` - boards that dial in (``run --listen``), each to its session
+  by its ``board.id``; :mod:`.listen_spec` - where; :mod:`.session_link` - how a session gets
+  its board (by URL, or handed over)
+- :mod:`.health` - the daemon's rows besides its boards (publishers, control, listener)
+- :mod:`.joints` - the robot-level ``JointState`` in and out (``[joints]``, ros2_control)
+- :mod:`.config` - the TOML configuration, validated (its ROS tables: :mod:`.ros_config`)
 """
 
 from __future__ import annotations

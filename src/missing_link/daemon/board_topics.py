@@ -17,7 +17,7 @@ from collections.abc import Callable, Container, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..descriptors import Transducer
+from ..descriptors import Transducer, load_descriptor_file
 from ..errors import BoardError
 from ..ros.standard import (
     FLOAT64,
@@ -44,6 +44,20 @@ class BoardTopics:
     calls: dict[str, str] = field(default_factory=dict)
     commands: list[str] = field(default_factory=list)  #: every command topic offered
     quiet: set[int] = field(default_factory=set)  #: thesis-format topic off: not published
+
+
+def transducers_of(board: str, own: list[Transducer] | None, descriptors: str) -> list[Transducer]:
+    """A board's transducers: from its ``[[board]]`` table's ``descriptors`` file when it names
+    one, else as the board described them (``own``); an original board needs the file."""
+    if descriptors:
+        return load_descriptor_file(descriptors)
+    if own is None:
+        raise BoardError(
+            board,
+            'original board without descriptors; give them with descriptors = "FILE" in its '
+            "[[board]] table",
+        )
+    return own
 
 
 def declare_topics(

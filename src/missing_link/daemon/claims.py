@@ -6,6 +6,9 @@
   while it reconnects and gives it up only for a new one, or with :meth:`Claims.release`.
 * A message type name is held by one definition: a second board whose ``temp`` differs gets
   ``<Board>Temp`` (``BoardBTemp``), so no recording ever holds two layouts under one name.
+* A ``board.id`` is stated by one board at a time: two connected boards that state the same id
+  (a serial flashed twice, a copied EEPROM) are both kept and shown, each warned with the
+  other's URL (:meth:`Claims.id_conflict`), since either may be the one the config means.
 
 Thread-safe; every claim returns ``(granted, warning or None)``.
 """
@@ -51,6 +54,7 @@ class Claims:
         self._lock = threading.Lock()
         self._names: dict[str, tuple[object, str]] = {}  # name -> (owner, owner's URL)
         self._types: dict[str, str] = {}  # message type name -> its definition
+        self._ids: dict[object, tuple[str, str]] = {}  # owner -> (board.id, owner's URL)
 
     def name(self, owner: object, wanted: str, url: str) -> tuple[str, str | None]:
         """The topic name ``owner`` publishes under: ``wanted``, or ``wanted_2``, ... when
@@ -74,6 +78,36 @@ class Claims:
         with self._lock:
             for held in [n for n, (o, _) in self._names.items() if o is owner]:
                 del self._names[held]
+            self._ids.pop(owner, None)
+
+    def claim_id(self, owner: object, board_id: str, url: str) -> str | None:
+        """``owner``'s board states ``board_id`` (while it is connected); a warning when another
+        connected board states it too."""
+        with self._lock:
+            if board_id:
+                self._ids[owner] = (board_id, url)
+            else:
+                self._ids.pop(owner, None)
+        return self.id_conflict(owner)
+
+    def release_id(self, owner: object) -> None:
+        """``owner``'s board is gone: it states no id now."""
+        with self._lock:
+            self._ids.pop(owner, None)
+
+    def id_conflict(self, owner: object) -> str | None:
+        """A warning when another connected board states ``owner``'s board.id, else None."""
+        with self._lock:
+            mine = self._ids.get(owner)
+            others = [
+                u for o, (i, u) in self._ids.items() if mine and i == mine[0] and o is not owner
+            ]
+        if mine is None or not others:
+            return None
+        return (
+            f"board.id {mine[0]!r} is stated by another connected board too "
+            f"({', '.join(others)}): both are shown; an id is meant to be one board's"
+        )
 
     def hold(self, type_name: str, definition: str) -> None:
         """``type_name`` is taken by ``definition`` already (a package built earlier)."""

@@ -22,6 +22,7 @@ from ..ros.standard import StdOptions
 from ..text import is_token
 from ..topics import check_topic
 from .control import runtime_dir
+from .listen_spec import ListenSpec, parse_listen
 from .ros_config import JointsConfig, parse_joints, parse_ros
 
 
@@ -124,6 +125,10 @@ class DiscoverSpec:
         return f"{' '.join(self.ports)} ({who}{', serial ' + self.serial if self.serial else ''})"
 
 
+#: a board.id as a board states it and a config names it: printable ASCII, no spaces
+BOARD_ID = re.compile(r"[!-~]{1,64}\Z")
+
+
 @dataclass
 class Config:
     boards: list[BoardSpec] = field(default_factory=list)
@@ -160,6 +165,13 @@ class Config:
     ros: dict[str, dict[str, StdOptions]] = field(default_factory=dict)
     #: the robot-level JointState in and out ([joints]; daemon/joints.py), None: none
     joints: JointsConfig | None = None
+    #: board name -> the board.id it is ([boards.<name>] id): the board keeps its name, topics
+    #: and configuration whatever port or link it comes on
+    board_ids: dict[str, str] = field(default_factory=dict)
+    #: accept boards that dial in here (``run --listen``; listener.py)
+    listen: str | None = None
+    #: which boards that dial in are taken: "any", or "known" (those with an id above)
+    accept: str = "any"
     source: str = "<defaults>"
 
     def std_options(self, board: str, transducer: str) -> StdOptions:
@@ -174,6 +186,16 @@ class Config:
             o.counts_per_rev,
             o.field_of_view,
         )
+
+    def name_of_id(self, board_id: str) -> str | None:
+        """The configured name of the board whose board.id is ``board_id``."""
+        for name, known in self.board_ids.items():
+            if known == board_id:
+                return name
+        return None
+
+    def listen_spec(self) -> ListenSpec | None:
+        return parse_listen(self.listen) if self.listen else None
 
 
 _TABLES = ("daemon", "board", "boards", "remap", "discover", "joints")
@@ -190,6 +212,8 @@ _DAEMON_KEYS = {
     "commands": list,
     "standard_types": bool,
     "thesis_types": bool,
+    "listen": str,
+    "accept": str,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -232,7 +256,7 @@ def parse_config(doc: dict[str, Any], source: str = "<config>") -> Config:
     def fail(where: str, why: str) -> ConfigError:
         return ConfigError(f"{source}: {where}: {why}")
 
-    cfg.board_config, cfg.ros = _parse_boards(doc.get("boards", {}), fail)
+    cfg.board_config, cfg.ros, cfg.board_ids = _parse_boards(doc.get("boards", {}), fail)
     if "joints" in doc:
         cfg.joints = parse_joints(doc["joints"], fail, _check_table)
     if "discover" in doc:
@@ -269,6 +293,13 @@ def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
     if not all(isinstance(c, str) and c[:1] in ("/", "*") for c in cfg.commands):
         raise fail("daemon.commands", 'command topics or patterns, e.g. ["/rover/*/cmd"]')
     _check_control(cfg.control, fail)
+    if cfg.accept not in ("any", "known"):
+        raise fail("daemon.accept", f'{cfg.accept!r}: "any" or "known" (ids in [boards.NAME])')
+    if cfg.listen is not None:
+        try:
+            parse_listen(cfg.listen)
+        except ValueError as e:  # (BadURL too: the key file)
+            raise fail("daemon.listen", str(e)) from None
     if cfg.backoff_max < cfg.backoff_min:
         raise fail("daemon.backoff_max", f"{cfg.backoff_max:g} is below backoff_min")
     if cfg.distro not in DISTROS:
@@ -358,22 +389,31 @@ def _parse_publisher_tables(
 _CONFIG_KEY = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
 
 
+Settings = dict[str, dict[str, bool | int | float | str]]
+
+
 def _parse_boards(
     table: Any, fail: Any
-) -> tuple[dict[str, dict[str, bool | int | float | str]], dict[str, dict[str, StdOptions]]]:
-    """``[boards.<name>.config]``: keys ``"<transducer>.<key>" = value`` per board name (checked
+) -> tuple[Settings, dict[str, dict[str, StdOptions]], dict[str, str]]:
+    """``[boards.<name>]``: ``id = "..."`` (the board.id of the board so named),
+    ``[boards.<name>.config]``: keys ``"<transducer>.<key>" = value`` per board name (checked
     against the board's own table when it connects); ``[boards.<name>.ros.<transducer>]``: the
     host-side keys of its standard types (docs/ros.md)."""
     if not isinstance(table, dict):
         raise fail("boards", "must be tables like [boards.thesis.config]")
-    out: dict[str, dict[str, bool | int | float | str]] = {}
+    out: Settings = {}
     ros: dict[str, dict[str, StdOptions]] = {}
+    ids: dict[str, str] = {}
     for name, sub in table.items():
         where = f"boards.{name}"
         if not is_token(name):
             raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
-        if not isinstance(sub, dict) or set(sub) - {"config", "ros"}:
-            raise fail(where, "has two tables: config and ros ([boards.NAME.config])")
+        if not isinstance(sub, dict) or set(sub) - {"config", "ros", "id"}:
+            raise fail(
+                where, 'has two tables, config and ros ([boards.NAME.config]), and an id = "..."'
+            )
+        if "id" in sub:
+            ids[name] = _board_id(sub["id"], ids, f"{where}.id", fail)
         values = sub.get("config", {})
         if not isinstance(values, dict):
             raise fail(f"{where}.config", 'must be a table of "transducer.key" = value')
@@ -385,7 +425,16 @@ def _parse_boards(
         out[name] = dict(values)
         if "ros" in sub:
             ros[name] = parse_ros(sub["ros"], f"{where}.ros", fail, _check_table)
-    return out, ros
+    return out, ros, ids
+
+
+def _board_id(value: Any, ids: dict[str, str], where: str, fail: Any) -> str:
+    if not isinstance(value, str) or not BOARD_ID.match(value):
+        raise fail(where, f"a board.id (printable ASCII without spaces, 1..64), not {value!r}")
+    for other, known in ids.items():
+        if known == value:
+            raise fail(where, f"{value!r} is the id of boards.{other} already")
+    return value
 
 
 def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..descriptors import Transducer
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..host.reactor import Reactor
 from ..ros.board_record import BoardDescription
@@ -80,3 +81,11 @@ class SessionContext:
     clock: SupervisorClock = MONOTONIC
     #: a board came up (validated, topics declared): its description, for recordings
     describe_board: Callable[[BoardDescription], None] = lambda record: None
+    #: (owner, board.id, owner's URL) -> a warning when another connected board states it too
+    claim_id: Callable[[object, str, str], str | None] = lambda owner, board_id, url: None
+    #: (owner): its board is gone
+    release_id: Callable[[object], None] = lambda owner: None
+    #: (owner) -> the warning while another connected board states its board.id, else None
+    id_conflict: Callable[[object], str | None] = lambda owner: None
+    #: a line of a board's log (``board_log.py``), to every publisher
+    log: Callable[[LogLine], None] = lambda line: None

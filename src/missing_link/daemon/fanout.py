@@ -1,5 +1,6 @@
-"""The daemon's fan-out: every topic, update, clock record, command topic and configuration a
-board session makes goes to every publisher (the in-process bus, Zenoh, ROS, MCAP, ...).
+"""The daemon's fan-out: every topic, update, clock record, command topic, configuration and
+board log line a board session makes goes to every publisher (the in-process bus, Zenoh, ROS,
+MCAP, ...).
 
 A publisher that raises is counted in its own ``faults`` by kind (``ValueError in publish``:
 its status and ``/diagnostics`` show them; the daemon's ``publish_errors`` is the sum here), its
@@ -15,6 +16,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..publishers.base import Publisher
 from ..publishers.bus import Bus
@@ -64,6 +66,13 @@ class Fanout:
                 p.board_description(record)
             except Exception as e:  # noqa: BLE001 - (as declare)
                 self._failed(p, "board_description", e, f"{record.board}'s description")
+
+    def log(self, line: LogLine) -> None:
+        for p in self.publishers:
+            try:
+                p.log(line)
+            except Exception as e:  # noqa: BLE001 - (as publish)
+                self._failed(p, "log", e, f"{line.board}'s log")
 
     def add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
         def sent(value: Any) -> None:  # (what the actuator refuses raises: not recorded)

@@ -272,9 +272,22 @@ class Joints(Publisher):
         columns = tuple(list(col) for col in zip(*fields, strict=True))
         cdr = joint_state_cdr(stamp, "", names, (columns[0], columns[1], columns[2]))
         n = len(positions)
-        self._emit(Update(self.state_topic, [0] * n, [stamp] * n, positions, 0, 0,
-                          update.recv_ns, cdr, stamp, update.bound_ns, update.est_error_ns,
-                          update.clock_flags))  # fmt: skip
+        self._emit(
+            Update.build(
+                topic=self.state_topic,
+                board_us=[0] * n,
+                host_ns=[stamp] * n,
+                values=positions,
+                seq=0,
+                lost=0,
+                recv_ns=update.recv_ns,
+                cdr=cdr,
+                stamp_ns=stamp,
+                bound_ns=update.bound_ns,
+                est_error_ns=update.est_error_ns,
+                clock_flags=update.clock_flags,
+            )
+        )
         self.published += 1
 
     # ---- commands in (a face's thread) ---------------------------------------------------------

@@ -24,6 +24,9 @@ Per SIF:
    ``quiet``), and on each of its standard-type topics (``ros/standard``) one per sample or
    one per channel with a value, as the type is made.
 
+A log SIF (the board's log, cmd ``LOG_CMD``) counts in 1 like any SIF, then goes to the board's
+log path (``board_log.py``), which hands its lines to ``log``.
+
 The session owns the supervision (connect, serve, reconnect) and sets ``topics``,
 ``standard`` and ``sync`` at each handshake; this class owns what happens to each sample.  It
 knows nothing of the daemon: it is handed ``publish`` (every update goes there) and the offset
@@ -38,12 +41,15 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
+from ..board.log import LOG_CMD
 from ..host.board import Board
+from ..host.board_log import LogLine
 from ..j2a import SifReceived
 from ..ros.standard import StandardMapping
 from ..timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ..topics import Topic, Update
 from .alignment import off_grid
+from .board_log import BoardLogPath
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +59,14 @@ GRID_SLACK_NS = 100_000
 
 
 class SamplePath:
-    def __init__(self, publish: Callable[[Update], None], realtime_offset_ns: int) -> None:
+    def __init__(
+        self,
+        publish: Callable[[Update], None],
+        realtime_offset_ns: int,
+        log: Callable[[LogLine], None] = lambda line: None,
+    ) -> None:
         self.publish = publish
+        self.log = BoardLogPath(log, realtime_offset_ns)  #: the board's log (board_log.py)
         self.realtime_offset_ns = realtime_offset_ns
         self.name = ""  #: the board's topic name (for log lines)
         self.sync: ClockSync | None = None  #: the board's clock sync (None: none, receive times)
@@ -80,12 +92,18 @@ class SamplePath:
         self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
         self._outage_count: int | None = None  # a2jSifCount read after an outage
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
+        self._said: set[str] = set()  # standard-type topics whose failure was logged
 
     def resume(self, board: Board, same_boot: bool, count: int | None) -> None:
         """At a handshake: ``same_boot`` (the board's clock epoch is the one before an outage)
         means the SIFs it sent meanwhile count as lost, modulo 256 from the seq, exactly when
-        the board can tell how many it has sent (``count``, from ``a2jSifCount``)."""
+        the board can tell how many it has sent (``count``, from ``a2jSifCount``).  The board's
+        log learns the names and reads the board's counts (a call: the supervisor's thread)."""
         self.board = board
+        lg = self.log
+        lg.name, lg.sync = self.name, self.sync
+        lg.names = {i: t.transducer.name for i, t in self.topics.items()}
+        lg.connect(board, board.properties.get("clock.epoch", ""), board.timeout)
         if self.next_seq is not None and same_boot:
             board.link.expect_sif_seq(self.next_seq)
             self._outage_count = count
@@ -118,11 +136,13 @@ class SamplePath:
             "host_time_clamps": self.host_time_clamps,
             "future_clamps": self.future_clamps,
             "off_grid_samples": self.off_grid_samples,
+            **self.log.counters(),
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
         """The SIF handler (the board's reading thread), for every sample: locals, not
-        attributes, and as few passes over the channels as the rare cases allow."""
+        attributes, the common sample inline, the rare cases (outage, clamps, N/A channels,
+        grids, standard types) in the helpers below."""
         cmd, seq, payload, lost = sif
         self.next_seq = seq + 1
         total = self._total
@@ -130,6 +150,9 @@ class SamplePath:
             if self._outage_count is not None:
                 lost = self._outage_loss(lost, total)
             self._total = total + 1 + lost
+        if cmd == LOG_CMD:
+            self.log.on_sif(payload, now_mono)
+            return
         topic = self.topics.get(cmd)
         if topic is None:
             self.unknown_sifs += 1
@@ -137,7 +160,7 @@ class SamplePath:
         try:
             board_us, values = topic.transducer.decode_columns(payload)
         except ValueError:
-            self.bad_sifs += 1
+            self.bad_sifs += 1  # board data that does not fit its descriptor: counted
             return
         rt_off = self.realtime_offset_ns
         recv_ns = int(now_mono * 1e9)
@@ -153,22 +176,8 @@ class SamplePath:
         if got is not None and not got[3] & OUTLIER:
             host_ns, est_error, bound, flags = got
             newest = max(host_ns)
-            # Measured before it arrived: a map error never puts a sample after its receipt.
-            if newest > arrived:
-                self.future_clamps += 1
-                host_ns = [min(h, arrived) for h in host_ns]
-                newest = arrived
-            if missing:
-                host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
-                newest = max(host_ns)  # (0 when every channel is N/A)
-            grid = self.grid.get(cmd) if self.grid else None
-            if (
-                grid is not None
-                and newest >= self.grid_since_ns
-                and off_grid(newest, grid, bound, GRID_SLACK_NS)
-            ):
-                flags |= OFF_GRID
-                self.off_grid_samples += 1
+            if newest > arrived or missing or self.grid:
+                host_ns, newest, flags = self._held(cmd, values, got, arrived, missing)
         else:  # no clock map (yet), or a stamp far from it: the receive time, flagged
             est_error, bound, flags = -1, -1, NOT_SYNCED
             if got is not None:
@@ -179,113 +188,144 @@ class SamplePath:
         if missing < len(values):
             last = self._last_host.get(cmd)
             if last is not None and newest <= last:
-                # Host times per topic are strictly increasing, whatever the board's stamps.
-                shift = last + 1 - newest
-                host_ns = [h + shift if h else 0 for h in host_ns]
-                newest += shift
-                self.host_time_clamps += 1
-                if bound >= 0:
-                    bound += shift  # moved off the map by shift: the bound says so
-                    est_error = round(math.hypot(est_error, shift))  # ... and the estimate
+                host_ns, newest, bound, est_error = self._nudged(
+                    host_ns, newest, last, bound, est_error
+                )
             self._last_host[cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
         else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
             stamp = arrived
-        update = Update(
-            topic,
-            board_us,
-            host_ns,
-            values,
-            seq,
-            lost,
-            recv_ns,
-            None,
-            stamp,
-            bound,
-            est_error,
-            flags,
+        update = Update.build(
+            topic=topic,
+            board_us=board_us,
+            host_ns=host_ns,
+            values=values,
+            seq=seq,
+            lost=lost,
+            recv_ns=recv_ns,
+            stamp_ns=stamp,
+            bound_ns=bound,
+            est_error_ns=est_error,
+            clock_flags=flags,
         )
         self.samples += len(values) - missing
         if cmd not in self.quiet:
             self.publish(update)
         for std in self.standard.get(cmd, ()):
             if std[1].sample is not None:
-                self._publish_sample_type(std, board_us, host_ns, values, seq, recv_ns, update)
+                self._publish_sample_type(std, update)
             else:
-                self._publish_per_channel(std, board_us, host_ns, values, seq, recv_ns, update)
+                self._publish_per_channel(std, update)
 
-    def _publish_per_channel(
+    def _held(
         self,
-        std: tuple[Topic, StandardMapping],
-        board_us: list[int],
-        host_ns: list[int],
+        cmd: int,
         values: list[Any],
-        seq: int,
-        recv_ns: int,
-        update: Update,
-    ) -> None:
-        """A standard type made per channel (Range, Bool): one message per channel with a value."""
-        std_topic, mapping = std
-        for ch, v in enumerate(values):
-            if v is not None:
-                try:
-                    cdr = mapping.build(ch, host_ns[ch], v)
-                except (ValueError, OverflowError, struct.error):
-                    self.bad_sifs += 1  # a value the standard type cannot carry
-                    continue
-                self.publish(
-                    Update(
-                        std_topic,
-                        [board_us[ch]],
-                        [host_ns[ch]],
-                        [v],
-                        seq,
-                        0,
-                        recv_ns,
-                        cdr,
-                        None,
-                        update.bound_ns,
-                        update.est_error_ns,
-                        update.clock_flags,
-                    )
-                )
+        got: tuple[list[int], int, int, int],
+        arrived: int,
+        missing: int,
+    ) -> tuple[list[int], int, int]:
+        """The rare cases of a mapped sample: (host times, the newest, flags)."""
+        host_ns, _, bound, flags = got
+        newest = max(host_ns)
+        # Measured before it arrived: a map error never puts a sample after its receipt.
+        if newest > arrived:
+            self.future_clamps += 1
+            host_ns = [min(h, arrived) for h in host_ns]
+            newest = arrived
+        if missing:
+            host_ns = [0 if v is None else h for h, v in zip(host_ns, values, strict=True)]
+            newest = max(host_ns)  # (0 when every channel is N/A)
+        grid = self.grid.get(cmd)
+        if (
+            grid is not None
+            and newest >= self.grid_since_ns
+            and off_grid(newest, grid, bound, GRID_SLACK_NS)
+        ):
+            flags |= OFF_GRID
+            self.off_grid_samples += 1
+        return host_ns, newest, flags
 
-    def _publish_sample_type(
-        self,
-        std: tuple[Topic, StandardMapping],
-        board_us: list[int],
-        host_ns: list[int],
-        values: list[Any],
-        seq: int,
-        recv_ns: int,
-        update: Update,
-    ) -> None:
+    def _nudged(
+        self, host_ns: list[int], newest: int, last: int, bound: int, est_error: int
+    ) -> tuple[list[int], int, int, int]:
+        """Host times per topic are strictly increasing, whatever the board's stamps: moved
+        just past the topic's last one (host times, the newest, bound, estimated error)."""
+        shift = last + 1 - newest
+        self.host_time_clamps += 1
+        if bound >= 0:
+            bound += shift  # moved off the map by shift: the bound says so
+            est_error = round(math.hypot(est_error, shift))  # ... and the estimate
+        return [h + shift if h else 0 for h in host_ns], newest + shift, bound, est_error
+
+    def _publish_sample_type(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
         """A standard type made from every channel at once (Imu, JointState, NavSatFix, ...);
         a builder that has nothing to say this time (a TimeReference off a PPS edge) says None."""
         std_topic, mapping = std
         assert mapping.sample is not None
+        host_ns, values = update.host_ns, update.values
         if not any(host_ns):
             return  # every channel N/A: nothing to say
         try:
             cdr = mapping.sample(host_ns, values)
         except (ValueError, OverflowError, struct.error, TypeError):
-            self.bad_sifs += 1  # values the standard type cannot carry
+            self._cannot_carry(std_topic)  # values the standard type cannot carry
             return
         if cdr is None:
             return
         self.publish(
-            Update(
-                std_topic,
-                board_us,
-                host_ns,
-                values,
-                seq,
-                0,
-                recv_ns,
-                cdr,
-                None,
-                update.bound_ns,
-                update.est_error_ns,
-                update.clock_flags,
-            )
+            self._standard_update(std_topic, update, update.board_us, host_ns, values, cdr)
         )
+
+    def _publish_per_channel(self, std: tuple[Topic, StandardMapping], update: Update) -> None:
+        """A standard type made per channel (Range, Bool): one message per channel with a value."""
+        std_topic, mapping = std
+        host_ns = update.host_ns
+        for ch, v in enumerate(update.values):
+            if v is not None:
+                try:
+                    cdr = mapping.build(ch, host_ns[ch], v)
+                except (ValueError, OverflowError, struct.error):
+                    self._cannot_carry(std_topic)  # a value the standard type cannot carry
+                    continue
+                one = self._standard_update(
+                    std_topic, update, [update.board_us[ch]], [host_ns[ch]], [v], cdr
+                )
+                self.publish(one)
+
+    @staticmethod
+    def _standard_update(
+        topic: Topic,
+        update: Update,
+        board_us: list[int],
+        host_ns: list[int],
+        values: list[Any],
+        cdr: bytes,
+    ) -> Update:
+        """An update on a standard-type topic: its own CDR, the sample's clock figures."""
+        return Update.build(
+            topic=topic,
+            board_us=board_us,
+            host_ns=host_ns,
+            values=values,
+            seq=update.seq,
+            lost=0,
+            recv_ns=update.recv_ns,
+            cdr=cdr,
+            bound_ns=update.bound_ns,
+            est_error_ns=update.est_error_ns,
+            clock_flags=update.clock_flags,
+        )
+
+    def _cannot_carry(self, topic: Topic) -> None:
+        """A value the standard type cannot carry: counted with the bad SIFs (board data), and
+        said once per topic with the reason (an encoder's bug would show there too)."""
+        self.bad_sifs += 1
+        if topic.name not in self._said:
+            self._said.add(topic.name)
+            log.warning(
+                "%s: a sample %s cannot carry (counted in bad_sifs)",
+                self.name,
+                topic.type_name,
+                exc_info=True,
+            )

@@ -21,8 +21,9 @@ on:
 * one I/O loop (``host/reactor.py``) reads every board on a descriptor, rather than a reader thread
   per board; each session keeps its own supervisor thread (handshake, probes, commands);
 * boards can come and go while it runs: ``add_board`` / ``remove_board``, used by discovery
-  (``discovery.py``: serial ports appearing and vanishing); the session list is replaced, never
-  changed in place, so readers iterate a consistent list without a lock;
+  (``discovery.py``: serial ports appearing and vanishing) and by boards that dial in
+  (``dialin.py``: ``run --listen``, each board known by its ``board.id``); the session list is
+  replaced, never changed in place, so readers iterate a consistent list without a lock;
 * ``stop()`` asks every session to stop at once and returns within about a second whatever the
   boards do (a session stuck in a system call is left to its daemon thread).
 
@@ -47,9 +48,8 @@ from ..host.config import Value
 from ..host.link import CallResult
 from ..host.reactor import Reactor
 from ..logs import ErrorCounts
-from ..logs import counts as log_counts
 from ..publishers.base import Publisher, PublisherError
-from ..publishers.bus import Bus, Callback, Subscription
+from ..publishers.bus import Bus, Callback, LogCallback, Subscription
 from ..publishers.registry import make_publisher
 from ..ros.msgs import typestore_for
 from ..topics import Command
@@ -60,9 +60,12 @@ from .config import BoardSpec, Config
 from .context import SessionContext
 from .control import ControlServer, call_timeout
 from .control_ops import control_handlers
+from .dialin import DialIns
 from .discovery import DiscoveryService, Enumerator, all_ports
 from .fanout import Fanout
+from .health import publisher_rows
 from .joints import Joints
+from .listener import Mailbox
 from .session import UP, BoardSession
 from .status import SessionStatus
 
@@ -89,6 +92,8 @@ class Daemon:
         self.bus = Bus()
         self.commands = CommandGate(config.commands)
         self.publishers: list[Publisher] = [self.bus]
+        listen = config.listen_spec()  # (BadURL, ValueError: before anything starts)
+        self.dialins: DialIns | None = None  #: boards that dial in (run --listen)
         try:
             for name in config.publishers:
                 if name != "bus":
@@ -98,6 +103,8 @@ class Daemon:
                         raise
                     except Exception as e:  # zenoh.ZError, a taken port, ...: raised, one line
                         raise PublisherError(f"publisher {name} cannot start: {e}") from e
+            if listen is not None:  # (bound here: a taken address fails the daemon at once)
+                self.dialins = DialIns(config, listen, self.add_board)
         except BaseException:  # (broad, raised again: whatever stops the start, none is left)
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
@@ -157,6 +164,8 @@ class Daemon:
         self._diag_thread.start()
         if self.discovery is not None:
             self.discovery.start()
+        if self.dialins is not None:
+            self.dialins.start(self.reactor)
         if self.config.control:
             try:
                 self.control = ControlServer(
@@ -173,10 +182,12 @@ class Daemon:
         stay within ``probe_budget`` exchanges per second."""
         return len(self.sessions) / self.config.probe_budget
 
-    def add_board(self, spec: BoardSpec) -> BoardSession:
-        """Start a session for one more board (discovery, hotplug); the others are untouched."""
-        check_url(spec.url)
-        session = BoardSession(self._context, spec)
+    def add_board(self, spec: BoardSpec, mailbox: Mailbox | None = None) -> BoardSession:
+        """Start a session for one more board (discovery, hotplug; one that dialed in, handed
+        over in ``mailbox``); the others are untouched."""
+        if mailbox is None:
+            check_url(spec.url)
+        session = BoardSession(self._context, spec, mailbox)
         with self._sessions_lock:
             if self._stopped:
                 raise MissingLinkError("the daemon is stopped")
@@ -207,6 +218,8 @@ class Daemon:
         self._stop.set()
         if self.discovery is not None:
             self.discovery.stop()
+        if self.dialins is not None:
+            self.dialins.stop()
         for s in self.sessions:
             s.request_stop()  # all at once: a stuck board costs its own time, not the others'
         deadline = time.monotonic() + 1.0
@@ -247,6 +260,13 @@ class Daemon:
                 f"no topic {topic!r}: every board is up and none has it (topics: {known})"
             )
         return self.bus.subscribe(topic, callback, queue=queue, latest=latest)
+
+    def subscribe_logs(
+        self, callback: LogCallback, board: str = "*", *, queue: int = 10_000
+    ) -> Subscription:
+        """``callback(line)`` for every line of the logs of ``board`` (a name or a pattern),
+        typed (``host/board_log.py``), as ``subscribe`` delivers (docs/board-log.md)."""
+        return self.bus.subscribe_logs(callback, board, queue=queue)
 
     def _all_boards_known(self) -> bool:
         """Every board there will be is up (no discovery adding more): a topic that none has
@@ -384,35 +404,11 @@ class Daemon:
         return [s.snapshot() for s in self.sessions]
 
     def publisher_status(self) -> list[dict[str, Any]]:
-        """Per publisher: level, error, dropped and what it has to say (queue, messages)."""
-        out = []
-        for p in self.publishers:
-            try:
-                st = p.status()
-                if p.takes_commands is not None:
-                    st["commands_refused"] = self.commands.refused.get(p.name, 0)
-                if "errors" not in st:  # (a publisher of an application's, not on the base's)
-                    st.update(p.faults.to_json())
-                out.append(st)
-            except Exception as e:  # noqa: BLE001 - a broken status must not hide the others:
-                p.faults.caught("status", e)  # shown as ERROR, counted, its traceback said once
-                out.append({"publisher": p.name, "level": 2, "message": f"status failed: {e}",
-                            **p.faults.to_json()})  # fmt: skip
-        paths = {k: v for k, v in self.commands.refused.items() if k in ("api", "control")}
-        if self.control is not None or paths:  # commands refused on no face: still shown
-            extra = self.control.status() if self.control is not None else {}
-            bugs = extra.get("errors", 0)
-            out.append({"publisher": "control", "level": 1 if bugs else 0,
-                        "message": "errors caught" if bugs else "ok", **extra,
-                        "commands_refused": sum(paths.values())})  # fmt: skip
-        for part, faults in self._own_faults():
-            if faults.total:  # (the daemon's own threads: shown once they caught something)
-                out.append({"publisher": part, "level": 1, "message": "errors caught",
-                            **faults.to_json()})  # fmt: skip
-        held = log_counts()
-        if held["lines_held_back"] or held["tracebacks_folded"]:
-            out.append({"publisher": "log", "level": 0, "message": "ok", **held})
-        return out
+        """Per publisher: level, error, dropped and what it has to say (queue, messages); then
+        the control endpoint, the listener, the daemon's own threads (health.py)."""
+        extra = [self.dialins.status()] if self.dialins is not None else []
+        return publisher_rows(self.publishers, self.commands, self.control, self._own_faults(),
+                              extra)  # fmt: skip
 
     def _own_faults(self) -> list[tuple[str, ErrorCounts]]:
         """What the daemon's own threads caught: the I/O loop's, discovery's."""
@@ -444,6 +440,10 @@ class Daemon:
             offer_config=self.fanout.offer_config,
             config_changed=self.fanout.config_changed,
             describe_board=self.fanout.describe_board,
+            claim_id=self.claims.claim_id,
+            release_id=self.claims.release_id,
+            id_conflict=self.claims.id_conflict,
+            log=self.fanout.log,
         )
 
     def _diagnostics(self) -> None:

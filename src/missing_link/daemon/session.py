@@ -17,13 +17,16 @@ kind logged with the traceback; the status shows them (``errors``, ``error_kinds
 board sends can end the thread.
 
 ``connecting`` opens the transport and owns the :class:`~missing_link.host.board.Board` *before* the
-handshake, so ``stop()`` can close it at once.  The handshake has one overall deadline
+handshake, so ``stop()`` can close it at once (one that dials in is handed over by its
+``board.id``, described: ``session_link.py``).  The handshake has one overall deadline
 (``handshake_timeout``) and small caps on the mapping, properties and descriptors (see
 ``Board.handshake`` in ``host/board.py``).  Then everything the board said is validated, with
-errors that name the board and the field: its name must give a topic token (``board-a`` ->
+errors that name the board and the field: its name (the config's for its URL, else the
+config's for its ``board.id``, else its ``board.name``) must give a topic token (``board-a`` ->
 ``board_a``, said in the warnings) and must not be taken by another board (a second ``robot``
-becomes ``robot_2``, loudly); message type names are claimed daemon-wide, so two boards whose
-``temp`` differ in data type never share ``Temp`` (the second is qualified by its board:
+becomes ``robot_2``, loudly); its ``board.id`` is claimed too (two connected boards that state
+one id are both kept, both warned); message type names are claimed daemon-wide, so two boards
+whose ``temp`` differ in data type never share ``Temp`` (the second is qualified by its board:
 ``BoardBTemp``).
 
 ``up``: the board's reading thread (the daemon's I/O loop) decodes sample SIFs into ``Update``
@@ -47,8 +50,7 @@ session at once, so the waits overlap.
 
 At each handshake the session builds the clock sync (``session_clock.py``: the board's
 ``ClockSync`` and its prober) and the topics (``board_topics.py``); the sample path maps and
-publishes each sample with them.
-Actuator commands arrive through :class:`~missing_link.daemon.actuators.Actuators`.
+publishes each sample with them; actuator commands arrive through ``actuators.py``.
 
 The session never holds the daemon: it is handed a :class:`SessionContext` of values and
 callables (claims, declare, publish, command topics, the probe budget), and hands its own
@@ -63,8 +65,7 @@ import time
 from concurrent.futures import Future
 from typing import Any
 
-from ..descriptors import load_descriptor_file
-from ..errors import BoardError, LinkLost, MissingLinkError
+from ..errors import LinkLost, MissingLinkError
 from ..host.board import Board
 from ..host.link import CallResult
 from ..logs import ErrorCounts
@@ -73,23 +74,24 @@ from ..ros.clock import clock_topic
 from ..ros.standard import FrameIds
 from ..timesync.sync import ClockSync
 from ..topics import Topic
-from ..transport import open_transport
 from .actuators import Actuators
 from .alignment import Alignment, grid_of
 from .background import Background
-from .board_topics import BoardTopics, declare_topics
+from .board_topics import BoardTopics, declare_topics, transducers_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
 from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
 from .inflight import InFlight
+from .listener import Mailbox
 from .liveness import LinkWatch
 from .memory import MemoryInfo
 from .prober import ClockProber
 from .sample_path import SamplePath
 from .session_clock import ClockContext, SessionClock
+from .session_link import LinkSource, sif_count
 from .settings import BoardSettings, SettingsContext
-from .status import Level, LinkCounters, SessionState, SessionStatus
+from .status import Identity, Level, LinkCounters, SessionState, SessionStatus, session_level
 
 log = logging.getLogger(__name__)
 
@@ -102,9 +104,13 @@ class LinkStale(MissingLinkError):
 
 
 class BoardSession:
-    def __init__(self, ctx: SessionContext, spec: BoardSpec) -> None:
+    def __init__(
+        self, ctx: SessionContext, spec: BoardSpec, mailbox: Mailbox | None = None
+    ) -> None:
         self.ctx = ctx
         self.spec = spec
+        self.mailbox = mailbox  # (a board that dials in is handed over there: session_link.py)
+        self.identity = Identity()  #: who the board is, as of the latest handshake
         self.state = SessionState.CONNECTING
         self.error = ""
         self.name = spec.name or spec.url
@@ -113,7 +119,7 @@ class BoardSession:
         self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
-        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns)
+        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
@@ -130,7 +136,7 @@ class BoardSession:
                 probe_gap=ctx.probe_gap,
                 record_clock=ctx.record_clock,
                 on_error=self._probe_failed,
-                on_rtt=lambda us: setattr(self, "rtt_us", us),
+                on_rtt=self._set_rtt,
                 wants_map=lambda: bool(self.path.grid),
             )
         )
@@ -202,6 +208,8 @@ class BoardSession:
         a bounded time for its answer, then closes the link."""
         self._stop.set()
         self._wake.set()
+        if self.mailbox is not None:
+            self.mailbox.close()  # (a board still waiting for this session: closed)
         board = self.board
         if board is None:
             return
@@ -241,7 +249,6 @@ class BoardSession:
         self.state = SessionState.STOPPED
 
     def _failed(self, e: Exception) -> None:
-        self.failures += 1
         if isinstance(e, MissingLinkError):
             text = str(e)
             line = text if text.startswith(self.spec.url) else f"{self.spec.url}: {text}"
@@ -249,38 +256,26 @@ class BoardSession:
             # status and /diagnostics always carry it
             log.log(logging.DEBUG if text == self.error else logging.WARNING, "%s", line)
             self.error = text
-            return
-        # A bug (ours, or a board case nobody validated yet): counted by kind, its traceback
-        # logged the first time; the status carries the line
-        self.error = f"internal error: {type(e).__name__}: {e}"
-        self.faults.caught("session", e, "session (retrying with backoff)")
+        else:  # A bug (ours, or a board case nobody validated yet): counted by kind, its
+            # traceback logged the first time; the status carries the line
+            self.error = f"internal error: {type(e).__name__}: {e}"
+            self.faults.caught("session", e, "session (retrying with backoff)")
+        self.failures += 1  # (after the error: who sees the count sees why)
+
+    def _own(self, board: Board) -> None:
+        self.board = board  # owned before the handshake: stop() closes it at once
 
     def _connect(self) -> Board:
         spec = self.spec
-        board = Board(
-            open_transport(spec.url),
-            timeout=spec.timeout,
-            reactor=self.ctx.reactor,
-            faults=self.faults,  # (what its reading thread catches, counted with ours)
+        board = LinkSource(spec, self.ctx.reactor, self.faults, self.mailbox).open(
+            self._stop, self._own
         )
-        board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
-        self.board = board  # owned before the handshake: stop() closes it at once
-        if self._stop.is_set():
-            raise BoardError(spec.url, "stopping")
-        board.handshake(
-            describe=not spec.descriptors, deadline=time.monotonic() + spec.handshake_timeout
-        )
-        if spec.descriptors:
-            transducers = load_descriptor_file(spec.descriptors)
-        elif board.transducers is None:
-            raise BoardError(
-                board.name,
-                "original board without descriptors; give them with "
-                'descriptors = "FILE" in its [[board]] table',
-            )
-        else:
-            transducers = board.transducers
+        transducers = transducers_of(board.name, board.transducers, spec.descriptors or "")
         self.warnings = []
+        self.identity = Identity.of(board.properties, board.url)
+        twice = self.ctx.claim_id(self, self.identity.board_id, spec.url)
+        if twice:  # (shown while it lasts: level())
+            log.warning("%s: %s", spec.url, twice)
         self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url)
         if taken:
             self.warn(taken)
@@ -304,7 +299,7 @@ class BoardSession:
             board.properties, transducers,
             [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
-        self.path.resume(board, bool(epoch) and epoch == self.epoch, self._sif_count(board))
+        self.path.resume(board, bool(epoch) and epoch == self.epoch, sif_count(board, spec.timeout))
         self.epoch = epoch
         board.on_sif(None, self.path.on_sif)
         try:  # a board whose configuration cannot be read still publishes
@@ -319,8 +314,10 @@ class BoardSession:
         return board
 
     def _board_name(self, board: Board) -> str:
-        """The topic token this board publishes under (config name, else board.name)."""
-        token, warning = board_token(self.spec.name, board.properties, board.url)
+        """The topic token this board publishes under: the config's name for its URL, else
+        for its board.id ([boards.NAME] id), else its board.name."""
+        named = self.spec.name or self.ctx.config.name_of_id(self.identity.board_id)
+        token, warning = board_token(named, board.properties, board.url)
         if warning:
             self.warn(warning)
         return token
@@ -365,6 +362,7 @@ class BoardSession:
                         self.alignment.refresh(board, limit)
                     self.failsafe.refresh(board, self.settings.values, limit)
                     self.memory.refresh(board, limit)
+                    self.path.log.refresh(board, limit)  # the board's log counts (board_log.py)
                 if self.prober is not None:
                     if turn.heartbeat:
                         self.prober.probe_now()  # answered (or timed out) on the reading thread
@@ -431,11 +429,15 @@ class BoardSession:
         if self.board is board:  # (a late reply of an earlier link says nothing now)
             self.error = text
 
+    def _set_rtt(self, us: float) -> None:
+        self.rtt_us = us
+
     def _disconnect(self) -> None:
         try:
             for name in self._command_topics:
                 self.ctx.remove_command(name)
         finally:
+            self.ctx.release_id(self)
             board, self.board = self.board, None
             if board is not None:
                 goodbye, self._goodbye = self._goodbye, None
@@ -443,30 +445,22 @@ class BoardSession:
                 board.close()
                 self._past += LinkCounters.of(board)
 
-    def _sif_count(self, board: Board) -> int | None:
-        if "a2jSifCount" not in board.index:
-            return None
-        try:
-            payload = board.call_ok("a2jSifCount", timeout=self.spec.timeout)
-        except MissingLinkError:  # (no count: an outage's loss is counted modulo 256 then)
-            return None
-        return int.from_bytes(payload[:8], "little") if len(payload) >= 8 else None
-
     # ---- status ------------------------------------------------------------------------------
     def level(self) -> tuple[Level, str]:
         """Diagnostic level and message: ERROR when not up, WARN when up with warnings."""
-        if self.state != UP:
-            return Level.ERROR, self.error or self.state.value
-        if self.warnings:
-            return Level.WARN, "; ".join(self.warnings)
-        if self.faults.total:  # (a bug caught: up, but not as it should be)
-            return Level.WARN, f"up; {self.faults.total} errors caught (error_kinds)"
-        return Level.OK, "up"
+        return session_level(self.state == UP, self.state.value, self.error,
+                             self._warnings_now(), self.faults.total)  # fmt: skip
+
+    def _warnings_now(self) -> list[str]:
+        """The warnings, and while it lasts, another connected board with this board's id."""
+        twice = self.ctx.id_conflict(self)
+        return [*self.warnings, twice] if twice else self.warnings
 
     def snapshot(self) -> SessionStatus:
         """The session's status now, typed; counters are cumulative over every connection."""
         b = self.board
         level, message = self.level()
+        sync = self.sync
         return SessionStatus(
             board=self.name,
             url=self.spec.url,
@@ -484,7 +478,7 @@ class BoardSession:
             command_errors=self.command_errors,
             errors=self.faults.to_json(),
             rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
-            warnings="; ".join(self.warnings),
+            warnings="; ".join(self._warnings_now()),
             clock_epoch=self.epoch,
             map_pushes=self.clock.map_pushes,
             config=self.settings.status(),
@@ -492,7 +486,8 @@ class BoardSession:
             align_info=self.alignment.info,
             failsafe=self.failsafe.status,
             memory=self.memory.status,
-            sync=self.sync.status() if self.sync is not None else None,
+            sync=sync.status() if sync is not None else None,
+            identity=self.identity,
         )
 
     def status(self) -> dict[str, Any]:

@@ -5,9 +5,10 @@ goes into JSON as that string.  ``SessionStatus`` is one session's status at one
 ``to_json()`` gives the plain dict that ``Daemon.status()``, ``/diagnostics``, the ``run``
 summary and the live view read, with the keys (and their order) documented for them: the
 session's own, the link's counters, the sample path's, the commands', the errors caught (by
-kind: ``errors``, ``error_kinds``), the run-time configuration's, the alignment's, the
-failsafe's, the board's memory and the clock sync's.  The parts that other modules own
-(sample path, settings, clock sync) stay the plain dicts those modules give.
+kind: ``errors``, ``error_kinds``), the board's identity (``board_id``, ``fw_version``,
+``fw_hash``, ``address``), the run-time configuration's, the alignment's, the failsafe's, the
+board's memory and the clock sync's.  The parts that other modules own (sample path, settings,
+clock sync) stay the plain dicts those modules give.
 """
 
 from __future__ import annotations
@@ -162,6 +163,51 @@ _MEMORY_FIELDS = tuple(f for f in fields(MemoryStatus) if f.name != "problem")
 
 
 @dataclass(frozen=True)
+class Identity:
+    """Who the board is and what it runs (its properties ``board.id``, ``fw.version``,
+    ``fw.hash``: docs/hardware.md, "Identity"), and where it is connected now (its link's URL:
+    a board that dials in comes from an address of its own each time)."""
+
+    board_id: str = ""
+    fw_version: str = ""
+    fw_hash: str = ""
+    address: str = ""
+
+    @classmethod
+    def of(cls, properties: Mapping[str, str], address: str) -> Identity:
+        """From a board's properties; a board without ``board.id`` (the 2014 firmware) is
+        known by its ``board.serial``."""
+        return cls(
+            board_id=properties.get("board.id") or properties.get("board.serial", ""),
+            fw_version=properties.get("fw.version", ""),
+            fw_hash=properties.get("fw.hash", ""),
+            address=address,
+        )
+
+    def to_json(self) -> dict[str, str]:
+        return {
+            "board_id": self.board_id,
+            "fw_version": self.fw_version,
+            "fw_hash": self.fw_hash,
+            "address": self.address,
+        }
+
+
+def session_level(
+    up: bool, state: str, error: str, warnings: list[str], faults: int
+) -> tuple[Level, str]:
+    """A session's diagnostic level and message: ERROR when not up, WARN when up with
+    warnings or bugs caught, else OK."""
+    if not up:
+        return Level.ERROR, error or state
+    if warnings:
+        return Level.WARN, "; ".join(warnings)
+    if faults:  # (a bug caught: up, but not as it should be)
+        return Level.WARN, f"up; {faults} errors caught (error_kinds)"
+    return Level.OK, "up"
+
+
+@dataclass(frozen=True)
 class SessionStatus:
     """One board session's status; counters are cumulative over every connection."""
 
@@ -190,6 +236,7 @@ class SessionStatus:
     failsafe: FailsafeStatus = field(default_factory=FailsafeStatus)
     memory: MemoryStatus = field(default_factory=MemoryStatus)  #: the board's (a2jMemory)
     sync: Mapping[str, Any] | None = None  #: the clock sync's (None: the board has no clock)
+    identity: Identity = field(default_factory=Identity)  #: as of the latest handshake
 
     def to_json(self) -> dict[str, Any]:
         """The plain dict, in the documented key order (JSON types only)."""
@@ -212,6 +259,7 @@ class SessionStatus:
             "rtt_us": self.rtt_us,
             "warnings": self.warnings,
             "clock_epoch": self.clock_epoch,
+            **self.identity.to_json(),
             "map_pushes": self.map_pushes,
             **self.config,
             "aligned": self.aligned,

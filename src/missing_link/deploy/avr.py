@@ -1,11 +1,15 @@
 """AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file
-(``make -C firmware/avr``, which runs ``gen-firmware``), check that it fits the MCU's flash and
-RAM (avrsize.py: refused with the numbers before anything is written), and write it with avrdude
-through the Arduino bootloader; then ``flash`` checks the board answers J2A as the board file
-says.  ``gen-firmware`` builds it too, to refuse a board file that cannot fit (fit())."""
+(``make -C firmware/avr``, which runs ``gen-firmware`` and stamps the image with a board.id and
+its fw.hash: avrstamp.py), check that it fits the MCU's flash and RAM (avrsize.py: refused with
+the numbers before anything is written), and write it with avrdude through the Arduino
+bootloader; then ``flash`` checks the board answers J2A as the board file says, with the fw.hash
+it was stamped with (and the id, when ``--id`` forced one).  The id reaches the EEPROM through
+the image: the bootloaders write flash only (identity.c).  ``gen-firmware`` builds it too, to
+refuse a board file that cannot fit (fit())."""
 
 from __future__ import annotations
 
+import re
 import shlex
 import subprocess
 import sys
@@ -14,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .avrsize import AvrSize, check
+from .avrstamp import check_id
 from .boardfile import BoardFile
 from .check import FlashError, verify
 
@@ -35,26 +40,34 @@ def avrdude_command(mcu: str, port: str, hex_path: str | Path) -> list[str]:
     ]  # fmt: skip
 
 
-def make_command(bf: BoardFile, build: Path) -> list[str]:
-    """make, its own fit check off: the caller makes it (check()), to say it in one line."""
+def make_command(bf: BoardFile, build: Path, board_id: str | None = None) -> list[str]:
+    """``board_id``: stamped forced (the board takes it over the id it has); without it, a
+    fresh random id, taken only by a board that has none (a re-flash keeps its id).  make's own
+    fit check is off: the caller makes it (check()), to say it in one line."""
+    ident = [f"ID={check_id(board_id)}", "FORCE_ID=1"] if board_id else []
     return [
         "make", "-C", str(AVR_DIR), f"BOARD={bf.path.resolve()}", f"BUILD={build}",
-        f"PYTHON={sys.executable}", "CHECK=0",
+        f"PYTHON={sys.executable}", "CHECK=0", *ident,
     ]  # fmt: skip
 
 
-def build_checked(bf: BoardFile, build: Path) -> AvrSize:
-    """Build the firmware into ``build`` and check it fits (DoesNotFit, with the numbers)."""
+#: the stamp's line in make's output (avrstamp.py)
+STAMPED = re.compile(r"stamped: fw\.hash ([0-9a-f]{16}), board\.id (\S+)")
+
+
+def build_checked(bf: BoardFile, build: Path, board_id: str | None = None) -> tuple[AvrSize, str]:
+    """Build the firmware into ``build`` and check it fits (DoesNotFit, with the numbers):
+    its sizes and make's output."""
     if not AVR_DIR.is_dir():
         raise FlashError(f"AVR builds need the missing-link source checkout ({AVR_DIR})")
-    _run(make_command(bf, build), "building the AVR firmware", 300)
-    return check(build / bf.name / "firmware.elf", bf.mcu, str(bf.path))
+    out = _run(make_command(bf, build, board_id), "building the AVR firmware", 300)
+    return check(build / bf.name / "firmware.elf", bf.mcu, str(bf.path)), out
 
 
 def fit(bf: BoardFile) -> AvrSize:
     """Whether ``bf``'s firmware fits its MCU, built in a scratch directory (gen-firmware)."""
     with tempfile.TemporaryDirectory(prefix="missing-link-avr-fit-") as tmp:
-        return build_checked(bf, Path(tmp))
+        return build_checked(bf, Path(tmp))[0]
 
 
 def _run(cmd: list[str], what: str, timeout: float) -> str:
@@ -75,22 +88,39 @@ def _run(cmd: list[str], what: str, timeout: float) -> str:
 
 
 def flash_avr(
-    bf: BoardFile, port: str, *, dry_run: bool, say: Callable[[str], None], check: bool
+    bf: BoardFile,
+    port: str,
+    *,
+    dry_run: bool,
+    say: Callable[[str], None],
+    check: bool,
+    board_id: str | None = None,
 ) -> int:
     with tempfile.TemporaryDirectory(prefix="missing-link-avr-") as tmp:
         build = Path(tmp)
         hex_path = build / bf.name / "firmware.hex"
-        make = make_command(bf, build)
+        make = make_command(bf, build, board_id)
         dude = avrdude_command(bf.mcu, port, hex_path)
         if dry_run:
             say(f"would build the C firmware for {bf.mcu}: " + shlex.join(make))
             say("would run: " + shlex.join(dude))
-            say(f"then check that serial://{port} answers J2A as {bf.name!r}")
+            say(f"then check that serial://{port} answers J2A as {bf.name!r}, with the fw.hash "
+                "of the image" + (f" and board.id {board_id}" if board_id else ""))  # fmt: skip
             return 0
-        say(build_checked(bf, build).line())  # (one that cannot fit stops here: DoesNotFit)
+        size, out = build_checked(bf, build, board_id)  # (one that cannot fit stops here)
+        say(size.line())
+        for line in out.splitlines():
+            if line.startswith("stamped: "):
+                say(line)
+        stamped = STAMPED.search(out)
+        if stamped is None:
+            raise FlashError("building the AVR firmware: no stamp line (fw.hash, board.id)")
         say(f"writing {hex_path.name} to {port} with avrdude ...")
         _run(dude, f"avrdude on {port}", 300)
     if check:
         baud = int(bf.board.get("link", {}).get("baudrate", 115200))
-        say(verify(f"serial://{port}?baud={baud}", bf))
+        expect = {"fw.hash": stamped.group(1)}
+        if board_id:  # (else the board keeps the id it had, if any)
+            expect["board.id"] = board_id
+        say(verify(f"serial://{port}?baud={baud}", bf, expect=expect))
     return 0

@@ -138,7 +138,7 @@ def generate_config(
     ``wiring``: per transducer index, conditions a set must keep that depend on how the entry
     is wired (avrdrivers.py: a PWM/DIR bridge cannot brake)."""
     slot = 1 + 9 + 4 * len(keys)
-    if 16 + 2 * slot > EEPROM[mcu]:
+    if 16 + 2 * slot > EEPROM[mcu] - 32:  # (the last 32 bytes: board.id, identity.c)
         raise ConfigError(f"{where}: the configuration record does not fit the {mcu}'s EEPROM")
     blob = keys_blob(keys)
     rows = [_key_row(a.key) for a in keys]

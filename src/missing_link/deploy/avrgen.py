@@ -142,7 +142,8 @@ def _add_entry(
 #: the C runtime's headers (firmware/avr/src)
 HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"builtins.h"', '"config.h"',
            '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
-           '"memory.h"', '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
+           '"identity.h"', '"log.h"', '"memory.h"', '"runtime.h"', '"stepper.h"',
+           '"timing.h"')  # fmt: skip
 
 
 def _head(bf: BoardFile) -> list[str]:
@@ -154,44 +155,68 @@ def _head(bf: BoardFile) -> list[str]:
     ]
 
 
-def _blobs(bf: BoardFile, lines: list[str]) -> list[str]:
-    """The descriptor and the properties (clock.epoch, set per boot, in RAM between)."""
+#: where fw.hash goes in the image: deploy/avrstamp.py stamps the hash of the image over it
+FW_HASH_PLACEHOLDER = "@@fwhash-stamp@@"
+#: a part of the properties blob: text in flash, or what the board knows only at run time
+Segment = bytes | str
+_RUNTIME = {"id": ("identity_len()", "identity_at"), "epoch": ("strlen(clock_epoch)", "EPOCH_AT")}
+
+
+def property_segments(bf: BoardFile) -> list[Segment]:
+    """The properties blob as parts: text (flash) and "id" (board.id, in the EEPROM:
+    identity.c) or "epoch" (clock.epoch, per boot, in RAM).  board.serial is board.id unless
+    the board file names a serial."""
     board = bf.board
-    transds = ("\n".join(lines) + "\n").encode()
-    head = (
-        _props(
-            [
-                ("j2a.version", "2"),
-                ("board.name", bf.name),
-                ("board.model", str(board.get("model", f"missing-link {bf.mcu} board"))),
-                ("board.serial", str(board.get("serial", f"avr-{bf.name}"))),
-            ]
-        )
-        + b"clock.epoch\0"
-    )
+    serial = board.get("serial")
     fw = str(board.get("fw_version", "0.2.0"))
-    tail = b"\0" + _props([("clock.res_us", "1"), ("fw.version", fw)])
+    model = str(board.get("model", f"missing-link {bf.mcu} board"))
+    head = _props([("j2a.version", "2"), ("board.name", bf.name), ("board.model", model)])
+    tail = _props([("clock.res_us", "1"), ("fw.version", fw), ("fw.hash", FW_HASH_PLACEHOLDER)])
+    if serial is not None:
+        head += _props([("board.serial", str(serial))])
+        return [head + b"board.id\0", "id", b"\0clock.epoch\0", "epoch", b"\0" + tail]
+    return [head + b"board.serial\0", "id", b"\0board.id\0", "id", b"\0clock.epoch\0", "epoch",
+            b"\0" + tail]  # fmt: skip
+
+
+def _properties_c(segments: list[Segment]) -> list[str]:
+    """props_len and props_at over the segments, in order."""
+    out = []
+    lens = []
+    at = ["static uint8_t props_at(uint16_t i) {", "    uint16_t n;"]
+    for k, seg in enumerate(segments):
+        if isinstance(seg, bytes):
+            out.append(f"static const char props_{k}[] PROGMEM = {c_string(seg)};")
+            size, read = str(len(seg)), f"pgm_read_byte(props_{k} + i)"
+        else:
+            size, fn = _RUNTIME[seg]
+            read = f"(uint8_t){fn}(i)"
+        lens.append(size)
+        at += [f"    n = {size};", f"    if (i < n) return {read};", "    i -= n;"]
+    return [
+        *out,
+        "#define EPOCH_AT(i) (clock_epoch[i])",
+        f"static uint16_t props_len(void) {{ return {' + '.join(lens)}; }}",
+        *at,
+        "    return 0;",
+        "}",
+        "const blob_t board_properties_blob = {props_len, props_at};",
+        "",
+    ]
+
+
+def _blobs(bf: BoardFile, lines: list[str]) -> list[str]:
+    """The descriptor and the properties (board.id from the EEPROM, clock.epoch set per boot
+    in RAM, the rest in flash)."""
+    transds = ("\n".join(lines) + "\n").encode()
     return [
         f"static const char transds[] PROGMEM = {c_string(transds)};",
         f"static uint16_t transds_len(void) {{ return {len(transds)}; }}",
         "static uint8_t transds_at(uint16_t i) { return pgm_read_byte(transds + i); }",
         "const blob_t board_transds_blob = {transds_len, transds_at};",
         "",
-        "/* properties: the fixed head and tail in flash, clock.epoch (per boot) in RAM between */",
-        f"static const char props_head[] PROGMEM = {c_string(head)};",
-        f"static const char props_tail[] PROGMEM = {c_string(tail)};",
-        f"#define HEAD {len(head)}",
-        f"#define TAIL {len(tail)}",
-        "static uint16_t props_len(void) { return HEAD + strlen(clock_epoch) + TAIL; }",
-        "static uint8_t props_at(uint16_t i) {",
-        "    if (i < HEAD) return pgm_read_byte(props_head + i);",
-        "    i -= HEAD;",
-        "    uint16_t e = strlen(clock_epoch);",
-        "    if (i < e) return (uint8_t)clock_epoch[i];",
-        "    return pgm_read_byte(props_tail + (i - e));",
-        "}",
-        "const blob_t board_properties_blob = {props_len, props_at};",
-        "",
+        "/* properties: text in flash, board.id in the EEPROM (identity.c), clock.epoch in RAM */",
+        *_properties_c(property_segments(bf)),
     ]
 
 
@@ -241,6 +266,7 @@ FIXED_FUNCTIONS = (
     ("a2jConfigGet", "KIND_PLAIN", "config_get", "0"),
     ("a2jConfigSet", "KIND_PLAIN", "config_set", "0"),
     ("a2jConfigReset", "KIND_PLAIN", "config_reset", "0"),
+    ("a2jLogInfo", "KIND_PLAIN", "log_info", "0"),
     ("a2jMemory", "KIND_PLAIN", "memory_info", "0"),
 )
 

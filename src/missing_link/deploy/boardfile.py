@@ -28,8 +28,11 @@ BOARD_KEYS = ("name", "model", "mcu", "serial", "fw_version", "link", "buses", "
 LINK_KEYS = {
     "usb": ("kind", "baudrate"),
     "uart": ("kind", "id", "baudrate", "tx", "rx", "rxbuf"),
-    "tcp": ("kind", "port", "key_file", "boot_file", "replay_file"),
+    "tcp": ("kind", "port", "dial", "key_file", "boot_file", "replay_file"),
 }
+#: where a board that dials its daemon connects (board/dial.py): an IPv4 address and a port (a
+#: name would be looked up at every dial, and a lookup blocks the firmware's loop)
+DIAL = re.compile(r"(25[0-5]|2[0-4]\d|1?\d?\d)(\.(25[0-5]|2[0-4]\d|1?\d?\d)){3}:(\d{1,5})\Z")
 LINK_INTS = {"id": (0, 15), "baudrate": (300, 10_000_000), "tx": (0, 255), "rx": (0, 255),
              "rxbuf": (16, 65536), "port": (1, 65535)}  # fmt: skip
 BUS_INTS = {"id": (0, 15), "scl": (0, 255), "sda": (0, 255), "freq": (1000, 5_000_000)}
@@ -142,8 +145,9 @@ def check_board(board: dict[str, Any], where: str) -> None:
 def _check_link(link: Any, mcu: str, where: str) -> None:
     if not isinstance(link, dict) or link.get("kind", "usb") not in LINK_KEYS:
         raise ConfigError(
-            f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}} or "
-            "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'}"
+            f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}}, "
+            "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'} or (a board that dials "
+            "its daemon) {'kind': 'tcp', 'dial': '192.168.1.10:7000', 'key_file': 'mlkey.bin'}"
         )
     kind = link.get("kind", "usb")
     if kind == "tcp" and mcu in AVR_MCUS:
@@ -156,10 +160,23 @@ def _check_link(link: Any, mcu: str, where: str) -> None:
             )
         if key in ("key_file", "boot_file", "replay_file"):
             _file_name(value, at)
+        elif key == "dial":
+            _dial(value, link, at)
         elif key in LINK_INTS:
             lo, hi = LINK_INTS[key]
             if not (value is None and key in ("tx", "rx")):
                 _integer(value, at, lo, hi)
+
+
+def _dial(value: Any, link: dict[str, Any], at: str) -> None:
+    m = DIAL.match(value) if isinstance(value, str) else None
+    if m is None or not 0 < int(m.group(4)) < 65536:
+        raise ConfigError(
+            f"{at}: the daemon's IPv4 address and port, like '192.168.1.10:7000' (a name would "
+            f"be looked up at every dial, blocking the board), not {value!r}"
+        )
+    if "port" in link:
+        raise ConfigError(f"{at}: a board that dials has no port of its own (drop 'port')")
 
 
 def _check_buses(buses: Any, where: str) -> None:

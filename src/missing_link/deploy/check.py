@@ -13,9 +13,12 @@ class FlashError(MissingLinkError):
     """Copying, building or verifying the firmware failed."""
 
 
-def verify(url: str, bf: BoardFile, timeout: float = 15.0) -> str:
+def verify(
+    url: str, bf: BoardFile, timeout: float = 15.0, expect: dict[str, str] | None = None
+) -> str:
     """Open the board as J2A (waiting for it to come back after the reset) and compare name and
-    transducers with the board file.  Returns a one-line summary; raises FlashError."""
+    transducers with the board file, and properties with ``expect`` (``fw.hash``: what was
+    flashed).  Returns a one-line summary; raises FlashError."""
     deadline = time.monotonic() + timeout
     last: Exception | None = None
     while time.monotonic() < deadline:
@@ -35,7 +38,17 @@ def verify(url: str, bf: BoardFile, timeout: float = 15.0) -> str:
                     f"{url}: the board answers as {name!r} with {sorted(got)}, "
                     f"the board file says {bf.name!r} with {sorted(want)}"
                 )
-            return f"{url}: {name} answers J2A with {len(got)} transducers as the board file says"
+            for key, value in (expect or {}).items():
+                if board.properties.get(key) != value:
+                    raise FlashError(
+                        f"{url}: the board says {key} {board.properties.get(key)!r}, "
+                        f"{value!r} was flashed"
+                    )
+            ident = "".join(f", {k} {v}" for k, v in (expect or {}).items())
+            return (
+                f"{url}: {name} answers J2A with {len(got)} transducers as the board file says "
+                f"(board.id {board.properties.get('board.id', '(none)')}{ident})"
+            )
         except FlashError:
             raise
         except MissingLinkError as e:

@@ -10,7 +10,9 @@ uses, the board file (as ``/board.py``), the signing key (``--key``, as the link
 (``mcu = atmega...``): the firmware is generated and built (``gen-firmware``, ``make -C
 firmware/avr``) and written with avrdude.
 Then the port is opened as a J2A link and the board's name and transducers are compared with the
-board file.  ``--dry-run`` prints every file and command without touching the board."""
+board file, and its ``fw.hash`` with the hash of the runtime files as they were copied
+(board/identity.py: the board hashes the files it has at boot).  ``--dry-run`` prints every file
+and command without touching the board."""
 
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..board import drivers as drivers_pkg
+from ..board.identity import FirmwareHash
 from .avr import flash_avr
 from .boardfile import BoardFile
 from .check import FlashError, verify
@@ -33,8 +36,11 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 #: runtime modules every MicroPython board needs (host-only helpers stay on the host)
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
-    "timing.py", "failsafe.py", "memory.py", "wire.py", "firmware.py", "link.py",
+    "timing.py", "failsafe.py", "memory.py", "wire.py", "firmware.py", "link.py", "identity.py",
+    "dial.py", "log.py",
 )  # fmt: skip
+#: where the runtime goes on the board: fw.hash is over the files under it (board/identity.py)
+LIB = "lib/mlboard/"
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,18 @@ def micropython_files(bf: BoardFile, key: str | None = None) -> list[Copy]:
     return out
 
 
+def firmware_hash(files: list[Copy]) -> str:
+    """The ``fw.hash`` a board reports once ``files`` are on it: the runtime's files, as the
+    board hashes its ``lib/mlboard`` (board/identity.py)."""
+    out = FirmwareHash()
+    for c in files:
+        if c.remote.startswith(LIB):
+            data = c.local.read_bytes()
+            out.add(c.remote[len(LIB) :], len(data), [data])
+    digest: str = out.digest()
+    return digest
+
+
 def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[str]) -> list[str]:
     """One mpremote run that copies every staged file (``lib`` as a tree, every other file by
     name, in ``files``' order: main.py last), then resets the board."""
@@ -74,7 +92,25 @@ def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[s
             cmd += ["fs", "cp", "-r", str(stage / top), ":", "+"]
         else:
             cmd += ["fs", "cp", str(stage / top), f":{top}", "+"]
+        if top == LIB.split("/", 1)[0]:
+            cmd += ["exec", prune_code(files), "+"]
     return [*cmd, "reset"]
+
+
+def prune_code(files: list[Copy]) -> str:
+    """MicroPython that removes the files under ``lib/mlboard`` that this flash did not put
+    there (a driver an earlier board file used): the runtime is then exactly the files
+    ``firmware_hash`` hashed, and the board's fw.hash says so.  Nothing else is touched."""
+    keep = sorted(c.remote[len(LIB) :] for c in files if c.remote.startswith(LIB))
+    return (
+        f"import os\nkeep = {tuple(keep)!r}\ndef prune(rel):\n"
+        f"    for name in os.listdir({LIB.rstrip('/')!r} + rel):\n"
+        "        path = rel + '/' + name\n"
+        f"        full = {LIB.rstrip('/')!r} + path\n"
+        "        if os.stat(full)[0] & 0x4000:\n            prune(path)\n"
+        "        elif path[1:] not in keep:\n            os.remove(full)\n"
+        "prune('')\n"
+    )
 
 
 def stage_files(files: list[Copy], stage: Path) -> None:
@@ -106,6 +142,12 @@ def check_key(bf: BoardFile, port: str, key: str | None, warn: Callable[[str], N
         load_key(key)  # (a key that does not load fails here, not on the board)
     elif key_file:
         raise FlashError(f"{bf.path}: the link has a key_file: give the key with --key")
+    elif link.get("dial"):
+        warn(
+            f"{bf.path}: a board that dials without a key_file speaks unsigned J2A: only a "
+            "daemon listening on loopback takes it (make a key with `missing-link key new`, "
+            "add 'key_file' to the link: docs/signing.md)"
+        )
     elif link.get("kind") == "tcp":
         warn(
             f"{bf.path}: a tcp link without a key_file: J2A unauthenticated on the network, "
@@ -124,14 +166,23 @@ def flash(
     warn: Callable[[str], None] = _warn,
     check: bool = True,
     key: str | None = None,
+    board_id: str | None = None,
 ) -> int:
+    """``board_id`` (AVR only): the board.id the board takes (flash --id); a MicroPython board's
+    is its chip's (machine.unique_id)."""
     if bf.is_avr:
         if key:
             raise FlashError("--key: the AVR runtime has no network link to sign")
-        return flash_avr(bf, port, dry_run=dry_run, say=say, check=check)
+        return flash_avr(bf, port, dry_run=dry_run, say=say, check=check, board_id=board_id)
+    if board_id:
+        raise FlashError(
+            "--id: a MicroPython board's board.id is its chip's own (machine.unique_id); "
+            "--id is for AVR boards"
+        )
     check_key(bf, port, key, warn)
     fit = check_fit(bf)  # (a board file that cannot fit is refused here: DoesNotFit)
     files = micropython_files(bf, key or None)
+    fw_hash = firmware_hash(files)
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
     with tempfile.TemporaryDirectory(prefix="missing-link-flash-") as tmp:
@@ -144,7 +195,7 @@ def flash(
             for c in files:
                 say(f"  {c.local} -> :{c.remote}")
             say("would run: " + shlex.join(cmd))
-            say(f"then check that {url} answers J2A as {bf.name!r}")
+            say(f"then check that {url} answers J2A as {bf.name!r} with fw.hash {fw_hash}")
             return 0
         stage_files(files, stage)
         say(f"copying {len(files)} files to {port} with mpremote ...")
@@ -153,12 +204,19 @@ def flash(
     if check and link.get("kind") == "tcp":
         key_arg = "?key=KEYFILE" if link.get("key_file") else ""
         say(
-            "a network board: check it once it joined its network: missing-link info "
-            f"{'signed+' if key_arg else ''}tcp://HOST:{link.get('port', 5000)}{key_arg}"
+            "a network board: check it once it joined its network (fw.hash "
+            f"{fw_hash}): " + _network_check(link, key_arg)
         )
     elif check:
-        say(verify(url, bf))
+        say(verify(url, bf, expect={"fw.hash": fw_hash}))
     return 0
+
+
+def _network_check(link: dict[str, object], key_arg: str) -> str:
+    signed = "signed+" if key_arg else ""
+    if link.get("dial"):  # (it dials the daemon: the daemon shows it by its id)
+        return f"missing-link run --listen {signed}tcp://ADDR:PORT{key_arg} (the board dials it)"
+    return f"missing-link info {signed}tcp://HOST:{link.get('port', 5000)}{key_arg}"
 
 
 def _run_mpremote(cmd: list[str], port: str) -> None:

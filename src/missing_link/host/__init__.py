@@ -7,6 +7,7 @@
 - :mod:`.board` - :class:`Board` (holds a link): open by URL, handshake, calls by name, blobs,
   clock exchanges
 - :mod:`.clock` - the clock the host side runs on, passed in (the system's, or a fake one)
+- :mod:`.config` - a board's run-time configuration from the host (keys, values, all-or-none sets)
 - :mod:`.aio` - :class:`AsyncBoard`: the same engine, awaited
 - :mod:`.samples` - SIFs decoded into samples with the board's descriptors (``listen``)
 """

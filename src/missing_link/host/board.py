@@ -29,6 +29,7 @@ from ..j2a.blobs import mapping_index
 from ..logs import ErrorCounts
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
+from .board_log import LogLines
 from .clock import Clock
 from .link import DEFAULT_TIMEOUT, BoardLink, ProgressFn, SifHandler
 from .reactor import Reactor
@@ -50,8 +51,8 @@ TRANSFER_TIMEOUT = 120.0
 __all__ = ["Board", "CallResult", "LinkStats", "open_board"]
 
 
-class Board:
-    """A connected J2A board (blocking API).  Use :func:`open_board` or ``Board.open(url)``."""
+class Board(LogLines):
+    """A connected J2A board (blocking API; its log: ``on_log``).  Use ``Board.open(url)``."""
 
     def __init__(
         self,

@@ -169,6 +169,19 @@ _UNESCAPE_OK = frozenset((SOF - 1, SOS - 1, ESC - 1))  # bytes allowed after ESC
 _UNESCAPED = {bytes((b,)): bytes((b + 1,)) for b in _UNESCAPE_OK}
 
 
+def _unescape(buf: bytes, p: int, stop: int) -> bytes | None:
+    """The escaped span ``buf[p:stop]`` unescaped, or None when an escape is not one of the
+    three (the bytes after ESC are split off and looked up: no byte loop)."""
+    parts = buf[p:stop].split(b"\x7d")
+    for i in range(1, len(parts)):
+        part = parts[i]
+        r = _UNESCAPED.get(part[:1])
+        if r is None:
+            return None
+        parts[i] = r + part[1:]
+    return b"".join(parts)
+
+
 class FrameDecoder:
     """Streaming J2A decoder.  ``feed(data)`` returns good frames and errors in arrival order."""
 
@@ -206,12 +219,29 @@ class FrameDecoder:
             return b
         return buf[2] + 1 if len(buf) >= 3 else None
 
+    def _report(
+        self,
+        out: list[Frame | FrameError],
+        kind: FrameErrorKind,
+        first: int,
+        seq: int | None,
+        detail: str,
+    ) -> None:
+        """Count one damaged frame and report it (the rare path, out of ``feed``'s loop)."""
+        stats = self.stats
+        if kind is FrameErrorKind.CUT:
+            stats.cut_frames += 1
+        elif kind is FrameErrorKind.ESCAPE:
+            stats.bad_escapes += 1
+        else:
+            stats.bad_checksums += 1
+        out.append(FrameError(kind, _KIND[first], seq, detail))
+
     def _slow_header(
         self, buf: bytes, pos: int, end: int, first: int, out: list[Frame | FrameError]
     ) -> tuple[int, int, int, int] | int | None:
         """Header with escapes, cut or incomplete: (seq, opcode, len, body start), or the
         position to resume at after a reported error, or None when more bytes are needed."""
-        stats = self.stats
         hdr = [0, 0, 0]
         p = pos + 1
         k = 0
@@ -226,29 +256,18 @@ class FrameDecoder:
                     return None
                 if buf[p + 1] in (SOF, SOS):
                     cut_at = p + 1
+            seq = hdr[0] if k > 0 else None
             if cut_at >= 0:
-                stats.cut_frames += 1
-                out.append(
-                    FrameError(
-                        FrameErrorKind.CUT,
-                        _KIND[first],
-                        hdr[0] if k > 0 else None,
-                        "start marker inside frame header",
-                    )
+                self._report(
+                    out, FrameErrorKind.CUT, first, seq, "start marker inside frame header"
                 )
                 return cut_at
             if b == ESC:
                 b2 = buf[p + 1]
                 p += 2
                 if b2 not in _UNESCAPE_OK:
-                    stats.bad_escapes += 1
-                    out.append(
-                        FrameError(
-                            FrameErrorKind.ESCAPE,
-                            _KIND[first],
-                            hdr[0] if k > 0 else None,
-                            f"escape 7d {b2:02x} in header",
-                        )
+                    self._report(
+                        out, FrameErrorKind.ESCAPE, first, seq, f"escape 7d {b2:02x} in header"
                     )
                     return p
                 hdr[k] = b2 + 1
@@ -258,33 +277,44 @@ class FrameDecoder:
             k += 1
         return hdr[0], hdr[1], hdr[2], p
 
+    def _hunt(self, buf: bytes, pos: int, end: int) -> int:
+        """Skip to the next start marker (or the end), counting what was skipped as junk."""
+        m = _MARKERS.search(buf, pos)
+        at = end if m is None else m.start()
+        self.stats.junk_bytes += at - pos
+        return at
+
+    @staticmethod
+    def _span_tail(buf: bytes, p: int, stop: int, end: int) -> int | None:
+        """A body span that runs past the bytes here, or ends in an escape: the stop to check
+        for a start marker (the frame was cut), or None when more bytes are needed."""
+        if stop > end:  # incomplete, unless a start marker already shows the frame was cut
+            return end if _find_marker(buf, p, end) >= 0 else None
+        # The span ends in an escape whose partner is not here yet: one more byte needed.
+        return stop + 1 if stop < end else None
+
     def feed(self, data: bytes) -> list[Frame | FrameError]:
+        """Every good frame and error in ``data`` (after what was held), in arrival order.  The
+        common frame stays in this loop; damage, escaped headers and cut frames go to helpers."""
         out: list[Frame | FrameError] = []
         buf = self._buf + data if self._buf else bytes(data)
-        stats = self.stats
         good = 0
         pos = 0
         end = len(buf)
         while pos < end:
             first = buf[pos]
             if first != SOF and first != SOS:
-                m = _MARKERS.search(buf, pos)
-                if m is None:
-                    stats.junk_bytes += end - pos
-                    pos = end
+                pos = self._hunt(buf, pos, end)
+                if pos == end:
                     break
-                stats.junk_bytes += m.start() - pos
-                pos = m.start()
                 first = buf[pos]
             # --- header: seq, opcode, len; fast path when none of them is escaped ---
-            if pos + 4 <= end:
-                seq = buf[pos + 1]
-                opcode = buf[pos + 2]
-                n = buf[pos + 3]
-                fast = seq not in SPECIALS and opcode not in SPECIALS and n not in SPECIALS
-            else:
-                fast = False
-            if fast:
+            if (
+                pos + 4 <= end
+                and (seq := buf[pos + 1]) not in SPECIALS
+                and (opcode := buf[pos + 2]) not in SPECIALS
+                and (n := buf[pos + 3]) not in SPECIALS
+            ):
                 p = pos + 4
             else:
                 got = self._slow_header(buf, pos, end, first, out)
@@ -298,64 +328,23 @@ class FrameDecoder:
             need = n + 1
             stop = p + need
             esc = buf.count(b"\x7d", p, stop)
-            while True:
-                new_stop = p + need + esc
-                if new_stop == stop:
-                    break
-                stop = new_stop
+            while p + need + esc != stop:  # the escapes found lengthen the span: count again
+                stop = p + need + esc
                 esc = buf.count(b"\x7d", p, stop)
-            if stop > end:
-                # Incomplete, unless a start marker already shows the frame was cut.
-                cut = _find_marker(buf, p, end)
-                if cut < 0:
-                    break
-                stats.cut_frames += 1
-                out.append(
-                    FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
-                )
-                pos = cut
-                continue
-            if buf[stop - 1] == ESC:
-                # The span ends in an escape whose partner is not here yet: one more byte needed.
-                if stop >= end:
-                    break
-                stop += 1
+            if stop > end or buf[stop - 1] == ESC:
+                tail = self._span_tail(buf, p, stop, end)
+                if tail is None:
+                    break  # need more bytes
+                stop = tail
             if buf.find(b"\x12", p, stop) >= 0 or buf.find(b"\xed", p, stop) >= 0:
-                cut = _find_marker(buf, p, stop)
-                stats.cut_frames += 1
-                out.append(
-                    FrameError(FrameErrorKind.CUT, _KIND[first], seq, "start marker inside frame")
-                )
-                pos = cut
+                self._report(out, FrameErrorKind.CUT, first, seq, "start marker inside frame")
+                pos = _find_marker(buf, p, stop)
                 continue
             if esc:
-                parts = buf[p:stop].split(b"\x7d")
-                ok = True
-                for i in range(1, len(parts)):
-                    part = parts[i]
-                    r = _UNESCAPED.get(part[:1])
-                    if r is None:
-                        ok = False
-                        break
-                    parts[i] = r + part[1:]
-                if not ok:
-                    stats.bad_escapes += 1
-                    out.append(
-                        FrameError(
-                            FrameErrorKind.ESCAPE, _KIND[first], seq, "bad escape in payload"
-                        )
-                    )
-                    pos = stop
-                    continue
-                body = b"".join(parts)
-                if len(body) != need:
-                    # A lone escape at the end swallowed the checksum position.
-                    stats.bad_escapes += 1
-                    out.append(
-                        FrameError(
-                            FrameErrorKind.ESCAPE, _KIND[first], seq, "escape misaligned frame"
-                        )
-                    )
+                body = _unescape(buf, p, stop)
+                if body is None or len(body) != need:  # (misaligned: a lone escape at the end)
+                    why = "bad escape in payload" if body is None else "escape misaligned frame"
+                    self._report(out, FrameErrorKind.ESCAPE, first, seq, why)
                     pos = stop
                     continue
                 payload = body[:n]
@@ -376,18 +365,11 @@ class FrameDecoder:
             want = seq ^ ((opcode + 11) & 0xFF) ^ ((n + 97) & 0xFF) ^ x
             pos = stop
             if got_sum != want:
-                stats.bad_checksums += 1
-                out.append(
-                    FrameError(
-                        FrameErrorKind.CHECKSUM,
-                        _KIND[first],
-                        seq,
-                        f"checksum {got_sum:#04x}, expected {want:#04x}",
-                    )
-                )
+                detail = f"checksum {got_sum:#04x}, expected {want:#04x}"
+                self._report(out, FrameErrorKind.CHECKSUM, first, seq, detail)
                 continue
             good += 1
             out.append(_new_frame(Frame, (_KIND[first], seq, opcode, payload)))
-        stats.frames += good
+        self.stats.frames += good
         self._buf = buf[pos:] if pos < end else b""
         return out

@@ -352,28 +352,16 @@ class HostConnection:
         self._on_chunk(op, frame, events)
 
     def _on_chunk(self, op: _Op, frame: Frame, events: list[Event]) -> None:
+        """One a2jMany reply: the transfer's end, the next chunk queued, or why it failed."""
         p = frame.payload
         if frame.opcode != 0 or len(p) < 6:
-            events.append(
-                CallFailed(
-                    op.op,
-                    FailureReason.PROTOCOL,
-                    frame.opcode,
-                    f"a2jMany answered {frame.opcode:#04x} with {len(p)} bytes",
-                )
-            )
+            what = f"a2jMany answered {frame.opcode:#04x} with {len(p)} bytes"
+            events.append(_failed(op, what, code=frame.opcode))
             return
         status, flags, offset = MANY_HEADER.unpack_from(p)
         chunk = p[6:]
         if offset != op.offset:
-            events.append(
-                CallFailed(
-                    op.op,
-                    FailureReason.PROTOCOL,
-                    None,
-                    f"a2jMany reply for offset {offset}, expected {op.offset}",
-                )
-            )
+            events.append(_failed(op, f"a2jMany reply for offset {offset}, expected {op.offset}"))
             return
         op.chunks += 1
         last = bool(flags & FLAG_LAST)
@@ -386,44 +374,38 @@ class HostConnection:
             op.received += chunk
             op.offset += len(chunk)
             if not chunk and not last:
-                events.append(
-                    CallFailed(
-                        op.op,
-                        FailureReason.PROTOCOL,
-                        None,
-                        f"a2jMany read returned no data at offset {offset} without isLast",
-                    )
-                )
+                what = f"a2jMany read returned no data at offset {offset} without isLast"
+                events.append(_failed(op, what))
                 return
             if op.offset > op.max_bytes or op.chunks >= MAX_MANY_CHUNKS:
-                events.append(
-                    CallFailed(
-                        op.op,
-                        FailureReason.LIMIT,
-                        None,
-                        f"transfer passed the cap of {op.max_bytes} bytes",
-                    )
-                )
+                what = f"transfer passed the cap of {op.max_bytes} bytes"
+                events.append(_failed(op, what, FailureReason.LIMIT))
                 return
         if status != 0 or last:
             data = bytes(op.received) if not op.write else b""
             events.append(TransferCompleted(op.op, status, data, op.chunks))
             return
         if op.original and op.offset > ORIGINAL_MAX_OFFSET:
-            events.append(
-                CallFailed(
-                    op.op,
-                    FailureReason.PROTOCOL,
-                    None,
-                    f"a2jMany {'write' if op.write else 'read'} past offset 255 (next chunk at "
-                    f"{op.offset}) from the 2014 firmware: its a2jMany offset bug (it uses only "
-                    f"the offset's low byte) would give the data of offset {op.offset & 0xFF} "
-                    "and never the last chunk, so a blob over 498 bytes cannot be moved",
-                )
+            what = (
+                f"a2jMany {'write' if op.write else 'read'} past offset 255 (next chunk at "
+                f"{op.offset}) from the 2014 firmware: its a2jMany offset bug (it uses only "
+                f"the offset's low byte) would give the data of offset {op.offset & 0xFF} "
+                "and never the last chunk, so a blob over 498 bytes cannot be moved"
             )
+            events.append(_failed(op, what))
             return
         if op.progress:
             total = len(op.data) if op.write else None
             events.append(TransferProgress(op.op, op.offset, total, op.chunks))
         op.retries_left = self.retries
         self._queue.appendleft(op)
+
+
+def _failed(
+    op: _Op,
+    detail: str,
+    reason: FailureReason = FailureReason.PROTOCOL,
+    code: int | None = None,
+) -> CallFailed:
+    """A transfer that cannot go on: the board broke the a2jMany rules, or a cap was passed."""
+    return CallFailed(op.op, reason, code, detail)

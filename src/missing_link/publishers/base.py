@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..logs import ErrorCounts
 from ..ros.board_record import BoardDescription
@@ -65,6 +66,10 @@ class Publisher:
     def board_description(self, record: BoardDescription) -> None:
         """A board came up: its function table, properties and descriptors, and its topics
         (``ros/board_record.py``): recordings keep it for ``replay``.  Default: nothing."""
+
+    def log(self, line: LogLine) -> None:
+        """A line of a board's log (docs/board-log.md): ``/rosout`` on the ROS faces,
+        ``/<board>/log`` in recordings.  Default: nothing."""
 
     def command_sent(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
         """A face handed the actuator on ``name`` (of ``topic``'s type) a command it took:

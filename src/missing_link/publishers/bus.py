@@ -8,7 +8,11 @@ behind, the oldest updates are dropped and counted (``Subscription.dropped``, th
 thread instead: no thread hop, but a slow callback then delays that board.  A callback that
 raises is counted (the subscription's ``errors``; by kind in the bus's ``faults``: its status's
 ``error_kinds``) and the first of each kind logged with its traceback; it never ends a
-thread."""
+thread.
+
+The boards' logs (docs/board-log.md) come here too: ``subscribe_logs`` (``Daemon.subscribe_logs``)
+calls back with each :class:`~missing_link.host.board_log.LogLine` of a board (or of the boards a
+pattern names), on the same queues."""
 
 from __future__ import annotations
 
@@ -19,10 +23,13 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from ..host.board_log import LogLine
+from ..ros.logmsgs import log_topic
 from ..topics import Topic, Update
 from .base import Publisher
 
 Callback = Callable[[Update], None]
+LogCallback = Callable[[LogLine], None]
 CommandHandler = Callable[[Any], None]
 
 
@@ -43,13 +50,16 @@ def topic_pattern(pattern: str) -> re.Pattern[str]:
 
 
 class Subscription:
-    def __init__(self, bus: Bus, pattern: str, callback: Callback, queue: int = 10_000) -> None:
+    def __init__(
+        self, bus: Bus, pattern: str, callback: Callable[[Any], None], queue: int = 10_000
+    ) -> None:
+        """``callback`` takes an Update (``subscribe``) or a LogLine (``subscribe_logs``)."""
         self.bus, self.pattern, self.callback = bus, pattern, callback
         self.queue = queue
         self.delivered = 0
         self.dropped = 0
         self.errors = 0
-        self._items: deque[Update] = deque()
+        self._items: deque[Any] = deque()
         self._lock = threading.Lock()
         self._ready = threading.Event()
         self._cancelled = False
@@ -58,7 +68,7 @@ class Subscription:
             self._thread = threading.Thread(target=self._drain, name=f"bus:{pattern}", daemon=True)
             self._thread.start()
 
-    def deliver(self, update: Update) -> None:
+    def deliver(self, update: Update | LogLine) -> None:
         """Called by the bus on the thread that reads the board (the daemon's I/O loop)."""
         if self._thread is None:
             self._call(update)
@@ -85,13 +95,14 @@ class Subscription:
                         return
                     self._call(update)
 
-    def _call(self, update: Update) -> None:
+    def _call(self, update: Update | LogLine) -> None:
         try:
             self.callback(update)
             self.delivered += 1
         except Exception as e:  # noqa: BLE001 - an application's callback must not end the
             self.errors += 1  # board's reading or this thread: counted by kind, said once
-            what = f"subscriber {self.callback!r} on {update.topic.name}"
+            on = update.topic.name if isinstance(update, Update) else log_topic(update.board)
+            what = f"subscriber {self.callback!r} on {on}"
             self.bus.faults.caught(f"callback on {self.pattern}", e, what)
 
     def cancel(self) -> None:
@@ -117,6 +128,7 @@ class Bus(Publisher):
         self._commands: dict[str, CommandHandler] = {}
         self._last: dict[str, Update] = {}
         self.topics: dict[str, Topic] = {}
+        self._logs: list[Subscription] = []  # subscribe_logs
 
     # ---- for applications ---------------------------------------------------------------------
     def subscribe(
@@ -146,6 +158,24 @@ class Bus(Publisher):
                     if last is not None:
                         sub.deliver(last)
         return sub
+
+    def subscribe_logs(
+        self, callback: LogCallback, board: str = "*", *, queue: int = 10_000
+    ) -> Subscription:
+        """Call ``callback(line)`` for every line of the log of ``board`` (a name, or a pattern
+        as ``subscribe`` takes: ``*`` every board), as it arrives (``queue`` as ``subscribe``)."""
+        if queue < 0:
+            raise ValueError(f"queue = {queue}: 0 (inline) or a positive number of lines")
+        sub = Subscription(self, f"/{board}/log", callback, queue)
+        with self._lock:
+            self._logs.append(sub)
+        return sub
+
+    def log(self, line: LogLine) -> None:
+        name = log_topic(line.board)
+        for sub in list(self._logs):  # (a copy: one may unsubscribe meanwhile)
+            if topic_pattern(sub.pattern).match(name):
+                sub.deliver(line)
 
     def last(self, topic: str) -> Update | None:
         return self._last.get(topic)
@@ -189,6 +219,7 @@ class Bus(Publisher):
         with self._lock:
             subs = {id(s): s for lst in self._exact.values() for s in lst}
             subs.update((id(s), s) for s in self._patterns)
+            subs.update((id(s), s) for s in self._logs)
         return list(subs.values())
 
     @property
@@ -223,3 +254,5 @@ class Bus(Publisher):
                     subs.remove(sub)
             if sub in self._patterns:
                 self._patterns.remove(sub)
+            if sub in self._logs:
+                self._logs.remove(sub)

@@ -36,6 +36,9 @@ daemon took (``/<board>/<actuator>/cmd``, the actuator's own type) and the board
 samples: batched per board and written just before the writer closes a chunk, into that chunk
 (the writer closes a chunk itself before it would outgrow rosbags' 1 MiB, with room for the
 stamps), so a chunk holds its samples' stamps and a file cut by SIGKILL keeps both or neither.
+
+A board's log (docs/board-log.md) is recorded on ``/<board>/log`` as ``foxglove_msgs/msg/Log``
+(``ros/logmsgs.py``), which Foxglove's Log panel reads.
 """
 
 from __future__ import annotations
@@ -52,10 +55,12 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..ros.board_record import MESSAGES, BoardDescription
 from ..ros.clock import CLOCK_MSG, CLOCK_TYPE, ClockRecord, clock_record_cdr
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
+from ..ros.logmsgs import FOXGLOVE_LOG, foxglove_log_cdr, log_topic
 from ..topics import Topic, Update
 from .base import PublisherError
 from .mcap_replay import ReplayRecords, command_values
@@ -130,6 +135,13 @@ class McapPublisher(RosPublisher):
 
     def clock_record(self, topic: str, record: ClockRecord) -> None:
         self._put(("own", topic, CLOCK_TYPE, record.t4_ns, clock_record_cdr(record)))
+
+    def log(self, line: LogLine) -> None:
+        """A board's log line on ``/<board>/log``, as Foxglove's Log panel reads it."""
+        cdr = foxglove_log_cdr(
+            self.typestore, line.host_ns, line.level, line.board, line.text, line.source
+        )
+        self._put(("own", log_topic(line.board, self._topics), FOXGLOVE_LOG, line.host_ns, cdr))
 
     def board_description(self, record: BoardDescription) -> None:
         if self._replay is not None:

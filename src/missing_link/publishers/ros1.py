@@ -4,7 +4,8 @@ Thesis-format types are generated at runtime from the descriptors (``time[] time
 values array, ``genpy.dynamic``: no catkin build); standard types (``sensor_msgs/Range``,
 ``sensor_msgs/JointState``) use the installed ROS 1 message classes, filled field by field from
 the ROS 2 layout (so Jazzy's extra ``Range.variance`` is simply not sent).  ``/diagnostics`` goes
-out as ``diagnostic_msgs/DiagnosticArray``.
+out as ``diagnostic_msgs/DiagnosticArray``; the boards' logs on ``/rosout`` as
+``rosgraph_msgs/Log`` (``name`` the board).
 
 rospy lives in Debian's system Python; when this interpreter is a different build of the same
 Python minor version (a venv from pyenv, say), Debian's ``dist-packages`` is appended to
@@ -21,7 +22,9 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import MissingLinkError
+from ..host.board_log import LogLine
 from ..ros.diagnostics import status_label, status_level, status_message
+from ..ros.logmsgs import ROS1_LOG, ROSOUT, ros1_level
 from ..ros.msgs import ROS_TYPES
 from ..topics import Command, Topic, Update
 from .registry import DEBIAN_DIST, debian_rospy
@@ -83,6 +86,9 @@ class Ros1Publisher(RosPublisher):
                 "ros1: diagnostic_msgs is missing: run scripts/system-deps.sh --ros1"
             )
         self._diag = (rospy.Publisher("/diagnostics", diag, queue_size=10), diag)
+        # the boards' logs, where every ROS 1 node's log goes (rospy's own class)
+        rosout = self._get_class(ROS1_LOG)
+        self._rosout = (rospy.Publisher(ROSOUT, rosout, queue_size=100), rosout)
         log.info("ros1: node up, master %s", master)
 
     def add_topic(self, topic: Topic) -> None:
@@ -170,6 +176,15 @@ class Ros1Publisher(RosPublisher):
         pub.publish(msg)
         self.published += 1
 
+    def log(self, line: LogLine) -> None:
+        if self._closed:
+            return
+        pub, cls = self._rosout
+        msg = cls(level=ros1_level(line.level), name=line.board, msg=line.text, file="")
+        msg.function = line.source
+        msg.header.stamp = self.rospy.Time(line.host_ns // 10**9, line.host_ns % 10**9)
+        pub.publish(msg)
+
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         if self._closed:
             return
@@ -196,6 +211,7 @@ class Ros1Publisher(RosPublisher):
         for sub in self._subs.values():
             sub.unregister()
         self._diag[0].unregister()
+        self._rosout[0].unregister()
         self.rospy.signal_shutdown("missing-link daemon closed")
 
 

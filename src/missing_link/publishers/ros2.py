@@ -20,6 +20,8 @@ of its message class, and every update is published as the CDR bytes the daemon 
   (the board changed since the build) is refused, never sent wrong.
 * Actuators: ``/<board>/<name>/cmd`` is subscribed with the thesis type (raw CDR, decoded with
   rosbags) and goes through the daemon's latest-wins path.
+* Boards' logs (docs/board-log.md): every line on ``/rosout`` as ``rcl_interfaces/msg/Log``,
+  ``name`` the board, with rcl's rosout QoS (``ros/logmsgs.py``).
 * Boards' run-time configuration: every key is a parameter ``<board>.<transducer>.<key>`` of
   the node, with its range (``ros2_params.py``); a refused set is an unsuccessful result.
 * QoS: reliable, volatile, keep last ``depth`` (10): a default subscriber and a sensor-data
@@ -40,8 +42,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
+from ..ros.logmsgs import ROS2_LOG, ROSOUT, rosout_cdr
 from ..ros.msgs import ROS_TYPES
 from ..ros.standard import FrameId
 from ..topics import Command, Topic, Update
@@ -141,6 +145,12 @@ class Ros2Publisher(RosPublisher):
         diag_cls = self._msg_class(DIAG_TYPE)
         assert diag_cls is not None, "diagnostic_msgs is part of every ROS 2 install"
         self._diag = self.node.create_publisher(diag_cls, DIAG_TOPIC, self.qos)
+        # the boards' logs, as every node's log goes out (rcl's rosout QoS: transient local)
+        from rclpy.qos import qos_profile_rosout_default
+
+        log_cls = self._msg_class(ROS2_LOG)
+        assert log_cls is not None, "rcl_interfaces comes with rclpy"
+        self._rosout = self.node.create_publisher(log_cls, ROSOUT, qos_profile_rosout_default)
         self._spin = threading.Thread(target=self._spin_executor, name="ros2-executor", daemon=True)
         self._spin.start()
 
@@ -337,6 +347,19 @@ class Ros2Publisher(RosPublisher):
             self.dropped += 1
             return
         self.published += 1
+
+    def log(self, line: LogLine) -> None:
+        if self._closed:
+            return
+        cdr = rosout_cdr(
+            self.typestore, line.host_ns, line.level, line.board, line.text, line.source
+        )
+        try:
+            self._rosout.publish(cdr)
+        except TypeError:  # (what we handed it: a bug, for the fan-out to count)
+            raise
+        except Exception:  # noqa: BLE001 - rclpy refused (shutting down): a drop, counted
+            self.dropped += 1
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         try:

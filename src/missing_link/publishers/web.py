@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError
@@ -176,6 +177,9 @@ class WebPublisher(Publisher):
 
     def publish(self, update: Update) -> None:
         self.model.add_sample(update)
+
+    def log(self, line: LogLine) -> None:
+        self.model.add_log(line)
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
         if not self.server.attached:  # (attached: polled faster, see WebServer)

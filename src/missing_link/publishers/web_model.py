@@ -19,6 +19,9 @@ whether a saved configuration exists and whether the running one differs from it
 nothing differs (it is the running one), ``None`` when nothing is saved (the board boots with
 its defaults), and unknown (``"?"``) otherwise, unless this connection saw the running values
 while nothing differed.  Nothing shown is guessed.
+
+A board's log (docs/board-log.md): its last ``LOG_LINES`` lines, added to its status as ``log``
+(``[{level, text}]``: what the page shows as the board's log).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
 
@@ -37,6 +41,7 @@ POINTS_PER_TICK = 50
 HISTORY_STEP_S = 0.02
 HISTORY_POINTS = int(WINDOW_S / HISTORY_STEP_S) + 10
 INBOX = 4096  #: updates of one topic waiting for the next tick
+LOG_LINES = 50  #: a board's newest log lines the page shows
 RATE_WINDOW_S = 2.0
 #: key-name endings that say a configuration key's unit (rate_hz, failsafe_ms, min_us)
 UNITS = {"_hz": "Hz", "_ms": "ms", "_us": "µs", "_s": "s", "_deg": "deg", "_mm": "mm", "_cm": "cm"}
@@ -167,6 +172,7 @@ class ConsoleModel:
         self._publishers: list[dict[str, Any]] = []
         self._new_topics: list[str] = []
         self._config_dirty: set[str] = set()
+        self._logs: dict[str, deque[dict[str, str]]] = {}  # board -> its newest log lines
         self._lock = threading.Lock()
 
     # ---- the daemon's threads ------------------------------------------------------------------
@@ -214,9 +220,20 @@ class ConsoleModel:
                 cfg.values.update(values)
                 self._config_dirty.add(board)
 
-    def set_status(self, boards: list[dict[str, Any]], publishers: list[dict[str, Any]]) -> None:
-        """The daemon's status now (``Daemon.status()``, ``publisher_status()``)."""
+    def add_log(self, line: LogLine) -> None:
         with self._lock:
+            lines = self._logs.setdefault(line.board, deque(maxlen=LOG_LINES))
+            lines.append({"level": line.level_name, "text": line.text})
+
+    def set_status(self, boards: list[dict[str, Any]], publishers: list[dict[str, Any]]) -> None:
+        """The daemon's status now (``Daemon.status()``, ``publisher_status()``); a board's
+        newest log lines go with its status (``log``)."""
+        with self._lock:
+            logs = self._logs
+            boards = [
+                {**b, "log": list(logs[str(b.get("board"))])} if str(b.get("board")) in logs else b
+                for b in boards
+            ]
             self._boards, self._publishers = boards, publishers
         self.observe(boards)
 

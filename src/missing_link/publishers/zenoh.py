@@ -17,6 +17,10 @@ sees from this publisher:
   subscriber with history (rmw_zenoh's transient local, or zenoh's ``AdvancedSubscriber``)
   gets the current state although the board reports it only when it changes.
 
+* the boards' logs on ``/rosout`` (``rcl_interfaces/msg/Log``, ``name`` the board), with
+  rcl's rosout QoS: transient local, keep last 1000 (an advanced publisher's cache), lifespan
+  10 s (in the token; a cache keeps what it keeps);
+
 The type hash is RIHS01 from the configured distro's typestore; Humble has none
 (``TypeHashNotSupported``).  Sessions are peers that connect to ``tcp/127.0.0.1:7447`` (where
 rmw_zenohd listens) with multicast scouting off; every endpoint is configurable.
@@ -34,7 +38,9 @@ from typing import Any
 import xxhash
 
 from ..errors import ConfigError
+from ..host.board_log import LogLine
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
+from ..ros.logmsgs import ROS2_LOG, ROSOUT, ROSOUT_DEPTH, ROSOUT_QOS, rosout_cdr
 from ..topics import Command, Topic, Update
 from .rosbase import RosPublisher
 from .zenoh_config import check_endpoints, loopback_only, session_config, takes_commands
@@ -133,6 +139,8 @@ class ZenohPublisher(RosPublisher):
         )
         with self._lock:
             self._declare_publisher(DIAG_TOPIC, DIAG_TYPE)
+            # the boards' logs, as a ROS 2 node's rosout (transient local, keep last 1000)
+            self._declare_publisher(ROSOUT, ROS2_LOG, qos=ROSOUT_QOS, cache=ROSOUT_DEPTH)
         #: what ``run`` prints: where this face is
         self.url = (
             f"{mode} {self.zid}, connect {' '.join(connect) or '-'}, listen {' '.join(listen)}"
@@ -169,20 +177,26 @@ class ZenohPublisher(RosPublisher):
             topic.register_type(self.typestore)
             self._declare_publisher(topic.name, topic.type_name, state=topic.transducer.is_actuator)
 
-    def _declare_publisher(self, name: str, type_name: str, *, state: bool = False) -> _Entity:
+    def _declare_publisher(
+        self, name: str, type_name: str, *, state: bool = False, qos: str = "", cache: int = 0
+    ) -> _Entity:
+        """``state``: an actuator's state (transient local, keep last 1); ``qos`` and
+        ``cache``: another transient-local publisher's QoS and depth (``/rosout``)."""
         hash_ = type_hash(self.typestore, type_name, self.distro)
         eid = self._next_id
         self._next_id += 1
-        token = self._token("MP", eid, name, type_name, hash_, QOS_STATE if state else QOS)
+        qos = qos or (QOS_STATE if state else QOS)
+        cache = cache or (1 if state else 0)
+        token = self._token("MP", eid, name, type_name, hash_, qos)
         ent = _Entity(data_key(self.domain, name, type_name, hash_), self._gid(token))
-        if state:
-            # as rmw_zenoh makes a transient-local publisher: a cache of the last sample that
+        if cache:
+            # as rmw_zenoh makes a transient-local publisher: a cache of the last samples that
             # late subscribers with history (rmw_zenoh's transient local) query when they
             # detect this publisher
             from zenoh.ext import CacheConfig, declare_advanced_publisher
 
             ent.pub = declare_advanced_publisher(
-                self.session, ent.key, cache=CacheConfig(1), publisher_detection=True
+                self.session, ent.key, cache=CacheConfig(cache), publisher_detection=True
             )
         else:
             ent.pub = self.session.declare_publisher(ent.key)
@@ -264,6 +278,19 @@ class ZenohPublisher(RosPublisher):
             self.dropped += 1
             return
         self.published += 1
+
+    def log(self, line: LogLine) -> None:
+        ent = self._entities.get(ROSOUT)
+        if ent is None or self._closed:
+            return
+        cdr = rosout_cdr(
+            self.typestore, line.host_ns, line.level, line.board, line.text, line.source
+        )
+        ent.seq += 1
+        try:
+            ent.pub.put(cdr, attachment=attachment(ent.seq, line.host_ns, ent.gid))
+        except Exception:  # noqa: BLE001 - a put zenoh refuses is a dropped message, counted
+            self.dropped += 1
 
     def send_diagnostics(self, cdr: bytes, now_ns: int) -> None:
         ent = self._entities[DIAG_TOPIC]

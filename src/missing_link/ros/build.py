@@ -51,43 +51,8 @@ def build_package(
     prefix_path.mkdir(parents=True, exist_ok=True)
     package = Path(package_dir).resolve()
     log_path = prefix_path / f"build-{package.name}.log"
-    cmake_args = [
-        f"-DCMAKE_PREFIX_PATH={';'.join(roots)}",
-        f"-DPython3_EXECUTABLE={sys.executable}",
-        "-DBUILD_TESTING=OFF",
-    ]
-    colcon = shutil.which("colcon", path=env["PATH"])
-    cmake = shutil.which("cmake", path=env["PATH"])
     with open(log_path, "w", encoding="utf-8") as log, tempfile.TemporaryDirectory() as build:
-        if colcon:
-            steps = [
-                [
-                    colcon,
-                    "build",
-                    "--base-paths",
-                    str(package),
-                    "--build-base",
-                    build,
-                    "--install-base",
-                    str(prefix_path),
-                    "--merge-install",
-                    "--cmake-args",
-                    *cmake_args,
-                ]
-            ]
-        elif cmake:
-            steps = [
-                [
-                    *(cmake, "-S", str(package), "-B", build),
-                    f"-DCMAKE_INSTALL_PREFIX={prefix_path}",
-                    *cmake_args,
-                ],
-                [cmake, "--build", build, "-j", str(os.cpu_count() or 2)],
-                [cmake, "--install", build],
-            ]
-        else:
-            raise BuildError("neither colcon nor cmake found (pip install cmake)")
-        for step in steps:
+        for step in _steps(package, prefix_path, build, roots, env["PATH"]):
             progress(" ".join(Path(step[0]).name if i == 0 else a for i, a in enumerate(step[:3])))
             log.write("$ " + " ".join(step) + "\n")
             log.flush()
@@ -99,3 +64,33 @@ def build_package(
                     f"building {package.name} failed (log: {log_path}):\n  " + "\n  ".join(tail)
                 )
     return log_path
+
+
+def _steps(package: Path, prefix: Path, build: str, roots: list[str], path: str) -> list[list[str]]:
+    """The commands that build and install: one colcon build when colcon is on ``path``, else
+    CMake's configure, build and install."""
+    cmake_args = [
+        f"-DCMAKE_PREFIX_PATH={';'.join(roots)}",
+        f"-DPython3_EXECUTABLE={sys.executable}",
+        "-DBUILD_TESTING=OFF",
+    ]
+    colcon = shutil.which("colcon", path=path)
+    if colcon:
+        return [
+            [
+                *(colcon, "build", "--base-paths", str(package), "--build-base", build),
+                *("--install-base", str(prefix), "--merge-install", "--cmake-args", *cmake_args),
+            ]
+        ]
+    cmake = shutil.which("cmake", path=path)
+    if cmake:
+        return [
+            [
+                *(cmake, "-S", str(package), "-B", build),
+                f"-DCMAKE_INSTALL_PREFIX={prefix}",
+                *cmake_args,
+            ],
+            [cmake, "--build", build, "-j", str(os.cpu_count() or 2)],
+            [cmake, "--install", build],
+        ]
+    raise BuildError("neither colcon nor cmake found (pip install cmake)")

@@ -250,6 +250,7 @@ class ClockEstimator:
 
     # ---- the fit -----------------------------------------------------------------------------
     def _fit(self) -> Estimate:
+        """Steps 3-7 of the theory above on the window as it stands."""
         n = len(self.points)
         newest = self.points[-1]
         b_ref = newest.t3
@@ -266,43 +267,9 @@ class ClockEstimator:
         rm = ((t1 + t4) / 2.0 - h_ref) / 1000.0 - xm
         delay = (t4 - t1) / 1000.0 - (t3 - t2)
         dmin = float(delay.min())
-        w = 1.0 / (self.floor_us**2 + (delay - dmin) ** 2)
-        # A crystal's rate wanders (temperature): recent exchanges count more in the skew fit,
-        # so it follows a drifting rate instead of averaging the whole window (measured: the
-        # whole-run bench's ramps and bound misses came from that lag).
-        w = w * np.exp(xm / self.memory_us)
-
-        # hard skew range from pairs of constraints (later upper vs earlier lower and v.v.)
-        kmin, kmax = -MAX_SKEW, MAX_SKEW
-        sep = 1000.0  # µs: pairs closer than this bound the skew too loosely to matter
-        # Pairs of an older-half constraint with a newer-half one: the far-apart pairs that
-        # bound the skew tightly, at a quarter of the cost of all pairs (still hard bounds).
-        h = max(1, n // 2)
-        dx = xu[None, h:] - xl[:h, None]  # [i older lower, j newer upper]
-        m = dx > sep
-        if m.any():
-            kmax = min(kmax, float(((ru[None, h:] - rl[:h, None])[m] / dx[m]).min()))
-        dx2 = xl[None, h:] - xu[:h, None]  # [i older upper, j newer lower]
-        m2 = dx2 > sep
-        if m2.any():
-            kmin = max(kmin, float(((rl[None, h:] - ru[:h, None])[m2] / dx2[m2]).max()))
+        kmin, kmax = _skew_range(xl, rl, xu, ru, n)
         consistent = kmin <= kmax
-
-        # weighted least squares on the midpoints
-        sw = float(w.sum())
-        mx = float((w * xm).sum()) / sw
-        mr = float((w * rm).sum()) / sw
-        sxx = float((w * (xm - mx) ** 2).sum())
-        prev = self.estimate
-        if sxx > 0 and (xm.max() - xm.min()) > sep:
-            k = float((w * (xm - mx) * (rm - mr)).sum()) / sxx
-        else:
-            k = prev.skew if prev is not None else 0.0
-        if self._prior is not None:
-            k = self._prior_skew(k, kmin, kmax, float(t4[-1]))
-        if consistent:
-            k = min(max(k, kmin), kmax)
-
+        k = self._skew(xm, rm, delay, dmin, kmin, kmax, float(t4[-1]))
         span_s = (t3.max() - t2.min()) / 1e6
         dk = (max(kmax - k, k - kmin) if consistent else 0.0) + self.wander_per_s * span_s
         # each constraint moved to b_ref along the fitted skew, and its distance from b_ref
@@ -324,28 +291,17 @@ class ClockEstimator:
         # drifts up to 0.5 ppm/s): TCP p99 6.5 -> 3.4 µs, the pty unchanged.
         drift = self.drift_per_us
         sk = ((kmax - kmin) / 4.0 if consistent else 0.0) + drift * self.memory_us / 2.0
-        dl = (sk + 0.5 * drift * ax_l) * ax_l
-        du = (sk + 0.5 * drift * ax_u) * ax_u
-        c = (float((at_l - dl).max()) + float((at_u + du).min())) / 2.0
+        side_l = at_l - (sk + 0.5 * drift * ax_l) * ax_l  # each constraint, loosened by its age
+        side_u = at_u + (sk + 0.5 * drift * ax_u) * ax_u
+        c = (float(side_l.max()) + float(side_u.min())) / 2.0
         if lo > hi:
             consistent = False
             c = (lo + hi) / 2.0
             lo = hi = c
         else:
             c = min(max(c, lo), hi)
-        # The estimated error: how well the two sides pin the offset (each side's tightest
-        # constraint against its next), or the fastest quarter's midpoints about the line
-        # (robust sigma) if less; the asymmetry allowance; the ticks of both stamps (uniform:
-        # res / sqrt 12).
-        fast = (rm - (c + k * xm))[np.argsort(delay)[: max(4, n // 4)]]
-        scatter = 1.4826 * float(np.median(np.abs(fast - np.median(fast)))) if n >= 4 else 0.0
-        if n >= 4:
-            low2 = np.partition(at_l - dl, len(at_l) - 2)[-2:]  # the two tightest lower ones
-            up2 = np.partition(at_u + du, 1)[:2]  # and upper ones
-            gl, gu = float(low2.max() - low2.min()), float(up2.max() - up2.min())
-            scatter = min(scatter, GAP_FACTOR * math.sqrt(gl * gl + gu * gu) / 2.0)
+        scatter = _scatter(rm - (c + k * xm), delay, side_l, side_u, n)
         asym = ASYM_FRACTION * dmin / 2.0
-        est_sq = (scatter**2 + asym**2 + res * res / 12.0) * 1e6
         return Estimate(
             b_ref=int(b_ref),
             h_ref=h_ref + c * 1000.0,
@@ -357,6 +313,78 @@ class ClockEstimator:
             span_s=span_s,
             min_delay_ns=dmin * 1000.0,
             consistent=consistent,
-            est_sq_ns=est_sq,
+            est_sq_ns=(scatter**2 + asym**2 + res * res / 12.0) * 1e6,
             skew_sigma=sk,
         )
+
+    def _skew(
+        self,
+        xm: np.ndarray,
+        rm: np.ndarray,
+        delay: np.ndarray,
+        dmin: float,
+        kmin: float,
+        kmax: float,
+        now_ns: float,
+    ) -> float:
+        """The skew: weighted least squares on the exchanges' midpoints (a slow exchange says
+        little; a recent one more), blended with a prior, clamped into the hard range."""
+        w = 1.0 / (self.floor_us**2 + (delay - dmin) ** 2)
+        # A crystal's rate wanders (temperature): recent exchanges count more in the skew fit,
+        # so it follows a drifting rate instead of averaging the whole window (measured: the
+        # whole-run bench's ramps and bound misses came from that lag).
+        w = w * np.exp(xm / self.memory_us)
+        sw = float(w.sum())
+        mx = float((w * xm).sum()) / sw
+        mr = float((w * rm).sum()) / sw
+        sxx = float((w * (xm - mx) ** 2).sum())
+        prev = self.estimate
+        if sxx > 0 and (xm.max() - xm.min()) > SKEW_SEP_US:
+            k = float((w * (xm - mx) * (rm - mr)).sum()) / sxx
+        else:
+            k = prev.skew if prev is not None else 0.0
+        if self._prior is not None:
+            k = self._prior_skew(k, kmin, kmax, now_ns)
+        if kmin <= kmax:
+            k = min(max(k, kmin), kmax)
+        return k
+
+
+#: µs: exchanges closer than this bound the skew too loosely to matter
+SKEW_SEP_US = 1000.0
+
+
+def _skew_range(
+    xl: np.ndarray, rl: np.ndarray, xu: np.ndarray, ru: np.ndarray, n: int
+) -> tuple[float, float]:
+    """The hard skew range from pairs of constraints (later upper vs earlier lower and v.v.):
+    pairs of an older-half constraint with a newer-half one, the far-apart pairs that bound
+    the skew tightly, at a quarter of the cost of all pairs (still hard bounds).  An empty
+    range (kmin > kmax) means the window no longer fits one line."""
+    kmin, kmax = -MAX_SKEW, MAX_SKEW
+    h = max(1, n // 2)
+    dx = xu[None, h:] - xl[:h, None]  # [i older lower, j newer upper]
+    m = dx > SKEW_SEP_US
+    if m.any():
+        kmax = min(kmax, float(((ru[None, h:] - rl[:h, None])[m] / dx[m]).min()))
+    dx2 = xl[None, h:] - xu[:h, None]  # [i older upper, j newer lower]
+    m2 = dx2 > SKEW_SEP_US
+    if m2.any():
+        kmin = max(kmin, float(((rl[None, h:] - ru[:h, None])[m2] / dx2[m2]).max()))
+    return kmin, kmax
+
+
+def _scatter(
+    off_line: np.ndarray, delay: np.ndarray, side_l: np.ndarray, side_u: np.ndarray, n: int
+) -> float:
+    """The offset's own sigma (µs): how well the two sides pin it (each side's tightest
+    constraint against its next), or the fastest quarter's midpoints about the line (a robust
+    sigma) if less.  ``off_line``: each exchange's midpoint minus the fitted line."""
+    if n < 4:
+        return 0.0
+    fast = off_line[np.argsort(delay)[: max(4, n // 4)]]
+    scatter = 1.4826 * float(np.median(np.abs(fast - np.median(fast))))
+    low2 = np.partition(side_l, len(side_l) - 2)[-2:]  # the two tightest lower ones
+    up2 = np.partition(side_u, 1)[:2]  # and upper ones
+    gl, gu = float(low2.max() - low2.min()), float(up2.max() - up2.min())
+    return min(scatter, GAP_FACTOR * math.sqrt(gl * gl + gu * gu) / 2.0)

@@ -10,6 +10,9 @@
   under MicroPython in node; :mod:`.world` - the simulated machine and parts they run on
 - :mod:`.faults` - the fault relay (corruption, delay, loss, black hole)
 - :mod:`.syncsim` - the clock-sync simulation: link models, anchor methods, runner
+- :mod:`.original` - the 2014 firmware's a2jMany, offset bug and all
+- :mod:`.recording`, :mod:`.replay`, :mod:`.replay_clock`, :mod:`.replay_serve` - a recording
+  played back as the boards that made it (``missing-link replay``)
 """
 
 from .server import BoardServer, start_board_thread

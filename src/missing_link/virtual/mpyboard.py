@@ -87,7 +87,7 @@ class MicroPythonBoard:
         pty = listen in ("pty", "pty://")
         host, port = ("127.0.0.1", 0) if pty else _tcp_address(listen)
         cmd = [node, str(HOST_MJS), str(board_file), "--port", str(port), "--host", host]
-        cmd += ["--mpy", str(entry)]
+        cmd += ["--mpy", str(entry), "--no-dial"]  # (--listen says where the board is)
         if flash is not None:
             cmd += ["--flash", str(flash)]
         if absent:

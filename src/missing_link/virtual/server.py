@@ -6,6 +6,10 @@ write.  Like a real board it never blocks on output: when the host does not read
 a bounded queue of whole frames; past its limit the oldest SIFs are dropped (counted), never a
 reply and never part of a frame.
 One host at a time; a second connection is refused until the first goes away.
+
+With ``dial=True`` the board connects out to ``tcp://HOST:PORT`` instead (a daemon that runs
+``run --listen``), and again with the firmware's own backoff whenever the connection ends: the
+same state machine as a MicroPython board that dials (board/dial.py).
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from collections import deque
 from collections.abc import Callable
 from urllib.parse import urlsplit
 
+from ..board.dial import DialServer
+from ..board.link import SocketNet
 from ..board.runtime import BoardRuntime
 from ..errors import BadURL, TransportBroken, TransportClosed
 from ..transport.memory import MemoryListener, MemoryTransport
@@ -124,8 +130,41 @@ class _Link:
             self.sock.close()
 
 
+class _Dialer:
+    """The connection a dialing board makes (board/dial.py's DialServer over SocketNet): a new
+    socket once it is up, ``ended()`` when it went (the next dial after the backoff)."""
+
+    def __init__(self, url: str) -> None:
+        parts = urlsplit(url)
+        try:
+            port = parts.port
+        except ValueError:
+            port = None
+        if parts.scheme != "tcp" or not parts.hostname or port is None:
+            raise BadURL(f"{url!r}: dial tcp://HOST:PORT (a daemon that runs run --listen)")
+        self.net = SocketNet()
+        self.dial = DialServer(self.net, parts.hostname, port, lambda: time.monotonic_ns() // 10**6)
+        self._n: int | None = None
+
+    def poll(self) -> socket.socket | None:
+        n = self.dial.accept()
+        if n is None:
+            return None
+        self._n = n
+        sock: socket.socket | None = self.net.take(n)  # (its I/O is the server's from now)
+        if sock is not None:
+            sock.setblocking(False)
+        return sock
+
+    def ended(self) -> None:
+        if self._n is not None:
+            self.dial.drop(self._n)
+            self._n = None
+
+
 class BoardServer:
-    """Runs ``runtime`` behind ``listen_url`` until ``stop()``; ``url`` is what hosts open."""
+    """Runs ``runtime`` behind ``listen_url`` until ``stop()``; ``url`` is what hosts open.
+    ``dial=True``: connects out to ``listen_url`` (a daemon's ``--listen``) instead."""
 
     def __init__(
         self,
@@ -134,6 +173,7 @@ class BoardServer:
         *,
         resets: list[tuple[int, int]] | None = None,
         rebuild: Callable[[], BoardRuntime] | None = None,
+        dial: bool = False,
     ) -> None:
         """``resets``: (CLOCK_MONOTONIC ns, boot gap ns) at which the board resets without
         dropping the link (a watchdog behind a UART bridge): output in flight is lost, input
@@ -152,7 +192,8 @@ class BoardServer:
         self._mem_link: MemoryTransport | None = None
         self._pty_slave: int | None = None
         self.connections = 0
-        self.url = self._bind(listen_url)
+        self._dialer = _Dialer(listen_url) if dial else None
+        self.url = f"dial {listen_url}" if dial else self._bind(listen_url)
 
     def _bind(self, url: str) -> str:
         if url == "pty" or url == "pty://":
@@ -276,6 +317,11 @@ class BoardServer:
                 # same turn is a handover, not a second host to turn away)
                 if self._listener is not None and self._listener.fileno() in ready:
                     self._accept()
+                if self._dialer is not None and self._link is None:
+                    sock = self._dialer.poll()  # (select wakes within _MAX_WAIT: dial steps)
+                    if sock is not None:
+                        self._link = _Link(sock.fileno(), sock)
+                        self.connections += 1
                 if self._lifecycle():
                     continue  # booting: input is lost, nothing is sent
                 replies, sifs = self._turn(data, rx_us)
@@ -297,6 +343,8 @@ class BoardServer:
         if self._link is not None and self._link.sock is not None:
             self._link.close()
             self._link = None
+            if self._dialer is not None:
+                self._dialer.ended()
 
     def _serve_memory(self) -> None:
         assert self._memory is not None

@@ -112,6 +112,7 @@ def _configurable(rt: BoardRuntime, config_file: str | None) -> BoardRuntime:
     rt.timing = Timing(rt)
     rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone
     rt.config = RuntimeConfig(rt, FileStore(config_file) if config_file else None)
+    rt.add_function("a2jLogInfo", rt.log.info)  # the log's counts (board/log.py), as firmware's
     return rt
 
 

@@ -340,6 +340,59 @@ class Result:
         return float(np.percentile(np.abs(self.errors_ns), q)) / 1000.0
 
 
+class _Samples:
+    """The samples of one run: a sample every ``period`` of host time, mapped by the method when
+    it reaches the host (``arrival_lag`` after it was measured), its error and bound tallied."""
+
+    def __init__(
+        self,
+        clock: BoardClock,
+        m: Method,
+        srng: random.Random,
+        *,
+        sample_hz: float,
+        duration_s: float,
+        warmup_s: float,
+        settle_us: float,
+    ) -> None:
+        self.clock, self.m = clock, m
+        self.period = S / sample_hz
+        self.t = srng.uniform(0, self.period)
+        self.end_ns = duration_s * S
+        self.warmup_ns = warmup_s * S
+        self.settle_ns = settle_us * 1000
+        self.arrival_lag = 1.5 * MS  # samples are mapped when they reach the host
+        self.errors: list[float] = []
+        self.prev_h: float | None = None
+        self.backwards = 0
+        self.inside = self.total = 0
+        self.last_bad = 0.0
+        self.first_bound: float | None = None
+
+    def until(self, t_host: float) -> None:
+        """Map every sample that has reached the host by ``t_host`` (ns)."""
+        while self.t + self.arrival_lag < t_host and self.t < self.end_ns:
+            got = self.m.map(self.clock.us(self.t))
+            if got is not None:
+                self._tally(*got)
+            self.t += self.period
+
+    def _tally(self, h: float, bound: float | None) -> None:
+        err = h - self.t
+        if self.prev_h is not None and h < self.prev_h:
+            self.backwards += 1
+        self.prev_h = h
+        if bound is not None:
+            self.total += 1
+            self.inside += abs(err) <= bound
+            if self.first_bound is None and bound < 1 * MS:
+                self.first_bound = self.t / S
+        if abs(err) > self.settle_ns:
+            self.last_bad = self.t
+        if self.t >= self.warmup_ns:
+            self.errors.append(err)
+
+
 def run(
     method: str,
     link: str,
@@ -355,51 +408,27 @@ def run(
     clock = BoardClock(rng, duration_s + 1)
     lk = LINKS[link](random.Random(f"{seed}:link"), duration_s + 1)
     m = METHODS[method]()
-    srng = random.Random(f"{seed}:samples")
+    samples = _Samples(
+        clock,
+        m,
+        random.Random(f"{seed}:samples"),
+        sample_hz=sample_hz,
+        duration_s=duration_s,
+        warmup_s=warmup_s,
+        settle_us=settle_us,
+    )
     wake = random.Random(f"{seed}:wake")
-    period = S / sample_hz
-    t_sample = srng.uniform(0, period)
-    arrival_lag = 1.5 * MS  # samples are mapped when they reach the host (after any exchange)
-    errors: list[float] = []
-    prev_h: float | None = None
-    backwards = 0
-    inside = total = 0
-    last_bad = 0.0
-    first_bound: float | None = None
     exchanges = lost = 0
     now = 0.0
-
-    def samples_until(t_host: float) -> None:
-        nonlocal t_sample, prev_h, backwards, inside, total, last_bad, first_bound
-        while t_sample + arrival_lag < t_host and t_sample < duration_s * S:
-            b = clock.us(t_sample)
-            got = m.map(b)
-            if got is not None:
-                h, bound = got
-                err = h - t_sample
-                if prev_h is not None and h < prev_h:
-                    backwards += 1
-                prev_h = h
-                if bound is not None:
-                    total += 1
-                    inside += abs(err) <= bound
-                    if first_bound is None and bound < 1 * MS:
-                        first_bound = t_sample / S
-                if abs(err) > settle_us * 1000:
-                    last_bad = t_sample
-                if t_sample >= warmup_s * S:
-                    errors.append(err)
-            t_sample += period
-
     while now < duration_s:
         now = max(now, m.due())
         now += wake.uniform(0, 60e-6)  # a sleeping thread wakes up to ~60 µs late
         t1 = now * S
-        samples_until(t1)
+        samples.until(t1)
         if lk.lost():
             lost += 1
             now += timeout_s
-            samples_until(now * S)
+            samples.until(now * S)
             m.on_lost(now)
             continue
         arrive = lk.up(t1)
@@ -415,20 +444,21 @@ def run(
             down_min_ns=int(nbytes * lk.byte_ns),
             up_min_ns=int(5 * lk.byte_ns),  # the request frame (as the daemon assumes it)
         )
-        samples_until(t4)
+        samples.until(t4)
         now = t4 / S
         m.on_exchange(ex, now)
         exchanges += 1
-    samples_until(duration_s * S + arrival_lag + 1)
+    samples.until(duration_s * S + samples.arrival_lag + 1)
+    s = samples
     return Result(
         method,
         link,
         seed,
-        np.array(errors),
-        backwards,
-        inside / total if total else None,
-        first_bound,
-        last_bad / S,
+        np.array(s.errors),
+        s.backwards,
+        s.inside / s.total if s.total else None,
+        s.first_bound,
+        s.last_bad / S,
         exchanges,
         lost,
     )

@@ -18,6 +18,7 @@
 
 import struct
 
+from ..log import WrongPart, bus_fault
 from . import Periodic
 
 HMC_GAINS = (1370, 1090, 820, 660, 440, 390, 330, 230)  # LSB per gauss
@@ -53,13 +54,15 @@ class _Compass(Periodic):
             self.emit(ch, None, now)
 
     def measure(self, now):
+        starting = not self._ok
         try:
             if not self._ok:
                 self.init()
                 self._ok = True
             stamp = self.clock()
             xyz = self.read()
-        except OSError:
+        except OSError as e:
+            bus_fault(self, e, starting)  # (log.py: said once, then counted)
             self.bus_errors += 1
             self._ok = False
             self._na(now)
@@ -106,7 +109,7 @@ class HMC5883L(_Compass):
         i2c, a = self._i2c, self.address
         ident = bytes(i2c.readfrom_mem(a, 10, 3))
         if ident != b"H43":
-            raise OSError("hmc5883l: identification %r, expected b'H43'" % ident)
+            raise WrongPart("identification %r, not an HMC5883L (b'H43')" % ident)
         rate = 1000000 / self.period_us
         do = len(HMC_RATES) - 1
         for i, r in enumerate(HMC_RATES):  # the slowest output rate at least as fast as ours
@@ -158,7 +161,7 @@ class QMC5883L(_Compass):
         i2c, a = self._i2c, self.address
         chip = i2c.readfrom_mem(a, 0x0D, 1)[0]
         if chip != 0xFF:
-            raise OSError("qmc5883l: chip id 0x%02x, expected 0xff" % chip)
+            raise WrongPart("chip id 0x%02x, not a QMC5883L (0xff)" % chip)
         i2c.writeto_mem(a, 0x0A, b"\x80")  # soft reset
         i2c.writeto_mem(a, 0x0B, b"\x01")  # SET/RESET period, as the datasheet asks
         rate = 1000000 / self.period_us

@@ -9,6 +9,7 @@
 # report time when it did not move.  The value wraps like a hardware counter in the declared
 # type (int32 by default: 2**31 counts, hours at any wheel speed).
 
+from ..log import OVERRUN, report
 from . import Periodic
 
 # index: previous state (A<<1|B) * 4 + current state
@@ -69,6 +70,7 @@ class Quadrature(Periodic):
     def measure(self, now):
         if self._bad:
             self._bad = False
+            report(self, OVERRUN, "edges missed (both phases changed at once: too fast)")
             self.emit(0, None, now)  # an edge was missed: this count is not trustworthy
             return
         stamp = self._edge_us if self._edge_us is not None else now

@@ -22,6 +22,11 @@
 # the PPS edge that began its second (the receiver's pulse marks the top of each UTC second, and
 # the sentences of that second follow it), plus the sentence time's fraction of a second (5 or
 # 10 Hz receivers); an edge older than 1.1 s is not used.
+#
+# A dropped sentence is a fault in the board's log (board/log.py, "bad checksum"): the first
+# said, every one counted.
+
+from ..log import CHECKSUM, report
 
 NA = -2147483648
 MAX_SENTENCE = 82
@@ -130,24 +135,24 @@ class GpsNmea:
             else:
                 self._line.append(b)
                 if len(self._line) > MAX_SENTENCE:
-                    self.checksum_errors += 1  # not NMEA: dropped
+                    self._bad("a sentence over %d characters (not NMEA)" % MAX_SENTENCE)
                     self._line = bytearray()
                     self._line_us = None
 
     def _sentence(self, line, at_us):
         star = line.find(b"*")
         if star < 0 or len(line) != star + 3:
-            self.checksum_errors += 1
+            self._bad("a sentence without its checksum")
             return
         body = line[1:star]
         try:
             want = int(line[star + 1 :].decode(), 16)
             text = body.decode()
         except (ValueError, UnicodeError):
-            self.checksum_errors += 1
+            self._bad("a sentence that is not text")
             return
         if nmea_checksum(body) != want:
-            self.checksum_errors += 1
+            self._bad("a sentence whose checksum is wrong")
             return
         self.sentences += 1
         f = text.split(",")
@@ -164,7 +169,12 @@ class GpsNmea:
             elif kind == "GGA" and len(f) >= 10:
                 self._gga(f, at_us)
         except (ValueError, IndexError):
-            self.checksum_errors += 1  # a sentence with a valid checksum but bad fields
+            self._bad("a sentence with a valid checksum but bad fields")
+
+    def _bad(self, what):
+        # dropped and counted; the first said in the board's log (log.py: then only counted)
+        self.checksum_errors += 1
+        report(self, CHECKSUM, what)
 
     def _gga(self, f, at_us):
         quality = int(f[6] or "0")

@@ -9,6 +9,7 @@
 # 38 ms) gives N/A, as does a range below 2 cm.  The sample is stamped when the sound reflected:
 # the echo's end (when time_pulse_us returned) minus half the flight, as the SRF02's.
 
+from ..log import NO_ANSWER, report
 from . import Periodic
 
 TRIG_US = 10
@@ -40,6 +41,7 @@ class HCSR04(Periodic):
         self._machine = machine
         self._trig = machine.Pin(trig_pin, machine.Pin.OUT, value=0)
         self._echo = machine.Pin(echo_pin, machine.Pin.IN)
+        self._echo_id = echo_pin
         self.temperature_c = temperature_c
         self.max_range_cm = max_range_cm
         self.timeouts = 0
@@ -71,6 +73,8 @@ class HCSR04(Periodic):
         end = self.clock()
         if width < 0:  # -2: the echo never started, -1: it did not end within the range
             self.timeouts += 1
+            if width == -2:  # (a module always answers a trigger: absent, unpowered, unwired)
+                report(self, NO_ANSWER, "no echo pulse at all (echo pin %s)" % self._echo_id)
             self.emit(0, None, end)
             return
         mm = int(width * c / 2000 + 0.5)  # µs * m/s / 2 -> µm; / 1000 -> mm

@@ -12,6 +12,7 @@
 
 import struct
 
+from ..log import WrongPart, bus_fault
 from . import Periodic
 
 G = 9.80665
@@ -78,7 +79,7 @@ class MPU6050(Periodic):
         i2c, a = self._i2c, self.address
         who = i2c.readfrom_mem(a, 0x75, 1)[0]
         if who != 0x68:
-            raise OSError("mpu6050: WHO_AM_I is 0x%02x, expected 0x68" % who)
+            raise WrongPart("WHO_AM_I is 0x%02x, not an MPU-6050 (0x68)" % who)
         i2c.writeto_mem(a, 0x6B, b"\x01")
         i2c.writeto_mem(a, 0x1A, bytes((self._dlpf,)))
         i2c.writeto_mem(a, 0x1B, bytes((self._fs << 3,)))
@@ -86,6 +87,7 @@ class MPU6050(Periodic):
         self._ok = True
 
     def measure(self, now):
+        starting = not self._ok
         try:
             if not self._ok:
                 self.init()
@@ -93,7 +95,8 @@ class MPU6050(Periodic):
             ax, ay, az, t, gx, gy, gz = struct.unpack(
                 ">7h", self._i2c.readfrom_mem(self.address, 0x3B, 14)
             )
-        except OSError:
+        except OSError as e:
+            bus_fault(self, e, starting)  # (log.py: said once, then counted)
             self.bus_errors += 1
             self._ok = False
             for ch in range(7):

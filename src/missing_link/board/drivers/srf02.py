@@ -10,6 +10,7 @@
 # range * 58.3 µs).  The address is changed with the sequence 0xA0, 0xAA, 0xA5, new address
 # written to register 0 in four transactions (change_address).
 
+from ..log import TIMEOUT, bus_fault, report
 from . import Periodic
 
 CMD_INCH = 0x50
@@ -76,6 +77,11 @@ class SRF02(Periodic):
             self._finish(now)
         elif now - self._ping_us >= GIVE_UP_US:
             self.timeouts += 1
+            report(
+                self,
+                TIMEOUT,
+                "no range within %d ms at 0x%02x" % (GIVE_UP_US // 1000, self.address),
+            )
             self._ping_us = None
             self.emit(0, None, now)
         else:
@@ -84,7 +90,8 @@ class SRF02(Periodic):
     def measure(self, now):
         try:
             self._i2c.writeto_mem(self.address, 0, bytes((self._cmd,)))
-        except OSError:
+        except OSError as e:
+            bus_fault(self, e, True)  # (between rangings it answers: absent, else)
             self.bus_errors += 1
             self.emit(0, None, now)
             return
@@ -102,7 +109,8 @@ class SRF02(Periodic):
         self._ping_us = None
         try:
             hi, lo = self._i2c.readfrom_mem(self.address, 2, 2)
-        except OSError:
+        except OSError as e:
+            bus_fault(self, e, False)
             self.bus_errors += 1
             self.emit(0, None, now)
             return

@@ -19,8 +19,11 @@
 # (0x14, bits 6-3; 11 = valid, anything else - no target, signal too weak, phase out of range -
 # is N/A) and the range in mm (0x1E, big-endian), and the interrupt cleared.  Stamped in the
 # middle of the timing budget (the ranging integrates over it).  A ranging not ready after 3
-# budgets is a timeout (N/A) and the device is set up again.
+# budgets is a timeout (N/A) and the device is set up again.  Faults go to the board's log
+# (board/log.py: each kind said once, then counted): not answering while it is set up (absent,
+# unpowered), another part's model id, a calibration that never ends, a bus error, a timeout.
 
+from ..log import TIMEOUT, NoReady, WrongPart, bus_fault, report
 from . import Periodic
 
 BUDGET_US = 33000
@@ -91,11 +94,12 @@ class VL53L0X(Periodic):
         start = self.clock()
         while self._r(0x13) & 0x07 == 0:
             if self.clock() - start > budget_us:
-                raise OSError("vl53l0x: no interrupt")
+                raise NoReady("no interrupt from its calibration")
 
     def init(self):
-        if self._r(0xC0) != 0xEE:
-            raise OSError("vl53l0x: model id is not 0xee")
+        model = self._r(0xC0)
+        if model != 0xEE:
+            raise WrongPart("model id 0x%02x, not a VL53L0X (0xee)" % model)
         self._w(0x89, self._r(0x89) | 0x01)  # 2.8 V I/O
         self._w(0x88, 0x00)  # standard I2C
         self._stop = self._page(None)
@@ -133,6 +137,7 @@ class VL53L0X(Periodic):
         Periodic.poll(self, now)
 
     def measure(self, now):
+        starting = not self._ok
         try:
             if not self._ok:
                 self.init()
@@ -146,13 +151,14 @@ class VL53L0X(Periodic):
                 self._running = True
                 self._started = self.clock()
                 return  # the first range comes a budget later
-        except OSError:
-            self._fail(now)
+        except OSError as e:
+            self._fail(now, e, starting)
             return
         self._started = now - BUDGET_US  # (continuous: the newest ranging)
         self._collect(now)
 
-    def _fail(self, now):
+    def _fail(self, now, e, starting=False):
+        bus_fault(self, e, starting)  # (log.py: said once, then counted)
         self.bus_errors += 1
         self._ok = False
         self._started = None
@@ -164,6 +170,11 @@ class VL53L0X(Periodic):
             if self._r(0x13) & 0x07 == 0:
                 if now - started > 3 * BUDGET_US:
                     self.timeouts += 1
+                    report(
+                        self,
+                        TIMEOUT,
+                        "no ranging within 3 budgets (%d ms)" % (3 * BUDGET_US // 1000),
+                    )
                     self._ok = False
                     self._started = None
                     self.emit(0, None, now)
@@ -172,8 +183,8 @@ class VL53L0X(Periodic):
             status = (self._r(0x14) >> 3) & 0x0F
             hi, lo = self._i2c.readfrom_mem(self.address, 0x1E, 2)
             self._w(0x0B, 0x01)
-        except OSError:
-            self._fail(now)
+        except OSError as e:
+            self._fail(now, e)
             return
         if self.mode == "single":
             self._started = None

@@ -2,8 +2,12 @@
 // port, from npm) with simulated peripherals, and serves its J2A link on a TCP port.
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
-//                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs]
-//                 [--heap BYTES] [--fast [--cpu-scale K] [--lead-ms MS]]
+//                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
+//                 [--dial HOST:PORT] [--heap BYTES] [--fast [--cpu-scale K] [--lead-ms MS]]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
+//   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py;
+//   --no-dial: it listens on --port even when its board file's link dials: board --file)
 //   node host.mjs BOARDFILE --run SCRIPT.py   (run SCRIPT with the same files and sim, then exit:
 //                                            the firmware benchmark)
 //
@@ -36,7 +40,7 @@
 // simulated µs since the start, {"sim": "gc"} the collections so far (fastclock.mjs).
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
-import { createServer } from "node:net";
+import { connect as dialTcp, createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
@@ -55,6 +59,10 @@ const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
 // --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 const mpyPath = opt("--mpy"); // where npm put MicroPython (the CLI finds it; else node resolves it)
+const seedArg = opt("--seed");
+const libArg = opt("--lib");
+const dialArg = opt("--dial");
+const noDial = args.includes("--no-dial");
 const heapArg = opt("--heap") === null ? null : Number(opt("--heap"));
 const fast = args.includes("--fast") ? new FastClock(Number(opt("--cpu-scale") ?? 1)) : null;
 const leadUs = opt("--lead-ms") === null ? null : Number(opt("--lead-ms")) * 1000;
@@ -82,7 +90,7 @@ function copyTree(src, dst) {
   }
 }
 mp.FS.mkdir("/lib");
-copyTree(join(here, "..", "..", "board"), "/lib/mlboard");
+copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
 copyTree(here, "/lib/simworld");
 mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
@@ -161,8 +169,8 @@ function writeThrough(dir) {
 }
 
 // the firmware's modules, each after those it imports (board/)
-const BOOT_ORDER = ["clock", "dtypes", "wire", "transducer", "runtime", "store", "config",
-  "timing", "failsafe", "memory", "drivers", "firmware", "link"];
+const BOOT_ORDER = ["clock", "dtypes", "wire", "log", "identity", "transducer", "runtime",
+  "store", "config", "timing", "failsafe", "memory", "drivers", "firmware", "dial", "link"];
 const bootPy = [
   "import sys",
   "sys.path.append('/lib')",
@@ -176,7 +184,12 @@ if (runArg) {
   mp.runPython(bootPy + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-mp.runPython(bootPy + "\nfrom simworld import mpyhost");
+const seed = seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
+const dialTo = dialArg !== null ?
+  `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
+  `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
+  noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
+mp.runPython(bootPy + "\n" + seed + dialTo + "from simworld import mpyhost");
 if (heapArg !== null) {
   const base = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
   mp.runPython(
@@ -269,7 +282,9 @@ function run() {
   }
   let full = null; // --fast: a host that does not take its output holds the steps up
   for (const tok of out ? out.split(" ") : []) {
-    if (tok[0] === "-") {
+    if (tok[0] === "+") {
+      dial(tok.slice(1));
+    } else if (tok[0] === "-") {
       const s = conns.get(Number(tok.slice(1)));
       conns.delete(Number(tok.slice(1)));
       inbox.delete(Number(tok.slice(1)));
@@ -300,10 +315,8 @@ function schedule(now) {
   pending = ms <= 0 ? { immediate: setImmediate(run) } : { timeout: setTimeout(run, ms) };
 }
 
-const server = createServer((s) => {
-  const n = nextConn++;
-  conns.set(n, s);
-  open(n);
+// A connection's bytes to the firmware, and its end (the firmware may have closed it first).
+function attach(n, s) {
   inbox.set(n, Buffer.alloc(0));
   s.setNoDelay(true);
   s.on("data", (d) => {
@@ -316,6 +329,28 @@ const server = createServer((s) => {
     schedule(true);
   });
   s.on("error", () => {});
+}
+
+// The firmware dials ("n:HOST:PORT", board/dial.py): the connection is the firmware's once up
+// (open), or it failed (closed, never opened).
+function dial(spec) {
+  const n = Number(spec.slice(0, spec.indexOf(":")));
+  const host = spec.slice(spec.indexOf(":") + 1, spec.lastIndexOf(":"));
+  const port = Number(spec.slice(spec.lastIndexOf(":") + 1));
+  const s = dialTcp({ host, port });
+  conns.set(n, s);
+  s.on("connect", () => {
+    if (conns.has(n)) open(n);
+    schedule(true);
+  });
+  attach(n, s);
+}
+
+const server = createServer((s) => {
+  const n = nextConn++;
+  conns.set(n, s);
+  open(n);
+  attach(n, s);
 });
 server.on("error", (e) => {
   process.stderr.write(`cannot listen on ${hostArg}:${portArg}: ${e.message}\n`);

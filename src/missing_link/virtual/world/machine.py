@@ -384,6 +384,13 @@ def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     return dev.pulse(pulse_level, timeout_us)
 
 
+def seed_unique_id(seed):
+    # each simulated board its own chip id (host.mjs --seed N): 8 bytes, as an RP2040's flash id
+    import hashlib
+
+    WORLD.unique_id = hashlib.sha256(("missing-link sim board %d" % seed).encode()).digest()[:8]
+
+
 def unique_id():
     return WORLD.unique_id
 

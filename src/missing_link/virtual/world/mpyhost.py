@@ -4,11 +4,13 @@ devices made from the same board file (parts.py).  The MicroPython subset only.
 
 host.mjs imports the board file and the firmware (`mlboard`, as on a device) and hands them to
 start(): nothing here names a module outside the world.  node's TCP connections are the link's
-(SimServer: as link.py's TcpServer on a device): _open(n), _feed(n, hex), _closed(n) say what
-happened to connection n; _tick() runs one firmware step and returns what to send and close
-("n:hex" and "-n", space-separated); _ctl(src, sim_us) runs test code against WORLD and returns
-repr() of `result` (reboot() restarts the firmware on the same filesystem and devices).  The
-board's filesystem (its flash: a saved configuration, a key) is the current directory.
+(SimServer: as link.py's TcpServer on a device, and its SocketNet when the board dials:
+{"kind": "tcp", "dial": "HOST:PORT"}, board/dial.py): _open(n), _feed(n, hex), _closed(n) say
+what happened to connection n; _tick() runs one firmware step and returns what to send, close
+and dial ("n:hex", "-n" and "+n:HOST:PORT", space-separated); _ctl(src, sim_us) runs test code
+against WORLD and returns repr() of `result` (reboot() restarts the firmware on the same
+filesystem and devices).  The board's filesystem (its flash: a saved configuration, a key) is
+the current directory.
 
 Fast mode (host.mjs --fast, simtime.py): _step(now, last_gc_us, inputs) feeds the connections'
 bytes and runs _tick at simulated µs `now`, and says what the host needs to move the clock on:
@@ -24,12 +26,30 @@ from .parts import populate
 
 
 class SimServer:
-    # the TcpServer interface (link.py) over the connections node moves the bytes of
+    # the TcpServer interface (link.py) over the connections node moves the bytes of; and
+    # SocketNet's connect/connected, whose connections node makes (numbered from DIALED, apart
+    # from those it accepts)
+    DIALED = 1 << 20
+
     def __init__(self):
         self.new = []
         self.rx = {}  # open connection -> bytes received
         self.ended = []  # closed by the client (what they sent is read first)
-        self.out = []  # "n:hex" to send, "-n" to close
+        self.out = []  # "n:hex" to send, "-n" to close, "+n:HOST:PORT" to dial
+        self.dialing = {}  # n -> True while node makes the connection
+        self._dials = self.DIALED
+
+    def connect(self, host, port):
+        n = self._dials
+        self._dials += 1
+        self.dialing[n] = True
+        self.out.append("+%d:%s:%d" % (n, host, port))
+        return n
+
+    def connected(self, n):
+        if n in self.rx:
+            return True
+        return False if n in self.dialing else None
 
     def accept(self):
         return self.new.pop(0) if self.new else None
@@ -54,7 +74,7 @@ class SimServer:
         return True
 
     def drop(self, n):
-        if self.rx.pop(n, None) is not None:
+        if self.rx.pop(n, None) is not None or self.dialing.pop(n, None):
             self.out.append("-%d" % n)
 
     def wait(self, us):
@@ -83,13 +103,24 @@ def start(board, mlboard, absent=(), mark=None):
     # mark: fast mode's mark of the interpreter's CPU time at the end of a step (host.mjs)
     _sim["mark"] = mark
     populate(board, absent)
-    if board.get("link", {}).get("key_file"):  # a network board: signed records (signing.py)
-        clock = mlboard.clock.default_clock()
-        link = mlboard.link.network_link(wire, board["link"], lambda: clock() // 1000)
-    else:  # one host at a time, the newest (a cable has one)
-        link = mlboard.link.TcpLink(server=wire)
+    link = _link(mlboard, board.get("link", {}))
     _sim.update(board=board, mlboard=mlboard, link=link, stopped=False)
     reboot()
+
+
+def _link(mlboard, cfg):
+    # as open_link on a device, over node's connections: a board that dials (dial.py) or
+    # listens; signed records when it has a key (signing.py), else one host at a time, the
+    # newest (a cable has one)
+    clock = mlboard.clock.default_clock()
+
+    def clock_ms():
+        return clock() // 1000
+
+    if cfg.get("dial"):
+        server = mlboard.dial.dial_server(wire, cfg, clock_ms)
+        return mlboard.link.network_link(server, cfg, clock_ms)
+    return mlboard.link.network_link(wire, cfg, clock_ms)
 
 
 def reboot():
@@ -101,6 +132,9 @@ def reboot():
 
 def _open(n):
     _sim["alloc_end"] = None
+    if wire.dialing.pop(n, None):  # (a connection the board made: up)
+        wire.rx[n] = bytearray()
+        return
     wire.new.append(n)
     wire.rx[n] = bytearray()
 
@@ -111,6 +145,8 @@ def _feed(n, h):
 
 
 def _closed(n):
+    if wire.dialing.pop(n, None):  # (a dial that failed: the board tries again later)
+        return
     if n in wire.rx:
         wire.ended.append(n)
 
