@@ -59,7 +59,8 @@ class FastSim(FirmwareSim):
         first = self._lines.get(timeout=60)
         if first is None or not first.startswith("LISTEN "):
             self.proc.wait(10)
-            err = "".join(self.stderr)
+            # (node prints the minified line an error came from: thousands of characters)
+            err = "".join(ln for ln in self.stderr if len(ln) < 300)
             raise RuntimeError(f"firmware simulator did not start: {first!r} {err[-2000:]}")
         _, port, self.ident = first.split(" ", 2)
         self.url = f"tcp://127.0.0.1:{port}"
@@ -144,14 +145,16 @@ def soak(
 def grid_hits(
     spans: Iterable[tuple[int, int]], periods_us: Iterable[int], maps: list[int], life_us: int
 ) -> list[tuple[int, int, int]]:
-    """The spans [from, to] (board µs) that hold an instant of a grid (whole multiples of a
-    period, phase 0) while a host map vouched for it: within ``life_us`` of one pushed."""
+    """The spans (from, to] (board µs) that hold an instant of a grid (whole multiples of a
+    period, phase 0) while a host map vouched for it: at most ``life_us`` after one pushed
+    (board µs it was pushed at, ``maps``).  (An instant at a span's start was measured before
+    it: the step began with it.)"""
     hits = []
     periods = list(periods_us)
     for a, b in spans:
         for p in periods:
-            k = -(-a // p) * p  # the first instant at or after a
-            if k <= b and any(abs(k - m) <= life_us for m in maps):
+            k = (a // p + 1) * p  # the first instant after a
+            if k <= b and any(0 <= k - m <= life_us for m in maps):
                 hits.append((a, b, k))
     return hits
 

@@ -27,8 +27,11 @@ from .memory_soak import FastSim, SoakResult, grid_hits, soak
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARDS = ROOT / "examples" / "boards"
-PICO = FREE_HEAP["rp2040"]
+PICO = FREE_HEAP["rp2040"].bytes
 MINUTES = 10
+#: board µs of start-up, where the allocator may collect on its own (measured: its last one at
+#: 1.06 s in a rover's first 3 s; none later in ten minutes of either board)
+STARTUP_US = 5_000_000
 pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
@@ -48,8 +51,8 @@ def _rig_commands(board: Board, turn: int) -> int:
     if turn % 20:
         return 0
     board.call_ok("a2j_set_servo", struct.pack("<b", (turn // 20) % 200 - 100))
-    now = board.clock_exchange(30).t3
-    at = struct.pack("<qB", (now + 50_000) * 1000, board.index["a2j_trigger"])
+    now = board.clock_exchange(30).t3  # (a second ahead: the board may run LEAD_MS ahead)
+    at = struct.pack("<qB", (now + 1_000_000) * 1000, board.index["a2j_trigger"])
     board.call_ok("a2jAt", at + struct.pack("<H", 100))
     return 2
 
@@ -102,15 +105,17 @@ def _check_soak(res: SoakResult, sim: FastSim, rates: dict[str, float]) -> None:
 
 def _check_grid(res: SoakResult, gc: dict[str, Any], periods_us: list[int]) -> None:
     """No collection, the firmware's or the allocator's, on an aligned instant while a map
-    vouched for the grid; the allocator's own only before the host mapped the board's clock."""
+    vouched for the grid; the allocator's own only in the start-up (STARTUP_US: the handshake,
+    the rover's VL53L0X calibration, whose loop makes tens of KiB of garbage in one step)."""
     assert res.maps and res.align[0] == 1  # (the map was valid at the end)
     spans = [(a, b) for a, b, _kind in gc["log"]]
     assert len(spans) == gc["collections"]["req"] + gc["collections"]["auto"]
     assert grid_hits(spans, periods_us, res.maps, MAP_LIFE_US) == []
-    late = [x for x in gc["log"] if x[2] == "auto" and x[0] >= res.maps[0]]
+    late = [x for x in gc["log"] if x[2] == "auto" and x[0] >= STARTUP_US]
     assert late == [], late
 
 
+@pytest.mark.timeout(900)  # (ten simulated minutes: about a minute and a half here)
 def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
     aligned = ["compass", "wheel_l", "wheel_r"]  # 50 Hz: an instant every 20 ms
     res, gc, sim = _soaked("rover.py", aligned, _rover_commands, [(2, 3), (6, 7)])
@@ -120,6 +125,7 @@ def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
     _check_grid(res, gc, [20_000])
 
 
+@pytest.mark.timeout(900)
 def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
     aligned = ["imu", "dist_ir", "wheel"]  # 100, 25 and 50 Hz: an instant every 10 ms
     res, gc, sim = _soaked("thesis-rig.py", aligned, _rig_commands, [(2, 3)])

@@ -7,12 +7,18 @@
 # bytes were allocated since the last collection: wherever the firmware happens to be, on an
 # aligned measurement's instant too, and a collection of a Pico's heap takes milliseconds.  So
 # the firmware collects itself, at the end of a loop turn (poll: Firmware.step), when
-#   - PERIOD_US have passed since its last collection, and
+#   - its period has passed since its last collection, and
 #   - the next instant it must be on time for (timing.next_instant: an aligned measurement on
 #     the host-time grid, a timed call; none: any time will do) is further away than the
 #     longest collection so far plus MARGIN_US; otherwise it waits for room (`deferred`),
 # and, after each, sets gc.threshold to 3/4 of the heap then free, so the allocator's own
-# collections come only when the firmware found no room for a long while.
+# collections come only when the firmware found no room for a long while.  The period follows
+# the allocation rate, seen at each collection as the heap used up since the last one (free
+# after it, less free now) over the time between them: short enough that a quarter of the
+# threshold is allocated in it at most, long enough to make a pause worth it (MIN_PERIOD_US to
+# MAX_PERIOD_US: a stepper's float maths at a few kHz allocates hundreds of KiB a second).  More
+# free now than after the last one means the allocator collected meanwhile: the period is
+# halved.
 # Each collection is timed with the board clock, with the heap scan before it (the span the loop
 # is busy): the longest and the last.  One whose span reached the instant counts in `overlaps`
 # (a planned one never should: the margin was too thin).  Right before a collection,
@@ -27,17 +33,19 @@
 
 import struct
 
-PERIOD_US = 100000
+MIN_PERIOD_US = 10000
+MAX_PERIOD_US = 500000
+PERIOD_US = 100000  # (until the first two collections have measured the allocation rate)
 MARGIN_US = 2000
 MIN_THRESHOLD = 4096
 KIND_HEAP = 1
 
 
 class Memory:
-    def __init__(self, runtime, gc, period_us=PERIOD_US):
+    def __init__(self, runtime, gc):
         self.rt = runtime
         self.gc = gc
-        self.period_us = period_us
+        self.period_us = PERIOD_US
         self.collections = 0
         self.longest_us = 0
         self.last_us = 0
@@ -48,6 +56,7 @@ class Memory:
         self.allocated = 0
         self.threshold = None
         self._after = False  # a collection was made: the heap's figures are read next turn
+        self._start = None  # when the last collection began (the allocation rate's time)
         now = runtime.clock()
         self._last = now
         self.collect(now, None)  # (timed once at boot: what the first window must hold)
@@ -74,6 +83,8 @@ class Memory:
         free = gc.mem_free()
         if self.free_low is None or free < self.free_low:
             self.free_low = free
+        if self._start is not None and self.free:
+            self._pace(self.free - free, t0 - self._start)
         gc.collect()
         t1 = clock()
         took = t1 - t0
@@ -83,6 +94,7 @@ class Memory:
             self.longest_us = took
         if due is not None and t1 >= due:
             self.overlaps += 1
+        self._start = t0
         self._last = t1
         self._after = True
 
@@ -92,6 +104,15 @@ class Memory:
         self.free = gc.mem_free()
         self.allocated = gc.mem_alloc()
         self._threshold(self.free)
+
+    def _pace(self, used, since_us):
+        # the next period from the heap used up in `since_us` (less than nothing: the
+        # allocator collected meanwhile, so the period was too long)
+        if used < 0:
+            period = self.period_us // 2
+        else:
+            period = since_us * (self.threshold // 4) // max(used, 1)
+        self.period_us = max(MIN_PERIOD_US, min(MAX_PERIOD_US, period))
 
     def _threshold(self, free):
         self.threshold = max(MIN_THRESHOLD, free * 3 // 4)

@@ -358,7 +358,8 @@ class GpsReceiver:
         self.bad_every = 0
         self.sent = 0
         self.pps_at = []  # ticks_us of the PPS edges (newest last, at most 20)
-        self._t0 = _now_us()
+        self._mark = _now_us()  # a whole second since it was made, moved along (produce)
+        self._base = 0  # ... which second that is
         self._sec = -1
         self._out = b""  # this second's sentences
         self._out_t0 = 0
@@ -392,7 +393,12 @@ class GpsReceiver:
         return out.encode()
 
     def produce(self, now):
-        sec = ticks_diff(now, self._t0) // 1000000
+        # (seconds counted from a mark moved along: ticks_diff holds half the tick counter's
+        # period only, 537 s on the RP2040's, and the receiver runs longer)
+        k = ticks_diff(now, self._mark) // 1000000
+        self._mark = ticks_add(self._mark, k * 1000000)
+        self._base += k
+        sec = self._base
         if sec > self._sec:
             self._sec = sec
             if self.pps_pin is not None:

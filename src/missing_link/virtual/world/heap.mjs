@@ -43,7 +43,8 @@ function freeNow(mp) {
   return [mp.globals.get("_ml_free"), mp.globals.get("_ml_alloc")];
 }
 
-// -> the bytes allocated (the simulator's and the padding: simgc.BASE)
+// -> [the bytes allocated (the simulator's and the padding: simgc.BASE), the bytes free beyond
+// BYTES the padding could not take (less than a few blocks: simgc.SLACK)]
 export function capHeap(mp, bytes) {
   mp.runPython("import gc\ngc.collect()"); // (runs as the call returns: on this port, then)
   const [free] = freeNow(mp);
@@ -77,8 +78,8 @@ export function capHeap(mp, bytes) {
   quiet = false;
   mp.runPython("import gc\ngc.collect()");
   const [left, alloc] = freeNow(mp);
-  if (Math.abs(left - bytes) > 64) {
+  if (left < bytes || left - bytes > 64) {
     throw new Error(`--heap ${bytes}: the padding left ${left} bytes free, not ${bytes}`);
   }
-  return alloc;
+  return [alloc, left - bytes];
 }

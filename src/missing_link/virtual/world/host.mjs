@@ -64,6 +64,10 @@ const libArg = opt("--lib");
 const dialArg = opt("--dial");
 const noDial = args.includes("--no-dial");
 const heapArg = opt("--heap") === null ? null : Number(opt("--heap"));
+if (heapArg !== null && !(Number.isInteger(heapArg) && heapArg > 0)) {
+  process.stderr.write(`--heap ${opt("--heap")}: a number of bytes, as a board's gc.mem_free()\n`);
+  process.exit(2);
+}
 const fast = args.includes("--fast") ? new FastClock(Number(opt("--cpu-scale") ?? 1)) : null;
 const leadUs = opt("--lead-ms") === null ? null : Number(opt("--lead-ms")) * 1000;
 let heardAt = 0; // --lead-ms: simulated µs when bytes last came from a host
@@ -191,10 +195,10 @@ const dialTo = dialArg !== null ?
   noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
 mp.runPython(bootPy + "\n" + seed + dialTo + "from simworld import mpyhost");
 if (heapArg !== null) {
-  const base = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
+  const [base, slack] = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
   mp.runPython(
-    `import simworld.simgc\nsimworld.simgc.BASE = ${base}\n` +
-      `simworld.machine.WORLD.log_cap = 32\nmpyhost.watch_gc = ${fast ? "True" : "False"}`,
+    `import simworld.simgc\nsimworld.simgc.BASE = ${base}\nsimworld.simgc.SLACK = ${slack}\n` +
+      `simworld.machine.WORLD.log_cap = 0\nmpyhost.watch_gc = ${fast ? "True" : "False"}`,
   );
 }
 if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark() });

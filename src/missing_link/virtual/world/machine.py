@@ -78,8 +78,8 @@ class World:
         self.devices = {}  # transducer name -> its device model (devices.py), for tests
         self.floating = {}  # ADC pin -> (volts, noise state) of an input left open
         self.unique_id = UNIQUE_ID  # what machine.unique_id() says (the board's serial)
-        # entries kept in adc_log and each edges list: the simulator's own memory, which under
-        # a board's heap (host.mjs --heap) the firmware pays for, so it keeps fewer there
+        # entries kept in adc_log and each edges list: the simulator's own memory and garbage,
+        # which under a board's heap (host.mjs --heap) the firmware pays for: none kept there
         self.log_cap = 2000
 
     def pin(self, pin_id):
@@ -224,7 +224,7 @@ class Pin:
             return st.level
         level = 1 if v else 0
         changed = level != st.level
-        if changed:
+        if changed and WORLD.log_cap:
             log = WORLD.edges.setdefault(self.id, [])
             log.append((ticks_us(), level))
             if len(log) > WORLD.log_cap:
@@ -247,9 +247,10 @@ class ADC:
 
     def read_u16(self):
         WORLD.adc_reads += 1
-        WORLD.adc_log.append(ticks_us())
-        if len(WORLD.adc_log) > WORLD.log_cap:
-            WORLD.adc_log.pop(0)
+        if WORLD.log_cap:
+            WORLD.adc_log.append(ticks_us())
+            if len(WORLD.adc_log) > WORLD.log_cap:
+                WORLD.adc_log.pop(0)
         v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
         code12 = int(v / VREF * 4095 + 0.5)
         return (code12 << 4) | (code12 >> 8)  # as rp2 scales 12 to 16 bit

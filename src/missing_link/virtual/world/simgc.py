@@ -8,9 +8,10 @@ collection only runs when the step returns to node, where nothing on the C stack
 object (ports/webassembly/main.c, py/gc.c in MicroPython 1.27).  With --heap the host stops that
 growth (host.mjs), so the firmware has a board's fixed heap; what the simulator itself holds
 (this world, the padding that makes the firmware's share exactly --heap) is BASE, not counted in
-mem_alloc().  collect() schedules the collection and, in fast mode, advances the simulated
-clock by what the last one took (the host measures each, after the step: host.mjs), so the
-firmware times its collections as it does on a board; `requested` tells the host the step asked.
+mem_alloc(), and the few bytes the padding could not take (SLACK) are not counted free.
+collect() schedules the collection and, in fast mode, advances the simulated clock by what the
+last one took (the host measures each, after the step: fastclock.mjs), so the firmware times
+its collections as it does on a board; `requested` tells the host the step asked.
 """
 
 import gc as _gc
@@ -20,6 +21,7 @@ from . import simtime
 SPLIT = 128 * 1024 * 1024  # gc_get_max_new_split() of the webassembly port
 
 BASE = 0  # bytes allocated before the firmware was loaded (the simulator's, the padding)
+SLACK = 0  # bytes free beyond the board's heap that the padding could not take (a few blocks)
 fast = False  # simulated time (simtime): collect() costs what the last collection took
 last_us = 0  # what the last collection took, simulated µs (the host measures it)
 requested = 0  # collections asked for in this step
@@ -36,7 +38,7 @@ def collect():
 
 
 def mem_free():
-    return _gc.mem_free() - SPLIT
+    return _gc.mem_free() - SPLIT - SLACK
 
 
 def mem_alloc():
