@@ -59,11 +59,10 @@ class FirmwareHash:
         return hex_id(h.digest())[:HASH_DIGITS]
 
 
-def _file_chunks(path):
-    # (into one buffer: a board hashes its whole runtime at boot, and a chunk read anew each
-    # time is as much garbage as the runtime's size, in a heap not much bigger: memory.py)
-    buf = bytearray(_CHUNK)
-    view = memoryview(buf)
+def _file_chunks(path, buf, view):
+    # (into one buffer for the whole tree: a board hashes its runtime at boot, and a chunk read
+    # anew each time is as much garbage as the runtime's size, in a heap not much bigger; the
+    # files are read one after the other, digest() done with each chunk before the next)
     with open(path, "rb") as f:
         while True:
             n = f.readinto(buf)
@@ -72,22 +71,23 @@ def _file_chunks(path):
             yield view[:n]
 
 
-def _walk(root, rel, out):
+def _walk(root, rel, out, buf, view):
     for name in sorted(os.listdir(root + "/" + rel if rel else root)):
         path = (rel + "/" + name) if rel else name
         full = root + "/" + path
         st = os.stat(full)
         if st[0] & _DIR:
             if not name.startswith("__pycache__"):
-                _walk(root, path, out)
+                _walk(root, path, out, buf, view)
         elif name.endswith(".py"):
-            out.add(path, st[6], _file_chunks(full))
+            out.add(path, st[6], _file_chunks(full, buf, view))
 
 
 def tree_hash(root):
     # fw.hash of the runtime files under root (a folder: the board's lib/mlboard)
     out = FirmwareHash()
-    _walk(root, "", out)
+    buf = bytearray(_CHUNK)
+    _walk(root, "", out, buf, memoryview(buf))
     return out.digest()
 
 
