@@ -84,7 +84,8 @@ INSTANCES = {
 #: a network link with a key (signing.py): its module and state
 SIGNED_LINK = 4_864
 #: room beyond the live data: the thesis rig ran from 108,026 bytes with 80,432 live (20 s, a
-#: host; the bisection above; the rover from 172,452 with 93,008 live in the simulator)
+#: host; the bisection above), and from 108,750 with 88,128 allocated after 20 s once the board
+#: log and identity had joined the runtime (the rover from 182,609 with 103,536, in the simulator)
 WORKING = 28 * KIB
 
 #: what heapprobe.mjs builds, one of each driver (and two, for a transducer's share)

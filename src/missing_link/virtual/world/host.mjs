@@ -216,6 +216,9 @@ boot("from board import BOARD");
 for (const m of BOOT_ORDER) boot(`import mlboard.${m}`);
 boot("from mlboard.drivers import driver_class\nfor _t in BOARD['transducers']:\n" +
   "    driver_class(_t['driver'])");
+// fw.hash reads every runtime file (the whole package here; a board has only the drivers its
+// board file uses): a step of its own, where a board collects as it reads (identity.py caches it)
+boot("mlboard.identity.runtime_hash()");
 boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
   `${fast ? ", simjs.mark" : ""})`);
 mp.runPython(
