@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from missing_link.board.memory import MARGIN_US, PERIOD_US, Memory
+from missing_link.board.memory import MARGIN_US, MAX_PERIOD_US, MIN_PERIOD_US, PERIOD_US, Memory
 from missing_link.board.runtime import BoardRuntime
 from missing_link.board.timing import Timing
 from missing_link.daemon import Daemon
@@ -108,6 +108,27 @@ def test_the_firmware_collects_only_with_room_before_the_next_instant() -> None:
     assert mem.longest_us == 3000 and mem.collections == len(heap.spans)
     assert heap.thresholds and min(heap.thresholds) >= 4096
     assert mem.free_low is not None and mem.free_low < mem.free
+
+
+def test_the_collection_period_follows_the_allocation_rate() -> None:
+    """A stepper's float maths (4 MB/s of garbage) brings the period down to MIN_PERIOD_US; a
+    quiet board (10 kB/s) up to MAX_PERIOD_US; more free now than after the last collection
+    (the allocator collected meanwhile) halves it."""
+    for per_turn, period in ((800, MIN_PERIOD_US), (2, MAX_PERIOD_US)):
+        rt, clock, heap, mem = _board(took=500, period_us=1_000_000)
+        while clock.now < 5_000_000:
+            rt.host_map = (clock.now, clock.now * 1000, 0)
+            heap.garbage += per_turn
+            mem.poll(clock.now)
+            clock.now += 200
+        assert mem.period_us == period, (per_turn, mem.period_us)
+    before, done = mem.period_us, mem.collections
+    heap.garbage, heap.live = 0, heap.live - 1000  # (less in use than after the last one)
+    while mem.collections == done:  # (the next collection, when the grid leaves room)
+        rt.host_map = (clock.now, clock.now * 1000, 0)
+        mem.poll(clock.now)
+        clock.now += 200
+    assert mem.period_us == before // 2
 
 
 def test_a_collection_that_takes_longer_than_the_room_is_counted_not_hidden() -> None:
