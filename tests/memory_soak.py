@@ -55,16 +55,21 @@ class FastSim(FirmwareSim):
         self._lines: queue.Queue[str | None] = queue.Queue()
         pump_lines(self.proc, self._lines)
         self.stderr: list[str] = []  # (read as it comes: a full pipe would stall the simulation)
-        threading.Thread(target=self._pump_stderr, daemon=True).start()
+        pump = threading.Thread(target=self._pump_stderr, daemon=True)
+        pump.start()
         first = self._lines.get(timeout=60)
         if first is None or not first.startswith("LISTEN "):
             self.proc.wait(10)
-            # (node prints the minified line an error came from: thousands of characters)
-            err = "".join(ln for ln in self.stderr if len(ln) < 300)
-            raise RuntimeError(f"firmware simulator did not start: {first!r} {err[-2000:]}")
+            pump.join(10)  # (all it said, before it is quoted)
+            raise RuntimeError(f"firmware simulator did not start: {first!r} {self._why()}")
         _, port, self.ident = first.split(" ", 2)
         self.url = f"tcp://127.0.0.1:{port}"
         self._lock = threading.Lock()
+
+    def _why(self) -> str:
+        """What the simulator said when it stopped, without emscripten's refused growths of
+        the heap (--heap fixed it)."""
+        return "".join(ln for ln in self.stderr if "grow" not in ln.lower())[-2000:]
 
     def _pump_stderr(self) -> None:
         assert self.proc.stderr is not None

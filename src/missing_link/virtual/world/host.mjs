@@ -204,9 +204,17 @@ if (heapArg !== null) {
 if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark() });
 // The firmware loads as on a board, but a module a call: this port collects only between calls
 // (simgc.py), where a board collects while it imports; then it is built from the board file.
+// A firmware that cannot boot (a MemoryError, perhaps) says so in one line and exits 1 (node's
+// own report of an uncaught error quotes the interpreter's minified source: 100 KiB).
 function boot(code) {
-  mp.runPython(`try:\n${code.replace(/^/gm, "    ")}\nexcept BaseException:\n` +
-    "    mpyhost.release()\n    raise");
+  try {
+    mp.runPython(`try:\n${code.replace(/^/gm, "    ")}\nexcept BaseException:\n` +
+      "    mpyhost.release()\n    raise");
+  } catch (e) {
+    const last = String(e.message ?? "").trim().split("\n").pop(); // (a traceback's last line)
+    process.stderr.write(`the firmware did not boot: ${last || e.type || e.name}\n`);
+    process.exit(1);
+  }
 }
 mp.runPython(
   `import simworld.simgc\nsimworld.simgc.fast = ${fast ? "True" : "False"}` +
