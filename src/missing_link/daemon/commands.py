@@ -13,7 +13,9 @@ The list holds on every path that reaches an actuator, not only on the faces' co
 plain call of an actuator's function (``Daemon.call``, the control endpoint behind
 ``missing-link call``, ``Daemon.trigger_at``), an ``a2jAt`` that would call one later, and
 ``Daemon.send`` are refused the same way (``check``: CommandRefused, counted under the path's
-name: ``api``, ``control``, ``bus``), named by the actuator's command topic.
+name: ``api``, ``control``, ``bus``), named by the actuator's command topic.  So is a change
+of an actuator's run-time configuration (its keys are commands: daemon/settings.py) from any
+face (``check_face``: the face's ``commands`` first, then the list).
 """
 
 from __future__ import annotations
@@ -60,6 +62,17 @@ class CommandGate:
         self._count(path)
         log.warning("%s: a command on %s refused: not in [daemon] commands", path, topic)
         raise CommandRefused(f"a command on {topic} refused: not in [daemon] commands")
+
+    def check_face(self, face: str, takes_commands: bool, topic: str) -> None:
+        """``check``, and refused (counted under ``face``) where ``face`` takes no commands:
+        a change of an actuator's configuration (daemon/settings.py)."""
+        if takes_commands:
+            return self.check(face, topic)
+        self._count(face)
+        log.warning("%s: a command on %s refused: commands are off on %s", face, topic, face)
+        raise CommandRefused(
+            f"a command on {topic} refused: commands are off on {face} (its `commands` option)"
+        )
 
     def _count(self, path: str) -> None:
         with self._lock:

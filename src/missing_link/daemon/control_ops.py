@@ -22,10 +22,13 @@ def control_handlers(
     session: Callable[[str], BoardSession],
     up: Callable[[str], tuple[BoardSession, Board]],
     call: Callable[..., CallResult],
+    configure: Callable[..., dict[str, Any]],
+    reset: Callable[..., dict[str, Any]],
 ) -> dict[str, Handler]:
     """``session(board)``: its session; ``up(board)``: the session and its board, or
     BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
-    through the daemon's allow-list."""
+    through the daemon's allow-list; ``configure(board, values, save, by=)`` and ``reset(board,
+    erase, by=)``: a configuration change through it (an actuator's keys are commands)."""
 
     def find(r: dict[str, Any]) -> dict[str, Any]:
         s = session(str(r["board"]))
@@ -41,16 +44,16 @@ def control_handlers(
         return {"code": got.code, "payload": got.payload.hex()}
 
     def config(r: dict[str, Any]) -> dict[str, Any]:
-        s, b = up(str(r["board"]))
-        settings = s.settings
+        name = str(r["board"])
+        s, b = up(name)
+        wanted = r.get("set") or {}
+        if not isinstance(wanted, dict):
+            raise ConfigError("config: set must be an object of key: value")
         if r.get("reset"):
-            settings.reset(bool(r.get("erase")), by="control")
-        if r.get("set") or r.get("save"):
-            wanted = r.get("set") or {}
-            if not isinstance(wanted, dict):
-                raise ConfigError("config: set must be an object of key: value")
-            settings.configure(wanted, bool(r.get("save")), by="control")
-        values = settings.read()
+            reset(name, bool(r.get("erase")), by="control")
+        if wanted or r.get("save"):
+            configure(name, wanted, bool(r.get("save")), by="control")
+        values = s.settings.read()
         keys = describe_keys(b.settings.keys(), values)
         return {"values": values, "keys": keys, "state": b.settings.state}
 

@@ -33,6 +33,7 @@ another.
 
 from __future__ import annotations
 
+import functools
 import logging
 import struct
 import threading
@@ -57,6 +58,7 @@ from ..transport import check_url
 from .claims import Claims
 from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
+from .config_gate import config_guard
 from .context import SessionContext
 from .control import ControlServer, call_timeout
 from .control_ops import control_handlers
@@ -169,7 +171,10 @@ class Daemon:
         if self.config.control:
             try:
                 self.control = ControlServer(
-                    self.config.control, control_handlers(self.session, self._up, self.call)
+                    self.config.control,
+                    control_handlers(
+                        self.session, self._up, self.call, self.configure, self.reset_config
+                    ),
                 )
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
@@ -378,14 +383,22 @@ class Daemon:
         return self._up(board)[0].settings.read()
 
     def configure(
-        self, board: str, values: Mapping[str, object], save: bool = False, *, by: str = "api"
+        self, board: str, values: Mapping[str, object], save: bool = False, **face: Any
     ) -> dict[str, Value]:
         """Set keys of a board's run-time configuration, all or none (``save``: keep them on
-        the board); every face hears the new values.  Returns the configuration after it."""
-        return self._up(board)[0].settings.configure(values, save, by=by)
+        the board); every face hears the new values.  Returns the configuration after it.
+        ``face``: ``by`` (its name, "api") and ``commands`` (its option, True): the keys of an
+        actuator are commands, refused and counted as one (config_gate.py)."""
+        s = self._up(board)[0]
+        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
+        return s.settings.configure(values, save, by, config_guard(self.commands, s, by, on))
 
-    def reset_config(self, board: str, erase_saved: bool = False) -> dict[str, Value]:
-        return self._up(board)[0].settings.reset(erase_saved)
+    def reset_config(self, board: str, erase_saved: bool = False, **face: Any) -> dict[str, Value]:
+        """The board's defaults again (``erase_saved``: its saved configuration too); gated as
+        ``configure`` where it changes an actuator's keys."""
+        s = self._up(board)[0]
+        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
+        return s.settings.reset(erase_saved, by, config_guard(self.commands, s, by, on))
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -437,7 +450,9 @@ class Daemon:
             remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
             record_clock=self.fanout.record_clock,
-            offer_config=self.fanout.offer_config,
+            offer_config=lambda b, keys, values, _c: self.fanout.offer_config(
+                b, keys, values, functools.partial(self.configure, b)
+            ),  # (each face changes them as itself: fanout.py)
             config_changed=self.fanout.config_changed,
             describe_board=self.fanout.describe_board,
             claim_id=self.claims.claim_id,

@@ -124,3 +124,38 @@ class FrontDoor:
         """For websockets' ``process_request``: a refusal response, or None."""
         why = self.refusal(request, clients)
         return None if why is None else connection.respond(*why)
+
+
+class LoginLimiter:
+    """Failed logins per client address (no I/O; time passed in): after ``failures`` in
+    ``window_s`` a client's logins are refused until its window ends, and nobody else's are.
+    The table holds at most ``max_clients`` addresses (the one that failed longest ago goes
+    first), so a guesser with many addresses costs bounded memory and locks no one out."""
+
+    def __init__(self, failures: int = 5, window_s: float = 60.0, max_clients: int = 1024) -> None:
+        self.failures = failures
+        self.window_s = window_s
+        self.max_clients = max_clients
+        self._failed: dict[str, list[float]] = {}  # address -> its failures' times, oldest first
+
+    def __len__(self) -> int:
+        return len(self._failed)
+
+    def allows(self, client: str, now: float) -> bool:
+        """Whether ``client`` may try a login now."""
+        times = self._failed.get(client)
+        if times is None:
+            return True
+        while times and times[0] <= now - self.window_s:
+            times.pop(0)
+        if not times:
+            del self._failed[client]
+            return True
+        return len(times) < self.failures
+
+    def failed(self, client: str, now: float) -> None:
+        times = self._failed.pop(client, [])  # (re-inserted: the table's order is by failure)
+        times.append(now)
+        self._failed[client] = times[-self.failures :]
+        while len(self._failed) > self.max_clients:
+            del self._failed[next(iter(self._failed))]

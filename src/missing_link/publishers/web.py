@@ -48,10 +48,11 @@ class WebContext:
 
     status: Callable[[], list[dict[str, Any]]]
     publisher_status: Callable[[], list[dict[str, Any]]]
-    #: (board, values, save, by=) -> the configuration after it (Daemon.configure)
+    #: (board, values, save, by=, commands=) -> the configuration after it (Daemon.configure:
+    #: an actuator's keys change only where this face takes commands)
     configure: Callable[..., dict[str, Value]]
-    #: (board, erase_saved) -> the configuration after it (Daemon.reset_config)
-    reset_config: Callable[[str, bool], dict[str, Value]]
+    #: (board, erase_saved, by=, commands=) -> the configuration after it (Daemon.reset_config)
+    reset_config: Callable[..., dict[str, Value]]
 
 
 def context_of(daemon: Any) -> WebContext:
@@ -217,5 +218,6 @@ class WebPublisher(Publisher):
             "hosts_refused": s.door.refused_hosts,
             "clients_refused": s.door.refused_clients,
             "logins_refused": s.logins_refused,
+            "pages_closed": s.pages_closed,
             "client_messages_dropped": s.dropped_messages,
         }
