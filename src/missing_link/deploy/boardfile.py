@@ -143,7 +143,11 @@ def check_board(board: dict[str, Any], where: str) -> None:
 
 
 def _check_link(link: Any, mcu: str, where: str) -> None:
-    if not isinstance(link, dict) or link.get("kind", "usb") not in LINK_KEYS:
+    if (
+        not isinstance(link, dict)
+        or not isinstance(link.get("kind", "usb"), str)
+        or link.get("kind", "usb") not in LINK_KEYS
+    ):
         raise ConfigError(
             f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}}, "
             "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'} or (a board that dials "

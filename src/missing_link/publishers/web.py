@@ -24,9 +24,9 @@ import os
 import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
+from ..descriptors import read_input_file
 from ..errors import ConfigError
 from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
@@ -104,11 +104,15 @@ def parse_addr(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+#: bytes a token file may have (a token is a line; /dev/zero is refused before it is read)
+MAX_TOKEN_FILE = 4096
+
+
 def _read_token(path: str) -> str:
     try:
         st = os.stat(path)
-        token = Path(path).read_text(encoding="utf-8").strip()
-    except (OSError, UnicodeDecodeError) as e:
+        token = read_input_file(path, MAX_TOKEN_FILE).decode("utf-8").strip()  # (capped)
+    except (OSError, ValueError) as e:  # (UnicodeDecodeError is a ValueError)
         raise ConfigError(f"[web] token_file {path}: cannot read: {e}") from None
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise ConfigError(f"[web] token_file {path}: others may read it (chmod 600 {path})")
