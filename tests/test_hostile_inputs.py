@@ -71,3 +71,43 @@ def test_a_link_kind_that_is_not_a_name_is_a_config_error(tmp_path: Path) -> Non
                  '"transducers": []}\n')  # fmt: skip
     with pytest.raises(ConfigError, match="link must be"):
         load_board_file(f)
+
+
+@pytest.mark.slow  # (a process of its own)
+def test_replay_prints_no_escape_from_a_recording(tmp_path: Path) -> None:
+    """A recording is anyone's file: a board named with terminal escapes (a title, colours, a
+    line forged after ``\\r``) reaches the terminal of ``replay`` cleaned."""
+    import signal
+    import subprocess
+
+    from missing_link.descriptors import parse_transds
+    from missing_link.publishers.mcap import McapPublisher
+    from missing_link.ros.board_record import BoardDescription
+    from missing_link.topics import Topic, Update
+
+    from .helpers import ML
+
+    name = "evil\x1b]0;TITLE\x07\x1b[31mRED\x1b[0m\rforged: all good\x1b[K"
+    (t,) = parse_transds("transds/1\nx,0,p,M,1,int32_t,-1\n")
+    topic = Topic.for_transducer("/evil/x", name, t, "missing_link_msgs")
+    pub = McapPublisher({"path": str(tmp_path), "chunk_s": 3600})
+    pub.add_topic(topic)
+    info = {"board.name": name, "j2a.version": "2"}
+    pub.board_description(BoardDescription.of(name, "tcp://x", ["a2jGetMapping", "a2jMany"],
+                                              info, [t], ["/evil/x"]))  # fmt: skip
+    for i in range(20):
+        pub.publish(Update.build(topic=topic, board_us=[i * 1000], host_ns=[10**18 + i * 10**6],
+                                 values=[i], seq=i, lost=0, recv_ns=i))  # fmt: skip
+    pub.close()
+    p = subprocess.Popen([*ML, "replay", str(pub.bags[0]), "--listen", "tcp://127.0.0.1:0"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    assert p.stderr is not None
+    try:
+        first = p.stderr.readline()  # (the board's line, then a SIGTERM ends it)
+        p.send_signal(signal.SIGTERM)
+        _out, rest = p.communicate(timeout=30)
+    finally:
+        p.kill()
+    err = first + rest
+    assert b"forged: all good" in err and b"samples" in first, err
+    assert not any(c < 32 and c != 10 for c in err), err
