@@ -223,6 +223,14 @@ def test_hostile_requests_are_answered_and_the_endpoint_stays(held: Any) -> None
     assert got == {"code": 0xBA, "payload": "01"}
     assert d.control.refused >= 5
     assert ask(path, {"op": "find", "board": "thesis"})["state"] == "up"
+    # fields missing or of the wrong type, a payload not hex: usage errors that say which
+    for request, why in (({"op": "find"}, "find: board: missing"),
+                         ({"op": "info", "board": {"a": 1}}, "info: board: expected text"),
+                         ({"op": "call", "board": "thesis"}, "call: function: missing"),
+                         ({"op": "call", "board": "thesis", "function": "a2jEcho",
+                           "payload": "zz"}, "call: payload: expected hex digits")):  # fmt: skip
+        got = ask(path, request)
+        assert got["kind"] == "usage" and got["error"].startswith(why), (request, got)
     assert d.control.faults.total == 0  # (refusals, not bugs: no traceback, no internal error)
 
 

@@ -31,20 +31,24 @@ def control_handlers(
     erase, by=)``: a configuration change through it (an actuator's keys are commands)."""
 
     def find(r: dict[str, Any]) -> dict[str, Any]:
-        s = session(str(r["board"]))
+        s = session(text(r, "board"))
         return {"name": s.name, "url": s.spec.url, "state": s.state}
 
     def info(r: dict[str, Any]) -> dict[str, Any]:
-        b = up(str(r["board"]))[1]
+        b = up(text(r, "board"))[1]
         return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
 
     def do_call(r: dict[str, Any]) -> dict[str, Any]:
-        payload = bytes.fromhex(str(r.get("payload", "")))
-        got = call(str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control")
+        try:
+            payload = bytes.fromhex(text(r, "payload", ""))
+        except ValueError:
+            raise ConfigError("call: payload: expected hex digits, e.g. \"01ff\"") from None
+        board, function = text(r, "board"), text(r, "function")
+        got = call(board, function, payload, r.get("timeout"), by="control")
         return {"code": got.code, "payload": got.payload.hex()}
 
     def config(r: dict[str, Any]) -> dict[str, Any]:
-        name = str(r["board"])
+        name = text(r, "board")
         s, b = up(name)
         wanted = r.get("set") or {}
         if not isinstance(wanted, dict):
@@ -58,3 +62,12 @@ def control_handlers(
         return {"values": values, "keys": keys, "state": b.settings.state}
 
     return {"find": find, "info": info, "call": do_call, "config": config}
+
+
+def text(request: dict[str, Any], key: str, default: str | None = None) -> str:
+    """A request's text field: ConfigError (a usage error) when it is missing or not text."""
+    value = request.get(key, default)
+    if not isinstance(value, str):
+        what = "missing" if value is None else "expected text"
+        raise ConfigError(f"{request.get('op')}: {key}: {what}")
+    return value
