@@ -42,7 +42,7 @@ def control_handlers(
         try:
             payload = bytes.fromhex(text(r, "payload", ""))
         except ValueError:
-            raise ConfigError("call: payload: expected hex digits, e.g. \"01ff\"") from None
+            raise ConfigError('call: payload: expected hex digits, e.g. "01ff"') from None
         board, function = text(r, "board"), text(r, "function")
         got = call(board, function, payload, r.get("timeout"), by="control")
         return {"code": got.code, "payload": got.payload.hex()}
