@@ -139,3 +139,28 @@ def test_huge_numbers_from_a_page_are_refused_not_bugs(serve: Any) -> None:
         assert [r["ok"] for r in replies] == [False] * len(sets), replies
         assert all("dist_ir.rate_hz" in r["text"] for r in replies), replies
         assert face.faults.total == 0
+
+
+def test_save_and_erase_are_true_or_false(serve: Any) -> None:
+    with console(serve) as (_d, face):
+        url = face.url.replace("http", "ws") + "ws"
+        ops: list[dict[str, Any]] = [{"op": "config", "set": {}, "save": [1]},
+                                     {"op": "reset", "erase": "yes"}]  # fmt: skip
+
+        async def go() -> list[dict[str, Any]]:
+            out = []
+            async with websockets.connect(
+                url, additional_headers={"Origin": face.url.rstrip("/")}
+            ) as ws:
+                await ws.recv()
+                for i, op in enumerate(ops):
+                    await ws.send(json.dumps({"id": i, "board": "board_b", **op}))
+                    while (m := json.loads(await asyncio.wait_for(ws.recv(), 10)))["op"] != "reply":
+                        pass
+                    out.append(m)
+            return out
+
+        replies = asyncio.run(go())
+        assert [(r["ok"], r["text"]) for r in replies] == [
+            (False, "save and erase: true or false")
+        ] * 2, replies

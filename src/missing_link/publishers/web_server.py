@@ -367,6 +367,13 @@ class WebServer:
         values = m.get("set", {})
         if not isinstance(values, dict) or not all(isinstance(k, str) for k in values):
             return None
+        if not all(isinstance(m.get(k, False), bool) for k in ("save", "erase")):
+            return {
+                "op": "reply",
+                "id": m["id"],
+                "ok": False,
+                "text": "save and erase: true or false",
+            }
         if op == "config" and not values and not m.get("save"):
             return {"op": "reply", "id": m["id"], "ok": True, "text": "nothing to set"}
         if self.ctx is None:
