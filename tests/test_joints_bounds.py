@@ -4,9 +4,12 @@ joint names it makes up.  On virtual time, and one shell test (Joints) without a
 
 from __future__ import annotations
 
+import time
 import tracemalloc
 from types import SimpleNamespace
 from typing import Any
+
+import pytest
 
 from missing_link.daemon.joints import Joints
 from missing_link.daemon.ros_config import JointsConfig, JointSpec
@@ -72,3 +75,59 @@ def test_made_up_joint_names_do_not_grow_what_is_remembered() -> None:
     assert j.status()["refused_by_kind"] == {"unknown joint": 1 + 300 * 50}
     assert len(j._said) <= 8, j._said
     assert grown < 300_000, f"{grown} bytes kept for 15,000 refusals"  # (3 MB of names went by)
+
+
+@pytest.mark.slow  # (a daemon and the rover's virtual firmware; seconds of real time)
+def test_on_the_rover_a_stamp_beyond_the_timeout_never_reaches_the_motor() -> None:
+    """The attack, end to end: an effort stamped 3 s ahead, then silence, used to be queued on
+    the board and run the motor after the watchdog's stop.  Now it is refused before the board
+    (counted by kind); one stamped within the timeout runs when due and is stopped after it."""
+    import tomllib
+
+    from rosbags.typesys import Stores, get_typestore
+
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import parse_config
+
+    from .helpers import wait_for
+    from .standard_boards import ROVER, virtual_board
+
+    T = get_typestore(Stores.ROS2_JAZZY).types
+    rover = virtual_board(ROVER)
+    motor = "result = WORLD.devices['motor_l'].state()"
+    toml = f"""
+[daemon]
+publishers = ["bus"]
+[[board]]
+url = "{rover.url}"
+timeout = 2.0
+[joints]
+command_timeout = 0.5
+[joints.left_wheel]
+state = "rover/wheel_l"
+command = "rover/motor_l"
+"""
+
+    def effort(ahead_ns: int) -> Any:
+        at = time.time_ns() + ahead_ns
+        stamp = T["builtin_interfaces/msg/Time"](sec=at // 10**9, nanosec=at % 10**9)
+        return T["sensor_msgs/msg/JointState"](header=T["std_msgs/msg/Header"](
+            stamp=stamp, frame_id=""), name=["left_wheel"], position=[], velocity=[],
+            effort=[0.5])  # fmt: skip
+
+    def joints(d: Daemon) -> dict[str, Any]:
+        return next(p for p in d.publisher_status() if p["publisher"] == "joints")
+
+    try:
+        with Daemon(parse_config(tomllib.loads(toml))) as d:
+            assert d.wait_until_up(20)
+            assert wait_for(lambda: d.status()[0]["map_pushes"] > 0, 10)  # (the board maps time)
+            d.bus.send("/joint_commands", effort(3_000_000_000))
+            assert wait_for(lambda: joints(d)["refused_by_kind"] == {"stamp ahead": 1}, 10)
+            assert joints(d)["commands"] == 0  # (nothing went to the board)
+            d.bus.send("/joint_commands", effort(300_000_000))
+            assert wait_for(lambda: rover.ctl(motor)[0] == 0.5, 10), rover.ctl(motor)
+            assert wait_for(lambda: joints(d)["command_timeouts"] == 1, 10), joints(d)
+            assert wait_for(lambda: rover.ctl(motor)[0] == 0.0, 10), rover.ctl(motor)
+    finally:
+        rover.close()
