@@ -164,6 +164,22 @@ def test_virtual_its_own_frames_heard_back_do_not_keep_the_failsafe_alive(seed: 
     assert rt.log.count(0xFF, 13) >= 1  # type: ignore[attr-defined]  # counted: ECHOED
 
 
+def test_virtual_damaged_frames_are_no_sign_of_a_host() -> None:
+    """Cut, bad-checksum and bad-escape frames every turn (each answered with its error frame)
+    do not count as the host: the failsafe trips as on a silent line."""
+    rt, servo, clock = _virtual()
+    rt.feed(encode_frame(SOF, 1, rt.index["a2j_set_servo"], struct.pack("<b", SET)))  # type: ignore[attr-defined]
+    good = encode_frame(SOF, 2, rt.index["a2jEcho"], b"x")  # type: ignore[attr-defined]
+    bad_sum = good[:-1] + bytes([good[-1] ^ 0xFF])
+    for _ in range(150):  # 3 s, a burst of damage every 20 ms
+        rt.feed(bytes.fromhex("1200") * 64 + bad_sum + b"\x12\x03\x04\x01\xed\x00")  # type: ignore[attr-defined]
+        rt.take_frames()  # type: ignore[attr-defined]
+        clock.us += 20_000
+        rt.poll()  # type: ignore[attr-defined]
+    assert rt.failsafe.trips == 1 and servo.limp  # type: ignore[attr-defined]
+    assert rt.parser.errors > 150 * 64  # type: ignore[attr-defined]  # (all of it was damage)
+
+
 def test_virtual_a_frame_dropped_after_silence_leaves_no_break_behind() -> None:
     """A frame cut by 10 ms of silence whose rest spells the REPL break is no break: its rest
     is skipped until the line is quiet again (wire.py).  A break after the quiet still is."""
@@ -331,6 +347,62 @@ def test_micropython_a_frame_dropped_after_silence_leaves_no_break_behind(
         except OSError:  # (the firmware stopped: no answer)
             answered = False
     assert mpy.ctl("result = rt.breaks") == 0 and answered  # (before: it stopped, for the REPL)
+
+
+@pytest.mark.slow
+@pytest.mark.micropython
+def test_micropython_a_stream_of_cut_frames_does_not_keep_the_failsafe_from_tripping(
+    mpy: FirmwareSim,
+) -> None:
+    """As on AVR: 12 00 12 00 ... (an F2 for every 2 bytes) for 2 s of board time after the
+    host's last command: the failsafe trips (damaged frames are no host)."""
+    board = Board(open_transport(mpy.url), timeout=5.0)
+    try:
+        board.handshake()
+        board.configure({"servo.safe": "limp"})
+        board.call_ok("a2j_set_servo", struct.pack("<b", SET))
+    finally:
+        board.close()
+    assert _pulse(mpy) == 1217
+    host, port = mpy.url[len("tcp://") :].split(":")
+    with socket.create_connection((host, int(port)), timeout=5) as line:
+        stop = threading.Event()
+
+        def drain() -> None:
+            while not stop.is_set():
+                try:
+                    if not line.recv(65536):
+                        return
+                except OSError:
+                    return
+
+        t = threading.Thread(target=drain, daemon=True)
+        t.start()
+        try:
+            t0 = mpy.ctl("result = rt.clock()")
+            while mpy.ctl("result = rt.clock()") - t0 < 2_000_000:
+                line.sendall(bytes.fromhex("1200") * 256)
+            assert _pulse(mpy) == 0 and mpy.ctl("result = rt.failsafe.trips") == 1
+        finally:
+            stop.set()
+            line.shutdown(socket.SHUT_RDWR)
+            t.join(5)
+
+
+@pytest.mark.slow
+@pytest.mark.micropython
+def test_micropython_the_break_after_a_dropped_frame_and_quiet_still_stops_it(
+    mpy: FirmwareSim,
+) -> None:
+    """What `flash` does on a port whose last owner left a frame half sent: once the line has
+    been quiet (the frame dropped, its rest skipped), the break is recognised."""
+    host, port = mpy.url[len("tcp://") :].split(":")
+    with socket.create_connection((host, int(port)), timeout=5) as line:
+        line.sendall(bytes([SOF, 7, 4, 9]))  # a frame's head, then silence
+        assert _reply(line, 7).opcode == 0xF2  # dropped
+        assert wait_for(lambda: mpy.ctl("result = rt.parser.in_frame()") is False, 5)
+        line.sendall(b"\r\x03\x03repl\r")
+        assert mpy.next_line(10) == "BREAK"
 
 
 def _reply(line: socket.socket, seq: int) -> Frame:
