@@ -39,9 +39,11 @@ class CommandRefused(MissingLinkError):
 
 def called_function(function: str, payload: bytes, functions: Sequence[str]) -> str:
     """The function a call of ``function`` with ``payload`` ends up running on the board: for
-    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), else itself."""
-    if function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
-        return functions[payload[8]]
+    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), and so on down
+    an ``a2jAt`` of an ``a2jAt`` (boards refuse that now, but an older one ran it: the list
+    must hold whatever the board does), else itself."""
+    while function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
+        function, payload = functions[payload[8]], payload[9:]
     return function
 
 

@@ -308,11 +308,11 @@ class Daemon:
             b, prober = s.board, s.prober
             if wanted is not None and s.name not in wanted:
                 continue
-            if s.state != UP or b is None or prober is None:
+            if s.state != UP or b is None or prober is None or s.farewell.said(b):
                 raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
             self._gate(s, b, function, b"", "api")
             prober.push_map()
-            reply = b.call_ok(function, struct.pack("<q", host_ns))
+            reply = s.farewell.call_ok(b, function, struct.pack("<q", host_ns))
             ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
         return ticks
 
@@ -334,6 +334,8 @@ class Daemon:
         b = s.board
         if s.state != UP or b is None:
             raise BoardError(s.name, f"not up ({s.state}{': ' + s.error if s.error else ''})")
+        if s.farewell.said(b):  # (the daemon stops: nothing more reaches it; farewell.py)
+            raise BoardError(s.name, "told goodbye: the daemon stops")
         return s, b
 
     def call(
@@ -352,7 +354,7 @@ class Daemon:
         t = call_timeout(timeout)
         s, b = self._up(board)
         self._gate(s, b, function, payload, by)
-        return b.call(function, payload, t)
+        return s.farewell.call(b, function, payload, t)
 
     def _gate(self, s: BoardSession, b: Board, function: str, payload: bytes, by: str) -> None:
         """The allow-list on a plain call: what the call would move is named by its topic."""

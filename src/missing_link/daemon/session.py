@@ -45,8 +45,10 @@ from what it hears, not from what the transport claims.  A board reset seen unde
 re-applies the configuration file's keys on a thread of its own (they are calls to wait for).
 
 ``stop``: the board hears goodbye first (``a2jGoodbye``: its actuators safe at once); the
-supervisor waits a bounded time for its answer, then closes the link.  The daemon asks every
-session at once, so the waits overlap.
+supervisor waits a bounded time for its answer, then closes the link.  From the goodbye on,
+nothing of a command path reaches that board (``farewell.py``: actuator and timed commands,
+``Daemon.call``, ``trigger_at``, ``configure`` are refused), though the session is still up.
+The daemon asks every session at once, so the waits overlap.
 
 At each handshake the session builds the clock sync (``session_clock.py``: the board's
 ``ClockSync`` and its prober) and the topics (``board_topics.py``); the sample path maps and
@@ -81,7 +83,8 @@ from .board_topics import BoardTopics, declare_topics, transducers_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
-from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
+from .failsafe import FailsafeInfo, Keepalive, keepalive_s, wait_goodbye
+from .farewell import Farewell
 from .inflight import InFlight
 from .listener import Mailbox
 from .liveness import LinkWatch
@@ -114,8 +117,8 @@ class BoardSession:
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
-        self._said_goodbye: Board | None = None  # the board told the host is going
-        self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
+        #: the goodbye: once said, no call of a command path reaches that board (farewell.py)
+        self.farewell = Farewell()
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
@@ -144,7 +147,7 @@ class BoardSession:
         self.faults = ErrorCounts(log, spec.url)
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self.actuators = Actuators(self._wake.set, self._set_error)
+        self.actuators = Actuators(self._wake.set, self._set_error, self.farewell.call_future)
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
         self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
         self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
@@ -211,10 +214,8 @@ class BoardSession:
         board = self.board
         if board is None:
             return
-        if self.state == UP and board is not self._said_goodbye:
-            self._said_goodbye = board  # (once: stop() asks again)
-            self._goodbye = start_goodbye(board)
-        if self._goodbye is None:
+        answer = self.farewell.say(board) if self.state == UP else None  # (once per link)
+        if answer is None:
             board.close()  # nothing to wait for: a handshake under way ends at once
 
     def stop(self, timeout: float = 1.0) -> None:
@@ -437,8 +438,8 @@ class BoardSession:
             self.ctx.release_id(self)
             board, self.board = self.board, None
             if board is not None:
-                goodbye, self._goodbye = self._goodbye, None
-                wait_goodbye(goodbye)  # (stopping: bounded, so the actuators go safe first)
+                if self.farewell.said(board):  # (stopping: bounded, the actuators safe first)
+                    wait_goodbye(self.farewell.answer)
                 board.close()
                 self._past += LinkCounters.of(board)
 
