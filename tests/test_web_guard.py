@@ -6,8 +6,10 @@ rebinding), a page that never reads is closed, and absurd numbers are refused, n
 from __future__ import annotations
 
 import asyncio
+import base64
 import http.client
 import json
+import os
 import socket
 from pathlib import Path
 from typing import Any
@@ -62,16 +64,21 @@ def test_failed_logins_lock_out_the_guesser_not_the_owner(serve: Any, tmp_path: 
         assert face.status()["logins_refused"] == 7  # (5 wrong, 2 held off)
 
 
-def test_the_login_table_is_bounded() -> None:
+def test_the_login_table_is_bounded_and_eviction_gives_no_tries() -> None:
     limits = LoginLimiter(failures=5, window_s=60.0, max_clients=100)
-    for i in range(10_000):
+    for i in range(10_000):  # a guesser with 10,000 addresses
         limits.failed(f"10.0.{i >> 8}.{i & 255}", 1.0)
-    assert len(limits) == 100
-    assert limits.allows("10.0.0.0", 2.0)  # (the first went first)
+    assert len(limits) == 101  # 100 addresses and the one shared by the rest
+    assert limits.allows("10.0.0.0", 2.0)  # (one failure of its own)
+    # the rest share one entry: a new address cannot buy fresh tries while the flood lasts
+    assert not limits.allows("10.0.99.99", 2.0) and not limits.allows("192.0.2.1", 2.0)
+    # once the window ends, addresses get entries of their own again
+    assert limits.allows("192.0.2.1", 61.5)
     for _ in range(5):
-        limits.failed("192.0.2.1", 3.0)
-    assert not limits.allows("192.0.2.1", 62.9) and limits.allows("192.0.2.1", 63.1)
-    assert limits.allows("192.0.2.2", 4.0)
+        limits.failed("192.0.2.1", 62.0)
+    assert not limits.allows("192.0.2.1", 121.9) and limits.allows("192.0.2.1", 122.1)
+    assert limits.allows("192.0.2.2", 63.0)
+    assert len(limits) <= 101
 
 
 def test_a_rebound_name_is_refused_without_tls_even_with_a_token(
@@ -84,33 +91,47 @@ def test_a_rebound_name_is_refused_without_tls_even_with_a_token(
         assert face.status()["hosts_refused"] == 1
 
 
+def _frame(text: str) -> bytes:
+    """A client's WebSocket text frame (masked, as a client's must be)."""
+    data = text.encode()
+    assert len(data) < 65536
+    head = bytes([0x81, 0x80 | 126]) + len(data).to_bytes(2, "big")
+    mask = os.urandom(4)
+    return head + mask + bytes(c ^ mask[i % 4] for i, c in enumerate(data))
+
+
 def test_a_page_that_sends_and_never_reads_is_closed(serve: Any) -> None:
+    """A client that never reads a byte after the handshake (a raw socket with a small
+    receive buffer: a WebSocket library would read on its own) and sends operations whose
+    replies are 4 KB each: the server's socket fills, its replies wait, and at ``MAX_QUEUE``
+    the page is closed (counted), never more held for it."""
     with console(serve) as (_d, face):
-        url = face.url.replace("http", "ws") + "ws"
-        # each reply carries the page's id back: 4,000 digits make every reply 4 KB
-        msg = json.dumps({"op": "command", "id": 10**3999})
-
-        async def flood() -> int:
-            sent = 0
-            async with websockets.connect(url, additional_headers={"Origin": face.url.rstrip("/")},
-                                          max_queue=1) as ws:  # fmt: skip
-                sock = ws.transport.get_extra_info("socket")
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-                try:
-                    while face.status()["pages_closed"] == 0 and sent < 20_000:
-                        await ws.send(msg)
-                        sent += 1
-                        if sent % 100 == 0:
-                            queued = [len(p.out) for p in list(face.server._pages)]
-                            assert max(queued, default=0) <= MAX_QUEUE + 1, queued
-                            await asyncio.sleep(0)
-                except websockets.ConnectionClosed:
-                    pass
-                finally:
-                    ws.transport.abort()  # (it never reads: no closing handshake to wait for)
-            return sent
-
-        sent = asyncio.run(flood())
+        port = int(face.url.rsplit(":", 1)[1].strip("/"))
+        msg = _frame(json.dumps({"op": "command", "id": 10**3999}))  # (replies carry the id)
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # (before connect: the window)
+        sock.settimeout(10)
+        sock.connect(("127.0.0.1", port))
+        sock.sendall(
+            f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {base64.b64encode(os.urandom(16)).decode()}"
+            f"\r\nSec-WebSocket-Version: 13\r\nOrigin: {face.url.rstrip('/')}\r\n\r\n".encode()
+        )
+        head = b""
+        while b"\r\n\r\n" not in head:
+            head += sock.recv(1)  # (byte by byte: not one byte of the hello after it)
+        assert head.startswith(b"HTTP/1.1 101"), head
+        sent = 0
+        try:
+            while face.status()["pages_closed"] == 0 and sent < 20_000:
+                sock.sendall(msg)
+                sent += 1
+                queued = [len(p.out) for p in list(face.server._pages)]
+                assert max(queued, default=0) <= MAX_QUEUE + 1, queued
+        except OSError:  # (the server closed it: reset, broken pipe, or a send that blocks)
+            pass
+        finally:
+            sock.close()
         assert wait_for(lambda: face.status()["pages_closed"] == 1, 10), (sent, face.status())
         assert wait_for(lambda: face.status()["clients"] == 0, 10)
         assert face.faults.total == 0
