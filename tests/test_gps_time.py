@@ -146,6 +146,8 @@ def test_midnight_turns_the_day_whichever_sentence_comes_first() -> None:
         ("between two edges (5 Hz)", [rmc("123519.20", "230394"), gga("123519.20")]),
         ("a leap second", [rmc("235960.00", "301216"), gga("235960.00")]),
         ("an RMC 2 s old", [rmc("123517.00", "230394"), gga("123519.00")]),
+        ("a date that is none", [rmc("123519.00", "2303x4"), gga("123519.00")]),
+        ("an RMC without a date", [rmc("123519.00", "").rsplit(",", 3)[0], gga("123519.00")]),
     ],
 )
 def test_utc_is_na_off_a_whole_seconds_pps_edge(case: str, sentences: list[str]) -> None:
@@ -154,6 +156,20 @@ def test_utc_is_na_off_a_whole_seconds_pps_edge(case: str, sentences: list[str])
     s = g.send(1_150_000, *sentences)
     assert len(s) == 10 and utc_of(s) == (NA, NA), case
     assert s[3][1] == 1  # (the fix itself is there)
+
+
+def test_a_bad_date_is_counted_and_forgets_the_last_good_one() -> None:
+    g = Gps()
+    g.edge(1_000_000)
+    g.send(1_100_000, rmc("123519.00", "230394"), gga("123519.00"))
+    g.edge(2_000_000)  # (the GGA first would take the date of the RMC before: not now)
+    s = g.send(2_100_000, rmc("123520.00", "2303x4"), gga("123520.00"))
+    assert utc_of(s) == (NA, NA) and g.driver.checksum_errors == 1
+    short = rmc("123521.00", "230394").rsplit(",", 3)[0]  # (ends at the course: no date)
+    g.edge(3_000_000)
+    s = g.send(3_100_000, short, gga("123521.00"))
+    assert utc_of(s) == (NA, NA) and g.driver.checksum_errors == 1  # (not a bad sentence)
+    assert s[6][1] == 11523  # (its speed still holds)
 
 
 def test_without_pps_no_utc_and_a_stale_date_is_not_kept() -> None:

@@ -204,8 +204,10 @@ class GpsNmea:
                     speed * 1852 // 3600 if valid and speed is not None else None,  # mm/s
                     _decimal(f[8], 100) if valid else None,
                 )
-                day, tod = _date_days(f[9]), _time_of_day_ms(f[1])
-                self._date = (day, tod) if valid and day is not None and tod is not None else None
+                self._date = None  # (first: a bad date below leaves none, not the last one)
+                if valid and len(f) > 9:  # (a short RMC: its speed and course still hold)
+                    day, tod = _date_days(f[9]), _time_of_day_ms(f[1])
+                    self._date = None if day is None or tod is None else (day, tod)
             elif kind == "GGA" and len(f) >= 10:
                 self._gga(f, at_us)
         except (ValueError, IndexError):
