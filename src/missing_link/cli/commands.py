@@ -290,8 +290,8 @@ def _board(sp: Parser) -> None:
     sp.add_argument(
         "--seed",
         type=int,
-        default=0,
-        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED)",
+        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED); "
+        "--file: of its chip id (board.id) when it has no --flash (default 0)",
     )
     _sim_options(sp)
 

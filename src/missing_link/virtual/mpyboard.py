@@ -5,7 +5,8 @@ world of world/, its link on a TCP port of this machine.
 Theory of operation
 -------------------
 :class:`MicroPythonBoard` starts ``node host.mjs BOARDFILE`` and waits for its ``LISTEN``
-line; the board is then up.  Node serves the firmware's link on ``--listen``'s TCP port.  For
+line; the board is then up.  Node serves the firmware's link on ``--listen``'s TCP port, or
+with ``dial`` the firmware dials the daemon (host.mjs --dial: board/dial.py, its backoff).  For
 ``pty`` this process opens the pseudo-terminal and relays its bytes to one connection of its
 own to node's port on 127.0.0.1, kept for the board's life: the firmware sees one host on a
 cable, as on USB CDC.  Node's stdin stays open (it is the simulator's control channel; closing
@@ -32,7 +33,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, ConfigError, MissingLinkError
-from .boardfile import Pty
+from .boardfile import Pty, dial_target
 
 HOST_MJS = Path(__file__).resolve().parent / "world" / "host.mjs"
 MPY_ENTRY = Path("@micropython") / "micropython-webassembly-pyscript" / "micropython.mjs"
@@ -74,7 +75,9 @@ def _tcp_address(listen: str) -> tuple[str, int]:
 
 class MicroPythonBoard:
     """The board file at ``board_file`` under MicroPython, served on ``listen`` (tcp or pty);
-    ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged."""
+    ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged; ``dial``: the
+    board connects out to ``listen`` (tcp://HOST:PORT: host.mjs --dial, board/dial.py) instead;
+    ``chip``: the simulated chip's id (boardfile.chip_id)."""
 
     def __init__(
         self,
@@ -82,12 +85,19 @@ class MicroPythonBoard:
         listen: str,
         flash: Path | None,
         absent: Collection[str] = (),
+        *,
+        dial: bool = False,
+        chip: bytes | None = None,
     ) -> None:
         node, entry = find_micropython()
-        pty = listen in ("pty", "pty://")
-        host, port = ("127.0.0.1", 0) if pty else _tcp_address(listen)
+        pty = listen in ("pty", "pty://") and not dial
+        host, port = ("127.0.0.1", 0) if pty or dial else _tcp_address(listen)
         cmd = [node, str(HOST_MJS), str(board_file), "--port", str(port), "--host", host]
-        cmd += ["--mpy", str(entry), "--no-dial"]  # (--listen says where the board is)
+        cmd += ["--mpy", str(entry)]
+        # (--listen or --dial says where the board is, whatever its board file's link says)
+        cmd += ["--dial", dial_target(listen)] if dial else ["--no-dial"]
+        if chip is not None:
+            cmd += ["--chip-id", chip.hex()]
         if flash is not None:
             cmd += ["--flash", str(flash)]
         if absent:
@@ -110,6 +120,8 @@ class MicroPythonBoard:
         if pty:
             self._relay = _PtyRelay(int(node_port))
             self.url = self._relay.url
+        elif dial:
+            self.url = f"dial {listen}"
         else:
             self.url = f"tcp://{host}:{node_port}"
 

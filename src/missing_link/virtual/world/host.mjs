@@ -3,8 +3,9 @@
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
 //                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
-//                 [--dial HOST:PORT]
-//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//                 [--dial HOST:PORT] [--chip-id HEX]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --chip-id:
+//   that id itself, 16 hex digits (board --file keeps one in its --flash DIR); --lib: the
 //   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
 //   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py;
 //   --no-dial: it listens on --port even when its board file's link dials: board --file)
@@ -44,6 +45,11 @@ const runArg = opt("--run");
 const flashDir = opt("--flash");
 const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
 const seedArg = opt("--seed");
+const chipArg = opt("--chip-id");
+if (chipArg !== null && !/^[0-9a-f]{16}$/.test(chipArg)) {
+  process.stderr.write(`--chip-id ${chipArg}: expected 16 hex digits\n`);
+  process.exit(2);
+}
 const libArg = opt("--lib");
 const dialArg = opt("--dial");
 const noDial = args.includes("--no-dial");
@@ -159,7 +165,8 @@ if (runArg) {
   mp.runPython(boot + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-const seed = seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
+const seed = chipArg !== null ? `simworld.machine.WORLD.unique_id = bytes.fromhex("${chipArg}")\n` :
+  seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
 const dialTo = dialArg !== null ?
   `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
   `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
