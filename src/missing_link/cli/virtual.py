@@ -149,8 +149,11 @@ def _serve_board_file(
 
     try:
         if args.runtime == "micropython":
+            from ..deploy.flashdir import prepare
             from ..virtual.mpyboard import MicroPythonBoard
 
+            if args.flash:  # (the board starts from its flash, as a board does: it takes updates)
+                prepare(path, flash, lambda t: print(f"missing-link: {t}", file=sys.stderr))
             server: Any = MicroPythonBoard(path, args.listen, flash if args.flash else None, absent)
         else:
             from ..virtual.boardfile import BoardFileBoard

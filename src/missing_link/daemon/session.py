@@ -82,6 +82,7 @@ from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
 from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
+from .hold import PortHold
 from .inflight import InFlight
 from .listener import Mailbox
 from .liveness import LinkWatch
@@ -114,6 +115,8 @@ class BoardSession:
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
+        self.hold = PortHold()  #: its port let go for a while (an AVR update: updates.py)
+        self.update_status: dict[str, Any] | None = None  #: the last firmware update's (updates.py)
         self._said_goodbye: Board | None = None  # the board told the host is going
         self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
         self._serving = False  # serve() runs: late answers may still say something
@@ -230,6 +233,7 @@ class BoardSession:
     def _supervise(self) -> None:
         delay = self.ctx.config.backoff_min
         while not self._stop.is_set():
+            self.hold.wait(self._stop)  # (its port let go: hold.py)
             self.state = SessionState.CONNECTING
             try:
                 board = self._connect()
@@ -484,6 +488,7 @@ class BoardSession:
             failsafe=self.failsafe.status,
             sync=sync.status() if sync is not None else None,
             identity=self.identity,
+            update=self.update_status,
         )
 
     def status(self) -> dict[str, Any]:

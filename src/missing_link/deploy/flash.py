@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..board import drivers as drivers_pkg
-from ..board.identity import FirmwareHash
+from ..board.identity import BOARD_FILE, FirmwareHash
 from .avr import flash_avr
 from .boardfile import BoardFile
 from .check import FlashError, verify
@@ -35,7 +35,7 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
     "timing.py", "failsafe.py", "wire.py", "firmware.py", "link.py", "identity.py", "dial.py",
-    "log.py",
+    "log.py", "signing.py", "boot.py", "update.py",
 )  # fmt: skip
 #: where the runtime goes on the board: fw.hash is over the files under it (board/identity.py)
 LIB = "lib/mlboard/"
@@ -66,12 +66,12 @@ def micropython_files(bf: BoardFile, key: str | None = None) -> list[Copy]:
 
 def firmware_hash(files: list[Copy]) -> str:
     """The ``fw.hash`` a board reports once ``files`` are on it: the runtime's files, as the
-    board hashes its ``lib/mlboard`` (board/identity.py)."""
+    board hashes its ``lib/mlboard``, and the board file (board/identity.py)."""
     out = FirmwareHash()
     for c in files:
-        if c.remote.startswith(LIB):
+        if c.remote.startswith(LIB) or c.remote == BOARD_FILE:
             data = c.local.read_bytes()
-            out.add(c.remote[len(LIB) :], len(data), [data])
+            out.add(c.remote.removeprefix(LIB), len(data), [data])
     digest: str = out.digest()
     return digest
 
@@ -98,7 +98,9 @@ def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[s
 def prune_code(files: list[Copy]) -> str:
     """MicroPython that removes the files under ``lib/mlboard`` that this flash did not put
     there (a driver an earlier board file used): the runtime is then exactly the files
-    ``firmware_hash`` hashed, and the board's fw.hash says so.  Nothing else is touched."""
+    ``firmware_hash`` hashed, and the board's fw.hash says so.  It also removes ``fw/``, the
+    update slots and their boot record (board/boot.py): the firmware flashed here runs.
+    Nothing else is touched."""
     keep = sorted(c.remote[len(LIB) :] for c in files if c.remote.startswith(LIB))
     return (
         f"import os\nkeep = {tuple(keep)!r}\ndef prune(rel):\n"
@@ -108,6 +110,13 @@ def prune_code(files: list[Copy]) -> str:
         "        if os.stat(full)[0] & 0x4000:\n            prune(path)\n"
         "        elif path[1:] not in keep:\n            os.remove(full)\n"
         "prune('')\n"
+        "def wipe(path):\n"
+        "    try:\n        st = os.stat(path)\n    except OSError:\n        return\n"
+        "    if st[0] & 0x4000:\n"
+        "        for name in os.listdir(path):\n            wipe(path + '/' + name)\n"
+        "        os.rmdir(path)\n"
+        "    else:\n        os.remove(path)\n"
+        "wipe('fw')\n"
     )
 
 

@@ -16,6 +16,10 @@ exception, the break to the REPL): serve_forever() raises :class:`FirmwareStoppe
 Node and the npm package are found before anything starts (:func:`find_micropython`): the
 package in ``node_modules`` of the current directory or one above it, or of the checkout this
 module is in (``make node`` puts it there).
+
+With ``flash`` (``--flash DIR``) holding a main.py (``board --file`` flashes DIR first:
+deploy/flashdir.py) the board starts from its flash, as a board does, and takes updates
+(``missing-link update``); otherwise the runtime and the board file are loaded as they are.
 """
 
 from __future__ import annotations
