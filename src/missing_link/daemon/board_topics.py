@@ -46,9 +46,7 @@ class BoardTopics:
     quiet: set[int] = field(default_factory=set)  #: thesis-format topic off: not published
 
 
-def transducers_of(
-    board: str, own: list[Transducer] | None, descriptors: str
-) -> list[Transducer]:
+def transducers_of(board: str, own: list[Transducer] | None, descriptors: str) -> list[Transducer]:
     """A board's transducers: from its ``[[board]]`` table's ``descriptors`` file when it names
     one, else as the board described them (``own``); an original board needs the file."""
     if descriptors:
