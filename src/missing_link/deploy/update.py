@@ -208,10 +208,12 @@ def update_avr(
     """``where``: the board's URL, or (``daemon``: its control endpoint) its name there."""
     t0 = time.monotonic()
     report("checking", 0, 0)
+    if daemon is None:
+        serial_port(where, where)  # (a network URL is refused before anything is opened)
     props, url = _avr_identity(where, daemon, timeout)
     name = props.get("board.name", where)
-    _check_avr(name, props, target)
     port = serial_port(url, name)
+    _check_avr(name, props, target)
     old = (props.get("fw.version", ""), props.get("fw.hash", ""))
     with tempfile.TemporaryDirectory(prefix="missing-link-update-") as tmp:
         report("building", 0, 0)
