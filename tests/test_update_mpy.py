@@ -20,6 +20,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 
 from missing_link import connect
 from missing_link.daemon import Config, Daemon
@@ -235,8 +237,11 @@ def test_through_the_daemon_the_other_boards_go_on(
 
     other, thread = start_board_thread(make_sim("thesis", seed=7), "tcp://127.0.0.1:0")
     control = tmp_path / "control.sock"
+    record = tmp_path / "rec"
     cfg = Config(boards=[BoardSpec(rover, handshake_timeout=20.0), BoardSpec(other.url)],
-                 control=str(control))  # fmt: skip
+                 control=str(control), publishers=["bus", "mcap"],
+                 publisher_options={"mcap": {"path": str(record)}},
+                 diagnostics_period=0.2)  # fmt: skip
     slow = variant(tmp_path, "rover-slow", ROVER, SLOW_COMPASS)
     new = micropython_image(load_board_file(slow)).fw_hash
     stamps: list[float] = []
@@ -261,9 +266,23 @@ def test_through_the_daemon_the_other_boards_go_on(
             gaps = [b - a for a, b in itertools.pairwise(during)]
             assert len(during) > 10 and max(gaps) < (t1 - t0) / 4, (len(during), max(gaps))
             assert wait_for(lambda: any("firmware rover: updated" in x.text for x in lines), 5)
+            time.sleep(0.5)  # (a round of /diagnostics or two after it)
+            mcap = d.publishers[1]
     finally:
         other.stop()
         thread.join(5)
+    (bag,) = mcap.bags  # type: ignore[attr-defined]
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        diag = [c for c in reader.connections if c.topic == "/diagnostics"]
+        rovers = [
+            {kv.key: kv.value for kv in s.values}
+            for _, _, raw in reader.messages(diag)
+            for s in reader.deserialize(raw, diag[0].msgtype).status
+            if s.name == "missing_link: rover"
+        ]
+    states = [r.get("update", "") for r in rovers]
+    assert any("'sending'" in u for u in states), states  # (the steps as they went)
+    assert "'done'" in states[-1] and new in states[-1] and rovers[-1]["fw_hash"] == new
 
 
 _ = Update
