@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 
 
+@pytest.mark.slow
 def test_a_network_url_is_refused_before_anything_is_opened(tmp_path: Path) -> None:
     env = {**os.environ, "MISSING_LINK_CONTROL": str(tmp_path / "control.sock")}
     r = ml("update", "tcp://127.0.0.1:9", str(UNO), env=env)  # (nothing listens there)

@@ -105,6 +105,21 @@ def test_an_update_that_changes_a_rate(tmp_path: Path, rover: str, env: dict[str
     assert r.returncode == 0 and f"-> 0.2.0 {old}" in r.stdout and "slot b" in r.stdout, r.stdout
 
 
+def test_an_update_over_a_serial_port(tmp_path: Path, env: dict[str, str]) -> None:
+    """The board on a serial port (USB CDC: a pty here), which it leaves when it restarts and
+    comes back on: the update over it, the new rate on the topic."""
+    slow = variant(tmp_path, "rover-slow", ROVER, SLOW_COMPASS)
+    new = micropython_image(load_board_file(slow)).fw_hash
+    with board_process("--file", str(ROVER), "--runtime", "micropython",
+                       "--flash", str(tmp_path / "flash"), "--listen", "pty") as url:  # fmt: skip
+        assert url.startswith("serial://")
+        r = ml("update", url, str(slow), env=env)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert f"-> 0.2.0 {new}" in r.stdout and "slot a" in r.stdout, r.stdout
+        assert fw_hash(url) == new
+        assert compass_interval_ms(url) > 40  # 20 Hz now
+
+
 def test_a_firmware_that_raises_at_start_goes_back(
     tmp_path: Path, rover: str, env: dict[str, str]
 ) -> None:
