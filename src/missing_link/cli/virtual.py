@@ -155,8 +155,11 @@ def _serve_board_file(
     try:
         chip = chip_id(flash if args.flash else None, args.seed or 0)
         if args.runtime == "micropython":
+            from ..deploy.flashdir import prepare
             from ..virtual.mpyboard import MicroPythonBoard
 
+            if args.flash:  # (the board starts from its flash, as a board does: it takes updates)
+                prepare(path, flash, lambda t: print(f"missing-link: {t}", file=sys.stderr))
             kept = flash if args.flash else None
             server: Any = MicroPythonBoard(path, url, kept, absent, dial=dial, chip=chip)
         else:

@@ -169,7 +169,8 @@ class Daemon:
         if self.config.control:
             try:
                 self.control = ControlServer(
-                    self.config.control, control_handlers(self.session, self._up, self.call)
+                    self.config.control,
+                    control_handlers(self.session, self._up, self.call, self.fanout.log),
                 )
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
