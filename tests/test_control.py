@@ -204,7 +204,8 @@ def test_hostile_requests_are_answered_and_the_endpoint_stays(held: Any) -> None
     echo = '{"op": "call", "board": "thesis", "function": "a2jEcho", "payload": "01", '
     deep = b"[" * 200_000 + b"]" * 200_000 + b"\n"
     assert raw(path, deep[:60_000] + b"\n") == {
-        "error": "not a control request (ops: find, info, call, config)", "kind": "usage"
+        "error": "not a control request (ops: find, info, call, config, update, update_status, "
+        "release, retake)", "kind": "usage",
     }  # fmt: skip
     for timeout in (
         "NaN",

@@ -255,7 +255,7 @@ static uint8_t sif_payload(transducer_t *t, uint64_t now) {
     /* [t0 v0 t1 v1 ...]; channels without a new value carry N/A, stamped now */
     uint8_t k = 0;
     for (uint8_t ch = 0; ch < t->chan_count; ch++) {
-        uint8_t has = t->pending & (1u << ch);
+        uint16_t has = t->pending & (1u << ch);
         put_u64(scratch + k, has ? t->stamps[ch] : now);
         k += 8;
         uint32_t v = has ? t->values[ch] : t->na;
@@ -302,12 +302,12 @@ static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
     if (t->pending & (1u << ch)) {
         if (!flush_sif(t, stamp)) { /* no room: the older value goes, counted */
             sifs_dropped++;
-            t->pending &= (uint8_t)~(1u << ch);
+            t->pending &= (uint16_t)~(1u << ch);
         }
     }
     t->stamps[ch] = stamp;
     t->values[ch] = raw;
-    t->pending |= (uint8_t)(1u << ch);
+    t->pending |= (uint16_t)(1u << ch);
 }
 
 void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us) {

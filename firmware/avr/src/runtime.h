@@ -40,10 +40,10 @@ enum { DT_INT8 = 0, DT_UINT8, DT_INT16, DT_UINT16, DT_INT32, DT_UINT32, DT_FLOAT
 typedef struct {
     uint8_t tid;
     uint8_t dtype;
-    uint8_t chan_count; /* at most 8 on AVR */
+    uint8_t chan_count; /* at most 16 on AVR (pending) */
     uint8_t size;       /* bytes per value */
     uint32_t na;        /* N/A value, raw little-endian bits */
-    volatile uint8_t pending; /* bit per channel with an unsent value */
+    volatile uint16_t pending; /* bit per channel with an unsent value */
     uint64_t *stamps;   /* chan_count stamps (board µs) */
     uint32_t *values;   /* chan_count raw values */
     uint16_t values_dropped;

@@ -11,9 +11,11 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..host.board import Board
+from ..host.board_log import LogLine
 from ..host.config import describe_keys
 from ..host.link import CallResult
 from .session import BoardSession
+from .updates import BoardUpdates
 
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
@@ -24,11 +26,14 @@ def control_handlers(
     call: Callable[..., CallResult],
     configure: Callable[..., dict[str, Any]],
     reset: Callable[..., dict[str, Any]],
+    log_line: Callable[[LogLine], None] | None = None,
 ) -> dict[str, Handler]:
     """``session(board)``: its session; ``up(board)``: the session and its board, or
     BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
     through the daemon's allow-list; ``configure(board, values, save, by=)`` and ``reset(board,
-    erase, by=)``: a configuration change through it (an actuator's keys are commands)."""
+    erase, by=)``: a configuration change through it (an actuator's keys are commands);
+    ``log_line``: a line of a board's log to every face (the firmware updates' ops, updates.py:
+    ``update``, ``update_status``, ``release``, ``retake``)."""
 
     def find(r: dict[str, Any]) -> dict[str, Any]:
         s = session(text(r, "board"))
@@ -61,7 +66,8 @@ def control_handlers(
         keys = describe_keys(b.settings.keys(), values)
         return {"values": values, "keys": keys, "state": b.settings.state}
 
-    return {"find": find, "info": info, "call": do_call, "config": config}
+    ops = {"find": find, "info": info, "call": do_call, "config": config}
+    return {**ops, **BoardUpdates(session, log_line or (lambda line: None)).handlers()}
 
 
 def text(request: dict[str, Any], key: str, default: str | None = None) -> str:

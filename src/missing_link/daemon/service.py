@@ -170,12 +170,9 @@ class Daemon:
             self.dialins.start(self.reactor)
         if self.config.control:
             try:
-                self.control = ControlServer(
-                    self.config.control,
-                    control_handlers(
-                        self.session, self._up, self.call, self.configure, self.reset_config
-                    ),
-                )
+                verbs = (self.session, self._up, self.call, self.configure, self.reset_config)
+                handlers = control_handlers(*verbs, self.fanout.log)
+                self.control = ControlServer(self.config.control, handlers)
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
                             "only by another endpoint ([daemon] control)", e)  # fmt: skip

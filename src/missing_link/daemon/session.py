@@ -85,6 +85,7 @@ from .config import BoardSpec
 from .context import SessionContext
 from .failsafe import FailsafeInfo, Keepalive, keepalive_s, wait_goodbye
 from .farewell import Farewell
+from .hold import PortHold
 from .inflight import InFlight
 from .listener import Mailbox
 from .liveness import LinkWatch
@@ -119,6 +120,8 @@ class BoardSession:
         self.board: Board | None = None
         #: the goodbye: once said, no call of a command path reaches that board (farewell.py)
         self.farewell = Farewell()
+        self.hold = PortHold()  #: its port let go for a while (an AVR update: updates.py)
+        self.update_status: dict[str, Any] | None = None  #: the last firmware update's (updates.py)
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
@@ -231,6 +234,7 @@ class BoardSession:
     def _supervise(self) -> None:
         delay = self.ctx.config.backoff_min
         while not self._stop.is_set():
+            self.hold.wait(self._stop)  # (its port let go: hold.py)
             self.state = SessionState.CONNECTING
             try:
                 board = self._connect()
@@ -485,6 +489,7 @@ class BoardSession:
             failsafe=self.failsafe.status,
             sync=sync.status() if sync is not None else None,
             identity=self.identity,
+            update=self.update_status,
         )
 
     def status(self) -> dict[str, Any]:

@@ -3,8 +3,9 @@
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
 //                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
-//                 [--dial HOST:PORT]
-//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//                 [--dial HOST:PORT] [--chip-id HEX]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --chip-id:
+//   that id itself, 16 hex digits (board --file keeps one in its --flash DIR); --lib: the
 //   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
 //   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py;
 //   --no-dial: it listens on --port even when its board file's link dials: board --file)
@@ -27,12 +28,21 @@
 // file there (a signing key, as `flash --key` does).  --absent leaves those parts (transducer
 // names) unplugged (parts.py).  The simulator (this directory) is loaded as the package
 // `simworld`, its machine.py also as `machine`; the firmware as `mlboard`, as on a device.
+//
+// A flash that holds a main.py (as `missing-link flash` leaves it) is started from, as a board
+// does: the slot its boot record names, the runtime and the board file there (flashboot.py;
+// BOARDFILE is not read), and the firmware takes updates (board/update.py).  The power can be
+// cut in the middle of the flash's writes (flashcut.mjs): --cut-after N, or the control line
+// {"cut": N}: N more units reach DIR (a file's write: its bytes + 1, torn short of that; a
+// rename, removal or directory: 1), then "POWER CUT" and the process ends, as a board without
+// power.  --journal FILE: every change that reaches DIR, one JSON line each.
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
 import { connect as dialTcp, createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
+import { FlashCut } from "./flashcut.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const args = process.argv.slice(2);
@@ -44,12 +54,19 @@ const runArg = opt("--run");
 const flashDir = opt("--flash");
 const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
 const seedArg = opt("--seed");
+const chipArg = opt("--chip-id");
+if (chipArg !== null && !/^[0-9a-f]{16}$/.test(chipArg)) {
+  process.stderr.write(`--chip-id ${chipArg}: expected 16 hex digits\n`);
+  process.exit(2);
+}
 const libArg = opt("--lib");
 const dialArg = opt("--dial");
 const noDial = args.includes("--no-dial");
 // --file NAME=PATH (repeatable): a file on the board's filesystem (a signing key, as flash puts it)
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 const mpyPath = opt("--mpy"); // where npm put MicroPython (the CLI finds it; else node resolves it)
+const fromFlash = flashDir !== null && existsSync(join(flashDir, "main.py")); // (flashboot.py)
+const cut = new FlashCut(opt("--cut-after"), opt("--journal"));
 
 const { loadMicroPython } = await import(
   mpyPath ? pathToFileURL(mpyPath).href : "@micropython/micropython-webassembly-pyscript"
@@ -71,9 +88,9 @@ function copyTree(src, dst) {
   }
 }
 mp.FS.mkdir("/lib");
-copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
+if (!fromFlash) copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
 copyTree(here, "/lib/simworld");
-mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
+if (!fromFlash) mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
 // ---- the board's flash ----------------------------------------------------------------------
 const FLASH = "/flash";
@@ -108,12 +125,16 @@ function writeThrough(dir) {
     const abs = posix.normalize(p.startsWith("/") ? p : mp.FS.cwd() + "/" + p);
     return abs.startsWith(FLASH + "/") ? join(dir, abs.slice(FLASH.length + 1)) : null;
   };
-  const mirror = (what, fn) => {
+  // (the power may go in the middle: flashcut.mjs; `op` is the journal's entry when whole)
+  const mirror = (what, fn, units = 1, op = null) => {
+    const n = cut.take(units);
     try {
-      fn();
+      if (n > 0) fn(n);
+      if (n === units && op) cut.record(dir, ...op);
     } catch (e) {
       process.stderr.write(`flash: cannot ${what}: ${e.message}\n`);
     }
+    if (cut.gone) cut.powerOff();
   };
   const wrap = (name, after) => {
     const orig = mp.FS[name];
@@ -126,26 +147,28 @@ function writeThrough(dir) {
   wrap("close", (stream) => {
     const host = stream.path ? onDisk(stream.path) : null;
     if (host && (stream.flags & 3) !== 0) {
-      mirror(`write ${host}`, () => writeFileSync(host, mp.FS.readFile(stream.path)));
+      const data = mp.FS.readFile(stream.path);
+      mirror(`write ${host}`, (n) => writeFileSync(host, data.subarray(0, n - 1)), data.length + 1,
+        ["write", host, { data }]);
     }
   });
   wrap("rename", (from, to) => {
     const [a, b] = [onDisk(from), onDisk(to)];
-    if (a && b) mirror(`rename ${a}`, () => renameSync(a, b));
-    else if (a) mirror(`remove ${a}`, () => rmSync(a, { recursive: true, force: true }));
-    else if (b) mirror(`write ${b}`, () => writeFileSync(b, mp.FS.readFile(to)));
+    if (a && b) mirror(`rename ${a}`, () => renameSync(a, b), 1, ["rename", a, { to: b }]);
+    else if (a) mirror(`remove ${a}`, () => rmSync(a, { recursive: true, force: true }), 1, ["remove", a]);
+    else if (b) mirror(`write ${b}`, () => writeFileSync(b, mp.FS.readFile(to)), 1, ["write", b, { data: mp.FS.readFile(to) }]);
   });
   wrap("unlink", (p) => {
     const host = onDisk(p);
-    if (host) mirror(`remove ${host}`, () => rmSync(host, { force: true }));
+    if (host) mirror(`remove ${host}`, () => rmSync(host, { force: true }), 1, ["remove", host]);
   });
   wrap("rmdir", (p) => {
     const host = onDisk(p);
-    if (host) mirror(`remove ${host}`, () => rmSync(host, { recursive: true, force: true }));
+    if (host) mirror(`remove ${host}`, () => rmSync(host, { recursive: true, force: true }), 1, ["remove", host]);
   });
   wrap("mkdir", (p) => {
     const host = onDisk(p);
-    if (host && !existsSync(host)) mirror(`make ${host}`, () => mkdirSync(host));
+    if (host && !existsSync(host)) mirror(`make ${host}`, () => mkdirSync(host), 1, ["mkdir", host]);
   });
 }
 
@@ -159,21 +182,26 @@ if (runArg) {
   mp.runPython(boot + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-const seed = seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
+const seed = chipArg !== null ? `simworld.machine.WORLD.unique_id = bytes.fromhex("${chipArg}")\n` :
+  seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
 const dialTo = dialArg !== null ?
   `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
   `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
   noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
 mp.runPython(
-  boot + "\n" + seed + dialTo +
-  [
+  boot + "\n" + seed + (fromFlash ? "" : dialTo) +
+  (fromFlash ? [
+    "from simworld import flashboot, mpyhost",
+    `flashboot.adjust = ${JSON.stringify(dialTo)}`,
+    `mpyhost.start_flash(flashboot, ${JSON.stringify(absent)})`,
+  ] : [
     "from board import BOARD",
     "import mlboard.clock, mlboard.dial, mlboard.firmware, mlboard.link",
     "import mlboard",
     "from simworld import mpyhost",
     `mpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)})`,
-    "from simworld.mpyhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident",
-  ].join("\n"),
+  ]).concat(["from simworld.mpyhost import _open, _feed, _closed, _tick, _due_us, _ctl, _ident"])
+    .join("\n"),
 );
 const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
@@ -283,7 +311,8 @@ server.listen(portArg, hostArg, () => {
 const rl = createInterface({ input: process.stdin });
 rl.on("line", (line) => {
   try {
-    process.stdout.write("OK " + ctl(JSON.parse(line)) + "\n");
+    const req = JSON.parse(line); // (code, or {"cut": N}: flashcut.mjs)
+    process.stdout.write("OK " + (typeof req === "string" ? ctl(req) : cut.arm(req.cut)) + "\n");
   } catch (e) {
     process.stdout.write("ERR " + String(e).split("\n").join(" | ") + "\n");
   }
