@@ -205,9 +205,10 @@ class WebServer:
     async def _tick(self) -> None:
         while True:
             await asyncio.sleep(TICK_S)
-            if not self._pages:
-                continue
             try:
+                if not self._pages:  # (still taken: an inbox nobody reads is no loss, and a
+                    self.model.drain(time.time())  # page opened later shows the last 30 s)
+                    continue
                 if self.ctx is not None:
                     self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
                 msg = json.dumps(self.model.drain(time.time()), separators=(",", ":"))
