@@ -46,6 +46,8 @@ def test_a_joint_command_passes_the_allow_list_as_itself_and_as_its_actuators_co
                 d
             )  # (...its route not)
             assert d.status()[0]["commands"] == 0  # the board heard nothing
+            joints = next(s for s in d.publisher_status() if s.get("publisher") == "joints")
+            assert joints["commands"] == 0 and joints["refused_by_kind"] == {"not allowed": 1}
         with robot(url, ["/joint_commands", "/rig/*/command"]) as d:
             assert d.wait_until_up(20), d.status()
             d.send("/joint_commands", {"name": ["pan"], "position": [0.5]})

@@ -95,6 +95,13 @@ class Fanout:
             except Exception as e:  # noqa: BLE001 - (as declare)
                 self._failed(p, "add_command_topic", e, f"taking commands on {name}")
 
+    def route(self, topic: str, value: Any) -> None:
+        """``bus.send`` for a part of the daemon that routes commands on (joints.py): where
+        ``[daemon] commands`` does not admit ``topic`` it raises (CommandRefused, counted under
+        "bus" as the bus's own refusal is), so the router knows nothing was sent."""
+        self.gate.check("bus", topic)
+        self.bus.send(topic, value)
+
     def offer_config(
         self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: Any
     ) -> None:

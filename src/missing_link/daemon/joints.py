@@ -56,6 +56,7 @@ from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
 from ..ros.standard.joints import joint_state_cdr
 from ..text import safe_text
 from ..topics import Command, Topic, Update
+from .commands import CommandRefused
 from .ros_config import JointsConfig, JointSpec
 
 log = logging.getLogger(__name__)
@@ -338,6 +339,8 @@ class Joints(Publisher):
                 self.commands += 1
             except KeyError:
                 errors.append(Refusal("board down", f"{topic}: its board is not up"))
+            except CommandRefused as e:  # (the allow-list: nothing was sent)
+                errors.append(Refusal("not allowed", str(e)))
             except ValueError as e:
                 errors.append(Refusal("value", str(e)))
         for why in errors:

@@ -123,7 +123,7 @@ class Daemon:
         self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
         if config.joints is not None and config.joints.joints:
             self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
-                                 self.bus.send, self._actuator)  # fmt: skip
+                                 self.fanout.route, self._actuator)  # fmt: skip
             self.publishers.append(self.joints)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
