@@ -142,7 +142,8 @@ def _add_entry(
 
 
 #: the C runtime's headers (firmware/avr/src)
-HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"builtins.h"', '"config.h"',
+HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"battery.h"', '"builtins.h"',
+           '"config.h"',
            '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
            '"identity.h"', '"log.h"', '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
 
