@@ -34,6 +34,8 @@ CASES: dict[str, tuple[str, list[Any]]] = {
                     "kind=actuator,call=x", [40]),
     "gps_nmea, 8 ch": ("gps,0,gps,NMEA 0183,8,int32_t,-2147483648",
                        [481173000, 115166666, 545400, 1, 8, 90, 11523, 8440]),
+    "gps_nmea, 10 ch, PPS": ("gps,0,gps,NMEA 0183,10,int32_t,-2147483648",
+                       [481173000, 115166666, 545400, 1, 8, 90, 11523, 8440, 8847, 45319000]),
     "battery, 2 ch": ("battery,0,battery,2S Li-ion,2,float,nan,unit=V", [7.4, 0.4]),
 }  # fmt: skip
 
@@ -88,13 +90,13 @@ def main() -> None:
     a = ap.parse_args()
     print(f"Standard types per sample, {platform.python_implementation()} "
           f"{platform.python_version()}, one core")  # fmt: skip
-    head = f"{'layout':<18} | {'standard µs':>11} | {'thesis µs (ref)':>15} | {'ratio':>5}"
+    head = f"{'layout':<20} | {'standard µs':>11} | {'thesis µs (ref)':>15} | {'ratio':>5}"
     print(head)
     print("-" * len(head))
     for name, (line, values) in CASES.items():
         std = per_call_us(standard_of(line, values), a.seconds)
         ref = per_call_us(thesis_of(line, values), a.seconds)
-        print(f"{name:<18} | {std:>11.1f} | {ref:>15.1f} | {std / ref:>5.1f}")
+        print(f"{name:<20} | {std:>11.1f} | {ref:>15.1f} | {std / ref:>5.1f}")
     packed = per_call_us(standard_of(*CASES["quadrature, 2 ch"]), a.seconds)
     objects = per_call_us(rosbags_joint_state, a.seconds)
     print(f"\nJointState of 2 joints: packed {packed:.1f} µs (with the unwrap and speed), "

@@ -219,14 +219,17 @@ class AvrSim:
         skew_ppm: float = 0.0,
         eeprom: Path | None = None,
         rover: bool = False,
+        mcu: str | None = None,
     ) -> None:
         """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
         power-up and writes at power-off); ``rover``: a Mega with the rover's parts
-        (firmware/avr/sim/rover.c)."""
+        (firmware/avr/sim/rover.c); ``mcu``: another part than the Uno's (atmega2560)."""
         self.elf = elf
         extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
         if rover:
             extra += ["--mcu", "atmega2560", "--rover"]
+        elif mcu is not None:
+            extra += ["--mcu", mcu]
         self.proc = subprocess.Popen(
             [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra],
             stdin=subprocess.PIPE,

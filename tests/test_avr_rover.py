@@ -54,30 +54,73 @@ def motor(rig: AvrSim) -> tuple[float, int, float, int]:
     return float(a), int(da), float(b), int(db)
 
 
+def utc_channels(utc: int) -> list[int]:
+    """Channels 8 and 9 of the fix of UTC second ``utc``: its day since 1970, its ms of day."""
+    return [utc // 86400, utc % 86400 * 1000]
+
+
+def utc_second(u: Update) -> int:
+    """The UTC second of a fix (channels 8 and 9), -1 when it has none."""
+    day, ms = u.values[8:]
+    return -1 if day is None else int(day) * 86400 + int(ms) // 1000
+
+
+def rig_gps(rig: AvrSim) -> tuple[float, int]:
+    """The rig's newest PPS edge: its board µs and its UTC second (firmware/avr/sim/rover.c)."""
+    _, _, pps, utc = rig.ctl("gps").split()
+    return float(pps), int(utc)
+
+
 @pytest.mark.slow
 def test_gps_on_the_second_uart_stamped_at_its_pps(rover: Daemon, rig: AvrSim) -> None:
+    """Each fix is stamped at the PPS edge of its own second (INT4's entry) and carries that
+    edge's UTC (channels 8 and 9, from RMC's date); bad checksums make no sample; no fix, no
+    position and no UTC.  Every wait is on the simulation's own seconds (the UTC the rig sends,
+    the UTC in each fix), never the host's: simavr runs slower than the host's time on a loaded
+    machine, by how much nobody knows (the waits' ceilings only bound a stuck simulation)."""
     got = listen(rover, "gps")
-    assert wait_for(lambda: len(got) >= 2, 10)
-    lat, lon, alt, fix, sats, hdop, speed, course = got[-1].values
+    assert wait_for(lambda: len(got) >= 2, 30)
+    lat, lon, alt, fix, sats, hdop, speed, course = got[-1].values[:8]
     assert (lat, lon, alt, fix, sats, hdop) == (481173000, 115166666, 545400, 1, 8, 90)
     assert (speed, course) == (22400 * 1852 // 3600, 8440)
-    pps = float(rig.ctl("gps").split()[2])  # the newest PPS edge, in the board's µs
-    # INT4 stamped it: the interrupt's entry, about 2.4 µs after the edge (the fix of a PPS edge
-    # arrives after its sentences: it may still be on its way, and simavr runs slower than the
-    # host's time on a loaded machine)
-    assert wait_for(lambda: min(abs(u.board_us[0] - pps) for u in got[-3:]) <= 5.0, 10), (
-        pps,
-        [u.board_us[0] for u in got[-3:]],
-    )
-    rig.ctl("gps bad 2")  # every GGA: no sample, checksum errors
-    time.sleep(1.5)
+    pps, utc = rig_gps(rig)
     n = len(got)
-    time.sleep(2.2)
-    assert len(got) == n
+    assert wait_for(lambda: len(got) >= n + 3, 30)
+    # The rig's edges come exactly 1 s apart (a cycle timer), so each fix is compared with the
+    # edge of its own second.  Its stamp is INT4's entry: 1.875 µs after the edge in simavr, a
+    # µs or two later when another interrupt (Timer1's overflow, the link's UART) ran at the
+    # edge (measured: 31 x 1.875, 7 x 2.875, 2 x 3.875 µs over 40 edges with three threads
+    # calling a2jEcho without a pause): so the best of them is the entry itself, and none is
+    # near the '$' of its GGA (some 75 ms after the edge at 9600 baud), the stamp without PPS
+    late = []
+    for u in got:
+        k = round((u.board_us[0] - pps) / 1e6)
+        late.append(u.board_us[0] - pps - k * 1e6)
+        assert 0 < late[-1] < 1000, (pps, u.board_us)
+        assert u.values[8:] == utc_channels(utc + k), (utc, k, u.values)
+        assert set(u.board_us) == {u.board_us[0]}  # every channel stamped at the edge
+    assert min(late) <= 5.0, late
+    # the date turns at midnight: 23:59:59 on 31 December 1999, then 00:00:00 on 1 January
+    assert rig.ctl("gps utc 946684799") == "ok"
+    new_year = utc_channels(946684800)
+    assert wait_for(lambda: any(u.values[8:] == new_year for u in got), 30), got[-1].values
+    k = next(i for i, u in enumerate(got) if u.values[8:] == new_year)
+    assert [u.values[8:] for u in got[k - 1 : k + 1]] == [utc_channels(946684799), [10957, 0]]
+    # Every GGA with a bad checksum: no sample.  The seconds the rig sends after the command
+    # (its UTC then, first) are all bad until it is undone (last); the fix of the first good
+    # second after it comes after any of theirs would have (one link, in order)
+    rig.ctl("gps bad 2")
+    _, first = rig_gps(rig)
+    assert wait_for(lambda: rig_gps(rig)[1] >= first + 3, 30)
     rig.ctl("gps bad 0")
+    _, last = rig_gps(rig)
+    assert wait_for(lambda: any(utc_second(u) > last for u in got), 30)
+    seen = {utc_second(u) for u in got}
+    assert not seen & set(range(first + 1, last + 1)), (first, last, sorted(seen))
+    n = len(got)
     rig.ctl("gps fix 0")
-    assert wait_for(lambda: len(got) > n and got[-1].values[3] == 0, 5)
-    assert got[-1].values[:3] == [None, None, None]
+    assert wait_for(lambda: len(got) > n and got[-1].values[3] == 0, 30)
+    assert got[-1].values[:3] == [None, None, None] and got[-1].values[8:] == [None, None]
 
 
 @pytest.mark.slow

@@ -204,21 +204,41 @@ def test_hostile_requests_are_answered_and_the_endpoint_stays(held: Any) -> None
     echo = '{"op": "call", "board": "thesis", "function": "a2jEcho", "payload": "01", '
     deep = b"[" * 200_000 + b"]" * 200_000 + b"\n"
     assert raw(path, deep[:60_000] + b"\n") == {
-        "error": "not a control request (ops: find, info, call, config)", "kind": "usage"
+        "error": "not a control request (ops: find, info, call, config, update, update_status, "
+        "release, retake)", "kind": "usage",
     }  # fmt: skip
-    for timeout in ("NaN", "Infinity", "-Infinity", "1e999", "0", "-1", '"10"', "true"):
+    for timeout in (
+        "NaN",
+        "Infinity",
+        "-Infinity",
+        "1e999",
+        "0",
+        "-1",
+        '"10"',
+        "true",
+        "1" + "0" * 400,
+    ):
         got = raw(path, (echo + f'"timeout": {timeout}}}\n').encode())
         assert got is not None and got["kind"] == "usage", (timeout, got)
     got = raw(path, (echo + '"timeout": 1e308}\n').encode())  # clamped to 60 s
     assert got == {"code": 0xBA, "payload": "01"}
     assert d.control.refused >= 5
     assert ask(path, {"op": "find", "board": "thesis"})["state"] == "up"
+    # fields missing or of the wrong type, a payload not hex: usage errors that say which
+    for request, why in (({"op": "find"}, "find: board: missing"),
+                         ({"op": "info", "board": {"a": 1}}, "info: board: expected text"),
+                         ({"op": "call", "board": "thesis"}, "call: function: missing"),
+                         ({"op": "call", "board": "thesis", "function": "a2jEcho",
+                           "payload": "zz"}, "call: payload: expected hex digits")):  # fmt: skip
+        got = ask(path, request)
+        assert got["kind"] == "usage" and got["error"].startswith(why), (request, got)
+    assert d.control.faults.total == 0  # (refusals, not bugs: no traceback, no internal error)
 
 
 def test_call_timeouts_are_checked_and_clamped() -> None:
     assert call_timeout(None) is None and call_timeout(2) == 2.0
     assert call_timeout(1e308) == call_timeout(61.0) == MAX_CALL_TIMEOUT
-    for bad in (float("nan"), float("inf"), 0, -1.0, "10", True, [1]):
+    for bad in (float("nan"), float("inf"), 0, -1.0, "10", True, [1], 10**400, -(10**400)):
         with pytest.raises(ConfigError, match="timeout"):
             call_timeout(bad)
 

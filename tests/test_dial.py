@@ -26,7 +26,8 @@ from missing_link.daemon.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
 from missing_link.daemon.listener import Mailbox
 from missing_link.deploy.boardfile import check_board, load_board_file
-from missing_link.errors import BadURL, ConfigError
+from missing_link.errors import BadURL, CallTimeout, ConfigError
+from missing_link.host.link import CallResult
 from missing_link.virtual import make_sim
 from missing_link.virtual.server import BoardServer
 
@@ -190,9 +191,15 @@ class FakeBoard:
     def __init__(self, epoch: str, board_id: str = "b1") -> None:
         self.properties = {"board.id": board_id, "clock.epoch": epoch}
         self.alive = True
+        self.answers = True  # (to the probe of an old link: dialin.answers)
 
     def close(self) -> None:
         self.alive = False
+
+    def call(self, name: str, payload: bytes, timeout: float) -> CallResult:
+        if not (self.alive and self.answers and name == "a2jEcho"):
+            raise CallTimeout("fake", name, "no answer")
+        return CallResult(0xBA, payload)
 
 
 class FakeSession:
@@ -233,6 +240,7 @@ def test_a_board_goes_to_the_session_of_its_id(dialins: tuple[DialIns, list[Fake
     assert s.spec.name == "left" and s.spec.url == "dial://b1"  # (named by the config's id)
     s.connect()
     # the same boot dials again (its old connection is dead): the old link is closed at once
+    first.answers = False
     again = FakeBoard("e1")
     assert d.hand_over(again) is None  # type: ignore[arg-type]
     assert not first.alive and len(made) == 1

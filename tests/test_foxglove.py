@@ -244,6 +244,7 @@ def test_subscriptions_slow_clients_and_what_a_client_may_say() -> None:
             for bad in ('{"op": "subscribe", "subscriptions": [{"id": -1, "channelId": 1}]}',
                         '{"op": "subscribe", "subscriptions": "all"}',
                         '{"op": "unsubscribe", "subscriptionIds": [true]}',
+                        '{"op": {}}', '{"op": ["subscribe"]}',  # (unhashable: no op, no bug)
                         "[" * 60_000):  # fmt: skip
                 await ws.send(bad)
             sub = {"op": "subscribe", "subscriptions": [{"id": 5, "channelId": a}]}
@@ -271,4 +272,5 @@ def test_subscriptions_slow_clients_and_what_a_client_may_say() -> None:
     finally:
         view.close()
     assert [(struct.unpack_from("<I", m, 1)[0], m[13:]) for m in got] == [(5, b"first")]
-    assert view.dropped_messages == 4 and view.dropped >= BACKLOG
+    assert view.dropped_messages == 6 and view.dropped >= BACKLOG
+    assert view.faults.total == 0

@@ -78,7 +78,8 @@ def test_micropython_boards_state_their_chips_id_and_the_hash_of_their_files() -
         ids = [hashlib.sha256(b"missing-link sim board %d" % k).digest()[:8].hex() for k in (1, 2)]
         assert [p["board.id"] for p in props] == ids  # the chip's, in hex
         assert [p["board.serial"] for p in props] == ids  # (the board file names no serial)
-        assert props[0]["fw.hash"] == props[1]["fw.hash"] == tree_hash(str(BOARD_PKG))
+        # (the runtime's files and the board file it runs: board/identity.py)
+        assert props[0]["fw.hash"] == props[1]["fw.hash"] == tree_hash(str(BOARD_PKG), str(RIG))
     finally:
         for sim in sims:
             sim.close()
@@ -108,7 +109,7 @@ def test_flash_computes_the_hash_the_flashed_board_states(tmp_path: Path) -> Non
         board.close()
     assert not stale.exists()
     lib = flash_dir / "lib" / "mlboard"
-    assert tree_hash(str(lib)) == want
+    assert tree_hash(str(lib), str(flash_dir / "board.py")) == want
     sim = FirmwareSim(RIG, args=["--lib", str(lib)])
     try:
         said_ok = verify(sim.url, bf, expect={"fw.hash": want})

@@ -31,6 +31,9 @@ BOARD_ALLOWED = {
     "board/store.py": {"os"},
     # ... and the firmware's own files, hashed for fw.hash
     "board/identity.py": {"os"},
+    # ... and the firmware's slots and their boot record: updates over the link
+    "board/boot.py": {"os"},
+    "board/update.py": {"os"},
 }
 
 

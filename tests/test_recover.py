@@ -172,3 +172,22 @@ def test_hostile_files_are_one_line_and_exit_2(tmp_path: Path, content: bytes) -
     assert [x for x in err.splitlines() if x.startswith("missing-link: error:")] == [
         err.strip().splitlines()[-1]
     ]
+
+
+def test_a_length_past_the_end_of_the_file_is_where_it_stops(tmp_path: Path) -> None:
+    """A chunk whose records length says 2**62 (one damaged field): what came before is
+    recovered, the rest is where the file stops, and no read asks for 2**62 bytes
+    (MemoryError, a traceback); replay reads recordings the same way (complete_messages)."""
+    import struct
+
+    inner = records(schema(1, "std_msgs/msg/String", STRING.encode()), channel(1, 1, "/good"))
+    inner += records(*good(0, 3))
+    plain = Chunk(compression="", data=inner, message_start_time=0, message_end_time=0,
+                  uncompressed_crc=0, uncompressed_size=len(inner))  # fmt: skip
+    body = struct.pack("<QQQII", 0, 0, 10, 0, 0) + struct.pack("<Q", 2**62) + b"x" * 10
+    src = mcap_file(
+        tmp_path / "long.mcap", plain, tail=b"\x06" + struct.pack("<Q", len(body)) + body
+    )
+    dest, count = recover_bag(src, tmp_path / "out")
+    assert count == 3
+    assert read_back(dest) == [("/good", cdr(f"good {k}")) for k in range(3)]

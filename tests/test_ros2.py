@@ -321,6 +321,39 @@ def test_board_configuration_is_ros2_parameters_of_the_node(
     assert values["servo.max_deg"] == 90
 
 
+def test_an_actuators_parameters_are_commands(thesis_board: str, tmp_path: Path) -> None:
+    """With ``[ros2] commands = false`` a stock rclpy client may set a sensor's key but not the
+    servo's (its keys are commands: docs/security.md): an unsuccessful result saying so, and
+    the board keeps its value."""
+    cfg = tmp_path / "off.toml"
+    cfg.write_text("[ros2]\ncommands = false\n")
+    control = str(tmp_path / "control.sock")
+    env = ros_env(MISSING_LINK_CONTROL=control)
+    daemon = start_daemon(thesis_board, env, "--config", str(cfg))
+    try:
+        r = subprocess.run(
+            [
+                *(str(ROS2_PY), str(PARAMS), "--prefix", "thesis."),
+                *("--set", "thesis.dist_ir.rate_hz=double:5.0"),
+                *("--set", "thesis.servo.failsafe_ms=integer:0"),
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+        )
+        assert r.returncode == 0, r.stderr[-3000:]
+        got = json.loads(r.stdout.strip().splitlines()[-1])
+        board = ml("config", "thesis", "--json", env=env, timeout=60)
+    finally:
+        err = stop(daemon)
+    sensor, servo = got["results"]
+    assert sensor["successful"], (sensor, err[-2000:])
+    assert not servo["successful"] and "commands are off on ros2" in servo["reason"], servo
+    values = json.loads(board.stdout)["values"]
+    assert values["dist_ir.rate_hz"] == 5.0 and values["servo.failsafe_ms"] != 0
+
+
 def test_ros_security_variables_reach_rcl(thesis_board: str) -> None:
     """The rclpy node honours SROS2's ROS_SECURITY_* as any node does: with enforcement on and
     no keystore it does not start (one line, exit 1) rather than talk unsecured."""

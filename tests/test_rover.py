@@ -63,7 +63,7 @@ def test_gps_fix_from_nmea_stamped_at_its_pps_edge(rover: Daemon, sim: FirmwareS
     got = listen(rover, "gps")
     fixes = listen(rover, "gps/fix")
     assert wait_for(lambda: len(got) >= 2 and fixes, 10)
-    lat, lon, alt, fix, sats, hdop, speed, course = got[-1].values
+    lat, lon, alt, fix, sats, hdop, speed, course = got[-1].values[:8]
     # 4807.0380 N, 01131.0000 E (NMEA's own example): degrees + minutes / 60, in 1e-7 degree
     assert (lat, lon) == (481173000, 115166666)
     assert (alt, fix, sats, hdop) == (545400, 1, 8, 90)  # mm, GPS fix, 8 used, 0.9
@@ -94,7 +94,7 @@ def test_gps_bad_checksums_are_counted_and_dropped(rover: Daemon, sim: FirmwareS
     assert errors >= before + 2 and got == []  # no GGA passed its checksum: no sample
     sim.ctl("WORLD.devices['gps'].bad_every = 0; WORLD.devices['gps'].quality = 0")
     assert wait_for(lambda: len(got) >= 1, 5)
-    lat, lon, alt, fix, sats, _hdop, _speed, _course = got[-1].values
+    lat, lon, alt, fix, sats, _hdop, _speed, _course = got[-1].values[:8]
     assert (lat, lon, alt, fix) == (None, None, None, 0) and sats == 8  # no fix: no position
     sim.ctl("WORLD.devices['gps'].quality = 1")
 

@@ -58,7 +58,10 @@ EXPECTED = {
     "analog": [],
     "mpu6050": [("sensor_msgs/msg/Imu", "imu"), ("sensor_msgs/msg/Temperature", "temperature")],
     "trigger": [],
-    "gps_nmea": [("sensor_msgs/msg/NavSatFix", "fix")],
+    "gps_nmea": [
+        ("sensor_msgs/msg/NavSatFix", "fix"),
+        ("sensor_msgs/msg/TimeReference", "time_reference"),
+    ],
     "hmc5883l": [("sensor_msgs/msg/MagneticField", "field")],
     "qmc5883l": [("sensor_msgs/msg/MagneticField", "field")],
     "hbridge": [("sensor_msgs/msg/JointState", "joint_states")],
@@ -259,7 +262,8 @@ def test_gps_fix_and_a_time_reference_per_pps_edge() -> None:
     assert r.header.stamp.sec * 10**9 + r.header.stamp.nanosec == ns(1)  # the PPS edge
     assert r.time_ref.sec == 764426119 and r.time_ref.nanosec == 0 and r.source == "gps"
     assert ref.sample([ns(2)] * 8 + [0, 0], [*values[:8], None, None]) is None  # no edge
-    (only_fix,) = maps(of_driver("gps_nmea"))  # today's 8 channels: NavSatFix only
+    old = parse_line("gps,0,gps,NMEA 0183,8,int32_t,-2147483648,ros=sensor_msgs/msg/NavSatFix")
+    (only_fix,) = maps(old)  # a driver's 8 channels of before: NavSatFix only
     assert only_fix.suffix == "fix"
 
 

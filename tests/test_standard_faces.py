@@ -43,6 +43,7 @@ STANDARD = {
     "/rover/wheel_l/joint_states": "sensor_msgs/msg/JointState",
     "/rover/compass/field": "sensor_msgs/msg/MagneticField",
     "/rover/gps/fix": "sensor_msgs/msg/NavSatFix",
+    "/rover/gps/time_reference": "sensor_msgs/msg/TimeReference",
     "/power/battery/battery_state": "sensor_msgs/msg/BatteryState",
     "/power/bumper/active": "std_msgs/msg/Bool",
 }
@@ -204,3 +205,5 @@ def test_rospy_gets_the_standard_types_and_commands_with_float64(
         abs(got["/rig/servo/joint_states"][-1]["position"][0] - 0.5) <= math.radians(0.708661) / 2
     )
     assert got["/power/battery/battery_state"][-1]["voltage"] == pytest.approx(7.4, abs=0.01)
+    ref = got["/rover/gps/time_reference"][-1]  # a PPS edge's UTC: a whole second
+    assert ref["time_ref"] % 10**9 == 0 and ref["source"] == "gps", ref

@@ -84,7 +84,7 @@ def test_timed_calls_and_their_refusals() -> None:
     code, said = call(rt, "a2jAt", at(H0 + 11_000_000_000))
     assert code == 0xFF and b"beyond what the map vouches for" in said
     code, said = call(rt, "a2jAt", struct.pack("<qB", H0, 200) + width)
-    assert (code, said) == (0xFF, b"no such plain function")
+    assert (code, said) == (0xFF, b"only an actuator's call or a2jGoodbye can be timed")
     code, said = call(rt, "a2jAt", at(H0 + 2_000_000))
     assert code == 0 and struct.unpack("<Q", said)[0] == 5_002_000
     for k in range(7):

@@ -40,17 +40,17 @@ LINK_TIMEOUT = BoardSpec.link_timeout  # (the default: the config below does not
 
 @contextmanager
 def daemon(
-    tmp: Path, boards: dict[str, str], web: str = ""
+    tmp: Path, boards: dict[str, str], web: str = "", more: str = ""
 ) -> Iterator[tuple[str, dict[str, str]]]:
     """``missing-link run`` of ``boards`` (name -> sim) with the console on a free loopback port
-    (``web``: more of its [web] table) and a recording; its URL and the environment that
-    reaches its control endpoint."""
+    (``web``: more of its [web] table; ``more``: more of the configuration, e.g. ``[[board]]``
+    tables) and a recording; its URL and the environment that reaches its control endpoint."""
     procs, urls = [], []
     env = {**os.environ, "MISSING_LINK_CONTROL": str(tmp / "control.sock")}
     config = tmp / "daemon.toml"
     config.write_text(
         f'[daemon]\npublishers = ["bus", "mcap", "web"]\n[mcap]\npath = "{tmp / "rec"}"\n'
-        f"[web]\nport = 0\n{web}\n"
+        f"[web]\nport = 0\n{web}\n{more}\n"
     )
     daemon_proc = None
     try:

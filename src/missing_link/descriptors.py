@@ -335,6 +335,8 @@ def load_descriptor_file(path: str) -> list[Transducer]:
         doc = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise DescriptorError(path, f"not valid TOML: {e}") from e
+    except RecursionError:  # (tomllib recurses per level of nesting)
+        raise DescriptorError(path, "not valid TOML: nested too deeply") from None
     tables = doc.get("transducer")
     if not isinstance(tables, list) or not tables:
         raise DescriptorError(path, "expected one or more [[transducer]] tables")

@@ -13,8 +13,14 @@
 // One thing is not MicroPython's: raw-paste mode (Ctrl-E 'A' Ctrl-A) is declined with "R\x00",
 // as a board whose firmware does not offer it: this port's raw-paste reads stdin in a blocking
 // loop, which a callback-driven port cannot feed.  mpremote then uses the standard raw REPL.
+//
+// A flash that holds a main.py runs it at power-on, as a board does (serial_board_fw.py: the
+// firmware stepped here, its link the port, its parts the simulator's): the REPL comes only
+// after the break between frames stops it ("missing-link firmware stopped: REPL"), as flash
+// sends it first (deploy/flash.py).
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
-import { mkdirSync, readdirSync, readFileSync, rmSync, statSync, writeFileSync } from "node:fs";
+import { existsSync, mkdirSync, readdirSync, readFileSync, rmSync, statSync, writeFileSync }
+  from "node:fs";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 
@@ -65,12 +71,40 @@ function powerOff() {
   save("/flash/", flashDir);
 }
 
-// the board's filesystem: /flash of the runtime, mounted at / as a board mounts its flash
+// the board's filesystem: /flash of the runtime, mounted at / as a board mounts its flash; the
+// simulator's parts imported before (they are not on the board's flash)
 mkdirSync(flashDir, { recursive: true });
 mp.FS.mkdir("/flash");
 load(flashDir, "/flash/");
+const world = join(here, "..", "..", "src", "missing_link", "virtual", "world");
+mp.FS.mkdir("/sim");
+mp.FS.mkdir("/sim/simworld");
+for (const name of readdirSync(world).filter((n) => n.endsWith(".py"))) {
+  mp.FS.writeFile("/sim/simworld/" + name, readFileSync(join(world, name)));
+}
+mp.runPython("import sys\nsys.path.append('/sim')\nimport simworld.machine, simworld.parts\n" +
+  "sys.path.remove('/sim')");
 mp.runPython(readFileSync(join(here, "serial_board_fs.py"), "utf8"));
-mp.replInit(); // the banner and the friendly REPL, as at boot without a main.py
+let firmware = null; // main.py's firmware while it runs: { feed, step, timer }
+if (existsSync(join(flashDir, "main.py"))) {
+  mp.runPython(readFileSync(join(here, "serial_board_fw.py"), "utf8"));
+  if (mp.globals.get("_fw_running")()) {
+    firmware = { feed: mp.globals.get("_fw_feed"), step: mp.globals.get("_fw_step") };
+    firmware.timer = setInterval(stepFirmware, 5);
+  }
+}
+if (firmware === null) mp.replInit(); // the banner and the friendly REPL, as at boot without main.py
+
+function stepFirmware() {
+  const out = firmware.step();
+  if (out === "BREAK") {
+    clearInterval(firmware.timer);
+    firmware = null;
+    mp.replInit(); // main.py returned: the REPL
+  } else if (out) {
+    tx(Buffer.from(out, "hex"));
+  }
+}
 
 function feed(c) {
   const ret = mp.replProcessChar(c);
@@ -89,6 +123,11 @@ function feed(c) {
 
 let held = []; // a raw-paste request being recognised
 process.stdin.on("data", (data) => {
+  if (firmware !== null) {
+    firmware.feed(data.toString("hex"));
+    stepFirmware();
+    return;
+  }
   for (const c of data) {
     if ((held.length === 0 && atPrompt && c === 0x05) || (held.length === 1 && c === 0x41)) {
       held.push(c);

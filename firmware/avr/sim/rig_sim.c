@@ -14,7 +14,8 @@
  * Prints "PTY /dev/pts/N" when the board runs.  Simulated time is paced to the host's
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
- *   sharp MM | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   sharp MM | ain CH MV | srf02 CM | echo 0/1 | enc STEPS | glitch | pulse | stats | peek ADDR | quit
+ *   ain CH MV: MV millivolts on ADC channel CH (1..7; ADC0 is the Sharp's), e.g. a battery's divider
  *   srf02_absent 1/0: the SRF02 taken off the bus (no acknowledge at all), or put back
  *   lag: "lag US", the furthest simulated time fell behind the host's since last asked
  *   trig: the trigger pin's edges (OC2A: Uno D11 / Mega D10): "trig EDGES RISE_US FALL_US", the last
@@ -353,7 +354,7 @@ static char line[256];
 static size_t line_n;
 
 static void command(const char *cmd) {
-    int v;
+    int v, mv;
     if (rover && rover_command(cmd)) {
     } else if (sscanf(cmd, "sharp %d", &v) == 1) {
         sharp_mm = v;
@@ -393,6 +394,9 @@ static void command(const char *cmd) {
     } else if (strncmp(cmd, "trig", 4) == 0) {
         printf("trig %u %.3f %.3f\n", trig_edges, trig_rise ? board_us_at(trig_rise) : -1.0,
                trig_fall ? board_us_at(trig_fall) : -1.0);
+    } else if (sscanf(cmd, "ain %d %d", &v, &mv) == 2 && v >= 1 && v <= 7) { /* ADC1..7, mV */
+        avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + v), (uint32_t)mv);
+        printf("ok\n");
     } else if (strncmp(cmd, "adc", 3) == 0) {
         unsigned n = adc_n < ADC_LOG ? adc_n : ADC_LOG;
         printf("adc %u", n);

@@ -7,10 +7,12 @@
  *   HC-SR04  trig D24 (PA2), echo D53 (PB0): at the trigger pulse's falling edge the echo rises
  *            450 µs later for the round trip at 343.4 m/s (20 degC), or 38 ms with nothing in range
  *   GPS      NMEA at 9600 baud into USART1 (RX1), one byte per 10 bit times, each simulated
- *            second RMC then GGA after a PPS edge on D2 (PE4, INT4) 100 ms wide; every
- *            `bad`-th sentence with a wrong checksum
- * Control lines: motor | stepper | hcsr04 MM (0: nothing in range) | gps | gps bad N |
- *   gps fix Q */
+ *            second RMC (with its date) then GGA after a PPS edge on D2 (PE4, INT4) 100 ms
+ *            wide; every `bad`-th sentence with a wrong checksum.  UTC starts at 12:35:19 on
+ *            23 March 1994 (NMEA's own example) and the date turns at midnight.
+ * Control lines: motor | stepper | hcsr04 MM (0: nothing in range) | gps bad N | gps fix Q |
+ *   gps utc S (the next second is S s since 1970) | gps: "gps SENT PPS_US UTC", the newest PPS
+ *   edge in the board's us and its UTC second */
 #include "rover.h"
 
 #include <stdio.h>
@@ -86,8 +88,18 @@ static char gps_out[256];
 static size_t gps_len, gps_pos;
 static int gps_bad, gps_fix = 1;
 static unsigned gps_sent;
-static long gps_sec = -1;
+static long long gps_utc = 764426119 - 1; /* the current second's UTC, s since 1970 */
 static avr_cycle_count_t pps_cycle;
+
+/* days since 1970-01-01 -> the civil date (Gregorian), written as ddmmyy */
+static void nmea_date(long long days, char *out, size_t size) {
+    long long z = days + 719468, era = z / 146097, doe = z - era * 146097;
+    long long yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365;
+    long long doy = doe - (365 * yoe + yoe / 4 - yoe / 100), mp = (5 * doy + 2) / 153;
+    long long d = doy - (153 * mp + 2) / 5 + 1, m = mp < 10 ? mp + 3 : mp - 9;
+    long long y = yoe + era * 400 + (m <= 2);
+    snprintf(out, size, "%02lld%02lld%02lld", d, m, y % 100);
+}
 
 static void nmea(const char *body) {
     unsigned c = 0;
@@ -116,20 +128,21 @@ static avr_cycle_count_t pps_low(avr_t *a, avr_cycle_count_t when, void *param) 
 static avr_cycle_count_t gps_second(avr_t *a, avr_cycle_count_t when, void *param) {
     (void)a;
     (void)param;
-    gps_sec++;
+    gps_utc++;
     pps_cycle = when;
     avr_raise_irq(pps_irq, 1);
     avr_cycle_timer_register_usec(avr, 100000, pps_low, NULL);
-    long t = 12 * 3600 + 35 * 60 + 19 + gps_sec;
-    char hms[16], body[128];
-    snprintf(hms, sizeof hms, "%02ld%02ld%02ld.00", (t / 3600) % 24, (t / 60) % 60, t % 60);
+    long t = (long)(gps_utc % 86400);
+    char hms[16], date[16], body[128];
+    snprintf(hms, sizeof hms, "%02ld%02ld%02ld.00", t / 3600, (t / 60) % 60, t % 60);
+    nmea_date(gps_utc / 86400, date, sizeof date);
     gps_len = gps_pos = 0;
     if (gps_fix) {
-        snprintf(body, sizeof body, "GPRMC,%s,A,4807.0380,N,01131.0000,E,022.4,084.4,230394,003.1,W", hms);
+        snprintf(body, sizeof body, "GPRMC,%s,A,4807.0380,N,01131.0000,E,022.4,084.4,%s,003.1,W", hms, date);
         nmea(body);
         snprintf(body, sizeof body, "GPGGA,%s,4807.0380,N,01131.0000,E,%d,08,0.9,545.4,M,46.9,M,,", hms, gps_fix);
     } else {
-        snprintf(body, sizeof body, "GPRMC,%s,V,,,,,022.4,084.4,230394,003.1,W", hms);
+        snprintf(body, sizeof body, "GPRMC,%s,V,,,,,022.4,084.4,%s,003.1,W", hms, date);
         nmea(body);
         snprintf(body, sizeof body, "GPGGA,%s,,,,,0,08,0.9,,M,46.9,M,,", hms);
     }
@@ -155,6 +168,7 @@ void rover_init(avr_t *a, double (*board_us)(avr_cycle_count_t cycle)) {
 
 int rover_command(const char *cmd) {
     int v;
+    long long utc;
     if (!strncmp(cmd, "motor", 5)) {
         printf("motor %.4f %d %.4f %d\n", duty(0), avr->data[PORTA] & 1, duty(1),
                avr->data[PORTA] >> 1 & 1);
@@ -170,8 +184,11 @@ int rover_command(const char *cmd) {
     } else if (sscanf(cmd, "gps fix %d", &v) == 1) {
         gps_fix = v;
         printf("ok\n");
+    } else if (sscanf(cmd, "gps utc %lld", &utc) == 1) {
+        gps_utc = utc - 1;
+        printf("ok\n");
     } else if (!strncmp(cmd, "gps", 3)) {
-        printf("gps %u %.3f\n", gps_sent, pps_cycle ? rig_board_us(pps_cycle) : -1.0);
+        printf("gps %u %.3f %lld\n", gps_sent, pps_cycle ? rig_board_us(pps_cycle) : -1.0, gps_utc);
     } else {
         return 0;
     }

@@ -2,7 +2,8 @@
  * (`failsafe_ms` per actuator), functions (a2jGoodbye, a2jFailsafe), debug texts and a log line
  * (WARN) per trip.  An
  * actuator is armed by a command it takes and trips once when the host has been silent for its
- * failsafe_ms (runtime.c notes every intact frame from the host).  Timed calls not yet carried
+ * failsafe_ms (runtime.c notes every intact request for a function of the table:
+ * damaged frames, and error frames heard back, are not the host).  Timed calls not yet carried
  * out (timing.c) are dropped on a2jGoodbye, and those due after the moment the host had been
  * silent for the shortest failsafe_ms: a timed call names a function, not an actuator, so the
  * shortest guards them all. */

@@ -1,13 +1,18 @@
 /* A GPS receiver's NMEA 0183: the same sentences, checks, channels and stamps as
- * board/drivers/gps_nmea.py (Python), which says what they are.  On the Mega's USART1 (RX1 D19,
- * TX1 D18; the Uno's only UART is the J2A link), bytes go into a ring by interrupt, a '$' stamped
- * with Timer1's count as it arrives; the PPS edge on INT4 (D2) likewise.  The main loop parses
- * whole lines, in integer maths. */
+ * board/drivers/gps_nmea.py (Python), which says what they are (channels 8 and 9: the UTC day
+ * and ms of day of the PPS edge a whole second's fix is stamped at).  On the Mega's USART1 (RX1
+ * D19, TX1 D18; the Uno's only UART is the J2A link), bytes go into a ring by interrupt, a '$'
+ * stamped with Timer1's count as it arrives; the PPS edge on INT4 (D2) likewise, at the
+ * interrupt's entry: 1.875 us after the edge in simavr, and later by whatever interrupt was
+ * running then (Timer1's overflow, the link's UART: up to 3.875 us measured with the host
+ * calling a2jEcho without a pause, tests/test_avr_rover.py).  The main loop parses whole
+ * lines, in integer maths. */
 #include "gps_nmea.h"
 
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <string.h>
+#include <util/atomic.h>
 
 #include "hal.h"
 #include "log.h"
@@ -29,6 +34,7 @@ static uint8_t line_n, in_line;
 static uint64_t line_us;
 static char rmc_time[12];
 static int32_t rmc_speed, rmc_course; /* NA_I32 when none */
+static int32_t rmc_day = -1, rmc_tod;  /* the last valid RMC's date (days since 1970), time (ms) */
 uint16_t gps_sentences, gps_checksum_errors, gps_overruns;
 
 ISR(USART1_RX_vect) {
@@ -124,11 +130,56 @@ static int32_t coord(const char *s, uint8_t n, char hemi, uint8_t deg_digits) {
     return hemi == 'S' || hemi == 'W' ? -e7 : e7;
 }
 
+/* n digits at s, or -1 when one is not a digit */
+static int32_t number(const char *s, uint8_t n) {
+    for (uint8_t i = 0; i < n; i++)
+        if (s[i] < '0' || s[i] > '9') return -1;
+    return digits(s, n);
+}
+
+/* "hhmmss[.sss]" -> ms since midnight; -1 when it is none (or a leap second: POSIX has none) */
+static int32_t time_of_day_ms(const char *s, uint8_t n) {
+    if (n < 6 || (n > 6 && s[6] != '.')) return -1;
+    int32_t h = number(s, 2), m = number(s + 2, 2), sec = number(s + 4, 2), ms = 0;
+    if (h < 0 || m < 0 || sec < 0 || h > 23 || m > 59 || sec > 59) return -1;
+    for (uint8_t i = 7; i < 10; i++) ms = ms * 10 + (i < n && s[i] >= '0' && s[i] <= '9' ? s[i] - '0' : 0);
+    return ((h * 60 + m) * 60 + sec) * 1000L + ms;
+}
+
+/* RMC's "ddmmyy" -> days since 1970-01-01 (years 80-99: 19yy, else 20yy); -1 when none */
+static int32_t date_days(const char *s, uint8_t n) {
+    if (n != 6) return -1;
+    int32_t d = number(s, 2), m = number(s + 2, 2), y = number(s + 4, 2);
+    if (d < 1 || d > 31 || m < 1 || m > 12 || y < 0) return -1;
+    y += y >= 80 ? 1900 : 2000;
+    if (m <= 2) y--; /* (the days before each March: February's leap day is the year's last) */
+    int32_t doy = (153 * (m + (m > 2 ? -3 : 9)) + 2) / 5 + d - 1;
+    return y * 365 + y / 4 - y / 100 + y / 400 + doy - 719468;
+}
+
+/* v[8], v[9]: the UTC day and ms of day of the GGA's time (tm), the day from the last valid
+ * RMC's date: the same second's or the one before's (gps_nmea.py's _utc) */
+static void utc(const char *tm, uint8_t n, int32_t *v) {
+    int32_t tod = time_of_day_ms(tm, n);
+    if (rmc_day < 0 || tod < 0) return;
+    int32_t day = rmc_day, since = tod - rmc_tod;
+    if (since < 0) { /* (midnight between the RMC and this GGA) */
+        day++;
+        since += 86400000L;
+    }
+    if (since > 1000) {
+        rmc_day = -1; /* a date is never carried further */
+        return;
+    }
+    v[8] = day;
+    v[9] = tod;
+}
+
 static void gga(const char *b, uint64_t at_us) {
     uint8_t n, hn;
     const char *q = field(b, 6, &n);
     int32_t quality = n ? digits(q, n) : 0;
-    int32_t v[8];
+    int32_t v[10];
     const char *lat = field(b, 2, &n), *h = field(b, 3, &hn);
     v[0] = quality ? coord(lat, n, hn ? *h : 'N', 2) : (int32_t)NA_I32;
     const char *lon = field(b, 4, &n);
@@ -142,23 +193,32 @@ static void gga(const char *b, uint64_t at_us) {
     const char *hdop = field(b, 8, &n);
     v[5] = decimal(hdop, n, 100);
     const char *tm = field(b, 1, &n);
-    v[6] = v[7] = (int32_t)NA_I32;
+    v[6] = v[7] = v[8] = v[9] = (int32_t)NA_I32;
     if (n < sizeof rmc_time && !strncmp(tm, rmc_time, n) && rmc_time[n] == 0) {
         v[6] = rmc_speed;
         v[7] = rmc_course;
     }
     uint64_t stamp = at_us;
-    if (pps_seen) {
-        uint64_t pps = clock_at(pps_w, pps_t);
+    uint32_t w;
+    uint16_t t;
+    uint8_t seen;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { /* (the next edge's interrupt may come meanwhile) */
+        w = pps_w;
+        t = pps_t;
+        seen = pps_seen;
+    }
+    if (seen) {
+        uint64_t pps = clock_at(w, t);
         if (at_us >= pps && at_us - pps < PPS_VALID_US) {
             uint32_t frac_us = 0;
             uint8_t i = 0;
             while (i < n && tm[i] != '.') i++;
             for (uint8_t d = 0; d < 6; d++) frac_us = frac_us * 10 + (i + 1 + d < n ? tm[i + 1 + d] - '0' : 0);
             stamp = pps + frac_us;
+            if (!frac_us) utc(tm, n, v); /* the fix of the edge's own second: its UTC */
         }
     }
-    for (uint8_t ch = 0; ch < 8; ch++) {
+    for (uint8_t ch = 0; ch < 10; ch++) {
         if ((uint32_t)v[ch] == NA_I32) record_na(gt, ch, stamp);
         else record(gt, ch, (uint32_t)v[ch], stamp);
     }
@@ -177,6 +237,10 @@ static void rmc(const char *b) {
     rmc_speed = valid && (uint32_t)knots != NA_I32 ? (int32_t)((int64_t)knots * 1852 / 3600) : (int32_t)NA_I32;
     const char *co = field(b, 8, &n);
     rmc_course = valid ? decimal(co, n, 100) : (int32_t)NA_I32;
+    const char *date = field(b, 9, &n);
+    rmc_day = valid ? date_days(date, n) : -1;
+    rmc_tod = time_of_day_ms(tm, (uint8_t)strlen(rmc_time));
+    if (rmc_tod < 0) rmc_day = -1;
 }
 
 static void bad_sentence(void) { /* dropped, counted; the first said (log.c) */

@@ -21,7 +21,8 @@ enum {
     FAULT_RAISED_TIMED,
     FAULT_RAISED_SAFE,
     FAULT_STORAGE,
-    FAULT_BAD_REPLY
+    FAULT_BAD_REPLY,
+    FAULT_ECHOED /* a request whose opcode is an error code: an error frame heard back */
 };
 
 /* A line: text_P (and then more_P, either may be 0) from flash, if the budget allows. */

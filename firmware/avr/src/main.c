@@ -9,6 +9,8 @@
 #include "runtime.h"
 #include "timing.h"
 
+#define FEED_PER_TURN 32 /* the UART's receive ring (hal.c) */
+
 #ifndef BOARD_BAUD
 #define BOARD_BAUD 115200UL
 #endif
@@ -45,7 +47,9 @@ int main(void) {
     for (;;) {
         uint8_t b;
         uint64_t rx_us;
-        while (link_read(&b, &rx_us)) {
+        /* At most a ring's worth of bytes a turn: a stream whose error replies outrun it (a
+         * 7-byte F2 for every 2 bytes of cut frames) must not keep the failsafe from its turn. */
+        for (uint8_t k = 0; k < FEED_PER_TURN && link_read(&b, &rx_us); k++) {
 #ifdef J2A_PROFILE
             uint16_t t0 = TCNT1;
             runtime_feed(b, rx_us);

@@ -42,6 +42,8 @@ char clock_epoch[9];
 
 static void tx(uint8_t b) { link_write(b); }
 
+uint8_t *runtime_scratch(void) { return scratch; }
+
 void runtime_debug(const char *text) {
     while (*text && debug_len < sizeof debug_text) debug_text[debug_len++] = *text++;
 }
@@ -87,9 +89,12 @@ static uint8_t mapping_at(uint16_t k) {
 const blob_t mapping_blob = {mapping_len, mapping_at};
 
 uint8_t get_mapping(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
-    /* As much as fits in one reply, cut at a name boundary (the full table: GetMappingMany). */
+    /* As much as fits in one reply, cut at a name boundary (the full table: GetMappingMany).
+     * A request with a payload (spec 1.6: len 0) is this board's own reply of 0 heard back:
+     * answering it with another 0 would echo for ever (and feed the failsafe): 0xFF. */
     (void)in;
-    (void)n;
+    *out_n = 0;
+    if (n) return 0xFF;
     uint16_t total = mapping_len(), cut = 0;
     for (uint16_t k = 0; k < total && k < 255; k++) {
         out[k] = mapping_at(k);
@@ -228,7 +233,14 @@ void runtime_feed(uint8_t b, uint64_t rx_us) {
     uint8_t ev = frame_parser_feed(&parser, b);
     if (ev == EV_NONE) return;
     if (ev == EV_REQUEST) {
-        runtime_last_frame_us = rx_us; /* an intact frame: the host is there (failsafe.c) */
+        if (parser.op >= ERR_INDEX && parser.op <= ERR_ESCAPE) {
+            /* an error code is never a function's index: an error frame of this board's heard
+             * back (RS-485 hearing itself, a tty echoing): not the host, and not answered */
+            log_fault_P(LOG_BOARD, FAULT_ECHOED, 0);
+            return;
+        }
+        /* a request for a function of the table: the host is there (failsafe.c) */
+        if (parser.op < board_function_count) runtime_last_frame_us = rx_us;
         request_us = rx_us;
         dispatch(parser.seq, parser.op, parser.buf, parser.n);
     } else if (parser.has_seq) {
@@ -243,7 +255,7 @@ static uint8_t sif_payload(transducer_t *t, uint64_t now) {
     /* [t0 v0 t1 v1 ...]; channels without a new value carry N/A, stamped now */
     uint8_t k = 0;
     for (uint8_t ch = 0; ch < t->chan_count; ch++) {
-        uint8_t has = t->pending & (1u << ch);
+        uint16_t has = t->pending & (1u << ch);
         put_u64(scratch + k, has ? t->stamps[ch] : now);
         k += 8;
         uint32_t v = has ? t->values[ch] : t->na;
@@ -290,12 +302,12 @@ static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
     if (t->pending & (1u << ch)) {
         if (!flush_sif(t, stamp)) { /* no room: the older value goes, counted */
             sifs_dropped++;
-            t->pending &= (uint8_t)~(1u << ch);
+            t->pending &= (uint16_t)~(1u << ch);
         }
     }
     t->stamps[ch] = stamp;
     t->values[ch] = raw;
-    t->pending |= (uint8_t)(1u << ch);
+    t->pending |= (uint16_t)(1u << ch);
 }
 
 void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us) {

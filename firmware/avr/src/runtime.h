@@ -40,10 +40,10 @@ enum { DT_INT8 = 0, DT_UINT8, DT_INT16, DT_UINT16, DT_INT32, DT_UINT32, DT_FLOAT
 typedef struct {
     uint8_t tid;
     uint8_t dtype;
-    uint8_t chan_count; /* at most 8 on AVR */
+    uint8_t chan_count; /* at most 16 on AVR (pending) */
     uint8_t size;       /* bytes per value */
     uint32_t na;        /* N/A value, raw little-endian bits */
-    volatile uint8_t pending; /* bit per channel with an unsent value */
+    volatile uint16_t pending; /* bit per channel with an unsent value */
     uint64_t *stamps;   /* chan_count stamps (board µs) */
     uint32_t *values;   /* chan_count raw values */
     uint16_t values_dropped;
@@ -68,6 +68,9 @@ void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us);
 /* A SIF whose payload is head[0..hn) then the flash strings a, b (0: none), written whole into
  * the UART's ring if it has room; 1 if it was, 0 if not (nothing written).  The log's (log.c). */
 uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b);
+/* The 255-byte buffer replies are made in: a timed call's reply, which goes nowhere (timing.c),
+ * is made there too, between two turns of the main loop. */
+uint8_t *runtime_scratch(void);
 void runtime_debug(const char *text);
 void runtime_debug_P(const char *text); /* from flash */
 extern uint64_t runtime_last_frame_us;  /* when the last intact frame came (failsafe.c) */

@@ -6,8 +6,13 @@
  * converts both ways in 64-bit integer maths (floor division, as Python's //); a map with a
  * rate off by more than 10 % or references beyond those sums is refused, the one before kept.
  * A map vouches for board times within MAP_LIFE_US of its reference.  a2jAt [q host ns][B function][payload]
- * calls a plain function at the tick the host time maps to (reply: 0 + [Q tick]) or refuses:
- * no valid map, past, beyond what the map vouches for, queue full, no such function.  A call
+ * calls a function at the tick the host time maps to (reply: 0 + [Q tick]) or refuses: no valid
+ * map, past, beyond what the map vouches for, queue full, or not timeable.  Only an actuator's
+ * command or a2jGoodbye can be timed (timeable(): as board/timing.py); a2jAt of a2jAt, of
+ * a2jMany (no handler: a call through address 0) or of a reader is refused when asked.  A
+ * timed call runs with the whole 255-byte scratch buffer for its reply (which goes nowhere):
+ * the contract of every plain function.  One its function refuses when due is counted as
+ * refused, not done, and said in the log (WARN).  A call
  * the hardware can make on its own at the tick (the trigger: Timer2's compare A, trigger.c)
  * is handed to it; every other one runs from the main loop when due (its latency: the loop's).
  * A call not yet carried out is dropped, counted, when the host is gone (timing_cancel, from
@@ -20,6 +25,7 @@
 #include <avr/pgmspace.h>
 #include <string.h>
 
+#include "failsafe.h"
 #include "hal.h"
 #include "log.h"
 #include "runtime.h"
@@ -137,6 +143,18 @@ static uint8_t utoa_at(uint8_t *out, uint8_t k, uint32_t v) {
     return k;
 }
 
+/* An actuator's command (a board file's call=: avrgen.py puts only those in the table under
+ * names that are not a2j + a capital, which boardfile.py keeps for the firmware's own) or
+ * a2jGoodbye; f is function fn of the table. */
+static uint8_t timeable(const function_t *f, uint8_t fn) {
+    if (f->kind != KIND_PLAIN || !f->plain) return 0;
+    if (f->plain == failsafe_goodbye) return 1;
+    const char *name = (const char *)pgm_read_ptr(&board_functions[fn].name);
+    char c = (char)pgm_read_byte(name + 3);
+    return !(pgm_read_byte(name) == 'a' && pgm_read_byte(name + 1) == '2' &&
+             pgm_read_byte(name + 2) == 'j' && c >= 'A' && c <= 'Z');
+}
+
 uint8_t timing_at(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     *out_n = 0;
     if (n < 9) {
@@ -149,8 +167,8 @@ uint8_t timing_at(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     timing_refused++;
     function_t f;
     if (fn < board_function_count) function_get(fn, &f);
-    if (fn >= board_function_count || f.kind != KIND_PLAIN) {
-        *out_n = say(out, PSTR("no such plain function"));
+    if (fn >= board_function_count || !timeable(&f, fn)) {
+        *out_n = say(out, PSTR("only an actuator's call or a2jGoodbye can be timed"));
         return 0xFF;
     }
     if (n - 9 > TIMED_PAYLOAD) { /* (AVR only: the queue's entries are small) */
@@ -197,14 +215,19 @@ uint8_t timing_at(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
 }
 
 void timing_poll(uint64_t now) {
-    uint8_t reply[16], reply_n; /* (what the function answers goes nowhere) */
+    uint8_t reply_n; /* (what the function answers goes nowhere: into the scratch buffer) */
     for (uint8_t i = 0; i < TIMED_QUEUE; i++) {
         if (queue[i].used && queue[i].tick <= now) {
-            queue[i].used = 0;
+            queue[i].used = 0; /* (first: a timed a2jGoodbye empties the queue on its way) */
             function_t f;
             function_get(queue[i].fn, &f);
-            f.plain(queue[i].payload, queue[i].n, reply, &reply_n);
-            timing_done++;
+            if (f.plain(queue[i].payload, queue[i].n, runtime_scratch(), &reply_n) == 0) {
+                timing_done++;
+            } else { /* refused when due (disabled meanwhile, a value it does not take) */
+                timing_refused++;
+                log_line_P(LOG_WARN, LOG_BOARD, PSTR("a timed call refused when due: "),
+                           (const char *)pgm_read_ptr(&board_functions[queue[i].fn].name));
+            }
         }
     }
 }

@@ -5,8 +5,9 @@
 # -------------------
 # Every actuator whose driver has make_safe() gets a run-time key `failsafe_ms` (config.py; the
 # board file's `failsafe_ms`, default 500; 0 = never).  The runtime notes when the last intact
-# frame came from the host (a request with a good checksum: damaged frames, line noise, are no
-# sign of a living host).  An actuator that took a command (runtime.gated arms it) and then
+# frame came from the host (a request with a good checksum for a function of its table: damaged
+# frames, line noise, the board's own error frames heard back are no sign of a living host).
+# An actuator that took a command (runtime.gated arms it) and then
 # hears no such frame from the host for its `failsafe_ms` is brought to its safe state by its
 # driver - a motor coasts or brakes, a stepper stops and lets go, a servo holds its last pulse
 # or goes limp, as its keys say - which reports it as a sample stamped when it happened; a line

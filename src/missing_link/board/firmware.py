@@ -13,7 +13,9 @@
 # Firmware.step() is one turn of the board's loop: read what the link has, feed it to the runtime
 # (which answers requests at once), let the drivers run (poll), write replies then SIFs.
 # Firmware.run() repeats it for ever, sleeping on the link until input or the next driver
-# deadline.  The simulator calls step() itself.
+# deadline.  The simulator calls step() itself.  Both keep the whole loop under one guard: an
+# exception anywhere in it (a turn, a driver's deadline, the link's wait) stops the firmware
+# only after it made every armed actuator safe.
 #
 # The way back to the REPL: the link turns Ctrl-C off (a 0x03 inside a frame is data), and the
 # break is a sequence between frames that line noise does not make: "\x03\x03repl" then CR or
@@ -131,9 +133,8 @@ def build(board, machine, clock=None, store=None):
     rt.failsafe = Failsafe(rt)  # actuators made safe when the host is gone (ditto)
     rt.config = RuntimeConfig(rt, store)
     rt.add_function("a2jLogInfo", rt.log.info)  # the log's counts (log.py)
-    heap = _heap()
-    if heap is not None:
-        rt.memory = Memory(rt, heap)  # (last: its first collection takes what the build left)
+    heap = _heap()  # (memory last: its first collection takes what the build left)
+    rt.memory = Memory(rt, heap) if heap is not None else None  # (memory.py: a2jMemory)
     return rt, drivers
 
 
@@ -156,11 +157,23 @@ class Firmware:
         try:
             self._turn()
         except BaseException as e:  # noqa: BLE001 - made safe, then on its way (re-raised)
-            why = "the break to the REPL" if isinstance(e, BreakIn) else "%s" % e
-            self.runtime.failsafe.stop("the firmware stops: %s" % why)
-            if not isinstance(e, BreakIn):
-                self._last_words("%s: %s" % (type(e).__name__, e))
+            self._stops(e)
             raise
+
+    def _stops(self, e):
+        # Whatever stops the loop, nothing it drove goes on: every armed actuator safe (and
+        # should that raise too - no memory left - every actuator's make_safe, unsaid).
+        why = "the break to the REPL" if isinstance(e, BreakIn) else "%s" % e
+        try:
+            self.runtime.failsafe.stop("the firmware stops: %s" % why)
+        except BaseException:  # noqa: BLE001 - the last resort: safe, whatever it costs
+            for t in self.runtime.transducers:
+                try:
+                    t.driver.make_safe()
+                except BaseException:  # noqa: BLE001 - (an actuator without one; the others)
+                    pass
+        if not isinstance(e, BreakIn):
+            self._last_words("%s: %s" % (type(e).__name__, e))
 
     def _last_words(self, why):
         # A crash: the host hears why (the log, ERROR), if the link still takes it.
@@ -194,18 +207,26 @@ class Firmware:
         return 0, struct.pack("<IIII", n[0], n[1], n[2], n[3])
 
     def run(self):
+        try:
+            while True:
+                self._turn()
+                self._rest()
+        except BaseException as e:  # noqa: BLE001 - the whole loop, its waits too: made safe
+            self._stops(e)
+            raise
+
+    def _rest(self):
+        # Sleep on the link until input or the next deadline (none near a timed call).
         rt = self.runtime
-        while True:
-            self.step()
-            precise = rt.timing.next_precise_us()
-            if precise is not None and precise - rt.clock() < SPIN_US:
-                continue  # a timed call is near: no sleep (the link's wait is in ms)
-            due = rt.next_deadline_us()
-            if precise is not None and due is not None and precise - SPIN_US < due:
-                due = precise - SPIN_US
-            wait = 10000 if due is None else due - rt.clock()
-            if wait > 0:
-                self.link.wait(min(wait, 10000))
+        precise = rt.timing.next_precise_us()
+        if precise is not None and precise - rt.clock() < SPIN_US:
+            return  # a timed call is near: no sleep (the link's wait is in ms)
+        due = rt.next_deadline_us()
+        if precise is not None and due is not None and precise - SPIN_US < due:
+            due = precise - SPIN_US
+        wait = 10000 if due is None else due - rt.clock()
+        if wait > 0:
+            self.link.wait(min(wait, 10000))
 
 
 def main(board=None):

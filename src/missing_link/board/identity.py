@@ -4,21 +4,26 @@
 # board.id is stable and unique: on MicroPython the chip's own machine.unique_id() (in hex), on
 # a virtual board its seed (or the directory standing for its flash), on AVR a serial written
 # into the EEPROM at flash time (firmware/avr/src/identity.c).  fw.hash says which firmware
-# runs: the first 16 hex digits of a SHA-256 over the runtime's files, each as
+# runs: the first 16 hex digits of a SHA-256 over the runtime's files and the board file, each as
 #
-#     path "\0" size "\0" bytes          (path relative to the runtime's folder, "/"-separated)
+#     path "\0" size "\0" bytes          (path relative to the runtime's folder, "/"-separated;
+#                                         the board file's is "board.py")
 #
-# in the order of their paths.  The board hashes the files it has (its lib/mlboard, read in
-# chunks: a board has little RAM); `missing-link flash` hashes the same files before it copies
-# them, and compares after the reset (deploy/flash.py).  Only .py files count: what MicroPython
-# runs (no __pycache__).
+# in the order of their paths.  The board file is part of the firmware, as its tables are of an
+# AVR image: an update that changes a rate changes the hash (board/update.py).  The board hashes
+# the files it has (its lib/mlboard and the board file it imported, read in chunks: a board has
+# little RAM); `missing-link flash` hashes the same files before it copies them, and compares
+# after the reset (deploy/flash.py).  Only .py files count: what MicroPython runs (no
+# __pycache__).
 #
 # MicroPython subset: hashlib.sha256 and os.listdir/os.stat, nothing else.
 
 import hashlib
 import os
+import sys
 
 HASH_DIGITS = 16
+BOARD_FILE = "board.py"  # the board file's path in the hash
 _CHUNK = 512
 _DIR = 0x4000  # S_IFDIR in os.stat()[0], on MicroPython and CPython
 
@@ -83,24 +88,36 @@ def _walk(root, rel, out, buf, view):
             out.add(path, st[6], _file_chunks(full, buf, view))
 
 
-def tree_hash(root):
-    # fw.hash of the runtime files under root (a folder: the board's lib/mlboard)
+def tree_hash(root, board_file=None):
+    # fw.hash of the runtime files under root (a folder: the board's lib/mlboard) and the board
+    # file at board_file (None: a runtime without one, a virtual board's)
     out = FirmwareHash()
     buf = bytearray(_CHUNK)
-    _walk(root, "", out, buf, memoryview(buf))
+    view = memoryview(buf)
+    _walk(root, "", out, buf, view)
+    if board_file is not None:
+        out.add(BOARD_FILE, os.stat(board_file)[6], _file_chunks(board_file, buf, view))
     return out.digest()
+
+
+def board_file_path():
+    # the file of the board file module this firmware imported (`board`), or None
+    mod = sys.modules.get("board")
+    path = getattr(mod, "__file__", None)
+    return path if isinstance(path, str) and path.endswith(".py") else None
 
 
 _cached = []
 
 
 def runtime_hash():
-    # fw.hash of this runtime, as it runs here (the folder of this module), once per boot;
-    # "" where it cannot be read (frozen into the firmware image: no files)
+    # fw.hash of this runtime, as it runs here (the folder of this module), and of the board
+    # file it runs, once per boot; "" where it cannot be read (frozen into the firmware image:
+    # no files)
     if not _cached:
         try:
             here = __file__.replace("\\", "/")
-            _cached.append(tree_hash(here[: here.rfind("/")]))
+            _cached.append(tree_hash(here[: here.rfind("/")], board_file_path()))
         except (OSError, NameError, ValueError):
             _cached.append("")
     return _cached[0]

@@ -55,6 +55,7 @@ RAISED_TIMED = 9  # a timed call raised (timing.py)
 RAISED_SAFE = 10  # making an actuator safe raised (failsafe.py)
 STORAGE = 11  # the configuration's storage failed (config.py)
 BAD_REPLY = 12  # a function answered what J2A cannot carry
+ECHOED = 13  # a request whose opcode is an error code (0xF0..0xF4): an error frame heard back
 
 HEAD = "<QBBBH"
 HEAD_LEN = 13

@@ -33,7 +33,7 @@ import struct
 
 from .clock import default_clock, new_epoch
 from .identity import runtime_hash
-from .log import BAD_REPLY, ERROR, LOG_CMD, RAISED_CALL, SOURCE_BOARD, BoardLog, SourceLog
+from .log import BAD_REPLY, ECHOED, ERROR, LOG_CMD, RAISED_CALL, SOURCE_BOARD, BoardLog, SourceLog
 from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
     EV_BREAK,
@@ -72,6 +72,8 @@ DIAG_SILENCE = 2
 DIAG_CHECKSUM = 3
 DIAG_ESCAPE = 4
 DIAG_INDEX = 5
+_DAMAGED = {EV_CUT: (ERR_TIMEOUT, DIAG_CUT), EV_CHECKSUM: (ERR_CHECKSUM, DIAG_CHECKSUM),
+            EV_ESCAPE: (ERR_ESCAPE, DIAG_ESCAPE)}  # fmt: skip
 
 
 def read_blob(blob, offset):
@@ -114,8 +116,7 @@ class BoardRuntime:
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
         self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
-        self.memory = None  # the heap's figures and garbage collection (memory.py: a2jMemory)
-        self.last_frame_us = 0  # when the last intact frame came from the host (the failsafe's)
+        self.last_frame_us = 0  # when the host's last request (an intact frame) came: failsafe
         self.sifs_dropped = 0
         self.sifs_sent = 0
         self.calls = 0
@@ -282,7 +283,7 @@ class BoardRuntime:
                 self._queue_sif(t, now)
         self.log.poll(now)  # a count of dropped log lines, when the budget has room
         if self.parser.in_frame() and now - self._last_byte_us > INTERBYTE_TIMEOUT_US:
-            ev = self.parser.abort()
+            ev, self._last_byte_us = self.parser.abort(), now  # (its tail is no break: wire.py)
             if ev is not None and ev[1] is not None:
                 self._error(ev[1], ERR_TIMEOUT, DIAG_SILENCE)
 
@@ -343,18 +344,17 @@ class BoardRuntime:
         for ev in self.parser.feed(data):
             tag = ev[0]
             if tag == EV_REQUEST:
-                # an intact frame: the host is there (the failsafe; line noise is not)
-                self.last_frame_us = self._last_byte_us
+                if ERR_INDEX <= ev[2] <= ERR_ESCAPE:  # an error frame heard back: not the host
+                    self.log.fault(SOURCE_BOARD, ECHOED, "")
+                    continue
+                if ev[2] < len(self.functions):  # a request of the host's: it is there
+                    self.last_frame_us = self._last_byte_us
                 self._dispatch(ev[1], ev[2], ev[3])
             elif tag == EV_BREAK:
                 self.breaks += 1
-            elif ev[1] is not None:
-                if tag == EV_CUT:
-                    self._error(ev[1], ERR_TIMEOUT, DIAG_CUT)
-                elif tag == EV_CHECKSUM:
-                    self._error(ev[1], ERR_CHECKSUM, DIAG_CHECKSUM)
-                elif tag == EV_ESCAPE:
-                    self._error(ev[1], ERR_ESCAPE, DIAG_ESCAPE)
+            elif ev[1] is not None:  # damaged after its seq: its error frame (spec 1.11)
+                code, diag = _DAMAGED[tag]
+                self._error(ev[1], code, diag)
 
     def _error(self, seq, code, diag):
         self._replies.append(encode_frame(SOF, seq, code, bytes(((diag >> 8) & 0xFF, diag & 0xFF))))
@@ -420,6 +420,8 @@ class BoardRuntime:
 
     def _get_mapping(self, payload):
         # As much as fits, cut at a name boundary; the full table is in a2jGetMappingMany.
+        if payload:  # (spec 1.6: len 0) a reply of 0 heard back: no 0 again, to echo for ever
+            return 0xFF, b""
         blob = self.mapping_blob()
         if len(blob) > 255:
             blob = blob[: blob.rfind(b"\0", 0, 255) + 1]

@@ -15,23 +15,28 @@
 #   counted (`unaligned`): never silently misaligned.
 # * timed calls: a2jAt [q host ns][B function index][payload] calls that function at the tick
 #   the host time maps to (reply: 0 + [Q board tick]), or refuses when the time is past, when
-#   it lies beyond what the map vouches for, or when no map is there.  The queue holds at most
-#   QUEUE entries.  The shell asks `next_precise_us()` to be on time (the MicroPython firmware
-#   stops sleeping for the last stretch).  While a call runs, `acting_tick` is the tick it was
-#   due at: a driver that models a timer-compare output (the virtual boards' trigger) acts at
-#   that tick, however late the process got round to it.
+#   it lies beyond what the map vouches for, or when no map is there.  Only an actuator's
+#   command (a function a transducer's `call=` names) or a2jGoodbye (a host that means to stop
+#   at a time) can be timed: anything else - a2jAt itself, a2jMany, a reader whose reply would
+#   go nowhere - is refused when asked (NOT_TIMEABLE), the same on AVR (timing.c).  The queue
+#   holds at most QUEUE entries.  The shell asks `next_precise_us()` to be on time (the
+#   MicroPython firmware stops sleeping for the last stretch).  While a call runs,
+#   `acting_tick` is the tick it was due at: a driver that models a timer-compare output (the
+#   virtual boards' trigger) acts at that tick, however late the process got round to it.
 # * a queued call is a command the host gave and the board has not yet carried out: when the
 #   host is gone it must not be carried out at all.  cancel() drops the whole queue, counted
 #   (`cancelled`) and said in a2jDebug and the log (WARN); the failsafe (failsafe.py) calls it
 #   on a2jGoodbye, and when the host has been silent (no intact frame) for the board's shortest
 #   failsafe_ms: then for the calls due after that moment (one due until then, the host still
-#   there, runs, if late).  A timed call that raises is said once (ERROR) and counted.
+#   there, runs, if late).  A timed call that raises is said once (ERROR) and counted; one
+#   its function refuses when due (not 0: a transducer disabled meanwhile, a value it does not
+#   take) is counted as refused, not done, and said in the log (WARN).
 # * next_instant(now): the soonest board tick the board must be on time for (a timed call, or an
 #   aligned transducer's next grid instant; its measurement if that is due already), so that
 #   the firmware can keep its own pauses off it (a garbage collection: memory.py).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
-#                 [I timed calls refused]: what the daemon shows per board.
+#                 [I timed calls refused, when asked or when due]: what the daemon shows.
 #
 # Integer maths only (MicroPython's floats may be 32 bit; its ints are arbitrary precision).
 
@@ -43,6 +48,7 @@ MAP_LIFE_US = 10000000
 QUEUE = 8
 _BILLION = 1000000000
 _MILLION = 1000000
+NOT_TIMEABLE = b"only an actuator's call or a2jGoodbye can be timed"
 
 
 class Timing:
@@ -52,8 +58,9 @@ class Timing:
         self.done = 0
         self.refused = 0
         self.cancelled = 0  # queued calls dropped: the host said goodbye or went silent
-        self._queue = []  # (board tick, handler, payload), soonest first
+        self._queue = []  # (board tick, handler, payload, name), soonest first
         self.acting_tick = None  # while a timed call runs: the tick it was due at
+        self.calls = None  # the actuators' commands a2jAt takes (None: the transducers' call=)
         runtime.add_function("a2jAt", self._at)
         runtime.add_function("a2jAlignInfo", self._info)
 
@@ -103,9 +110,9 @@ class Timing:
         index = payload[8]
         rt = self.rt
         now = rt.clock()
-        if index >= len(rt.functions) or rt.functions[index][1] != 0:
+        if not self._timeable(index):
             self.refused += 1
-            return 0xFF, b"no such plain function"
+            return 0xFF, NOT_TIMEABLE
         if not self.map_valid(now):
             self.refused += 1
             return 0xFF, b"no valid host map (a2jHostMap)"
@@ -122,9 +129,24 @@ class Timing:
         if len(self._queue) >= QUEUE:
             self.refused += 1
             return 0xFF, b"timed calls queue full"
-        self._queue.append((tick, rt.functions[index][2], payload[9:]))
+        name, _kind, handler = rt.functions[index]
+        self._queue.append((tick, handler, payload[9:], name))
         self._queue.sort(key=_first)
         return 0, struct.pack("<Q", tick)
+
+    def _timeable(self, index):
+        # an actuator's command (a transducer's call=) or a2jGoodbye: a2jAt of a2jAt, a2jMany
+        # or a reader is refused (the AVR once ran them into a 16-byte buffer, or address 0)
+        rt = self.rt
+        if index >= len(rt.functions) or rt.functions[index][1] != 0:
+            return False
+        name = rt.functions[index][0]
+        if name == "a2jGoodbye" or (self.calls is not None and name in self.calls):
+            return True
+        for t in rt.transducers:
+            if t.options.get("call") == name:
+                return True
+        return False
 
     def pending(self):
         return len(self._queue)
@@ -146,13 +168,16 @@ class Timing:
         return self._queue[0][0] if self._queue else None
 
     def poll(self, now):
-        q = self._queue
-        while q and q[0][0] <= now:
-            tick, handler, payload = q.pop(0)
+        # (self._queue read afresh each time: a timed a2jGoodbye empties it on its way)
+        while self._queue and self._queue[0][0] <= now:
+            tick, handler, payload, name = self._queue.pop(0)
             self.acting_tick = tick
             try:
-                handler(payload)
-                self.done += 1
+                if handler(payload)[0] == 0:
+                    self.done += 1
+                else:  # refused when due: not done, and said
+                    self.refused += 1
+                    self.rt.log.line(WARN, "a timed call refused when due: %s" % name)
             except Exception as e:  # noqa: BLE001 - a failing action must not stop the board
                 self.rt.debug("timed call: %s;" % e)
                 text = "a timed call raised %s: %s" % (type(e).__name__, e)

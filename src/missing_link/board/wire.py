@@ -16,7 +16,10 @@
 # Between frames (hunting, or in an ignored SIF frame) bytes are junk, except the break: BREAK
 # then CR or LF, all between frames, is EV_BREAK (the MicroPython firmware's way back to the
 # REPL, firmware.py).  J2A never sends bytes between frames, and line noise does not spell seven
-# given bytes (2^-56 a try); no marker may come between them.
+# given bytes (2^-56 a try); no marker may come between them.  The rest of a frame that was
+# dropped (abort: 10 ms of silence; a bad escape) is not between frames, whatever its payload
+# spells: SKIP discards it until the next marker or until the line has been quiet again (the
+# runtime's poll calls abort() once more), so a host's payload can never be a break.
 #
 # The host side has its own, throughput-oriented decoder (missing_link.j2a.codec); the test suite
 # cross-checks the two with random frames in both directions.
@@ -41,6 +44,7 @@ _LEN = 3
 _DATA = 4
 _CSUM = 5
 _IGNORE = 6
+_SKIP = 7  # the rest of a dropped frame
 
 
 def escape_into(out, data):
@@ -101,15 +105,18 @@ class FrameParser:
         self._between = bytearray()  # the last bytes between frames (the break's)
 
     def in_frame(self):
+        # (in a frame, or in the rest of a dropped one: either ends after silence, abort())
         return self.state != _HUNT and self.state != _IGNORE
 
     def abort(self):
-        # Inter-byte silence: drop the frame.  Returns the cut event if a seq had arrived.
+        # Inter-byte silence: drop the frame (what still comes of it is skipped, until the
+        # next silence).  Returns the cut event if a seq had arrived.
         st = self.state
         self.state = _HUNT
         self.esc = False
-        if st == _HUNT or st == _IGNORE:
+        if st == _HUNT or st == _IGNORE or st == _SKIP:
             return None
+        self.state = _SKIP
         self.errors += 1
         if st == _SEQ:
             return (EV_CUT, None, 0, None)
@@ -119,7 +126,7 @@ class FrameParser:
         events = []
         for b in data:
             if b == SOF or b == SOS:
-                if self.state != _HUNT and self.state != _IGNORE:
+                if self.state != _HUNT and self.state != _IGNORE and self.state != _SKIP:
                     self.errors += 1
                     events.append((EV_CUT, self.seq if self.state > _SEQ else None, 0, None))
                 self.esc = False
@@ -127,6 +134,9 @@ class FrameParser:
                 self._between = bytearray()
                 continue
             st = self.state
+            if st == _SKIP:
+                self.junk += 1
+                continue
             if st == _HUNT or st == _IGNORE:
                 if st == _HUNT:
                     self.junk += 1
@@ -142,7 +152,7 @@ class FrameParser:
                 if b != SOF and b != SOS and b != ESC:
                     self.errors += 1
                     events.append((EV_ESCAPE, self.seq if st > _SEQ else None, 0, None))
-                    self.state = _HUNT
+                    self.state = _SKIP
                     continue
             elif b == ESC:
                 self.esc = True

@@ -243,6 +243,22 @@ def _flash(sp: Parser) -> None:
     )
 
 
+def _update(sp: Parser) -> None:
+    sp.add_argument("target", metavar="TARGET", help="board URL or (through a daemon) board name")
+    sp.add_argument("boardfile", help="the board file of the new firmware (examples/boards/)")
+    sp.add_argument(
+        "--trial",
+        type=lambda s: int(number(5, 3600, unit=" s")(s)),
+        default=30,
+        metavar="S",
+        help="MicroPython: the new firmware's time to complete a handshake with this host, or "
+        "the board goes back to the old one (30; 5..3600)",
+    )
+    sp.add_argument("--id", help="the board.id the board must state (refused if another)")
+    sp.add_argument("--json", action="store_true", help="the outcome as JSON (docs/cli.md)")
+    _timeout(sp)
+
+
 def _key(sp: Parser) -> None:
     ksub = sp.add_subparsers(dest="key_command", required=True, metavar="ACTION")
     kp = ksub.add_parser("new", help="write a new random key (mode 0600)")
@@ -293,8 +309,8 @@ def _board(sp: Parser) -> None:
     sp.add_argument(
         "--seed",
         type=int,
-        default=0,
-        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED)",
+        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED); "
+        "--file: of its chip id (board.id) when it has no --flash (default 0)",
     )
     _sim_options(sp)
 
@@ -450,6 +466,7 @@ COMMANDS = (
     Command("run", "the daemon: every board's transducers as topics", "run:cmd_run", _run),
     Command("recover", "salvage a recording whose process died", "run:cmd_recover", _recover),
     Command("flash", "put the firmware for a board file on a board", "deploy:cmd_flash", _flash),
+    Command("update", "update a board's firmware over its link", "update:cmd_update", _update),
     Command("key", "signing keys for boards on a network link", "deploy:cmd_key_new", _key),
     Command(
         "gen-firmware",

@@ -9,6 +9,7 @@ import threading
 import time
 from typing import Any
 
+from ..text import safe_text
 from .common import EXIT_FAIL, EXIT_USAGE
 
 PROGRESS_S = 5.0
@@ -23,7 +24,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         replay = Replay(args.recording, rate=args.rate, loop=args.loop, listen=args.listen,
                         boards=args.board, lead_s=args.lead)  # fmt: skip
     except (FileNotFoundError, RecordingError, BadURL, ValueError) as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
+        _say(f"missing-link: error: {e}")
         return EXIT_USAGE
     except OSError as e:
         print(f"missing-link: error: cannot listen on {args.listen}: {e.strerror or e}",
@@ -36,10 +37,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     for b in replay.boards:
         print(f"LISTENING {b.server.url}", flush=True)
     for b in replay.boards:
-        print(f"replay: {b.name} at {b.server.url}: {b.recorded.samples} samples", file=sys.stderr)
+        _say(f"replay: {b.name} at {b.server.url}: {b.recorded.samples} samples")
         if b.recorded.changed:
-            print(f"replay: {b.name} came up again with other descriptors in the recording; "
-                  "the first are served", file=sys.stderr)  # fmt: skip
+            _say(f"replay: {b.name} came up again with other descriptors in the recording; "
+                 "the first are served")  # fmt: skip
     how = f" at {args.rate:g}x" if args.rate != 1 else ""
     print(f"replay: {replay.span_s:.1f} s of recording{how}{', looped' if args.loop else ''};"
           f" it starts {args.lead:g} s after a host's first request", file=sys.stderr)  # fmt: skip
@@ -52,7 +53,7 @@ def _serve(replay: Any, done: threading.Event) -> int:
     while not done.wait(0.1):
         errors = replay.errors()
         for line in errors[said_errors:]:
-            print(f"missing-link: error: {line}", file=sys.stderr)
+            _say(f"missing-link: error: {line}")
         said_errors = len(errors)
         if replay.finished and not said_done:
             said_done = True
@@ -60,9 +61,14 @@ def _serve(replay: Any, done: threading.Event) -> int:
         elif time.monotonic() >= next_progress and not said_done:
             next_progress += PROGRESS_S
             sent = ", ".join(f"{b.name} {b.runtime.sent}" for b in replay.boards)
-            print(f"replay: {replay.position_s():.1f} of {replay.span_s:.1f} s, SIFs sent: "
-                  f"{sent}", file=sys.stderr, flush=True)  # fmt: skip
+            _say(f"replay: {replay.position_s():.1f} of {replay.span_s:.1f} s, SIFs sent: {sent}")
     replay.stop()
     for b in replay.boards:
-        print(f"replay: {b.summary()}", file=sys.stderr)
+        _say(f"replay: {b.summary()}")
     return EXIT_FAIL if replay.errors() else 0
+
+
+def _say(line: str) -> None:
+    """A line to the terminal: board names and errors come from the recording (anyone's file:
+    an escape sequence in a name would retitle or repaint the user's terminal)."""
+    print(safe_text(line, 1000), file=sys.stderr, flush=True)

@@ -50,6 +50,8 @@ def cmd_board(args: argparse.Namespace) -> int:
 
     if args.file is not None:
         return _board_file(args)
+    if args.seed is None:
+        args.seed = 0
     try:
         if args.runtime or args.absent or args.flash:
             raise ValueError("--runtime, --absent and --flash go with --file BOARDFILE")
@@ -102,14 +104,15 @@ _SIM_ONLY = {"name": None, "config_file": None, "rate": None, "channels": None,
 
 def _board_file(args: argparse.Namespace) -> int:
     """``board --file BOARDFILE``: the board file's firmware on CPython or under MicroPython,
-    every part simulated (missing_link.virtual.boardfile, .mpyboard).  Bad input (the file,
-    --absent, --flash, a missing node) is ConfigError: one line, exit 2 (main.py)."""
+    every part simulated (missing_link.virtual.boardfile, .mpyboard), listening or dialing.
+    Bad input (the file, --absent, --flash, a missing node) is ConfigError: one line, exit 2
+    (main.py)."""
     from ..deploy.boardfile import load_board_file
     from ..errors import ConfigError
 
-    if args.dial:
+    if args.flash and args.seed is not None:
         raise ConfigError(
-            "--dial goes with --sim for now; a board file that dials names its host in its link"
+            "--seed goes without --flash: a board with a flash keeps its chip id there"
         )
     given = [k for k, default in _SIM_ONLY.items() if getattr(args, k) != default]
     if given:
@@ -146,16 +149,23 @@ def _serve_board_file(
     args: argparse.Namespace, board: dict[str, Any], path: Path, flash: Path, absent: list[str]
 ) -> int:
     from ..errors import MissingLinkError
+    from ..virtual.boardfile import chip_id
 
+    url, dial = args.dial or args.listen, bool(args.dial)
     try:
+        chip = chip_id(flash if args.flash else None, args.seed or 0)
         if args.runtime == "micropython":
+            from ..deploy.flashdir import prepare
             from ..virtual.mpyboard import MicroPythonBoard
 
-            server: Any = MicroPythonBoard(path, args.listen, flash if args.flash else None, absent)
+            if args.flash:  # (the board starts from its flash, as a board does: it takes updates)
+                prepare(path, flash, lambda t: print(f"missing-link: {t}", file=sys.stderr))
+            kept = flash if args.flash else None
+            server: Any = MicroPythonBoard(path, url, kept, absent, dial=dial, chip=chip)
         else:
             from ..virtual.boardfile import BoardFileBoard
 
-            server = BoardFileBoard(board, args.listen, flash, absent)
+            server = BoardFileBoard(board, url, flash, absent, dial=dial, chip=chip)
     except MissingLinkError:
         raise  # (bad input: exit 2; cannot listen, did not start: exit 1; main.py says it)
     except Exception as e:  # noqa: BLE001 - the firmware failed at boot: one line, exit 1
@@ -167,7 +177,7 @@ def _serve_board_file(
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
-    print(f"LISTENING {server.url}", flush=True)
+    print(_ready(server.url), flush=True)
     try:
         server.serve_forever()
     except MissingLinkError as e:

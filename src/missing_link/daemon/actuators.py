@@ -16,6 +16,11 @@ a later one: each goes to the board as ``a2jAt`` in arrival order, the board's c
 first, and the board acts at that host time or refuses (past, beyond what the map vouches for,
 no map): refusals are counted and said, and a caller waiting on ``Command.done`` gets them.
 One batch of timed commands is out at a time (the map, then its ``a2jAt`` calls, in order).
+
+Every call goes through ``call`` (the session's ``Farewell.call_future``): once the board has
+been told goodbye, none reaches it - not a command the supervisor was starting as the daemon
+stopped, not the ``a2jAt`` of a batch whose map was answered after the goodbye (it used to go
+out from that answer's callback, and the board acted on it with no host left).
 """
 
 from __future__ import annotations
@@ -40,13 +45,19 @@ MAX_TIMED = 64  #: timed commands waiting for the supervisor, per board
 Timed = tuple[Transducer, Any, int, "Future[int] | None"]
 #: hands the board the current clock map: the call's future, or None (no map to push)
 PushMap = Callable[[], "Future[CallResult] | None"]
+#: (board, function, payload) -> the call's future; raises MissingLinkError when not sent
+CallFn = Callable[[Board, str, bytes], "Future[CallResult]"]
 Outcome = CallResult | MissingLinkError | struct.error
 
 
 class Actuators:
-    def __init__(self, wake: Callable[[], None], on_error: Callable[[str], None]) -> None:
+    def __init__(
+        self, wake: Callable[[], None], on_error: Callable[[str], None], call: CallFn | None = None
+    ) -> None:
         """``wake()``: a command is pending (wake the supervisor); ``on_error(text)``: a call
-        the board refused or a link that failed under it."""
+        the board refused or a link that failed under it; ``call``: how a call is sent (default
+        ``board.call_future``; the session's refuses once the board was told goodbye)."""
+        self._call: CallFn = call or (lambda board, name, payload: board.call_future(name, payload))
         self._wake = wake
         self._on_error = on_error
         self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
@@ -116,7 +127,7 @@ class Actuators:
     def _send(self, board: Board, t: Transducer, value: Any) -> None:
         try:
             payload = t.value_struct().pack(value)
-            fut = board.call_future(str(t.call), payload)
+            fut = self._call(board, str(t.call), payload)
         except struct.error as e:
             self._sent(t, None)
             self.command_errors += 1
@@ -186,7 +197,7 @@ class Actuators:
                 if "a2jAt" not in board.index:
                     raise MissingLinkError(f"{board.name}: no a2jAt: it cannot act at a time")
                 payload = struct.pack("<qB", at_ns, board.index[str(t.call)])
-                fut = board.call_future("a2jAt", payload + t.value_struct().pack(value))
+                fut = self._call(board, "a2jAt", payload + t.value_struct().pack(value))
             except (MissingLinkError, struct.error) as e:
                 answered(t, at_ns, done, e)
                 continue
@@ -201,12 +212,11 @@ class Actuators:
             if done is not None:
                 done.set_result(struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1)
             return
-        if self._stopping():
-            return
-        self.command_errors += 1
-        self._on_error(f"{t.name}: timed command refused: {got}")
-        log.warning("%s: timed command at %d refused: %s", t.name, at_ns, got)
-        if done is not None:
+        if not self._stopping():  # (closing: a command cut short is not worth a line)
+            self.command_errors += 1
+            self._on_error(f"{t.name}: timed command refused: {got}")
+            log.warning("%s: timed command at %d refused: %s", t.name, at_ns, got)
+        if done is not None:  # (its caller hears it either way)
             done.set_exception(got)
 
     def _timed_failed(self, timed: list[Timed], e: MissingLinkError) -> None:

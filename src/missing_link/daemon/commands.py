@@ -13,7 +13,9 @@ The list holds on every path that reaches an actuator, not only on the faces' co
 plain call of an actuator's function (``Daemon.call``, the control endpoint behind
 ``missing-link call``, ``Daemon.trigger_at``), an ``a2jAt`` that would call one later, and
 ``Daemon.send`` are refused the same way (``check``: CommandRefused, counted under the path's
-name: ``api``, ``control``, ``bus``), named by the actuator's command topic.
+name: ``api``, ``control``, ``bus``), named by the actuator's command topic.  So is a change
+of an actuator's run-time configuration (its keys are commands: daemon/settings.py) from any
+face (``check_face``: the face's ``commands`` first, then the list).
 """
 
 from __future__ import annotations
@@ -37,9 +39,11 @@ class CommandRefused(MissingLinkError):
 
 def called_function(function: str, payload: bytes, functions: Sequence[str]) -> str:
     """The function a call of ``function`` with ``payload`` ends up running on the board: for
-    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), else itself."""
-    if function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
-        return functions[payload[8]]
+    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), and so on down
+    an ``a2jAt`` of an ``a2jAt`` (boards refuse that now, but an older one ran it: the list
+    must hold whatever the board does), else itself."""
+    while function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
+        function, payload = functions[payload[8]], payload[9:]
     return function
 
 
@@ -60,6 +64,17 @@ class CommandGate:
         self._count(path)
         log.warning("%s: a command on %s refused: not in [daemon] commands", path, topic)
         raise CommandRefused(f"a command on {topic} refused: not in [daemon] commands")
+
+    def check_face(self, face: str, takes_commands: bool, topic: str) -> None:
+        """``check``, and refused (counted under ``face``) where ``face`` takes no commands:
+        a change of an actuator's configuration (daemon/settings.py)."""
+        if takes_commands:
+            return self.check(face, topic)
+        self._count(face)
+        log.warning("%s: a command on %s refused: commands are off on %s", face, topic, face)
+        raise CommandRefused(
+            f"a command on {topic} refused: commands are off on {face} (its `commands` option)"
+        )
 
     def _count(self, path: str) -> None:
         with self._lock:

@@ -336,7 +336,7 @@ def _check_control(control: str | None, fail: Fail) -> None:
 def _parse_board_tables(boards: Any, fail: Fail) -> list[BoardSpec]:
     if not isinstance(boards, list):
         raise fail("board", "use [[board]] tables, one per board")
-    out = []
+    out: list[BoardSpec] = []
     for k, b in enumerate(boards, start=1):
         where = f"[[board]] #{k}"
         _check_table(b, _BOARD_KEYS, where, fail)
@@ -344,6 +344,8 @@ def _parse_board_tables(boards: Any, fail: Fail) -> list[BoardSpec]:
             raise fail(where, "missing url")
         if "name" in b and not is_token(b["name"]):
             raise fail(f"{where}.name", f"{b['name']!r} is not a topic name ([a-z][a-z0-9_]*)")
+        if "name" in b and any(o.name == b["name"] for o in out):  # (one board's topics)
+            raise fail(f"{where}.name", f"{b['name']!r}: another [[board]] has this name")
         out.append(BoardSpec(**b))
     return out
 
@@ -480,4 +482,6 @@ def load_config(path: str) -> Config:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    except RecursionError:  # (tomllib recurses per level: "a = [[[[..." 5,000 deep)
+        raise ConfigError(f"{path}: not valid TOML: nested too deeply") from None
     return parse_config(doc, path)

@@ -136,9 +136,12 @@ def call_timeout(value: object) -> float | None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"timeout {safe_text(repr(value), 40)}: expected a number of seconds")
-    t = float(value)
+    try:
+        t = float(value)
+    except OverflowError:  # (an int of 400 digits: JSON has no limit)
+        t = math.inf
     if not math.isfinite(t) or t <= 0:
-        raise ConfigError(f"timeout {value!r}: expected a number of seconds > 0")
+        raise ConfigError(f"timeout {safe_text(repr(t), 40)}: expected a number of seconds > 0")
     return min(t, MAX_CALL_TIMEOUT)
 
 

@@ -11,9 +11,11 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..host.board import Board
+from ..host.board_log import LogLine
 from ..host.config import describe_keys
 from ..host.link import CallResult
 from .session import BoardSession
+from .updates import BoardUpdates
 
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
@@ -22,36 +24,56 @@ def control_handlers(
     session: Callable[[str], BoardSession],
     up: Callable[[str], tuple[BoardSession, Board]],
     call: Callable[..., CallResult],
+    configure: Callable[..., dict[str, Any]],
+    reset: Callable[..., dict[str, Any]],
+    log_line: Callable[[LogLine], None] | None = None,
 ) -> dict[str, Handler]:
     """``session(board)``: its session; ``up(board)``: the session and its board, or
     BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
-    through the daemon's allow-list."""
+    through the daemon's allow-list; ``configure(board, values, save, by=)`` and ``reset(board,
+    erase, by=)``: a configuration change through it (an actuator's keys are commands);
+    ``log_line``: a line of a board's log to every face (the firmware updates' ops, updates.py:
+    ``update``, ``update_status``, ``release``, ``retake``)."""
 
     def find(r: dict[str, Any]) -> dict[str, Any]:
-        s = session(str(r["board"]))
+        s = session(text(r, "board"))
         return {"name": s.name, "url": s.spec.url, "state": s.state}
 
     def info(r: dict[str, Any]) -> dict[str, Any]:
-        b = up(str(r["board"]))[1]
+        b = up(text(r, "board"))[1]
         return {**b.describe(), "transds_text": b.transds_text, "via": "daemon"}
 
     def do_call(r: dict[str, Any]) -> dict[str, Any]:
-        payload = bytes.fromhex(str(r.get("payload", "")))
-        got = call(str(r["board"]), str(r["function"]), payload, r.get("timeout"), by="control")
+        try:
+            payload = bytes.fromhex(text(r, "payload", ""))
+        except ValueError:
+            raise ConfigError('call: payload: expected hex digits, e.g. "01ff"') from None
+        board, function = text(r, "board"), text(r, "function")
+        got = call(board, function, payload, r.get("timeout"), by="control")
         return {"code": got.code, "payload": got.payload.hex()}
 
     def config(r: dict[str, Any]) -> dict[str, Any]:
-        s, b = up(str(r["board"]))
-        settings = s.settings
+        name = text(r, "board")
+        s, b = up(name)
+        wanted = r.get("set") or {}
+        if not isinstance(wanted, dict):
+            raise ConfigError("config: set must be an object of key: value")
         if r.get("reset"):
-            settings.reset(bool(r.get("erase")), by="control")
-        if r.get("set") or r.get("save"):
-            wanted = r.get("set") or {}
-            if not isinstance(wanted, dict):
-                raise ConfigError("config: set must be an object of key: value")
-            settings.configure(wanted, bool(r.get("save")), by="control")
-        values = settings.read()
+            reset(name, bool(r.get("erase")), by="control")
+        if wanted or r.get("save"):
+            configure(name, wanted, bool(r.get("save")), by="control")
+        values = s.settings.read()
         keys = describe_keys(b.settings.keys(), values)
         return {"values": values, "keys": keys, "state": b.settings.state}
 
-    return {"find": find, "info": info, "call": do_call, "config": config}
+    ops = {"find": find, "info": info, "call": do_call, "config": config}
+    return {**ops, **BoardUpdates(session, log_line or (lambda line: None)).handlers()}
+
+
+def text(request: dict[str, Any], key: str, default: str | None = None) -> str:
+    """A request's text field: ConfigError (a usage error) when it is missing or not text."""
+    value = request.get(key, default)
+    if not isinstance(value, str):
+        what = "missing" if value is None else "expected text"
+        raise ConfigError(f"{request.get('op')}: {key}: {what}")
+    return value

@@ -13,6 +13,7 @@ handler that refuses and counts.
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any
 
@@ -94,12 +95,22 @@ class Fanout:
             except Exception as e:  # noqa: BLE001 - (as declare)
                 self._failed(p, "add_command_topic", e, f"taking commands on {name}")
 
+    def route(self, topic: str, value: Any) -> None:
+        """``bus.send`` for a part of the daemon that routes commands on (joints.py): where
+        ``[daemon] commands`` does not admit ``topic`` it raises (CommandRefused, counted under
+        "bus" as the bus's own refusal is), so the router knows nothing was sent."""
+        self.gate.check("bus", topic)
+        self.bus.send(topic, value)
+
     def offer_config(
         self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: Any
     ) -> None:
+        """``apply(values, by=, commands=)``: each face gets it as itself (its name, whether
+        it takes commands: the keys of an actuator are commands, daemon/settings.py)."""
         for p in self.publishers:
             try:
-                p.add_config(board, keys, values, apply)
+                mine = functools.partial(apply, by=p.name, commands=bool(p.takes_commands))
+                p.add_config(board, keys, values, mine)
             except Exception as e:  # noqa: BLE001 - (as declare)
                 self._failed(p, "add_config", e, f"offering {board}'s configuration")
 

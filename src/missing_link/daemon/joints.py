@@ -26,10 +26,14 @@ effort (the duty) for an H-bridge.  An array as long as ``name`` is read by inde
 one holds, in order, the values of the joints that take that field (as the topic-based
 interface writes them).  A ``header.stamp`` in the future makes a timed command (the board acts
 then; docs/timesync.md).  What cannot be routed (an unknown joint, a field it does not take, a
-board that is down, a value the actuator refuses) is counted and said once per kind.
+board that is down, a value the actuator refuses) is counted per kind and said once per kind
+(never once per text: a peer that makes up joint names must not grow what is remembered).
 
 Commands stop: a joint driven by velocity or effort that hears nothing for ``command_timeout``
-is stopped (0 sent once), as a controller's command timeout would; position joints hold.  The
+after its last command acts is stopped (0 sent once), as a controller's command timeout would;
+position joints hold.  A timed command acts later than it arrives, so its act time is what the
+timeout counts from; and a velocity or effort stamped more than ``command_timeout`` ahead is
+refused: the watchdog never has to wait on a command that is not yet running.  The
 boards' own failsafe is unchanged: when the host is gone, they make their actuators safe.
 
 ``JointRouter`` is the pure part (time passed in); ``Joints`` the shell: a ``Publisher`` on
@@ -50,7 +54,9 @@ from ..host.config import Value
 from ..publishers.base import Publisher
 from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
 from ..ros.standard.joints import joint_state_cdr
+from ..text import safe_text
 from ..topics import Command, Topic, Update
+from .commands import CommandRefused
 from .ros_config import JointsConfig, JointSpec
 
 log = logging.getLogger(__name__)
@@ -60,6 +66,18 @@ FIELDS = (POSITION, VELOCITY, EFFORT)
 NAN = math.nan
 #: (the actuator's descriptor, its board's run-time configuration) or None: not up
 Lookup = Callable[[str, str], "tuple[Transducer, Mapping[str, Value]] | None"]
+
+
+class Refusal(str):
+    """Why a joint's command was not routed (the text), and its ``kind``: what a refusal is
+    counted and said once per."""
+
+    kind: str
+
+    def __new__(cls, kind: str, text: str) -> Refusal:
+        self = super().__new__(cls, text)
+        self.kind = kind
+        return self
 
 
 def interface_of(spec: JointSpec, t: Transducer, settings: Mapping[str, Value]) -> str:
@@ -131,7 +149,7 @@ class JointRouter:
 
     def route(
         self, msg: Any, now_ns: int, now_s: float, interface: Callable[[int], str]
-    ) -> tuple[list[tuple[str, Command]], list[str]]:
+    ) -> tuple[list[tuple[str, Command]], list[Refusal]]:
         """A JointState command -> ([(command topic, Command in SI)], [why each joint that
         could not be routed was not]).  ``interface(k)``: the field joint k takes (raises
         ValueError saying why it cannot take one)."""
@@ -139,18 +157,20 @@ class JointRouter:
         at = _stamp_ns(msg)
         timed = at if at is not None and at > now_ns else None
         out: list[tuple[str, Command]] = []
-        errors: list[str] = []
+        errors: list[Refusal] = []
         taken: dict[str, list[int]] = {f: [] for f in FIELDS}
         wants: dict[int, str] = {}
         for i, name in enumerate(names):
             k = self.index.get(name)
             if k is None or self.targets[k] is None:
-                errors.append(f"{name}: no such joint takes commands ([joints])")
+                errors.append(
+                    Refusal("unknown joint", f"{name}: no such joint takes commands ([joints])")
+                )
                 continue
             try:
                 wants[i] = interface(k)
             except ValueError as e:
-                errors.append(str(e))
+                errors.append(Refusal("interface", str(e)))
                 continue
             taken[wants[i]].append(i)
         columns = {f: _column(msg, f, len(names), taken[f]) for f in FIELDS}
@@ -159,18 +179,36 @@ class JointRouter:
             column = columns[field]
             value = column.get(i) if column is not None else None
             if value is None or not math.isfinite(value):
-                errors.append(f"{names[i]}: no {field} in the command")
+                errors.append(Refusal("no value", f"{names[i]}: no {field} in the command"))
                 continue
+            if field != POSITION:
+                why = self._watched(k, (timed - now_ns) / 1e9 if timed else 0.0, now_s)
+                if why is not None:
+                    errors.append(Refusal("stamp ahead", f"{names[i]}: a {field} {why}"))
+                    continue
             target = self.targets[k]
             assert target is not None
             out.append((target[2], Command([value], timed)))
-            if field != POSITION:
-                self.last_command[k] = now_s
-                self.stopped.discard(k)
         for f in FIELDS:
             if columns[f] is None:
-                errors.append(f"{f} has {len(_get(msg, f))} values for {len(names)} names")
+                errors.append(
+                    Refusal("length", f"{f} has {len(_get(msg, f))} values for {len(names)} names")
+                )
         return out, errors
+
+    def _watched(self, k: int, ahead_s: float, now_s: float) -> str | None:
+        """A velocity or effort command for joint k that acts ``ahead_s`` from now: the
+        timeout counts from when it acts (None), or why it is refused (too far ahead)."""
+        timeout = self.spec.command_timeout
+        if timeout > 0 and ahead_s > timeout:
+            return (
+                f"command stamped {ahead_s:.3g} s ahead: at most command_timeout "
+                f"({timeout:g} s) ahead, or it would run on after the timeout stopped it"
+            )
+        acts = now_s + ahead_s
+        self.last_command[k] = max(self.last_command.get(k, acts), acts)
+        self.stopped.discard(k)
+        return None
 
     def expired(self, now_s: float) -> list[tuple[int, str]]:
         """Joints driven by velocity or effort with no command for ``command_timeout``: (joint,
@@ -240,7 +278,8 @@ class Joints(Publisher):
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._said: set[str] = set()
+        self._said: set[str] = set()  #: the kinds of refusal said (one line each)
+        self.refusals: dict[str, int] = {}  #: refusals by kind
         self.published = 0
         self.commands = 0
         self.commands_refused = 0
@@ -299,9 +338,11 @@ class Joints(Publisher):
                 self._send(topic, command)
                 self.commands += 1
             except KeyError:
-                errors.append(f"{topic}: its board is not up")
+                errors.append(Refusal("board down", f"{topic}: its board is not up"))
+            except CommandRefused as e:  # (the allow-list: nothing was sent)
+                errors.append(Refusal("not allowed", str(e)))
             except ValueError as e:
-                errors.append(str(e))
+                errors.append(Refusal("value", str(e)))
         for why in errors:
             self._refused(why)
 
@@ -314,11 +355,13 @@ class Joints(Publisher):
             raise ValueError(f"{spec.name}: {target[0]}/{target[1]} is not up")
         return interface_of(spec, *got)
 
-    def _refused(self, why: str) -> None:
+    def _refused(self, why: Refusal) -> None:
         self.commands_refused += 1
-        if why not in self._said:  # (each kind of refusal once: a controller repeats it)
-            self._said.add(why)
-            log.warning("joints: command refused: %s", why)
+        self.refusals[why.kind] = self.refusals.get(why.kind, 0) + 1
+        if why.kind not in self._said:  # (each kind once: a controller repeats it, and a peer
+            self._said.add(why.kind)  # that makes names up must not grow this)
+            log.warning("joints: command refused: %s (said once per kind; all counted)",
+                        safe_text(why, 200))  # fmt: skip
 
     # ---- commands stop -------------------------------------------------------------------------
     def _watch(self) -> None:
@@ -348,5 +391,6 @@ class Joints(Publisher):
             "published": self.published,
             "commands": self.commands,
             "commands_refused": self.commands_refused,
+            "refused_by_kind": dict(self.refusals),
             "command_timeouts": self.command_timeouts,
         }

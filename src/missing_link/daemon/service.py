@@ -33,6 +33,7 @@ another.
 
 from __future__ import annotations
 
+import functools
 import logging
 import struct
 import threading
@@ -57,6 +58,7 @@ from ..transport import check_url
 from .claims import Claims
 from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
+from .config_gate import config_guard
 from .context import SessionContext
 from .control import ControlServer, call_timeout
 from .control_ops import control_handlers
@@ -121,7 +123,7 @@ class Daemon:
         self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
         if config.joints is not None and config.joints.joints:
             self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
-                                 self.bus.send, self._actuator)  # fmt: skip
+                                 self.fanout.route, self._actuator)  # fmt: skip
             self.publishers.append(self.joints)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
@@ -168,9 +170,9 @@ class Daemon:
             self.dialins.start(self.reactor)
         if self.config.control:
             try:
-                self.control = ControlServer(
-                    self.config.control, control_handlers(self.session, self._up, self.call)
-                )
+                verbs = (self.session, self._up, self.call, self.configure, self.reset_config)
+                handlers = control_handlers(*verbs, self.fanout.log)
+                self.control = ControlServer(self.config.control, handlers)
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
                             "only by another endpoint ([daemon] control)", e)  # fmt: skip
@@ -303,11 +305,11 @@ class Daemon:
             b, prober = s.board, s.prober
             if wanted is not None and s.name not in wanted:
                 continue
-            if s.state != UP or b is None or prober is None:
+            if s.state != UP or b is None or prober is None or s.farewell.said(b):
                 raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
             self._gate(s, b, function, b"", "api")
             prober.push_map()
-            reply = b.call_ok(function, struct.pack("<q", host_ns))
+            reply = s.farewell.call_ok(b, function, struct.pack("<q", host_ns))
             ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
         return ticks
 
@@ -329,6 +331,8 @@ class Daemon:
         b = s.board
         if s.state != UP or b is None:
             raise BoardError(s.name, f"not up ({s.state}{': ' + s.error if s.error else ''})")
+        if s.farewell.said(b):  # (the daemon stops: nothing more reaches it; farewell.py)
+            raise BoardError(s.name, "told goodbye: the daemon stops")
         return s, b
 
     def call(
@@ -347,7 +351,7 @@ class Daemon:
         t = call_timeout(timeout)
         s, b = self._up(board)
         self._gate(s, b, function, payload, by)
-        return b.call(function, payload, t)
+        return s.farewell.call(b, function, payload, t)
 
     def _gate(self, s: BoardSession, b: Board, function: str, payload: bytes, by: str) -> None:
         """The allow-list on a plain call: what the call would move is named by its topic."""
@@ -378,14 +382,22 @@ class Daemon:
         return self._up(board)[0].settings.read()
 
     def configure(
-        self, board: str, values: Mapping[str, object], save: bool = False, *, by: str = "api"
+        self, board: str, values: Mapping[str, object], save: bool = False, **face: Any
     ) -> dict[str, Value]:
         """Set keys of a board's run-time configuration, all or none (``save``: keep them on
-        the board); every face hears the new values.  Returns the configuration after it."""
-        return self._up(board)[0].settings.configure(values, save, by=by)
+        the board); every face hears the new values.  Returns the configuration after it.
+        ``face``: ``by`` (its name, "api") and ``commands`` (its option, True): the keys of an
+        actuator are commands, refused and counted as one (config_gate.py)."""
+        s = self._up(board)[0]
+        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
+        return s.settings.configure(values, save, by, config_guard(self.commands, s, by, on))
 
-    def reset_config(self, board: str, erase_saved: bool = False) -> dict[str, Value]:
-        return self._up(board)[0].settings.reset(erase_saved)
+    def reset_config(self, board: str, erase_saved: bool = False, **face: Any) -> dict[str, Value]:
+        """The board's defaults again (``erase_saved``: its saved configuration too); gated as
+        ``configure`` where it changes an actuator's keys."""
+        s = self._up(board)[0]
+        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
+        return s.settings.reset(erase_saved, by, config_guard(self.commands, s, by, on))
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -437,7 +449,9 @@ class Daemon:
             remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
             record_clock=self.fanout.record_clock,
-            offer_config=self.fanout.offer_config,
+            offer_config=lambda b, keys, values, _c: self.fanout.offer_config(
+                b, keys, values, functools.partial(self.configure, b)
+            ),  # (each face changes them as itself: fanout.py)
             config_changed=self.fanout.config_changed,
             describe_board=self.fanout.describe_board,
             claim_id=self.claims.claim_id,

@@ -45,8 +45,10 @@ from what it hears, not from what the transport claims.  A board reset seen unde
 re-applies the configuration file's keys on a thread of its own (they are calls to wait for).
 
 ``stop``: the board hears goodbye first (``a2jGoodbye``: its actuators safe at once); the
-supervisor waits a bounded time for its answer, then closes the link.  The daemon asks every
-session at once, so the waits overlap.
+supervisor waits a bounded time for its answer, then closes the link.  From the goodbye on,
+nothing of a command path reaches that board (``farewell.py``: actuator and timed commands,
+``Daemon.call``, ``trigger_at``, ``configure`` are refused), though the session is still up.
+The daemon asks every session at once, so the waits overlap.
 
 At each handshake the session builds the clock sync (``session_clock.py``: the board's
 ``ClockSync`` and its prober) and the topics (``board_topics.py``); the sample path maps and
@@ -81,7 +83,9 @@ from .board_topics import BoardTopics, declare_topics, transducers_of
 from .claims import board_token
 from .config import BoardSpec
 from .context import SessionContext
-from .failsafe import FailsafeInfo, Keepalive, keepalive_s, start_goodbye, wait_goodbye
+from .failsafe import FailsafeInfo, Keepalive, keepalive_s, wait_goodbye
+from .farewell import Farewell
+from .hold import PortHold
 from .inflight import InFlight
 from .listener import Mailbox
 from .liveness import LinkWatch
@@ -115,8 +119,10 @@ class BoardSession:
         self.error = ""
         self.name = spec.name or spec.url
         self.board: Board | None = None
-        self._said_goodbye: Board | None = None  # the board told the host is going
-        self._goodbye: Future[CallResult] | None = None  # its answer, waited for before closing
+        #: the goodbye: once said, no call of a command path reaches that board (farewell.py)
+        self.farewell = Farewell()
+        self.hold = PortHold()  #: its port let go for a while (an AVR update: updates.py)
+        self.update_status: dict[str, Any] | None = None  #: the last firmware update's (updates.py)
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
@@ -136,7 +142,7 @@ class BoardSession:
                 probe_gap=ctx.probe_gap,
                 record_clock=ctx.record_clock,
                 on_error=self._probe_failed,
-                on_rtt=self._set_rtt,
+                on_rtt=lambda us: setattr(self, "rtt_us", us),
                 wants_map=lambda: bool(self.path.grid),
             )
         )
@@ -145,7 +151,7 @@ class BoardSession:
         self.faults = ErrorCounts(log, spec.url)
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self.actuators = Actuators(self._wake.set, self._set_error)
+        self.actuators = Actuators(self._wake.set, self._set_error, self.farewell.call_future)
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
         self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
         self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
@@ -213,10 +219,8 @@ class BoardSession:
         board = self.board
         if board is None:
             return
-        if self.state == UP and board is not self._said_goodbye:
-            self._said_goodbye = board  # (once: stop() asks again)
-            self._goodbye = start_goodbye(board)
-        if self._goodbye is None:
+        answer = self.farewell.say(board) if self.state == UP else None  # (once per link)
+        if answer is None:
             board.close()  # nothing to wait for: a handshake under way ends at once
 
     def stop(self, timeout: float = 1.0) -> None:
@@ -232,6 +236,7 @@ class BoardSession:
     def _supervise(self) -> None:
         delay = self.ctx.config.backoff_min
         while not self._stop.is_set():
+            self.hold.wait(self._stop)  # (its port let go: hold.py)
             self.state = SessionState.CONNECTING
             try:
                 board = self._connect()
@@ -429,9 +434,6 @@ class BoardSession:
         if self.board is board:  # (a late reply of an earlier link says nothing now)
             self.error = text
 
-    def _set_rtt(self, us: float) -> None:
-        self.rtt_us = us
-
     def _disconnect(self) -> None:
         try:
             for name in self._command_topics:
@@ -440,8 +442,8 @@ class BoardSession:
             self.ctx.release_id(self)
             board, self.board = self.board, None
             if board is not None:
-                goodbye, self._goodbye = self._goodbye, None
-                wait_goodbye(goodbye)  # (stopping: bounded, so the actuators go safe first)
+                if self.farewell.said(board):  # (stopping: bounded, the actuators safe first)
+                    wait_goodbye(self.farewell.answer)
                 board.close()
                 self._past += LinkCounters.of(board)
 
@@ -488,6 +490,7 @@ class BoardSession:
             memory=self.memory.status,
             sync=sync.status() if sync is not None else None,
             identity=self.identity,
+            update=self.update_status,
         )
 
     def status(self) -> dict[str, Any]:

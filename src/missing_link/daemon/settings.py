@@ -11,6 +11,14 @@ once or not at all (the board's ``a2jConfigSet``), then every face hears the new
 (``on_change``: ROS 2 parameters follow).  The last change (when, by whom, what) is in the
 status and on ``/diagnostics``.
 
+The keys of an actuator (its ``enabled``, ``failsafe_ms``, limits, centre, ...: every key of a
+transducer the board describes as an actuator) are commands: a servo re-clamps the pulse it
+holds to new limits, ``failsafe_ms = 0`` turns its failsafe off.  A face's change is handed
+the daemon's ``guard`` (docs/security.md): before anything is sent, the values are read again
+and the actuators whose keys the set, reset or save would change (a save: what the board boots
+with) go to the guard, which refuses unless that face takes commands and the allow-list admits
+the actuator's command topic.  The config file's keys (the operator's own) pass no guard.
+
 A board without run-time configuration (the 2014 firmware) keeps working: keys given for it
 are a warning, and ``configure`` says it is not configurable.  Keys from the file that the
 board refuses are a warning too, with the board's reason: the board runs with what it has.
@@ -28,7 +36,18 @@ from typing import Any
 
 from ..errors import ConfigError, MissingLinkError
 from ..host.board import Board
-from ..host.config import ST_DIRTY, ST_LOADED, ST_SAVED, ConfigKey, NotConfigurable, Value
+from ..host.config import (
+    ST_DIRTY,
+    ST_LOADED,
+    ST_SAVED,
+    ConfigKey,
+    NotConfigurable,
+    Value,
+    actuators_changed,
+)
+
+#: (the actuators a configuration change would change) -> None, or raises to refuse it
+Guard = Callable[[list[str]], None]
 
 
 @dataclass(frozen=True)
@@ -40,8 +59,8 @@ class SettingsContext:
     #: board's own until then)
     wanted: Callable[[], Mapping[str, Any]] = dict
     warn: Callable[[str], None] = lambda text: None
-    #: (board name, keys, values, apply): every face offers the keys (ROS 2 parameters);
-    #: ``apply(values)`` changes them (raising what configure raises) and returns all values
+    #: (board name, keys, values, configure): every face offers the keys (ROS 2 parameters);
+    #: the daemon hands each face its own way to change them, through its command gate
     on_keys: Callable[[str, list[ConfigKey], dict[str, Value], Any], None] = (
         lambda name, keys, values, apply: None
     )
@@ -82,7 +101,7 @@ class BoardSettings:
             self.values = board.config()
             self.state = board.settings.state
         self._apply_file("connect")
-        self.ctx.on_keys(self.ctx.name(), self.keys, dict(self.values), self.apply_from_face)
+        self.ctx.on_keys(self.ctx.name(), self.keys, dict(self.values), self.configure)
 
     def on_reset(self) -> None:
         """The board restarted under the same link: what the file says, again."""
@@ -100,10 +119,19 @@ class BoardSettings:
 
     # ---- changes (any thread but the I/O loop) ------------------------------------------------
     def configure(
-        self, values: Mapping[str, object], save: bool = False, by: str = "api"
+        self,
+        values: Mapping[str, object],
+        save: bool = False,
+        by: str = "api",
+        guard: Guard | None = None,
     ) -> dict[str, Value]:
+        """Set keys, all or none.  ``guard``: a face's (the daemon's: keys of an actuator are
+        commands), handed the actuators the change would change and raising to refuse it;
+        None only for the config file's keys (the operator's own)."""
         board = self._board()
         with self._lock:
+            if guard is not None:
+                self._guard(board, guard, values, save)
             try:
                 self.values = board.configure(values, save)
             finally:
@@ -111,13 +139,30 @@ class BoardSettings:
             self._changed(by, values)
         return dict(self.values)
 
-    def reset(self, erase_saved: bool = False, by: str = "api") -> dict[str, Value]:
+    def reset(
+        self, erase_saved: bool = False, by: str = "api", guard: Guard | None = None
+    ) -> dict[str, Value]:
         board = self._board()
         with self._lock:
+            if guard is not None:
+                self._guard(board, guard, None, False)
             self.values = board.reset_config(erase_saved)
             self.state = board.settings.state
             self._changed(by, {"(defaults)": True})
         return dict(self.values)
+
+    def _guard(
+        self, board: Board, guard: Guard, wanted: Mapping[str, object] | None, save: bool
+    ) -> None:
+        """Hand ``guard`` the actuators a change would change, compared with what the board
+        has now (read again: a board that restarted has forgotten what was set)."""
+        actuators = {t.name for t in board.transducers or () if t.is_actuator}
+        if not actuators:
+            return
+        now = board.config()
+        changed = actuators_changed(board.settings.keys(), actuators, now, wanted, save)
+        if changed:
+            guard(changed)
 
     def read(self) -> dict[str, Value]:
         board = self._board()
@@ -125,9 +170,6 @@ class BoardSettings:
             self.values = board.config()
             self.state = board.settings.state
         return dict(self.values)
-
-    def apply_from_face(self, values: Mapping[str, object]) -> dict[str, Value]:
-        return self.configure(values, by="ros2 parameters")
 
     def _board(self) -> Board:
         board = self.board

@@ -7,8 +7,9 @@ summary and the live view read, with the keys (and their order) documented for t
 session's own, the link's counters, the sample path's, the commands', the errors caught (by
 kind: ``errors``, ``error_kinds``), the board's identity (``board_id``, ``fw_version``,
 ``fw_hash``, ``address``), the run-time configuration's, the alignment's, the failsafe's, the
-board's memory and the clock sync's.  The parts that other modules own (sample path, settings,
-clock sync) stay the plain dicts those modules give.
+board's memory, the clock sync's and, once a firmware update ran, ``update`` (``{state, done,
+total, from, to}``: daemon/updates.py).  The parts that other modules own (sample path,
+settings, clock sync) stay the plain dicts those modules give.
 """
 
 from __future__ import annotations
@@ -237,6 +238,7 @@ class SessionStatus:
     memory: MemoryStatus = field(default_factory=MemoryStatus)  #: the board's (a2jMemory)
     sync: Mapping[str, Any] | None = None  #: the clock sync's (None: the board has no clock)
     identity: Identity = field(default_factory=Identity)  #: as of the latest handshake
+    update: Mapping[str, Any] | None = None  #: the last firmware update's state (updates.py)
 
     def to_json(self) -> dict[str, Any]:
         """The plain dict, in the documented key order (JSON types only)."""
@@ -267,4 +269,5 @@ class SessionStatus:
             **self.failsafe.to_json(),
             **self.memory.to_json(),
             **(self.sync if self.sync is not None else {"sync_state": "none"}),
+            **({"update": dict(self.update)} if self.update is not None else {}),
         }

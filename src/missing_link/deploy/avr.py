@@ -124,3 +124,23 @@ def flash_avr(
             expect["board.id"] = board_id
         say(verify(f"serial://{port}?baud={baud}", bf, expect=expect))
     return 0
+
+
+def build_stamped(bf: BoardFile, build: Path, say: Callable[[str], None]) -> tuple[Path, str]:
+    """Build the firmware into ``build`` (``missing-link update``): the image's path and the
+    fw.hash it was stamped with (a fresh id, taken only by a board that has none)."""
+    if not AVR_DIR.is_dir():
+        raise FlashError(f"AVR builds need the missing-link source checkout ({AVR_DIR})")
+    out = _run(make_command(bf, build), "building the AVR firmware", 300)
+    for line in out.splitlines():
+        if ": flash " in line:
+            say(line)  # the size line
+    stamped = STAMPED.search(out)
+    if stamped is None:
+        raise FlashError("building the AVR firmware: no stamp line (fw.hash, board.id)")
+    return build / bf.name / "firmware.hex", stamped.group(1)
+
+
+def run_avrdude(bf: BoardFile, port: str, hex_path: Path) -> None:
+    """Write ``hex_path`` through the board's bootloader (FlashError with avrdude's line)."""
+    _run(avrdude_command(bf.mcu, port, hex_path), f"avrdude on {port}", 300)

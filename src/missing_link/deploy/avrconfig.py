@@ -40,6 +40,11 @@ APPLY = {
         (),
     ),
     "gps_nmea": ("", ()),
+    "battery": (
+        "battery_set(F(v[{rate_hz}]), F(v[{ratio}]), (uint8_t)v[{cells}], "
+        "(uint8_t)v[{chemistry}]);",
+        (),
+    ),
 }
 #: sampling on the host-time grid (timing.c), for the drivers that align (``ALIGNABLE``)
 ALIGN = {
@@ -47,6 +52,7 @@ ALIGN = {
     "sharp_gp2y0a02": "sharp_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "srf02": "srf02_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "hcsr04": "hcsr04_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "battery": "battery_align((uint8_t)v[{aligned}], F(v[{phase}]));",
 }
 #: a combination a driver refuses (the Python driver's check_config, in C)
 CHECK = {
@@ -73,6 +79,10 @@ def default_of(cls: type, entry: dict[str, Any], key: str, limits: Any) -> Any:
     """A key's value at boot, as the Python driver computes it from the board file entry."""
     params = inspect.signature(cls.__init__).parameters  # type: ignore[misc]
     value = entry.get(key, params[key].default if key in params else None)
+    if key == "ratio" and key not in params:  # the battery's divider, as its __init__ has it
+        top = float(entry.get("r_top", params["r_top"].default))
+        bottom = float(entry.get("r_bottom", params["r_bottom"].default))
+        return (top + bottom) / bottom
     if key == "rate_hz":  # Periodic: capped to the limit, the period in whole µs
         rate = min(float(value or 0), float(limits[1]))
         return round(1e6 / int(1e6 / rate), 3)

@@ -6,10 +6,12 @@ the entry."""
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..board.drivers import battery
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 from .avrpins import PCINT, FixedPins, pin_c
@@ -17,7 +19,7 @@ from .cgen import c_comment, c_ident, c_text
 
 #: the drivers of the C runtime, and how many of each a board may have
 AVR_DRIVERS = {"quadrature": 1, "sharp_gp2y0a02": 1, "srf02": 1, "servo": 1, "trigger": 1,
-               "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1}  # fmt: skip
+               "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1, "battery": 1}  # fmt: skip
 
 
 @dataclass
@@ -83,7 +85,7 @@ class Entry:
 
     @property
     def rate(self) -> float:
-        default = {"quadrature": 50, "sharp_gp2y0a02": 25}.get(self.e["driver"], 10)
+        default = {"quadrature": 50, "sharp_gp2y0a02": 25, "battery": 1}.get(self.e["driver"], 10)
         return float(self.e.get("rate_hz", default))
 
     def pin(self, key: str) -> str:
@@ -254,7 +256,48 @@ def _hbridge(x: Entry) -> None:
     p.make_safe = f"motor_safe_{inst}"
 
 
+def _battery(x: Entry) -> None:
+    """The Python driver's checks and curves (board/drivers/battery.py: its single source); the
+    ADC's reference is AVcc, 5 V on every AVR board here unless the entry's vref says else."""
+    e = x.e
+    if not 0 <= int(e["pin"]) <= 7:
+        raise ConfigError(f"{x.at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
+    params = inspect.signature(battery.Battery.__init__).parameters
+
+    def get(key: str) -> Any:
+        return e.get(key, params[key].default)
+
+    top, bottom = float(get("r_top")), float(get("r_bottom"))
+    empty, full = float(get("cell_empty")), float(get("cell_full"))
+    chemistry, cells, reads = get("chemistry"), int(get("cells")), int(get("reads"))
+    vref = e.get("vref", 5.0)  # (not the Python default: that is a 3.3 V MicroPython board's)
+    if not (top >= 0 and bottom > 0):
+        raise ConfigError(f"{x.at}: r_top >= 0 and r_bottom > 0 (ohms)")
+    if chemistry not in battery.CHEMISTRIES:
+        raise ConfigError(f"{x.at}: chemistry one of {', '.join(battery.CHEMISTRIES)}")
+    if not (1 <= cells <= 24 and full > empty > 0):
+        raise ConfigError(f"{x.at}: cells 1..24 and cell_full > cell_empty > 0")
+    if not 0 < float(vref) <= 5.5:
+        raise ConfigError(f"{x.at}: vref is AVcc's voltage on AVR (0..5.5 V)")
+    if not 1 <= reads <= 9:  # (battery.h: BATTERY_MAX_READS)
+        raise ConfigError(f"{x.at}: reads 1..9 on AVR")
+    curves = [battery.CURVES[c] for c in battery.CHEMISTRIES[:-1]] + [((empty, 0.0), (full, 1.0))]
+    starts = [sum(len(c) for c in curves[:i]) for i in range(len(curves) + 1)]
+    points = ", ".join(f"{_f(v)}, {_f(f)}" for curve in curves for v, f in curve)
+    x.p.decls += [
+        "/* the battery's curves, (volts a cell, charge), from board/drivers/battery.py */",
+        f"static const float battery_points[] PROGMEM = {{{points}}};",
+        f"static const uint8_t battery_starts[] = {{{', '.join(map(str, starts))}}};",
+    ]
+    x.p.setup.append(
+        f"battery_init({x.tref}, {int(e['pin'])}, {_f(min(x.rate, 100.0))}, {_f(vref)}, "
+        f"{_f((top + bottom) / bottom)}, {cells}, {battery.CHEMISTRIES.index(chemistry)}, "
+        f"{reads}, battery_points, battery_starts);"
+    )
+    x.p.polls.append(f"if ({x.enabled}) battery_poll(now);")
+
+
 #: the driver's part maker, by the board file's driver name
 MAKERS = {"quadrature": _quadrature, "sharp_gp2y0a02": _sharp, "srf02": _srf02,
           "trigger": _trigger, "servo": _servo, "hbridge": _hbridge, "stepper": _stepper,
-          "hcsr04": _hcsr04, "gps_nmea": _gps}  # fmt: skip
+          "hcsr04": _hcsr04, "gps_nmea": _gps, "battery": _battery}  # fmt: skip

@@ -115,6 +115,8 @@ def _add_entry(
         raise ConfigError(f"{at}: type {t.dtype} is not supported on AVR")
     if t.chan_count * (8 + DTYPES[t.dtype][1]) > MAX_SIF_PAYLOAD:
         raise ConfigError(f"{at}: its SIF would exceed {MAX_SIF_PAYLOAD} bytes on AVR")
+    if t.chan_count > 16:  # (runtime.h: a bit per channel in a uint16_t)
+        raise ConfigError(f"{at}: {t.chan_count} channels; the AVR runtime keeps 16 at most")
     parts.lines.append(t.descriptor_line())
     parts.decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
     parts.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
@@ -140,7 +142,8 @@ def _add_entry(
 
 
 #: the C runtime's headers (firmware/avr/src)
-HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"builtins.h"', '"config.h"',
+HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"battery.h"', '"builtins.h"',
+           '"config.h"',
            '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
            '"identity.h"', '"log.h"', '"memory.h"', '"runtime.h"', '"stepper.h"',
            '"timing.h"')  # fmt: skip

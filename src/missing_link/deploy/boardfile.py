@@ -127,6 +127,7 @@ def check_board(board: dict[str, Any], where: str) -> None:
     if "config_file" in board:
         _file_name(board["config_file"], f"{where}: config_file")
     _check_link(board.get("link", {"kind": "usb"}), mcu, where)
+    _distinct_files(board, where)
     buses = board.get("buses", {})
     _check_buses(buses, where)
     entries = board.get("transducers")
@@ -143,7 +144,11 @@ def check_board(board: dict[str, Any], where: str) -> None:
 
 
 def _check_link(link: Any, mcu: str, where: str) -> None:
-    if not isinstance(link, dict) or link.get("kind", "usb") not in LINK_KEYS:
+    if (
+        not isinstance(link, dict)
+        or not isinstance(link.get("kind", "usb"), str)
+        or link.get("kind", "usb") not in LINK_KEYS
+    ):
         raise ConfigError(
             f"{where}: link must be {{'kind': 'usb'}}, {{'kind': 'uart', ...}}, "
             "{'kind': 'tcp', 'port': 5000, 'key_file': 'mlkey.bin'} or (a board that dials "
@@ -166,6 +171,33 @@ def _check_link(link: Any, mcu: str, where: str) -> None:
             lo, hi = LINK_INTS[key]
             if not (value is None and key in ("tx", "rx")):
                 _integer(value, at, lo, hi)
+
+
+#: the files the firmware keeps on the board, and the name each has when none is given (None:
+#: not kept then); each is written through NAME.tmp (board/store.py, board/link.py)
+BOARD_FILES = (("config_file", "mlconfig.bin"), ("key_file", None), ("boot_file", "mlboots.txt"),
+               ("replay_file", None))  # fmt: skip
+
+
+def _distinct_files(board: dict[str, Any], where: str) -> None:
+    """No two of the board's files - nor one and another's .tmp - are one file: a key_file
+    that is the config_file would be overwritten by the first `config --save`, and the board
+    would read a configuration record as its key at the next boot."""
+    link = board.get("link", {})
+    taken: dict[str, str] = {}
+    for key, default in BOARD_FILES:
+        if key != "config_file" and link.get("kind") != "tcp":
+            continue  # (only a network link keeps files of its own)
+        name = (board if key == "config_file" else link).get(key, default)
+        if name is None:
+            continue
+        for file in (name, name + ".tmp"):
+            if file in taken:
+                raise ConfigError(
+                    f"{where}: {key} {name!r} is the file of {taken[file]} (or its .tmp): each "
+                    "file on the board must have a name of its own"
+                )
+            taken[file] = key
 
 
 def _dial(value: Any, link: dict[str, Any], at: str) -> None:

@@ -5,9 +5,15 @@ MicroPython boards (RP2040, ESP32): a board file whose firmware cannot fit the b
 refused first, with the numbers (heap.py).  Then the board runtime, the drivers the board file
 uses, the board file (as ``/board.py``), the signing key (``--key``, as the link's ``key_file``) and
 ``main.py`` are staged in a temporary directory and every one of them is copied with mpremote
-(``fs cp``; a new key replaces the old one), then the board is reset; mpremote's own
-"\\r\\x03\\x03" stops a running firmware first (see board/firmware.py).  AVR boards
-(``mcu = atmega...``): the firmware is generated and built (``gen-firmware``, ``make -C
+(``fs cp``; a new key replaces the old one), then the board is reset.  A running firmware turns
+Ctrl-C off and stops only on the break between frames (board/wire.py: "\\x03\\x03repl" then CR
+or LF); mpremote (1.29) sends only "\\r\\x03", so ``send_break`` stops it first: the port
+opened, 50 ms (a frame cut short ends at the firmware's 10 ms receive timeout, and its rest is
+skipped until the line has been quiet 10 ms more: board/wire.py), the break
+written, the firmware's "missing-link firmware stopped: REPL" awaited (up to 2 s; a board at its
+REPL already answers with its prompt and a harmless NameError), the port closed, then mpremote;
+neither within 2 s is an error (mpremote would wait for ever on a firmware that streams).
+AVR boards (``mcu = atmega...``): the firmware is generated and built (``gen-firmware``, ``make -C
 firmware/avr``) and written with avrdude.
 Then the port is opened as a J2A link and the board's name and transducers are compared with the
 board file, and its ``fw.hash`` with the hash of the runtime files as they were copied
@@ -26,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..board import drivers as drivers_pkg
-from ..board.identity import FirmwareHash
+from ..board.identity import BOARD_FILE, FirmwareHash
 from .avr import flash_avr
 from .boardfile import BoardFile
 from .check import FlashError, verify
@@ -37,7 +43,7 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
     "timing.py", "failsafe.py", "memory.py", "wire.py", "firmware.py", "link.py", "identity.py",
-    "dial.py", "log.py",
+    "dial.py", "log.py", "signing.py", "boot.py", "update.py",
 )  # fmt: skip
 #: where the runtime goes on the board: fw.hash is over the files under it (board/identity.py)
 LIB = "lib/mlboard/"
@@ -68,12 +74,12 @@ def micropython_files(bf: BoardFile, key: str | None = None) -> list[Copy]:
 
 def firmware_hash(files: list[Copy]) -> str:
     """The ``fw.hash`` a board reports once ``files`` are on it: the runtime's files, as the
-    board hashes its ``lib/mlboard`` (board/identity.py)."""
+    board hashes its ``lib/mlboard``, and the board file (board/identity.py)."""
     out = FirmwareHash()
     for c in files:
-        if c.remote.startswith(LIB):
+        if c.remote.startswith(LIB) or c.remote == BOARD_FILE:
             data = c.local.read_bytes()
-            out.add(c.remote[len(LIB) :], len(data), [data])
+            out.add(c.remote.removeprefix(LIB), len(data), [data])
     digest: str = out.digest()
     return digest
 
@@ -100,7 +106,9 @@ def mpremote_command(port: str, stage: Path, files: list[Copy], mpremote: list[s
 def prune_code(files: list[Copy]) -> str:
     """MicroPython that removes the files under ``lib/mlboard`` that this flash did not put
     there (a driver an earlier board file used): the runtime is then exactly the files
-    ``firmware_hash`` hashed, and the board's fw.hash says so.  Nothing else is touched."""
+    ``firmware_hash`` hashed, and the board's fw.hash says so.  It also removes ``fw/``, the
+    update slots and their boot record (board/boot.py): the firmware flashed here runs.
+    Nothing else is touched."""
     keep = sorted(c.remote[len(LIB) :] for c in files if c.remote.startswith(LIB))
     return (
         f"import os\nkeep = {tuple(keep)!r}\ndef prune(rel):\n"
@@ -110,6 +118,13 @@ def prune_code(files: list[Copy]) -> str:
         "        if os.stat(full)[0] & 0x4000:\n            prune(path)\n"
         "        elif path[1:] not in keep:\n            os.remove(full)\n"
         "prune('')\n"
+        "def wipe(path):\n"
+        "    try:\n        st = os.stat(path)\n    except OSError:\n        return\n"
+        "    if st[0] & 0x4000:\n"
+        "        for name in os.listdir(path):\n            wipe(path + '/' + name)\n"
+        "        os.rmdir(path)\n"
+        "    else:\n        os.remove(path)\n"
+        "wipe('fw')\n"
     )
 
 
@@ -118,6 +133,47 @@ def stage_files(files: list[Copy], stage: Path) -> None:
         dst = stage / c.remote
         dst.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(c.local, dst)
+
+
+#: what flash sends a running firmware first, and what the firmware answers when it stops
+BREAK = b"\r\x03\x03repl\r"
+STOPPED = b"missing-link firmware stopped: REPL"
+REPL_PROMPT = b">>> "  # (a board at its REPL already: the break is a harmless NameError there)
+
+
+def send_break(port: str, wait_s: float = 2.0) -> str:
+    """Stop a running firmware (see the module's docstring): "stopped" when it said so, "repl"
+    when a MicroPython prompt answered instead (no firmware ran).  FlashError when the port
+    cannot be opened, or when neither came within ``wait_s``: mpremote would wait on a
+    board that does not listen."""
+    import time
+
+    import serial
+
+    try:
+        port_ = serial.serial_for_url(port, 115200, timeout=0.05)
+    except (serial.SerialException, ValueError) as e:
+        raise FlashError(f"cannot open {port}: {e}") from None
+    got = b""
+    with port_:
+        time.sleep(0.05)  # (the quiet a cut frame's rest needs: the module's docstring)
+        try:
+            port_.write(BREAK)
+            port_.flush()
+            deadline = time.monotonic() + wait_s
+            while time.monotonic() < deadline:
+                got = (got + port_.read(512))[-4096:]
+                if STOPPED in got:
+                    return "stopped"
+                if REPL_PROMPT in got:
+                    return "repl"
+        except (serial.SerialException, OSError) as e:
+            raise FlashError(f"{port}: lost while stopping the firmware: {e}") from None
+    heard = "nothing" if not got else f"{len(got)} bytes, none of them the line"
+    raise FlashError(
+        f"{port}: the firmware did not stop: no {STOPPED.decode()!r} nor a REPL prompt within "
+        f"{wait_s:g} s after the break ({heard}); reset the board and try again"
+    )
 
 
 def _warn(text: str) -> None:
@@ -191,13 +247,16 @@ def flash(
         if dry_run:
             if fit is not None:
                 say(f"its firmware needs about {fit.need // 1024} KiB of the {bf.mcu}'s heap")
-            say(f"would copy to {port} ({bf.mcu}, MicroPython):")
+            say(f"would stop a running firmware on {port}: {BREAK!r}, then copy ({bf.mcu}, "
+                "MicroPython):")  # fmt: skip
             for c in files:
                 say(f"  {c.local} -> :{c.remote}")
             say("would run: " + shlex.join(cmd))
             say(f"then check that {url} answers J2A as {bf.name!r} with fw.hash {fw_hash}")
             return 0
         stage_files(files, stage)
+        if send_break(port) == "stopped":
+            say(f"{port}: the running firmware stopped for the REPL")
         say(f"copying {len(files)} files to {port} with mpremote ...")
         _run_mpremote(cmd, port)
     link = bf.board.get("link", {})
@@ -219,13 +278,16 @@ def _network_check(link: dict[str, object], key_arg: str) -> str:
     return f"missing-link info {signed}tcp://HOST:{link.get('port', 5000)}{key_arg}"
 
 
+MPREMOTE_TIMEOUT_S = 300.0
+
+
 def _run_mpremote(cmd: list[str], port: str) -> None:
     try:
-        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=MPREMOTE_TIMEOUT_S)
     except FileNotFoundError:
         raise FlashError(f"cannot run {cmd[0]}: pip install mpremote") from None
     except subprocess.TimeoutExpired:
-        raise FlashError(f"mpremote on {port} took over 300 s") from None
+        raise FlashError(f"mpremote on {port} took over {MPREMOTE_TIMEOUT_S:g} s") from None
     if r.returncode != 0:
         tail = (r.stderr or r.stdout).strip().splitlines()
         raise FlashError(f"mpremote failed on {port}: {tail[-1] if tail else r.returncode}")

@@ -42,6 +42,7 @@ KINDS = {
     10: "making safe raised",
     11: "storage failed",
     12: "a reply J2A cannot carry",
+    13: "an error frame heard back",
 }
 TEXT_LIMIT = 300  #: characters of a line at most (the board sends at most 242 bytes)
 

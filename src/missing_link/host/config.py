@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..errors import BoardError, ConfigError, FunctionFailed
+from ..text import safe_text
 from .link import CallResult
 
 
@@ -47,6 +48,8 @@ MAX_KEYS = 255
 MAX_PER_SET = 51  #: pairs of [index][4-byte value] in one a2jConfigSet (one frame)
 ST_SAVED, ST_LOADED, ST_DIRTY = 1, 2, 4
 _NAME = re.compile(r"[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*\Z")
+#: a number as text: ASCII digits only, no underscores (float() takes "1_0" and "\u0667")
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)(e[+-]?\d+)?\Z", re.ASCII)
 _TRUE = {"1", "true", "on", "yes"}
 _FALSE = {"0", "false", "off", "no"}
 
@@ -95,7 +98,7 @@ class ConfigKey:
     def parse(self, given: object) -> Value:
         """A user's value (text, or a Python value) for this key; ConfigError if it is not
         allowed."""
-        where = f"{self.name} = {given!r}"
+        where = f"{self.name} = {_shown(given)}"
         if self.read_only:
             raise ConfigError(f"{self.name} is read-only (it is {_n(self.default)} on this board)")
         text = str(given).strip().lower() if not isinstance(given, (bool, int, float)) else None
@@ -112,9 +115,11 @@ class ConfigKey:
             if wanted not in self.choices:
                 raise ConfigError(f"{where}: expected {self.allowed()}")
             return natural(wanted)
+        if text is not None and not _NUMBER.match(text):
+            raise ConfigError(f"{where}: expected {self.allowed()}")
         try:
             number = float(given) if text is None else float(text)  # type: ignore[arg-type]
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # (OverflowError: an int of 400 digits)
             raise ConfigError(f"{where}: expected {self.allowed()}") from None
         if isinstance(given, bool) or not math.isfinite(number):
             raise ConfigError(f"{where}: expected {self.allowed()}")
@@ -147,6 +152,14 @@ class ConfigKey:
         if self.kind == "enum":
             return natural(self.choices[v]) if 0 <= v < len(self.choices) else f"?{v}"
         return v
+
+
+def _shown(given: object) -> str:
+    """A user's value for an error message: short, clean, whatever it is."""
+    try:
+        return safe_text(repr(given), 60)
+    except ValueError:  # (an int over Python's digit limit has no repr)
+        return f"a {type(given).__name__} too long to show"
 
 
 def natural(label: str) -> Value:
@@ -334,3 +347,45 @@ def describe_keys(keys: list[ConfigKey], values: Mapping[str, Value]) -> list[di
         }
         for k in keys
     ]
+
+
+def actuators_changed(
+    keys: list[ConfigKey],
+    actuators: set[str],
+    now: Mapping[str, Value],
+    wanted: Mapping[str, object] | None,
+    save: bool = False,
+) -> list[str]:
+    """The actuators (transducer names in ``actuators``) whose keys a change would change: a
+    set of ``wanted`` (None: a reset to the defaults) against the values ``now``, and with
+    ``save`` what the board boots with (an actuator key saved away from its default).  Keys
+    of an actuator are commands (docs/security.md): a face that may not command it may not
+    change them either.  ConfigError for a key or value the table does not take."""
+    table = {k.name: k for k in keys}
+    after = dict(now)
+    if wanted is None:
+        after.update({k.name: k.default for k in keys if not k.read_only})
+    else:
+        for name, given in wanted.items():
+            key = table.get(name)
+            if key is None:
+                raise ConfigError(f"{safe_text(name, 60)}: no such key")
+            after[name] = key.parse(given)
+    out: list[str] = []
+    for k in keys:
+        if k.transducer not in actuators or k.transducer in out:
+            continue
+        moved = not _same(k, now.get(k.name), after.get(k.name))
+        if moved or (save and not _same(k, after.get(k.name), k.default)):
+            out.append(k.transducer)
+    return out
+
+
+def _same(k: ConfigKey, a: Value | None, b: Value | None) -> bool:
+    """Whether two values of ``k`` are one value on the wire (floats as the board keeps them)."""
+    if a is None or b is None:
+        return a is b
+    try:
+        return k.to_wire(a) == k.to_wire(b)
+    except (ValueError, TypeError, OverflowError, struct.error):  # (an enum value not a choice)
+        return False

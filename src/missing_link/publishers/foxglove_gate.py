@@ -277,7 +277,7 @@ class LiveView:
                 if cid is not None:
                     client.by_channel.pop(cid, None)
             return True
-        return op in IGNORED_OPS
+        return isinstance(op, str) and op in IGNORED_OPS  # (an op of {} is no op, no bug)
 
     def _subscribe(self, client: _Client, subs: Any) -> bool:
         if not isinstance(subs, list) or len(client.subs) + len(subs) > MAX_SUBSCRIPTIONS:

@@ -124,3 +124,52 @@ class FrontDoor:
         """For websockets' ``process_request``: a refusal response, or None."""
         why = self.refusal(request, clients)
         return None if why is None else connection.respond(*why)
+
+
+class LoginLimiter:
+    """Failed logins per client address (no I/O; time passed in): after ``failures`` in
+    ``window_s`` a client's logins are refused until its window ends, and nobody else's are.
+    The table holds at most ``max_clients`` addresses; while it is full of addresses that
+    failed within the window, every address not in it shares one more entry (``OVERFLOW``),
+    limited the same way.  So a guesser with many addresses (all of 127/8 reaches a loopback
+    console) costs bounded memory and gets at most ``(max_clients + 1) * failures`` tries a
+    window - evicting its own entries would have given it unlimited ones - and only such a
+    flood can hold off an address it does not use."""
+
+    OVERFLOW = "(every other address)"
+
+    def __init__(self, failures: int = 5, window_s: float = 60.0, max_clients: int = 1024) -> None:
+        self.failures = failures
+        self.window_s = window_s
+        self.max_clients = max_clients
+        self._failed: dict[str, list[float]] = {}  # address -> its failures' times, oldest first
+
+    def __len__(self) -> int:
+        return len(self._failed)
+
+    def allows(self, client: str, now: float) -> bool:
+        """Whether ``client`` may try a login now."""
+        key = self._key(client, now)
+        times = self._failed.get(key)
+        if times is None:
+            return True
+        while times and times[0] <= now - self.window_s:
+            times.pop(0)
+        if not times:
+            del self._failed[key]
+            return True
+        return len(times) < self.failures
+
+    def failed(self, client: str, now: float) -> None:
+        times = self._failed.setdefault(self._key(client, now), [])
+        times.append(now)
+        del times[: -self.failures]
+
+    def _key(self, client: str, now: float) -> str:
+        """``client``'s entry: its own, or the shared one while the table is full."""
+        if client in self._failed or len(self._failed) < self.max_clients:
+            return client
+        for k in [k for k, t in self._failed.items() if not t or t[-1] <= now - self.window_s]:
+            del self._failed[k]  # (only when full: those whose window has ended make room)
+        room = len(self._failed) - (self.OVERFLOW in self._failed) < self.max_clients
+        return client if room else self.OVERFLOW

@@ -7,10 +7,12 @@ written to a new, valid bag, and the count is returned, so the user knows what w
 The file is input, not ours to trust (it may be anyone's): every chunk is decompressed under a
 size cap (``MAX_CHUNK``, and ``MAX_RATIO`` times its compressed size: a 32 KB zstd chunk that
 claims a gigabyte is refused before any work, one that grows past what it claims is stopped
-there); a damaged chunk is skipped, not the rest of the file; a channel whose schema does not
-parse or cannot be written loses its own messages (counted, said once), not what was salvaged
-of the others.  What is wrong with the file is a :class:`RecoverError` (a ``MissingLinkError``
-and a ``ValueError``: the CLI's exit 2), one line.
+there); a damaged chunk is skipped, not the rest of the file; a length that runs past the
+file's end is where the file stops (reads are bounded by the file: no length makes a huge
+allocation); a channel whose schema does not parse or cannot be written loses its own
+messages (counted, said once), not what was salvaged of the others.  What is wrong with the
+file is a :class:`RecoverError` (a ``MissingLinkError`` and a ``ValueError``: the CLI's exit
+2), one line.
 """
 
 from __future__ import annotations
@@ -83,9 +85,10 @@ def complete_messages(
     for f in files:
         schemas: dict[int, Any] = {}
         channels: dict[int, Any] = {}
-        with open(f, "rb") as stream:
+        with open(f, "rb") as raw:
+            stream = _Bounded(raw)  # (a length past the file's end: a short read, no MemoryError)
             try:
-                reader = StreamReader(stream, skip_magic=False, emit_chunks=True)
+                reader = StreamReader(stream, skip_magic=False, emit_chunks=True)  # type: ignore[arg-type]
                 for record in reader.records:
                     inner = [record]
                     if isinstance(record, Chunk):
@@ -100,6 +103,21 @@ def complete_messages(
                     yield from _messages(inner, schemas, channels, skipped)
             except (McapError, EOFError, ValueError, OSError, struct.error, OverflowError) as e:
                 log.info("%s: stopped at a damaged or missing record: %s", f, e)
+
+
+class _Bounded:
+    """A file whose ``read(n)`` never asks for more than is left in it: a damaged length
+    (2**62 bytes of a chunk's records) is a short read, then the end of the file, not an
+    allocation that ends the process with MemoryError."""
+
+    def __init__(self, f: Any) -> None:
+        self._f = f
+        self._size = f.seek(0, io.SEEK_END)
+        f.seek(0)
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(0, self._size - self._f.tell())
+        return bytes(self._f.read(left if n < 0 else min(n, left)))
 
 
 def _plain(chunk: Any, data: bytes) -> Any:

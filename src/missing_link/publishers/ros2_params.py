@@ -8,7 +8,10 @@ Theory of operation
 A set from any ROS 2 client (``ros2 param set``, a parameter client, a launch file) reaches
 ``_on_set`` on the node's executor thread: the values are grouped per board and handed to the
 daemon's ``apply`` (the board's ``a2jConfigSet``: all or nothing); a refusal is an unsuccessful
-``SetParametersResult`` with the reason, and the parameter keeps its value.  A change made
+``SetParametersResult`` with the reason, and the parameter keeps its value.  ``apply`` is this
+face's own (fanout.py): the keys of an actuator are commands, so with ``[ros2] commands =
+false`` (the default off loopback) or an allow-list that does not name the actuator, a set that
+would change them is refused (counted under ``ros2``) like a command on its topic.  A change made
 through another face (``missing-link config``, ``Daemon.configure``) comes back through
 ``config_changed`` and is set here without going to the board again.
 """

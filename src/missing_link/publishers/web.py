@@ -24,9 +24,9 @@ import os
 import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
+from ..descriptors import read_input_file
 from ..errors import ConfigError
 from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
@@ -48,10 +48,11 @@ class WebContext:
 
     status: Callable[[], list[dict[str, Any]]]
     publisher_status: Callable[[], list[dict[str, Any]]]
-    #: (board, values, save, by=) -> the configuration after it (Daemon.configure)
+    #: (board, values, save, by=, commands=) -> the configuration after it (Daemon.configure:
+    #: an actuator's keys change only where this face takes commands)
     configure: Callable[..., dict[str, Value]]
-    #: (board, erase_saved) -> the configuration after it (Daemon.reset_config)
-    reset_config: Callable[[str, bool], dict[str, Value]]
+    #: (board, erase_saved, by=, commands=) -> the configuration after it (Daemon.reset_config)
+    reset_config: Callable[..., dict[str, Value]]
 
 
 def context_of(daemon: Any) -> WebContext:
@@ -103,11 +104,15 @@ def parse_addr(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+#: bytes a token file may have (a token is a line; /dev/zero is refused before it is read)
+MAX_TOKEN_FILE = 4096
+
+
 def _read_token(path: str) -> str:
     try:
         st = os.stat(path)
-        token = Path(path).read_text(encoding="utf-8").strip()
-    except (OSError, UnicodeDecodeError) as e:
+        token = read_input_file(path, MAX_TOKEN_FILE).decode("utf-8").strip()  # (capped)
+    except (OSError, ValueError) as e:  # (UnicodeDecodeError is a ValueError)
         raise ConfigError(f"[web] token_file {path}: cannot read: {e}") from None
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise ConfigError(f"[web] token_file {path}: others may read it (chmod 600 {path})")
@@ -217,5 +222,6 @@ class WebPublisher(Publisher):
             "hosts_refused": s.door.refused_hosts,
             "clients_refused": s.door.refused_clients,
             "logins_refused": s.logins_refused,
+            "pages_closed": s.pages_closed,
             "client_messages_dropped": s.dropped_messages,
         }

@@ -291,3 +291,8 @@ class ConsoleModel:
     def dropped(self) -> int:
         with self._lock:
             return sum(st.dropped for st in self._topics.values())
+
+    def waiting(self) -> int:
+        """Updates in the topics' inboxes, not yet taken by a tick."""
+        with self._lock:
+            return sum(len(st.inbox) for st in self._topics.values())

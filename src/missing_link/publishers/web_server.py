@@ -5,27 +5,32 @@ model (web_model.py).
 
 Theory of operation
 -------------------
-Every request passes the front door first (gate.py: the ``Host`` a loopback console answers to,
-the ``Origin`` - the page's own, or one listed - and at most ``MAX_CLIENTS`` pages).  Then:
+Every request passes the front door first (gate.py: the ``Host`` the console answers to -
+checked whenever TLS is off, token or not: a name rebound to 127.0.0.1 is refused -, the
+``Origin`` - the page's own, or one listed - and at most ``MAX_CLIENTS`` pages).  Then:
 
 * ``/`` and ``/static/NAME``: the page and its assets, from a table made at start (no path from
   a request ever reaches the file system), with a strict Content-Security-Policy (scripts,
   styles and connections from this origin only);
-* ``/session``: whether a login is needed and done (JSON); ``/login``: the token in the
-  ``Authorization: Bearer`` header (never in a URL) is checked in constant time and answered with
-  an ``HttpOnly``, ``SameSite=Strict`` session cookie (``Secure`` over TLS); failures are counted,
-  and after ``LOGIN_FAILURES`` in ``LOGIN_WINDOW_S`` every login is refused (429) until the
-  window ends; ``/logout`` ends the session;
-* ``/ws``: the WebSocket, for a session (or a Bearer token) where a token is set.
+* ``/session``: whether a login is needed and done (JSON, by the session cookie only);
+  ``/login``, the one place the token is taken: in the ``Authorization: Bearer`` header (never
+  in a URL), checked in constant time and answered with an ``HttpOnly``, ``SameSite=Strict``
+  session cookie (``Secure`` over TLS); failures are counted per client address, and after
+  ``LOGIN_FAILURES`` in ``LOGIN_WINDOW_S`` that address's logins are refused (429) until its
+  window ends - nobody else's (gate.py's ``LoginLimiter``, a bounded table); ``/logout`` ends
+  the session;
+* ``/ws``: the WebSocket, for a session where a token is set.
 
 A page gets a ``hello`` (everything: model.snapshot) and then a ``tick`` every ``TICK_S`` (what
 arrived, thinned; the status, polled from the daemon while pages are open).  A page that reads
-too slowly has its oldest ticks dropped (counted).  What a page sends is one JSON operation at a
-time - ``config`` (set, all or nothing; ``save``), ``reset``, ``command`` - answered with a
-``reply``; board calls run on worker threads, never on the loop.  Anything else is dropped and
-counted, never logged as sent.  Commands go through the daemon's gate (daemon/commands.py): where
-this face's ``commands`` is off, the gate refuses and counts them, and the page shows no
-actuator controls.
+too slowly has its oldest ticks dropped (counted); one whose queue still reaches ``MAX_QUEUE``
+(replies to what it sends, never read) is closed (``pages_closed``).  What a page sends is one
+JSON operation at a time - ``config`` (set, all or nothing; ``save``), ``reset``, ``command`` -
+answered with a ``reply``; board calls run on worker threads, never on the loop.  Anything
+else is dropped and counted, never logged as sent.  Commands go through the daemon's gate
+(daemon/commands.py): where this face's ``commands`` is off, the gate refuses and counts them,
+and the page shows no actuator controls; so does a configuration change of an actuator's keys
+(daemon/settings.py).
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ from ..errors import ConfigError, MissingLinkError
 from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
-from .gate import FrontDoor
+from .gate import FrontDoor, LoginLimiter
 from .web_model import ConsoleModel
 
 log = logging.getLogger(__name__)
@@ -56,6 +61,7 @@ TICK_S = 0.2
 MAX_CLIENTS = 16
 MAX_CLIENT_MESSAGE = 16384
 BACKLOG = 50  #: ticks waiting for one page (10 s)
+MAX_QUEUE = 200  #: messages waiting for one page at most (ticks and replies): more closes it
 LOGIN_FAILURES, LOGIN_WINDOW_S = 5, 60.0
 SESSION_S = 12 * 3600.0
 COOKIE = "ml_session"
@@ -103,17 +109,19 @@ class WebServer:
         self.opts = options
         self.commands_on = commands_on
         self.files = static_files()
-        loopback_only = not options.token  # (a token: TLS names the host; rebinding is moot)
+        # the Host check whenever TLS is off (with TLS the certificate names the host: a page
+        # from a rebound name fails its handshake); a token does not make up for it
         self.door = FrontDoor(
             "web", options.origins, MAX_CLIENTS, same_origin=True,
             scheme="https" if options.tls else "http",
-            hosts=options.hosts if loopback_only else None,
+            hosts=None if options.tls else options.hosts,
         )  # fmt: skip
         self.ctx: Any = None
         self._pages: set[_Page] = set()
         self._sessions: dict[str, float] = {}  # session id -> expiry (monotonic)
-        self._failures: deque[float] = deque()
+        self.logins = LoginLimiter(LOGIN_FAILURES, LOGIN_WINDOW_S)
         self.logins_refused = 0
+        self.pages_closed = 0  #: pages closed because they did not read their queue
         self.dropped_messages = 0
         self.dropped = 0
         self.commands_sent = 0
@@ -197,9 +205,10 @@ class WebServer:
     async def _tick(self) -> None:
         while True:
             await asyncio.sleep(TICK_S)
-            if not self._pages:
-                continue
             try:
+                if not self._pages:  # (still taken: an inbox nobody reads is no loss, and a
+                    self.model.drain(time.time())  # page opened later shows the last 30 s)
+                    continue
                 if self.ctx is not None:
                     self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
                 msg = json.dumps(self.model.drain(time.time()), separators=(",", ":"))
@@ -228,7 +237,7 @@ class WebServer:
             body = {"token": bool(self.opts.token), "authenticated": authed, "name": self.opts.name}
             return self._respond(200, json.dumps(body).encode(), "application/json")
         if path == "/login":
-            return self._login(request)
+            return self._login(connection, request)
         if path == "/logout":
             resp = self._respond(204, b"", "text/plain")
             sid = _cookie(request.headers.get("Cookie", ""))
@@ -256,10 +265,8 @@ class WebServer:
         return Response(status, reason, headers, body)
 
     def _authenticated(self, request: Any) -> bool:
+        """A session's cookie (the token is taken at ``/login`` only, where it is limited)."""
         if not self.opts.token:
-            return True
-        auth = request.headers.get("Authorization", "")
-        if auth.startswith("Bearer ") and self._token_ok(auth[7:].strip()):
             return True
         sid = _cookie(request.headers.get("Cookie", ""))
         expiry = self._sessions.get(sid or "")
@@ -268,18 +275,17 @@ class WebServer:
     def _token_ok(self, given: str) -> bool:
         return hmac.compare_digest(given.encode(), self.opts.token.encode())
 
-    def _login(self, request: Any) -> Any:
+    def _login(self, connection: Any, request: Any) -> Any:
         now = time.monotonic()
-        while self._failures and self._failures[0] < now - LOGIN_WINDOW_S:
-            self._failures.popleft()
         auth = request.headers.get("Authorization", "")
         if not self.opts.token:
             return self._respond(204, b"", "text/plain")
-        if len(self._failures) >= LOGIN_FAILURES:
+        client = _address(connection)
+        if not self.logins.allows(client, now):
             self.logins_refused += 1
             return self._respond(429, b"Too many failed logins: wait a minute\n", "text/plain")
         if not (auth.startswith("Bearer ") and self._token_ok(auth[7:].strip())):
-            self._failures.append(now)
+            self.logins.failed(client, now)
             self.logins_refused += 1
             log.warning("web: a login refused (wrong token)")  # (never what was given)
             return self._respond(401, b"Wrong token\n", "text/plain")
@@ -312,6 +318,10 @@ class WebServer:
                 if reply is None:
                     self.dropped_messages += 1
                     log.warning("web: a page's message dropped (not a console operation)")
+                elif len(page.out) >= MAX_QUEUE:  # it sends and never reads: its replies
+                    self.pages_closed += 1  # would grow without end
+                    log.warning("web: a page closed: %d messages wait for it unread", MAX_QUEUE)
+                    break
                 else:
                     page.out.append(json.dumps(reply))
                     page.wake.set()
@@ -358,17 +368,25 @@ class WebServer:
         values = m.get("set", {})
         if not isinstance(values, dict) or not all(isinstance(k, str) for k in values):
             return None
+        if not all(isinstance(m.get(k, False), bool) for k in ("save", "erase")):
+            return {
+                "op": "reply",
+                "id": m["id"],
+                "ok": False,
+                "text": "save and erase: true or false",
+            }
         if op == "config" and not values and not m.get("save"):
             return {"op": "reply", "id": m["id"], "ok": True, "text": "nothing to set"}
         if self.ctx is None:
             return {"op": "reply", "id": m["id"], "ok": False,
                     "text": "this console is not attached to a daemon: read-only"}  # fmt: skip
-        ctx = self.ctx
+        ctx, on = self.ctx, self.commands_on()  # (an actuator's keys are commands: the gate's)
         if op == "reset":
-            call: Callable[[], Any] = lambda: ctx.reset_config(board, bool(m.get("erase")))  # noqa: E731
+            erase = bool(m.get("erase"))
+            call: Callable[[], Any] = lambda: ctx.reset_config(board, erase, by="web", commands=on)  # noqa: E731
         else:
             save = bool(m.get("save"))
-            call = lambda: ctx.configure(board, values, save, by="web")  # noqa: E731
+            call = lambda: ctx.configure(board, values, save, by="web", commands=on)  # noqa: E731
         try:
             result = await asyncio.to_thread(call)
         except (ConfigError, MissingLinkError) as e:
@@ -402,6 +420,14 @@ def _quiet_logger() -> logging.Logger:
 def _finish(fut: asyncio.Future[None]) -> None:
     if not fut.done():
         fut.set_result(None)
+
+
+def _address(connection: Any) -> str:
+    """The client's address (without its port): what failed logins are counted by."""
+    try:
+        return str(connection.remote_address[0])
+    except (AttributeError, IndexError, TypeError):  # (no address: one shared entry)
+        return "?"
 
 
 def _cookie(header: str) -> str | None:

@@ -33,6 +33,7 @@ from ..board.signing import (
     hello,
     session_key,
 )
+from ..descriptors import read_input_file
 from ..errors import BadURL, TransportBroken
 from ..j2a.codec import Frame, FrameDecoder
 from .base import Received, Transport
@@ -41,12 +42,17 @@ from .base import Received, Transport
 GREETING_S = 5.0
 
 
+#: bytes a key file may have (64 hex digits and a newline, or 32 raw bytes: a little room)
+MAX_KEY_FILE = 1024
+
+
 def load_key(path: str) -> bytes:
-    p = Path(path).expanduser()
-    try:
-        raw = p.read_bytes()
+    try:  # (capped, and a device or FIFO refused before it is read: /dev/zero never ends)
+        raw = read_input_file(str(Path(path).expanduser()), MAX_KEY_FILE)
     except OSError as e:
         raise BadURL(f"signing key {path}: {e.strerror or e}") from None
+    except ValueError as e:
+        raise BadURL(f"signing key {path}: {e}") from None
     text = raw.strip()
     if len(text) == 64:
         try:

@@ -12,7 +12,14 @@ board file's link would be on a network board: link.py's TcpLink (one host at a 
 newest) or, with a ``key_file``, SignedLink, over a :class:`SocketServer` that has link.py's
 TcpServer interface on a socket of this machine; or, for ``pty``, a :class:`PtyLink` (USB CDC:
 one host, who may close and reopen the port unseen).  A board file's own link kind and port
-are not used: ``--listen`` says where the board is.
+are not used: ``--listen`` says where the board is.  With ``dial=True`` the board connects out
+to ``tcp://HOST:PORT`` (a daemon that runs ``run --listen``) as a board whose link dials does on
+a device: board/dial.py's DialServer (its backoff) over :class:`DialNet`, link.py's SocketNet
+with the power switch, in place of the SocketServer; TcpLink or SignedLink above it as before.
+
+Who the board is: its simulated chip's ``machine.unique_id()`` (board.id), from
+:func:`chip_id`: made once at random and kept in the flash directory when the caller names one
+(a real chip's id is fixed: restarting on the same flash is the same board), else from a seed.
 
 The flash is a directory: the saved configuration (the board file's ``config_file``) and the
 link's files (``key_file``, ``boot_file``) live there, kept between runs when the caller names
@@ -38,14 +45,17 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
 
+from ..board.dial import dial_server
 from ..board.firmware import Firmware
-from ..board.link import TcpLink, network_link
+from ..board.link import SocketNet, network_link
 from ..board.store import FileStore
 from ..errors import BadURL, ConfigError, MissingLinkError
 from .world import machine
 from .world.parts import populate
 
 LINK_FILES = ("key_file", "boot_file", "replay_file")
+#: the simulated chip's id in the flash directory (16 hex digits), made at its first run
+CHIP_ID_FILE = ".chip_id"
 
 
 class ListenError(MissingLinkError):
@@ -158,6 +168,77 @@ class SocketServer:
             except OSError:
                 pass
         self.listener.close()
+
+
+class DialNet(SocketNet):  # type: ignore[misc]
+    """link.py's SocketNet (a device's outgoing connections: board/dial.py dials over it) with
+    the power switch: its waits wake on it and every look at the network checks it.  Its
+    connections send at once (TCP_NODELAY: a frame is small, clock sync wants it out now)."""
+
+    def __init__(self, power: Power) -> None:
+        super().__init__()
+        self.power = power
+
+    def connect(self, host: str, port: int) -> int:
+        self.power.check()
+        n: int = super().connect(host, port)
+        return n
+
+    def connected(self, n: int) -> bool | None:
+        self.power.check()
+        up: bool | None = super().connected(n)
+        sock = self._conns.get(n) if up else None
+        if sock is not None and sock.family == socket.AF_INET:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return up
+
+    def recv(self, n: int) -> bytes | None:
+        self.power.check()
+        data: bytes | None = super().recv(n)
+        return data
+
+    def wait(self, us: int) -> None:
+        _wait([sock.fileno() for sock in self._conns.values()], self.power, us)
+        self.power.check()
+
+
+def dial_target(url: str) -> str:
+    """``tcp://HOST:PORT`` -> the ``HOST:PORT`` a board file's link dials (board/dial.py);
+    BadURL for anything else."""
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "tcp" or not parts.hostname or not port:
+        raise BadURL(f"cannot dial {url!r}: use tcp://HOST:PORT (a daemon that runs run --listen)")
+    return f"{parts.hostname}:{port}"
+
+
+def chip_id(flash: Path | None, seed: int) -> bytes:
+    """The simulated chip's ``machine.unique_id()`` (8 bytes): kept in ``flash`` (made at random
+    the first time, as a chip's is fixed at the factory), or without a flash the seeded one
+    (world/machine.py: ``host.mjs --seed``'s).  ConfigError when the flash's is not one."""
+    if flash is None:
+        raw: bytes = machine.seeded_unique_id(seed)
+        return raw
+    path = flash / CHIP_ID_FILE
+    if not path.exists():
+        tmp = flash / f"{CHIP_ID_FILE}.{os.getpid()}"
+        tmp.write_text(os.urandom(8).hex() + "\n")
+        try:
+            os.link(tmp, path)  # (atomic: two boards started on one flash get one id)
+        except FileExistsError:
+            pass
+        finally:
+            tmp.unlink()
+    text = path.read_text().strip()
+    if len(text) != 16 or any(c not in "0123456789abcdef" for c in text):
+        raise ConfigError(
+            f"--flash {flash}: {CHIP_ID_FILE} is not a chip id (16 hex digits): remove it and "
+            "the board gets a new one"
+        )
+    return bytes.fromhex(text)
 
 
 class Pty:
@@ -280,7 +361,9 @@ def flash_files(board: dict[str, Any], flash: Path) -> dict[str, Any]:
 class BoardFileBoard:
     """``board`` (a checked board file's dict) on the simulated world, served on ``listen``;
     ``url`` is what a host opens.  ``flash``: the board's flash directory; ``absent``: the
-    transducer names whose parts are left unplugged (world/parts.py)."""
+    transducer names whose parts are left unplugged (world/parts.py); ``dial``: connect out
+    to ``listen`` (``tcp://HOST:PORT``) instead, ``url`` is then ``dial tcp://HOST:PORT``;
+    ``chip``: the simulated chip's id (:func:`chip_id`), else the world's."""
 
     def __init__(
         self,
@@ -288,6 +371,9 @@ class BoardFileBoard:
         listen: str,
         flash: Path,
         absent: Collection[str] = (),
+        *,
+        dial: bool = False,
+        chip: bytes | None = None,
     ) -> None:
         if machine.WORLD.devices or machine.WORLD.pins:
             raise RuntimeError("one board file per process: the simulated world is taken")
@@ -296,21 +382,31 @@ class BoardFileBoard:
             raise ConfigError(
                 "a board file with a signed link (key_file) is served on tcp or unix, not pty"
             )
+        target = dial_target(listen) if dial else None
         populate(board, set(absent))
+        if chip is not None:
+            machine.WORLD.unique_id = chip
         self.power = Power()
         self._closed = False
         self.link: _Link | None = None
         try:
-            if listen in ("pty", "pty://"):
+            if listen in ("pty", "pty://") and not dial:
                 pty = PtyLink(self.power)
                 self.link, self.url = pty, pty.url
             else:
-                sock, self.url = listener(listen)
-                server = SocketServer(sock, self.power)
-                self.link = TcpLink(server=server)
-                if link_cfg.get("key_file"):
-                    clock = machine.ticks_us
-                    self.link = network_link(server, link_cfg, lambda: clock() // 1000)
+                clock = machine.ticks_us
+
+                def clock_ms() -> int:
+                    ms: int = clock() // 1000
+                    return ms
+
+                if target is not None:  # (as a device whose link dials: board/dial.py)
+                    server: Any = dial_server(DialNet(self.power), {"dial": target}, clock_ms)
+                    self.url = f"dial {listen}"
+                else:
+                    sock, self.url = listener(listen)
+                    server = SocketServer(sock, self.power)
+                self.link = network_link(server, link_cfg, clock_ms)
             store = FileStore(str(flash / board.get("config_file", "mlconfig.bin")))
             self.firmware = Firmware(board, machine, self.link, store=store)
         except BaseException:

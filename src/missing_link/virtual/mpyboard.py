@@ -5,10 +5,13 @@ world of world/, its link on a TCP port of this machine.
 Theory of operation
 -------------------
 :class:`MicroPythonBoard` starts ``node host.mjs BOARDFILE`` and waits for its ``LISTEN``
-line; the board is then up.  Node serves the firmware's link on ``--listen``'s TCP port.  For
+line; the board is then up.  Node serves the firmware's link on ``--listen``'s TCP port, or
+with ``dial`` the firmware dials the daemon (host.mjs --dial: board/dial.py, its backoff).  For
 ``pty`` this process opens the pseudo-terminal and relays its bytes to one connection of its
 own to node's port on 127.0.0.1, kept for the board's life: the firmware sees one host on a
-cable, as on USB CDC.  Node's stdin stays open (it is the simulator's control channel; closing
+cable, as on USB CDC.  When the firmware restarts (an update's switch) node ends that
+connection; the relay connects again and the pty stays, as a USB board that resets comes back
+on the same port.  Node's stdin stays open (it is the simulator's control channel; closing
 it powers the board off) and its stderr (the firmware's prints, the interpreter's errors) is
 this process's.  ``CRASH`` or ``BREAK`` on node's stdout means the firmware stopped (an
 exception, the break to the REPL): serve_forever() raises :class:`FirmwareStopped`.
@@ -16,6 +19,10 @@ exception, the break to the REPL): serve_forever() raises :class:`FirmwareStoppe
 Node and the npm package are found before anything starts (:func:`find_micropython`): the
 package in ``node_modules`` of the current directory or one above it, or of the checkout this
 module is in (``make node`` puts it there).
+
+With ``flash`` (``--flash DIR``) holding a main.py (``board --file`` flashes DIR first:
+deploy/flashdir.py) the board starts from its flash, as a board does, and takes updates
+(``missing-link update``); otherwise the runtime and the board file are loaded as they are.
 """
 
 from __future__ import annotations
@@ -27,12 +34,13 @@ import shutil
 import socket
 import subprocess
 import threading
+import time
 from collections.abc import Collection
 from pathlib import Path
 from urllib.parse import urlsplit
 
 from ..errors import BadURL, ConfigError, MissingLinkError
-from .boardfile import Pty
+from .boardfile import Pty, dial_target
 
 HOST_MJS = Path(__file__).resolve().parent / "world" / "host.mjs"
 MPY_ENTRY = Path("@micropython") / "micropython-webassembly-pyscript" / "micropython.mjs"
@@ -74,7 +82,9 @@ def _tcp_address(listen: str) -> tuple[str, int]:
 
 class MicroPythonBoard:
     """The board file at ``board_file`` under MicroPython, served on ``listen`` (tcp or pty);
-    ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged."""
+    ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged; ``dial``: the
+    board connects out to ``listen`` (tcp://HOST:PORT: host.mjs --dial, board/dial.py) instead;
+    ``chip``: the simulated chip's id (boardfile.chip_id)."""
 
     def __init__(
         self,
@@ -82,12 +92,19 @@ class MicroPythonBoard:
         listen: str,
         flash: Path | None,
         absent: Collection[str] = (),
+        *,
+        dial: bool = False,
+        chip: bytes | None = None,
     ) -> None:
         node, entry = find_micropython()
-        pty = listen in ("pty", "pty://")
-        host, port = ("127.0.0.1", 0) if pty else _tcp_address(listen)
+        pty = listen in ("pty", "pty://") and not dial
+        host, port = ("127.0.0.1", 0) if pty or dial else _tcp_address(listen)
         cmd = [node, str(HOST_MJS), str(board_file), "--port", str(port), "--host", host]
-        cmd += ["--mpy", str(entry), "--no-dial"]  # (--listen says where the board is)
+        cmd += ["--mpy", str(entry)]
+        # (--listen or --dial says where the board is, whatever its board file's link says)
+        cmd += ["--dial", dial_target(listen)] if dial else ["--no-dial"]
+        if chip is not None:
+            cmd += ["--chip-id", chip.hex()]
         if flash is not None:
             cmd += ["--flash", str(flash)]
         if absent:
@@ -110,6 +127,8 @@ class MicroPythonBoard:
         if pty:
             self._relay = _PtyRelay(int(node_port))
             self.url = self._relay.url
+        elif dial:
+            self.url = f"dial {listen}"
         else:
             self.url = f"tcp://{host}:{node_port}"
 
@@ -165,27 +184,58 @@ class _PtyRelay:
     """A pseudo-terminal whose bytes go to and from one connection to node's port: the
     firmware sees one host on a cable; hosts that open and close the pty are not seen."""
 
+    #: how long a restarting firmware (an update's switch, a trial given up) may take to serve
+    #: its link again before the relay gives up: the board is gone
+    RESTART_S = 30.0
+
     def __init__(self, port: int) -> None:
         self.pty = Pty()
         self.url = self.pty.url
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.sock.settimeout(Pty.SEND_S)
+        self.port = port
+        self.sock = self._connect(5.0)
         self.wake_r, self.wake_w = os.pipe()
         self.running = False
         self._lock = threading.Lock()  # (stop() and the relay's own end may meet)
 
+    def _connect(self, timeout: float) -> socket.socket:
+        sock = socket.create_connection(("127.0.0.1", self.port), timeout=timeout)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(Pty.SEND_S)
+        return sock
+
+    def _restarted(self) -> bool:
+        """Node closed the connection: the firmware restarted (node's port stays), as a USB
+        board that resets comes back on the same port.  What a host writes meanwhile is lost,
+        as to a board that is not there.  False when stopped or the board never came back."""
+        self.sock.close()
+        deadline = time.monotonic() + self.RESTART_S
+        while time.monotonic() < deadline:
+            if select.select([self.wake_r], [], [], 0.1)[0]:
+                return False
+            self.pty.read()
+            try:
+                self.sock = self._connect(1.0)
+                return True
+            except OSError:
+                continue
+        return False
+
     def run(self) -> None:
-        sock = self.sock.fileno()
         try:
             while True:
+                sock = self.sock.fileno()
                 ready, _, _ = select.select([self.pty.master, sock, self.wake_r], [], [])
                 if self.wake_r in ready:
                     return
                 if sock in ready:
-                    data = self.sock.recv(4096)
+                    try:
+                        data = self.sock.recv(4096)
+                    except ConnectionResetError:  # (node destroyed it with bytes unread)
+                        data = b""
                     if not data:
-                        return  # node closed the connection: the board is gone
+                        if self._restarted():
+                            continue
+                        return  # stopped, or the board is gone
                     self.pty.write(data)
                 if self.pty.master in ready:
                     got = self.pty.read()

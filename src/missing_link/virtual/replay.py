@@ -159,6 +159,7 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
             self.add_function("getTime", lambda p: (0, struct.pack("<Q", self.clock())))
         if "a2jAt" in functions:
             self.timing = Timing(self)
+            self.timing.calls = {t.call for t in board.transducers.values() if t.is_actuator}
         if "a2jGoodbye" in functions:
             self.failsafe = Failsafe(self)
         if "a2jConfigKeys" in functions and board.config is not None:

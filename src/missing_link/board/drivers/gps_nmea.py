@@ -8,14 +8,20 @@
 #   GGA  time, latitude, N/S, longitude, E/W, fix quality (0 none, 1 GPS, 2 DGPS, 4 RTK fixed,
 #        5 RTK float, 6 dead reckoning...), satellites used, HDOP, altitude above mean sea level
 #   RMC  time, status (A valid, V void), latitude, longitude, speed over ground (knots), course
-#        over ground (degrees true), date
+#        over ground (degrees true), date (ddmmyy: years 80-99 are 1980-1999, the rest 20yy)
 # A sample goes out with each GGA, with the speed and course of the RMC of the same second when
 # one came (else N/A).  Without a fix (quality 0) position and altitude are N/A.
 #
 # Channels (int32, so a position keeps its centimetres: a float32 would not):
 #   0 latitude, 1 longitude (1e-7 degree, north and east positive), 2 altitude (mm above MSL),
-#   3 fix quality, 4 satellites, 5 HDOP (x 100), 6 speed (mm/s), 7 course (0.01 degree)
-# The host publishes them as sensor_msgs/msg/NavSatFix too (ros/standard.py).
+#   3 fix quality, 4 satellites, 5 HDOP (x 100), 6 speed (mm/s), 7 course (0.01 degree),
+#   8 UTC day (days since 1970-01-01), 9 UTC time of day (ms) of the PPS edge the sample is
+#   stamped at: only on the fix of a whole second stamped at its PPS edge, with a valid RMC's
+#   date (the RMC of that second, or of the second before: receivers that send GGA first);
+#   N/A otherwise (no PPS, a 5/10 Hz receiver's fixes between the edges, no valid date, a leap
+#   second: POSIX time has none).  A host that reads the first 8 channels reads what it read.
+# The host publishes them as sensor_msgs/msg/NavSatFix, and channels 8 and 9 as
+# sensor_msgs/msg/TimeReference (ros/standard/gnss.py): UTC against the board's clock.
 #
 # Stamps: when the sentence's '$' was read (the receiver sends a fix some 100-500 ms after the
 # second it belongs to: that is what the stamp then says).  With `pps_pin` the fix is stamped at
@@ -74,10 +80,41 @@ def _seconds_fraction_us(hhmmss):
     return int((frac + "000000")[:6]) if frac else 0
 
 
+def _time_of_day_ms(hhmmss):
+    # "hhmmss[.sss]" -> ms since midnight; None when empty or beyond the day (a leap second)
+    whole = hhmmss.partition(".")[0]
+    if len(whole) != 6:
+        return None
+    h, m, s = int(whole[:2]), int(whole[2:4]), int(whole[4:])
+    if h > 23 or m > 59 or s > 59:
+        return None
+    return ((h * 60 + m) * 60 + s) * 1000 + _seconds_fraction_us(hhmmss) // 1000
+
+
+def days_since_1970(y, m, d):
+    # the civil date's day number (1970-01-01 is 0), for the Gregorian calendar, integer maths
+    # (the days before each March, so February's leap day is the year's last)
+    y -= 1 if m <= 2 else 0
+    era = y // 400
+    yoe = y - era * 400
+    doy = (153 * (m + (-3 if m > 2 else 9)) + 2) // 5 + d - 1
+    return era * 146097 + yoe * 365 + yoe // 4 - yoe // 100 + doy - 719468
+
+
+def _date_days(ddmmyy):
+    # RMC's date -> days since 1970-01-01; None when empty or not a date
+    if len(ddmmyy) != 6:
+        return None
+    d, m, y = int(ddmmyy[:2]), int(ddmmyy[2:4]), int(ddmmyy[4:])
+    if not (1 <= m <= 12 and 1 <= d <= 31):
+        return None
+    return days_since_1970(y + (1900 if y >= 80 else 2000), m, d)
+
+
 class GpsNmea:
     PREFIX = "gps"
     MODEL = "NMEA 0183"
-    CHANNELS = 8
+    CHANNELS = 10
     DTYPE = "int32_t"
     NA = NA
     OPTIONS = {"kind": "sensor", "ros": "sensor_msgs/msg/NavSatFix"}
@@ -93,7 +130,8 @@ class GpsNmea:
         self._uart = machine.UART(uart, **kw)
         self._line = bytearray()
         self._line_us = None  # when the current sentence's '$' was read
-        self._rmc = None  # (time, speed mm/s, course 0.01 deg) of the last valid RMC
+        self._rmc = None  # (time, speed mm/s, course 0.01 deg) of the last RMC
+        self._date = None  # (UTC day, ms of day) of the last valid RMC with a date
         self._pps = None  # clock at the newest PPS edge
         if pps_pin is not None:
             self._pps_pin = machine.Pin(pps_pin, machine.Pin.IN)
@@ -166,6 +204,10 @@ class GpsNmea:
                     speed * 1852 // 3600 if valid and speed is not None else None,  # mm/s
                     _decimal(f[8], 100) if valid else None,
                 )
+                self._date = None  # (first: a bad date below leaves none, not the last one)
+                if valid and len(f) > 9:  # (a short RMC: its speed and course still hold)
+                    day, tod = _date_days(f[9]), _time_of_day_ms(f[1])
+                    self._date = None if day is None or tod is None else (day, tod)
             elif kind == "GGA" and len(f) >= 10:
                 self._gga(f, at_us)
         except (ValueError, IndexError):
@@ -196,7 +238,24 @@ class GpsNmea:
         pps = self._pps
         if pps is not None and 0 <= at_us - pps < PPS_VALID_US:
             stamp = pps + _seconds_fraction_us(f[1])
+            if stamp == pps:  # the fix of the edge's own second: its UTC
+                values += self._utc(f[1])
         self.fixes += 1 if fixed else 0
         if self._cb is not None:
-            for ch in range(8):
-                self._cb(ch, values[ch], stamp)
+            for ch in range(self.CHANNELS):
+                self._cb(ch, values[ch] if ch < len(values) else None, stamp)
+
+    def _utc(self, hhmmss):
+        # [UTC day, ms of day] of the GGA's time, the day from the last valid RMC's date: the
+        # same second's, or the second before's (a day later when midnight came between);
+        # [] when there is none that recent (a date is never carried further)
+        date, tod = self._date, _time_of_day_ms(hhmmss)
+        if date is None or tod is None:
+            return []
+        day, since = date[0], tod - date[1]
+        if since < 0:  # (midnight between the RMC and this GGA)
+            day, since = day + 1, since + 86400000
+        if since > 1000:
+            self._date = None
+            return []
+        return [day, tod]

@@ -120,7 +120,7 @@ function ensureBoard(name) {
     transducers: el("div", { class: "transducers" }),
     actuators: el("div", { class: "actuators" }),
     config: el("div", { class: "config" }),
-    extra: el("div"),
+    extra: el("div", { class: "extra" }), log: null, update: null,  // (the last two: showExtra)
     dd: new Map(),
   };
   const section = el("section", { class: "board", id, "aria-labelledby": id + "-h" },
@@ -166,7 +166,7 @@ function showStatus(boards, publishers) {
     parts.state.className = "state " + (up ? "up" : (label === "lost" ? "lost" : "waiting"));
     parts.state.textContent = up ? "up" : `${label} (${s.state})`;
     for (const [k, v] of facts(s)) setFact(parts, k, v);
-    showExtra(parts.extra, s);
+    showExtra(parts, s);
   }
   for (const [name, b] of S.boards) {
     const hasTopics = [...S.topics.values()].some((t) => t.meta.board === name);
@@ -189,21 +189,33 @@ function setFact(parts, label, value) {
   if (dd.textContent !== String(value)) dd.textContent = String(value);
 }
 
-// A board's log and firmware update, where the daemon reports them (status keys `log`, `update`).
-function showExtra(box, s) {
-  const want = Array.isArray(s.log) || (s.update && typeof s.update === "object");
-  if (!want) { box.replaceChildren(); return; }
-  const out = [];
-  if (Array.isArray(s.log)) {
-    const lines = s.log.map((l) => typeof l === "string" ? l : `${l.level || ""} ${l.text || ""}`);
-    out.push(el("h3", { text: "Log" }), el("pre", { class: "log", tabindex: "0", text: lines.join("\n") }));
+// A board's log and firmware update, where the daemon reports them (status keys `log`, `update`):
+// built once, then changed in place (a rebuild each tick took the log's focus and scroll).
+function showExtra(parts, s) {
+  const lines = Array.isArray(s.log) ?
+    s.log.map((l) => typeof l === "string" ? l : `${l.level || ""} ${l.text || ""}`).join("\n") : null;
+  if (lines === null) { if (parts.log) parts.log.remove(); parts.log = null; } else {
+    if (!parts.log) {
+      parts.log = el("div", {}, el("h3", { text: "Log" }), el("pre", { class: "log", tabindex: "0" }));
+      parts.extra.prepend(parts.log);
+    }
+    const pre = parts.log.lastChild;
+    if (pre.textContent !== lines) pre.textContent = lines;
   }
-  if (s.update && typeof s.update === "object") {
-    const u = s.update, total = Number(u.total) || 0, done = Number(u.done) || 0;
-    const bar = el("progress", { max: String(total || 1), value: String(done), "aria-label": "firmware update" });
-    out.push(el("h3", { text: "Firmware update" }), el("p", { text: `${u.state || ""} ${done}/${total} bytes` }), bar);
+  const u = s.update && typeof s.update === "object" ? s.update : null;
+  if (!u) { if (parts.update) parts.update.remove(); parts.update = null; return; }
+  if (!parts.update) {
+    parts.update = el("div", {}, el("h3", { text: "Firmware update" }), el("p", { class: "update" }),
+      el("progress", { "aria-label": "firmware update" }));
+    parts.extra.append(parts.update);
   }
-  box.replaceChildren(...out);
+  const [, line, bar] = parts.update.children;
+  const total = Number(u.total) || 0, done = Number(u.done) || 0;
+  const hashes = u.from || u.to ? ` · ${u.from || "?"} → ${u.to || "?"}` : "";  // (fw.hash, old → new)
+  const text = `${u.state || ""} ${done}/${total} bytes${hashes}`;
+  if (line.textContent !== text) line.textContent = text;
+  bar.max = total || 1;
+  bar.value = done;
 }
 
 function showRecording(publishers) {

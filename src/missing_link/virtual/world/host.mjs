@@ -3,8 +3,10 @@
 //
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
 //                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
-//                 [--dial HOST:PORT] [--heap BYTES] [--fast [--cpu-scale K] [--lead-ms MS]]
-//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --lib: the
+//                 [--dial HOST:PORT] [--chip-id HEX] [--heap BYTES]
+//                 [--fast [--cpu-scale K] [--lead-ms MS]]
+//   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --chip-id:
+//   that id itself, 16 hex digits (board --file keeps one in its --flash DIR); --lib: the
 //   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
 //   --dial: the board dials HOST:PORT whatever its board file's link says, board/dial.py;
 //   --no-dial: it listens on --port even when its board file's link dials: board --file)
@@ -29,6 +31,14 @@
 // `simworld`, its machine.py also as `machine`, simgc.py as `gc`; the firmware as `mlboard`,
 // as on a device.
 //
+// A flash that holds a main.py (as `missing-link flash` leaves it) is started from, as a board
+// does: the slot its boot record names, the runtime and the board file there (flashboot.py;
+// BOARDFILE is not read), and the firmware takes updates (board/update.py).  The power can be
+// cut in the middle of the flash's writes (flashcut.mjs): --cut-after N, or the control line
+// {"cut": N}: N more units reach DIR (a file's write: its bytes + 1, torn short of that; a
+// rename, removal or directory: 1), then "POWER CUT" and the process ends, as a board without
+// power.  --journal FILE: every change that reaches DIR, one JSON line each.
+//
 // --heap BYTES: the firmware gets a board's fixed heap of BYTES (a Raspberry Pi Pico: 209936,
 // docs/hardware.md "Memory"): heap.mjs.  --fast: simulated time (fastclock.mjs, simtime.py): the
 // clock jumps over what the firmware sleeps and moves on by what its steps cost in CPU time
@@ -37,7 +47,8 @@
 // wait while a host has 64 KiB of output not taken; --lead-ms: and while the simulation is MS
 // ahead of the last bytes from a host (a board and its host go on together, however slow the
 // host: a host map it keeps fresh stays fresh).  A control line {"sim": "time"} answers the
-// simulated µs since the start, {"sim": "gc"} the collections so far (fastclock.mjs).
+// simulated µs since the start, {"sim": "gc"} the collections so far (fastclock.mjs).  (A
+// board started from its flash is loaded as flashboot.py loads it, not a module a call.)
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
 import { connect as dialTcp, createServer } from "node:net";
@@ -45,6 +56,7 @@ import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
 import { FastClock } from "./fastclock.mjs";
+import { FlashCut } from "./flashcut.mjs";
 import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
@@ -60,6 +72,11 @@ const absent = (opt("--absent") ?? "").split(",").filter((s) => s);
 const files = args.flatMap((a, i) => (a === "--file" ? [args[i + 1]] : []));
 const mpyPath = opt("--mpy"); // where npm put MicroPython (the CLI finds it; else node resolves it)
 const seedArg = opt("--seed");
+const chipArg = opt("--chip-id");
+if (chipArg !== null && !/^[0-9a-f]{16}$/.test(chipArg)) {
+  process.stderr.write(`--chip-id ${chipArg}: expected 16 hex digits\n`);
+  process.exit(2);
+}
 const libArg = opt("--lib");
 const dialArg = opt("--dial");
 const noDial = args.includes("--no-dial");
@@ -72,6 +89,8 @@ const fast = args.includes("--fast") ? new FastClock(Number(opt("--cpu-scale") ?
 const leadUs = opt("--lead-ms") === null ? null : Number(opt("--lead-ms")) * 1000;
 let heardAt = 0; // --lead-ms: simulated µs when bytes last came from a host
 if (heapArg !== null) quietGrowth();
+const fromFlash = flashDir !== null && existsSync(join(flashDir, "main.py")); // (flashboot.py)
+const cut = new FlashCut(opt("--cut-after"), opt("--journal"));
 
 const { loadMicroPython } = await import(
   mpyPath ? pathToFileURL(mpyPath).href : "@micropython/micropython-webassembly-pyscript"
@@ -94,9 +113,9 @@ function copyTree(src, dst) {
   }
 }
 mp.FS.mkdir("/lib");
-copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
+if (!fromFlash) copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
 copyTree(here, "/lib/simworld");
-mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
+if (!fromFlash) mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
 // ---- the board's flash ----------------------------------------------------------------------
 const FLASH = "/flash";
@@ -131,12 +150,16 @@ function writeThrough(dir) {
     const abs = posix.normalize(p.startsWith("/") ? p : mp.FS.cwd() + "/" + p);
     return abs.startsWith(FLASH + "/") ? join(dir, abs.slice(FLASH.length + 1)) : null;
   };
-  const mirror = (what, fn) => {
+  // (the power may go in the middle: flashcut.mjs; `op` is the journal's entry when whole)
+  const mirror = (what, fn, units = 1, op = null) => {
+    const n = cut.take(units);
     try {
-      fn();
+      if (n > 0) fn(n);
+      if (n === units && op) cut.record(dir, ...op);
     } catch (e) {
       process.stderr.write(`flash: cannot ${what}: ${e.message}\n`);
     }
+    if (cut.gone) cut.powerOff();
   };
   const wrap = (name, after) => {
     const orig = mp.FS[name];
@@ -149,26 +172,28 @@ function writeThrough(dir) {
   wrap("close", (stream) => {
     const host = stream.path ? onDisk(stream.path) : null;
     if (host && (stream.flags & 3) !== 0) {
-      mirror(`write ${host}`, () => writeFileSync(host, mp.FS.readFile(stream.path)));
+      const data = mp.FS.readFile(stream.path);
+      mirror(`write ${host}`, (n) => writeFileSync(host, data.subarray(0, n - 1)), data.length + 1,
+        ["write", host, { data }]);
     }
   });
   wrap("rename", (from, to) => {
     const [a, b] = [onDisk(from), onDisk(to)];
-    if (a && b) mirror(`rename ${a}`, () => renameSync(a, b));
-    else if (a) mirror(`remove ${a}`, () => rmSync(a, { recursive: true, force: true }));
-    else if (b) mirror(`write ${b}`, () => writeFileSync(b, mp.FS.readFile(to)));
+    if (a && b) mirror(`rename ${a}`, () => renameSync(a, b), 1, ["rename", a, { to: b }]);
+    else if (a) mirror(`remove ${a}`, () => rmSync(a, { recursive: true, force: true }), 1, ["remove", a]);
+    else if (b) mirror(`write ${b}`, () => writeFileSync(b, mp.FS.readFile(to)), 1, ["write", b, { data: mp.FS.readFile(to) }]);
   });
   wrap("unlink", (p) => {
     const host = onDisk(p);
-    if (host) mirror(`remove ${host}`, () => rmSync(host, { force: true }));
+    if (host) mirror(`remove ${host}`, () => rmSync(host, { force: true }), 1, ["remove", host]);
   });
   wrap("rmdir", (p) => {
     const host = onDisk(p);
-    if (host) mirror(`remove ${host}`, () => rmSync(host, { recursive: true, force: true }));
+    if (host) mirror(`remove ${host}`, () => rmSync(host, { recursive: true, force: true }), 1, ["remove", host]);
   });
   wrap("mkdir", (p) => {
     const host = onDisk(p);
-    if (host && !existsSync(host)) mirror(`make ${host}`, () => mkdirSync(host));
+    if (host && !existsSync(host)) mirror(`make ${host}`, () => mkdirSync(host), 1, ["mkdir", host]);
   });
 }
 
@@ -188,12 +213,13 @@ if (runArg) {
   mp.runPython(bootPy + "\n" + readFileSync(runArg, "utf8"));
   process.exit(0);
 }
-const seed = seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
+const seed = chipArg !== null ? `simworld.machine.WORLD.unique_id = bytes.fromhex("${chipArg}")\n` :
+  seedArg === null ? "" : `simworld.machine.seed_unique_id(${Math.trunc(Number(seedArg))})\n`;
 const dialTo = dialArg !== null ?
   `import board\nlink = dict(board.BOARD.get("link", {}), kind="tcp", dial=${JSON.stringify(dialArg)})\n` +
   `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
   noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
-mp.runPython(bootPy + "\n" + seed + dialTo + "from simworld import mpyhost");
+mp.runPython(bootPy + "\n" + seed + "from simworld import mpyhost");
 if (heapArg !== null) {
   const [base, slack] = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
   mp.runPython(
@@ -220,15 +246,20 @@ mp.runPython(
   `import simworld.simgc\nsimworld.simgc.fast = ${fast ? "True" : "False"}` +
     (fast ? "\nimport simjs" : ""),
 );
-boot("from board import BOARD");
-for (const m of BOOT_ORDER) boot(`import mlboard.${m}`);
-boot("from mlboard.drivers import driver_class\nfor _t in BOARD['transducers']:\n" +
-  "    driver_class(_t['driver'])");
-// fw.hash reads every runtime file (the whole package here; a board has only the drivers its
-// board file uses): a step of its own, where a board collects as it reads (identity.py caches it)
-boot("mlboard.identity.runtime_hash()");
-boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
-  `${fast ? ", simjs.mark" : ""})`);
+if (fromFlash) {
+  boot("from simworld import flashboot\n" + `flashboot.adjust = ${JSON.stringify(dialTo)}\n` +
+    `mpyhost.start_flash(flashboot, ${JSON.stringify(absent)}${fast ? ", simjs.mark" : ""})`);
+} else {
+  boot(dialTo + "from board import BOARD");
+  for (const m of BOOT_ORDER) boot(`import mlboard.${m}`);
+  boot("from mlboard.drivers import driver_class\nfor _t in BOARD['transducers']:\n" +
+    "    driver_class(_t['driver'])");
+  // fw.hash reads every runtime file (the whole package here; a board has only the drivers its
+  // board file uses): a step of its own, where a board collects as it reads (identity.py caches)
+  boot("mlboard.identity.runtime_hash()");
+  boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
+    `${fast ? ", simjs.mark" : ""})`);
+}
 mp.runPython(
   "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _due_us, _ctl, _ident",
 );
@@ -390,8 +421,9 @@ function simCtl(what) {
 const rl = createInterface({ input: process.stdin });
 rl.on("line", (line) => {
   try {
-    const req = JSON.parse(line);
-    const out = typeof req === "string" ? ctl(req, fast ? Math.floor(fast.now) : null) : simCtl(req.sim);
+    const req = JSON.parse(line); // (code, {"cut": N}: flashcut.mjs, or {"sim": what})
+    const out = typeof req === "string" ? ctl(req, fast ? Math.floor(fast.now) : null) :
+      "cut" in req ? cut.arm(req.cut) : simCtl(req.sim);
     process.stdout.write("OK " + out + "\n");
   } catch (e) {
     process.stdout.write("ERR " + String(e).split("\n").join(" | ") + "\n");

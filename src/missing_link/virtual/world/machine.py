@@ -385,11 +385,16 @@ def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     return dev.pulse(pulse_level, timeout_us)
 
 
-def seed_unique_id(seed):
-    # each simulated board its own chip id (host.mjs --seed N): 8 bytes, as an RP2040's flash id
+def seeded_unique_id(seed):
+    # a simulated chip's id from a seed: 8 bytes, as an RP2040's flash id (`board --file --seed
+    # N`, host.mjs --seed N: each simulated board its own)
     import hashlib
 
-    WORLD.unique_id = hashlib.sha256(("missing-link sim board %d" % seed).encode()).digest()[:8]
+    return hashlib.sha256(("missing-link sim board %d" % seed).encode()).digest()[:8]
+
+
+def seed_unique_id(seed):
+    WORLD.unique_id = seeded_unique_id(seed)
 
 
 def unique_id():

@@ -12,6 +12,12 @@ against WORLD and returns repr() of `result` (reboot() restarts the firmware on 
 filesystem and devices).  The board's filesystem (its flash: a saved configuration, a key) is
 the current directory.
 
+A board that starts from its flash (start_flash(), flashboot.py: host.mjs --flash DIR with a
+main.py) takes firmware updates: between steps, _tick() asks the updater whether the board
+should restart (after an update's switch, a trial not confirmed in time), and restart() starts
+it from the flash again, as a board's reset does (every connection ends); so does a firmware on
+trial that raises, and machine.reset().
+
 Fast mode (host.mjs --fast, simtime.py): _step(now, last_gc_us, inputs) feeds the connections'
 bytes and runs _tick at simulated µs `now`, and says what the host needs to move the clock on:
 "SLEPT REQ AT CLK0 AUTO DUE|" before the output (µs slept in the step; collections it asked for
@@ -86,6 +92,7 @@ class SimServer:
 
 wire = SimServer()  # node's connections
 _sim = {}  # what start() made: board, mlboard, link, fw, rt, stopped; fast mode: alloc_end
+boot = None  # flashboot.py, for a board that starts from its flash (start_flash)
 watch_gc = False  # fast mode: tell collections nobody asked for (two heap scans a step)
 spare = None  # --heap: room held back so that a MemoryError can still be said (heap.mjs)
 
@@ -128,6 +135,56 @@ def reboot():
     # filesystem (a configuration saved there is applied) and the same simulated devices.
     fw = _sim["mlboard"].firmware.Firmware(_sim["board"], machine, _sim["link"])
     _sim.update(fw=fw, rt=fw.runtime)
+    if boot is not None:
+        boot.attach(fw.runtime, _sim["board"])
+
+
+def start_flash(flashboot, absent=(), mark=None):
+    # The board starts from its flash (flashboot.py: as main.py on a device), its parts those
+    # of the first board file that loads (the wiring stays whatever firmware runs); mark: as
+    # start()'s
+    global boot
+    boot = flashboot
+    _sim["mark"] = mark
+    _sim.update(absent=absent, populated=False)
+    restart()
+
+
+def restart():
+    # A reset: every connection ends, the board starts from its flash again; a firmware on
+    # trial that raises restarts it once more (and it goes back: board/boot.py).
+    for n in list(wire.rx) + list(wire.dialing):
+        wire.drop(n)
+    del wire.new[:]
+    del wire.ended[:]
+    for _ in range(4):
+        try:
+            board, mlboard = boot.load()
+            if not _sim["populated"]:
+                populate(board, _sim["absent"])
+                _sim["populated"] = True
+            link = _link(mlboard, board.get("link", {}))
+            _sim.update(board=board, mlboard=mlboard, link=link, stopped=False)
+            reboot()
+            return
+        except Exception as e:  # noqa: BLE001 - on trial: noted, back at the next start
+            if not boot.crashed(e):
+                raise
+            print("the firmware on trial raised %s: %s; restarting" % (type(e).__name__, e))
+    raise RuntimeError("the board did not start from its flash")
+
+
+def _restart_due():
+    # the updater's restart, if due: what the board drives goes safe, the host hears why
+    upd = boot.updater if boot is not None else None
+    why = upd.due(_sim["rt"].clock()) if upd is not None else None
+    if why:
+        upd.before_restart(why)
+        out = _sim["rt"].take_output()
+        if out:
+            _sim["link"].write(out)
+        restart()
+    return bool(why)
 
 
 def _open(n):
@@ -155,10 +212,21 @@ def _tick():
     if _sim["stopped"]:
         return ""
     try:
-        _sim["fw"].step()
+        if not _restart_due():
+            _sim["fw"].step()
     except _sim["mlboard"].firmware.BreakIn:
         _sim["stopped"] = True
         return "BREAK"
+    except SystemExit:  # machine.reset()
+        if boot is None:
+            release()
+            raise
+        restart()
+    except Exception as e:  # noqa: BLE001 - raised again unless on trial (then it goes back)
+        if boot is None or not boot.crashed(e):
+            release()
+            raise
+        restart()
     except BaseException:
         release()
         raise
@@ -212,6 +280,8 @@ def _ctl(src, sim_us=None):
         "machine": machine,
         "devices": devices,
         "reboot": reboot,
+        "restart": restart,
+        "slot": boot.slot() if boot is not None else "",
         "result": None,
     }
     exec(src, env)
