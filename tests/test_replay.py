@@ -368,8 +368,10 @@ def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     try:
         relay = FaultRelay(replay.boards[0].server.url, Faults(corrupt=3e-4, seed=5))
         with relay, Daemon(Config(boards=[BoardSpec(relay.url)], publishers=["bus"])) as d:
-            assert d.wait_until_up(10)
+            # before it is up: a reply the relay damaged costs the daemon its 1 s call timeout,
+            # and the samples it publishes meanwhile must not go to nobody
             d.subscribe("/board_a/quad", got.append, queue=0)
+            assert d.wait_until_up(10)
             assert wait_for(lambda: replay.finished, 30)
             status = d.status()[0]
     finally:
