@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -29,6 +30,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.descriptors import parse_transds
+from missing_link.j2a.codec import SOF, encode_frame
 from missing_link.publishers.mcap import McapPublisher
 from missing_link.publishers.recover import count_complete
 from missing_link.ros.board_record import (
@@ -53,7 +55,9 @@ from missing_link.ros.clock import (
 )
 from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim, start_board_thread
+from missing_link.virtual import replay as replay_mod
 from missing_link.virtual.faults import FaultRelay, Faults
+from missing_link.virtual.replay import BACKLOG, NOBODY, READY_EXCHANGES
 from missing_link.virtual.replay_clock import Clock, ClockModel, Timeline
 from missing_link.virtual.replay_serve import Replay
 
@@ -364,8 +368,10 @@ def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     try:
         relay = FaultRelay(replay.boards[0].server.url, Faults(corrupt=3e-4, seed=5))
         with relay, Daemon(Config(boards=[BoardSpec(relay.url)], publishers=["bus"])) as d:
-            assert d.wait_until_up(10)
+            # before it is up: a reply the relay damaged costs the daemon its 1 s call timeout,
+            # and the samples it publishes meanwhile must not go to nobody
             d.subscribe("/board_a/quad", got.append, queue=0)
+            assert d.wait_until_up(10)
             assert wait_for(lambda: replay.finished, 30)
             status = d.status()[0]
     finally:
@@ -373,6 +379,52 @@ def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     assert relay.corrupted > 0
     assert status["bad_checksums"] + status["bad_escapes"] + status["cut_frames"] > 0, status
     assert got and status["state"] == "up", status
+
+
+@pytest.mark.slow  # (the recording)
+def test_a_host_that_came_back_late_gets_its_lead_before_samples(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A daemon whose handshake lost a reply comes back after the recording's start (its 1 s
+    call timeout, a new connection): samples are due when it has synced, but it pushes its map
+    and reads the board's counts before it takes any (what comes earlier is dropped).  The
+    board holds them ``lead_s`` from its first request, then sends them, late, in order, as
+    fast as it reads them.  (A fake clock.)"""
+    now = [10**15]
+    monkeypatch.setattr(replay_mod, "time", SimpleNamespace(monotonic_ns=lambda: now[0]))
+    replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_a"], lead_s=0.3)
+    (board,) = replay.boards
+    rt = board.runtime
+    board.feeder.thread.start()  # (the board's own thread is not: this test turns it)
+    try:
+        assert wait_for(lambda: not board.feeder.thread.is_alive(), 10)  # (all read ahead)
+
+        def turn(name: str) -> list[bytes]:
+            rt.feed(encode_frame(SOF, 1, rt.index[name]))
+            rt.poll()
+            return rt.take_frames()[1]
+
+        rt.new_host(1)
+        assert turn("a2jGetMapping") == []  # the recording starts 0.3 s after this
+        rt.backlog, now[0] = NOBODY, now[0] + 1_100_000_000  # no reply: it went, 1.1 s on
+        rt.poll()
+        assert rt.take_frames()[1] == []
+        rt.new_host(2)
+        rt.backlog = 0
+        assert turn("a2jGetMapping") == []
+        assert [sif for _ in range(READY_EXCHANGES) for sif in turn("a2jClock")] == []
+        now[0] += 299_000_000
+        rt.poll()
+        assert rt.take_frames()[1] == [] and rt.sent == 0
+        now[0] += 1_000_000  # its lead from its first request is over: what is due goes,
+        turns = []  # paced by what the host reads (the link's queue would shed the rest)
+        while sifs := (rt.poll(), rt.take_frames()[1])[1]:
+            turns.append(sifs)
+            rt.backlog = 0  # (it read them)
+        assert all(sum(map(len, sifs[:-1])) <= BACKLOG for sifs in turns), len(turns)
+        assert sum(map(len, turns)) == rt.sent and 0 < rt.late < rt.sent  # (due 0..1.1 s ago)
+    finally:
+        replay.stop()
 
 
 @pytest.mark.slow  # (seconds of real time)

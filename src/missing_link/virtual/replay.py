@@ -14,11 +14,17 @@ queue; ``poll`` sends each once it is due, in recorded order: when the recording
 (on the timeline) has reached both its recorded host time and the moment the board clock reads
 its newest stamp, so no sample comes before its own measurement.  Each goes out with its
 recorded board stamps and values and its recorded SIF seq (so what the recording lost is lost
-again).  Until the board's host is ready (eight clock exchanges answered, or a second after its
-first request: it has subscribed and synced; again for each new host connection), while no
-host is connected to a socket, and while more than ``BACKLOG`` bytes wait for the host to read
-them (a host that falls behind, e.g. at ``--rate 10``), due samples wait rather than be lost;
-one sent over ``LATE_NS`` after it was due counts as ``late``.
+again).  Until the board's host is ready, while no host is connected to a socket, and while
+more than ``BACKLOG`` bytes wait for the host to read them (a host that falls behind, e.g. at
+``--rate 10``), due samples wait rather than be lost; one sent over ``LATE_NS`` after it was
+due counts as ``late``.  A host is ready once it has synced (eight clock exchanges answered:
+``a2jClock``, or ``getTime`` for a 2014 board; or ``READY_S`` after its first request: a host
+that does not sync) and ``lead_s`` after its first request, again for each new host
+connection: a daemon that has synced still pushes its map and reads the board's counts before
+it takes samples, dropping what comes earlier, and one that lost a reply in its handshake
+comes back on a new connection after its call timeout, with samples due.  What one turn sends
+counts in the backlog at once, so a host that comes back to many due samples gets them paced
+by what it reads, not shed by the link's queue.
 
 The configuration starts as recorded when the recording began and follows the changes the
 recording's host made, at their recorded times.  What this host does is taken as a board takes
@@ -54,7 +60,11 @@ from .recording import PairStats, RecordedBoard, RecordedSif, Recording, recorde
 from .replay_clock import Clock
 
 READY_EXCHANGES = 8  #: clock exchanges answered before the host counts as synced
-READY_S = 1.0  #: ... or this long after its first request (a host that does not sync)
+#: ... or this long after its first request: a host that does not sync.  Longer than a daemon's
+#: handshake may take on one connection (``handshake_timeout``, 5 s; then it reconnects) and its
+#: first sync's call (``timeout``, 1 s): a daemon whose handshake lost a reply (it waits its 1 s
+#: call timeout) is not taken for one and sent samples it drops
+READY_S = 6.0
 AHEAD = 20_000  #: recorded SIFs read ahead per board
 LATE_NS = 50_000_000  #: a SIF sent this long after it was due counts as late
 BACKLOG = 16 * 1024  #: output bytes waiting for the host above which samples wait too
@@ -135,6 +145,7 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         self.hosts = 0  #: host connections so far (the server counts them)
         self._host_since: int | None = None  # the current host's first request
         self._host_exchanges = 0
+        self._host_synced: int | None = None  # when it had READY_EXCHANGES answered
         self.backlog = 0  #: output bytes the host has not taken yet (the server says)
         self.finished = False  # the last pass is out
         self.passes = 0
@@ -170,6 +181,8 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         self.functions = table
         self.index = {name: i for i, (name, _k, _h) in enumerate(table)}
         self._clock_op = self.index.get("a2jClock", -1)
+        #: the requests a host syncs with (getTime: how it syncs a 2014 board)
+        self._sync_ops = {self.index[n] for n in ("a2jClock", "getTime") if n in self.index}
 
     def _blob(self, make: Callable[[], bytes]) -> Callable[[bool, bool, int, bytes], Any]:
         from ..board.runtime import read_blob
@@ -211,7 +224,7 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
     def new_host(self, hosts: int) -> None:
         """Another host connected: it is ready once it has synced, as the first."""
         self.hosts = hosts
-        self._host_since, self._host_exchanges = None, 0
+        self._host_since, self._host_exchanges, self._host_synced = None, 0, None
 
     def feed(self, data: bytes, rx_us: int | None = None) -> None:
         if data and self._host_since is None:
@@ -224,16 +237,31 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         super().feed(data, rx_us)
 
     def _dispatch(self, seq: int, opcode: int, payload: bytes) -> None:
-        if opcode == self._clock_op:
+        if opcode in self._sync_ops:
             self.exchanges += 1
             self._host_exchanges += 1
+            if self._host_exchanges == READY_EXCHANGES:
+                self._host_synced = time.monotonic_ns()
         super()._dispatch(seq, opcode, payload)
 
-    def _ready(self, now: int) -> bool:
+    def _ready_ns(self) -> int | None:
+        """When the current host is ready for samples (monotonic ns; None: not yet known):
+        once it has synced, and ``lead_s`` after its first request, as the recording's start
+        is after the first host's.  A daemon takes no sample the moment it has synced (it
+        pushes its map and reads the board's counts first, and drops what comes before); a
+        host that came back after the recording began (a reply lost in its handshake: its call
+        timeout, a new connection) would otherwise get every sample due meanwhile at once."""
         since = self._host_since
-        return since is not None and (
-            self._host_exchanges >= READY_EXCHANGES or now - since >= READY_S * 1e9
-        )
+        if since is None:
+            return None
+        synced = since + round(READY_S * 1e9)  # (a host that does not sync)
+        if self._host_synced is not None:
+            synced = min(synced, self._host_synced)
+        return max(synced, since + self.timeline.lead_ns)
+
+    def _ready(self, now: int) -> bool:
+        at = self._ready_ns()
+        return at is not None and now >= at
 
     # ---- samples --------------------------------------------------------------------------------
     def poll(self) -> None:
@@ -305,14 +333,22 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         boot = self.replay_clock.model.boot_at(sif.log_ns)
         stamps = [self.replay_clock.board(boot, b) for b in sif.board_us]
         flat = [x for pair in zip(stamps, sif.raw, strict=True) for x in pair]
-        self._sifs.append(encode_frame(SOS, seq, t.id, t.sif_struct.pack(*flat)))
+        frame = encode_frame(SOS, seq, t.id, t.sif_struct.pack(*flat))
+        self._sifs.append(frame)
+        self.backlog += len(frame)  # (the server sets it again next turn: the link's queue)
         self.sent += 1
 
     def next_deadline_us(self) -> int | None:
         due: int | None = super().next_deadline_us()
         now = time.monotonic_ns()
-        if self.backlog > BACKLOG or not self._ready(now):
+        if self.backlog > BACKLOG:
             return due  # (waiting for the host: its input or the server's writability wakes us)
+        ready = self._ready_ns()
+        if ready is None:
+            return due  # (no request yet: its input wakes us)
+        if ready > now:  # (the host's lead: wake when it is over)
+            wake: int = self.clock() + (ready - now) // 1000
+            return wake if due is None else min(due, wake)
         if self.timeline.started and self._peek() is not None:
             wait = (self.timeline.mono_at(self.passes, self._due_h) - now) / 1e3
             mine = self.clock() + max(0, int(wait))
