@@ -190,6 +190,21 @@ def test_sif_handlers_by_cmd_and_any(serve: Serve) -> None:
         assert all((b - a) & 0xFF == 1 for a, b in itertools.pairwise(seqs))
 
 
+def test_sifs_before_anything_listens_are_counted(serve: Serve) -> None:
+    """A board streams from its boot; the host listens once its handshake is done: what came
+    before is counted (``sifs_unheard``, the status's ``unheard_sifs``), not silently gone."""
+    server = serve("thesis")
+    with open_board(server.url) as board:
+        assert wait_for(lambda: board.link_stats().sifs_unheard > 0, 5)
+        done = threading.Event()
+        board.on_sif(None, lambda ev, now: done.set())
+        assert done.wait(5)
+        before = board.link_stats().sifs_unheard
+        assert board.link_stats().sifs >= before  # (of the SIFs the link decoded)
+        board.call("a2jEcho")
+        assert board.link_stats().sifs_unheard == before  # (a listener now hears every one)
+
+
 def test_handler_exception_does_not_stop_board(serve: Serve) -> None:
     server = serve("thesis")
     raised = []

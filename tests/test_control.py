@@ -307,12 +307,12 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
     assert list(st)[:10] == ["board", "url", "state", "level", "message", "error", "serial",
                              "connects", "failures", "stale_links"]  # fmt: skip
     assert st["state"] == "up" and type(st["state"]) is str and type(st["level"]) is int
-    assert list(st)[10:18] == ["frames", "bad_checksums", "bad_escapes", "cut_frames",
-                               "junk_bytes", "lost_sifs", "timeouts", "late_replies"]  # fmt: skip
+    assert list(st)[10:19] == ["frames", "bad_checksums", "bad_escapes", "cut_frames", "junk_bytes",
+                               "lost_sifs", "timeouts", "late_replies", "unheard_sifs"]  # fmt: skip
     assert {"commands", "command_errors", "rtt_us", "warnings", "clock_epoch", "map_pushes",
             "configurable", "aligned", "failsafe_trips", "failsafe_last_trip_ms",
             "sync_state", "log_warn", "log_dropped", "log_faults"} <= set(st)  # fmt: skip
-    assert len(st) == 73  # (a thesis board: with its failsafe; 71 without one)
+    assert len(st) == 74  # (a thesis board: with its failsafe; 72 without one)
     snap = d.snapshots()[0]  # the same, typed
     assert list(snap.to_json()) == list(st) and snap.state == "up" and snap.link.frames > 0
     assert json.loads(json.dumps(st)) == st  # plain JSON

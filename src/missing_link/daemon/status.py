@@ -51,6 +51,7 @@ class LinkCounters:
     lost_sifs: int = 0
     timeouts: int = 0
     late_replies: int = 0
+    unheard_sifs: int = 0  #: SIFs that came before anything listened (LinkStats.sifs_unheard)
 
     #: what the transport counts of its own (a signed link's dropped records: ``signed_*``)
     transport: tuple[tuple[str, int], ...] = ()
@@ -68,6 +69,7 @@ class LinkCounters:
             lost_sifs=s.sifs_lost,
             timeouts=s.timeouts,
             late_replies=s.late_replies,
+            unheard_sifs=s.sifs_unheard,
             transport=tuple(sorted(s.transport.items())),
         )
 

@@ -121,6 +121,7 @@ class BoardLink:
         # op -> (future, label for errors, progress callback, is a many-write)
         self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
         self._sif_handlers: dict[int, list[SifHandler]] = {}
+        self._unheard = 0  # SIFs no handler took (LinkStats.sifs_unheard; the reading thread's)
         self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
         self._any_sif: list[SifHandler] = []
         self._on_close: list[Callable[[], None]] = []
@@ -399,6 +400,8 @@ class BoardLink:
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
                 by = by_cmd.get(ev.cmd)
+                if by is None and not any_sif:
+                    self._unheard += 1
                 for h in any_sif if by is None else (*by, *any_sif):
                     try:
                         h(ev, now)
@@ -451,7 +454,9 @@ class BoardLink:
         """The link's counters now (a snapshot: the reading goes on meanwhile)."""
         with self._lock:
             counts = {**self.conn.decoder.stats.as_dict(), **self.conn.stats.as_dict()}
-        return LinkStats(**counts, transport=self.transport.link_stats())
+        return LinkStats(
+            **counts, sifs_unheard=self._unheard, transport=self.transport.link_stats()
+        )
 
     def expect_sif_seq(self, seq: int) -> None:
         """The seq of the next SIF (the board's boot is the one before an outage): a gap from

@@ -49,6 +49,9 @@ class LinkStats:
     retries: int
     sifs: int
     sifs_lost: int
+    #: SIFs that came while nothing listened for them (before the session's sample path is on:
+    #: a board streams from its boot, the host handshakes first); not lost, not published
+    sifs_unheard: int
     transport: dict[str, int]
 
 
