@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+from missing_link import open_board
 from missing_link.daemon import Daemon
 from missing_link.daemon.commands import CommandRefused, called_function
 from missing_link.daemon.config import BoardSpec, Config, parse_config
@@ -106,27 +107,31 @@ def test_once_the_board_was_told_goodbye_no_call_reaches_it() -> None:
 
 def test_a_timed_command_whose_map_is_answered_after_goodbye_is_not_sent() -> None:
     """actuators.py sent the a2jAt from the a2jHostMap answer's callback: a daemon stopped
-    while the map was on its way said goodbye, then sent it, and the servo moved after."""
+    while the map was on its way said goodbye, then sent it, and the servo moved after.  The
+    board holds the map's answer until the goodbye has gone out (events, not sleeps: the order
+    is the test's, whatever the machine's load)."""
     rt = make_sim("thesis", seed=5, name="thesis")
     seen = _recording(rt)
     k = rt.index["a2jHostMap"]
     name, kind, handler = rt.functions[k]
-    slow = threading.Event()
+    hold, asked, release = threading.Event(), threading.Event(), threading.Event()
 
-    def slow_map(payload: bytes) -> Any:
-        if slow.is_set():
-            time.sleep(0.3)
+    def held_map(payload: bytes) -> Any:
+        if hold.is_set():
+            asked.set()
+            release.wait(10)  # (the board answers once the goodbye is out)
         return handler(payload)
 
-    rt.functions[k] = (name, kind, slow_map)
+    rt.functions[k] = (name, kind, held_map)
     server, thread = start_board_thread(rt, "memory://goodbye-race")
     d = Daemon(Config(boards=[BoardSpec(server.url)])).start()
     refused: list[BaseException] = []
+    stopper = threading.Thread(target=d.stop)
     try:
         assert d.wait_until_up(10)
         d.send("/thesis/servo/cmd", -60, at_ns=time.time_ns() + 200_000_000)
         assert wait_for(lambda: _servo(rt).commands == 1, 5)
-        slow.set()
+        hold.set()
         seen.clear()
 
         def late() -> None:
@@ -137,13 +142,22 @@ def test_a_timed_command_whose_map_is_answered_after_goodbye_is_not_sent() -> No
 
         sender = threading.Thread(target=late)
         sender.start()
-        time.sleep(0.1)  # the map is on its way
-        d.stop()
+        assert asked.wait(10)  # the map is on its way
+        session = d.sessions[0]
+        board = session.board
+        stopper.start()
+        assert wait_for(lambda: session.farewell.said(board), 10)  # goodbye sent
+        release.set()
         sender.join(10)
-        time.sleep(1.0)  # past the time it was for
+        stopper.join(10)
+        with open_board(server.url) as after:  # (the board took all of the last link's frames
+            after.call("a2jEcho")  # before it took this one)
         assert seen == ["a2jGoodbye"], seen  # (before: then an a2jAt, queued after goodbye)
         assert _servo(rt).commands == 1 and refused
     finally:
+        release.set()
+        if stopper.is_alive():
+            stopper.join(10)
         d.stop()
         server.stop()
         thread.join(5)
