@@ -9,8 +9,9 @@
  * --rover (with --mcu atmega2560): the rover's parts too (rover.c: motors, a stepper, an
  * HC-SR04 and a GPS at examples/boards/rover-mega.py's pins).
  *
- * --eeprom FILE: the EEPROM's contents are read from FILE at power-up (when it exists) and
- * written back when the rig is powered off (quit, stdin closed), as a real EEPROM keeps them.
+ * --eeprom FILE (eeprom.c): the EEPROM's contents are read from FILE at power-up (when it
+ * exists) and written back when the rig is powered off (quit, stdin closed), as a real EEPROM
+ * keeps them.
  * Prints "PTY /dev/pts/N" when the board runs.  Simulated time is paced to the host's
  * CLOCK_MONOTONIC times (1 + P * 1e-6): the board's crystal runs P ppm fast, the known skew clock
  * sync must find.  Control lines on stdin (each answered with one line on stdout):
@@ -36,13 +37,13 @@
 #include <unistd.h>
 
 #include "avr_adc.h"
-#include "avr_eeprom.h"
 #include "avr_ioport.h"
 #include "avr_twi.h"
 #include "parts/uart_pty.h"
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_time.h"
+#include "eeprom.h"
 #include "rover.h"
 
 static avr_t *avr;
@@ -51,6 +52,7 @@ static uart_pty_t uart;
 static double skew;
 static double worst_lag_us; /* how far simulated time fell behind the host's (a loaded machine) */
 static uint64_t start_ns;
+static const char *eeprom_file; /* --eeprom */
 
 static uint64_t mono_ns(void) {
     struct timespec ts;
@@ -300,55 +302,6 @@ static void watch(void) {
     }
 }
 
-/* ---- the EEPROM across power cycles, and power cuts ----------------------------------------- */
-static const char *eeprom_file;
-static uint8_t *eeprom;
-static uint32_t eeprom_size;
-static uint8_t eeprom_seen[8192];
-static int cut_left = -1; /* bytes still to be written before the power goes (-1: never) */
-
-static void eeprom_open(void) {
-    avr_eeprom_desc_t d = {.ee = NULL, .offset = 0, .size = 0};
-    avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d); /* (simavr 1.6 answers -1 even when it worked) */
-    if (!d.ee) return;
-    eeprom = d.ee;
-    eeprom_size = avr->e2end + 1;
-    if (eeprom_size > sizeof eeprom_seen) eeprom_size = sizeof eeprom_seen;
-    FILE *f = eeprom_file ? fopen(eeprom_file, "rb") : NULL;
-    if (f) {
-        if (fread(eeprom, 1, eeprom_size, f) != eeprom_size) fprintf(stderr, "rig_sim: short EEPROM file\n");
-        fclose(f);
-    }
-    memcpy(eeprom_seen, eeprom, eeprom_size);
-}
-
-static void eeprom_save(void) {
-    if (!eeprom || !eeprom_file) return;
-    FILE *f = fopen(eeprom_file, "wb");
-    if (!f || fwrite(eeprom, 1, eeprom_size, f) != eeprom_size) perror("rig_sim: EEPROM file");
-    if (f) fclose(f);
-}
-
-static void power_off(void) {
-    eeprom_save();
-    exit(0);
-}
-
-/* while a cut is armed: after every instruction, the bytes that changed since */
-static void eeprom_watch(void) {
-    for (uint32_t a = 0; a < eeprom_size; a++) {
-        if (eeprom[a] != eeprom_seen[a]) {
-            eeprom_seen[a] = eeprom[a];
-            if (--cut_left == 0) {
-                eeprom_save();
-                printf("CUT\n");
-                fflush(stdout);
-                _exit(0);
-            }
-        }
-    }
-}
-
 /* ---- control channel and pacing ---------------------------------------------------------------- */
 static char line[256];
 static size_t line_n;
@@ -405,8 +358,7 @@ static void command(const char *cmd) {
     } else if (strncmp(cmd, "stack", 5) == 0) {
         printf("stack 0x%04x 0x%x\n", sp_min, (unsigned)sp_min_pc);
     } else if (sscanf(cmd, "cut %d", &v) == 1 && v > 0) {
-        memcpy(eeprom_seen, eeprom, eeprom_size);
-        cut_left = v;
+        eeprom_cut(v);
         printf("ok\n");
     } else if (strncmp(cmd, "quit", 4) == 0) {
         power_off();
@@ -469,7 +421,7 @@ int main(int argc, char **argv) {
     avr_init(avr);
     avr_load_firmware(avr, &f);
     avr->log = 0;
-    eeprom_open();
+    eeprom_open(avr, eeprom_file);
     if (strcmp(mcu, "atmega328p") != 0) { /* Mega/Leonardo: INT0/1 = PD0/PD1, OC1A = PB5 */
         enc_pin_a = 0;
         enc_pin_b = 1;
