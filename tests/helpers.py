@@ -87,6 +87,8 @@ class HexLinePipe(Transport):
         self._closed = True
         try:
             self.send_line("QUIT")
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()  # (node's readline holds the loop open while stdin is)
         except (BrokenPipeError, OSError, ValueError):
             pass
         try:
