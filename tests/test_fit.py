@@ -129,3 +129,14 @@ def test_flash_refuses_an_avr_board_file_too_big_before_avrdude(tmp_path: Path) 
     r = cli("flash", str(bf), "--port", str(tmp_path / "ttyACM9"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "does not fit the atmega328p" in r.stderr and "avrdude" not in r.stderr
+
+
+@pytest.mark.slow
+def test_update_refuses_a_micropython_board_file_too_big_before_it_connects(
+    tmp_path: Path,
+) -> None:
+    big = tmp_path / "big.py"
+    big.write_text("BOARD = " + json.dumps(_imus(60)) + "\n")
+    r = cli("update", "tcp://127.0.0.1:9", str(big))  # (nothing listens there: not reached)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "does not fit the rp2040's heap" in r.stderr

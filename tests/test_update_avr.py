@@ -84,3 +84,23 @@ def test_the_daemon_lets_go_of_the_port_for_avrdude_and_takes_it_back(
         assert (st["state"], st["connects"]) == ("up", 2), st
         assert st["fw_hash"] == before["fw_hash"]
         assert st["update"]["state"] == "port taken back", st["update"]
+
+
+@pytest.mark.slow
+@pytest.mark.avr
+def test_an_update_that_cannot_fit_the_mcu_is_refused_before_avrdude(
+    tmp_path: Path, avr_rig: AvrRig
+) -> None:
+    """Built and checked as `flash` and `gen-firmware` check it: over the Uno's flash or its
+    stack's room is exit 2 with the numbers, and avrdude never runs (the build had its fit
+    check off, and `update` made none)."""
+    from .test_fit import UNO_AND_A_MOTOR
+
+    rig = avr_rig("uno_rig")
+    bf = tmp_path / "uno_motor.py"
+    bf.write_text(UNO_AND_A_MOTOR)
+    r = ml("update", rig.url, str(bf), timeout=600)
+    assert r.returncode == 2, r.stdout + r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert "does not fit the atmega328p" in last and "avrdude" not in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr

@@ -128,13 +128,10 @@ def flash_avr(
 
 def build_stamped(bf: BoardFile, build: Path, say: Callable[[str], None]) -> tuple[Path, str]:
     """Build the firmware into ``build`` (``missing-link update``): the image's path and the
-    fw.hash it was stamped with (a fresh id, taken only by a board that has none)."""
-    if not AVR_DIR.is_dir():
-        raise FlashError(f"AVR builds need the missing-link source checkout ({AVR_DIR})")
-    out = _run(make_command(bf, build), "building the AVR firmware", 300)
-    for line in out.splitlines():
-        if ": flash " in line:
-            say(line)  # the size line
+    fw.hash it was stamped with (a fresh id, taken only by a board that has none); one that
+    cannot fit the MCU is refused before anything is written (DoesNotFit, with the numbers)."""
+    size, out = build_checked(bf, build)
+    say(size.line())  # the size line
     stamped = STAMPED.search(out)
     if stamped is None:
         raise FlashError("building the AVR firmware: no stamp line (fw.hash, board.id)")

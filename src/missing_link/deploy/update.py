@@ -46,6 +46,7 @@ from ..host.update import (
 from .avr import build_stamped, run_avrdude
 from .boardfile import BoardFile
 from .flash import LIB, micropython_files
+from .heap import check_fit
 
 #: the default model a MicroPython board states (board/firmware.py)
 MPY_MODEL = "missing-link micropython board"
@@ -60,7 +61,9 @@ AVR_RELEASE_S = 300
 def micropython_image(bf: BoardFile) -> Image:
     """The image of ``bf``'s firmware: the runtime and drivers ``flash`` would copy, and the
     board file (the key and main.py stay: a key goes over USB only, main.py is the boot
-    loader)."""
+    loader).  A board file whose firmware cannot fit the board's heap is refused first, as
+    ``flash`` refuses it (heap.py: DoesNotFit, with the numbers)."""
+    check_fit(bf)
     files = [
         (c.remote, c.local.read_bytes())
         for c in micropython_files(bf)
