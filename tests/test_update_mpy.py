@@ -198,7 +198,10 @@ def test_what_the_board_cannot_take_is_refused_before_a_byte(
     tmp_path: Path, rover: str, env: dict[str, str]
 ) -> None:
     old = fw_hash(rover)
-    esp = variant(tmp_path, "rover-esp", ROVER, ('"mcu": "rp2040"', '"mcu": "esp32"'))
+    # (an ESP32's board file that fits its heap: the rover's own on an esp32 does not, and is
+    # refused for that before the board is asked, test_fit.py)
+    esp = variant(tmp_path, "rover-esp", ROVER.parent / "esp32-wifi.py",
+                  ('"model": "esp32-wifi"', '"model": "pico-rover"'))  # fmt: skip
     other = variant(tmp_path, "other", ROVER, ('"model": "pico-rover"', '"model": "pico-arm"'))
     bad = variant(tmp_path, "bad", ROVER, ('"driver": "hbridge"', '"driver": "warp"'))
     cases = [
