@@ -310,10 +310,11 @@ def test_the_daemon_says_it_everywhere_and_counts_it(
     assert wait_for(lambda: rt.log.count(7, NO_ANSWER) > 3, 10)
     web = ConsoleModel()
     cfg = Config(boards=[BoardSpec(server.url)], diagnostics_period=0.2)
-    with caplog.at_level(logging.WARNING), Daemon(cfg) as d:
-        got: list[LogLine] = []
-        d.subscribe_logs(got.append, "probe_board")
-        d.subscribe_logs(web.add_log, queue=0)
+    d = Daemon(cfg)
+    got: list[LogLine] = []
+    d.subscribe_logs(got.append, "probe_board")  # (before it starts: the early line comes
+    d.subscribe_logs(web.add_log, queue=0)  # with the connection, maybe before a late subscriber)
+    with caplog.at_level(logging.WARNING), d:
         assert d.wait_until_up(10), d.failures()
         assert wait_for(lambda: got, 10)
         (early,) = got
