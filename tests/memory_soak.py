@@ -37,7 +37,11 @@ from missing_link.transport import open_transport
 from .helpers import FirmwareSim, pump_lines
 
 MAP_EVERY_US = 2_000_000  # a fresh host map this often (board µs): it vouches for 10 s
-TURN_S = 0.005  # the host's turn (real time): a clock exchange, a map when due, its commands
+#: the host's turn, in board µs: a clock exchange, a map when due, its commands.  Its pace is
+#: the simulation's, not the machine's (the same traffic per simulated second however loaded
+#: the host is), the daemon's busiest steady probing (timesync ClockSync fast_interval)
+TURN_US = 50_000
+POLL_S = 0.002  # how often the host looks at the simulated clock, waiting for its next turn
 
 
 class FastSim(FirmwareSim):
@@ -93,7 +97,7 @@ class SoakResult:
     board_us: int  #: simulated µs the host saw pass on the board's clock
     samples: Counter[str] = field(default_factory=Counter)  #: decoded samples per transducer
     valid: Counter[str] = field(default_factory=Counter)  #: ... with a value (not N/A)
-    maps: list[int] = field(default_factory=list)  #: board µs of each host map pushed
+    maps: list[int] = field(default_factory=list)  #: board µs by when each host map was in
     memory: MemoryStatus = field(default_factory=MemoryStatus)
     align: tuple[int, ...] = ()  #: a2jAlignInfo
     debug: str = ""  #: what a2jDebug had at the end
@@ -128,16 +132,18 @@ def soak(
         while True:
             now = board.clock_exchange(30).t3  # (bytes from the host: the simulation goes on)
             if aligned and (not res.maps or now - res.maps[-1] >= MAP_EVERY_US):
-                board.call_ok("a2jHostMap", struct.pack("<Qqi", now, now * 1000, 0))
-                if not res.maps:
+                if not res.maps:  # (aligned first: the grid holds from the map on)
                     board.configure({f"{name}.aligned": True for name in aligned})
-                res.maps.append(now)
+                board.call_ok("a2jHostMap", struct.pack("<Qqi", now, now * 1000, 0))
+                # (the board has it by its time at the next exchange: the simulation runs
+                # on meanwhile, up to --lead-ms)
+                res.maps.append(board.clock_exchange(30).t3)
             if act is not None:
                 res.commands += act(board, turn)
             turn += 1
             if now - start >= seconds * 1e6:
                 break
-            time.sleep(TURN_S)
+            _wait(sim, TURN_US)
         res.board_us = now - start
         res.memory = parse_memory(board.call_ok("a2jMemory"))
         res.align = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
@@ -147,13 +153,21 @@ def soak(
         board.close()
 
 
+def _wait(sim: FastSim, us: int) -> None:
+    """Until the simulation has gone ``us`` on (it runs at most --lead-ms past the host's last
+    bytes: ``us`` must be less)."""
+    until = int(sim.figure("time")) + us
+    while int(sim.figure("time")) < until:
+        time.sleep(POLL_S)
+
+
 def grid_hits(
     spans: Iterable[tuple[int, int]], periods_us: Iterable[int], maps: list[int], life_us: int
 ) -> list[tuple[int, int, int]]:
     """The spans (from, to] (board µs) that hold an instant of a grid (whole multiples of a
     period, phase 0) while a host map vouched for it: at most ``life_us`` after one pushed
-    (board µs it was pushed at, ``maps``).  (An instant at a span's start was measured before
-    it: the step began with it.)"""
+    (board µs by when the board had it, ``maps``).  (An instant at a span's start was measured
+    before it: the step began with it.)"""
     hits = []
     periods = list(periods_us)
     for a, b in spans:

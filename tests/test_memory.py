@@ -13,7 +13,8 @@ import json
 import struct
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -115,10 +116,30 @@ def _check_grid(res: SoakResult, gc: dict[str, Any], periods_us: list[int]) -> N
     assert late == [], late
 
 
-@pytest.mark.timeout(900)  # (ten simulated minutes: about a minute and a half here)
-def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
-    aligned = ["compass", "wheel_l", "wheel_r"]  # 50 Hz: an instant every 20 ms
-    res, gc, sim = _soaked("rover.py", aligned, _rover_commands, [(2, 3), (6, 7)])
+ROVER_ALIGNED = ["compass", "wheel_l", "wheel_r"]  # 50 Hz: an instant every 20 ms
+RIG_ALIGNED = ["imu", "dist_ir", "wheel"]  # 100, 25 and 50 Hz: an instant every 10 ms
+SOAKS: dict[str, Callable[[], Soaked]] = {
+    "rover": lambda: _soaked("rover.py", ROVER_ALIGNED, _rover_commands, [(2, 3), (6, 7)]),
+    "rig": lambda: _soaked("thesis-rig.py", RIG_ALIGNED, _rig_commands, [(2, 3)]),
+}
+
+
+@pytest.fixture(scope="module")
+def soaks(request: pytest.FixtureRequest) -> Iterator[dict[str, Future[Soaked]]]:
+    """The boards' soaks selected in this run, side by side (a simulator is one node process,
+    one core: both at once take the longer one's time; the simulated clock is each process's
+    own CPU time, so a neighbour does not move it)."""
+    wanted = {item.name for item in request.session.items}
+    with ThreadPoolExecutor(len(SOAKS)) as pool:
+        yield {name: pool.submit(run) for name, run in SOAKS.items()
+               if any(f"_{name}_runs_ten" in test for test in wanted)}  # fmt: skip
+
+
+@pytest.mark.timeout(900)  # (ten simulated minutes: about two minutes here, both boards at once)
+def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap(
+    soaks: dict[str, Future[Soaked]],
+) -> None:
+    res, gc, sim = soaks["rover"].result()
     _check_soak(res, sim, {"compass": 50, "wheel_l": 50, "wheel_r": 50, "sonar": 10,
                                "tof": 10, "gps": 1})  # fmt: skip
     assert res.commands > 0 and res.valid["motor_l"] > 0 and res.valid["mast"] > 0
@@ -126,9 +147,10 @@ def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
 
 
 @pytest.mark.timeout(900)
-def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap() -> None:
-    aligned = ["imu", "dist_ir", "wheel"]  # 100, 25 and 50 Hz: an instant every 10 ms
-    res, gc, sim = _soaked("thesis-rig.py", aligned, _rig_commands, [(2, 3)])
+def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap(
+    soaks: dict[str, Future[Soaked]],
+) -> None:
+    res, gc, sim = soaks["rig"].result()
     _check_soak(res, sim, {"imu": 100, "dist_ir": 25, "wheel": 50, "sonar": 10})
     assert res.commands > 0 and res.valid["camera"] > 0 and res.align[3] > 0  # timed calls ran
     _check_grid(res, gc, [10_000, 40_000, 20_000])

@@ -2,12 +2,16 @@
 //
 // Theory of operation
 // -------------------
-// `now` is simulated µs since the start.  A step runs at `now` (the firmware's clock stands
-// still in it, but for what it sleeps); afterwards the clock moves on by what the step slept
-// plus what it cost: the interpreter's CPU time for it (process.cpuUsage, not the wall clock, so
-// a loaded machine does not make the board slow) times `scale` (a CPU `scale` times slower than
-// this one running the WebAssembly interpreter).  When the step did nothing (no bytes in or
-// out) the clock jumps to the drivers' next deadline, at most IDLE_US on, as a board sleeps.
+// `now` is simulated µs since the start.  A step runs from `now`: the firmware's clock moves in
+// it by what it sleeps and, read after read, by the step's CPU time so far (cpu(): the
+// interpreter's, process.cpuUsage, not the wall clock, so a loaded machine does not make the
+// board slow; times `scale`, a CPU `scale` times slower than this one running the WebAssembly
+// interpreter).  Afterwards the clock moves on by what the step slept plus the CPU time its
+// reads had not seen.  (A clock that stood still in a step put the whole step's work after its
+// last reading: a collection asked for at the turn's end was logged as holding the turn's work
+// too, milliseconds the firmware could not see when it chose the moment.)  When the step did
+// nothing (no bytes in or out) the clock jumps to the drivers' next deadline, at most IDLE_US
+// on, as a board sleeps.
 //
 // Garbage collection on this port runs when the step returns (simgc.py), so the CPU time
 // between the step's end (its mark()) and the return to node is the collection's.  One the
@@ -15,13 +19,15 @@
 // times its collections as on a board); more than that moves the clock on after the step.  One
 // nobody asked for (the allocation threshold: mpyhost.py tells it from the heap's allocated
 // bytes) moves it on by what it took.  Every collection goes into `log` as [start, end] board
-// µs: for a requested one, from where it was asked for to where it ended (the step's own CPU
-// time before it included: the firmware cannot see that within a step, the log does), with
-// "req" or "auto".
+// µs: for a requested one, from where it was asked for to where it ended (with the step's CPU
+// time after the request that no clock read saw), with "req" or "auto".  Not seen by the
+// firmware: how much longer a requested collection took than its charge (the one before); the
+// log has its whole span.
 
 export const IDLE_US = 10000; // (the firmware's own longest wait: board/firmware.py run())
 const TICKS_MASK = 2 ** 30 - 1;
 const LOG_MAX = 100000;
+const CPU_EVERY_US = 20; // (cpu(): a clock read's error from it is at most this, in CPU time)
 
 function cpuUs() {
   const u = process.cpuUsage();
@@ -39,6 +45,21 @@ export class FastClock {
     this.marked = 0; // CPU µs at the step's end (mark(), called from inside the step)
     this.due = -1; // µs from the last step to the drivers' next deadline (-1: none)
     this._prev = null; // the last step's end: [board µs, collection µs], for an "auto" seen late
+    this.c0 = null; // CPU µs at the step's start (null: between steps)
+    this.seen = 0; // simulated µs of the step's CPU time the firmware's clock has moved by
+    this.asked = 0; // wall µs (performance.now) when cpu() last read the CPU time
+  }
+
+  // The step's CPU time so far, simulated µs (simtime.py: the clock moves by it as it is read).
+  // Asked again within CPU_EVERY_US of wall time, the last answer: the firmware reads its
+  // clock thousands of times a second and process.cpuUsage is a system call.
+  cpu() {
+    if (this.c0 === null) return this.seen;
+    const wall = performance.now() * 1000;
+    if (wall - this.asked < CPU_EVERY_US) return this.seen;
+    this.asked = wall;
+    this.seen = Math.max(this.seen, Math.floor((cpuUs() - this.c0) * this.scale));
+    return this.seen;
   }
 
   mark() {
@@ -50,7 +71,15 @@ export class FastClock {
   step(run) {
     const start = this.now;
     const c0 = cpuUs();
-    const out = run(start & TICKS_MASK, Math.round(this.lastGcUs));
+    this.c0 = c0;
+    this.seen = 0;
+    this.asked = performance.now() * 1000;
+    let out;
+    try {
+      out = run(start & TICKS_MASK, Math.round(this.lastGcUs));
+    } finally {
+      this.c0 = null;
+    }
     const c1 = cpuUs();
     const bar = out.indexOf("|");
     const [slept, req, at, clk0, auto, due] = out.slice(0, bar).split(" ").map(Number);
@@ -61,7 +90,8 @@ export class FastClock {
       this.lastGcUs = took;
     }
     this._prev = null;
-    const work = Math.max(0, this.marked - c0) * this.scale;
+    // (what the clock moved by in the step is in `slept`)
+    const work = Math.max(0, (this.marked - c0) * this.scale - this.seen);
     const gc = Math.max(0, c1 - this.marked) * this.scale;
     this.now = start + slept + work;
     if (req) {

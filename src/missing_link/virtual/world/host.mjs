@@ -227,7 +227,7 @@ if (heapArg !== null) {
       `simworld.machine.WORLD.log_cap = 0\nmpyhost.watch_gc = ${fast ? "True" : "False"}`,
   );
 }
-if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark() });
+if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark(), cpu: () => fast.cpu() });
 // The firmware loads as on a board, but a module a call: this port collects only between calls
 // (simgc.py), where a board collects while it imports; then it is built from the board file.
 // A firmware that cannot boot (a MemoryError, perhaps) says so in one line and exits 1 (node's
@@ -260,6 +260,8 @@ if (fromFlash) {
   boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
     `${fast ? ", simjs.mark" : ""})`);
 }
+// (after the boot: from here on the firmware's clock moves with its steps' CPU time)
+if (fast) mp.runPython("import simworld.simtime\nsimworld.simtime.cpu = simjs.cpu");
 mp.runPython(
   "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _due_us, _ctl, _ident",
 );

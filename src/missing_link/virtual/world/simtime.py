@@ -9,10 +9,12 @@ The clock counts simulated µs, wrapping at TICKS_PERIOD as the RP2040 port's ti
 (board/clock.py extends it to 64 bit, as on a board).  Between two firmware steps the host
 sets it (set_now): it jumps over the time the firmware would have slept and adds what the step
 cost (the interpreter's CPU time, and a garbage collection's after it: fastclock.mjs).  Within
-a step it moves only by what the firmware does with it: READ_US a read (a read takes time on a
-board too, and code that waits for the clock to move, board/clock.py resolution_us, must see
-it move), what a sleep slept (sleep_us, a pulse waited for: machine.time_pulse_us), and what a
-collection took at a gc.collect() (simgc.py); the step's total (slept()) goes back to the host
+a step it moves by the step's CPU time so far at each read (`cpu`, fastclock.mjs: as a board's
+clock runs on while its loop works, so the firmware's turn-end reading, where it decides on a
+collection, board/memory.py, is not stale by the turn's work), READ_US a read (a read takes time
+on a board too, and code that waits for the clock to move, board/clock.py resolution_us, must
+see it move), what a sleep slept (sleep_us, a pulse waited for: machine.time_pulse_us), and what
+a collection took at a gc.collect() (simgc.py); the step's total (slept()) goes back to the host
 with its output.
 """
 
@@ -22,13 +24,16 @@ READ_US = 1
 
 _now = 0  # simulated µs, wrapped
 _slept = 0  # µs advanced within the current step
+cpu = None  # fast mode: the step's CPU time so far, simulated µs (host.mjs: fastclock.mjs)
+_worked = 0  # ... of it the clock has moved by
 
 
 def set_now(us):
     # a new step begins at simulated µs `us` (wrapped): nothing slept in it yet
-    global _now, _slept
+    global _now, _slept, _worked
     _now = us & TICKS_MAX
     _slept = 0
+    _worked = 0
 
 
 def advance(us):
@@ -42,12 +47,25 @@ def slept():
     return _slept
 
 
+def _work():
+    # the clock moves on by the step's CPU time so far: the firmware sees its turn take time
+    global _worked
+    w = cpu()
+    if w > _worked:
+        advance(w - _worked)
+        _worked = w
+
+
 def ticks_us():
+    if cpu is not None:
+        _work()
     advance(READ_US)
     return _now
 
 
 def ticks_ms():
+    if cpu is not None:
+        _work()
     advance(READ_US)
     return (_now // 1000) & TICKS_MAX
 
