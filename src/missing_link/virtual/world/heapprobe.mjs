@@ -12,9 +12,10 @@
 // a built firmware (a board file with two of it, less one with one); "bus", an I2C bus opened.
 // This port collects only when a call into it returns (simgc.py), so every step is a call of
 // its own, with gc.collect() asked for at its end.
-import { readFileSync, readdirSync, statSync } from "node:fs";
+import { readFileSync } from "node:fs";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
+import { copyTree } from "./mpfs.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const spec = JSON.parse(readFileSync(process.argv[2], "utf8"));
@@ -27,20 +28,9 @@ const mp = await loadMicroPython({
   stderr: (line) => process.stderr.write("mpy! " + line + "\n"),
 });
 
-function copyTree(src, dst) {
-  mp.FS.mkdir(dst);
-  for (const name of readdirSync(src)) {
-    const p = join(src, name);
-    if (statSync(p).isDirectory()) {
-      if (name !== "__pycache__") copyTree(p, dst + "/" + name);
-    } else if (name.endsWith(".py")) {
-      mp.FS.writeFile(dst + "/" + name, readFileSync(p));
-    }
-  }
-}
 mp.FS.mkdir("/lib");
-copyTree(join(here, "..", "..", "board"), "/lib/mlboard");
-copyTree(here, "/lib/simworld");
+copyTree(mp, join(here, "..", "..", "board"), "/lib/mlboard");
+copyTree(mp, here, "/lib/simworld");
 mp.FS.mkdir("/flash");
 mp.FS.chdir("/flash");
 mp.runPython(

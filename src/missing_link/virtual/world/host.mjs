@@ -56,6 +56,7 @@ import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
 import { FastClock } from "./fastclock.mjs";
+import { copyTree } from "./mpfs.mjs";
 import { FlashCut } from "./flashcut.mjs";
 import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
 
@@ -101,20 +102,9 @@ const mp = await loadMicroPython({
   stderr: (line) => process.stderr.write("mpy! " + line + "\n"),
 });
 
-function copyTree(src, dst) {
-  mp.FS.mkdir(dst);
-  for (const name of readdirSync(src)) {
-    const p = join(src, name);
-    if (statSync(p).isDirectory()) {
-      if (name !== "__pycache__") copyTree(p, dst + "/" + name);
-    } else if (name.endsWith(".py")) {
-      mp.FS.writeFile(dst + "/" + name, readFileSync(p));
-    }
-  }
-}
 mp.FS.mkdir("/lib");
-if (!fromFlash) copyTree(libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
-copyTree(here, "/lib/simworld");
+if (!fromFlash) copyTree(mp, libArg ?? join(here, "..", "..", "board"), "/lib/mlboard");
+copyTree(mp, here, "/lib/simworld");
 if (!fromFlash) mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
 // ---- the board's flash ----------------------------------------------------------------------
