@@ -68,7 +68,7 @@ test: lint typecheck unit
 
 # The inner loop: lint, types and the tests not marked slow (no board processes, MicroPython,
 # simavr, ROS or browsers: tests/*.py mark those), under a minute here.  `make test` runs all.
-check: lint typecheck
+check: lint typecheck node
 	$(VENV)/bin/pytest -q -m "not slow"
 
 bench: venv ros2
