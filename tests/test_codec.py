@@ -145,6 +145,18 @@ def test_board_and_host_codecs_agree(frames) -> None:  # type: ignore[no-untyped
             assert events == []  # a board ignores SIF frames
 
 
+def test_a_sif_frame_spelling_the_break_is_not_a_break() -> None:
+    # Found by the property test above: the board parser took an ignored SIF frame's payload for
+    # bytes between frames.  It now walks the frame (escaped length included) and hunts after it.
+    parser = wire.FrameParser()
+    sif = encode_frame(SOS, 0, 0, wire.BREAK + b"\r")
+    long_sif = encode_frame(SOS, 1, 2, bytes(0x12) + wire.BREAK + b"\n")  # the length escaped
+    assert parser.feed(sif + long_sif) == []
+    # After a SIF frame, the parser is between frames again: a real break still counts.
+    assert parser.feed(wire.BREAK + b"\r") == [(wire.EV_BREAK, None, 0, None)]
+    assert parser.feed(encode_frame(SOF, 3, 4, b"x")) == [(wire.EV_REQUEST, 3, 4, b"x")]
+
+
 @settings(max_examples=300)
 @given(frames_st, st.binary(max_size=40), st.integers(0, 2**32))
 def test_junk_and_corruption_never_raise_and_resync(frames, junk, seed) -> None:  # type: ignore[no-untyped-def]

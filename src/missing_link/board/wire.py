@@ -6,20 +6,22 @@
 # is a byte-at-a-time state machine with a fixed payload buffer:
 #
 #   HUNT --0x12--> SEQ -> OP -> LEN -> DATA (len bytes) -> CSUM --> request (or error)
-#   HUNT --0xED--> ignored: a board never acts on SIF frames (spec 1.1); we keep hunting.
+#   HUNT --0xED--> IGNORE: a board never acts on SIF frames (spec 1.1); it only counts the
+#                  frame's bytes (seq, op, len, len data, csum; escapes undone) and hunts again.
 #
 # ESC (0x7D) sets a flag and the next byte is taken +1; a result that is not one of the three
 # specials is a bad escape.  A raw 0x12/0xED inside a frame means the frame was cut: the parser
 # reports it (with the seq if it had arrived) and starts again at that marker.  feed() returns a
 # list of events; the runtime answers errors with error frames (0xF2/0xF3/0xF4), as the original.
 #
-# Between frames (hunting, or in an ignored SIF frame) bytes are junk, except the break: BREAK
+# Between frames (hunting) bytes are junk, except the break: BREAK
 # then CR or LF, all between frames, is EV_BREAK (the MicroPython firmware's way back to the
 # REPL, firmware.py).  J2A never sends bytes between frames, and line noise does not spell seven
 # given bytes (2^-56 a try); no marker may come between them.  The rest of a frame that was
 # dropped (abort: 10 ms of silence; a bad escape) is not between frames, whatever its payload
 # spells: SKIP discards it until the next marker or until the line has been quiet again (the
-# runtime's poll calls abort() once more), so a host's payload can never be a break.
+# runtime's poll calls abort() once more), so a host's payload can never be a break; nor can a
+# SIF frame's (an echoing link), which IGNORE walks to its end.
 #
 # The host side has its own, throughput-oriented decoder (missing_link.j2a.codec); the test suite
 # cross-checks the two with random frames in both directions.
@@ -103,6 +105,8 @@ class FrameParser:
         self.errors = 0
         self.frames = 0
         self._between = bytearray()  # the last bytes between frames (the break's)
+        self._sif = 0  # IGNORE: unescaped bytes of the SIF frame seen so far
+        self._sif_len = 0  # IGNORE: its total length (seq, op, len, data, csum), once known
 
     def in_frame(self):
         # (in a frame, or in the rest of a dropped one: either ends after silence, abort())
@@ -122,6 +126,20 @@ class FrameParser:
             return (EV_CUT, None, 0, None)
         return (EV_CUT, self.seq, 0, None)
 
+    def _walk_sif(self, b):
+        # One byte of an ignored SIF frame: hunt again after its checksum.
+        if self.esc:
+            self.esc = False
+            b = (b + 1) & 0xFF
+        elif b == ESC:
+            self.esc = True
+            return
+        if self._sif == 2:
+            self._sif_len = b + 4
+        self._sif += 1
+        if self._sif_len and self._sif >= self._sif_len:
+            self.state = _HUNT
+
     def feed(self, data):
         events = []
         for b in data:
@@ -132,14 +150,18 @@ class FrameParser:
                 self.esc = False
                 self.state = _SEQ if b == SOF else _IGNORE
                 self._between = bytearray()
+                self._sif = 0
+                self._sif_len = 0
                 continue
             st = self.state
             if st == _SKIP:
                 self.junk += 1
                 continue
-            if st == _HUNT or st == _IGNORE:
-                if st == _HUNT:
-                    self.junk += 1
+            if st == _IGNORE:
+                self._walk_sif(b)
+                continue
+            if st == _HUNT:
+                self.junk += 1
                 if (b == 13 or b == 10) and bytes(self._between) == BREAK:
                     events.append((EV_BREAK, None, 0, None))
                 self._between.append(b)
