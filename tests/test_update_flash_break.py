@@ -59,12 +59,12 @@ def test_without_the_break_mpremote_cannot_stop_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """What flash did before: mpremote alone meets a firmware that ignores its Ctrl-C (and,
-    while the firmware sends, waits for ever: bounded here at 8 s)."""
+    while the firmware sends, waits for ever: bounded here at 3 s)."""
     flash_dir = tmp_path / "flash"
     _flashed_once(flash_dir)
     before = {p: p.read_bytes() for p in flash_dir.rglob("*") if p.is_file()}
     monkeypatch.setattr(flash_mod, "send_break", lambda port: "repl")
-    monkeypatch.setattr(flash_mod, "MPREMOTE_TIMEOUT_S", 8.0)
+    monkeypatch.setattr(flash_mod, "MPREMOTE_TIMEOUT_S", 3.0)
     renamed = tmp_path / "rig2.py"
     renamed.write_text(RIG.read_text().replace('"name": "rig"', '"name": "rig2"'))
     board = SerialBoard(flash_dir)

@@ -10,9 +10,12 @@
 // `mpremote reset` runs) and at power-off (stdin closed).  A hard reset prints "RESET" on stderr
 // and ends the process, as a USB board leaves the bus when it resets.
 //
-// One thing is not MicroPython's: raw-paste mode (Ctrl-E 'A' Ctrl-A) is declined with "R\x00",
-// as a board whose firmware does not offer it: this port's raw-paste reads stdin in a blocking
-// loop, which a callback-driven port cannot feed.  mpremote then uses the standard raw REPL.
+// Raw-paste mode (Ctrl-E 'A' Ctrl-A, what mpremote uses on every board since MicroPython 1.14)
+// is this file's, not the port's, whose raw-paste reads stdin in a blocking loop that a
+// callback-driven port cannot feed: the same bytes on the wire ("R\x01", the window, an \x01 per
+// window taken, \x04 at the end), the code then run by the port's raw REPL with its "OK" left
+// out, as raw-paste sends none.  (Declined, mpremote writes 256 bytes every 10 ms: a flash took
+// 17 s here.)
 //
 // A flash that holds a main.py runs it at power-on, as a board does (serial_board_fw.py: the
 // firmware stepped here, its link the port, its parts the simulator's): the REPL comes only
@@ -30,9 +33,16 @@ const flashDir = process.argv[2];
 let tail = ""; // the last bytes sent, to know where the REPL is
 let raw = false; // in the raw REPL
 let atPrompt = false; // the raw REPL waits for a new command
+let swallowOK = ""; // what is left of the raw REPL's "OK" to leave out (raw-paste sends none)
 function tx(bytes) {
-  process.stdout.write(Buffer.from(bytes));
-  tail = (tail + Buffer.from(bytes).toString("latin1")).slice(-64);
+  let out = Buffer.from(bytes);
+  while (swallowOK && out.length && out[0] === swallowOK.charCodeAt(0)) {
+    swallowOK = swallowOK.slice(1);
+    out = out.subarray(1);
+  }
+  if (!out.length) return;
+  process.stdout.write(out);
+  tail = (tail + out.toString("latin1")).slice(-64);
   if (tail.includes("raw REPL; CTRL-B to exit\r\n")) raw = true;
   if (tail.endsWith(">>> ")) raw = false;
   atPrompt = raw && tail.endsWith(">");
@@ -121,7 +131,22 @@ function feed(c) {
   }
 }
 
+const WINDOW = 256; // raw-paste: bytes the host may send before the next \x01
 let held = []; // a raw-paste request being recognised
+let paste = null; // raw-paste: the code so far, while one is being received
+function pasted(c) {
+  if (c === 0x04) {
+    const code = paste;
+    paste = null;
+    tx(Buffer.from([0x04])); // the end seen; the code runs
+    swallowOK = "OK";
+    for (const b of code) feed(b);
+    feed(0x04);
+    return;
+  }
+  paste.push(c);
+  if (paste.length % WINDOW === 0) tx(Buffer.from([0x01])); // taken: the next window
+}
 process.stdin.on("data", (data) => {
   if (firmware !== null) {
     firmware.feed(data.toString("hex"));
@@ -129,13 +154,18 @@ process.stdin.on("data", (data) => {
     return;
   }
   for (const c of data) {
+    if (paste !== null) {
+      pasted(c);
+      continue;
+    }
     if ((held.length === 0 && atPrompt && c === 0x05) || (held.length === 1 && c === 0x41)) {
       held.push(c);
       continue;
     }
     if (held.length === 2 && c === 0x01) {
       held = [];
-      tx(Buffer.from("R\x00", "latin1"));
+      paste = [];
+      tx(Buffer.from([0x52, 0x01, WINDOW & 0xff, WINDOW >> 8]));
       continue;
     }
     for (const h of held) feed(h);
