@@ -104,16 +104,6 @@ class SoakResult:
     commands: int = 0
 
 
-@dataclass
-class Soaked:
-    """A soak as the tests check it: what the host saw, the simulator's collections (its
-    figure "gc") and everything the simulator said on stderr."""
-
-    result: SoakResult
-    gc: dict[str, Any]
-    stderr: str
-
-
 def soak(
     sim: FastSim,
     seconds: float,
