@@ -81,7 +81,8 @@ class FastSim(FirmwareSim):
             self.stderr.append(line)
 
     def figure(self, what: str) -> Any:
-        """{"sim": what}: "time" (simulated µs since the start) or "gc" (the collections)."""
+        """{"sim": what}: "time" (simulated µs since the start), "held" (whether --lead-ms
+        holds the simulation for the host's bytes) or "gc" (the collections)."""
         assert self.proc.stdin is not None
         with self._lock:
             self.proc.stdin.write(json.dumps({"sim": what}) + "\n")
@@ -143,7 +144,7 @@ def soak(
             turn += 1
             if now - start >= seconds * 1e6:
                 break
-            _wait(sim, TURN_US)
+            wait_turn(sim, TURN_US)
         res.board_us = now - start
         res.memory = parse_memory(board.call_ok("a2jMemory"))
         res.align = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
@@ -153,11 +154,12 @@ def soak(
         board.close()
 
 
-def _wait(sim: FastSim, us: int) -> None:
-    """Until the simulation has gone ``us`` on (it runs at most --lead-ms past the host's last
-    bytes: ``us`` must be less)."""
+def wait_turn(sim: FastSim, us: int) -> None:
+    """Until the simulation has gone ``us`` on, or as far as it goes without the host: it runs
+    at most --lead-ms past the host's last bytes, and a host slower than the simulation (a
+    loaded machine) may find it there already; waiting for more was a deadlock."""
     until = int(sim.figure("time")) + us
-    while int(sim.figure("time")) < until:
+    while int(sim.figure("time")) < until and not sim.figure("held"):
         time.sleep(POLL_S)
 
 

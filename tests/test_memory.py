@@ -13,6 +13,7 @@ import json
 import struct
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -23,8 +24,10 @@ import pytest
 from missing_link.board.timing import MAP_LIFE_US
 from missing_link.deploy.heap import FREE_HEAP
 from missing_link.host.board import Board
+from missing_link.transport import open_transport
 
-from .memory_soak import FastSim, SoakResult, grid_hits, soak
+from .helpers import wait_for
+from .memory_soak import TURN_US, FastSim, SoakResult, grid_hits, soak, wait_turn
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARDS = ROOT / "examples" / "boards"
@@ -174,3 +177,25 @@ def test_a_board_file_too_big_for_a_pico_runs_out_of_heap_there(tmp_path: Path) 
     assert dry.returncode == 2 and "heap" in dry.stderr, dry.stderr
     with pytest.raises(RuntimeError, match="MemoryError"):
         FastSim(big, PICO).close()
+
+
+def test_a_host_slower_than_the_simulation_still_gets_its_turn() -> None:
+    """The simulation runs at most --lead-ms past the host's last bytes; a host that comes to
+    wait for its next turn when the simulation is there already (a loaded machine) must get it:
+    waiting for ``TURN_US`` more was a deadlock (a CI run's soak stood still for 15 minutes)."""
+    sim = FastSim(BOARDS / "thesis-rig.py", PICO, lead_ms=200)
+    try:
+        with Board(open_transport(sim.url), timeout=30.0) as board:
+            board.handshake()
+            board.clock_exchange(30)  # (the host's last bytes)
+            assert wait_for(lambda: sim.figure("held"), 30)  # the simulation at its lead
+            held_at = int(sim.figure("time"))
+            done = threading.Event()
+            threading.Thread(target=lambda: (wait_turn(sim, TURN_US), done.set()),
+                             daemon=True).start()  # fmt: skip
+            assert done.wait(10), "the host's turn never came"
+            assert int(sim.figure("time")) == held_at  # (nothing moved it on meanwhile)
+            board.clock_exchange(30)  # its bytes: the simulation goes on
+            assert wait_for(lambda: int(sim.figure("time")) > held_at, 10)
+    finally:
+        sim.close()

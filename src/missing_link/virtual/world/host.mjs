@@ -47,7 +47,8 @@
 // wait while a host has 64 KiB of output not taken; --lead-ms: and while the simulation is MS
 // ahead of the last bytes from a host (a board and its host go on together, however slow the
 // host: a host map it keeps fresh stays fresh).  A control line {"sim": "time"} answers the
-// simulated µs since the start, {"sim": "gc"} the collections so far (fastclock.mjs).  (A
+// simulated µs since the start, {"sim": "held"} whether --lead-ms holds it now (it waits for a
+// host's bytes), {"sim": "gc"} the collections so far (fastclock.mjs).  (A
 // board started from its flash is loaded as flashboot.py loads it, not a module a call.)
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
@@ -298,9 +299,11 @@ function feedSome() {
   return toks.join(" ");
 }
 const waiting = () => [...inbox.values()].some((b) => b.length) || ended.size > 0;
+// --lead-ms: the simulation waits for a host's bytes (it is MS past the last)
+const held = () => fast && leadUs !== null && !waiting() && fast.now - heardAt > leadUs;
 function run() {
   pending = null;
-  if (fast && leadUs !== null && !waiting() && fast.now - heardAt > leadUs) return; // (on data)
+  if (held()) return; // (on data)
   let out;
   try {
     if (!fast) feedSome();
@@ -399,10 +402,11 @@ server.listen(portArg, hostArg, () => {
   schedule(true);
 });
 
-// {"sim": "time"} / {"sim": "gc"}: the simulation's own figures (--fast), as JSON
+// {"sim": "time"} / {"sim": "held"} / {"sim": "gc"}: the simulation's own figures (--fast), as JSON
 function simCtl(what) {
   if (!fast) throw new Error("not a --fast simulation");
   if (what === "time") return String(Math.floor(fast.now));
+  if (what === "held") return String(Boolean(held()));
   if (what === "gc") {
     const { log, collections, gcUs, scale } = fast;
     return JSON.stringify({ collections, log, us: gcUs, scale });
