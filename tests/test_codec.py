@@ -157,6 +157,21 @@ def test_a_sif_frame_spelling_the_break_is_not_a_break() -> None:
     assert parser.feed(encode_frame(SOF, 3, 4, b"x")) == [(wire.EV_REQUEST, 3, 4, b"x")]
 
 
+_breaky = st.lists(st.sampled_from([wire.BREAK + b"\r", wire.BREAK + b"\n", b"\x12", b"\xed",
+                                     b"\x7d", b"x"]), max_size=6).map(b"".join)  # fmt: skip
+
+
+@settings(max_examples=300)
+@given(st.lists(st.tuples(st.sampled_from([SOF, SOS]), st.integers(0, 255),
+                          st.integers(0, 255), _breaky), max_size=8))  # fmt: skip
+def test_a_stream_of_frames_is_its_requests_whatever_the_payloads_spell(frames) -> None:  # type: ignore[no-untyped-def]
+    """Whole frames back to back, SIFs among them, payloads full of the break and of markers:
+    the board hears exactly the requests, in order, and never a break."""
+    parser = wire.FrameParser()
+    got = parser.feed(b"".join(encode_frame(*f) for f in frames))
+    assert got == [(wire.EV_REQUEST, s, o, p) for k, s, o, p in frames if k == SOF]
+
+
 @settings(max_examples=300)
 @given(frames_st, st.binary(max_size=40), st.integers(0, 2**32))
 def test_junk_and_corruption_never_raise_and_resync(frames, junk, seed) -> None:  # type: ignore[no-untyped-def]
