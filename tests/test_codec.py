@@ -157,6 +157,22 @@ def test_a_sif_frame_spelling_the_break_is_not_a_break() -> None:
     assert parser.feed(encode_frame(SOF, 3, 4, b"x")) == [(wire.EV_REQUEST, 3, 4, b"x")]
 
 
+def test_a_cut_sif_frame_is_dropped_at_silence_and_the_break_after_it_counts() -> None:
+    # (review: a SIF cut short, or one stray 0xED of noise, had no timeout: it counted up to 259
+    # bytes on, and swallowed the break flash sends after 50 ms of quiet)
+    for cut in (b"\xed", b"\xed\x00\x05\xff\x01\x02", b"\xed\x00\x05\x08"):
+        parser = wire.FrameParser()
+        assert parser.feed(cut) == [] and parser.in_frame()
+        assert parser.abort() is None and parser.abort() is None  # (dropped; its rest skipped)
+        assert not parser.in_frame() and parser.errors == 0
+        assert parser.feed(b"\r" + wire.BREAK + b"\r") == [(wire.EV_BREAK, None, 0, None)]
+    # the rest of a cut SIF that spells the break, after one silence, is still no break
+    parser = wire.FrameParser()
+    parser.feed(b"\xed\x00\x00\x07\x03\x03")
+    parser.abort()
+    assert parser.feed(b"repl\r") == []
+
+
 _breaky = st.lists(st.sampled_from([wire.BREAK + b"\r", wire.BREAK + b"\n", b"\x12", b"\xed",
                                      b"\x7d", b"x"]), max_size=6).map(b"".join)  # fmt: skip
 

@@ -7,7 +7,8 @@
 #
 #   HUNT --0x12--> SEQ -> OP -> LEN -> DATA (len bytes) -> CSUM --> request (or error)
 #   HUNT --0xED--> IGNORE: a board never acts on SIF frames (spec 1.1); it only counts the
-#                  frame's bytes (seq, op, len, len data, csum; escapes undone) and hunts again.
+#                  frame's bytes (seq, op, len, len data, csum; escapes undone) and hunts again,
+#                  or, cut short by silence (a stray 0xED of line noise), is dropped as any frame.
 #
 # ESC (0x7D) sets a flag and the next byte is taken +1; a result that is not one of the three
 # specials is a bad escape.  A raw 0x12/0xED inside a frame means the frame was cut: the parser
@@ -109,8 +110,9 @@ class FrameParser:
         self._sif_len = 0  # IGNORE: its total length (seq, op, len, data, csum), once known
 
     def in_frame(self):
-        # (in a frame, or in the rest of a dropped one: either ends after silence, abort())
-        return self.state != _HUNT and self.state != _IGNORE
+        # (in a frame, an ignored one too, or in the rest of a dropped one: each ends after
+        # silence, abort())
+        return self.state != _HUNT
 
     def abort(self):
         # Inter-byte silence: drop the frame (what still comes of it is skipped, until the
@@ -118,9 +120,11 @@ class FrameParser:
         st = self.state
         self.state = _HUNT
         self.esc = False
-        if st == _HUNT or st == _IGNORE or st == _SKIP:
+        if st == _HUNT or st == _SKIP:
             return None
         self.state = _SKIP
+        if st == _IGNORE:  # a SIF cut short (or a stray 0xED): nothing to answer
+            return None
         self.errors += 1
         if st == _SEQ:
             return (EV_CUT, None, 0, None)
