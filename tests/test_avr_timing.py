@@ -106,7 +106,7 @@ def test_a_timed_pulse_edges_land_on_the_asked_tick(mapped: tuple[Board, int], r
 def _pulse_ahead(board: Board, b0: int, rig: AvrSim, k: int, width: int) -> tuple[int, int]:
     """A pulse asked 150 ms ahead of the board's clock, a different Timer2 phase for each k:
     (its tick, how many asks the board refused as past).  simavr paces its clock to the host's
-    and, when it fell behind (a loaded machine; its pty full while the host did not read), runs
+    and, when it fell behind (a loaded machine: test_the_daemon_times_a_trigger... says so), runs
     flat out to catch up: a tick 150 ms ahead at the exchange can be past when the call comes
     (a CI run: "past by 3843503 us").  The board is right to refuse it, but only the rig's lag
     may explain it (else the board's clock jumped: a fault), and at most twice."""
