@@ -12,7 +12,6 @@ import pytest
 from missing_link.board.runtime import BoardRuntime
 from missing_link.virtual import BoardServer, make_sim, start_board_thread
 
-from . import soak_runner
 from .helpers import AvrRig, AvrSim, j2a_threads
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -21,18 +20,6 @@ UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 ROVER_MEGA = ROOT / "examples" / "boards" / "rover-mega.py"
 
 _names = itertools.count()
-
-
-def pytest_collection_finish(session: pytest.Session) -> None:
-    """The memory soaks the session selected start now, in the background (soak_runner.py)."""
-    if session.config.option.collectonly:
-        return
-    names = {item.name for item in session.items}
-    soak_runner.start([n for n in soak_runner.SOAKS if any(f"_{n}_runs_ten" in t for t in names)])
-
-
-def pytest_sessionfinish() -> None:
-    soak_runner.stop()
 
 
 @pytest.fixture

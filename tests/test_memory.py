@@ -5,37 +5,94 @@ heap's figures (a2jMemory) and the daemon and ``info --json`` show them.
 
 The firmware runs in the real MicroPython interpreter (WebAssembly port) with the simulator's
 ``--heap`` (a board's fixed heap: heap.mjs) and ``--fast`` (simulated time: fastclock.mjs),
-served by a host that decodes every SIF (memory_soak.py), in the background from the session's
-start (soak_runner.py)."""
+served by a host that decodes every SIF (memory_soak.py)."""
 
 from __future__ import annotations
 
 import json
+import struct
 import subprocess
 import sys
 import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from missing_link.board.timing import MAP_LIFE_US
+from missing_link.deploy.heap import FREE_HEAP
 from missing_link.host.board import Board
 from missing_link.transport import open_transport
 
-from . import soak_runner
 from .helpers import wait_for
-from .memory_soak import TURN_US, FastSim, SoakResult, grid_hits, wait_turn
-from .soak_runner import BOARDS, MINUTES, PICO, Background
+from .memory_soak import TURN_US, FastSim, SoakResult, grid_hits, soak, wait_turn
 
 ROOT = Path(__file__).resolve().parent.parent
+BOARDS = ROOT / "examples" / "boards"
+PICO = FREE_HEAP["rp2040"].bytes
+MINUTES = 10
 #: board µs of start-up, where the allocator may collect on its own (measured: its last one at
 #: 1.06 s in a rover's first 3 s; none later in ten minutes of either board)
 STARTUP_US = 5_000_000
 pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
-def _check_soak(res: SoakResult, err: str, rates: dict[str, float]) -> None:
+def _rover_commands(board: Board, turn: int) -> int:
+    """The rover's host: the motors back and forth, the mast round, the wheels turning."""
+    if turn % 20:
+        return 0
+    speed = struct.pack("<f", 0.6 if turn % 40 else -0.6)
+    board.call_ok("a2j_motor_l", speed)
+    board.call_ok("a2j_motor_r", speed)
+    board.call_ok("a2j_mast", struct.pack("<f", (turn // 20) % 4 * 0.25))
+    return 3
+
+
+def _rig_commands(board: Board, turn: int) -> int:
+    """The rig's host: the servo swept, the camera triggered at a host time (a timed call)."""
+    if turn % 20:
+        return 0
+    board.call_ok("a2j_set_servo", struct.pack("<b", (turn // 20) % 200 - 100))
+    now = board.clock_exchange(30).t3  # (a second ahead: the board may run LEAD_MS ahead)
+    at = struct.pack("<qB", (now + 1_000_000) * 1000, board.index["a2j_trigger"])
+    board.call_ok("a2jAt", at + struct.pack("<H", 100))
+    return 2
+
+
+def _turn_wheels(sim: FastSim, pins: list[tuple[int, int]]) -> Callable[[Board, int], int]:
+    def act(board: Board, turn: int) -> int:
+        if turn % 50 == 0:
+            for a, b in pins:
+                sim.ctl(f"WORLD.encoder_steps({a}, {b}, {turn % 37 + 1})")
+        return 0
+
+    return act
+
+
+Soaked = tuple[SoakResult, dict[str, Any], FastSim]
+
+
+def _soaked(
+    board_file: str,
+    aligned: list[str],
+    commands: Callable[[Board, int], int],
+    wheels: list[tuple[int, int]],
+) -> Soaked:
+    sim = FastSim(BOARDS / board_file, PICO)
+    try:
+        turn_wheels = _turn_wheels(sim, wheels)
+        res = soak(sim, MINUTES * 60, aligned, lambda b, t: commands(b, t) + turn_wheels(b, t))
+        gc = sim.figure("gc")
+        assert sim.ctl("result = 1") == 1  # (the firmware still steps: no CRASH, no BREAK)
+    finally:
+        sim.close()
+    return res, gc, sim
+
+
+def _check_soak(res: SoakResult, sim: FastSim, rates: dict[str, float]) -> None:
+    err = "".join(sim.stderr)
     assert "MemoryError" not in err and "crashed" not in err, err[-2000:]
     assert "memory" not in res.debug.lower(), res.debug
     seconds = res.board_us / 1e6
@@ -62,28 +119,42 @@ def _check_grid(res: SoakResult, gc: dict[str, Any], periods_us: list[int]) -> N
     assert late == [], late
 
 
+ROVER_ALIGNED = ["compass", "wheel_l", "wheel_r"]  # 50 Hz: an instant every 20 ms
+RIG_ALIGNED = ["imu", "dist_ir", "wheel"]  # 100, 25 and 50 Hz: an instant every 10 ms
+SOAKS: dict[str, Callable[[], Soaked]] = {
+    "rover": lambda: _soaked("rover.py", ROVER_ALIGNED, _rover_commands, [(2, 3), (6, 7)]),
+    "rig": lambda: _soaked("thesis-rig.py", RIG_ALIGNED, _rig_commands, [(2, 3)]),
+}
+
+
 @pytest.fixture(scope="module")
-def soaks() -> Background:
-    """The boards' soaks, started in the background when the session's tests were collected
-    (soak_runner.py): they ran beside the tests before these."""
-    return soak_runner.started()
+def soaks(request: pytest.FixtureRequest) -> Iterator[dict[str, Future[Soaked]]]:
+    """The boards' soaks selected in this run, side by side (a simulator is one node process,
+    one core: both at once take the longer one's time; the simulated clock is each process's
+    own CPU time, so a neighbour does not move it)."""
+    wanted = {item.name for item in request.session.items}
+    with ThreadPoolExecutor(len(SOAKS)) as pool:
+        yield {name: pool.submit(run) for name, run in SOAKS.items()
+               if any(f"_{name}_runs_ten" in test for test in wanted)}  # fmt: skip
 
 
-@pytest.mark.timeout(900)  # (ten simulated minutes: about a minute and a half of CPU here)
-def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap(soaks: Background) -> None:
-    got = soaks.result("rover", 880)
-    res, gc = got.result, got.gc
-    _check_soak(res, got.stderr, {"compass": 50, "wheel_l": 50, "wheel_r": 50, "sonar": 10,
+@pytest.mark.timeout(900)  # (ten simulated minutes: about two minutes here, both boards at once)
+def test_the_rover_runs_ten_simulated_minutes_in_a_picos_heap(
+    soaks: dict[str, Future[Soaked]],
+) -> None:
+    res, gc, sim = soaks["rover"].result()
+    _check_soak(res, sim, {"compass": 50, "wheel_l": 50, "wheel_r": 50, "sonar": 10,
                                "tof": 10, "gps": 1})  # fmt: skip
     assert res.commands > 0 and res.valid["motor_l"] > 0 and res.valid["mast"] > 0
     _check_grid(res, gc, [20_000])
 
 
 @pytest.mark.timeout(900)
-def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap(soaks: Background) -> None:
-    got = soaks.result("rig", 880)
-    res, gc = got.result, got.gc
-    _check_soak(res, got.stderr, {"imu": 100, "dist_ir": 25, "wheel": 50, "sonar": 10})
+def test_the_thesis_rig_runs_ten_simulated_minutes_in_a_picos_heap(
+    soaks: dict[str, Future[Soaked]],
+) -> None:
+    res, gc, sim = soaks["rig"].result()
+    _check_soak(res, sim, {"imu": 100, "dist_ir": 25, "wheel": 50, "sonar": 10})
     assert res.commands > 0 and res.valid["camera"] > 0 and res.align[3] > 0  # timed calls ran
     _check_grid(res, gc, [10_000, 40_000, 20_000])
 
