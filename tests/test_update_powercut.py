@@ -150,8 +150,8 @@ def test_a_power_cut_at_any_write_starts_the_old_or_the_new(tmp_path: Path) -> N
         shutil.rmtree(flash)
 
     with ThreadPoolExecutor(2) as pool:  # (each board a process of its own: two at a time)
-        for done in [pool.submit(check, n, i, cut) for n, (i, cut) in enumerate(cuts)]:
-            done.result()
+        for fut in [pool.submit(check, n, i, cut) for n, (i, cut) in enumerate(cuts)]:
+            fut.result()
     # the cut control: a real update, the power cut at a few of those points
     for i, cut in ((4, before[4] + units(ops[4]) // 2), (switch, before[switch] + 30),
                    (switch, before[switch + 1])):  # fmt: skip
