@@ -28,10 +28,10 @@ from tests.helpers import AvrSim  # noqa: E402  (the harness driver the tests us
 
 from missing_link.daemon import Daemon  # noqa: E402
 from missing_link.daemon.config import BoardSpec, Config  # noqa: E402
+from missing_link.deploy.avr import AVR_DIR as AVR  # noqa: E402
 from missing_link.host.board import Board  # noqa: E402
 from missing_link.transport import open_transport  # noqa: E402
 
-AVR = ROOT / "firmware" / "avr"
 BOARDS = ROOT / "examples" / "boards"
 
 

@@ -47,6 +47,7 @@ from tests.helpers import AvrSim, FirmwareSim  # noqa: E402  (the harness driver
 
 from missing_link.daemon import Daemon  # noqa: E402
 from missing_link.daemon.config import BoardSpec, Config  # noqa: E402
+from missing_link.deploy.avr import AVR_DIR  # noqa: E402
 from missing_link.errors import MissingLinkError  # noqa: E402
 from missing_link.virtual.faults import FaultRelay  # noqa: E402
 
@@ -106,7 +107,7 @@ def _thaw_then(pid: int, close: Callable[[], None]) -> None:
 def build_avr(out: Path) -> Path:
     uno = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
     subprocess.run(
-        ["make", "-C", str(ROOT / "firmware" / "avr"), f"BOARD={uno}", f"BUILD={out}",
+        ["make", "-C", str(AVR_DIR), f"BOARD={uno}", f"BUILD={out}",
          f"PYTHON={sys.executable}", "all", "sim"],
         check=True, capture_output=True, text=True, timeout=600,
     )  # fmt: skip

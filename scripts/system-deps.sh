@@ -3,7 +3,7 @@
 #   nodejs + npm: run MicroPython (WebAssembly port from npm) to prove the board runtime on it.
 #   g++: create-msgs --build compiles the generated ROS 2 type support (tests do it).
 #   gcc-avr, avr-libc, simavr, libsimavr-dev, libsimavrparts1, avrdude: the AVR firmware is built and run
-#           as real AVR machine code in simavr by the tests (firmware/avr).
+#           as real AVR machine code in simavr by the tests (src/missing_link/firmware/avr).
 #   chromium: the web console's test drives it with Playwright (tests/test_web_browser.py); Debian's,
 #           since this machine cannot download Playwright's own browser builds.
 #   --ros1: ROS 1 from Debian (ros-core, rospy, message packages) for the ros1 publisher and its

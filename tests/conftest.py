@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 
 from missing_link.board.runtime import BoardRuntime
+from missing_link.deploy.avr import AVR_DIR as AVR
 from missing_link.virtual import BoardServer, make_sim, start_board_thread
 
 from .helpers import AvrRig, AvrSim, j2a_threads
 
 ROOT = Path(__file__).resolve().parent.parent
-AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 ROVER_MEGA = ROOT / "examples" / "boards" / "rover-mega.py"
 

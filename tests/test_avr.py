@@ -1,4 +1,4 @@
-"""The AVR firmware (firmware/avr) as real AVR machine code: built with avr-gcc for an
+"""The AVR firmware (missing_link/firmware/avr) as real AVR machine code: built with avr-gcc for an
 ATmega328P from the board file, run in simavr with the thesis rig modelled at its pins and buses
 (firmware/avr/sim/rig_sim.c), its UART on a real pseudo-terminal.  The host talks J2A to it."""
 
@@ -26,7 +26,6 @@ from .helpers import AvrRig, AvrSim, read_blob_raw, wait_for
 from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, VECTORS
 
 ROOT = Path(__file__).resolve().parent.parent
-AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 pytestmark = [pytest.mark.avr, pytest.mark.slow]
 

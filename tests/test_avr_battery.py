@@ -18,6 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 from missing_link.board.drivers.battery import CURVES, charge
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.deploy.avr import AVR_DIR as AVR
 from missing_link.host.board import Board
 from missing_link.topics import Update
 from missing_link.transport import open_transport
@@ -25,7 +26,6 @@ from missing_link.transport import open_transport
 from .helpers import AvrSim, FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
-AVR = ROOT / "firmware" / "avr"
 UNO = ROOT / "tests" / "boards" / "battery-uno.py"
 STORE = get_typestore(Stores.ROS2_JAZZY)
 RATIO = (10000.0 + 3300.0) / 3300.0  # the board file's divider

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from missing_link.deploy.avr import AVR_DIR
 from missing_link.deploy.avrgen import generate_avr, write_avr
 from missing_link.deploy.boardfile import BoardFile, load_board_file
 from missing_link.errors import ConfigError
@@ -142,7 +143,7 @@ def test_code_in_a_board_file_never_compiles_into_the_avr_firmware(tmp_path: Pat
     p = tmp_path / "uno.py"
     p.write_text(body.replace('"call": "a2j_set_servo"', f'"call": {INJECTED!r}'))
     build = tmp_path / "build"
-    make = ["make", "-C", str(ROOT / "firmware" / "avr"), f"BOARD={p}", f"BUILD={build}"]
+    make = ["make", "-C", str(AVR_DIR), f"BOARD={p}", f"BUILD={build}"]
     r = subprocess.run(
         [*make, f"PYTHON={sys.executable}"], capture_output=True, text=True, timeout=300
     )

@@ -190,7 +190,7 @@ UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 def test_avr_dry_run_shows_the_build_and_avrdude() -> None:
     r = ml("flash", str(UNO), "--port", "/dev/ttyACM3", "--dry-run")
     assert r.returncode == 0, r.stderr
-    assert "make -C" in r.stdout and "firmware/avr BOARD=" in r.stdout
+    assert "make -C" in r.stdout and "src/missing_link/firmware/avr BOARD=" in r.stdout
     assert "avrdude -p m328p -c arduino -P /dev/ttyACM3 -b 115200 -D -U flash:w:" in r.stdout
 
 

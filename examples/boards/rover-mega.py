@@ -1,7 +1,7 @@
-# The rover's parts on an Arduino Mega 2560 with our C firmware (firmware/avr): a GPS on
-# Serial1 with its PPS, two DC motors through PWM/DIR bridges (Pololu DRV8838, Cytron MD10C),
-# an HC-SR04, a stepper turning a sensor mast and a servo.  Build and flash with:
-#   make -C firmware/avr BOARD=../../examples/boards/rover-mega.py
+# The rover's parts on an Arduino Mega 2560 with our C firmware (missing_link/firmware/avr): a
+# GPS on Serial1 with its PPS, two DC motors through PWM/DIR bridges (Pololu DRV8838, Cytron
+# MD10C), an HC-SR04, a stepper turning a sensor mast and a servo.  Build and flash with:
+#   make -C src/missing_link/firmware/avr BOARD=$PWD/examples/boards/rover-mega.py BUILD=build
 #   missing-link flash examples/boards/rover-mega.py --port /dev/ttyACM0
 # The fixed pins (docs/hardware.md): the motors' PWM on Timer0's OC0A/OC0B (D13, D4), the GPS
 # on RX1/TX1 (D19/D18) and its PPS on INT4 (D2), the servo on OC1A (D11).  The motors, the

@@ -1,6 +1,6 @@
-# The thesis's test rig on an Arduino Mega 2560 with our C firmware (firmware/avr):
+# The thesis's test rig on an Arduino Mega 2560 with our C firmware (missing_link/firmware/avr):
 # encoder, Sharp IR ranger, SRF02 sonar and the servo it steers.  Build and flash with:
-#   make -C firmware/avr BOARD=../../examples/boards/thesis-rig-mega.py
+#   make -C src/missing_link/firmware/avr BOARD=$PWD/examples/boards/thesis-rig-mega.py BUILD=build
 #   missing-link flash examples/boards/thesis-rig-mega.py --port /dev/ttyACM0
 # On AVR the encoder sits on INT0/INT1 (Mega D21/D20), the servo on OC1A (D11), the SRF02 on the
 # TWI pins (A4/A5), the Sharp on an ADC channel (pin = 0..7 for A0..A7).

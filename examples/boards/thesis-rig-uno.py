@@ -1,7 +1,8 @@
-# The thesis's test rig on an Arduino Uno (ATmega328P) with our C firmware (firmware/avr):
-# encoder, Sharp IR ranger, SRF02 sonar, the servo it steers and a trigger output (a camera's).
+# The thesis's test rig on an Arduino Uno (ATmega328P) with our C firmware
+# (missing_link/firmware/avr): encoder, Sharp IR ranger, SRF02 sonar, the servo it steers and
+# a trigger output (a camera's).
 # Build and flash with:
-#   make -C firmware/avr BOARD=../../examples/boards/thesis-rig-uno.py
+#   make -C src/missing_link/firmware/avr BOARD=$PWD/examples/boards/thesis-rig-uno.py BUILD=build
 #   missing-link flash examples/boards/thesis-rig-uno.py --port /dev/ttyACM0
 # On AVR the encoder sits on INT0/INT1 (Uno D2/D3), the servo on OC1A (D9), the SRF02 on the
 # TWI pins (A4/A5), the Sharp on an ADC channel (pin = 0..7 for A0..A7), the trigger on D11

@@ -1,10 +1,10 @@
-"""AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file
-(``make -C firmware/avr``, which runs ``gen-firmware`` and stamps the image with a board.id and
+"""AVR boards (ATmega328P/2560/32U4): build the C firmware for a board file (``make`` in the
+package's ``firmware/avr``, which runs ``gen-firmware`` and stamps the image with a board.id and
 its fw.hash: avrstamp.py), check that it fits the MCU's flash and RAM (avrsize.py: refused with
 the numbers before anything is written), and write it with avrdude through the Arduino
 bootloader; then ``flash`` checks the board answers J2A as the board file says, with the fw.hash
-it was stamped with (and the id, when ``--id`` forced one).  The id reaches the EEPROM through
-the image: the bootloaders write flash only (identity.c).  ``gen-firmware`` builds it too, to
+it was stamped with (and the id, when ``--id`` forced one). The id reaches the EEPROM through
+the image: the bootloaders write flash only (identity.c). ``gen-firmware`` builds it too, to
 refuse a board file that cannot fit (fit())."""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Callable
+from importlib import resources
 from pathlib import Path
 
 from .avrsize import AvrSize, check
@@ -22,8 +23,9 @@ from .avrstamp import check_id
 from .boardfile import BoardFile
 from .check import FlashError, verify
 
-#: firmware/avr of the source checkout this package runs from (an editable install)
-AVR_DIR = Path(__file__).resolve().parents[3] / "firmware" / "avr"
+#: the C runtime, its Makefile and the simavr rig: package data (missing_link/firmware/avr),
+#: installed with the package, so a wheel builds firmware as a checkout does
+AVR_DIR = Path(str(resources.files("missing_link") / "firmware" / "avr"))
 #: avrdude part, programmer and baud of the usual Arduino bootloader per MCU
 AVRDUDE = {
     "atmega328p": ("m328p", "arduino", 115200),  # Uno, Nano (new bootloader)
@@ -59,7 +61,7 @@ def build_checked(bf: BoardFile, build: Path, board_id: str | None = None) -> tu
     """Build the firmware into ``build`` and check it fits (DoesNotFit, with the numbers):
     its sizes and make's output."""
     if not AVR_DIR.is_dir():
-        raise FlashError(f"AVR builds need the missing-link source checkout ({AVR_DIR})")
+        raise FlashError(f"the AVR firmware sources are missing from this install ({AVR_DIR})")
     out = _run(make_command(bf, build, board_id), "building the AVR firmware", 300)
     return check(build / bf.name / "firmware.elf", bf.mcu, str(bf.path)), out
 
