@@ -24,7 +24,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from missing_link.daemon.sample_path import SamplePath
+from missing_link.daemon.session.sample_path import SamplePath
 from missing_link.descriptors import parse_transds
 from missing_link.host.config import parse_keys
 from missing_link.j2a import HostConnection, SifReceived

@@ -80,12 +80,12 @@ class ClockRecorder(Publisher):
 
 
 def record(runs: int, seconds: float, out: Path, link: str = "pty") -> None:
-    import missing_link.daemon.session_clock as session_clock
+    import missing_link.daemon.session.clock as session_clock
     from _patch import patched
     from _whole_run import whole_run
 
-    # The sessions build their SyncOptions in session_clock.py, with no parameter for the probe
-    # schedule: the recorder gives them a fixed 50 Hz (a burst that never ends), so that any
+    # The sessions build their SyncOptions in daemon/session/clock.py, with no parameter for the
+    # probe schedule: the recorder gives them a fixed 50 Hz (a burst that never ends), so that any
     # slower schedule can be replayed from the recording.  The patch fails the bench if that
     # name is gone or unused, and a recording whose rate is not ~50 Hz is not kept.
     def fixed_50hz(**kw: Any) -> SyncOptions:

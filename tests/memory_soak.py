@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from missing_link.daemon.memory import parse_memory
-from missing_link.daemon.status import MemoryStatus
+from missing_link.daemon.session.board_memory import parse_memory
+from missing_link.daemon.session.status import MemoryStatus
 from missing_link.host.board import Board
 from missing_link.host.samples import SampleDecoder
 from missing_link.transport import open_transport

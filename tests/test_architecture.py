@@ -1,6 +1,5 @@
-"""The house keeps its shape: no import circle, no file over 500 lines (the package's Python and
-JavaScript, bench/, tests/, the firmware's C), no function over 80 (in src/ and bench/), imports
-only downward.
+"""The house keeps its shape: no import circle, imports only downward, every room on its floor
+(sizes and habits: tests/test_house_rules.py).
 
 Every import counts (module level, inside functions, under ``TYPE_CHECKING``): a circle that is
 lazy at run time is still a circle for the reader.  The rooms, from the ground up (a room may
@@ -11,7 +10,10 @@ import its own modules and any room on a lower floor, never one above):
 1. ``transport/`` (bytes by URL), ``ros/`` (ROS vocabulary, no I/O)
 2. ``host/`` (one board from the host), ``topics`` (what the daemon hands publishers)
 3. ``publishers/``
-4. ``daemon/`` (many boards -> topics)
+4. ``daemon/`` (many boards -> topics), in rooms of its own, from the ground up (``DAEMON_FLOORS``):
+   its configuration (``paths``, ``listen_spec``, ``ros_config``, ``claims``; then ``config``),
+   ``session/`` (one board), ``intake/`` (boards coming in) and ``control/`` (who steers), then
+   the daemon's own modules (``fanout``, ``health``, ``joints``) and at the top ``service``
 5. ``virtual/`` (simulated boards, links, clocks), ``deploy/`` (board files, flashing, firmware)
 6. ``cli/`` (the command line)
 
@@ -22,25 +24,15 @@ The package's face (``missing_link/__init__.py``) names its public API lazily, b
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
-
-import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SRC = ROOT / "src" / "missing_link"
 BENCH = ROOT / "bench"
 TESTS = ROOT / "tests"
-FIRMWARE = SRC / "firmware"
-MAX_LINES = 500
-#: what the size rule covers, and what it leaves out: vendored or minified code (not ours to
-#: split) and what a build or a tool puts in the tree
-SIZED = [(SRC, "*.py"), (SRC, "*.mjs"), (SRC, "*.js"), (BENCH, "*.py"), (TESTS, "*.py"),
-         (TESTS, "*.mjs"), (FIRMWARE, "*.c"), (FIRMWARE, "*.h")]  # fmt: skip
-NOT_SIZED_NAMES = ("uPlot*", "*.min.js")
-NOT_SIZED_DIRS = {"build", "node_modules", "__pycache__"}
-MAX_FUNCTION_LINES = 80
 
 FLOORS = {
     "version": 0,
@@ -61,6 +53,22 @@ FLOORS = {
     "deploy": 5,
     "cli": 6,
     "__main__": 7,
+}
+#: the daemon's rooms (a module, or a folder of them), from the ground up: a room imports its own
+#: modules and rooms on a lower floor, never one beside or above it
+DAEMON_FLOORS = {
+    "paths": 0,
+    "listen_spec": 0,
+    "ros_config": 0,
+    "claims": 0,
+    "config": 1,
+    "session": 2,
+    "intake": 3,
+    "control": 3,
+    "fanout": 4,
+    "health": 4,
+    "joints": 4,
+    "service": 5,
 }
 #: registries name their plugins by string and import them on first use
 REGISTRIES = {
@@ -178,163 +186,6 @@ def test_no_import_circle_in_the_package() -> None:
     assert not found, "import circles: " + "; ".join(" <-> ".join(c) for c in found)
 
 
-def sized_files() -> list[Path]:
-    """Every file the size rule covers (``SIZED``, less ``NOT_SIZED_*``)."""
-    return sorted(
-        p
-        for top, pattern in SIZED
-        for p in top.rglob(pattern)
-        if not any(p.match(n) for n in NOT_SIZED_NAMES)
-        and not NOT_SIZED_DIRS & set(p.relative_to(top).parts)
-    )
-
-
-def test_no_file_over_500_lines() -> None:
-    long = {
-        str(p.relative_to(ROOT)): n
-        for p in sized_files()
-        if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
-    }
-    assert not long, f"files over {MAX_LINES} lines: {long}"
-
-
-def test_the_size_rule_sees_every_kind_of_file() -> None:
-    seen = {str(p.relative_to(ROOT)) for p in sized_files()}
-    for path in (
-        "src/missing_link/daemon/service.py",
-        "src/missing_link/virtual/world/host.mjs",
-        "src/missing_link/publishers/web_static/console.js",
-        "bench/bench_codec.py",
-        "tests/test_architecture.py",
-        "tests/micropython/setup_board.py",
-        "tests/micropython/serial_board.mjs",
-        "src/missing_link/firmware/avr/sim/rig_sim.c",
-        "src/missing_link/firmware/avr/src/runtime.h",
-    ):
-        assert path in seen, path
-    assert not any("uPlot" in p for p in seen)
-
-
-def long_functions(paths: list[Path], limit: int = MAX_FUNCTION_LINES) -> dict[str, int]:
-    """``file:line name`` -> lines, for every function (methods and nested ones too) longer
-    than ``limit``, counted from its ``def`` (decorators aside) to its last line."""
-    found = {}
-    for path in paths:
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
-                n = (node.end_lineno or node.lineno) - node.lineno + 1
-                if n > limit:
-                    found[f"{path.relative_to(ROOT)}:{node.lineno} {node.name}"] = n
-    return found
-
-
-#: ``path name`` of a function over the limit left for now, and why (take it out when it is split)
-WAIVED: dict[str, str] = {}
-
-
-def test_no_function_over_80_lines() -> None:
-    long = long_functions([*SRC.rglob("*.py"), *BENCH.glob("*.py")])
-    left = {k: n for k, n in long.items() if f"{k.split(':')[0]} {k.split()[-1]}" not in WAIVED}
-    assert not left, f"functions over {MAX_FUNCTION_LINES} lines: {left}"
-    gone = {w for w in WAIVED if not any(w == f"{k.split(':')[0]} {k.split()[-1]}" for k in long)}
-    assert not gone, f"waived but no longer over the limit (take them out of WAIVED): {gone}"
-
-
-def test_the_function_walk_counts_what_it_should() -> None:
-    tmp = ROOT / ".pytest_cache" / "arch_probe"
-    tmp.mkdir(parents=True, exist_ok=True)
-    path = tmp / "long.py"
-    body = "\n".join(f"        x{i} = {i}" for i in range(79))
-    path.write_text(
-        f"@dec\ndef short():\n    pass\n\nclass C:\n    def long(self):\n{body}\n"
-        "        async def inner():\n            pass\n"
-    )
-    # long: def + 79 lines + 2 of inner = 82; inner 2; short 2
-    assert long_functions([path]) == {".pytest_cache/arch_probe/long.py:6 long": 82}
-    assert long_functions([path], limit=1) == {
-        ".pytest_cache/arch_probe/long.py:2 short": 2,
-        ".pytest_cache/arch_probe/long.py:6 long": 82,
-        ".pytest_cache/arch_probe/long.py:86 inner": 2,
-    }
-
-
-#: what starts another process or a real component, by the name a test uses for it (helpers.py,
-#: conftest.py), and subprocess's verbs
-STARTS_PROCESSES = {
-    *("board_process", "start_board_process", "ml", "ML", "FirmwareSim", "HexLinePipe"),
-    *("AvrSim", "avr_rig", "avr_build", "SerialBoard", "sync_playwright", "ROS2_PY"),
-}
-SUBPROCESS = {"run", "Popen", "check_output", "check_call", "call"}
-#: quick children that make check keeps: a bare interpreter that imports the package
-QUICK_CHILDREN = {"test_architecture.py::test_the_face_imports_nothing_at_run_time"}
-
-
-def unmarked_process_tests(path: Path) -> list[str]:
-    """The tests of ``path`` that start a process (themselves, or through a function or fixture
-    of their module) without the ``slow`` mark (their own, or the module's ``pytestmark``)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    funcs = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)}
-    module_slow = any(
-        isinstance(n, ast.Assign | ast.AugAssign)
-        and "pytestmark" in ast.unparse(n)
-        and "slow" in ast.unparse(n)
-        for n in tree.body
-    )
-
-    def starts(name: str, seen: frozenset[str] = frozenset()) -> bool:
-        fn = funcs[name]
-        used = {a.arg for a in fn.args.args + fn.args.kwonlyargs}
-        for node in ast.walk(fn):
-            if isinstance(node, ast.Name):
-                used.add(node.id)
-            elif isinstance(node, ast.Attribute):
-                if ast.unparse(node.value) == "subprocess" and node.attr in SUBPROCESS:
-                    return True
-                used.add(node.attr)
-        if used & STARTS_PROCESSES:
-            return True
-        inner = (used & set(funcs)) - seen - {name}
-        return any(starts(n, seen | {name}) for n in inner)
-
-    out = []
-    for name, fn in funcs.items():
-        marked = module_slow or any("slow" in ast.unparse(d) for d in fn.decorator_list)
-        key = f"{path.name}::{name}"
-        if name.startswith("test_") and not marked and key not in QUICK_CHILDREN and starts(name):
-            out.append(key)
-    return out
-
-
-def test_tests_that_start_processes_are_marked_slow() -> None:
-    """``make check`` runs the tests not marked slow: none of them may start a board process,
-    MicroPython, simavr, ROS or a browser (docs/development.md)."""
-    here = Path(__file__).resolve().parent
-    found = [t for p in sorted(here.glob("test_*.py")) for t in unmarked_process_tests(p)]
-    assert not found, f"tests that start processes, not marked slow: {found}"
-
-
-@pytest.mark.parametrize(
-    ("source", "unmarked"),
-    [
-        ("def test_a():\n    ml('info')\n", ["probe.py::test_a"]),
-        ("import pytest\n@pytest.mark.slow\ndef test_a():\n    ml('info')\n", []),
-        ("def helper():\n    subprocess.Popen(['x'])\ndef test_a():\n    helper()\n", None),
-        ("def fix(avr_rig):\n    return 1\ndef test_a(fix):\n    pass\n", None),
-        ("pytestmark = [pytest.mark.slow]\ndef test_a(board_process):\n    pass\n", []),
-        ("def test_a(serve):\n    serve('thesis')\n", []),
-    ],
-)
-def test_the_process_walk_sees_helpers_and_fixtures(
-    source: str, unmarked: list[str] | None
-) -> None:
-    tmp = ROOT / ".pytest_cache" / "arch_probe"
-    tmp.mkdir(parents=True, exist_ok=True)
-    path = tmp / "probe.py"
-    path.write_text(source)
-    assert unmarked_process_tests(path) == (["probe.py::test_a"] if unmarked is None else unmarked)
-
-
 def test_every_room_has_a_floor() -> None:
     rooms = {room(m) for m in modules()} - {"__init__"}
     assert rooms <= set(FLOORS), f"rooms without a floor: {sorted(rooms - set(FLOORS))}"
@@ -367,6 +218,37 @@ def test_imports_only_go_down() -> None:
             elif there != here and FLOORS[there] >= FLOORS[here] > 0:  # (the core: one floor)
                 bad.append(f"{mod} (floor {FLOORS[here]}) -> {target} (floor {FLOORS[there]})")
     assert not bad, "imports that run up or sideways:\n" + "\n".join(sorted(bad))
+
+
+def daemon_room(module: str) -> str | None:
+    """The daemon's room of ``module`` (None: not in the daemon, or its face)."""
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 and parts[1] == "daemon" else None
+
+
+def test_every_room_of_the_daemon_has_a_floor() -> None:
+    rooms = {r for m in modules() if (r := daemon_room(m)) is not None}
+    assert rooms == set(DAEMON_FLOORS), (
+        f"update DAEMON_FLOORS: {sorted(rooms ^ set(DAEMON_FLOORS))}"
+    )
+
+
+def test_imports_only_go_down_inside_the_daemon() -> None:
+    bad = []
+    for mod, targets in graph().items():
+        here = daemon_room(mod)
+        if here is None:
+            continue
+        for target in targets:
+            there = daemon_room(target)
+            if target == "missing_link.daemon":
+                bad.append(f"{mod} -> missing_link.daemon (the face)")
+            elif (
+                there is not None and there != here and DAEMON_FLOORS[there] >= DAEMON_FLOORS[here]
+            ):
+                floors = f"floor {DAEMON_FLOORS[here]} -> {DAEMON_FLOORS[there]}"
+                bad.append(f"{mod} -> {target} ({floors})")
+    assert not bad, "imports that run up or sideways in the daemon:\n" + "\n".join(sorted(bad))
 
 
 def test_core_imports_only_the_core() -> None:
@@ -427,59 +309,35 @@ def test_the_walk_sees_every_kind_of_import() -> None:
     assert circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
-#: imported where the environment provides them (ROS installs), never installed by pip
-PROVIDED_BY_ROS = {"rclpy", "rcl_interfaces", "rospy", "genpy", "rosgraph", "roslib"}
+def room_table() -> set[str]:
+    """Every path the room table of docs/development.md names (``dir/`` (``a.py``, ...) names
+    ``dir/a.py``, ...), from the package's folder (or the repository's)."""
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    rows = [line for line in text.split("## Rooms", 1)[1].split("\n## ", 1)[0].splitlines()]
+    named: set[str] = set()
+    for row in rows:
+        if not row.startswith("|") or row.startswith("|---"):
+            continue
+        where = row.rstrip(" |").rsplit("|", 1)[-1]
+        for folder, inner in re.findall(r"`([\w/]+/)`(?: \(([^)]*)\))?", where):
+            named.add(folder)
+            named |= {folder + n for n in re.findall(r"`([\w.]+)`", inner)}
+        alone = re.sub(r"`[\w/]+/` \([^)]*\)", "", where)  # (the names in a folder's brackets)
+        named |= set(re.findall(r"`([\w/]+\.\w+)`", alone))
+    return {n.removeprefix("src/missing_link/") for n in named}
 
 
-def test_every_imported_package_is_declared() -> None:
-    """What the package imports from outside the standard library is a declared dependency."""
-    import tomllib
-    from importlib.metadata import packages_distributions, requires
-
-    declared = {
-        r.split(";")[0].split("[")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
-        for r in requires("missing-link") or []
-        if "extra ==" not in r
-    }
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert declared == {
-        d.split(";")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
-        for d in project["dependencies"]
-    }, "the installed metadata is stale: reinstall (make venv)"
-    dists = packages_distributions()
-    missing = {}
-    for path in SRC.rglob("*.py"):
-        if "board" in path.relative_to(SRC).parts[:1]:
-            continue  # the board runtime runs on MicroPython: only its own and built-in modules
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            names: list[str] = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                names = [node.module]
-            for name in names:
-                top = name.split(".")[0]
-                if (
-                    top in sys.stdlib_module_names
-                    or top in PROVIDED_BY_ROS
-                    or top == "missing_link"
-                ):
-                    continue
-                owners = {d.lower() for d in dists.get(top, [])}
-                if not owners & declared:
-                    missing[top] = str(path.relative_to(ROOT))
-    assert not missing, f"imported but not declared in pyproject.toml: {missing}"
-
-
-def test_every_module_says_what_it_owns() -> None:
-    """A docstring at the top of every module; the board runtime (MicroPython, where a docstring
-    costs RAM) opens with a comment instead."""
-    silent = []
-    for path in SRC.rglob("*.py"):
-        text = path.read_text(encoding="utf-8")
-        if path.relative_to(SRC).parts[0] == "board":
-            if not text.startswith("#"):
-                silent.append(str(path.relative_to(ROOT)))
-        elif not ast.get_docstring(ast.parse(text)):
-            silent.append(str(path.relative_to(ROOT)))
-    assert not silent, f"modules that do not say what they own: {silent}"
+def test_the_room_table_names_every_room_and_only_what_is_there() -> None:
+    named = room_table()
+    gone = sorted(n for n in named if not (SRC / n).exists() and not (ROOT / n).exists())
+    assert not gone, f"docs/development.md names what is not there: {gone}"
+    unnamed = []
+    for path in sorted(SRC.rglob("*.py")):
+        rel = path.relative_to(SRC)
+        if rel.name == "__init__.py" or rel.parts[0] in ("__main__.py", "version.py"):
+            continue
+        daemon = rel.parts[0] == "daemon"  # (the daemon's modules each by name)
+        folders = {"/".join(rel.parts[: i + 1]) + "/" for i in range(len(rel.parts) - 1)}
+        if str(rel) not in named and (daemon or not folders & named):
+            unnamed.append(str(rel))
+    assert not unnamed, f"docs/development.md's room table does not name: {unnamed}"

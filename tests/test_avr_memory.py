@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from missing_link.daemon.memory import parse_memory
+from missing_link.daemon.session.board_memory import parse_memory
 from missing_link.host.board import Board
 from missing_link.transport import open_transport
 

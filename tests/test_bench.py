@@ -80,7 +80,7 @@ def test_every_name_a_bench_imports_exists() -> None:
 
 
 def test_a_patch_that_lands_nowhere_stops_the_bench() -> None:
-    import missing_link.daemon.session as session
+    import missing_link.daemon.session.session as session
 
     # the recorder's old target: SyncOptions left the session for session_clock.py
     with (

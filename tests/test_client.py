@@ -23,7 +23,7 @@ from missing_link import (
 )
 from missing_link.host.clock import FakeClock
 from missing_link.j2a import SifReceived
-from missing_link.transport.memory import memory_pair
+from missing_link.transport.in_process import memory_pair
 
 from .helpers import wait_for
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.commands import CommandRefused
 from missing_link.daemon.config import parse_config
+from missing_link.daemon.control.allowlist import CommandRefused
 
 from .helpers import board_process, wait_for
 

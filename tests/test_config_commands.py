@@ -17,9 +17,9 @@ import pytest
 import websockets
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.commands import CommandRefused
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.control import ask
+from missing_link.daemon.control.allowlist import CommandRefused
+from missing_link.daemon.control.endpoint import ask
 from missing_link.host.config import Value, actuators_changed, parse_keys
 from missing_link.publishers.base import Publisher
 from missing_link.publishers.web import WebPublisher, context_of

@@ -15,7 +15,7 @@ import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import Config, ConfigError, parse_config
-from missing_link.daemon.control import runtime_dir
+from missing_link.daemon.paths import runtime_dir
 from missing_link.errors import DescriptorError
 from missing_link.publishers.registry import BUILTIN, OPTIONS
 

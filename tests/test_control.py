@@ -1,7 +1,7 @@
-"""The local control endpoint (daemon/control.py) is ours and stays up: an endpoint another user
-made is refused by the daemon and by its clients, running out of descriptors is survived,
+"""The local control endpoint (daemon/control/endpoint.py) is ours and stays up: an endpoint another
+user made is refused by the daemon and by its clients, running out of descriptors is survived,
 hostile requests (deep nesting, NaN, Infinity, huge numbers, idle clients) get a bounded answer,
-and a control call keeps the daemon's allow-list of commands (daemon/commands.py)."""
+and a control call keeps the daemon's allow-list of commands (daemon/control/allowlist.py)."""
 
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ from typing import Any
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.commands import CommandRefused
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.control import (
+from missing_link.daemon.control.allowlist import CommandRefused
+from missing_link.daemon.control.endpoint import (
     MAX_CALL_TIMEOUT,
     MAX_CLIENTS,
     ControlServer,
@@ -117,7 +117,7 @@ def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
 # ---- up ----------------------------------------------------------------------------------------
 CHILD = """
 import os, resource, sys, threading, time
-from missing_link.daemon.control import ControlServer
+from missing_link.daemon.control.endpoint import ControlServer
 resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
 server = ControlServer(sys.argv[1], {"find": lambda r: {"name": "x", "url": "u", "state": "up"}})
 print("READY", flush=True)

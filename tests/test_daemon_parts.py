@@ -14,10 +14,10 @@ import pytest
 
 from missing_link.daemon.claims import Claims
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.context import CommandHandler, SessionContext
-from missing_link.daemon.prober import ClockProber, ProbeContext
-from missing_link.daemon.sample_path import SamplePath
-from missing_link.daemon.session import UP, BoardSession
+from missing_link.daemon.session.context import CommandHandler, SessionContext
+from missing_link.daemon.session.prober import ClockProber, ProbeContext
+from missing_link.daemon.session.sample_path import SamplePath
+from missing_link.daemon.session.session import UP, BoardSession
 from missing_link.descriptors import Transducer, parse_transds
 from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
@@ -148,7 +148,7 @@ def test_a_value_a_standard_type_cannot_carry_is_counted_and_said_once(
     path.topics[1] = topic
     path.standard[1] = [(std, StandardMapping("sensor_msgs/msg/Range", "std", refuse))]
     now = time.monotonic()
-    with caplog.at_level(logging.WARNING, logger="missing_link.daemon.sample_path"):
+    with caplog.at_level(logging.WARNING, logger="missing_link.daemon.session.sample_path"):
         for seq in range(3):
             path.on_sif(SifReceived(1, seq, struct.pack("<Qh", 5 + seq, 7), 0), now)
     assert [u.topic for u in published] == [topic] * 3  # the sample itself still goes out

@@ -1,6 +1,6 @@
 """Boards that dial in (issue 36.3, docs/hardware.md "Boards that dial in", docs/signing.md):
 the board's side (board/dial.py: backoff on virtual time; link.py's SocketNet on real sockets),
-the daemon's listener and its routing by board.id (daemon/listener.py, dialin.py), and
+the daemon's listener and its routing by board.id (daemon/intake/listener.py, dialin.py), and
 MicroPython boards under the real MicroPython (node) dialing a real daemon over loopback TCP,
 one killed and restarted; signed dial-ins; virtual boards (``board --sim --dial``)."""
 
@@ -22,9 +22,9 @@ from missing_link.board.dial import DialServer, dial_address
 from missing_link.board.link import SocketNet
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, parse_config
-from missing_link.daemon.dialin import DialIns
+from missing_link.daemon.intake.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
-from missing_link.daemon.listener import Mailbox
+from missing_link.daemon.session.link import Mailbox
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import BadURL, CallTimeout, ConfigError
 from missing_link.host.link import CallResult
@@ -267,7 +267,7 @@ def test_a_board_goes_to_the_session_of_its_id(dialins: tuple[DialIns, list[Fake
 def test_a_flood_of_clients_costs_the_listener_nothing_it_keeps() -> None:
     """Clients that connect and say nothing or junk: at most MAX_PENDING are greeted at once,
     the rest closed at once; all counted by kind; a board that dials afterwards gets in."""
-    from missing_link.daemon.listener import MAX_PENDING
+    from missing_link.daemon.intake.listener import MAX_PENDING
 
     with listening("tcp://127.0.0.1:0") as d:
         assert d.dialins is not None

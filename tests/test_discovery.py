@@ -19,7 +19,7 @@ from missing_link.daemon.config import (
     parse_config,
     parse_usb_id,
 )
-from missing_link.daemon.discovery import PortMatcher
+from missing_link.daemon.intake.discovery import PortMatcher
 from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import ml, wait_for
@@ -129,7 +129,7 @@ def test_run_auto_with_no_boards_runs_and_ends_cleanly() -> None:
 
 
 def test_usb_devices_with_the_j2a_interface_are_listed() -> None:
-    from missing_link.daemon.discovery import usb_ports
+    from missing_link.daemon.intake.discovery import usb_ports
     from missing_link.virtual import make_sim
 
     from .test_transports import FakeDevice, fake_usb

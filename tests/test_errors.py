@@ -27,9 +27,9 @@ import pytest
 import missing_link
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.control import ControlServer, ask
-from missing_link.daemon.inflight import InFlight
-from missing_link.daemon.session import UP, BoardSession
+from missing_link.daemon.control.endpoint import ControlServer, ask
+from missing_link.daemon.session.inflight import InFlight
+from missing_link.daemon.session.session import UP, BoardSession
 from missing_link.errors import BadURL, ConfigError, MissingLinkError, TransportBroken
 from missing_link.host.board import Board
 from missing_link.host.reactor import Reactor

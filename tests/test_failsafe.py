@@ -1,6 +1,6 @@
-"""The failsafe (board/failsafe.py; the daemon's side: daemon/failsafe.py) on the Python runtime:
-the timer and goodbye on a board runtime with a clock we turn, and a real daemon process that is
-SIGKILLed while a virtual board process goes on (the MicroPython and AVR runtimes:
+"""The failsafe (board/failsafe.py; the daemon's side: daemon/session/failsafe.py) on the Python
+runtime: the timer and goodbye on a board runtime with a clock we turn, and a real daemon process
+that is SIGKILLed while a virtual board process goes on (the MicroPython and AVR runtimes:
 tests/test_rover.py, tests/test_avr_rover.py)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.failsafe import goodbye, keepalive_s
+from missing_link.daemon.session.failsafe import goodbye, keepalive_s
 from missing_link.host.board import Board
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
 from missing_link.virtual import make_sim
@@ -91,7 +91,7 @@ def test_the_daemon_keeps_a_quiet_link_alive() -> None:
     ):
         assert d.wait_until_up(10)
         s = d.sessions[0]
-        assert keepalive_s(s.board, s.settings.values) == 0.5 / 3
+        assert keepalive_s(s.board, s.run_config.values) == 0.5 / 3
         time.sleep(2.0)
         assert wait_for(lambda: "failsafe_trips" in d.status()[0])
         assert d.status()[0]["failsafe_trips"] == 0

@@ -213,7 +213,7 @@ def test_subscriptions_slow_clients_and_what_a_client_may_say() -> None:
     data and not the daemon's memory; malformed operations are dropped and counted."""
     import websockets
 
-    from missing_link.publishers.foxglove_gate import BACKLOG, LiveView
+    from missing_link.publishers.foxglove_server import BACKLOG, LiveView
 
     view = LiveView("127.0.0.1", 0, [])
     a = view.add_channel("/a", "std_msgs/msg/Empty", "")

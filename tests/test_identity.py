@@ -284,7 +284,7 @@ def test_ids_in_the_config_are_checked(doc: dict[str, Any], message: str) -> Non
 
 
 def test_a_board_without_id_is_known_by_its_serial() -> None:
-    from missing_link.daemon.status import Identity
+    from missing_link.daemon.session.status import Identity
 
     assert Identity.of({"board.serial": "S1"}, "u").board_id == "S1"
     assert Identity.of({"board.serial": "S1", "board.id": "I1"}, "u").board_id == "I1"

@@ -1,8 +1,8 @@
-"""A frozen or half-open board is found in time (daemon/liveness.py, session.py's ``serve``),
-whatever is queued on its link: the watch's rules on virtual time; the supervisor on virtual time
-against a board that never answers (it must not wait for it); and real board processes of every
-kind (the CPython virtual thesis and rangers boards, the MicroPython firmware under node, the AVR
-firmware in simavr), frozen with SIGSTOP or cut off by a relay that stops forwarding, while
+"""A frozen or half-open board is found in time (daemon/session/liveness.py, session.py's
+``serve``), whatever is queued on its link: the watch's rules on virtual time; the supervisor on
+virtual time against a board that never answers (it must not wait for it); and real board processes
+of every kind (the CPython virtual thesis and rangers boards, the MicroPython firmware under node,
+the AVR firmware in simavr), frozen with SIGSTOP or cut off by a relay that stops forwarding, while
 commands and a control call with an absurd timeout are in flight.  Waits on real processes are
 bounded but generous (bench/bench_liveness.py measures how fast)."""
 
@@ -22,10 +22,10 @@ import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.context import SessionContext
-from missing_link.daemon.control import ask
-from missing_link.daemon.liveness import LinkWatch
-from missing_link.daemon.session import BoardSession, LinkStale
+from missing_link.daemon.control.endpoint import ask
+from missing_link.daemon.session.context import SessionContext
+from missing_link.daemon.session.liveness import LinkWatch
+from missing_link.daemon.session.session import BoardSession, LinkStale
 from missing_link.descriptors import parse_transds
 from missing_link.host.board import Board
 from missing_link.host.link import CallResult
@@ -169,7 +169,7 @@ def mute_session(clock: VirtualClock, timeout: float = 10.0) -> BoardSession:
     )
     # a call timeout of 10 s: a supervisor that waited for a call would wait that long
     session = BoardSession(ctx, BoardSpec("mute://", timeout=timeout, link_timeout=1.5))
-    session.settings.values = {"servo.failsafe_ms": 500}  # a failsafe: keepalives
+    session.run_config.values = {"servo.failsafe_ms": 500}  # a failsafe: keepalives
     return session
 
 

@@ -74,7 +74,9 @@ def test_library_tracebacks_fold_and_ours_are_cleaned() -> None:
     assert f.filter(lib) and lib.exc_info is None and SafeLog.folded == folded + 1
     line = logging.Formatter("%(message)s").format(lib)
     assert line == "opening handshake failed (ValueError: bad[2Jforged)"
-    ours = record("missing_link.daemon.session", "session failed", exc=raised("x\x1b]0;t\x07y"))
+    ours = record(
+        "missing_link.daemon.session.session", "session failed", exc=raised("x\x1b]0;t\x07y")
+    )
     assert f.filter(ours)
     text = logging.Formatter("%(message)s").format(ours)
     assert "Traceback (most recent call last)" in text and "ValueError: x]0;ty" in text

@@ -1,6 +1,6 @@
 """The board's memory in the host's status: a2jMemory read once per diagnostics period in the
-background (daemon/memory.py), shown in ``status()``, ``/diagnostics`` and ``info --json``;
-the board's own garbage collection kept off the instants it must be on time for
+background (daemon/session/board_memory.py), shown in ``status()``, ``/diagnostics`` and ``info
+--json``; the board's own garbage collection kept off the instants it must be on time for
 (board/memory.py) on CPython with a fake heap and clock, as the MicroPython firmware runs it."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from missing_link.board.runtime import BoardRuntime
 from missing_link.board.timing import Timing
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.memory import parse_memory
+from missing_link.daemon.session.board_memory import parse_memory
 from missing_link.ros.diagnostics import DIAG_TYPE, diagnostics_cdr
 
 from .helpers import AvrSim, FirmwareSim, wait_for

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from missing_link.daemon.config import BoardSpec
-from missing_link.daemon.prober import ClockProber, ProbeContext
+from missing_link.daemon.session.prober import ClockProber, ProbeContext
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board
 from missing_link.host.clock import FakeClock

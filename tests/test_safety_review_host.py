@@ -22,11 +22,11 @@ import pytest
 
 from missing_link import open_board
 from missing_link.daemon import Daemon
-from missing_link.daemon.commands import CommandRefused, called_function
 from missing_link.daemon.config import BoardSpec, Config, parse_config
-from missing_link.daemon.dialin import DialIns
+from missing_link.daemon.control.allowlist import CommandRefused, called_function
+from missing_link.daemon.intake.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
-from missing_link.daemon.listener import Mailbox
+from missing_link.daemon.session.link import Mailbox
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import ConfigError, MissingLinkError
 from missing_link.host.board import Board

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.commands import CommandRefused
 from missing_link.daemon.config import BoardSpec, Config, parse_config
+from missing_link.daemon.control.allowlist import CommandRefused
 from missing_link.errors import ConfigError
 from missing_link.logs import SafeLog
 from missing_link.publishers.zenoh_config import loopback_only

@@ -19,7 +19,7 @@ import pytest
 from missing_link.board.signing import hello
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.session import UP
+from missing_link.daemon.session.session import UP
 from missing_link.errors import MissingLinkError, TransportBroken
 from missing_link.host.board import Board
 from missing_link.j2a import SOF, encode_frame

@@ -12,8 +12,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from missing_link.board.drivers import DRIVERS, driver_class
 from missing_link.board.firmware import describe
-from missing_link.daemon.actuators import Actuators
-from missing_link.daemon.board_topics import si_command
+from missing_link.daemon.session.actuators import Actuators
+from missing_link.daemon.session.board_topics import si_command
 from missing_link.descriptors import Transducer, parse_line
 from missing_link.ros.standard import (
     FrameId,

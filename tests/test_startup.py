@@ -34,7 +34,7 @@ HEAVY = (
     "rospy",
     "tomllib",
     "missing_link.daemon.service",
-    "missing_link.daemon.session",
+    "missing_link.daemon.session.session",
     "missing_link.timesync.estimator",
     "missing_link.publishers",
     "missing_link.virtual",

@@ -12,8 +12,8 @@ import pytest
 
 from missing_link.board.timing import MAP_LIFE_US
 from missing_link.daemon import Daemon
-from missing_link.daemon.alignment import ECHO_LAG_NS, grid_of, off_grid
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.daemon.session.alignment import ECHO_LAG_NS, grid_of, off_grid
 from missing_link.descriptors import Transducer
 from missing_link.errors import MissingLinkError
 from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame

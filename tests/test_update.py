@@ -18,7 +18,7 @@ from missing_link.board import boot
 from missing_link.board.boot import Boot, BootRecord, encode_record, parse_record, select
 from missing_link.board.identity import tree_hash
 from missing_link.board.runtime import BoardRuntime
-from missing_link.board.update import ImageWriter, Updater, check_path
+from missing_link.board.update import ImageWriter, UpdateReceiver, check_path
 from missing_link.deploy.boardfile import load_board_file
 from missing_link.deploy.flash import firmware_hash, micropython_files
 from missing_link.deploy.update import micropython_image, target_of
@@ -26,14 +26,12 @@ from missing_link.host.board import Board
 from missing_link.host.update import (
     Target,
     UpdateFailed,
+    Updater,
     UpdateRefused,
     check,
     image_of,
     parse_image,
     read_info,
-)
-from missing_link.host.update import (
-    Updater as HostUpdater,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -105,7 +103,7 @@ def test_a_confirmed_trial_stays_and_a_missing_slot_is_not_run(flash: Path) -> N
                         "trial_s": "20", "hash": "2" * 16, "rolled": "", "why": ""})  # fmt: skip
     chosen = select()
     rt = BoardRuntime("u", MODEL, "s1", epoch="e")
-    up = Updater(rt, {"mcu": "rp2040"}, chosen)
+    up = UpdateReceiver(rt, {"mcu": "rp2040"}, chosen)
     assert up._confirm(b"") == (0, b"confirmed")
     assert select().slot == "b" and not select().trial
     BootRecord().write({"active": "a", "previous": "b", "state": "trial", "tries": "0",
@@ -120,7 +118,7 @@ def test_a_trial_not_confirmed_in_time_asks_for_a_restart(flash: Path) -> None:
                         "trial_s": "5", "hash": "2" * 16, "rolled": "", "why": ""})  # fmt: skip
     now = [1_000_000]
     rt = BoardRuntime("u", MODEL, "s1", epoch="e", clock=lambda: now[0])
-    up = Updater(rt, {"mcu": "rp2040"}, select())
+    up = UpdateReceiver(rt, {"mcu": "rp2040"}, select())
     assert up.due(now[0] + 4_999_999) is None
     why = up.due(now[0] + 5_000_000)
     assert why and "not confirmed" in why
@@ -174,11 +172,13 @@ def test_the_writer_takes_the_image_in_any_pieces(flash: Path) -> None:
 
 
 @pytest.fixture
-def board(flash: Path, serve: Callable[..., Any]) -> Iterator[tuple[Board, BoardRuntime, Updater]]:
+def board(
+    flash: Path, serve: Callable[..., Any]
+) -> Iterator[tuple[Board, BoardRuntime, UpdateReceiver]]:
     """A runtime that takes updates, under CPython, on a memory link."""
     _slot(flash, "flash")
     rt = BoardRuntime("rover", MODEL, "s1", epoch="e")
-    up = Updater(rt, {"mcu": "rp2040"}, Boot("flash"))
+    up = UpdateReceiver(rt, {"mcu": "rp2040"}, Boot("flash"))
     server = serve(rt)
     b = Board.open(server.url, timeout=2.0)
     try:
@@ -188,27 +188,29 @@ def board(flash: Path, serve: Callable[..., Any]) -> Iterator[tuple[Board, Board
 
 
 def test_staged_files_are_checked_against_the_sha256_and_their_hash(
-    board: tuple[Board, BoardRuntime, Updater], flash: Path
+    board: tuple[Board, BoardRuntime, UpdateReceiver], flash: Path
 ) -> None:
     b, _rt, up = board
     img = image_of(_rover_files(), "0.3.0")
     info = read_info(b)
     assert (info["slot"], info["state"], info["mcu"]) == ("flash", "ok", "rp2040")
-    updater = HostUpdater(img, Target(MODEL, "rp2040"))
+    updater = Updater(img, Target(MODEL, "rp2040"))
     assert updater._begin(b) == "a"
     updater._stage(b, ("0.2.0", "old"), 0.0)
     assert up.staged and tree_hash("fw/a/lib/mlboard", "fw/a/board.py") == img.fw_hash
     # an image whose bytes are not the ones begun with: refused at its end, said why
     bad = image_of(_rover_files())
     forged = type(bad)(bad.files, bad.data, "0" * 64, bad.fw_hash)
-    updater = HostUpdater(forged, Target(MODEL, "rp2040"))
+    updater = Updater(forged, Target(MODEL, "rp2040"))
     assert updater._begin(b) == "a"
     with pytest.raises(UpdateFailed, match=r"SHA-256 is not the one begun with.*nothing was sw"):
         updater._stage(b, ("0.2.0", "old"), 0.0)
     assert not up.staged and read_info(b)["error"].endswith("not the one begun with")
 
 
-def test_what_is_refused_before_a_byte_is_sent(board: tuple[Board, BoardRuntime, Updater]) -> None:
+def test_what_is_refused_before_a_byte_is_sent(
+    board: tuple[Board, BoardRuntime, UpdateReceiver],
+) -> None:
     b, _rt, _up = board
     img = image_of(_rover_files())
     info = read_info(b)

@@ -16,7 +16,7 @@ from typing import Any
 
 import websockets
 
-from missing_link.publishers.gate import LoginLimiter
+from missing_link.publishers.front_door import LoginLimiter
 from missing_link.publishers.web import WebPublisher
 from missing_link.publishers.web_server import MAX_QUEUE
 

@@ -17,7 +17,7 @@
 # to go says so: a2jGoodbye makes every armed actuator safe at once; so does the firmware
 # itself before it stops (a break to the REPL, a crash: firmware.py).
 # The daemon keeps a quiet link talking well within the shortest `failsafe_ms`
-# (daemon/failsafe.py), so only a host that is gone trips it.
+# (daemon/session/failsafe.py), so only a host that is gone trips it.
 #
 # Timed calls (timing.py, a2jAt) are commands not yet carried out: a2jGoodbye drops them all, and
 # a host silent for the board's shortest non-zero `failsafe_ms` drops those due after that

@@ -4,7 +4,7 @@
 #
 # Theory of operation
 # -------------------
-# attach() gives a runtime an Updater, whose J2A functions are the update's steps:
+# attach() gives a runtime an UpdateReceiver, whose J2A functions are the update's steps:
 #   a2jFwInfo     (a blob of key NUL value NUL, spec 1.8) the slot that runs, its state, the
 #                 room on the flash, the board file's mcu, the last staging error, `rolled`/`why`
 #   a2jFwBegin    key NUL value NUL: size, sha256 (hex), fw.hash, and key_file (a key the new
@@ -145,7 +145,7 @@ def _is_hex(text, n):
     return len(text) == n and all(c in "0123456789abcdef" for c in text)
 
 
-class Updater:
+class UpdateReceiver:
     # The update's J2A functions on one runtime (see the top); boot: what select() chose.
     def __init__(self, rt, board, boot, store=None, os_module=None, opener=None):
         self.rt = rt
@@ -371,8 +371,8 @@ def _tree_size(os_module, path):
 
 
 def attach(rt, board, boot):
-    # the runtime takes updates (its Updater: the shell asks it due() between turns)
-    return Updater(rt, board, boot)
+    # the runtime takes updates (its UpdateReceiver: the shell asks it due() between turns)
+    return UpdateReceiver(rt, board, boot)
 
 
 class GuardLink:

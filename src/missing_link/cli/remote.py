@@ -1,5 +1,5 @@
-"""A board reached through a running daemon (its control endpoint, daemon/control.py) instead
-of its own link: ``info``, ``call`` and ``config`` use it when a daemon holds the board, by
+"""A board reached through a running daemon (its control endpoint, daemon/control/endpoint.py)
+instead of its own link: ``info``, ``call`` and ``config`` use it when a daemon holds the board, by
 board name or URL, so they never fight the daemon for a port."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import os
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from ..daemon.control import ask, default_control_path
+from ..daemon.control.endpoint import ask, default_control_path
 from ..errors import BadURL, BoardError, ConfigError
 from ..host.board import Board
 from ..host.link import CallResult

@@ -68,7 +68,7 @@ def build_config(args: argparse.Namespace) -> Any:
     if args.accept:
         cfg.accept = args.accept
     if cfg.control is None:  # (config/call/info reach the boards through it: docs/cli.md)
-        from ..daemon.control import default_control_path
+        from ..daemon.control.endpoint import default_control_path
 
         cfg.control = default_control_path()
     if not cfg.boards and cfg.discover is None and cfg.listen is None:

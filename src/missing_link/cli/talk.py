@@ -55,8 +55,9 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def _memory(board: Board | RemoteBoard) -> dict[str, Any]:
-    """{"memory": the board's own figures (a2jMemory, daemon/memory.py)} when it has them."""
-    from ..daemon.memory import FUNCTION, parse_memory
+    """{"memory": the board's own figures (a2jMemory, daemon/session/board_memory.py)} when it has
+    them."""
+    from ..daemon.session.board_memory import FUNCTION, parse_memory
 
     if FUNCTION not in board.functions:
         return {}

@@ -226,7 +226,7 @@ def _configured_rates(daemon: Any) -> dict[str, str]:
     """Topic -> its transducer's configured rate (``rate_hz``), or "off" when disabled."""
     out: dict[str, str] = {}
     for s in daemon.sessions:
-        values = s.settings.values
+        values = s.run_config.values
         for topic in list(s.topics.values()) + [
             std for lst in s.path.standard.values() for std, _ in lst
         ]:

@@ -21,8 +21,8 @@ from ..ros.msgs import DISTROS, check_package
 from ..ros.standard import StdOptions
 from ..text import is_token
 from ..topics import check_topic
-from .control import runtime_dir
 from .listen_spec import ListenSpec, parse_listen
+from .paths import runtime_dir
 from .ros_config import JointsConfig, parse_joints, parse_ros
 
 
@@ -155,7 +155,8 @@ class Config:
     #: the local control endpoint (a unix socket) through which ``missing-link config``,
     #: ``call`` and ``info`` reach the boards this daemon holds; "" = none (docs/cli.md)
     control: str | None = None
-    #: the command topics that take commands at all, from any face (patterns; daemon/commands.py)
+    #: the command topics that take commands at all, from any face (patterns;
+    #: daemon/control/allowlist.py)
     commands: list[str] = field(default_factory=lambda: ["**"])
     #: every transducer's standard types beside its thesis-format topic (ros/standard), and
     #: the thesis-format topics: either can be turned off daemon-wide or per transducer
@@ -168,7 +169,7 @@ class Config:
     #: board name -> the board.id it is ([boards.<name>] id): the board keeps its name, topics
     #: and configuration whatever port or link it comes on
     board_ids: dict[str, str] = field(default_factory=dict)
-    #: accept boards that dial in here (``run --listen``; listener.py)
+    #: accept boards that dial in here (``run --listen``; intake/listener.py)
     listen: str | None = None
     #: which boards that dial in are taken: "any", or "known" (those with an id above)
     accept: str = "any"

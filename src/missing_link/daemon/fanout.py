@@ -7,7 +7,7 @@ its status and ``/diagnostics`` show them; the daemon's ``publish_errors`` is th
 first of a kind logged with the traceback, and never allowed to stop the sample path of any
 board: one face that cannot carry a topic or an update must not cost the others theirs.  An
 encoder that raises is such an error (a bug), not a drop.  Command topics are offered on every
-face through the allow-list (``commands.py``): a face that may not command a topic gets a
+face through the allow-list (``control/allowlist.py``): a face that may not command a topic gets a
 handler that refuses and counts.
 """
 
@@ -24,8 +24,8 @@ from ..publishers.bus import Bus
 from ..ros.board_record import BoardDescription
 from ..ros.clock import ClockRecord
 from ..topics import Topic, Update
-from .commands import CommandGate
-from .context import CommandHandler
+from .control.allowlist import CommandGate
+from .session.context import CommandHandler
 
 
 class Fanout:
@@ -85,7 +85,7 @@ class Fanout:
                 except Exception as e:  # noqa: BLE001 - (as declare)
                     self._failed(p, "command_sent", e, f"recording a command to {name}")
 
-        gate = self.gate  # (who may command what: commands.py)
+        gate = self.gate  # (who may command what: control/allowlist.py)
         self.bus.add_command(name, gate.wrap("bus", True, name, sent))
         for p in self.publishers:
             try:
@@ -106,7 +106,7 @@ class Fanout:
         self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: Any
     ) -> None:
         """``apply(values, by=, commands=)``: each face gets it as itself (its name, whether
-        it takes commands: the keys of an actuator are commands, daemon/settings.py)."""
+        it takes commands: the keys of an actuator are commands, daemon/session/run_config.py)."""
         for p in self.publishers:
             try:
                 mine = functools.partial(apply, by=p.name, commands=bool(p.takes_commands))

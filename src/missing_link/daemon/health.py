@@ -11,8 +11,8 @@ from typing import Any
 from ..logs import ErrorCounts
 from ..logs import counts as log_counts
 from ..publishers.base import Publisher
-from .commands import CommandGate
-from .control import ControlServer
+from .control.allowlist import CommandGate
+from .control.endpoint import ControlServer
 
 
 def publisher_rows(

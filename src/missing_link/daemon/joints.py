@@ -56,7 +56,7 @@ from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
 from ..ros.standard.joints import joint_state_cdr
 from ..text import safe_text
 from ..topics import Command, Topic, Update
-from .commands import CommandRefused
+from .control.allowlist import CommandRefused
 from .ros_config import JointsConfig, JointSpec
 
 log = logging.getLogger(__name__)

@@ -2,10 +2,10 @@
 
 Theory of operation
 -------------------
-The daemon owns the publishers and one :class:`~missing_link.daemon.session.BoardSession` per
-configured board; the session module says how a board is connected, validated, served and
+The daemon owns the publishers and one :class:`~missing_link.daemon.session.session.BoardSession`
+per configured board; the session module says how a board is connected, validated, served and
 reconnected, and how its host times are made.  A session is handed a
-:class:`~missing_link.daemon.context.SessionContext` (``session_context()``: values and
+:class:`~missing_link.daemon.session.context.SessionContext` (``session_context()``: values and
 callables), never the daemon.  The daemon's own job is the fan-out and what sessions must agree
 on:
 
@@ -56,20 +56,20 @@ from ..ros.msgs import typestore_for
 from ..topics import Command
 from ..transport import check_url
 from .claims import Claims
-from .commands import CommandGate, called_function
 from .config import BoardSpec, Config
-from .config_gate import config_guard
-from .context import SessionContext
-from .control import ControlServer, call_timeout
-from .control_ops import control_handlers
-from .dialin import DialIns
-from .discovery import DiscoveryService, Enumerator, all_ports
+from .control.allowlist import CommandGate, called_function
+from .control.config_guard import config_guard
+from .control.endpoint import ControlServer, call_timeout
+from .control.ops import control_handlers
 from .fanout import Fanout
 from .health import publisher_rows
+from .intake.dialin import DialIns
+from .intake.discovery import DiscoveryService, Enumerator, all_ports
 from .joints import Joints
-from .listener import Mailbox
-from .session import UP, BoardSession
-from .status import SessionStatus
+from .session.context import SessionContext
+from .session.link import Mailbox
+from .session.session import UP, BoardSession
+from .session.status import SessionStatus
 
 log = logging.getLogger(__name__)
 
@@ -374,12 +374,12 @@ class Daemon:
             if s.name == board and s.state == UP:
                 for topic in s.topics.values():
                     if topic.transducer.name == name and topic.transducer.is_actuator:
-                        return topic.transducer, s.settings.values
+                        return topic.transducer, s.run_config.values
         return None
 
     def board_config(self, board: str) -> dict[str, Value]:
         """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""
-        return self._up(board)[0].settings.read()
+        return self._up(board)[0].run_config.read()
 
     def configure(
         self, board: str, values: Mapping[str, object], save: bool = False, **face: Any
@@ -387,17 +387,17 @@ class Daemon:
         """Set keys of a board's run-time configuration, all or none (``save``: keep them on
         the board); every face hears the new values.  Returns the configuration after it.
         ``face``: ``by`` (its name, "api") and ``commands`` (its option, True): the keys of an
-        actuator are commands, refused and counted as one (config_gate.py)."""
+        actuator are commands, refused and counted as one (control/config_guard.py)."""
         s = self._up(board)[0]
         by, on = str(face.get("by", "api")), bool(face.get("commands", True))
-        return s.settings.configure(values, save, by, config_guard(self.commands, s, by, on))
+        return s.run_config.configure(values, save, by, config_guard(self.commands, s, by, on))
 
     def reset_config(self, board: str, erase_saved: bool = False, **face: Any) -> dict[str, Value]:
         """The board's defaults again (``erase_saved``: its saved configuration too); gated as
         ``configure`` where it changes an actuator's keys."""
         s = self._up(board)[0]
         by, on = str(face.get("by", "api")), bool(face.get("commands", True))
-        return s.settings.reset(erase_saved, by, config_guard(self.commands, s, by, on))
+        return s.run_config.reset(erase_saved, by, config_guard(self.commands, s, by, on))
 
     def wait_until_up(self, timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout

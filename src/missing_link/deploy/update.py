@@ -2,8 +2,8 @@
 its link (docs/hardware.md, "Updates over the link").
 
 TARGET is a board URL, or the name (or URL) of a board a running daemon holds: the daemon then
-does the update on the link it holds (its control endpoint, daemon/updates.py), never fought for
-the port, and its other boards go on publishing.
+does the update on the link it holds (its control endpoint, daemon/control/updates.py), never fought
+for the port, and its other boards go on publishing.
 
 MicroPython boards: the board file's firmware (the files ``flash`` copies: the runtime, the
 drivers it uses, the board file; flash.py) is packed into an image (host/update.py) that goes
@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from ..daemon.control import ask, default_control_path
+from ..daemon.control.endpoint import ask, default_control_path
 from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
 from ..host.update import (

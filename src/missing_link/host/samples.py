@@ -2,8 +2,8 @@
 
 Host time: ``host_rx`` is when the SIF was received, on the board's clock (CLOCK_MONOTONIC s
 unless it was given another), not a clock-synchronised time (the daemon maps board stamps through
-clock sync: ``daemon/sample_path.py``); ``board_us`` is the board's own stamp from the moment of
-measurement and is always exact.
+clock sync: ``daemon/session/sample_path.py``); ``board_us`` is the board's own stamp from the
+moment of measurement and is always exact.
 """
 
 from __future__ import annotations

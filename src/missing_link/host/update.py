@@ -1,7 +1,7 @@
 """A firmware update over a board's J2A link, the host's side.  The board's side is
 board/update.py and board/boot.py (their "Theory of operation" says what each step does on the
 board); deploy/update.py makes the image from a board file and runs this on a board it opened,
-daemon/updates.py on a board the daemon holds.
+daemon/control/updates.py on a board the daemon holds.
 
 Theory of operation
 -------------------

@@ -80,7 +80,8 @@ class Publisher:
         """Flush and release everything.  Idempotent; must not block for long, whatever
         state the publisher is in."""
 
-    #: whether commands from this face reach the boards (daemon/commands.py): True or False for
+    #: whether commands from this face reach the boards (daemon/control/allowlist.py): True or False
+    #: for
     #: the faces that carry commands (their ``commands`` option; by default True only where
     #: the face listens on loopback alone), None for those that carry none
     takes_commands: bool | None = None

@@ -119,7 +119,7 @@ class Subscription:
 
 class Bus(Publisher):
     name = "bus"
-    takes_commands = True  # (in-process: the allow-list still applies, commands.py)
+    takes_commands = True  # (in-process: the allow-list still applies, daemon/control/allowlist.py)
 
     def __init__(self, options: dict[str, Any] | None = None) -> None:
         self._lock = threading.Lock()

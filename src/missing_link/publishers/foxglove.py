@@ -1,11 +1,11 @@
 """Live view in Foxglove: a WebSocket server speaking the Foxglove WebSocket protocol
-(foxglove_gate.py) with every topic as a ros2msg/CDR channel, plus ``/diagnostics``.  Open
+(foxglove_server.py) with every topic as a ros2msg/CDR channel, plus ``/diagnostics``.  Open
 Foxglove, "Open connection", ``ws://127.0.0.1:8765``.
 
 Listens on 127.0.0.1 by default; set ``host`` to share it on a network on purpose.  That one
 port is the view's only listener: a client whose browser page came from another site is refused
 unless its origin is in ``origins``, and clients say nothing but subscribe and unsubscribe
-(foxglove_gate.py says why the Foxglove SDK's own server is not used).  Messages are logged at
+(foxglove_server.py says why the Foxglove SDK's own server is not used).  Messages are logged at
 the sample's host time (clock sync), so plots line up across boards.
 
 The WebSocket protocol has no latching: a client that connects after an actuator last moved
@@ -23,7 +23,7 @@ from ..errors import ConfigError
 from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..topics import Topic, Update
 from .base import PublisherError
-from .foxglove_gate import LiveView
+from .foxglove_server import LiveView
 from .rosbase import RosPublisher
 
 log = logging.getLogger(__name__)

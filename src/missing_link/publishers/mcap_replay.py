@@ -60,8 +60,8 @@ def keys_text(keys: Sequence[ConfigKey]) -> str:
 
 
 def command_values(value: Any, now_ns: int) -> tuple[list[Any], int]:
-    """A command as a face handed it (daemon/actuators.py takes the same forms) -> (the values,
-    the first is the command; the host time it is for: its ``at_ns``, else ``now_ns``)."""
+    """A command as a face handed it (daemon/session/actuators.py takes the same forms) -> (the
+    values, the first is the command; the host time it is for: its ``at_ns``, else ``now_ns``)."""
     at = now_ns
     if isinstance(value, Command):
         at = value.at_ns if value.at_ns is not None else now_ns

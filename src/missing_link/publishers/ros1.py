@@ -58,7 +58,8 @@ class Ros1Publisher(RosPublisher):
         )
         os.environ["ROS_MASTER_URI"] = master
         os.environ.setdefault("ROS_IP", str(opts.get("ros_ip", "127.0.0.1")))
-        # commands only where this node and its master are on loopback alone (commands.py)
+        # commands only where this node and its master are on loopback alone
+        # (daemon/control/allowlist.py)
         here = os.environ.get("ROS_IP") or os.environ.get("ROS_HOSTNAME", "")
         master_host = master.split("://", 1)[-1].rsplit(":", 1)[0]
         self.takes_commands = takes_commands(

@@ -103,7 +103,7 @@ class Ros2Publisher(RosPublisher):
             add_prefix(p)
         self.rclpy = rclpy
         # DDS reaches the network unless told to stay on the host: commands from this face by
-        # default only then (daemon/commands.py)
+        # default only then (daemon/control/allowlist.py)
         local = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in ("LOCALHOST", "OFF")
         local = local or os.environ.get("ROS_LOCALHOST_ONLY") == "1"
         self.takes_commands = takes_commands(opts.get("commands"), local, "[ros2]")

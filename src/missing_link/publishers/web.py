@@ -4,7 +4,7 @@ transducers with a plot of the last 30 s, its configuration (set, save, reset), 
 
 ``missing-link run ... --web [ADDR:PORT]`` (127.0.0.1:8080) or ``publishers = ["web"]`` with a
 ``[web]`` table: ``host``, ``port``, ``commands`` (true or false; by default true only on
-loopback, as on every face: daemon/commands.py), ``cert`` and ``key`` (TLS, PEM files),
+loopback, as on every face: daemon/control/allowlist.py), ``cert`` and ``key`` (TLS, PEM files),
 ``token_file`` (a file holding the token a person logs in with, mode 0600: ``missing-link key
 new FILE`` makes one), ``origins`` (other sites whose pages may connect, e.g. a reverse proxy's)
 and ``hosts`` (names the console answers to besides loopback ones).  An address that is not
@@ -32,7 +32,7 @@ from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
 from .base import Publisher, PublisherError
-from .gate import is_loopback
+from .front_door import is_loopback
 from .registry import check_options
 from .web_model import ConsoleModel
 

@@ -5,7 +5,7 @@ model (web_model.py).
 
 Theory of operation
 -------------------
-Every request passes the front door first (gate.py: the ``Host`` the console answers to -
+Every request passes the front door first (front_door.py: the ``Host`` the console answers to -
 checked whenever TLS is off, token or not: a name rebound to 127.0.0.1 is refused -, the
 ``Origin`` - the page's own, or one listed - and at most ``MAX_CLIENTS`` pages).  Then:
 
@@ -17,7 +17,7 @@ checked whenever TLS is off, token or not: a name rebound to 127.0.0.1 is refuse
   in a URL), checked in constant time and answered with an ``HttpOnly``, ``SameSite=Strict``
   session cookie (``Secure`` over TLS); failures are counted per client address, and after
   ``LOGIN_FAILURES`` in ``LOGIN_WINDOW_S`` that address's logins are refused (429) until its
-  window ends - nobody else's (gate.py's ``LoginLimiter``, a bounded table); ``/logout`` ends
+  window ends - nobody else's (front_door.py's ``LoginLimiter``, a bounded table); ``/logout`` ends
   the session;
 * ``/ws``: the WebSocket, for a session where a token is set.
 
@@ -28,9 +28,9 @@ too slowly has its oldest ticks dropped (counted); one whose queue still reaches
 JSON operation at a time - ``config`` (set, all or nothing; ``save``), ``reset``, ``command`` -
 answered with a ``reply``; board calls run on worker threads, never on the loop.  Anything
 else is dropped and counted, never logged as sent.  Commands go through the daemon's gate
-(daemon/commands.py): where this face's ``commands`` is off, the gate refuses and counts them,
-and the page shows no actuator controls; so does a configuration change of an actuator's keys
-(daemon/settings.py).
+(daemon/control/allowlist.py): where this face's ``commands`` is off, the gate refuses and counts
+them, and the page shows no actuator controls; so does a configuration change of an actuator's keys
+(daemon/session/run_config.py).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from ..errors import ConfigError, MissingLinkError
 from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
-from .gate import FrontDoor, LoginLimiter
+from .front_door import FrontDoor, LoginLimiter
 from .web_model import ConsoleModel
 
 log = logging.getLogger(__name__)

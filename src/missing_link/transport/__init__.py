@@ -5,8 +5,8 @@
   ``read_stamped`` the bytes and when they arrived) and :class:`FdTransport` (descriptor links)
 - :mod:`.registry` - schemes -> the module that opens them, imported on first use
 - :mod:`.sockets` (tcp, unix), :mod:`.serialport`, :mod:`.usb` (original 2014 boards),
-  :mod:`.memory` (in-process), :mod:`.spy` (hex dump of any of them), :mod:`.signed` (signed
-  records over any of them)
+  :mod:`.in_process` (``memory://``), :mod:`.spy` (hex dump of any of them), :mod:`.signed`
+  (signed records over any of them)
 """
 
 from .base import FdTransport, Received, Transport

@@ -22,7 +22,7 @@ BUILTIN: dict[str, tuple[str, str]] = {
     "unix": ("missing_link.transport.sockets", "open_unix"),
     "serial": ("missing_link.transport.serialport", "open_serial"),
     "usb": ("missing_link.transport.usb", "open_usb"),
-    "memory": ("missing_link.transport.memory", "open_memory"),
+    "memory": ("missing_link.transport.in_process", "open_memory"),
 }
 _SPY = ("missing_link.transport.spy", "SpyTransport")
 _SIGNED = ("missing_link.transport.signed", "SignedTransport")

@@ -31,7 +31,7 @@ from ..board.dial import DialServer
 from ..board.link import SocketNet
 from ..board.runtime import BoardRuntime
 from ..errors import BadURL, TransportBroken, TransportClosed
-from ..transport.memory import MemoryListener, MemoryTransport
+from ..transport.in_process import MemoryListener, MemoryTransport
 from ..transport.sockets import enable_rx_stamps, recv_stamped
 
 OUT_LIMIT = 64 * 1024

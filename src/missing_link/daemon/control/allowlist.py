@@ -1,0 +1,97 @@
+"""Who may move the robot (docs/security.md): commands are opt-in per face, and only the
+actuator topics of the daemon's allow-list take commands at all.
+
+Every face that can carry commands (the in-process bus, ``zenoh``, ``ros2``, ``ros1``) has
+``takes_commands``: its ``commands = true|false`` option, by default true only where the face
+listens on loopback alone (publishers/*.py say how each decides).  ``[daemon] commands`` lists
+the command topics (patterns: ``*`` within a level, ``**`` across; default ``["**"]``: all) that
+take commands.  A command that arrives where it may not is refused: not handed to the board,
+counted per face (``commands_refused`` on ``/diagnostics``) and said in the log (rate-limited:
+logs.py).  The face keeps its subscription, so a refusal is seen and counted, not silent.
+
+The list holds on every path that reaches an actuator, not only on the faces' command topics: a
+plain call of an actuator's function (``Daemon.call``, the control endpoint behind
+``missing-link call``, ``Daemon.trigger_at``), an ``a2jAt`` that would call one later, and
+``Daemon.send`` are refused the same way (``check``: CommandRefused, counted under the path's
+name: ``api``, ``control``, ``bus``), named by the actuator's command topic.  So is a change
+of an actuator's run-time configuration (its keys are commands: daemon/session/run_config.py) from
+any face (``check_face``: the face's ``commands`` first, then the list).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from ...errors import MissingLinkError
+from ...publishers.bus import topic_pattern
+
+log = logging.getLogger(__name__)
+
+Handler = Callable[[Any], None]
+
+
+class CommandRefused(MissingLinkError):
+    """A command the allow-list (``[daemon] commands``) does not admit: nothing was sent."""
+
+
+def called_function(function: str, payload: bytes, functions: Sequence[str]) -> str:
+    """The function a call of ``function`` with ``payload`` ends up running on the board: for
+    ``a2jAt`` the one its payload names ([q host ns][B function index][args]), and so on down
+    an ``a2jAt`` of an ``a2jAt`` (boards refuse that now, but an older one ran it: the list
+    must hold whatever the board does), else itself."""
+    while function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
+        function, payload = functions[payload[8]], payload[9:]
+    return function
+
+
+class CommandGate:
+    def __init__(self, allowed: Sequence[str] = ("**",)) -> None:
+        self.allowed = list(allowed)
+        self._patterns = [topic_pattern(p) for p in self.allowed]
+        self.refused: dict[str, int] = {}  #: face (or path) -> commands refused
+        self._lock = threading.Lock()
+
+    def allows(self, topic: str) -> bool:
+        return any(p.match(topic) for p in self._patterns)
+
+    def check(self, path: str, topic: str) -> None:
+        """Raise CommandRefused (counted under ``path``) unless the list admits ``topic``."""
+        if self.allows(topic):
+            return
+        self._count(path)
+        log.warning("%s: a command on %s refused: not in [daemon] commands", path, topic)
+        raise CommandRefused(f"a command on {topic} refused: not in [daemon] commands")
+
+    def check_face(self, face: str, takes_commands: bool, topic: str) -> None:
+        """``check``, and refused (counted under ``face``) where ``face`` takes no commands:
+        a change of an actuator's configuration (daemon/session/run_config.py)."""
+        if takes_commands:
+            return self.check(face, topic)
+        self._count(face)
+        log.warning("%s: a command on %s refused: commands are off on %s", face, topic, face)
+        raise CommandRefused(
+            f"a command on {topic} refused: commands are off on {face} (its `commands` option)"
+        )
+
+    def _count(self, path: str) -> None:
+        with self._lock:
+            self.refused[path] = self.refused.get(path, 0) + 1
+
+    def wrap(self, face: str, takes_commands: bool, topic: str, handler: Handler) -> Handler:
+        """``handler`` where ``face`` may command ``topic``, else one that refuses and counts."""
+        if takes_commands and self.allows(topic):
+            return handler
+        why = (
+            f"commands are off on {face} (its `commands` option)"
+            if not takes_commands
+            else "not in [daemon] commands"
+        )
+
+        def refuse(_command: Any) -> None:
+            self._count(face)
+            log.warning("%s: a command on %s refused: %s", face, topic, why)
+
+        return refuse
