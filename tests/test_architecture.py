@@ -11,7 +11,8 @@ import its own modules and any room on a lower floor, never one above):
 2. ``host/`` (one board from the host), ``topics`` (what the daemon hands publishers)
 3. ``publishers/``
 4. ``daemon/`` (many boards -> topics), in rooms of its own, from the ground up (``DAEMON_FLOORS``):
-   its configuration (``paths``, ``listen_spec``, ``ros_config``, ``claims``; then ``config``),
+   its configuration (``paths``, ``listen_spec``, ``discover_spec``, ``ros_config``, ``claims``;
+   then ``config``),
    ``session/`` (one board), ``intake/`` (boards coming in) and ``control/`` (who steers), then
    the daemon's own modules (``fanout``, ``health``, ``joints``) and at the top ``service``
 5. ``virtual/`` (simulated boards, links, clocks), ``deploy/`` (board files, flashing, firmware)
@@ -59,6 +60,7 @@ FLOORS = {
 DAEMON_FLOORS = {
     "paths": 0,
     "listen_spec": 0,
+    "discover_spec": 0,
     "ros_config": 0,
     "claims": 0,
     "config": 1,

@@ -11,14 +11,8 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.config import (
-    Config,
-    ConfigError,
-    DiscoverSpec,
-    PortInfo,
-    parse_config,
-    parse_usb_id,
-)
+from missing_link.daemon.config import Config, ConfigError, parse_config
+from missing_link.daemon.discover_spec import DiscoverSpec, PortInfo, parse_usb_id
 from missing_link.daemon.intake.discovery import PortMatcher
 from missing_link.virtual.process import start_board_process, stop_process
 

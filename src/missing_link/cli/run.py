@@ -17,7 +17,8 @@ if TYPE_CHECKING:
 
 
 def build_config(args: argparse.Namespace) -> Any:
-    from ..daemon.config import BoardSpec, Config, DiscoverSpec, load_config, parse_usb_id
+    from ..daemon.config import BoardSpec, Config, load_config
+    from ..daemon.discover_spec import DiscoverSpec, parse_usb_id
     from ..publishers.registry import unavailable
 
     # the console's sample lines would scroll through the live view: --view shows them itself

@@ -13,7 +13,8 @@ Its rooms, from the top down (each imports only the ones below it: tests/test_ar
 - :mod:`.session` - one board: connect, validate, serve, notice loss, reconnect; its sample path,
   clock sync, actuators, run-time configuration, liveness, failsafe, log, memory and status
 - :mod:`.config` - the TOML configuration, validated (its ROS tables: :mod:`.ros_config`; where
-  to listen: :mod:`.listen_spec`; the runtime directory: :mod:`.paths`)
+  to listen: :mod:`.listen_spec`; which ports to probe: :mod:`.discover_spec`; the runtime
+  directory: :mod:`.paths`)
 - :mod:`.claims` - board names and message type names, held daemon-wide
 """
 

@@ -33,7 +33,8 @@ from typing import Any
 from ...errors import MissingLinkError
 from ...host.board import Board
 from ...logs import ErrorCounts
-from ..config import BoardSpec, DiscoverSpec, PortInfo
+from ..config import BoardSpec
+from ..discover_spec import DiscoverSpec, PortInfo
 
 log = logging.getLogger("missing_link.discovery")
 
