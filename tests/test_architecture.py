@@ -90,8 +90,13 @@ def module_name(path: Path, top: Path = SRC) -> str:
     return ".".join(parts)
 
 
+#: package data that happens to be Python: the example board files (BOARD = {...}, read by the
+#: host as a literal, never imported)
+DATA = SRC / "examples"
+
+
 def modules() -> dict[str, Path]:
-    return {module_name(p): p for p in sorted(SRC.rglob("*.py"))}
+    return {module_name(p): p for p in sorted(SRC.rglob("*.py")) if DATA not in p.parents}
 
 
 def _type_only(tree: ast.Module) -> set[ast.AST]:
