@@ -72,4 +72,6 @@ def _check_fit(bf: BoardFile) -> None:
             file=sys.stderr,
         )
         return
-    print(fit(bf).line())
+    size, table = fit(bf)
+    print(size.line())
+    print(f"flash by part (the linked image's map):\n{table}")

@@ -18,9 +18,10 @@ from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 
-from .avrsize import AvrSize, check
+from .avrdrivers import DRIVER_SOURCES
+from .avrsize import AvrSize, budget, budget_table, by_source, check
 from .avrstamp import check_id
-from .boardfile import BoardFile
+from .boardfile import FEATURES, BoardFile
 from .check import FlashError, verify
 
 #: the C runtime, its Makefile and the simavr rig: package data (missing_link/firmware/avr),
@@ -66,10 +67,33 @@ def build_checked(bf: BoardFile, build: Path, board_id: str | None = None) -> tu
     return check(build / bf.name / "firmware.elf", bf.mcu, str(bf.path)), out
 
 
-def fit(bf: BoardFile) -> AvrSize:
-    """Whether ``bf``'s firmware fits its MCU, built in a scratch directory (gen-firmware)."""
+def fit(bf: BoardFile) -> tuple[AvrSize, str]:
+    """Whether ``bf``'s firmware fits its MCU, built in a scratch directory (gen-firmware): its
+    sizes, and its flash budget by part as a table (parts())."""
     with tempfile.TemporaryDirectory(prefix="missing-link-avr-fit-") as tmp:
-        return build_checked(bf, Path(tmp))[0]
+        size = build_checked(bf, Path(tmp))[0]
+        map_text = (Path(tmp) / bf.name / "firmware.map").read_text()
+    rows = budget(by_source(map_text), parts(bf), size.flash)
+    return size, budget_table(rows, size)
+
+
+#: what each feature is, in the budget
+FEATURE_LABELS = {"timing": "aligned sampling, timed calls", "config": "run-time configuration",
+                  "log": "board log"}  # fmt: skip
+
+
+def parts(bf: BoardFile) -> list[tuple[str, tuple[str, ...]]]:
+    """The budget's parts of ``bf``'s image: (label, C sources) for each driver, each feature it
+    holds, and the generated tables (the runtime and the C library come after: budget())."""
+    out: list[tuple[str, tuple[str, ...]]] = []
+    for drv in bf.drivers():
+        n = sum(1 for e in bf.transducers if e["driver"] == drv)
+        out.append((f"driver {drv}" + (f" x{n}" if n > 1 else ""), DRIVER_SOURCES.get(drv, ())))
+    for f in FEATURES:
+        if f in bf.features:
+            out.append((f"feature {f} ({FEATURE_LABELS[f]})", (f,)))
+    out.append(("board tables (board_gen.c)", ("board_gen",)))
+    return out
 
 
 def _run(cmd: list[str], what: str, timeout: float) -> str:

@@ -90,8 +90,12 @@ def default_of(cls: type, entry: dict[str, Any], key: str, limits: Any) -> Any:
 
 
 def keys_of(
-    transducers: list[tuple[int, dict[str, Any], Transducer, type]], where: str
+    transducers: list[tuple[int, dict[str, Any], Transducer, type]],
+    where: str,
+    aligned: bool = True,
 ) -> list[AvrKey]:
+    """The run-time keys, as board/config.py makes them; without ``aligned`` (an image without
+    the timing feature) no aligned/phase keys."""
     out: list[AvrKey] = []
     count: dict[str, int] = {}
     for k, entry, t, cls in transducers:
@@ -103,7 +107,7 @@ def keys_of(
             out.append(AvrKey(key, k, drv, inst))
 
         add(Key(t, "enabled", "bool", None, False, lambda: True, None))
-        if getattr(cls, "ALIGNABLE", False):  # (as board/config.py adds them)
+        if aligned and getattr(cls, "ALIGNABLE", False):  # (as board/config.py adds them)
             if drv not in ALIGN:
                 raise ConfigError(f"{where}: {t.name}: {drv} cannot align on AVR")
             add(Key(t, "aligned", "bool", None, False, lambda: False, None))

@@ -20,6 +20,12 @@ from .cgen import c_comment, c_ident, c_text
 #: the drivers of the C runtime, and how many of each a board may have
 AVR_DRIVERS = {"quadrature": 1, "sharp_gp2y0a02": 1, "srf02": 1, "servo": 1, "trigger": 1,
                "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1, "battery": 1}  # fmt: skip
+#: the C sources (firmware/avr/src/NAME.c) each driver's code is in: an image links those of
+#: the drivers its board file names, and no other (avrgen.sources)
+DRIVER_SOURCES = {"quadrature": ("quadrature",), "sharp_gp2y0a02": ("sharp",),
+                  "srf02": ("srf02", "twi"), "servo": ("servo",), "trigger": ("trigger",),
+                  "hbridge": ("hbridge",), "stepper": ("stepper",), "hcsr04": ("hcsr04",),
+                  "gps_nmea": ("gps_nmea",), "battery": ("battery",)}  # fmt: skip
 
 
 @dataclass

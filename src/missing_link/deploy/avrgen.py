@@ -19,9 +19,9 @@ from ..board.firmware import describe
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 from .avrconfig import generate_config, keys_of
-from .avrdrivers import AVR_DRIVERS, Part, part_of
+from .avrdrivers import AVR_DRIVERS, DRIVER_SOURCES, Part, part_of
 from .avrpins import PINS
-from .boardfile import BoardFile
+from .boardfile import FEATURES, BoardFile
 from .cgen import c_comment, c_ident, c_string
 
 DT = {"int8_t": "DT_INT8", "uint8_t": "DT_UINT8", "int16_t": "DT_INT16", "uint16_t": "DT_UINT16",
@@ -70,12 +70,18 @@ def generate_avr(bf: BoardFile) -> str:
         "",
     ]
     out += _blobs(bf, parts.lines)
-    config_c, _blob = generate_config(keys_of(parts.described, where), bf.mcu, where, parts.checks)
-    out += [*config_c, ""]
+    features = bf.features
+    if "config" in features:
+        keys = keys_of(parts.described, where, aligned="timing" in features)
+        config_c, _blob = generate_config(keys, bf.mcu, where, parts.checks)
+        out += [*config_c, ""]
     out += _failsafe_table(bf, parts.safe)
-    out += _hardware_dispatch(parts)
-    out += _function_table(parts.funcs)
-    out += _setup_and_poll(parts)
+    if "timing" in features:
+        out += _hardware_dispatch(parts)
+    else:  # (no timed calls for the hardware to take)
+        parts.setup = [ln for ln in parts.setup if not ln.startswith("timing_hardware =")]
+    out += _function_table(parts.funcs, features)
+    out += _setup_and_poll(parts, features)
     return "\n".join(out)
 
 
@@ -246,7 +252,7 @@ def _hardware_dispatch(parts: Parts) -> list[str]:
     then the board's own functions."""
     if not parts.hardware:
         return []
-    index = {name: 11 + j for j, (name, _fn) in enumerate(parts.funcs)}
+    index = {name: 11 + j for j, (name, _fn) in enumerate(parts.funcs)}  # (builtins.h, timing)
     return [
         "static uint8_t hardware(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n) {",
         *(
@@ -259,30 +265,32 @@ def _hardware_dispatch(parts: Parts) -> list[str]:
     ]
 
 
-#: the functions every board has after its own (J2A name, kind, C function, blob)
+#: the functions a board has after its own (J2A name, kind, C function, blob, the feature they
+#: come with: "" for every board)
 FIXED_FUNCTIONS = (
-    ("a2jAt", "KIND_PLAIN", "timing_at", "0"),
-    ("a2jAlignInfo", "KIND_PLAIN", "timing_info", "0"),
-    ("a2jGoodbye", "KIND_PLAIN", "failsafe_goodbye", "0"),
-    ("a2jFailsafe", "KIND_PLAIN", "failsafe_info", "0"),
-    ("a2jConfigKeys", "KIND_BLOB", "0", "&board_config_keys_blob"),
-    ("a2jConfigGet", "KIND_PLAIN", "config_get", "0"),
-    ("a2jConfigSet", "KIND_PLAIN", "config_set", "0"),
-    ("a2jConfigReset", "KIND_PLAIN", "config_reset", "0"),
-    ("a2jLogInfo", "KIND_PLAIN", "log_info", "0"),
-    ("a2jMemory", "KIND_PLAIN", "memory_info", "0"),
+    ("a2jAt", "KIND_PLAIN", "timing_at", "0", "timing"),
+    ("a2jAlignInfo", "KIND_PLAIN", "timing_info", "0", "timing"),
+    ("a2jGoodbye", "KIND_PLAIN", "failsafe_goodbye", "0", ""),
+    ("a2jFailsafe", "KIND_PLAIN", "failsafe_info", "0", ""),
+    ("a2jConfigKeys", "KIND_BLOB", "0", "&board_config_keys_blob", "config"),
+    ("a2jConfigGet", "KIND_PLAIN", "config_get", "0", "config"),
+    ("a2jConfigSet", "KIND_PLAIN", "config_set", "0", "config"),
+    ("a2jConfigReset", "KIND_PLAIN", "config_reset", "0", "config"),
+    ("a2jLogInfo", "KIND_PLAIN", "log_info", "0", "log"),
+    ("a2jMemory", "KIND_PLAIN", "memory_info", "0", ""),
 )
 
 
-def _function_table(funcs: list[tuple[str, str]]) -> list[str]:
+def _function_table(funcs: list[tuple[str, str]], features: tuple[str, ...]) -> list[str]:
     """The J2A function table: the builtins, the board's own (their names escaped as C strings
-    besides being identifiers), then the fixed ones."""
+    besides being identifiers), then the fixed ones of the features it has."""
     out = [
         f"static const char fname_{j}[] PROGMEM = {c_string(fname.encode())};"
         for j, (fname, _fn) in enumerate(funcs)
     ]
     rows = [f"{{fname_{j}, KIND_PLAIN, {fn}, 0}}" for j, (_f, fn) in enumerate(funcs)]
-    for j, (name, kind, fn, blob) in enumerate(FIXED_FUNCTIONS):
+    fixed = [f[:4] for f in FIXED_FUNCTIONS if not f[4] or f[4] in features]
+    for j, (name, kind, fn, blob) in enumerate(fixed):
         out.append(f"static const char n_fixed_{j}[] PROGMEM = {c_string(name.encode())};")
         rows.append(f"{{n_fixed_{j}, {kind}, {fn}, {blob}}}")
     return [
@@ -293,12 +301,13 @@ def _function_table(funcs: list[tuple[str, str]]) -> list[str]:
     ]
 
 
-def _setup_and_poll(parts: Parts) -> list[str]:
+def _setup_and_poll(parts: Parts, features: tuple[str, ...]) -> list[str]:
+    boot = ["    config_boot(); /* the saved configuration, if any (config.c) */"]
     return [
         "void board_setup(void) {",
         *(f"    {line}" for line in parts.setup),
         f"    failsafe_init(failsafe_table, board_failsafe_ms, {len(parts.safe)});",
-        "    config_boot(); /* the saved configuration, if any (config.c) */",
+        *(boot if "config" in features else []),
         "}",
         "",
         "void board_poll(uint64_t now) {",
@@ -318,5 +327,22 @@ def write_avr(bf: BoardFile, out_dir: Path) -> list[Path]:
     baud = int(link.get("baudrate", 115200))
     mk = out_dir / "board.mk"
     name = c_ident(bf.name, f"{bf.path}: name")  # (a make variable: nothing but a name)
-    mk.write_text(f"MCU = {bf.mcu}\nBAUD = {baud}\nNAME = {name}\n")
+    mk.write_text(
+        f"MCU = {bf.mcu}\nBAUD = {baud}\nNAME = {name}\nPARTS = {' '.join(sources(bf))}\n"
+        f"DEFS = {' '.join(defines(bf))}\n"
+    )
     return [c, mk]
+
+
+def sources(bf: BoardFile) -> list[str]:
+    """The C runtime's sources (src/NAME.c) this board's image holds beyond the core (the
+    Makefile's CORE): its drivers', then its features'."""
+    out: list[str] = []
+    for drv in bf.drivers():
+        out += [s for s in DRIVER_SOURCES.get(drv, ()) if s not in out]
+    return out + [f for f in FEATURES if f in bf.features]
+
+
+def defines(bf: BoardFile) -> list[str]:
+    """The features' switches (src/features.h): 0 for each one the board file leaves out."""
+    return [f"-DML_{f.upper()}={int(f in bf.features)}" for f in FEATURES]

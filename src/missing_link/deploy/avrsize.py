@@ -8,8 +8,10 @@ exit 1); ``flash`` and ``gen-firmware`` run it in-process before anything is wri
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,6 +102,79 @@ def check(elf: Path, mcu: str, where: str, stack: int = STACK) -> AvrSize:
             '"Memory": fewer transducers, or a bigger MCU)'
         )
     return s
+
+
+#: an input section's line in the linker's map: name (or on the line before), address, size, file
+_MAP_INPUT = re.compile(r"^ (\S+)?\s+0x[0-9a-f]+\s+0x([0-9a-f]+)\s+(\S+)$")
+_MAP_OUTPUT = re.compile(r"^(\.\S+)\s+0x[0-9a-f]+\s+0x[0-9a-f]+")
+#: what the image holds besides the board's own sources: avr-libc's start-up and the C
+#: library's routines (float and 64-bit arithmetic, memcpy, the EEPROM's)
+LIBRARY = "C library"
+
+
+def by_source(map_text: str) -> dict[str, int]:
+    """Flash bytes of a linked image by the source they came from, from the linker's map
+    (``-Wl,-Map``): every input section placed in ``.text`` or ``.data`` (whose initial values
+    are in flash), by its object: ``NAME`` for NAME.o (a C file of the runtime, board_gen),
+    LIBRARY for a library member or the start-up code.  board_gen's configuration tables count
+    as ``config``'s, its dispatch of timed calls to the hardware as ``timing``'s."""
+    out: dict[str, int] = {}
+    section = name = ""
+    lines = map_text.split("\n")
+    start = next((i for i, ln in enumerate(lines) if ln.startswith("Linker script and memory")), 0)
+    for line in lines[start:]:
+        m = _MAP_OUTPUT.match(line)
+        if m:
+            section = m.group(1)
+            continue
+        m = _MAP_INPUT.match(line)
+        if m is None:
+            name = line.strip() if line.startswith(" .") and " " not in line.strip() else ""
+            continue
+        name, input_name = "", m.group(1) or name
+        if section not in (".text", ".data"):
+            continue
+        size, obj = int(m.group(2), 16), m.group(3)
+        base = Path(obj).name
+        key = base[:-2] if base.endswith(".o") and "(" not in base and "/obj/" in obj else LIBRARY
+        if key == "board_gen":
+            key = _generated_feature(input_name)
+        out[key] = out.get(key, 0) + size
+    return out
+
+
+def _generated_feature(section: str) -> str:
+    if "config" in section:
+        return "config"
+    return "timing" if section.endswith(".hardware") else "board_gen"
+
+
+def budget(
+    sources: Mapping[str, int], parts: Sequence[tuple[str, Sequence[str]]], total: int
+) -> list[tuple[str, int]]:
+    """The image's flash by part: each (label, its sources) of ``parts`` in order, then the
+    runtime (every other source), the C library, and what the linker added between them
+    (alignment: the image's total less the sources')."""
+    left = dict(sources)
+    out = []
+    for label, names in parts:
+        out.append((label, sum(left.pop(n, 0) for n in names)))
+    lib = left.pop(LIBRARY, 0)
+    out.append(("runtime", sum(left.values())))
+    out.append((LIBRARY + " (float, 64-bit arithmetic, start-up)", lib))
+    rest = total - sum(sources.values())
+    if rest:
+        out.append(("linker (alignment)", rest))
+    return out
+
+
+def budget_table(rows: list[tuple[str, int]], size: AvrSize) -> str:
+    """The budget as text: a line a part, bytes and share of the MCU's flash."""
+    width = max(len(label) for label, _n in rows)
+    lines = [f"  {label:<{width}} {n:>6} B {100 * n / size.flash_max:5.1f} %" for label, n in rows]
+    share = 100 * size.flash / size.flash_max
+    lines.append(f"  {'image':<{width}} {size.flash:>6} B {share:5.1f} % of {size.flash_max}")
+    return "\n".join(lines)
 
 
 def main(argv: list[str]) -> int:

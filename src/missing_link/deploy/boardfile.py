@@ -23,7 +23,10 @@ from ..text import is_token
 MCUS = ("rp2040", "esp32", "esp32s3", "atmega328p", "atmega2560", "atmega32u4")
 AVR_MCUS = ("atmega328p", "atmega2560", "atmega32u4")
 BOARD_KEYS = ("name", "model", "mcu", "serial", "fw_version", "link", "buses", "transducers",
-              "config_file")  # fmt: skip
+              "config_file", "features")  # fmt: skip
+#: what an AVR image may leave out (`features`, default all): aligned sampling and timed calls,
+#: run-time configuration and its saved record, the board's log (firmware/avr/src/features.h)
+FEATURES = ("timing", "config", "log")
 #: the keys of each kind of link (board/link.py open_link and signed)
 LINK_KEYS = {
     "usb": ("kind", "baudrate"),
@@ -68,6 +71,11 @@ class BoardFile:
     @property
     def transducers(self) -> list[dict[str, Any]]:
         return list(self.board["transducers"])
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The features the image holds (an AVR's; a MicroPython board has them all)."""
+        return tuple(self.board.get("features", FEATURES))
 
     def drivers(self) -> list[str]:
         return sorted({t["driver"] for t in self.transducers})
@@ -126,6 +134,8 @@ def check_board(board: dict[str, Any], where: str) -> None:
             _text(board[key], f"{where}: {key}", PROPERTY_TEXT)
     if "config_file" in board:
         _file_name(board["config_file"], f"{where}: config_file")
+    if "features" in board:
+        _check_features(board["features"], mcu, where)
     _check_link(board.get("link", {"kind": "usb"}), mcu, where)
     _distinct_files(board, where)
     buses = board.get("buses", {})
@@ -141,6 +151,17 @@ def check_board(board: dict[str, Any], where: str) -> None:
         check_unique(lines, where)
     except DescriptorError as e:
         raise ConfigError(str(e)) from None
+
+
+def _check_features(features: Any, mcu: str, where: str) -> None:
+    if mcu not in AVR_MCUS:
+        raise ConfigError(f"{where}: features: only an AVR image leaves features out ({mcu!r} "
+                          "boards have them all)")  # fmt: skip
+    if not isinstance(features, list) or len(set(map(str, features))) != len(features):
+        raise ConfigError(f"{where}: features must be a list of distinct names")
+    for f in features:
+        if f not in FEATURES:
+            raise ConfigError(f"{where}: features: {f!r} is not one of {', '.join(FEATURES)}")
 
 
 def _check_link(link: Any, mcu: str, where: str) -> None:

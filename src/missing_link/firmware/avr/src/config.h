@@ -4,6 +4,7 @@
 #define J2A_CONFIG_H
 #include <stdint.h>
 
+#include "features.h"
 #include "runtime.h"
 
 enum { KIND_BOOL = 0, KIND_INT, KIND_FLOAT, KIND_ENUM };

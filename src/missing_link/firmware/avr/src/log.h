@@ -5,6 +5,8 @@
 #define J2A_LOG_H
 #include <stdint.h>
 
+#include "features.h"
+
 #define LOG_CMD 0xFE   /* the SIF cmd: not a transducer id (0..239), not an error (0xF0..0xF4) */
 #define LOG_BOARD 0xFF /* a line about the board itself, not one of its transducers */
 enum { LOG_DEBUG = 10, LOG_INFO = 20, LOG_WARN = 30, LOG_ERROR = 40 };
@@ -25,6 +27,7 @@ enum {
     FAULT_ECHOED /* a request whose opcode is an error code: an error frame heard back */
 };
 
+#if ML_LOG
 /* A line: text_P (and then more_P, either may be 0) from flash, if the budget allows. */
 void log_line_P(uint8_t level, uint8_t source, const char *text_P, const char *more_P);
 /* A fault: said once per (source, kind) - WARN, ERROR for a reply J2A cannot carry - then
@@ -32,4 +35,11 @@ void log_line_P(uint8_t level, uint8_t source, const char *text_P, const char *m
 void log_fault_P(uint8_t source, uint8_t kind, const char *text_P);
 void log_poll(uint64_t now); /* a count of dropped lines, once the budget has room */
 uint8_t log_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n); /* a2jLogInfo */
+#else /* no log: the drivers' counters are all there is */
+static inline void log_line_P(uint8_t l, uint8_t s, const char *t, const char *m) {
+    (void)l, (void)s, (void)t, (void)m;
+}
+static inline void log_fault_P(uint8_t s, uint8_t k, const char *t) { (void)s, (void)k, (void)t; }
+static inline void log_poll(uint64_t now) { (void)now; }
+#endif
 #endif

@@ -45,7 +45,7 @@ int main(void) {
     board_setup();
     sei();
     for (;;) {
-        uint8_t b;
+        uint8_t b = 0;
         uint64_t rx_us;
         /* At most a ring's worth of bytes a turn: a stream whose error replies outrun it (a
          * 7-byte F2 for every 2 bytes of cut frames) must not keep the failsafe from its turn. */

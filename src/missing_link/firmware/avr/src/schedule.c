@@ -35,7 +35,9 @@ uint8_t sched_due(schedule_t *s, uint64_t *now) {
         *now = board_clock();
     }
     if (*now < s->due && !(s->aligned && !s->free && s->due - *now < SCHED_SPIN_US)) return 0;
+#if ML_TIMING
     if (s->aligned && s->free) timing_unaligned++;
+#endif
     s->stale = 1;
     return 1;
 }

@@ -3,10 +3,13 @@
 #define J2A_TIMING_H
 #include <stdint.h>
 
+#include "features.h"
+
 #define MAP_LIFE_US 10000000LL
 #define TIMED_QUEUE 4
 #define TIMED_PAYLOAD 4
 
+#if ML_TIMING
 uint8_t timing_map_valid(uint64_t now);
 int64_t timing_host_at(uint64_t board_us);
 int64_t timing_board_at(int64_t host_ns); /* the map must be valid */
@@ -30,4 +33,15 @@ extern uint8_t (*timing_hardware)(uint8_t fn, uint64_t tick, const uint8_t *payl
 /* ... and how many calls due after board µs `after` that hardware took and has not yet carried
  * out, dropping them when `drop` (trigger.c sets it; 0: none). */
 extern uint8_t (*timing_hardware_held)(uint8_t drop, int64_t after);
+#else /* no host time: drivers run free, no timed call is ever queued */
+static inline uint8_t timing_next_grid(uint32_t p, float ph, uint64_t now, uint64_t *tick) {
+    (void)p, (void)ph, (void)now, (void)tick;
+    return 0;
+}
+static inline void timing_poll(uint64_t now) { (void)now; }
+static inline uint8_t timing_pending(void) { return 0; }
+static inline void timing_cancel(const char *why, uint32_t ms, int64_t after) {
+    (void)why, (void)ms, (void)after;
+}
+#endif
 #endif

@@ -142,6 +142,7 @@ ISR(TIMER2_COMPA_vect) {
     aim(from, r);
 }
 
+#if ML_TIMING
 /* timing_hardware_held (timing.c): a timed pulse due after `after`, taken and not yet begun
  * (waiting to be armed, or armed and its rising edge not made), dropped when `drop` */
 static uint8_t held(uint8_t drop, int64_t after) {
@@ -157,9 +158,12 @@ static uint8_t held(uint8_t drop, int64_t after) {
     }
     return n;
 }
+#endif
 
 void trigger_init(transducer_t *t, uint16_t pulse_us) {
+#if ML_TIMING
     timing_hardware_held = held;
+#endif
     trig_t = t;
     trig_pulse_us = pulse_us;
     PORTB &= (uint8_t)~_BV(TRIG_BIT);
@@ -212,6 +216,7 @@ uint8_t trigger_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out
     return 0;
 }
 
+#if ML_TIMING
 uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint64_t tick) {
     if (trig_state != IDLE || trig_pending || n != 2) return 0; /* timing.c queues it */
     trig_width = width_of(payload, n);
@@ -220,12 +225,15 @@ uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint64_t tick) {
     trig_timed = 1;
     return 1;
 }
+#endif
 
 void trigger_poll(uint64_t now) {
     if (trig_fired) {
         trig_fired = 0;
         trigger_pulses++;
+#if ML_TIMING
         if (trig_timed) timing_done++;
+#endif
         record(trig_t, 0, trig_width, trig_tick + trig_rose_late / 2); /* where the edge was */
     }
     if (!trig_pending || trig_tick > now + ARM_US) return;
