@@ -76,3 +76,17 @@ def test_features_are_checked(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="only an AVR image leaves features out"):
         load_board_file(pico)
     assert load_board_file(variant(tmp_path, [])).features == ()
+
+
+def test_a_pin_error_says_its_prefix_once(tmp_path: Path) -> None:
+    """Issue 46.6: "mybot_uno2.py: steer: mybot_uno2.py: steer: ..." no more."""
+    from missing_link.deploy.avrgen import generate_avr
+
+    p = tmp_path / "mybot_uno2.py"
+    p.write_text(
+        'BOARD = {"name": "u", "mcu": "atmega328p", "transducers": [{"name": "steer", "id": 0, '
+        '"driver": "hbridge", "pwm_pin": 6, "dir_pin": 99, "call": "a2j_steer"}]}\n'
+    )
+    with pytest.raises(ConfigError) as e:
+        generate_avr(load_board_file(p))
+    assert str(e.value).count("steer:") == 1 and str(e.value).count("mybot_uno2.py") == 1, e.value

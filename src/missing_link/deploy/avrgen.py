@@ -106,6 +106,8 @@ def collect_parts(bf: BoardFile, where: str) -> Parts:
         count[drv] = inst + 1
         try:
             _add_entry(parts, k, e, inst, pins, bf.mcu, at)
+        except ConfigError:  # (a ValueError too, already naming the file and the entry: once)
+            raise
         except (ValueError, TypeError, KeyError, struct.error) as err:  # a dict no loader checked
             raise ConfigError(f"{at}: {err}") from None
     return parts
