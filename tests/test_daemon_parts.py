@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import logging
 import struct
+import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from types import SimpleNamespace
+from typing import Any, cast
 
 import pytest
 
@@ -110,6 +112,42 @@ def test_the_sample_path_publishes_into_a_list() -> None:
     counters = path.counters()
     assert counters["unknown_sifs"] == 1 and counters["bad_sifs"] == 1
     assert counters["host_time_clamps"] == 1 and counters["samples"] == 3
+
+
+def test_sifs_between_listening_and_the_count_wait_for_it_in_order() -> None:
+    """A handshake listens before it reads the board's count of SIFs (a replay sends its
+    samples once the count is read, however long the daemon took to get there): what comes
+    between waits until ``resume``, then goes out in order; one that comes from the reading
+    thread while those go out waits for them."""
+    published: list[Update] = []
+    path = SamplePath(published.append, realtime_offset_ns=0)
+    (t,) = parse_transds("transds/1\nx,1,p,M,1,int16_t,-1\n")
+    path.topics[1] = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    board = cast(Board, SimpleNamespace(index={}, properties={}, timeout=1.0))  # (no log)
+    now = time.monotonic()
+
+    def sif(seq: int) -> SifReceived:
+        return SifReceived(1, seq, struct.pack("<Qh", 10 + seq, seq), 0)
+
+    path.listen(board, same_boot=False)
+    path.on_sif(sif(0), now)
+    path.on_sif(sif(1), now)
+    assert published == []  # (held: the count is not read yet)
+    late = threading.Thread(target=path.on_sif, args=(sif(2), now))
+
+    def publish(u: Update) -> None:
+        published.append(u)
+        if len(published) == 1:  # the reading thread brings one while the held go out
+            late.start()
+            late.join(0.2)
+            assert late.is_alive()  # ... and it waits for them
+
+    path.publish = publish
+    path.resume(board, same_boot=False, count=2)
+    late.join(5)
+    assert [u.values[0] for u in published] == [0, 1, 2]
+    path.on_sif(sif(3), now)  # (listening as ever)
+    assert [u.values[0] for u in published] == [0, 1, 2, 3]
 
 
 def test_an_update_is_built_by_keyword_only() -> None:

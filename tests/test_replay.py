@@ -8,6 +8,7 @@ recording keeps for a replay, and the recorded clock: test_replay_records.py.)""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import threading
@@ -202,10 +203,10 @@ def test_a_host_that_came_back_late_gets_its_lead_before_samples(
     recorded: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A daemon whose handshake lost a reply comes back after the recording's start (its 1 s
-    call timeout, a new connection): samples are due when it has synced, but it pushes its map
-    and reads the board's counts before it takes any (what comes earlier is dropped).  The
-    board holds them ``lead_s`` from its first request, then sends them, late, in order, as
-    fast as it reads them.  (A fake clock.)"""
+    call timeout, a new connection): samples are due when it has synced, but it takes none
+    until it listens (it reads the board's count of SIFs then: what comes earlier is dropped).
+    The board holds them until then, then sends them, late, in order, as fast as it reads
+    them.  (A fake clock.)"""
     now = [10**15]
     monkeypatch.setattr(replay_mod, "time", SimpleNamespace(monotonic_ns=lambda: now[0]))
     replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_a"], lead_s=0.3)
@@ -229,16 +230,56 @@ def test_a_host_that_came_back_late_gets_its_lead_before_samples(
         rt.backlog = 0
         assert turn("a2jGetMapping") == []
         assert [sif for _ in range(READY_EXCHANGES) for sif in turn("a2jClock")] == []
-        now[0] += 299_000_000
+        now[0] += 300_000_000
         rt.poll()
         assert rt.take_frames()[1] == [] and rt.sent == 0
-        now[0] += 1_000_000  # its lead from its first request is over: what is due goes,
-        turns = []  # paced by what the host reads (the link's queue would shed the rest)
+        turns = [turn("a2jSifCount")]  # it listens: what is due goes, paced by what the host
+        rt.backlog = 0  # reads (the link's queue would shed the rest)
         while sifs := (rt.poll(), rt.take_frames()[1])[1]:
             turns.append(sifs)
             rt.backlog = 0  # (it read them)
         assert all(sum(map(len, sifs[:-1])) <= BACKLOG for sifs in turns), len(turns)
         assert sum(map(len, turns)) == rt.sent and 0 < rt.late < rt.sent  # (due 0..1.1 s ago)
+    finally:
+        replay.stop()
+
+
+@pytest.mark.slow  # (the recording)
+def test_samples_wait_until_the_host_listens_however_slow_it_is(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A daemon listens for SIFs from before it reads the board's count (a2jSifCount): the
+    board sends none before that, however long the daemon's setup takes after it has synced (a
+    busy machine: the demo's replay once started at other values), and all that are due right
+    after.  A handshake again on the same pty (its hosts come and go unseen) is a new host,
+    which waits too.  (A fake clock.)"""
+    now = [10**15]
+    monkeypatch.setattr(replay_mod, "time", SimpleNamespace(monotonic_ns=lambda: now[0]))
+    replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_a"], lead_s=0.3)
+    (board,) = replay.boards
+    rt = board.runtime
+    board.feeder.thread.start()  # (the board's own thread is not: this test turns it)
+    try:
+        assert wait_for(lambda: not board.feeder.thread.is_alive(), 10)  # (all read ahead)
+
+        def turn(name: str) -> list[bytes]:
+            rt.feed(encode_frame(SOF, 1, rt.index[name]))
+            rt.poll()
+            return rt.take_frames()[1]
+
+        rt.new_host(1)
+        rt.backlog = 0
+        assert turn("a2jGetMapping") == []
+        assert [sif for _ in range(READY_EXCHANGES) for sif in turn("a2jClock")] == []
+        now[0] += 5_000_000_000  # synced, its lead long over: its setup takes seconds
+        assert turn("a2jGetProperties") == [] and rt.sent == 0
+        assert turn("a2jSifCount") != []  # it listens: what is due goes
+        sent, rt.backlog = rt.sent, 0  # (it read them)
+        assert turn("a2jGetMapping") == []  # (a host again, on the same pty)
+        assert [sif for _ in range(READY_EXCHANGES) for sif in turn("a2jClock")] == []
+        now[0] += 2_000_000_000
+        assert turn("a2jClock") == [] and rt.sent == sent
+        assert turn("a2jSifCount") != []
     finally:
         replay.stop()
 
@@ -329,7 +370,10 @@ def record_replay(bag: Path, out: Path, *args: str) -> tuple[Path, str, list[int
             reader = threading.Thread(target=lambda: lines.extend(p.stderr or []), daemon=True)
             reader.start()
             assert wait_for(lambda: any("finished" in ln for ln in lines), 60), lines
-            time.sleep(0.5)  # (the last SIFs through the pty and the daemon)
+            # (the last SIFs through the pty and the daemon: as many as the replay sent)
+            (done,) = [ln for ln in lines if "finished" in ln]
+            sent = sum(int(n) for n in re.findall(r" (\d+)[,;]", done.split("sent:")[1]))
+            assert wait_for(lambda: _sifs_in(d) >= sent, 30), (sent, _sifs_in(d), d.status())
     finally:
         p.send_signal(signal.SIGINT)
         p.wait(10)

@@ -55,12 +55,12 @@ def _serve(replay: Any, done: threading.Event) -> int:
         for line in errors[said_errors:]:
             _say(f"missing-link: error: {line}")
         said_errors = len(errors)
+        sent = ", ".join(f"{b.name} {b.runtime.sent}" for b in replay.boards)
         if replay.finished and not said_done:
             said_done = True
-            print("replay: finished; the boards stay up until Ctrl-C", file=sys.stderr, flush=True)
+            _say(f"replay: finished, SIFs sent: {sent}; the boards stay up until Ctrl-C")
         elif time.monotonic() >= next_progress and not said_done:
             next_progress += PROGRESS_S
-            sent = ", ".join(f"{b.name} {b.runtime.sent}" for b in replay.boards)
             _say(f"replay: {replay.position_s():.1f} of {replay.span_s:.1f} s, SIFs sent: {sent}")
     replay.stop()
     for b in replay.boards:

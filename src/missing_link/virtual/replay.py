@@ -19,10 +19,13 @@ more than ``BACKLOG`` bytes wait for the host to read them (a host that falls be
 ``--rate 10``), due samples wait rather than be lost; one sent over ``LATE_NS`` after it was
 due counts as ``late``.  A host is ready once it has synced (eight clock exchanges answered:
 ``a2jClock``, or ``getTime`` for a 2014 board; or ``READY_S`` after its first request: a host
-that does not sync) and ``lead_s`` after its first request, again for each new host
-connection: a daemon that has synced still pushes its map and reads the board's counts before
-it takes samples, dropping what comes earlier, and one that lost a reply in its handshake
-comes back on a new connection after its call timeout, with samples due.  What one turn sends
+that does not sync) and has read the board's count of SIFs (``a2jSifCount``: a daemon listens
+for SIFs from before it asks, so none falls between its count and its listening, however slow
+the machine; a host that never asks, ``READY_S`` after its first request; a board without the
+function, ``lead_s`` after it); again for each new host: a new connection, or a handshake
+(``a2jGetMapping``) on a pty, whose hosts come and go unseen (a daemon that lost a reply in its
+handshake comes back after its call timeout, with samples due, and takes none until it listens
+again).  What one turn sends
 counts in the backlog at once, so a host that comes back to many due samples gets them paced
 by what it reads, not shed by the link's queue.
 
@@ -60,7 +63,8 @@ from .recording import PairStats, RecordedBoard, RecordedSif, Recording, recorde
 from .replay_clock import Clock
 
 READY_EXCHANGES = 8  #: clock exchanges answered before the host counts as synced
-#: ... or this long after its first request: a host that does not sync.  Longer than a daemon's
+#: ... or this long after its first request: a host that does not sync, or does not read the
+#: board's count of SIFs (a daemon listens from then: ``_ready_ns``).  Longer than a daemon's
 #: handshake may take on one connection (``handshake_timeout``, 5 s; then it reconnects) and its
 #: first sync's call (``timeout``, 1 s): a daemon whose handshake lost a reply (it waits its 1 s
 #: call timeout) is not taken for one and sent samples it drops
@@ -146,6 +150,7 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         self._host_since: int | None = None  # the current host's first request
         self._host_exchanges = 0
         self._host_synced: int | None = None  # when it had READY_EXCHANGES answered
+        self._host_counted: int | None = None  # when it asked a2jSifCount (it listens by then)
         self.backlog = 0  #: output bytes the host has not taken yet (the server says)
         self.finished = False  # the last pass is out
         self.passes = 0
@@ -183,6 +188,8 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         self._clock_op = self.index.get("a2jClock", -1)
         #: the requests a host syncs with (getTime: how it syncs a 2014 board)
         self._sync_ops = {self.index[n] for n in ("a2jClock", "getTime") if n in self.index}
+        self._mapping_op = self.index.get("a2jGetMapping", -1)  # (a host's first request)
+        self._count_op = self.index.get("a2jSifCount", -1)
 
     def _blob(self, make: Callable[[], bytes]) -> Callable[[bool, bool, int, bytes], Any]:
         from ..board.runtime import read_blob
@@ -225,6 +232,7 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
         """Another host connected: it is ready once it has synced, as the first."""
         self.hosts = hosts
         self._host_since, self._host_exchanges, self._host_synced = None, 0, None
+        self._host_counted = None
 
     def feed(self, data: bytes, rx_us: int | None = None) -> None:
         if data and self._host_since is None:
@@ -242,21 +250,30 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
             self._host_exchanges += 1
             if self._host_exchanges == READY_EXCHANGES:
                 self._host_synced = time.monotonic_ns()
+        elif opcode == self._count_op:
+            self._host_counted = time.monotonic_ns()
+        elif opcode == self._mapping_op and (self._host_exchanges or self._host_counted):
+            self.new_host(self.hosts)  # a handshake again: a new host (a pty does not say)
+            self._host_since = time.monotonic_ns()
         super()._dispatch(seq, opcode, payload)
 
     def _ready_ns(self) -> int | None:
         """When the current host is ready for samples (monotonic ns; None: not yet known):
-        once it has synced, and ``lead_s`` after its first request, as the recording's start
-        is after the first host's.  A daemon takes no sample the moment it has synced (it
-        pushes its map and reads the board's counts first, and drops what comes before); a
-        host that came back after the recording began (a reply lost in its handshake: its call
-        timeout, a new connection) would otherwise get every sample due meanwhile at once."""
+        once it has synced and listens: from its a2jSifCount request (a daemon), or
+        ``READY_S`` after its first request for a host that never asks; a board without the
+        function (a 2014 board), ``lead_s`` after it, as the recording's start is after the
+        first host's.  A host that came back after the recording began (a reply lost in its
+        handshake: its call timeout, a new connection) would otherwise get every sample due
+        meanwhile before it listens."""
         since = self._host_since
         if since is None:
             return None
-        synced = since + round(READY_S * 1e9)  # (a host that does not sync)
-        if self._host_synced is not None:
-            synced = min(synced, self._host_synced)
+        late = since + round(READY_S * 1e9)  # (a host that does not sync, or never counts)
+        synced = late if self._host_synced is None else min(late, self._host_synced)
+        if self._host_counted is not None:
+            return max(synced, self._host_counted)
+        if self._count_op >= 0:  # (it may yet ask: a daemon listens once it does)
+            return late
         return max(synced, since + self.timeline.lead_ns)
 
     def _ready(self, now: int) -> bool:

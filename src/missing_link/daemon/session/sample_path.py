@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -93,23 +94,49 @@ class SamplePath:
         self._outage_count: int | None = None  # a2jSifCount read after an outage
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
         self._said: set[str] = set()  # standard-type topics whose failure was logged
+        #: SIFs that came between ``listen`` and ``resume`` (None: not in a handshake)
+        self._holding: list[tuple[SifReceived, float]] | None = None
+        self._hold_lock = threading.Lock()
+
+    def listen(self, board: Board, same_boot: bool) -> None:
+        """At a handshake, before the board's count is read (``resume``), with this path's
+        handler on the board: the SIFs from here on wait, in order, until ``resume``, so none
+        falls between the count and the listening (a replay sends its samples once the count is
+        read: docs/recording.md).  ``same_boot``: the seq goes on from the last SIF seen."""
+        with self._hold_lock:
+            self._holding = []
+        if self.next_seq is not None and same_boot:
+            board.link.expect_sif_seq(self.next_seq)
 
     def resume(self, board: Board, same_boot: bool, count: int | None) -> None:
-        """At a handshake: ``same_boot`` (the board's clock epoch is the one before an outage)
-        means the SIFs it sent meanwhile count as lost, modulo 256 from the seq, exactly when
-        the board can tell how many it has sent (``count``, from ``a2jSifCount``).  The board's
-        log learns the names and reads the board's counts (a call: the supervisor's thread)."""
+        """At a handshake, after ``listen``: ``same_boot`` (the board's clock epoch is the one
+        before an outage) means the SIFs it sent meanwhile count as lost, modulo 256 from the
+        seq, exactly when the board can tell how many it has sent (``count``, from
+        ``a2jSifCount``).  The board's log learns the names and reads the board's counts (a
+        call: the supervisor's thread).  Then the SIFs held since ``listen``, in order (one
+        that comes meanwhile waits for them)."""
         self.board = board
         lg = self.log
         lg.name, lg.sync = self.name, self.sync
         lg.names = {i: t.transducer.name for i, t in self.topics.items()}
         lg.connect(board, board.properties.get("clock.epoch", ""), board.timeout)
         if self.next_seq is not None and same_boot:
-            board.link.expect_sif_seq(self.next_seq)
             self._outage_count = count
         else:
             self._total = count
             self._outage_count = None
+        with self._hold_lock:
+            for sif, now_mono in self._holding or ():
+                self._take(sif, now_mono)
+            self._holding = None
+
+    def _hold(self, sif: SifReceived, now_mono: float) -> bool:
+        """Between ``listen`` and ``resume``: the SIF waits (True)."""
+        with self._hold_lock:
+            if self._holding is None:
+                return False
+            self._holding.append((sif, now_mono))
+            return True
 
     def _outage_loss(self, mod: int, total: int) -> int:
         """The first SIF after an outage: the seq gives the loss modulo 256 (``mod``); the
@@ -140,9 +167,15 @@ class SamplePath:
         }
 
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
-        """The SIF handler (the board's reading thread), for every sample: locals, not
-        attributes, the common sample inline, the rare cases (outage, clamps, N/A channels,
-        grids, standard types) in the helpers below."""
+        """The SIF handler (the board's reading thread), for every sample (held while a
+        handshake is between ``listen`` and ``resume``)."""
+        if self._holding is not None and self._hold(sif, now_mono):
+            return
+        self._take(sif, now_mono)
+
+    def _take(self, sif: SifReceived, now_mono: float) -> None:
+        """One SIF: locals, not attributes, the common sample inline, the rare cases (outage,
+        clamps, N/A channels, grids, standard types) in the helpers below."""
         cmd, seq, payload, lost = sif
         self.next_seq = seq + 1
         total = self._total

@@ -305,9 +305,10 @@ class BoardSession:
             board.properties, transducers,
             [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
-        self.path.resume(board, bool(epoch) and epoch == self.epoch, sif_count(board, spec.timeout))
-        self.epoch = epoch
+        same, self.epoch = bool(epoch) and epoch == self.epoch, epoch
+        self.path.listen(board, same)  # (before the count: no SIF falls between the two)
         board.on_sif(None, self.path.on_sif)
+        self.path.resume(board, same, sif_count(board, spec.timeout))
         try:  # a board whose configuration cannot be read still publishes
             self.run_config.on_connect(board)
         except MissingLinkError as e:
