@@ -12,17 +12,8 @@ import argparse
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from .common import (
-    MAX_RATE_HZ,
-    count_arg,
-    finite,
-    number,
-    parse_hex,
-    port_arg,
-    positive,
-    seconds_arg,
-    timeout_arg,
-)
+from . import board_args
+from .common import add_timeout, count_arg, parse_hex, port_arg, positive, seconds_arg
 
 Parser = argparse.ArgumentParser
 
@@ -35,19 +26,10 @@ class Command(NamedTuple):
     description: str | None = None
 
 
-def _timeout(sp: Parser) -> None:
-    sp.add_argument(
-        "--timeout",
-        type=timeout_arg,
-        default=1.0,
-        help="per-call timeout in seconds (1.0; at most 60)",
-    )
-
-
 def _url(sp: Parser) -> None:
     """The board URL and the per-call timeout: every command that talks to one board."""
     sp.add_argument("url", help="board URL, e.g. serial:///dev/ttyACM0 or tcp://127.0.0.1:5000")
-    _timeout(sp)
+    add_timeout(sp)
 
 
 def _info(sp: Parser) -> None:
@@ -103,7 +85,7 @@ def _config(sp: Parser) -> None:
     )
     sp.add_argument("--json", action="store_true", help="machine-readable output (docs/cli.md)")
     sp.add_argument("--verbose", "-v", action="store_true", help="defaults, limits and state too")
-    _timeout(sp)
+    add_timeout(sp)
 
 
 def _create_msgs(sp: Parser) -> None:
@@ -116,7 +98,7 @@ def _create_msgs(sp: Parser) -> None:
     sp.add_argument("--out", required=True, help="directory to write the package into")
     sp.add_argument("--ros", type=int, choices=(1, 2), default=2, help="ROS version (2)")
     sp.add_argument("--package", default="missing_link_msgs", help="package name")
-    _timeout(sp)
+    add_timeout(sp)
     sp.add_argument(
         "--force", action="store_true", help="replace a package directory create-msgs did not write"
     )
@@ -155,7 +137,11 @@ class _PublisherArg(argparse.Action):
 
 def _run(sp: Parser) -> None:
     sp.add_argument("url", nargs="*", help="board URLs (added to those in --config)")
-    sp.add_argument("--config", help="TOML configuration (see examples/missing-link.toml)")
+    sp.add_argument(
+        "--config",
+        help="TOML configuration (`missing-link examples DIR` writes missing-link.toml, every "
+        "key explained)",
+    )
     sp.add_argument("--publisher", "-p", action=_PublisherArg)
     sp.add_argument("--record", metavar="DIR", help="record everything to rosbag2/MCAP under DIR")
     sp.add_argument(
@@ -222,170 +208,6 @@ def _run(sp: Parser) -> None:
 def _recover(sp: Parser) -> None:
     sp.add_argument("path", help="bag directory or .mcap file")
     sp.add_argument("--out", help="new bag directory (default: PATH_recovered)")
-
-
-def _flash(sp: Parser) -> None:
-    sp.add_argument("boardfile", help="board file (BOARD = {...}, see examples/boards/)")
-    sp.add_argument("--port", default="/dev/ttyACM0", help="serial port (/dev/ttyACM0)")
-    sp.add_argument("--dry-run", action="store_true", help="list files and commands, touch nothing")
-    sp.add_argument(
-        "--no-check", action="store_true", help="do not check the board answers J2A afterwards"
-    )
-    sp.add_argument(
-        "--key",
-        help="a signing key (missing-link key new) for a board on a network link: copied over "
-        "USB as the board file's link key_file, never over the network (docs/signing.md)",
-    )
-    sp.add_argument(
-        "--id",
-        help="AVR: the board.id the board takes (into its EEPROM; default: it keeps the one it "
-        "has, a new board gets a random one); a MicroPython board's is its chip's",
-    )
-
-
-def _update(sp: Parser) -> None:
-    sp.add_argument("target", metavar="TARGET", help="board URL or (through a daemon) board name")
-    sp.add_argument("boardfile", help="the board file of the new firmware (examples/boards/)")
-    sp.add_argument(
-        "--trial",
-        type=lambda s: int(number(5, 3600, unit=" s")(s)),
-        default=30,
-        metavar="S",
-        help="MicroPython: the new firmware's time to complete a handshake with this host, or "
-        "the board goes back to the old one (30; 5..3600)",
-    )
-    sp.add_argument("--id", help="the board.id the board must state (refused if another)")
-    sp.add_argument("--json", action="store_true", help="the outcome as JSON (docs/cli.md)")
-    _timeout(sp)
-
-
-def _key(sp: Parser) -> None:
-    ksub = sp.add_subparsers(dest="key_command", required=True, metavar="ACTION")
-    kp = ksub.add_parser("new", help="write a new random key (mode 0600)")
-    kp.add_argument("file")
-    kp.add_argument("--force", action="store_true", help="replace an existing file")
-
-
-def _gen_firmware(sp: Parser) -> None:
-    sp.add_argument("boardfile", help="board file with mcu = atmega328p, atmega2560 or atmega32u4")
-    sp.add_argument("--target", choices=["avr"], default="avr", help="firmware target (avr)")
-    sp.add_argument("--out", required=True, help="directory for board_gen.c and board.mk")
-    sp.add_argument(
-        "--no-fit-check", action="store_true", help="do not build it to check that it fits the MCU"
-    )
-
-
-def _board(sp: Parser) -> None:
-    what = sp.add_mutually_exclusive_group(required=True)
-    what.add_argument("--sim", help="thesis, encoder_servo, rangers, original or rate")
-    what.add_argument(
-        "--file",
-        metavar="BOARDFILE",
-        help="run this board file, every part simulated from its datasheet (examples/boards/)",
-    )
-    where = sp.add_mutually_exclusive_group(required=True)
-    where.add_argument("--listen", help="tcp://127.0.0.1:PORT (0 = any), unix:///PATH or pty")
-    where.add_argument(
-        "--dial",
-        metavar="URL",
-        help="connect to a daemon that runs `run --listen` (tcp://HOST:PORT), again with "
-        "backoff whenever the connection ends (board/dial.py)",
-    )
-    sp.add_argument(
-        "--runtime",
-        choices=["cpython", "micropython"],
-        help="--file: our runtime on CPython (default) or our firmware under MicroPython (node)",
-    )
-    sp.add_argument(
-        "--absent",
-        metavar="PART,...",
-        help="--file: leave these parts (transducer names) unplugged",
-    )
-    sp.add_argument(
-        "--flash",
-        metavar="DIR",
-        help="--file: the board's flash (saved configuration, keys), kept between runs",
-    )
-    sp.add_argument(
-        "--seed",
-        type=int,
-        help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED); "
-        "--file: of its chip id (board.id) when it has no --flash (default 0)",
-    )
-    _sim_options(sp)
-
-
-def _sim_options(sp: Parser) -> None:
-    """``board --sim``'s own options (a hand-written sim: its name, count, rate, clock)."""
-    sp.add_argument("--name", help="board.name property (default: the sim's)")
-    sp.add_argument(
-        "--count",
-        type=count_arg,
-        default=1,
-        help="serve N boards from this process (NAME_0 .. NAME_N-1, tcp only; benchmarks)",
-    )
-    sp.add_argument(
-        "--config-file",
-        help="where the board keeps a saved configuration (its flash; default: none, a save "
-        "is refused) and reads it back at every boot",
-    )
-    sp.add_argument(
-        "--rate",
-        type=number(0, MAX_RATE_HZ, above=True, unit=" Hz"),
-        help="updates per second (sim rate only)",
-    )
-    sp.add_argument("--channels", type=count_arg, help="channels per update (sim rate only)")
-    sp.add_argument(
-        "--clock-offset-us",
-        type=finite,
-        help="board clock = OFFSET + (1 + SKEW) * host CLOCK_MONOTONIC (default: the host's clock)",
-    )
-    sp.add_argument("--clock-skew-ppm", type=finite, help="the board clock's rate error (ppm)")
-    sp.add_argument(
-        "--clock-drift-ppm-per-s", type=finite, help="the rate error changes this much per second"
-    )
-    sp.add_argument(
-        "--clock-ref-ns",
-        type=int,
-        help="host CLOCK_MONOTONIC ns the drift and --reset-at count from (default: now)",
-    )
-    sp.add_argument(
-        "--reset-at",
-        type=seconds_arg,
-        action="append",
-        metavar="S",
-        help="the board resets S seconds after --clock-ref-ns (repeatable); the link stays",
-    )
-    sp.add_argument(
-        "--boot-gap-ms",
-        type=number(0, 3_600_000, unit=" ms"),
-        default=100.0,
-        help="silence after a reset (100)",
-    )
-
-
-def _relay(sp: Parser) -> None:
-    sp.add_argument("url", help="the board's URL (tcp, unix, serial, ...)")
-    sp.add_argument(
-        "--listen", default="tcp://127.0.0.1:0", help="tcp://127.0.0.1:PORT or unix:///PATH"
-    )
-    # (finite here; the relay's own check says what a probability may be)
-    sp.add_argument("--corrupt", type=finite, default=0.0, help="per-byte bit-flip probability")
-    sp.add_argument("--drop", type=finite, default=0.0, help="per-chunk loss probability")
-    sp.add_argument(
-        "--delay-ms",
-        type=number(0, 86_400_000, unit=" ms"),
-        default=0.0,
-        help="hold every chunk this long",
-    )
-    sp.add_argument(
-        "--blackhole-after", type=seconds_arg, help="forward nothing after S s of a connection"
-    )
-    sp.add_argument("--blackhole-for", type=seconds_arg, help="... for S s (default: for ever)")
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument(
-        "--duration", type=seconds_arg, default=0, help="stop after S seconds (0 = run)"
-    )
 
 
 def _router(sp: Parser) -> None:
@@ -465,16 +287,25 @@ COMMANDS = (
     ),
     Command("run", "the daemon: every board's transducers as topics", "run:cmd_run", _run),
     Command("recover", "salvage a recording whose process died", "run:cmd_recover", _recover),
-    Command("flash", "put the firmware for a board file on a board", "deploy:cmd_flash", _flash),
-    Command("update", "update a board's firmware over its link", "update:cmd_update", _update),
-    Command("key", "signing keys for boards on a network link", "deploy:cmd_key_new", _key),
+    Command(
+        "flash",
+        "put the firmware for a board file on a board",
+        "deploy:cmd_flash",
+        board_args.flash,
+    ),
+    Command(
+        "update", "update a board's firmware over its link", "update:cmd_update", board_args.update
+    ),
+    Command(
+        "key", "signing keys for boards on a network link", "deploy:cmd_key_new", board_args.key
+    ),
     Command(
         "gen-firmware",
         "C tables for an AVR board from its board file",
         "deploy:cmd_gen_firmware",
-        _gen_firmware,
+        board_args.gen_firmware,
     ),
-    Command("board", "run a virtual board", "virtual:cmd_board", _board),
+    Command("board", "run a virtual board", "virtual:cmd_board", board_args.board),
     Command(
         "replay",
         "play a recording back as the boards that made it",
@@ -482,7 +313,10 @@ COMMANDS = (
         _replay,
     ),
     Command(
-        "relay", "a fault-injecting relay in front of a board (tests)", "virtual:cmd_relay", _relay
+        "relay",
+        "a fault-injecting relay in front of a board (tests)",
+        "virtual:cmd_relay",
+        board_args.relay,
     ),
     Command(
         "router",
@@ -491,4 +325,13 @@ COMMANDS = (
         _router,
     ),
     Command("demo", "the thesis test rig on two virtual boards, recorded", "demo:cmd_demo", _demo),
+    Command(
+        "examples",
+        "write the example board files and configuration into DIR",
+        "examples:cmd_examples",
+        board_args.examples,
+        "The example board files (MicroPython and AVR), the daemon's configuration with every "
+        "key explained, a descriptor file and a certificate script, as installed with "
+        "missing-link: written into DIR to read, copy and edit.",
+    ),
 )

@@ -27,6 +27,16 @@ MAX_DURATION_S = 365 * 86400.0
 MAX_RATE_HZ = 100_000.0
 
 
+def add_timeout(sp: argparse.ArgumentParser) -> None:
+    """``--timeout``: every command that calls a board."""
+    sp.add_argument(
+        "--timeout",
+        type=timeout_arg,
+        default=1.0,
+        help="per-call timeout in seconds (1.0; at most 60)",
+    )
+
+
 def parse_hex(text: str) -> bytes:
     cleaned = text.replace(" ", "").replace(":", "")
     try:

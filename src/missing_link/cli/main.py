@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         run = getattr(importlib.import_module(f"{__package__}.{module}"), name)
         return int(run(args))
     except (BadURL, DescriptorError, ConfigError) as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
+        print(f"missing-link: error: {e}{_examples_hint(args)}", file=sys.stderr)
         return EXIT_USAGE
     except MissingLinkError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
@@ -104,6 +104,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         return 0
+
+
+#: the arguments that name input files (a board file, a configuration, descriptors, recordings)
+FILE_ARGS = ("boardfile", "file", "config", "source", "recording", "path")
+
+
+def _examples_hint(args: argparse.Namespace) -> str:
+    """A file the command was given that is not there but is an installed example: where it is
+    (examples.py); "" otherwise."""
+    paths: list[str] = []
+    for key in FILE_ARGS:
+        value = getattr(args, key, None)
+        paths += [str(v) for v in value] if isinstance(value, list) else [value] if value else []
+    if not paths:
+        return ""
+    from .examples import hint
+
+    return hint(paths)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ and command without touching the board."""
 
 from __future__ import annotations
 
+import importlib.util
 import shlex
 import shutil
 import subprocess
@@ -33,7 +34,7 @@ from pathlib import Path
 
 from ..board import drivers as drivers_pkg
 from ..board.identity import BOARD_FILE, FirmwareHash
-from .avr import flash_avr
+from .avr import AVR_DIR, flash_avr
 from .boardfile import BoardFile
 from .check import FlashError, verify
 from .heap import check_fit
@@ -229,6 +230,8 @@ def flash(
     if bf.is_avr:
         if key:
             raise FlashError("--key: the AVR runtime has no network link to sign")
+        if dry_run:
+            can_build_avr(bf)  # (a dry run that could not build says so, as the run would)
         return flash_avr(bf, port, dry_run=dry_run, say=say, check=check, board_id=board_id)
     if board_id:
         raise FlashError(
@@ -239,6 +242,8 @@ def flash(
     fit = check_fit(bf)  # (a board file that cannot fit is refused here: DoesNotFit)
     files = micropython_files(bf, key or None)
     fw_hash = firmware_hash(files)
+    if mpremote is None and importlib.util.find_spec("mpremote") is None:
+        raise FlashError(f"cannot copy to {bf.mcu} boards without mpremote: pip install mpremote")
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
     with tempfile.TemporaryDirectory(prefix="missing-link-flash-") as tmp:
@@ -269,6 +274,28 @@ def flash(
     elif check:
         say(verify(url, bf, expect={"fw.hash": fw_hash}))
     return 0
+
+
+#: what building an AVR image runs (avr.py: make in the package's firmware/avr), and writing it
+AVR_TOOLS = ("make", "avr-gcc", "avr-objcopy", "avrdude")
+
+
+def can_build_avr(bf: BoardFile) -> None:
+    """Everything an AVR flash needs but the board: the C sources installed with the package,
+    the tools on PATH, and board tables that generate (avrgen: the board file's own errors);
+    FlashError (or ConfigError) naming the first thing missing."""
+    if not (AVR_DIR / "Makefile").is_file():
+        raise FlashError(f"the AVR firmware sources are missing from this install ({AVR_DIR})")
+    missing = [tool for tool in AVR_TOOLS if shutil.which(tool) is None]
+    if missing:
+        raise FlashError(
+            f"cannot build or write AVR firmware: no {', '.join(missing)} on PATH (Debian: apt "
+            "install make gcc-avr avr-libc binutils-avr avrdude)"
+        )
+    from .avrgen import write_avr
+
+    with tempfile.TemporaryDirectory(prefix="missing-link-avr-check-") as tmp:
+        write_avr(bf, Path(tmp))
 
 
 def _network_check(link: dict[str, object], key_arg: str) -> str:

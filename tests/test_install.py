@@ -1,0 +1,124 @@
+"""The wheel as a user installs it (issue 45.1): built from this checkout, installed into a fresh
+venv outside it (with the extras the demo needs, as pyproject declares them), and run from
+another directory: the demo, the examples written out, ``board --file`` on one of them, an AVR
+``gen-firmware`` that builds the firmware from the package's own C sources, and the hint a
+checkout's path gets there.  Before, the examples and the AVR sources were not in the wheel."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+ROOT = Path(__file__).resolve().parent.parent
+#: the extras `missing-link demo` uses (its live faces), where pyproject declares them
+DEMO_EXTRAS = ("web",)
+#: what a checkout's src/ holds that is no part of a build
+NOT_BUILT = ("__pycache__", "*.egg-info", "build")
+
+
+def _run(cmd: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    r = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
+    return r
+
+
+@pytest.fixture(scope="module")
+def venv(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Path]]:
+    """(the fresh venv's bin directory, a working directory outside the checkout)."""
+    top = tmp_path_factory.mktemp("install")
+    tree, wheels = top / "tree", top / "wheels"  # (built from a copy: a build leaves build/)
+    shutil.copytree(ROOT / "src", tree / "src", ignore=shutil.ignore_patterns(*NOT_BUILT))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, tree / name)
+    r = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(wheels),
+              str(tree)], top)  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    (wheel,) = wheels.glob("missing_link-*.whl")
+    r = _run([sys.executable, "-m", "venv", str(top / "venv")], top)
+    assert r.returncode == 0, r.stderr
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"].get(
+        "optional-dependencies", {}
+    )
+    extras = [e for e in DEMO_EXTRAS if e in declared]
+    spec = f"{wheel}[{','.join(extras)}]" if extras else str(wheel)
+    bin_ = top / "venv" / "bin"
+    r = _run([str(bin_ / "python"), "-m", "pip", "install", "-q", spec], top)
+    assert r.returncode == 0, r.stderr[-3000:]
+    work = top / "elsewhere"
+    work.mkdir()
+    yield bin_, work
+
+
+def test_it_is_not_the_checkout(venv: tuple[Path, Path]) -> None:
+    bin_, work = venv
+    r = _run(
+        [str(bin_ / "python"), "-c", "import missing_link; print(missing_link.__file__)"], work
+    )
+    assert r.returncode == 0, r.stderr
+    where = Path(r.stdout.strip())
+    assert ROOT not in where.parents and bin_.parent in where.parents, where
+
+
+def test_the_demo_runs(venv: tuple[Path, Path]) -> None:
+    bin_, work = venv
+    r = _run([str(bin_ / "missing-link"), "demo", "--duration", "3", "--web", "off", "--record",
+              str(work / "rec")], work, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "demo finished OK" in r.stdout
+    assert list((work / "rec").glob("demo_*"))
+
+
+def test_a_written_example_runs_as_a_board(venv: tuple[Path, Path]) -> None:
+    bin_, work = venv
+    ml = str(bin_ / "missing-link")
+    r = _run([ml, "examples", "ex"], work)
+    assert r.returncode == 0, r.stderr
+    assert (work / "ex" / "missing-link.toml").is_file()
+    board = subprocess.Popen(
+        [ml, "board", "--file", "ex/boards/thesis-rig.py", "--listen", "tcp://127.0.0.1:0"],
+        cwd=work,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert board.stdout is not None
+        line = board.stdout.readline()
+        assert line.startswith("LISTENING "), line
+        r = _run([ml, "info", line.split()[1], "--json"], work, timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert '"imu"' in r.stdout and '"servo"' in r.stdout
+    finally:
+        board.terminate()
+        board.wait(10)
+
+
+def test_an_avr_firmware_builds_from_the_installed_sources(venv: tuple[Path, Path]) -> None:
+    if shutil.which("avr-gcc") is None:
+        pytest.fail("avr-gcc is required: run scripts/system-deps.sh")
+    bin_, work = venv
+    ml = str(bin_ / "missing-link")
+    r = _run([ml, "examples", "avr-ex", "--force"], work)
+    assert r.returncode == 0, r.stderr
+    r = _run([ml, "gen-firmware", "avr-ex/boards/thesis-rig-uno.py", "--out", "fw"], work)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("atmega328p: flash "), r.stdout  # (built: the fit check's line)
+    assert (work / "fw" / "board_gen.c").is_file()
+
+
+def test_a_checkouts_path_gets_the_installed_one(venv: tuple[Path, Path]) -> None:
+    bin_, work = venv
+    r = _run([str(bin_ / "missing-link"), "board", "--file", "examples/boards/rover.py",
+              "--listen", "pty"], work)  # fmt: skip
+    assert r.returncode == 2
+    err = r.stderr.strip()
+    assert "\n" not in err and "missing-link examples DIR" in err, err
+    assert str(bin_.parent) in err and err.count("examples/boards/rover.py") == 2, err
