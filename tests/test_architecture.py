@@ -14,9 +14,10 @@ import its own modules and any room on a lower floor, never one above):
    its configuration (``paths``, ``listen_spec``, ``discover_spec``, ``ros_config``, ``claims``;
    then ``config``),
    ``session/`` (one board), ``intake/`` (boards coming in) and ``control/`` (who steers), then
-   the daemon's own modules (``fanout``, ``health``, ``joints``) and at the top ``service``
+   the daemon's own modules (``fanout``, ``health``, ``joints``, ``board_api``) and at the top
+   ``service``
 5. ``virtual/`` (simulated boards, links, clocks), ``deploy/`` (board files, flashing, firmware)
-6. ``cli/`` (the command line)
+6. ``cli/`` (the command line), ``testing/`` (fakes for tests, shipped with the library)
 
 The package's face (``missing_link/__init__.py``) names its public API lazily, by string, so
 ``import missing_link`` loads nothing it does not use; it imports rooms only for type checkers.
@@ -53,6 +54,7 @@ FLOORS = {
     "virtual": 5,
     "deploy": 5,
     "cli": 6,
+    "testing": 6,
     "__main__": 7,
 }
 #: the daemon's rooms (a module, or a folder of them), from the ground up: a room imports its own
@@ -70,6 +72,7 @@ DAEMON_FLOORS = {
     "fanout": 4,
     "health": 4,
     "joints": 4,
+    "board_api": 4,
     "service": 5,
 }
 #: registries name their plugins by string and import them on first use

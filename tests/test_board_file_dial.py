@@ -20,6 +20,7 @@ import pytest
 from missing_link.cli.main import main
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, parse_config
+from missing_link.daemon.session.status import SessionState
 from missing_link.errors import ConfigError
 from missing_link.virtual.boardfile import CHIP_ID_FILE, chip_id
 
@@ -122,9 +123,9 @@ def test_a_board_file_dials_in_and_comes_back_as_itself(runtime: str, tmp_path: 
             assert st["address"].startswith("signed+tcp://127.0.0.1:") and st["signed_records"]
             assert wait_for(lambda: samples(d, "left") > 3, 10), d.status()
             board.kill()
-            assert wait_for(lambda: s.state != "up", 10)
+            assert wait_for(lambda: s.state != SessionState.UP, 10)
             board = Board(tmp_path, ESP32_DIAL, runtime, *args)
-            assert wait_for(lambda: s.state == "up" and s.connects == 2, 30), d.status()
+            assert wait_for(lambda: s.state == SessionState.UP and s.connects == 2, 30), d.status()
             assert [x.name for x in d.sessions] == ["left"] and s.identity.board_id == ident
             before = samples(d, "left")
             assert wait_for(lambda: samples(d, "left") > before, 10)

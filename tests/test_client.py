@@ -21,8 +21,8 @@ from missing_link import (
     UnknownFunction,
     open_board,
 )
-from missing_link.host.clock import FakeClock
 from missing_link.j2a import SifReceived
+from missing_link.testing import FakeClock
 from missing_link.transport.in_process import memory_pair
 
 from .helpers import wait_for
@@ -192,17 +192,17 @@ def test_sif_handlers_by_cmd_and_any(serve: Serve) -> None:
 
 def test_sifs_before_anything_listens_are_counted(serve: Serve) -> None:
     """A board streams from its boot; the host listens once its handshake is done: what came
-    before is counted (``sifs_unheard``, the status's ``unheard_sifs``), not silently gone."""
+    before is counted (``unheard_sifs``, the status's ``unheard_sifs``), not silently gone."""
     server = serve("thesis")
     with open_board(server.url) as board:
-        assert wait_for(lambda: board.link_stats().sifs_unheard > 0, 5)
+        assert wait_for(lambda: board.link_stats().unheard_sifs > 0, 5)
         done = threading.Event()
         board.on_sif(None, lambda ev, now: done.set())
         assert done.wait(5)
-        before = board.link_stats().sifs_unheard
+        before = board.link_stats().unheard_sifs
         assert board.link_stats().sifs >= before  # (of the SIFs the link decoded)
         board.call("a2jEcho")
-        assert board.link_stats().sifs_unheard == before  # (a listener now hears every one)
+        assert board.link_stats().unheard_sifs == before  # (a listener now hears every one)
 
 
 def test_handler_exception_does_not_stop_board(serve: Serve) -> None:
@@ -295,5 +295,5 @@ def test_link_stats_are_a_snapshot_of_the_links_counters(serve: Serve) -> None:
         assert after.frames > before.frames and after.bad_checksums == 0
         assert after.transport == {}  # (a memory link counts nothing of its own)
         board.link.count_lost_sifs(512)  # two whole seq wraps, known from the board's count
-        assert board.link_stats().sifs_lost >= after.sifs_lost + 512
+        assert board.link_stats().lost_sifs >= after.lost_sifs + 512
         assert before.requests == board.link_stats().requests - 1  # a snapshot: it stayed

@@ -211,7 +211,7 @@ def test_sifs_in_order_with_gap_counting() -> None:
         (255, 0),
         (1, 1),
     ]
-    assert conn.stats.sifs_lost == 3 and conn.stats.sifs == 5
+    assert conn.stats.lost_sifs == 3 and conn.stats.sifs == 5
 
 
 def test_damaged_frames_become_events() -> None:

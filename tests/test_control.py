@@ -31,6 +31,7 @@ from missing_link.daemon.control.endpoint import (
     call_timeout,
     check_endpoint,
 )
+from missing_link.daemon.session.status import SessionState
 from missing_link.errors import ConfigError, MissingLinkError
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
@@ -314,5 +315,7 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
             "sync_state", "log_warn", "log_dropped", "log_faults"} <= set(st)  # fmt: skip
     assert len(st) == 74  # (a thesis board: with its failsafe; 72 without one)
     snap = d.snapshots()[0]  # the same, typed
-    assert list(snap.to_json()) == list(st) and snap.state == "up" and snap.link.frames > 0
+    assert (
+        list(snap.to_json()) == list(st) and snap.state == SessionState.UP and snap.link.frames > 0
+    )
     assert json.loads(json.dumps(st)) == st  # plain JSON

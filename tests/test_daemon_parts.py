@@ -19,7 +19,8 @@ from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.session.context import CommandHandler, SessionContext
 from missing_link.daemon.session.prober import ClockProber, ProbeContext
 from missing_link.daemon.session.sample_path import SamplePath
-from missing_link.daemon.session.session import UP, BoardSession
+from missing_link.daemon.session.session import BoardSession
+from missing_link.daemon.session.status import SessionState
 from missing_link.descriptors import Transducer, parse_transds
 from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
@@ -79,7 +80,7 @@ def test_a_session_runs_on_a_plain_context(serve: Serve) -> None:
     session = BoardSession(plain.build(), BoardSpec(server.url))
     session.start()
     try:
-        assert wait_for(lambda: session.state == UP)
+        assert wait_for(lambda: session.state == SessionState.UP)
         assert plain.names == [("thesis", server.url)]
         assert session.name == "thesis_2"  # the claim said so, and the session said why
         assert any("taken by memory://elsewhere" in w for w in session.warnings)

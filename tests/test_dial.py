@@ -25,6 +25,7 @@ from missing_link.daemon.config import BoardSpec, parse_config
 from missing_link.daemon.intake.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
 from missing_link.daemon.session.link import Mailbox
+from missing_link.daemon.session.status import SessionState
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import BadURL, CallTimeout, ConfigError
 from missing_link.host.link import CallResult
@@ -354,10 +355,12 @@ def test_micropython_boards_dial_in_and_one_comes_back_as_itself(tmp_path: Path)
             assert {"/left/dist_ir", "/right/dist_ir", "/left/servo"} <= topics
             sims[1].close()  # killed
             left = d.session("left")
-            assert wait_for(lambda: left.state != "up", 10)
+            assert wait_for(lambda: left.state != SessionState.UP, 10)
             right_before = samples(d, "right")
             sims[1] = FirmwareSim(board_file, args=["--seed", "1"])  # restarted: dials again
-            assert wait_for(lambda: left.state == "up" and left.connects == 2, 20), d.status()
+            assert wait_for(lambda: left.state == SessionState.UP and left.connects == 2, 20), (
+                d.status()
+            )
             assert [s.name for s in d.sessions] == ["left", "right"]  # the same two sessions
             assert set(d.bus.topics) == topics
             assert d.board_config("left")["dist_ir.rate_hz"] == 5.0  # applied again
@@ -468,9 +471,9 @@ def test_a_virtual_board_dials_in_and_comes_back_after_a_restart() -> None:
             assert s.name == "thesis" and s.identity.board_id == "sim-thesis-4"
             proc.kill()
             proc.wait(10)
-            assert wait_for(lambda: s.state != "up", 10)
+            assert wait_for(lambda: s.state != SessionState.UP, 10)
             proc = board_process("--sim", "thesis", "--seed", "4", "--dial", url)
-            assert wait_for(lambda: s.state == "up" and s.connects == 2, 20), d.status()
+            assert wait_for(lambda: s.state == SessionState.UP and s.connects == 2, 20), d.status()
             assert len(d.sessions) == 1
         finally:
             proc.kill()

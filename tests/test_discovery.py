@@ -14,6 +14,7 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import Config, ConfigError, parse_config
 from missing_link.daemon.discover_spec import DiscoverSpec, PortInfo, parse_usb_id
 from missing_link.daemon.intake.discovery import PortMatcher
+from missing_link.daemon.session.status import SessionState
 from missing_link.virtual.process import start_board_process, stop_process
 
 from .helpers import ml, wait_for
@@ -22,7 +23,7 @@ PICO = 0x2E8A
 
 
 def all_up(d: Daemon) -> bool:
-    return bool(d.sessions) and all(s.state == "up" for s in d.sessions)
+    return bool(d.sessions) and all(s.state == SessionState.UP for s in d.sessions)
 
 
 def test_matcher_reports_appeared_and_vanished_ports() -> None:
@@ -92,7 +93,7 @@ def test_boards_appear_vanish_and_come_back(boards) -> None:  # type: ignore[no-
             stop_process(pa)
             assert wait_for(lambda: [s.name for s in d.sessions] == ["right"])
             assert wait_for(lambda: right.status()["samples"] > before + 20)
-            assert right.status()["connects"] == 1 and right.state == "up"
+            assert right.status()["connects"] == 1 and right.state == SessionState.UP
             # plugged in again (a new pty, as a re-enumerated device may get): up again, same name
             _pa2, dev_a2 = boards("left")
             ports.plug(dev_a2)

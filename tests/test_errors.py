@@ -29,7 +29,8 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.control.endpoint import ControlServer, ask
 from missing_link.daemon.session.inflight import InFlight
-from missing_link.daemon.session.session import UP, BoardSession
+from missing_link.daemon.session.session import BoardSession
+from missing_link.daemon.session.status import SessionState
 from missing_link.errors import BadURL, ConfigError, MissingLinkError, TransportBroken
 from missing_link.host.board import Board
 from missing_link.host.reactor import Reactor
@@ -278,7 +279,7 @@ def test_a_sif_handler_that_raises_is_counted_in_the_session_status(
     with caplog.at_level(logging.ERROR):
         session.start()
         try:
-            assert wait_for(lambda: session.state == UP and session.faults.total >= 5)
+            assert wait_for(lambda: session.state == SessionState.UP and session.faults.total >= 5)
             st = session.status()
         finally:
             session.stop(2.0)

@@ -20,6 +20,7 @@ from rosbags.highlevel import AnyReader
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_config
+from missing_link.daemon.session.status import SessionState
 from missing_link.errors import BoardError, CallError, DescriptorError
 from missing_link.host.board import Board
 from missing_link.ros.board_record import MESSAGES
@@ -100,7 +101,7 @@ def test_hostile_handshakes_fail_with_one_line_and_retry(
         session = d.sessions[0]
         assert wait_for(lambda: session.failures >= 2, 15)  # failed, backed off, tried again
         assert words in session.error and "\n" not in session.error
-        assert session._thread.is_alive() and session.state != "up"
+        assert session._thread.is_alive() and session.state != SessionState.UP
         (st,) = d.status()
         assert st["level"] == 2 and words in st["message"]
     finally:
@@ -134,7 +135,7 @@ def test_stop_during_a_slow_handshake_is_prompt(serve: Serve) -> None:
     t0 = time.monotonic()
     d.stop()
     assert time.monotonic() - t0 < 3.0
-    assert d.sessions[0].state == "stopped"
+    assert d.sessions[0].state == SessionState.STOPPED
 
 
 @pytest.mark.parametrize("periodic", [False, True])
@@ -279,7 +280,7 @@ def test_frozen_board_is_declared_lost_and_comes_back(
         sa = next(s for s in d.sessions if s.name == "board_a")
         frozen.send_signal(signal.SIGSTOP)
         t0 = time.monotonic()
-        assert wait_for(lambda: sa.state != "up", 15)
+        assert wait_for(lambda: sa.state != SessionState.UP, 15)
         lost_after = time.monotonic() - t0
         assert "no frame from the board" in sa.error and sa.stale_links == 1
         (st,) = [s for s in d.status() if s["board"] == "board_a"]
@@ -288,7 +289,7 @@ def test_frozen_board_is_declared_lost_and_comes_back(
         frozen.send_signal(signal.SIGCONT)
         n = len(a_got)
         t1 = time.monotonic()
-        assert wait_for(lambda: sa.state == "up" and len(a_got) > n + 3, 15)
+        assert wait_for(lambda: sa.state == SessionState.UP and len(a_got) > n + 3, 15)
         back_after = time.monotonic() - t1
         print(f"frozen board: lost after {lost_after:.2f} s, data again {back_after:.2f} s")
         # the other board never missed a sample: its numbered updates have no gap
@@ -307,11 +308,11 @@ def test_half_open_link_is_found_and_reconnected(serve: Serve) -> None:
         assert wait_for(lambda: len(got) > 5, 15)
         session = d.sessions[0]
         relay.blackhole(True)  # both sockets stay open; nothing gets through
-        assert wait_for(lambda: session.state != "up", 15)
+        assert wait_for(lambda: session.state != SessionState.UP, 15)
         assert "half-open" in session.error
         relay.blackhole(False)
         n = len(got)
-        assert wait_for(lambda: session.state == "up" and len(got) > n + 5, 15)
+        assert wait_for(lambda: session.state == SessionState.UP and len(got) > n + 5, 15)
         assert session.connects >= 2 and session.stale_links >= 1
 
 
@@ -350,7 +351,7 @@ def test_glitch_stamps_are_outliers_never_future_host_times(serve: Serve) -> Non
         d.subscribe("/glitch/signal", got.append)
         assert wait_for(lambda: len(got) > 600, 30)
         now_rt = time.time_ns()
-        assert d.sessions[0].state == "up"
+        assert d.sessions[0].state == SessionState.UP
         (st,) = d.status()
     flagged = [u for u in got if u.clock_flags & OUTLIER]
     assert len(flagged) >= 5 and st["clock_outliers"] >= len(flagged)
@@ -374,7 +375,7 @@ def test_a_bug_in_a_publisher_or_handler_ends_no_thread(serve: Serve) -> None:
 
         d.subscribe("/rate/signal", bad)
         assert wait_for(lambda: len(got) > 10, 15)
-        assert d.sessions[0].state == "up" and d.sessions[0].board is not None
+        assert d.sessions[0].state == SessionState.UP and d.sessions[0].board is not None
         assert d.sessions[0].board.alive
 
 
@@ -477,10 +478,10 @@ def test_outage_losses_are_counted_exactly_past_256(serve: Serve) -> None:
         d.subscribe("/fast/signal", got.append)
         assert wait_for(lambda: len(got) > 100, 15)
         relay.blackhole(True)
-        assert wait_for(lambda: d.sessions[0].state != "up", 15)
+        assert wait_for(lambda: d.sessions[0].state != SessionState.UP, 15)
         relay.blackhole(False)
         n = len(got)
-        assert wait_for(lambda: d.sessions[0].state == "up" and len(got) > n + 100, 15)
+        assert wait_for(lambda: d.sessions[0].state == SessionState.UP and len(got) > n + 100, 15)
         (st,) = d.status()
     values = [u.values[0] for u in got]
     gaps = [(b - a - 1, u.lost) for a, b, u in zip(values, values[1:], got[1:], strict=False)]

@@ -26,10 +26,12 @@ from missing_link.daemon.control.endpoint import ask
 from missing_link.daemon.session.context import SessionContext
 from missing_link.daemon.session.liveness import LinkWatch
 from missing_link.daemon.session.session import BoardSession, LinkStale
+from missing_link.daemon.session.status import SessionState
 from missing_link.descriptors import parse_transds
 from missing_link.host.board import Board
 from missing_link.host.link import CallResult
 from missing_link.ros.msgs import typestore_for
+from missing_link.testing import FakeClock
 from missing_link.virtual import make_sim
 from missing_link.virtual.faults import FaultRelay
 from missing_link.virtual.process import start_board_process, stop_process
@@ -93,26 +95,20 @@ def test_a_talking_link_is_never_stale_and_a_quiet_one_is_asked_in_time() -> Non
 
 
 # ---- the supervisor, on virtual time, with a board that never answers ---------------------------
-class VirtualClock:
-    """The supervisor's clock: ``wait`` returns at once, the time moved on by its timeout."""
+def virtual_clock(until: float = 1e9, on_until: Callable[[], None] = lambda: None) -> FakeClock:
+    """The supervisor's clock: the shipped fake, each ``wait`` moving time on by its timeout at
+    once (autojump); ``on_until()`` once it reaches ``until`` s."""
+    clock = FakeClock(start=100.0, autojump=True)
+    moves = [0]
 
-    def __init__(self, until: float, on_until: Callable[[], None]) -> None:
-        self.t = 100.0
-        self.until, self.on_until = until, on_until
-        self.waits = 0
+    def moved() -> None:
+        moves[0] += 1
+        assert moves[0] < 100_000, "the supervisor spins"
+        if clock.monotonic() >= until:
+            on_until()
 
-    def now(self) -> float:
-        return self.t
-
-    def wait(self, event: threading.Event, timeout: float) -> bool:
-        self.waits += 1
-        assert self.waits < 100_000, "the supervisor spins"
-        if event.is_set():
-            return True
-        self.t += timeout
-        if self.t >= self.until:
-            self.on_until()
-        return event.is_set()
+    clock.watch(moved)
+    return clock
 
 
 class MuteBoard:
@@ -127,10 +123,10 @@ class MuteBoard:
     name = url = "mute://"
     alive = True
 
-    def __init__(self, clock: VirtualClock, answer: bool = False) -> None:
+    def __init__(self, clock: FakeClock, answer: bool = False) -> None:
         self.clock = clock
         self.answer = answer  # a healthy board instead: every call answered at once
-        self.last_frame = clock.t
+        self.last_frame = clock.monotonic()
         self.calls: list[str] = []
 
     def call_future(
@@ -139,7 +135,7 @@ class MuteBoard:
         self.calls.append(name)
         fut: Future[CallResult] = Future()
         if self.answer:
-            self.last_frame = self.clock.t
+            self.last_frame = self.clock.monotonic()
             fut.set_result(CallResult(0, b"\0" * 8 if name == "a2jFailsafe" else b""))
         return fut
 
@@ -152,7 +148,7 @@ class MuteBoard:
         pass
 
 
-def mute_session(clock: VirtualClock, timeout: float = 10.0) -> BoardSession:
+def mute_session(clock: FakeClock, timeout: float = 10.0) -> BoardSession:
     ctx = SessionContext(
         config=Config(diagnostics_period=1.0),
         reactor=None,
@@ -174,7 +170,7 @@ def mute_session(clock: VirtualClock, timeout: float = 10.0) -> BoardSession:
 
 
 def test_the_supervisor_finds_a_mute_board_at_link_timeout_without_waiting_for_it() -> None:
-    clock = VirtualClock(until=1e9, on_until=lambda: None)
+    clock = virtual_clock()
     session = mute_session(clock)
     board = MuteBoard(clock)
     (servo,) = parse_transds("transds/1\nservo,3,servo,S,1,int8_t,-1,call=a2j_set_servo\n")
@@ -182,25 +178,26 @@ def test_the_supervisor_finds_a_mute_board_at_link_timeout_without_waiting_for_i
     command(10)
     with pytest.raises(LinkStale, match=r"no frame from the board for 1\.5 s"):
         session.serve(cast(Board, board))
-    assert clock.t - board.last_frame == pytest.approx(1.5)  # found at link_timeout, exactly
+    # found at link_timeout, exactly
+    assert clock.monotonic() - board.last_frame == pytest.approx(1.5)
     assert session.stale_links == 1
     # one of each in flight, never a backlog: a keepalive was due nine times, a command came
     # twice, the counts and the round trip twice (the first of each never answered)
     assert board.calls.count("a2jEcho") == 2  # the keepalive's and the round trip's
     assert board.calls.count("a2jFailsafe") == 1 and board.calls.count("a2j_set_servo") == 1
-    assert session.keepalive.call.skipped >= 7
+    assert session.reads.keepalive.call.skipped >= 7
 
 
 def test_the_supervisor_keeps_a_healthy_quiet_board_up_and_talking() -> None:
     session: BoardSession
-    clock = VirtualClock(until=159.5, on_until=lambda: session.request_stop())
+    clock = virtual_clock(until=159.5, on_until=lambda: session.request_stop())
     session = mute_session(clock)
     board = MuteBoard(clock, answer=True)
     session.serve(cast(Board, board))  # returns when stopped: never stale
     assert session.stale_links == 0
     assert board.calls.count("a2jFailsafe") == 60  # once a second
     assert board.calls.count("a2jEcho") > 60 * 6  # keepalives (6/s) and round trips (1/s)
-    assert session.failsafe.status.trips == 0
+    assert session.reads.failsafe.status.trips == 0
 
 
 # ---- real boards of every kind, frozen or cut off, with commands and a control call out ---------
@@ -252,7 +249,7 @@ def found_while_busy(rig: Rig, tmp_path: Path, **spec: Any) -> None:
             request = {"op": "call", "board": s.name, "function": "a2jEcho", "timeout": 1e308}
             control = threading.Thread(target=lambda: answers.append(ask(sock, request, 60)))
             control.start()
-            lost = wait_for(lambda: s.state != "up", 15)
+            lost = wait_for(lambda: s.state != SessionState.UP, 15)
             lost_after = time.monotonic() - t0
             assert lost, f"still up after 15 s: {s.status()}"
             assert "no frame from the board" in s.error
@@ -264,7 +261,7 @@ def found_while_busy(rig: Rig, tmp_path: Path, **spec: Any) -> None:
             rig.freeze(False)
             stop.set()
             cmd.join(5)
-        assert wait_for(lambda: s.state == "up", 30), s.status()  # and back
+        assert wait_for(lambda: s.state == SessionState.UP, 30), s.status()  # and back
         assert d.status()[0]["stale_links"] == 1
 
 

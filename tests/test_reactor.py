@@ -7,7 +7,6 @@ from __future__ import annotations
 import itertools
 import socket
 import threading
-import time
 from concurrent.futures import Future
 from typing import Any
 
@@ -17,9 +16,9 @@ from missing_link.daemon.config import BoardSpec
 from missing_link.daemon.session.prober import ClockProber, ProbeContext
 from missing_link.errors import CallTimeout
 from missing_link.host.board import Board
-from missing_link.host.clock import FakeClock
 from missing_link.host.reactor import Reactor
 from missing_link.j2a import SifReceived
+from missing_link.testing import FakeClock
 from missing_link.timesync import ClockSync, Exchange, SyncOptions
 from missing_link.timesync.sync import BURST, TRACKING
 from missing_link.transport import open_transport
@@ -255,6 +254,7 @@ class _FakeBoard:
 
     def __init__(self) -> None:
         self.sent = 0
+        self.clock = FakeClock()  # (the prober reads it for lost probes)
 
     def clock_exchange_async(self, callback: Any, timeout: float, *, byte_ns: float) -> None:
         self.sent += 1
@@ -266,7 +266,7 @@ class _FakeBoard:
 def test_probe_budget_rations_tracking_probes_but_not_bursts() -> None:
     session = _FakeSession(boards=50, budget=100.0)  # each board: at most every 0.5 s
     board = _FakeBoard()
-    now = time.monotonic()  # (the prober reads the clock for lost probes)
+    now = board.clock.monotonic()  # (the prober reads the board's clock for lost probes)
     sync = ClockSync(SyncOptions(), seed=1)
     sync.start(now)
     prober = ClockProber(session.context(), board, sync)  # type: ignore[arg-type]

@@ -27,6 +27,7 @@ from missing_link.daemon.control.allowlist import CommandRefused, called_functio
 from missing_link.daemon.intake.dialin import DialIns
 from missing_link.daemon.listen_spec import parse_listen
 from missing_link.daemon.session.link import Mailbox
+from missing_link.daemon.session.status import SessionState
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import ConfigError, MissingLinkError
 from missing_link.host.board import Board
@@ -88,7 +89,7 @@ def test_once_the_board_was_told_goodbye_no_call_reaches_it() -> None:
 
         s._disconnect = held  # type: ignore[method-assign]
         s.request_stop()  # goodbye: the board makes everything safe
-        assert wait_for(lambda: seen == ["a2jGoodbye"], 5) and s.state == "up"
+        assert wait_for(lambda: seen == ["a2jGoodbye"], 5) and s.state == SessionState.UP
         with pytest.raises(MissingLinkError, match="told goodbye"):
             d.call("thesis", "a2j_set_servo", struct.pack("<b", 40), timeout=2.0)
         with pytest.raises(MissingLinkError):
@@ -303,7 +304,8 @@ def test_a_board_that_states_another_boards_id_and_epoch_does_not_take_its_sessi
             # the victim's link answers the probe: the impostor is a second board of that id
             assert wait_for(lambda: len(d.sessions) == 2 and d.wait_until_up(0.1), 20)
             arm = d.session("arm")
-            assert arm.connects == 1 and arm.state == "up"  # (before: handed to the impostor)
+            # (before: handed to the impostor)
+            assert arm.connects == 1 and arm.state == SessionState.UP
             other = next(s for s in d.sessions if s is not arm)
             assert other.name == "arm_2" and "sim-thesis-4" in "; ".join(other._warnings_now())
             d.call("arm", "a2j_set_servo", struct.pack("<b", 40))

@@ -19,7 +19,7 @@ import pytest
 from missing_link.board.signing import hello
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
-from missing_link.daemon.session.session import UP
+from missing_link.daemon.session.status import SessionState
 from missing_link.errors import MissingLinkError, TransportBroken
 from missing_link.host.board import Board
 from missing_link.j2a import SOF, encode_frame
@@ -205,7 +205,7 @@ def test_a_flood_of_clients_without_the_key_beside_the_daemon(
             ups = []
             for _ in range(30):  # 3 s of it
                 time.sleep(0.1)
-                ups.append(d.sessions[0].state == UP)
+                ups.append(d.sessions[0].state == SessionState.UP)
             before = len(got)
             assert wait_for(lambda: len(got) > before + 3)  # (dist_ir: 10 Hz)
         finally:

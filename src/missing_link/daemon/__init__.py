@@ -3,6 +3,7 @@
 Its rooms, from the top down (each imports only the ones below it: tests/test_architecture.py):
 
 - :mod:`.service` - :class:`Daemon` (diagnostics, boards coming and going), ``connect``
+- :mod:`.board_api` - its verbs on one board (call, configure, ...), by name or URL
 - :mod:`.fanout` - every topic and update to every publisher, their errors counted
 - :mod:`.health` - the daemon's rows besides its boards (publishers, control, listener)
 - :mod:`.joints` - the robot-level ``JointState`` in and out (``[joints]``, ros2_control)

@@ -45,11 +45,11 @@ from __future__ import annotations
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from ..descriptors import Transducer
+from ..host.clock import SYSTEM_CLOCK, Clock
 from ..host.config import Value
 from ..publishers.base import Publisher
 from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
@@ -263,8 +263,10 @@ class Joints(Publisher):
         emit: Callable[[Update], None],
         send: Callable[[str, Any], None],
         lookup: Lookup,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         self.spec = spec
+        self.clock = clock  #: the daemon's: when a joint's command goes stale
         self.router = JointRouter(spec, remap)
         self.typestore = typestore
         self._emit, self._send, self._lookup = emit, send, lookup
@@ -332,7 +334,8 @@ class Joints(Publisher):
     # ---- commands in (a face's thread) ---------------------------------------------------------
     def on_command(self, msg: Any) -> None:
         with self._lock:
-            routed, errors = self.router.route(msg, time.time_ns(), time.monotonic(), self._iface)
+            now = self.clock
+            routed, errors = self.router.route(msg, now.realtime_ns(), now.monotonic(), self._iface)
         for topic, command in routed:
             try:
                 self._send(topic, command)
@@ -368,7 +371,7 @@ class Joints(Publisher):
         period = max(0.01, self.spec.command_timeout / 4)
         while not self._stop.wait(period):
             with self._lock:
-                expired = self.router.expired(time.monotonic())
+                expired = self.router.expired(self.clock.monotonic())
             for k, topic in expired:
                 self.command_timeouts += 1
                 log.warning("joints: no command for %s in %g s: stopped",

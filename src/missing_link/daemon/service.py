@@ -35,18 +35,14 @@ from __future__ import annotations
 
 import functools
 import logging
-import struct
 import threading
-import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from concurrent.futures import Future
 from typing import Any
 
 from ..descriptors import load_descriptor_file
 from ..errors import BadURL, BoardError, MissingLinkError, without_prefix
-from ..host.board import Board
-from ..host.config import Value
-from ..host.link import CallResult
+from ..host.clock import SYSTEM_CLOCK, Clock
 from ..host.reactor import Reactor
 from ..logs import ErrorCounts
 from ..publishers.base import Publisher, PublisherError
@@ -55,11 +51,11 @@ from ..publishers.registry import make_publisher
 from ..ros.msgs import typestore_for
 from ..topics import Command
 from ..transport import check_url
+from .board_api import BoardApi
 from .claims import Claims
 from .config import BoardSpec, Config
-from .control.allowlist import CommandGate, called_function
-from .control.config_guard import config_guard
-from .control.endpoint import ControlServer, call_timeout
+from .control.allowlist import CommandGate
+from .control.endpoint import ControlServer
 from .control.ops import control_handlers
 from .fanout import Fanout
 from .health import publisher_rows
@@ -68,15 +64,15 @@ from .intake.discovery import DiscoveryService, Enumerator, all_ports
 from .joints import Joints
 from .session.context import SessionContext
 from .session.link import Mailbox
-from .session.session import UP, BoardSession
-from .session.status import SessionStatus
+from .session.session import BoardSession
+from .session.status import SessionState, SessionStatus
 
 log = logging.getLogger(__name__)
 
 __all__ = ["BoardSession", "Daemon", "connect"]
 
 
-class Daemon:
+class Daemon(BoardApi):
     """Connects every configured board and publishes its transducers.  Use as a context manager."""
 
     def __init__(
@@ -84,8 +80,14 @@ class Daemon:
         config: Config,
         extra_publishers: Iterable[Publisher] = (),
         enumerate_ports: Enumerator | None = None,
+        *,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
+        """``clock``: the daemon's one time source (host/clock.py), handed to the I/O loop,
+        the sessions (their supervisors, liveness, background reads), the listener, discovery,
+        updates and joints; a test hands a ``missing_link.testing.FakeClock``."""
         self.config = config
+        self.clock = clock
         self._started = self._stopped = False
         for spec in config.boards:  # what retrying cannot fix fails here, before any thread
             check_url(spec.url)
@@ -106,7 +108,7 @@ class Daemon:
                     except Exception as e:  # zenoh.ZError, a taken port, ...: raised, one line
                         raise PublisherError(f"publisher {name} cannot start: {e}") from e
             if listen is not None:  # (bound here: a taken address fails the daemon at once)
-                self.dialins = DialIns(config, listen, self.add_board)
+                self.dialins = DialIns(config, listen, self.add_board, clock)
         except BaseException:  # (broad, raised again: whatever stops the start, none is left)
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
@@ -115,15 +117,15 @@ class Daemon:
         # one I/O loop reads every board on a descriptor (see reactor.py); it gathers streaming
         # SIFs for the smallest batch_ms any board asks for
         batch_ms = min((b.batch_ms for b in config.boards), default=BoardSpec.batch_ms)
-        self.reactor = Reactor(batch_s=batch_ms / 1000)
-        self.realtime_offset_ns = time.time_ns() - time.monotonic_ns()
+        self.reactor = Reactor(batch_s=batch_ms / 1000, clock=clock)
+        self.realtime_offset_ns = clock.realtime_ns() - clock.monotonic_ns()
         self.typestore = typestore_for(config.distro)
         self.claims = Claims(config.package)
         self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
         self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
         if config.joints is not None and config.joints.joints:
             self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
-                                 self.fanout.route, self._actuator)  # fmt: skip
+                                 self.fanout.route, self._actuator, clock)  # fmt: skip
             self.publishers.append(self.joints)
         self._context = self.session_context()
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
@@ -137,7 +139,7 @@ class Daemon:
         if config.discover is not None:
             ports = enumerate_ports or all_ports
             self.discovery = DiscoveryService(
-                config.discover, ports, self.add_board, self.remove_board
+                config.discover, ports, self.add_board, self.remove_board, clock
             )
 
     @property
@@ -171,7 +173,7 @@ class Daemon:
         if self.config.control:
             try:
                 verbs = (self.session, self._up, self.call, self.configure, self.reset_config)
-                handlers = control_handlers(*verbs, self.fanout.log)
+                handlers = control_handlers(*verbs, self.fanout.log, self.clock)
                 self.control = ControlServer(self.config.control, handlers)
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "
@@ -224,12 +226,13 @@ class Daemon:
             self.dialins.stop()
         for s in self.sessions:
             s.request_stop()  # all at once: a stuck board costs its own time, not the others'
-        deadline = time.monotonic() + 1.0
+        now = self.clock.monotonic
+        deadline = now() + 1.0
         for s in self.sessions:
-            s.stop(max(0.0, deadline - time.monotonic()))
+            s.stop(max(0.0, deadline - now()))
         if self._diag_thread.is_alive():
-            self._diag_thread.join(max(0.05, deadline - time.monotonic()))
-        self.reactor.stop(max(0.05, deadline - time.monotonic()))
+            self._diag_thread.join(max(0.05, deadline - now()))
+        self.reactor.stop(max(0.05, deadline - now()))
         if self.control is not None:
             self.control.close()
         for p in self.publishers:
@@ -274,7 +277,11 @@ class Daemon:
         """Every board there will be is up (no discovery adding more): a topic that none has
         now will not appear."""
         sessions = self.sessions
-        return self.discovery is None and bool(sessions) and all(s.state == UP for s in sessions)
+        return (
+            self.discovery is None
+            and bool(sessions)
+            and all(s.state == SessionState.UP for s in sessions)
+        )
 
     def send(
         self, topic: str, value: Any, at_ns: int | None = None, timeout: float = 5.0
@@ -292,119 +299,12 @@ class Daemon:
         self.bus.send(topic, Command([value], at_ns, done))
         return done.result(timeout)
 
-    def trigger_at(
-        self, host_ns: int, boards: Iterable[str] | None = None, function: str = "setTriggerAt"
-    ) -> dict[str, int]:
-        """Have boards act at one host time (CLOCK_REALTIME ns), each at its own tick.
-
-        Each board is first handed the current clock map (``a2jHostMap``); ``function`` (i64
-        host ns) converts it on the board.  Returns board name -> the board tick it chose."""
-        wanted = set(boards) if boards is not None else None
-        ticks: dict[str, int] = {}
-        for s in self.sessions:
-            b, prober = s.board, s.prober
-            if wanted is not None and s.name not in wanted:
-                continue
-            if s.state != UP or b is None or prober is None or s.farewell.said(b):
-                raise MissingLinkError(f"{s.name}: not up with a clock map; cannot trigger")
-            self._gate(s, b, function, b"", "api")
-            prober.push_map()
-            reply = s.farewell.call_ok(b, function, struct.pack("<q", host_ns))
-            ticks[s.name] = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
-        return ticks
-
-    # ---- one board, by name or URL (the control endpoint, ROS 2 parameters, applications) ------
-    def session(self, board: str) -> BoardSession:
-        """The session of the board named ``board`` (its topic name) or at URL ``board``."""
-        sessions = self.sessions
-        for s in sessions:
-            if board in (s.name, s.spec.url):
-                return s
-        for s in sessions:  # the same device with other options (?baud=...)
-            if "://" in board and board.split("?")[0] == s.spec.url.split("?")[0]:
-                return s
-        known = ", ".join(f"{s.name} ({s.spec.url})" for s in sessions) or "none"
-        raise BoardError(board, f"no such board in this daemon (boards: {known})")
-
-    def _up(self, board: str) -> tuple[BoardSession, Board]:
-        s = self.session(board)
-        b = s.board
-        if s.state != UP or b is None:
-            raise BoardError(s.name, f"not up ({s.state}{': ' + s.error if s.error else ''})")
-        if s.farewell.said(b):  # (the daemon stops: nothing more reaches it; farewell.py)
-            raise BoardError(s.name, "told goodbye: the daemon stops")
-        return s, b
-
-    def call(
-        self,
-        board: str,
-        function: str,
-        payload: bytes = b"",
-        timeout: float | None = None,
-        *,
-        by: str = "api",
-    ) -> CallResult:
-        """Call a function of a board this daemon holds (by name or URL), through its link.
-        ``timeout``: s, finite and > 0, at most ``MAX_CALL_TIMEOUT`` (60: more is clamped);
-        CommandRefused for an actuator's function (or an ``a2jAt`` of one) that ``[daemon]
-        commands`` does not list, counted under ``by``."""
-        t = call_timeout(timeout)
-        s, b = self._up(board)
-        self._gate(s, b, function, payload, by)
-        return s.farewell.call(b, function, payload, t)
-
-    def _gate(self, s: BoardSession, b: Board, function: str, payload: bytes, by: str) -> None:
-        """The allow-list on a plain call: what the call would move is named by its topic."""
-        topic = s.command_topic(called_function(function, payload, b.functions))
-        if topic is not None:
-            self.commands.check(by, topic)
-
-    def set_frame_id(self, board: str, transducer: str, frame_id: str) -> None:
-        """The ``frame_id`` of a transducer's standard messages from now on (ValueError for a
-        bad one, KeyError for a transducer the board has not described); every face follows
-        (the ``ros2`` face's parameter ``<board>.<transducer>.frame_id`` too)."""
-        frame = self.session(board).frames.get(transducer)
-        if frame is None:
-            raise KeyError(f"{board} has no transducer {transducer!r} with standard types")
-        frame.set(frame_id)
-
-    def _actuator(self, board: str, name: str) -> tuple[Any, Mapping[str, Value]] | None:
-        """An actuator of a board that is up, and its board's configuration (joints.py)."""
-        for s in self.sessions:
-            if s.name == board and s.state == UP:
-                for topic in s.topics.values():
-                    if topic.transducer.name == name and topic.transducer.is_actuator:
-                        return topic.transducer, s.run_config.values
-        return None
-
-    def board_config(self, board: str) -> dict[str, Value]:
-        """The board's run-time configuration now (``<transducer>.<key>`` -> value)."""
-        return self._up(board)[0].run_config.read()
-
-    def configure(
-        self, board: str, values: Mapping[str, object], save: bool = False, **face: Any
-    ) -> dict[str, Value]:
-        """Set keys of a board's run-time configuration, all or none (``save``: keep them on
-        the board); every face hears the new values.  Returns the configuration after it.
-        ``face``: ``by`` (its name, "api") and ``commands`` (its option, True): the keys of an
-        actuator are commands, refused and counted as one (control/config_guard.py)."""
-        s = self._up(board)[0]
-        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
-        return s.run_config.configure(values, save, by, config_guard(self.commands, s, by, on))
-
-    def reset_config(self, board: str, erase_saved: bool = False, **face: Any) -> dict[str, Value]:
-        """The board's defaults again (``erase_saved``: its saved configuration too); gated as
-        ``configure`` where it changes an actuator's keys."""
-        s = self._up(board)[0]
-        by, on = str(face.get("by", "api")), bool(face.get("commands", True))
-        return s.run_config.reset(erase_saved, by, config_guard(self.commands, s, by, on))
-
     def wait_until_up(self, timeout: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if all(s.state == UP for s in self.sessions):
+        deadline = self.clock.monotonic() + timeout
+        while self.clock.monotonic() < deadline:
+            if all(s.state == SessionState.UP for s in self.sessions):
                 return True
-            time.sleep(0.02)
+            self.clock.wait(self._stop, 0.02)
         return False
 
     def status(self) -> list[dict[str, Any]]:
@@ -458,11 +358,14 @@ class Daemon:
             release_id=self.claims.release_id,
             id_conflict=self.claims.id_conflict,
             log=self.fanout.log,
+            clock=self.clock,
         )
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):
-            self.fanout.diagnostics(self.status() + self.publisher_status(), time.time_ns())
+            self.fanout.diagnostics(
+                self.status() + self.publisher_status(), self.clock.realtime_ns()
+            )
 
 
 def connect(
@@ -487,7 +390,7 @@ def connect(
         setattr(cfg, key, value)
     daemon = Daemon(cfg).start()
     if wait > 0 and not daemon.wait_until_up(wait):
-        down = [s for s in daemon.sessions if s.state != UP]
+        down = [s for s in daemon.sessions if s.state != SessionState.UP]
         daemon.stop()
         why = "; ".join(without_prefix(s.spec.url, s.error or s.state) for s in down)
         raise BoardError(", ".join(s.spec.url for s in down), f"not up within {wait:g} s: {why}")

@@ -121,7 +121,7 @@ class BoardLink:
         # op -> (future, label for errors, progress callback, is a many-write)
         self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
         self._sif_handlers: dict[int, list[SifHandler]] = {}
-        self._unheard = 0  # SIFs no handler took (LinkStats.sifs_unheard; the reading thread's)
+        self._unheard = 0  # SIFs no handler took (LinkStats.unheard_sifs; the reading thread's)
         self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
         self._any_sif: list[SifHandler] = []
         self._on_close: list[Callable[[], None]] = []
@@ -455,7 +455,7 @@ class BoardLink:
         with self._lock:
             counts = {**self.conn.decoder.stats.as_dict(), **self.conn.stats.as_dict()}
         return LinkStats(
-            **counts, sifs_unheard=self._unheard, transport=self.transport.link_stats()
+            **counts, unheard_sifs=self._unheard, transport=self.transport.link_stats()
         )
 
     def expect_sif_seq(self, seq: int) -> None:
@@ -467,7 +467,7 @@ class BoardLink:
     def count_lost_sifs(self, n: int) -> None:
         """SIFs lost that the seq cannot show (its whole wraps, from the board's own count)."""
         with self._lock:
-            self.conn.stats.sifs_lost += n
+            self.conn.stats.lost_sifs += n
 
     @property
     def calls_waiting(self) -> bool:

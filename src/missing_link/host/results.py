@@ -4,7 +4,8 @@ exchange a clock call's result makes."""
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 
 from ..errors import FunctionFailed
 from ..timesync.exchange import Exchange
@@ -33,26 +34,37 @@ class CallResult:
 @dataclass(frozen=True)
 class LinkStats:
     """A link's counters at one moment: the frame decoder's and the connection's, and what the
-    transport counts of its own (a signed link's dropped records), by name."""
+    transport counts of its own (a signed link's dropped records), by name.  Counters of
+    several links add up (``a + b``: a session's over every link it had)."""
 
-    frames: int
-    junk_bytes: int
-    bad_checksums: int
-    bad_escapes: int
-    cut_frames: int
-    requests: int
-    replies: int
-    late_replies: int
-    foreign_replies: int
-    timeouts: int
-    board_errors: int
-    retries: int
-    sifs: int
-    sifs_lost: int
+    frames: int = 0
+    junk_bytes: int = 0
+    bad_checksums: int = 0
+    bad_escapes: int = 0
+    cut_frames: int = 0
+    requests: int = 0
+    replies: int = 0
+    late_replies: int = 0
+    foreign_replies: int = 0
+    timeouts: int = 0
+    board_errors: int = 0
+    retries: int = 0
+    sifs: int = 0
+    lost_sifs: int = 0
     #: SIFs that came while nothing listened for them (before the session's sample path is on:
     #: a board streams from its boot, the host handshakes first); not lost, not published
-    sifs_unheard: int
-    transport: dict[str, int]
+    unheard_sifs: int = 0
+    transport: Mapping[str, int] = field(default_factory=dict)
+
+    def __add__(self, other: LinkStats) -> LinkStats:
+        summed = dict(self.transport)
+        for key, n in other.transport.items():
+            summed[key] = summed.get(key, 0) + n
+        counts = {f: getattr(self, f) + getattr(other, f) for f in _COUNTS}
+        return LinkStats(**counts, transport=summed)
+
+
+_COUNTS = tuple(f.name for f in fields(LinkStats) if f.name != "transport")
 
 
 def exchange_of(board: str, name: str, result: CallResult, byte_ns: float) -> Exchange:

@@ -78,7 +78,7 @@ class ConnectionStats:
     board_errors: int = 0
     retries: int = 0
     sifs: int = 0
-    sifs_lost: int = 0
+    lost_sifs: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -314,7 +314,7 @@ class HostConnection:
         lost = 0
         if self._sif_expected is not None:
             lost = (frame.seq - self._sif_expected) & 0xFF
-            self.stats.sifs_lost += lost
+            self.stats.lost_sifs += lost
         self._sif_expected = (frame.seq + 1) & 0xFF
         return SifReceived(frame.opcode, frame.seq, frame.payload, lost)
 

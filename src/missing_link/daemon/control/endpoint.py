@@ -47,11 +47,11 @@ import os
 import socket
 import stat
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 from ...errors import ConfigError, MissingLinkError
+from ...host.clock import SYSTEM_CLOCK
 from ...logs import ErrorCounts
 from ...text import safe_text
 from ..paths import runtime_dir
@@ -69,6 +69,8 @@ CLIENT_TIMEOUT = 30.0  #: what a client waits for an answer by default
 MAX_CALL_TIMEOUT = 60.0
 _ACCEPT_PAUSE = (0.01, 1.0)  #: after a failed accept: first pause, longest pause (s)
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
+#: a socket's deadlines are the kernel's timeouts, real time whatever clock the daemon runs on
+_SOCKET_CLOCK = SYSTEM_CLOCK
 
 
 class NotOurs(MissingLinkError):
@@ -240,7 +242,7 @@ class ControlServer:
 
     def _serve(self, conn: socket.socket) -> None:
         try:
-            line = _read_line(conn, MAX_REQUEST, time.monotonic() + REQUEST_S)
+            line = _read_line(conn, MAX_REQUEST, _SOCKET_CLOCK.monotonic() + REQUEST_S)
             answer = self._answer(line)
             conn.settimeout(ANSWER_S)
             _send(conn, answer)
@@ -352,7 +354,7 @@ def _read_line(conn: socket.socket, cap: int, deadline: float) -> bytes | None:
     longer than ``cap``."""
     buf = b""
     while b"\n" not in buf:
-        left = deadline - time.monotonic()
+        left = deadline - _SOCKET_CLOCK.monotonic()
         if left <= 0:
             raise TimeoutError("no whole line in time")
         conn.settimeout(left)
@@ -382,7 +384,7 @@ def ask(path: str, request: dict[str, Any], timeout: float = CLIENT_TIMEOUT) -> 
             sock.sendall(json.dumps(request).encode() + b"\n")
         except (BrokenPipeError, ConnectionResetError):
             pass  # turned away before it read (busy): its answer says so
-        line = _read_line(sock, MAX_ANSWER, time.monotonic() + timeout)
+        line = _read_line(sock, MAX_ANSWER, _SOCKET_CLOCK.monotonic() + timeout)
     finally:
         sock.close()
     if line is None:

@@ -12,6 +12,7 @@ from typing import Any
 from ...errors import ConfigError
 from ...host.board import Board
 from ...host.board_log import LogLine
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.config import describe_keys
 from ...host.link import CallResult
 from ..session.session import BoardSession
@@ -27,6 +28,7 @@ def control_handlers(
     configure: Callable[..., dict[str, Any]],
     reset: Callable[..., dict[str, Any]],
     log_line: Callable[[LogLine], None] | None = None,
+    clock: Clock = SYSTEM_CLOCK,
 ) -> dict[str, Handler]:
     """``session(board)``: its session; ``up(board)``: the session and its board, or
     BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
@@ -67,7 +69,7 @@ def control_handlers(
         return {"values": values, "keys": keys, "state": b.settings.state}
 
     ops = {"find": find, "info": info, "call": do_call, "config": config}
-    return {**ops, **BoardUpdates(session, log_line or (lambda line: None)).handlers()}
+    return {**ops, **BoardUpdates(session, log_line or (lambda line: None), clock).handlers()}
 
 
 def text(request: dict[str, Any], key: str, default: str | None = None) -> str:

@@ -33,6 +33,7 @@ from typing import Any
 from ...errors import BoardError, ConfigError, MissingLinkError
 from ...host.board import Board
 from ...host.board_log import LogLine
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.update import (
     MAX_IMAGE,
     TRIAL_S,
@@ -44,7 +45,8 @@ from ...host.update import (
     image_of,
     parse_image,
 )
-from ..session.session import UP, BoardSession
+from ..session.session import BoardSession
+from ..session.status import SessionState
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +61,12 @@ class BoardUpdates:
     """The control endpoint's update ops over the daemon's sessions (``session(board)``)."""
 
     def __init__(
-        self, session: Callable[[str], BoardSession], log_line: Callable[[LogLine], None]
+        self,
+        session: Callable[[str], BoardSession],
+        log_line: Callable[[LogLine], None],
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
+        self.clock = clock  #: the daemon's: the update's deadlines
         self._session = session
         self._log_line = log_line
         self._busy: set[str] = set()
@@ -76,7 +82,7 @@ class BoardUpdates:
     def update(self, r: dict[str, Any]) -> dict[str, Any]:
         s = self._session(str(r["board"]))
         board = s.board
-        if s.state != UP or board is None:
+        if s.state != SessionState.UP or board is None:
             raise BoardError(s.name, f"not up ({s.state}): no update now")
         image = _image(r)
         target = Target(**{k: str(v) for k, v in dict(r.get("target") or {}).items()})
@@ -90,9 +96,9 @@ class BoardUpdates:
         try:
             seen = [board]  # (each reconnect: a board on a link not seen before)
             with self._only_one(s):
-                outcome = Updater(image, target, trial_s=trial_s, report=report).run(
-                    board, lambda deadline: _back(s, seen, deadline)
-                )
+                outcome = Updater(
+                    image, target, trial_s=trial_s, report=report, clock=self.clock.monotonic
+                ).run(board, lambda deadline: _back(s, seen, deadline, self.clock))
         except UpdateRefused as e:
             report("refused", 0, len(image.data))
             self._say(s, logging.WARNING, f"firmware update refused: {e}")
@@ -164,14 +170,15 @@ def _image(r: dict[str, Any]) -> Image:
         raise ConfigError(f"update: {path}: {e}") from None
 
 
-def _back(s: BoardSession, seen: list[Board], deadline: float) -> Board:
+def _back(s: BoardSession, seen: list[Board], deadline: float, clock: Clock) -> Board:
     """The session's board once it is up again on a link not in ``seen`` (added to it)."""
-    while time.monotonic() < deadline:
+    never = threading.Event()
+    while clock.monotonic() < deadline:
         b = s.board
-        if s.state == UP and b is not None and all(b is not x for x in seen):
+        if s.state == SessionState.UP and b is not None and all(b is not x for x in seen):
             seen.append(b)
             return b
-        if s.state.value == "stopped":
+        if s.state is SessionState.STOPPED:
             break
-        time.sleep(0.05)
+        clock.wait(never, 0.05)
     raise BoardError(s.name, f"not up again ({s.state}: {s.error or 'no answer'})")

@@ -38,11 +38,13 @@ from typing import Any
 
 from ...errors import MissingLinkError
 from ...host.board import Board
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.reactor import Reactor
 from ..config import BOARD_ID, BoardSpec, Config
 from ..listen_spec import ListenSpec
 from ..session.link import Mailbox
-from ..session.session import UP, BoardSession
+from ..session.session import BoardSession
+from ..session.status import SessionState
 from .listener import Listener, ListenerContext
 
 #: s between looks at an old link while a new board of its id waits for it to go
@@ -56,7 +58,7 @@ AddSession = Callable[[BoardSpec, Mailbox], BoardSession]
 
 def _live(s: BoardSession) -> bool:
     b = s.board
-    return s.state == UP and b is not None and b.alive
+    return s.state == SessionState.UP and b is not None and b.alive
 
 
 Held = list[tuple[BoardSession, Mailbox]]
@@ -104,8 +106,11 @@ class DialIns:
     """The listener on ``spec`` (bound here: a taken address fails at once) and the sessions
     of the boards that dialed in; ``start(reactor)``, ``stop()``, ``status()``."""
 
-    def __init__(self, config: Config, spec: ListenSpec, add_session: AddSession) -> None:
+    def __init__(
+        self, config: Config, spec: ListenSpec, add_session: AddSession, clock: Clock = SYSTEM_CLOCK
+    ) -> None:
         self.config = config
+        self.clock = clock  #: the daemon's (its boards' links are on the reactor's, the same)
         self._add_session = add_session
         self._by_id: dict[str, Held] = {}
         #: does a link answer (its board alive)?  (tests hand fakes their own)
@@ -139,7 +144,7 @@ class DialIns:
         epoch = props.get("clock.epoch", "")
         with self._lock:
             waits = [s.spec.link_timeout for s, _box in self._by_id.get(board_id, [])]
-        deadline = time.monotonic() + max(waits, default=0.0) + 0.5
+        deadline = self.clock.monotonic() + max(waits, default=0.0) + 0.5
         answered: list[Board] = []  # links of its boot that answered: another board's
         while True:
             with self._lock:
@@ -149,7 +154,7 @@ class DialIns:
                     verdict = _place(held, board)
                     if verdict is not None:
                         return verdict or None
-                    if not held or time.monotonic() >= deadline:
+                    if not held or self.clock.monotonic() >= deadline:
                         return self._new_session(board_id, name, board)
             if claim is None:
                 time.sleep(_LOOK_S)

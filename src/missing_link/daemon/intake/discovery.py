@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from ...errors import MissingLinkError
 from ...host.board import Board
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...logs import ErrorCounts
 from ..config import BoardSpec
 from ..discover_spec import DiscoverSpec, PortInfo
@@ -102,7 +102,9 @@ class DiscoveryService:
         enumerate_ports: Enumerator,
         add_board: Callable[[BoardSpec], object],
         remove_board: Callable[[str], object],
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
+        self.clock = clock  #: the daemon's: a probe's deadlines
         self.add_board = add_board
         self.remove_board = remove_board
         self.spec = spec
@@ -188,11 +190,11 @@ class DiscoveryService:
     def probe(self, url: str) -> str | None:
         """None when a J2A board answers on ``url``, else why not."""
         try:
-            board = Board.open(url, timeout=min(1.0, self.spec.probe_timeout))
+            board = Board.open(url, timeout=min(1.0, self.spec.probe_timeout), clock=self.clock)
         except MissingLinkError as e:
             return str(e)
         try:
-            board.handshake(deadline=time.monotonic() + self.spec.probe_timeout)
+            board.handshake(deadline=board.clock.monotonic() + self.spec.probe_timeout)
         except MissingLinkError as e:
             return str(e)
         finally:

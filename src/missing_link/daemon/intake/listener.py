@@ -32,7 +32,6 @@ import logging
 import select
 import socket
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -169,7 +168,7 @@ class Listener:
         assert ctx is not None  # (started)
         board = Board(transport, timeout=ctx.timeout, reactor=ctx.reactor, faults=self.faults)
         try:
-            board.handshake(deadline=time.monotonic() + ctx.handshake_timeout)
+            board.handshake(deadline=board.clock.monotonic() + ctx.handshake_timeout)
         except MissingLinkError as e:
             board.close()
             self._refuse("handshake failed", str(e), address)

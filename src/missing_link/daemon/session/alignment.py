@@ -17,11 +17,8 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping
 
-from ...host.board import Board
 from ...host.config import Value
-from ...host.link import CallResult
 from ...topics import Topic
-from .inflight import InFlight
 from .status import AlignInfo
 
 
@@ -63,35 +60,21 @@ def off_grid(host_ns: int, grid: tuple[int, int, int], bound_ns: int, slack_ns: 
     return off > lag + bound_ns + slack_ns and period - off > bound_ns + slack_ns
 
 
-class Alignment:
-    """The board's account of its grid, read in the background (``refresh``: never waited
-    for, one read out at a time)."""
+def parse_align_info(p: bytes) -> AlignInfo:
+    """``a2jAlignInfo``'s reply: whether the board's map is valid and its age, its samples not
+    on the grid, its timed calls done and refused."""
+    if len(p) != 17:
+        return AlignInfo(problem=f"a reply of {len(p)} bytes, not 17")
+    valid, age, unaligned, done, refused = struct.unpack("<BIIII", p)
+    return AlignInfo(
+        map_valid=bool(valid),
+        map_age_ms=None if age == 0xFFFFFFFF else age,
+        unaligned_samples=unaligned,
+        timed_done=done,
+        timed_refused=refused,
+    )
 
-    def __init__(self) -> None:
-        self.info = AlignInfo()
-        self._read = InFlight("a2jAlignInfo", self._took)
 
-    def refresh(self, board: Board, timeout: float) -> None:
-        if "a2jAlignInfo" in board.index:
-            self._read.start(board, b"", timeout)
-
-    def _took(self, result: CallResult) -> None:
-        if result.code != 0:
-            return  # (as a failed read before: the status keeps what it had)
-        p = result.payload
-        if len(p) != 17:
-            self.info = AlignInfo(problem=f"a reply of {len(p)} bytes, not 17")
-            return
-        valid, age, unaligned, done, refused = struct.unpack("<BIIII", p)
-        self.info = AlignInfo(
-            map_valid=bool(valid),
-            map_age_ms=None if age == 0xFFFFFFFF else age,
-            unaligned_samples=unaligned,
-            timed_done=done,
-            timed_refused=refused,
-        )
-
-    @staticmethod
-    def aligned(grid: Mapping[int, tuple[int, int, int]], topics: Mapping[int, Topic]) -> str:
-        """The aligned transducers by name (the status's ``aligned``)."""
-        return ", ".join(topics[tid].transducer.name for tid in grid if tid in topics)
+def aligned(grid: Mapping[int, tuple[int, int, int]], topics: Mapping[int, Topic]) -> str:
+    """The aligned transducers by name (the status's ``aligned``)."""
+    return ", ".join(topics[tid].transducer.name for tid in grid if tid in topics)

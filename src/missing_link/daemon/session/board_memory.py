@@ -8,17 +8,14 @@ off for one); 2, an AVR board's stack (bytes of it never touched since boot, of 
 static RAM (``.data`` + ``.bss``, of the RAM's size).  :func:`parse_memory` reads either into a
 :class:`~missing_link.daemon.session.status.MemoryStatus`.  The session reads it once per
 diagnostics period on a board that has the function, in the background like the failsafe's count
-(:class:`MemoryInfo`: one read in flight, never waited for: the supervisor must not be held
-up); ``info --json`` reads it once.
+(a :class:`~missing_link.daemon.session.inflight.BoardRead`: one read in flight, never waited
+for: the supervisor must not be held up); ``info --json`` reads it once.
 """
 
 from __future__ import annotations
 
 import struct
 
-from ...host.board import Board
-from ...host.link import CallResult
-from .inflight import InFlight
 from .status import MemoryStatus
 
 FUNCTION = "a2jMemory"
@@ -53,20 +50,3 @@ def parse_memory(payload: bytes) -> MemoryStatus:
     if size is None:
         return MemoryStatus(problem=f"a reply of kind {kind}, not 1 (heap) or 2 (stack)")
     return MemoryStatus(problem=f"a kind {kind} reply of {len(payload)} bytes, not {size}")
-
-
-class MemoryInfo:
-    """The board's memory figures, read in the background (``refresh``)."""
-
-    def __init__(self) -> None:
-        self.status = MemoryStatus()
-        self._read = InFlight(FUNCTION, self._took)
-
-    def refresh(self, board: Board, timeout: float) -> None:
-        if FUNCTION in board.index:
-            self._read.start(board, b"", timeout)
-
-    def _took(self, result: CallResult) -> None:
-        if result.code != 0:
-            return  # (as a failed read before: the status keeps what it had)
-        self.status = parse_memory(result.payload)

@@ -11,7 +11,6 @@ sees the session.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -66,7 +65,7 @@ class SessionClock:
         memory = self._skew_memory
         if memory is not None and memory[0] == serial:
             sync.estimator.set_prior(memory[1], memory[2])
-        sync.start(time.monotonic())
+        sync.start(board.clock.monotonic())
         prober = ClockProber(self._probe_context(board, sync, name, topic), board, sync)
         prober.first_estimate()  # a map before any sample is published
         self.sync, self.prober = sync, prober

@@ -11,14 +11,13 @@ offering and withdrawing actuator command topics.  Tests build one from lists an
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 from ...descriptors import Transducer
 from ...host.board_log import LogLine
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.config import ConfigKey, Value
 from ...host.reactor import Reactor
 from ...ros.board_record import BoardDescription
@@ -28,29 +27,6 @@ from ..config import Config
 
 #: a command for an actuator: the value (or an Update, or a list whose first item is the value)
 CommandHandler = Callable[[Any], None]
-
-
-class SupervisorClock(Protocol):
-    """The time a session's supervisor reads and sleeps on (tests hand a virtual one)."""
-
-    def now(self) -> float:
-        """CLOCK_MONOTONIC s: the time base of a link's ``last_frame``."""
-        ...
-
-    def wait(self, event: threading.Event, timeout: float) -> bool:
-        """Sleep until ``event`` is set or ``timeout`` s passed; whether it was set."""
-        ...
-
-
-class MonotonicClock:
-    def now(self) -> float:
-        return time.monotonic()
-
-    def wait(self, event: threading.Event, timeout: float) -> bool:
-        return event.wait(timeout)
-
-
-MONOTONIC = MonotonicClock()
 
 
 @dataclass(frozen=True)
@@ -77,8 +53,9 @@ class SessionContext:
     )
     #: (board, values): its configuration changed (the faces follow)
     config_changed: Callable[[str, dict[str, Value]], None] = lambda board, values: None
-    #: what the supervisor reads the time from and sleeps on (liveness.py)
-    clock: SupervisorClock = MONOTONIC
+    #: the daemon's one clock: what the supervisor reads the time from and sleeps on
+    #: (liveness.py), the boards' links run on (their ``last_frame``), and every deadline
+    clock: Clock = SYSTEM_CLOCK
     #: a board came up (validated, topics declared): its description, for recordings
     describe_board: Callable[[BoardDescription], None] = lambda record: None
     #: (owner, board.id, owner's URL) -> a warning when another connected board states it too

@@ -86,24 +86,9 @@ def goodbye(board: Board) -> None:
     wait_goodbye(start_goodbye(board))
 
 
-class FailsafeInfo:
-    """The board's count of trips, read in the background (``refresh``)."""
-
-    def __init__(self) -> None:
-        self.status = FailsafeStatus()
-        self._read = InFlight("a2jFailsafe", self._took)
-
-    def refresh(self, board: Board, values: Mapping[str, Value], timeout: float) -> None:
-        # only a board with an actuator that has a failsafe (a round trip a second costs)
-        if failsafe_ms(board, values):
-            self._read.start(board, b"", timeout)
-
-    def _took(self, result: CallResult) -> None:
-        if result.code != 0:
-            return  # (as a failed read before: the status keeps what it had)
-        p = result.payload
-        if len(p) != 8:
-            self.status = FailsafeStatus(problem=f"a reply of {len(p)} bytes, not 8")
-            return
-        trips, age = struct.unpack("<II", p)
-        self.status = FailsafeStatus(trips, None if age == 0xFFFFFFFF else age)
+def parse_failsafe(p: bytes) -> FailsafeStatus:
+    """``a2jFailsafe``'s reply: the board's trips and the age of the last one."""
+    if len(p) != 8:
+        return FailsafeStatus(problem=f"a reply of {len(p)} bytes, not 8")
+    trips, age = struct.unpack("<II", p)
+    return FailsafeStatus(trips, None if age == 0xFFFFFFFF else age)

@@ -13,18 +13,20 @@ connects again as after any lost link.
 from __future__ import annotations
 
 import threading
-import time
+
+from ...host.clock import SYSTEM_CLOCK, Clock
 
 
 class PortHold:
-    def __init__(self) -> None:
+    def __init__(self, clock: Clock = SYSTEM_CLOCK) -> None:
+        self.clock = clock  #: the daemon's
         self._until = 0.0
         self._changed = threading.Condition()
         self.parked = threading.Event()  #: the supervisor waits here: the port is free
 
     def take(self, seconds: float) -> None:
         with self._changed:
-            self._until = time.monotonic() + seconds
+            self._until = self.clock.monotonic() + seconds
             self._changed.notify_all()
 
     def release(self) -> None:
@@ -34,13 +36,13 @@ class PortHold:
 
     @property
     def held(self) -> bool:
-        return time.monotonic() < self._until
+        return self.clock.monotonic() < self._until
 
     def wait(self, stop: threading.Event) -> None:
         """While the hold lasts (and ``stop`` is not set): the supervisor's, before it
         connects."""
         with self._changed:
-            while not stop.is_set() and (left := self._until - time.monotonic()) > 0:
+            while not stop.is_set() and (left := self._until - self.clock.monotonic()) > 0:
                 self.parked.set()
                 self._changed.wait(min(left, 0.1))
             self.parked.clear()

@@ -9,6 +9,9 @@ is an ``InFlight``: ``start`` sends it unless one is still out, and the reply (o
 handed to a callback on the thread that reads the board.  A closed link fails every pending
 call, so a slot is never held past its link.  An exception from a callback (a bug: a board's
 reply is checked there) is counted by kind in the link's ``faults``, which the session shows.
+
+:class:`BoardRead` is the one way the session reads a board's own count in the background (its
+alignment, failsafe and memory figures): an ``InFlight`` whose reply is parsed into ``status``.
 """
 
 from __future__ import annotations
@@ -16,10 +19,13 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from typing import Generic, TypeVar
 
 from ...errors import MissingLinkError
 from ...host.board import Board
 from ...host.link import CallResult
+
+S = TypeVar("S")
 
 
 class InFlight:
@@ -88,3 +94,31 @@ class InFlight:
         except Exception as e:  # noqa: BLE001 - (as above: a board's reply may be anything)
             what = f"handling the {self.function} reply"
             board.link.faults.caught(f"{self.function} reply", e, what)
+
+
+class BoardRead(Generic[S]):
+    """A board's count, read in the background: ``refresh`` (once a diagnostics period, the
+    supervisor's thread) asks unless a read is out, and the reply, parsed (``parse``: the
+    payload -> a status that says what was wrong with it, never raises for a board's bytes),
+    becomes ``status``; a refused read keeps what was there.  ``wanted(board)``: whether to
+    ask this board (by default: it has the function)."""
+
+    def __init__(
+        self,
+        function: str,
+        parse: Callable[[bytes], S],
+        status: S,
+        wanted: Callable[[Board], bool] | None = None,
+    ) -> None:
+        self.status = status
+        self._parse = parse
+        self._wanted = wanted or (lambda board: function in board.index)
+        self._read = InFlight(function, self._took)
+
+    def refresh(self, board: Board, timeout: float) -> None:
+        if self._wanted(board):
+            self._read.start(board, b"", timeout)
+
+    def _took(self, result: CallResult) -> None:
+        if result.code == 0:  # (a failed read: the status keeps what it had)
+            self.status = self._parse(result.payload)

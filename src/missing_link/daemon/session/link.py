@@ -6,11 +6,11 @@ anything can block on it, so ``stop()`` closes it at once."""
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 
 from ...errors import BoardError, MissingLinkError
 from ...host.board import Board
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.reactor import Reactor
 from ...logs import ErrorCounts
 from ...transport import open_transport
@@ -66,11 +66,18 @@ class Mailbox:
 
 class LinkSource:
     def __init__(
-        self, spec: BoardSpec, reactor: Reactor | None, faults: ErrorCounts, mailbox: Mailbox | None
+        self,
+        spec: BoardSpec,
+        reactor: Reactor | None,
+        faults: ErrorCounts,
+        mailbox: Mailbox | None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         """``faults``: the session's, where the board's reading thread counts what it catches;
-        ``mailbox``: where a board that dials in is handed over (else it is opened by URL)."""
+        ``mailbox``: where a board that dials in is handed over (else it is opened by URL);
+        ``clock``: the daemon's (the reactor's, when there is one), the board's link's too."""
         self.spec, self.reactor, self.faults, self.mailbox = spec, reactor, faults, mailbox
+        self.clock = clock
 
     def open(self, stop: threading.Event, own: Callable[[Board], None]) -> Board:
         """The board with its handshake done; ``own(board)`` as soon as it exists.
@@ -81,14 +88,15 @@ class LinkSource:
             board.link.faults = self.faults  # (what its reading thread catches: ours now)
         else:
             board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=self.reactor,
-                          faults=self.faults)  # fmt: skip
+                          faults=self.faults, clock=self.clock)  # fmt: skip
         board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         own(board)
         if stop.is_set():
             raise BoardError(spec.url, "stopping")
         if self.mailbox is None:
             board.handshake(
-                describe=not spec.descriptors, deadline=time.monotonic() + spec.handshake_timeout
+                describe=not spec.descriptors,
+                deadline=board.clock.monotonic() + spec.handshake_timeout,
             )
         return board
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import logging
 import struct
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -190,7 +189,7 @@ class ClockProber:
         return min(t, self.ctx.link_timeout / 3)
 
     def _exchanged(self, ex: Exchange) -> None:
-        result = self.sync.on_exchange(ex, time.monotonic())
+        result = self.sync.on_exchange(ex, self.board.clock.monotonic())
         self.ctx.on_rtt(ex.rtt_ns / 1000)
         self.ctx.on_exchange(ex, result)
         if result is AddResult.RESET:
@@ -200,7 +199,7 @@ class ClockProber:
 
     def _lost(self, e: BaseException) -> None:
         self._report(e)
-        self.sync.on_lost(time.monotonic())
+        self.sync.on_lost(self.board.clock.monotonic())
 
     def _report(self, e: BaseException) -> None:
         # A timeout is the sync's business; a lost link is the session's (it says why, e.g.

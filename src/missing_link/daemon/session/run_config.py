@@ -207,3 +207,32 @@ def _text(v: Value) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+class Follows:
+    """What follows the board's run-time configuration, at each connect (``on_keys``) and
+    change (``on_change``): the sample path's host-time grid (``follow(values)``: True when the
+    board became aligned just now, and then ``push_map()`` sends the clock map at once, not at
+    the next exchange), the supervisor (``wake()``: a new ``failsafe_ms``, and the keepalive
+    follows at once), and every face (``offer``, ``changed``: the session context's)."""
+
+    def __init__(
+        self,
+        follow: Callable[[dict[str, Any]], bool],
+        push_map: Callable[[], None],
+        wake: Callable[[], None],
+        offer: Callable[[str, list[ConfigKey], dict[str, Value], Any], None],
+        changed: Callable[[str, dict[str, Value]], None],
+    ) -> None:
+        self._follow, self._push_map, self._wake = follow, push_map, wake
+        self._offer, self._changed = offer, changed
+
+    def on_keys(self, name: str, keys: list[Any], values: dict[str, Any], apply: Any) -> None:
+        self._follow(values)
+        self._offer(name, keys, values, apply)
+
+    def on_change(self, name: str, values: dict[str, Any]) -> None:
+        if self._follow(values):
+            self._push_map()
+        self._wake()
+        self._changed(name, values)

@@ -39,6 +39,7 @@ import logging
 import math
 import struct
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -49,8 +50,9 @@ from ...j2a import SifReceived
 from ...ros.standard import StandardMapping
 from ...timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ...topics import Topic, Update
-from .alignment import off_grid
+from .alignment import grid_of, off_grid
 from .board_log import BoardLogPath
+from .board_topics import BoardTopics
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +109,21 @@ class SamplePath:
             self._holding = []
         if self.next_seq is not None and same_boot:
             board.link.expect_sif_seq(self.next_seq)
+
+    def follow(self, values: dict[str, Any]) -> bool:
+        """The host-time grid of the board's configuration ``values`` (alignment.py); True
+        when the board became aligned just now (it needs the clock map at once)."""
+        aligned_before = bool(self.grid)
+        grid = grid_of(values, self.topics)
+        if grid != self.grid:
+            self.grid, self.grid_since_ns = grid, time.time_ns()
+        return bool(self.grid) and not aligned_before
+
+    def begin(self, name: str, sync: ClockSync | None, declared: BoardTopics) -> None:
+        """A new link's board, named ``name``, its clock ``sync`` (None: none), its topics as
+        they are declared (``declared`` is filled on: the first SIF is taken from ``listen`` on)."""
+        self.name, self.sync = name, sync
+        self.topics, self.standard, self.quiet = declared.topics, declared.standard, declared.quiet
 
     def resume(self, board: Board, same_boot: bool, count: int | None) -> None:
         """At a handshake, after ``listen``: ``same_boot`` (the board's clock epoch is the one

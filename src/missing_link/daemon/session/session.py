@@ -63,13 +63,13 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from concurrent.futures import Future
 from typing import Any
 
 from ...errors import LinkLost, MissingLinkError
 from ...host.board import Board
 from ...host.link import CallResult
+from ...host.results import LinkStats
 from ...logs import ErrorCounts
 from ...ros.board_record import BoardDescription
 from ...ros.clock import clock_topic
@@ -79,26 +79,24 @@ from ...topics import Topic
 from ..claims import board_token
 from ..config import BoardSpec
 from .actuators import Actuators
-from .alignment import Alignment, grid_of
 from .background import Background
-from .board_memory import MemoryInfo
 from .board_topics import BoardTopics, declare_topics, transducers_of
 from .clock import ClockContext, SessionClock
 from .context import SessionContext
-from .failsafe import FailsafeInfo, Keepalive, keepalive_s, wait_goodbye
+from .failsafe import failsafe_ms, keepalive_s, wait_goodbye
 from .farewell import Farewell
 from .hold import PortHold
-from .inflight import InFlight
 from .link import LinkSource, Mailbox, sif_count
 from .liveness import LinkWatch
 from .prober import ClockProber
-from .run_config import RunConfig, RunConfigContext
+from .reads import BoardReads
+from .report import SessionReport
+from .run_config import Follows, RunConfig, RunConfigContext
 from .sample_path import SamplePath
-from .status import Identity, Level, LinkCounters, SessionState, SessionStatus, session_level
+from .status import Identity, Level, SessionState
 
 log = logging.getLogger(__name__)
 
-CONNECTING, UP, BACKOFF, STOPPED = SessionState
 OK, WARN, ERROR = Level
 
 
@@ -106,7 +104,7 @@ class LinkStale(MissingLinkError):
     """No frame from the board for ``link_timeout``: frozen, unplugged or half-open."""
 
 
-class BoardSession:
+class BoardSession(SessionReport):
     def __init__(
         self, ctx: SessionContext, spec: BoardSpec, mailbox: Mailbox | None = None
     ) -> None:
@@ -120,10 +118,10 @@ class BoardSession:
         self.board: Board | None = None
         #: the goodbye: once said, no call of a command path reaches that board (farewell.py)
         self.farewell = Farewell()
-        self.hold = PortHold()  #: its port let go for a while (an AVR update: control/updates.py)
-        self.update_status: dict[str, Any] | None = (
-            None  #: the last firmware update's (control/updates.py)
-        )
+        #: its port let go for a while (an AVR update: control/updates.py)
+        self.hold = PortHold(ctx.clock)
+        #: the last firmware update's state (control/updates.py)
+        self.update_status: dict[str, Any] | None = None
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
         self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
@@ -147,7 +145,7 @@ class BoardSession:
                 wants_map=lambda: bool(self.path.grid),
             )
         )
-        self._past = LinkCounters()  # link counters of earlier connections (cumulative)
+        self.past_links = LinkStats()  #: link counters of its earlier links (cumulative)
         #: bugs caught by the supervisor and on the board's reading thread, by kind (cumulative)
         self.faults = ErrorCounts(log, spec.url)
         self._stop = threading.Event()
@@ -156,20 +154,25 @@ class BoardSession:
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
         self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
         self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
+        self.follows = Follows(  # (the grid, the map, the supervisor and the faces)
+            self.path.follow, self._push_map_now, self._wake.set, ctx.offer_config,
+            ctx.config_changed,
+        )  # fmt: skip
         self.run_config = RunConfig(
             RunConfigContext(
                 name=lambda: self.name,
                 wanted=lambda: ctx.config.board_config.get(self.name, {}),
                 warn=self.warn,
-                on_keys=self._offer_config,
-                on_change=self._config_changed,
+                on_keys=self.follows.on_keys,
+                on_change=self.follows.on_change,
             )
         )
-        self.alignment = Alignment()
-        self.failsafe = FailsafeInfo()
-        self.memory = MemoryInfo()  # the board's heap or stack (board_memory.py)
-        self.keepalive = Keepalive()
-        self._echo = InFlight("a2jEcho", self._echoed, self._call_failed)
+        #: what the supervisor asks of the board and never waits for (reads.py)
+        self.reads = BoardReads(
+            lambda b: bool(failsafe_ms(b, self.run_config.values)),
+            lambda us: setattr(self, "rtt_us", us),
+            self._call_failed,
+        )
         self._resets_seen = 0
         # the file's keys again after a reset: calls to wait for, so not on the supervisor
         self._reapply = Background(
@@ -220,7 +223,8 @@ class BoardSession:
         board = self.board
         if board is None:
             return
-        answer = self.farewell.say(board) if self.state == UP else None  # (once per link)
+        up = self.state == SessionState.UP
+        answer = self.farewell.say(board) if up else None  # (once per link)
         if answer is None:
             board.close()  # nothing to wait for: a handshake under way ends at once
 
@@ -273,7 +277,7 @@ class BoardSession:
 
     def _connect(self) -> Board:
         spec = self.spec
-        board = LinkSource(spec, self.ctx.reactor, self.faults, self.mailbox).open(
+        board = LinkSource(spec, self.ctx.reactor, self.faults, self.mailbox, self.ctx.clock).open(
             self._stop, self._own
         )
         transducers = transducers_of(board.name, board.transducers, spec.descriptors or "")
@@ -285,17 +289,13 @@ class BoardSession:
         self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url)
         if taken:
             self.warn(taken)
-        self.path.name = self.name
-        self.path.sync = None
         no_clock = self.clock.start(
             board, self.name, clock_topic(self.name, {t.name for t in transducers})
         )
         if no_clock:
             self.warn(no_clock)
-        self.path.sync = self.clock.sync
         declared = BoardTopics()  # (filled as declared: _disconnect withdraws what there is)
-        self.path.topics, self.path.standard = declared.topics, declared.standard
-        self.path.quiet = declared.quiet
+        self.path.begin(self.name, self.clock.sync, declared)
         self._actuator_calls, self._command_topics = declared.calls, declared.commands
         declare_topics(
             self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
@@ -340,7 +340,7 @@ class BoardSession:
         clock = self.ctx.clock
         link_timeout = self.spec.link_timeout
         limit = min(self.spec.timeout, link_timeout / 3)  # what a call of ours may take
-        watch = LinkWatch(link_timeout, self.ctx.config.diagnostics_period, clock.now())
+        watch = LinkWatch(link_timeout, self.ctx.config.diagnostics_period, clock.monotonic())
         board.on_close(self._wake.set)  # a broken link wakes the supervisor at once
         self.actuators.reset()
         self._serving = True
@@ -349,13 +349,13 @@ class BoardSession:
                 # Sleep until the next thing to do (commands and a dying link wake it early):
                 # an idle board costs a wake-up a second; clock probes run on the reading thread.
                 keep = keepalive_s(board, self.run_config.values)  # (the board's failsafe)
-                clock.wait(self._wake, watch.wait_s(clock.now(), board.last_frame, keep))
+                clock.wait(self._wake, watch.wait_s(clock.monotonic(), board.last_frame, keep))
                 self._wake.clear()
                 if self._stop.is_set():
                     break
                 self.actuators.run(board, self._stop.is_set, self.clock.push_map_future)
                 self._notice_reset()
-                turn = watch.turn(clock.now(), board.last_frame, keep)
+                turn = watch.turn(clock.monotonic(), board.last_frame, keep)
                 if turn.stale:
                     self.stale_links += 1
                     raise LinkStale(
@@ -363,18 +363,14 @@ class BoardSession:
                         "unplugged or a half-open link); reconnecting"
                     )
                 if turn.keepalive and keep is not None:
-                    self.keepalive.send(board, keep, limit)
+                    self.reads.keepalive.send(board, keep, limit)
                 if turn.ping:
-                    if self.path.grid:  # the board's own account of its grid (alignment.py)
-                        self.alignment.refresh(board, limit)
-                    self.failsafe.refresh(board, self.run_config.values, limit)
-                    self.memory.refresh(board, limit)
-                    self.path.log.refresh(board, limit)  # the board's log counts (board_log.py)
+                    self.reads.counts(board, limit, bool(self.path.grid), self.path.log)
                 if self.prober is not None:
                     if turn.heartbeat:
                         self.prober.probe_now()  # answered (or timed out) on the reading thread
                 elif turn.ping or turn.heartbeat:  # no clock exchanges to time the round trip
-                    self._echo.start(board, b"", limit)
+                    self.reads.echo.start(board, b"", limit)
         finally:
             self._serving = False
         if not board.alive and not self._stop.is_set():
@@ -389,30 +385,9 @@ class BoardSession:
         self._resets_seen = sync.resets
         self._reapply.request()
 
-    def _echoed(self, result: CallResult) -> None:
-        if result.sent_ns and result.recv_ns > result.sent_ns:
-            self.rtt_us = (result.recv_ns - result.sent_ns) / 1000
-
     def _call_failed(self, e: MissingLinkError) -> None:
         if not isinstance(e, LinkLost):  # (a lost link: the session says why, e.g. stale)
             self._set_error(str(e))
-
-    def _set_grid(self, values: dict[str, Any]) -> None:
-        grid = grid_of(values, self.path.topics)
-        if grid != self.path.grid:
-            self.path.grid, self.path.grid_since_ns = grid, time.time_ns()
-
-    def _offer_config(self, name: str, keys: list[Any], values: dict[str, Any], apply: Any) -> None:
-        self._set_grid(values)
-        self.ctx.offer_config(name, keys, values, apply)
-
-    def _config_changed(self, name: str, values: dict[str, Any]) -> None:
-        aligned_before = bool(self.path.grid)
-        self._set_grid(values)
-        if self.path.grid and not aligned_before:
-            self._push_map_now()  # the grid needs the map now, not at the next exchange
-        self._wake.set()  # (a new failsafe_ms: the keepalive follows at once)
-        self.ctx.config_changed(name, values)
 
     def _push_map_now(self) -> None:
         try:
@@ -447,54 +422,4 @@ class BoardSession:
                 if self.farewell.said(board):  # (stopping: bounded, the actuators safe first)
                     wait_goodbye(self.farewell.answer)
                 board.close()
-                self._past += LinkCounters.of(board)
-
-    # ---- status ------------------------------------------------------------------------------
-    def level(self) -> tuple[Level, str]:
-        """Diagnostic level and message: ERROR when not up, WARN when up with warnings."""
-        return session_level(self.state == UP, self.state.value, self.error,
-                             self._warnings_now(), self.faults.total)  # fmt: skip
-
-    def _warnings_now(self) -> list[str]:
-        """The warnings, and while it lasts, another connected board with this board's id."""
-        twice = self.ctx.id_conflict(self)
-        return [*self.warnings, twice] if twice else self.warnings
-
-    def snapshot(self) -> SessionStatus:
-        """The session's status now, typed; counters are cumulative over every connection."""
-        b = self.board
-        level, message = self.level()
-        sync = self.sync
-        return SessionStatus(
-            board=self.name,
-            url=self.spec.url,
-            state=self.state,
-            level=level,
-            message=message,
-            error=self.error,
-            serial=b.properties.get("board.serial", "") if b else "",
-            connects=self.connects,
-            failures=self.failures,
-            stale_links=self.stale_links,
-            link=self._past + LinkCounters.of(b) if b is not None else self._past,
-            samples=self.path.counters(),
-            commands=self.commands,
-            command_errors=self.command_errors,
-            errors=self.faults.to_json(),
-            rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
-            warnings="; ".join(self._warnings_now()),
-            clock_epoch=self.epoch,
-            map_pushes=self.clock.map_pushes,
-            config=self.run_config.status(),
-            aligned=Alignment.aligned(self.path.grid, self.path.topics),
-            align_info=self.alignment.info,
-            failsafe=self.failsafe.status,
-            memory=self.memory.status,
-            sync=sync.status() if sync is not None else None,
-            identity=self.identity,
-            update=self.update_status,
-        )
-
-    def status(self) -> dict[str, Any]:
-        """``snapshot()`` as the plain dict of ``Daemon.status()`` and ``/diagnostics``."""
-        return self.snapshot().to_json()
+                self.past_links += board.link_stats()

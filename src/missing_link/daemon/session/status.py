@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
-from ...host.board import Board
+from ...host.results import LinkStats
 
 
 class SessionState(StrEnum):
@@ -39,52 +39,14 @@ class Level(IntEnum):
     ERROR = 2
 
 
-@dataclass(frozen=True)
-class LinkCounters:
-    """A link's counters (the frame decoder's and the connection's), summed over links."""
-
-    frames: int = 0
-    bad_checksums: int = 0
-    bad_escapes: int = 0
-    cut_frames: int = 0
-    junk_bytes: int = 0
-    lost_sifs: int = 0
-    timeouts: int = 0
-    late_replies: int = 0
-    unheard_sifs: int = 0  #: SIFs that came before anything listened (LinkStats.sifs_unheard)
-
-    #: what the transport counts of its own (a signed link's dropped records: ``signed_*``)
-    transport: tuple[tuple[str, int], ...] = ()
-
-    @classmethod
-    def of(cls, board: Board) -> LinkCounters:
-        """The counters of ``board``'s link now."""
-        s = board.link_stats()
-        return cls(
-            frames=s.frames,
-            bad_checksums=s.bad_checksums,
-            bad_escapes=s.bad_escapes,
-            cut_frames=s.cut_frames,
-            junk_bytes=s.junk_bytes,
-            lost_sifs=s.sifs_lost,
-            timeouts=s.timeouts,
-            late_replies=s.late_replies,
-            unheard_sifs=s.sifs_unheard,
-            transport=tuple(sorted(s.transport.items())),
-        )
-
-    def __add__(self, other: LinkCounters) -> LinkCounters:
-        summed = dict(self.transport)
-        for key, n in other.transport:
-            summed[key] = summed.get(key, 0) + n
-        counts = {f: getattr(self, f) + getattr(other, f) for f in _LINK_FIELDS}
-        return LinkCounters(**counts, transport=tuple(sorted(summed.items())))
-
-    def to_json(self) -> dict[str, int]:
-        return {**{f: getattr(self, f) for f in _LINK_FIELDS}, **dict(self.transport)}
+#: a link's counters in a session's status (host/results.py's LinkStats, summed over its links),
+#: in the status's key order; then the transport's own
+LINK_KEYS = ("frames", "bad_checksums", "bad_escapes", "cut_frames", "junk_bytes", "lost_sifs",
+             "timeouts", "late_replies", "unheard_sifs")  # fmt: skip
 
 
-_LINK_FIELDS = tuple(f.name for f in fields(LinkCounters) if f.name != "transport")
+def link_json(stats: LinkStats) -> dict[str, int]:
+    return {**{k: getattr(stats, k) for k in LINK_KEYS}, **dict(sorted(stats.transport.items()))}
 
 
 @dataclass(frozen=True)
@@ -197,12 +159,12 @@ class Identity:
 
 
 def session_level(
-    up: bool, state: str, error: str, warnings: list[str], faults: int
+    state: SessionState, error: str, warnings: list[str], faults: int
 ) -> tuple[Level, str]:
     """A session's diagnostic level and message: ERROR when not up, WARN when up with
     warnings or bugs caught, else OK."""
-    if not up:
-        return Level.ERROR, error or state
+    if state is not SessionState.UP:
+        return Level.ERROR, error or state.value
     if warnings:
         return Level.WARN, "; ".join(warnings)
     if faults:  # (a bug caught: up, but not as it should be)
@@ -224,7 +186,7 @@ class SessionStatus:
     connects: int
     failures: int
     stale_links: int
-    link: LinkCounters
+    link: LinkStats  #: summed over every link (``link_json``: its keys)
     samples: Mapping[str, Any]  #: the sample path's counters (sample_path.py)
     commands: int
     command_errors: int
@@ -240,9 +202,8 @@ class SessionStatus:
     memory: MemoryStatus = field(default_factory=MemoryStatus)  #: the board's (a2jMemory)
     sync: Mapping[str, Any] | None = None  #: the clock sync's (None: the board has no clock)
     identity: Identity = field(default_factory=Identity)  #: as of the latest handshake
-    update: Mapping[str, Any] | None = (
-        None  #: the last firmware update's state (control/updates.py)
-    )
+    #: the last firmware update's state (control/updates.py)
+    update: Mapping[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The plain dict, in the documented key order (JSON types only)."""
@@ -257,7 +218,7 @@ class SessionStatus:
             "connects": self.connects,
             "failures": self.failures,
             "stale_links": self.stale_links,
-            **self.link.to_json(),
+            **link_json(self.link),
             **self.samples,
             "commands": self.commands,
             "command_errors": self.command_errors,
