@@ -240,7 +240,7 @@ def test_call_value_is_what_send_sends_and_board_text_is_text(serve: Any) -> Non
     r = ml("call", url, "a2j_set_servo", "--value", "40", "--json")
     assert r.returncode == 0, r.stderr
     r = ml("call", url, "a2j_set_servo", "--value", "300")
-    assert r.returncode == 2 and "--value '300' is not a legal int8_t for servo" in r.stderr
+    assert r.returncode == 2 and "'300': servo: 300 is beyond int8_t (-128..127)" in r.stderr
     r = ml("call", url, "a2jEcho", "--value", "1")
     assert r.returncode == 2 and "no actuator of thesis is called through a2jEcho" in r.stderr
     r = ml("call", url, "setTriggerAt", "--hex", "0000000000000000")  # before any host map

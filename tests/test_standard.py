@@ -238,8 +238,8 @@ def test_standard_commands_convert_si_to_what_each_actuator_takes() -> None:
     handle = si_command(servo, raw_command(servo, "position"), acts.handler(servo))
     handle(STORE.types["std_msgs/msg/Float64"](data=0.5))  # as a face decodes it
     handle(Command([0.5], 1_900_000_000_000_000_000))  # timed: kept as timed
-    assert acts._pending["servo"][1] == 40 and acts._timed[0][1:3] == (
-        40,
+    assert acts._pending["servo"][1] == b"\x28" and acts._timed[0][1:3] == (
+        b"\x28",  # (40, packed as the servo's int8 where it arrived)
         1_900_000_000_000_000_000,
     )
     for bad in (3.0, math.nan, True, "x"):  # beyond the servo's +-90 degrees, or no number

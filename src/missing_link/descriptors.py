@@ -6,6 +6,7 @@ import functools
 import math
 import re
 import struct
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -22,6 +23,9 @@ KNOWN_KEYS = (
     "unit", "scale", "offset", "min", "max", "rate_hz", "kind", "call", "ros", "frame_id",
     "counts_per_rev",
 )  # fmt: skip
+#: where a float32 ends: a value this large or larger rounds to infinity (FLT_MAX plus half
+#: its last step), so FLT_MAX and 3.4028235e38 (its shortest decimal) fit, 3.40282357e38 not
+FLOAT32_END = 2.0**128 - 2.0**103
 _FLOAT_KEYS = ("scale", "offset", "min", "max", "rate_hz", "counts_per_rev")
 
 
@@ -77,13 +81,43 @@ class Transducer:
         return isinstance(self.na, float) and math.isnan(self.na)
 
     def legal(self, value: object) -> bool:
-        """Is ``value`` in the data type's domain and not the N/A value?"""
+        """Is ``value`` a command this transducer's type holds (:meth:`refusal`)?"""
+        return self.refusal(value) is None
+
+    def refusal(self, value: object) -> str | None:
+        """Why ``value`` is no command for this transducer's data type, or None: a float type
+        takes a finite number its width holds (a float32 at most 3.4028235e38 in magnitude:
+        packing more raised OverflowError), never NaN or an infinity (no actuator acts on
+        one); an integer type a whole number within its width and signedness; no type its
+        N/A value.  Every face's command meets its type here (docs/security.md)."""
         if isinstance(value, bool):
             value = int(value)
         if self.dtype in FLOAT_TYPES:
-            return isinstance(value, (int, float)) and value == value and value != self.na
-        _c, _s, lo, hi = DTYPES[self.dtype]
-        return isinstance(value, int) and lo <= value <= hi and value != self.na
+            if not isinstance(value, (int, float)):
+                return f"{_shown(value)} is not a number"
+            if isinstance(value, float) and not math.isfinite(value):
+                return f"{value} is not a {self.dtype} command (not finite)"
+            if self.dtype == "float" and not -FLOAT32_END < value < FLOAT32_END:
+                return f"{_shown(value)} is beyond a float (|x| <= 3.4028235e38)"
+            if not -sys.float_info.max <= value <= sys.float_info.max:
+                return f"{_shown(value)} is beyond a double"
+        else:
+            _c, _s, lo, hi = DTYPES[self.dtype]
+            if not isinstance(value, int):
+                return f"{_shown(value)} is not a whole number ({self.dtype})"
+            if not lo <= value <= hi:
+                return f"{_shown(value)} is beyond {self.dtype} ({lo}..{hi})"
+        if value == self.na:
+            return f"{_shown(value)} is the N/A value of {self.name}"
+        return None
+
+    def pack_command(self, value: object) -> bytes:
+        """``value`` packed as the board takes it, after :meth:`refusal`: a ValueError naming
+        the transducer and why, never an OverflowError or a struct.error."""
+        why = self.refusal(value)
+        if why is not None:
+            raise ValueError(f"{self.name}: {why}")
+        return self.value_struct().pack(value)
 
     def value_struct(self) -> struct.Struct:
         return struct.Struct("<" + DTYPES[self.dtype][0])
@@ -142,6 +176,12 @@ def _sif_struct(dtype: str, n: int) -> struct.Struct:
     if st is None:
         st = _STRUCTS[(dtype, n)] = struct.Struct("<" + ("Q" + DTYPES[dtype][0]) * n)
     return st
+
+
+def _shown(value: object) -> str:
+    """A value in a refusal: short (a 4,000-digit integer is not repeated whole)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:20] + "..." + f"({len(text)} characters)"
 
 
 def _fmt(v: int | float) -> str:

@@ -109,8 +109,8 @@ class Stepper:
         if value != value:  # N/A: let go
             self.make_safe()
             return 0, b""
-        if abs(value) > 1e6:
-            return 0xFF, b"too far"
+        if abs(value) > 1e6 or abs(value) * self.per_rev >= 2147483648:  # (an int32 of steps
+            return 0xFF, b"too far"  # on AVR; the infinities too: one behaviour everywhere)
         mode = GOTO if self.mode == "position" else SPEED
         if mode == SPEED and abs(value) > self.max_speed:
             return 0xFF, b"faster than max_speed"

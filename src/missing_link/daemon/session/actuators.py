@@ -11,6 +11,16 @@ supervisor never waits for an answer: it must see a frozen board in time (livene
 the link sends one request at a time, so a wait would be behind whatever is queued.  A refused
 call is counted and said once per failure, never raised into a face.
 
+A value meets its type where it arrives: the handler packs it as the descriptor's data type says
+(``Transducer.pack_command``: a float32 beyond 3.4028235e38, NaN, an infinity, an integer beyond
+its width or signedness, the N/A value are refused there), so what waits is bytes the board can
+take and nothing later can fail to pack.  A refused value is counted (``values_refused``: the
+status and ``/diagnostics``), said once per actuator, and raised to the face as ValueError (the
+face counts it too); it never reaches the board's queue.  Whatever a call raises on the way out
+is caught where it is started: no command ends the supervisor, and a batch of timed commands
+always ends (one that could not be packed left the timed path stuck for good before: "64 timed
+commands wait already").
+
 A timed command (``Command.at_ns``: a host time to act at; board/timing.py) is not replaced by
 a later one: each goes to the board as ``a2jAt`` in arrival order, the board's clock map pushed
 first, and the board acts at that host time or refuses (past, beyond what the map vouches for,
@@ -42,12 +52,12 @@ log = logging.getLogger(__name__)
 
 MAX_TIMED = 64  #: timed commands waiting for the supervisor, per board
 
-Timed = tuple[Transducer, Any, int, "Future[int] | None"]
+Timed = tuple[Transducer, bytes, int, "Future[int] | None"]  #: (its payload, at, done)
 #: hands the board the current clock map: the call's future, or None (no map to push)
 PushMap = Callable[[], "Future[CallResult] | None"]
 #: (board, function, payload) -> the call's future; raises MissingLinkError when not sent
 CallFn = Callable[[Board, str, bytes], "Future[CallResult]"]
-Outcome = CallResult | MissingLinkError | struct.error
+Outcome = CallResult | Exception
 
 
 class Actuators:
@@ -60,7 +70,7 @@ class Actuators:
         self._call: CallFn = call or (lambda board, name, payload: board.call_future(name, payload))
         self._wake = wake
         self._on_error = on_error
-        self._pending: dict[str, tuple[Transducer, Any]] = {}  # latest command per actuator
+        self._pending: dict[str, tuple[Transducer, bytes]] = {}  # latest payload per actuator
         self._sending: set[str] = set()  # actuators with a call out
         self._timed: list[Timed] = []
         self._timed_out = False  # a batch of timed commands is out
@@ -68,6 +78,8 @@ class Actuators:
         self._stopping: Callable[[], bool] = lambda: False
         self.commands = 0
         self.command_errors = 0
+        self.values_refused = 0  #: values their actuator's type cannot hold (never queued)
+        self._said: set[str] = set()  # actuators whose refused value was said
 
     def handler(self, t: Transducer) -> Callable[[Any], None]:
         """The command handler for actuator ``t``: raises ValueError for a value it cannot
@@ -84,20 +96,31 @@ class Actuators:
                     raise ValueError(f"{t.name}: the update on {value.topic.name} has no value")
                 value = present[0]
             elif isinstance(value, (list, tuple)):
-                value = value[0]
-            if not t.legal(value):
-                raise ValueError(f"{t.name}: {value!r} is not a legal {t.dtype} command")
+                value = value[0] if value else None
+            payload = self._packed(t, value)
             with self._lock:
                 if timed is None:
-                    self._pending[t.name] = (t, value)
+                    self._pending[t.name] = (t, payload)
                 elif len(self._timed) >= MAX_TIMED:
                     raise ValueError(f"{t.name}: {MAX_TIMED} timed commands wait already")
                 else:
                     assert timed.at_ns is not None
-                    self._timed.append((t, value, timed.at_ns, timed.done))
+                    self._timed.append((t, payload, timed.at_ns, timed.done))
             self._wake()
 
         return handle
+
+    def _packed(self, t: Transducer, value: Any) -> bytes:
+        try:
+            return t.pack_command(value)
+        except ValueError as e:
+            with self._lock:
+                self.values_refused += 1
+                first = t.name not in self._said
+                self._said.add(t.name)
+            if first:  # (counted always; said once per actuator)
+                log.warning("%s (refused, not sent; further ones are counted only)", e)
+            raise
 
     def run(self, board: Board, stopping: Callable[[], bool], push_map: PushMap) -> None:
         """Start the board's calls for the pending commands (the supervisor's thread; returns
@@ -105,15 +128,15 @@ class Actuators:
         ones when no batch is out (``push_map`` first)."""
         self._stopping = stopping
         with self._lock:
-            ready = [(t, v) for name, (t, v) in self._pending.items() if name not in self._sending]
+            ready = [(t, p) for name, (t, p) in self._pending.items() if name not in self._sending]
             for t, _v in ready:
                 del self._pending[t.name]
                 self._sending.add(t.name)
             timed: list[Timed] = []
             if self._timed and not self._timed_out:
                 timed, self._timed, self._timed_out = self._timed, [], True
-        for t, value in ready:
-            self._send(board, t, value)
+        for t, payload in ready:
+            self._send(board, t, payload)
         if timed:
             self._send_timed(board, timed, push_map)
 
@@ -124,21 +147,15 @@ class Actuators:
             self._timed_out = False
 
     # ---- commands now ---------------------------------------------------------------------------
-    def _send(self, board: Board, t: Transducer, value: Any) -> None:
+    def _send(self, board: Board, t: Transducer, payload: bytes) -> None:
         try:
-            payload = t.value_struct().pack(value)
             fut = self._call(board, str(t.call), payload)
-        except struct.error as e:
-            self._sent(t, None)
-            self.command_errors += 1
-            log.warning("%s: bad command value %r: %s", t.name, value, e)
-            return
-        except MissingLinkError as e:
+        except Exception as e:  # noqa: BLE001 - a MissingLinkError, or a bug: never the supervisor's end
             self._sent(t, e)
             return
         fut.add_done_callback(lambda f: self._sent(t, _outcome(board, str(t.call), f)))
 
-    def _sent(self, t: Transducer, got: CallResult | MissingLinkError | None) -> None:
+    def _sent(self, t: Transducer, got: Outcome | None) -> None:
         """(the reading thread) An actuator's call was answered, or failed (None: never sent)."""
         with self._lock:
             self._sending.discard(t.name)
@@ -158,7 +175,7 @@ class Actuators:
     def _send_timed(self, board: Board, timed: list[Timed], push_map: PushMap) -> None:
         try:
             fut = push_map()
-        except MissingLinkError as e:
+        except Exception as e:  # noqa: BLE001 - (as _send: the batch ends either way)
             self._timed_failed(timed, e)
             return
         if fut is None:
@@ -167,7 +184,7 @@ class Actuators:
 
         def pushed(f: Future[CallResult]) -> None:
             got = _outcome(board, "a2jHostMap", f)
-            if isinstance(got, MissingLinkError):
+            if isinstance(got, Exception):
                 self._timed_failed(timed, got)
             else:
                 self._send_at(board, timed)
@@ -180,12 +197,14 @@ class Actuators:
         lock = threading.Lock()
 
         def answered(t: Transducer, at_ns: int, done: Future[int] | None, got: Outcome) -> None:
-            self._at_answered(t, at_ns, done, got)
-            with lock:
-                left[0] -= 1
-                last = left[0] == 0
-            if last:
-                self._batch_done()
+            try:
+                self._at_answered(t, at_ns, done, got)
+            finally:  # (the batch ends whatever the answer did: the timed path is never stuck)
+                with lock:
+                    left[0] -= 1
+                    last = left[0] == 0
+                if last:
+                    self._batch_done()
 
         def reply_to(
             t: Transducer, at_ns: int, done: Future[int] | None
@@ -196,9 +215,11 @@ class Actuators:
             try:
                 if "a2jAt" not in board.index:
                     raise MissingLinkError(f"{board.name}: no a2jAt: it cannot act at a time")
+                if str(t.call) not in board.index:  # (a board that changed under the queue)
+                    raise MissingLinkError(f"{board.name}: no function {t.call} any more")
                 payload = struct.pack("<qB", at_ns, board.index[str(t.call)])
-                fut = self._call(board, "a2jAt", payload + t.value_struct().pack(value))
-            except (MissingLinkError, struct.error) as e:
+                fut = self._call(board, "a2jAt", payload + value)
+            except Exception as e:  # noqa: BLE001 - (as _send: each is answered, the batch ends)
                 answered(t, at_ns, done, e)
                 continue
             fut.add_done_callback(reply_to(t, at_ns, done))
@@ -209,21 +230,23 @@ class Actuators:
         if isinstance(got, CallResult):
             reply = got.payload
             self.commands += 1
-            if done is not None:
+            if done is not None and not done.done():  # (a caller may have cancelled it)
                 done.set_result(struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1)
             return
         if not self._stopping():  # (closing: a command cut short is not worth a line)
             self.command_errors += 1
             self._on_error(f"{t.name}: timed command refused: {got}")
             log.warning("%s: timed command at %d refused: %s", t.name, at_ns, got)
-        if done is not None:  # (its caller hears it either way)
+        if done is not None and not done.done():  # (its caller hears it either way)
             done.set_exception(got)
 
-    def _timed_failed(self, timed: list[Timed], e: MissingLinkError) -> None:
-        for _t, _v, _at, done in timed:
-            if done is not None:
-                done.set_exception(e)
-        self._batch_done()
+    def _timed_failed(self, timed: list[Timed], e: Exception) -> None:
+        try:
+            for _t, _v, _at, done in timed:
+                if done is not None and not done.done():
+                    done.set_exception(e)
+        finally:
+            self._batch_done()
 
     def _batch_done(self) -> None:
         with self._lock:
@@ -233,11 +256,11 @@ class Actuators:
             self._wake()
 
 
-def _outcome(board: Board, name: str, fut: Future[CallResult]) -> CallResult | MissingLinkError:
+def _outcome(board: Board, name: str, fut: Future[CallResult]) -> CallResult | Exception:
     """The reply when the call returned 0, else the error (as ``call_ok`` would raise it)."""
     try:
         result = fut.result()
-    except MissingLinkError as e:
+    except Exception as e:  # noqa: BLE001 - a MissingLinkError, or whatever failed the call
         return e
     if result.code != 0:
         return FunctionFailed(board.name, name, result.code, result.payload)

@@ -13,6 +13,7 @@ by the session across reconnects).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Container, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -154,8 +155,10 @@ def si_command(
             value = value.item()
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{t.name}: {value!r} is not a number in SI units")
-        if not math.isfinite(value):
-            raise ValueError(f"{t.name}: {value!r} is not a command")
-        act(Command([convert(float(value))], at, done))
+        si = float(value) if abs(value) <= sys.float_info.max else math.copysign(math.inf, value)
+        try:  # (NaN, an infinity, beyond the type: refused and counted where it meets its type)
+            act(Command([convert(si)], at, done))
+        except ValueError as e:
+            raise ValueError(f"{e} (the command {si!r} in SI units)") from None
 
     return handle

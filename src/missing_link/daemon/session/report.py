@@ -73,6 +73,7 @@ class SessionReport:
             samples=self.path.counters(),
             commands=self.actuators.commands,
             command_errors=self.actuators.command_errors,
+            values_refused=self.actuators.values_refused,
             errors=self.faults.to_json(),
             rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
             warnings="; ".join(self._warnings_now()),

@@ -190,6 +190,7 @@ class SessionStatus:
     samples: Mapping[str, Any]  #: the sample path's counters (sample_path.py)
     commands: int
     command_errors: int
+    values_refused: int  #: commands whose value their actuator's type cannot hold (actuators.py)
     errors: Mapping[str, Any]  #: bugs caught, by kind (``ErrorCounts.to_json``)
     rtt_us: int | None
     warnings: str
@@ -222,6 +223,7 @@ class SessionStatus:
             **self.samples,
             "commands": self.commands,
             "command_errors": self.command_errors,
+            "values_refused": self.values_refused,
             **self.errors,
             "rtt_us": self.rtt_us,
             "warnings": self.warnings,

@@ -190,8 +190,6 @@ def raw_command(t: Transducer, kind: str | None) -> Callable[[float], int | floa
         value = (si / factor - offset) / scale
         if not integer:
             return value
-        if not math.isfinite(value):
-            raise ValueError(f"{t.name}: {si!r} is not a command")
-        return round(value)
+        return round(value) if math.isfinite(value) else value  # (refused by its type)
 
     return convert

@@ -75,6 +75,9 @@ uint8_t stepper_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out
         stepper_make_safe();
         return 0;
     }
+    /* too far: beyond 1e6 rev, or its steps beyond an int32 (the infinities too), as in
+     * stepper.py; lroundf of such a goal is undefined */
+    if (!(fabsf(v) <= 1e6f) || fabsf(v) * per_rev >= 2147483648.0f) return 0xFF;
     if (velocity_mode && fabsf(v) > max_speed) return 0xFF;
     uint64_t now = board_clock();
     mode = velocity_mode ? SPEED : GOTO;
