@@ -67,6 +67,7 @@ def main() -> None:
     )
     ap.add_argument("--depth", type=int, default=1, help="history kept (--transient-local)")
     ap.add_argument("--until-value", help="TOPIC=VALUE: also wait until TOPIC carries VALUE")
+    ap.add_argument("--min-sent", type=int, default=0, help="also wait until N commands went")
     ap.add_argument(
         "--until-text", help="TOPIC=TEXT: also wait until a string field on TOPIC holds TEXT"
     )
@@ -89,6 +90,7 @@ def main() -> None:
         )
     pubs = []
     sent_at: list[int] = []
+    sent = 0
     for spec in a.cmd:
         topic, type_name, value = spec.split("=")
         pubs.append((node.create_publisher(msg_class(type_name), topic, 10), type_name, value))
@@ -106,13 +108,17 @@ def main() -> None:
                     continue  # (not matched yet: DDS would drop it)
                 m = msg_class(type_name)()
                 v, _, ahead_ms = value.partition("@")
-                m.values = [int(v)]
+                if hasattr(m, "data"):  # (a standard command: std_msgs/msg/Float64, SI)
+                    m.data = float(v)
+                else:
+                    m.values = [int(v)]
                 if ahead_ms:
                     at = time.time_ns() + int(float(ahead_ms) * 1e6)
                     m.times = [Time(sec=at // 10**9, nanosec=at % 10**9)]
                     sent_at.append(at)
                 pub.publish(m)
-        enough = all(len(v) >= a.min for v in got.values())
+                sent += 1
+        enough = all(len(v) >= a.min for v in got.values()) and sent >= a.min_sent
         if wait_topic is not None:
             enough = enough and any(
                 wait_value is not None and float(wait_value) in s.get("values", [])
@@ -140,6 +146,7 @@ def main() -> None:
                 "topics": topics,
                 "nodes": [n for n, _ns in nodes],
                 "sent_at_ns": sent_at,
+                "sent": sent,
             }
         ),
         flush=True,

@@ -372,3 +372,28 @@ def test_ros_security_variables_reach_rcl(thesis_board: str) -> None:
     assert r.returncode == 1, r.stderr
     assert "SECURITY ERROR" in r.stderr and "/nonexistent/keystore" in r.stderr
     assert r.stderr.strip().count("\n") == 0, r.stderr  # one line, no traceback
+
+
+def test_a_refused_command_says_once_what_turns_commands_on(
+    thesis_board: str, tmp_path: Path
+) -> None:
+    """The README's `ros2 topic pub` on a daemon whose ros2 face takes no commands: one line
+    naming the variable and the key that turn them on, then counted (before: a line per
+    command, naming neither)."""
+    cfg = tmp_path / "off.toml"
+    cfg.write_text("[ros2]\ncommands = false\n")
+    env = ros_env(MISSING_LINK_CONTROL=str(tmp_path / "control.sock"))
+    daemon = start_daemon(thesis_board, env, "--config", str(cfg))
+    try:
+        got = listen(
+            env, "--seconds", "30", "--min", "1", "--min-sent", "3",
+            "--sub", "/thesis/dist_ir/range=sensor_msgs/msg/Range",
+            "--cmd", "/thesis/servo/command=std_msgs/msg/Float64=0.5",
+        )  # fmt: skip
+    finally:
+        err = stop(daemon)
+    assert got["sent"] >= 3  # (matched: the daemon had them)
+    lines = [ln for ln in err.splitlines() if "/thesis/servo/command refused" in ln]
+    assert len(lines) == 1, err[-3000:]
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST" in lines[0], lines[0]
+    assert "[ros2] commands = true" in lines[0] and "counted" in lines[0], lines[0]

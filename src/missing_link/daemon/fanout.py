@@ -89,9 +89,8 @@ class Fanout:
         self.bus.add_command(name, gate.wrap("bus", True, name, sent))
         for p in self.publishers:
             try:
-                p.add_command_topic(
-                    name, topic, gate.wrap(p.name, bool(p.takes_commands), name, sent)
-                )
+                on = bool(p.takes_commands)
+                p.add_command_topic(name, topic, gate.wrap(p.name, on, name, sent, p.commands_how))
             except Exception as e:  # noqa: BLE001 - (as declare)
                 self._failed(p, "add_command_topic", e, f"taking commands on {name}")
 

@@ -85,6 +85,9 @@ class Publisher:
     #: the faces that carry commands (their ``commands`` option; by default True only where
     #: the face listens on loopback alone), None for those that carry none
     takes_commands: bool | None = None
+    #: what turns this face's commands on (its key, an environment variable), said once with
+    #: the first command refused on it (daemon/control/allowlist.py)
+    commands_how: str = ""
     #: set when the publisher failed for good (e.g. a recording that cannot write): the daemon
     #: reports it as ERROR, and ``run`` exits non-zero
     error: str = ""

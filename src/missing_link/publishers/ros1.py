@@ -65,6 +65,10 @@ class Ros1Publisher(RosPublisher):
         self.takes_commands = takes_commands(
             opts.get("commands"), loopback_only([f"tcp/{here}:0", f"tcp/{master_host}:0"]), "[ros1]"
         )
+        self.commands_how = (
+            "ROS_IP or the master is off loopback: [ros1] commands = true in --config turns "
+            "them on; docs/security.md"
+        )
         self.rospy = rospy = import_rospy()
         import genpy.dynamic
         import rosgraph

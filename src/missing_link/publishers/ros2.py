@@ -55,6 +55,11 @@ from .rosbase import RosPublisher
 from .zenoh_config import takes_commands
 
 log = logging.getLogger(__name__)
+#: what turns this face's commands on (said once with the first refusal: allowlist.py)
+COMMANDS_HOW = (
+    "DDS may reach the network: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST keeps it on this host "
+    "and turns them on, or [ros2] commands = true in --config; docs/security.md"
+)
 
 #: how rosidl names our primitive types in get_fields_and_field_types()
 _IDL = {"float32": "float", "float64": "double", "bool": "boolean"}
@@ -107,6 +112,7 @@ class Ros2Publisher(RosPublisher):
         local = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in ("LOCALHOST", "OFF")
         local = local or os.environ.get("ROS_LOCALHOST_ONLY") == "1"
         self.takes_commands = takes_commands(opts.get("commands"), local, "[ros2]")
+        self.commands_how = COMMANDS_HOW
         distro = str(opts.get("distro") or os.environ.get("ROS_DISTRO") or "kilted")
         super().__init__(distro if distro in ("humble", "jazzy", "kilted") else "kilted")
         self.qos = QoSProfile(

@@ -117,6 +117,10 @@ class ZenohPublisher(RosPublisher):
         self.takes_commands = takes_commands(
             opts.get("commands"), loopback_only(connect + listen), "[zenoh]"
         )
+        self.commands_how = (
+            "it connects or listens off loopback: [zenoh] commands = true in --config turns "
+            "them on; docs/security.md"
+        )
         if mode == "peer":
             cfg.insert_json5("scouting/gossip/enabled", "true")
         # as rmw_zenoh's default config: samples carry HLC timestamps (the actuators' state

@@ -6,8 +6,10 @@ Every face that can carry commands (the in-process bus, ``zenoh``, ``ros2``, ``r
 listens on loopback alone (publishers/*.py say how each decides).  ``[daemon] commands`` lists
 the command topics (patterns: ``*`` within a level, ``**`` across; default ``["**"]``: all) that
 take commands.  A command that arrives where it may not is refused: not handed to the board,
-counted per face (``commands_refused`` on ``/diagnostics``) and said in the log (rate-limited:
-logs.py).  The face keeps its subscription, so a refusal is seen and counted, not silent.
+counted per face (``commands_refused`` on ``/diagnostics``) and said in the log: on a face's
+command topics once per face and kind (commands off there: with what turns them on, the face's
+``commands_how``; or not in the list), the rest counted.  The face keeps its subscription, so a
+refusal is seen and counted, not silent.
 
 The list holds on every path that reaches an actuator, not only on the faces' command topics: a
 plain call of an actuator's function (``Daemon.call``, the control endpoint behind
@@ -52,6 +54,7 @@ class CommandGate:
         self.allowed = list(allowed)
         self._patterns = [topic_pattern(p) for p in self.allowed]
         self.refused: dict[str, int] = {}  #: face (or path) -> commands refused
+        self._said: set[tuple[str, str]] = set()  #: (face, kind of refusal) said once
         self._lock = threading.Lock()
 
     def allows(self, topic: str) -> bool:
@@ -76,22 +79,32 @@ class CommandGate:
             f"a command on {topic} refused: commands are off on {face} (its `commands` option)"
         )
 
-    def _count(self, path: str) -> None:
+    def _count(self, path: str, kind: str = "") -> bool:
+        """Count a refusal on ``path``; True the first time ``kind`` is refused there."""
         with self._lock:
             self.refused[path] = self.refused.get(path, 0) + 1
+            first = (path, kind) not in self._said
+            self._said.add((path, kind))
+            return first
 
-    def wrap(self, face: str, takes_commands: bool, topic: str, handler: Handler) -> Handler:
-        """``handler`` where ``face`` may command ``topic``, else one that refuses and counts."""
+    def wrap(
+        self, face: str, takes_commands: bool, topic: str, handler: Handler, how: str = ""
+    ) -> Handler:
+        """``handler`` where ``face`` may command ``topic``, else one that refuses and counts.
+        ``how``: what turns the face's commands on (its publisher's ``commands_how``).  The
+        first refusal of each kind on a face says why and what to set, once; the rest are
+        counted (a controller sends every cycle: a line each would bury the log)."""
         if takes_commands and self.allows(topic):
             return handler
-        why = (
-            f"commands are off on {face} (its `commands` option)"
-            if not takes_commands
-            else "not in [daemon] commands"
-        )
+        if not takes_commands:
+            kind = "off"
+            why = f"commands are off on {face} ({how or 'its `commands` option'})"
+        else:
+            kind, why = "list", f"not in [daemon] commands (add {topic} to take it)"
 
         def refuse(_command: Any) -> None:
-            self._count(face)
-            log.warning("%s: a command on %s refused: %s", face, topic, why)
+            if self._count(face, kind):
+                log.warning("%s: a command on %s refused: %s; further refusals are counted "
+                            "(commands_refused on /diagnostics)", face, topic, why)  # fmt: skip
 
         return refuse
