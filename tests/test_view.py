@@ -1,5 +1,6 @@
 """The live view never cuts the part of a topic name that tells topics apart (issue 33.8): at
-80, 100 and 120 columns, topics that share a long start stay distinct and show their end."""
+80, 100 and 120 columns, topics that share a long start stay distinct and show their end.  Its
+latency is from the sample's synchronised host time, whatever the board's clock (issue 45.3)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,13 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from missing_link.cli.view import ELLIPSIS, LiveView, TopicTable, fit_names
+from missing_link.cli.view import ELLIPSIS, LiveView, TopicStats, TopicTable, fit_names, percentile
 from missing_link.daemon import BoardSpec, Config, Daemon
+from missing_link.descriptors import Transducer
+from missing_link.timesync import NOT_SYNCED
+from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
+from missing_link.virtual.clocks import AffineClock
 
 from .helpers import wait_for
 
@@ -103,3 +108,52 @@ def test_the_live_view_of_a_running_daemon_shows_whole_names_at(serve: Serve, wi
     cells = topic_cells(table)
     assert len(cells) == len(set(cells)) >= 2
     assert any(c.endswith("dist_ir") for c in cells) and any(c.endswith("dist_us") for c in cells)
+
+
+class _Daemon:
+    """What the view asks of a daemon to collect statistics (a subscription, its offset)."""
+
+    realtime_offset_ns = 1_700_000_000_000_000_000
+
+    def subscribe(self, pattern: str, fn: Callable[[Update], None]) -> Any:
+        return self
+
+    def cancel(self) -> None:
+        pass
+
+
+def test_latency_is_from_the_synchronised_host_time_not_the_board_clock() -> None:
+    """A board whose clock reads 349 s (a replay, a real board's uptime): the latency is the
+    arrival (as a host time) minus the sample's host time; before, it was the arrival on
+    CLOCK_MONOTONIC minus the board's stamp.  A sample not yet on a clock map has none."""
+    t = Transducer("dist", 1, "sharp", "GP2Y0A02YK", 2, "uint16_t", 0, {"unit": "mm"})
+    topic = Topic.for_transducer("/b/dist", "b", t, "missing_link_msgs")
+    view = LiveView(_Daemon(), io.StringIO())
+    recv = 5_000_000_000  # CLOCK_MONOTONIC ns at arrival
+    arrived = recv + _Daemon.realtime_offset_ns
+    view.on_update(Update.build(topic=topic, board_us=[349_000_000, 349_001_000],
+                                host_ns=[arrived - 2_500_000, arrived - 1_500_000],
+                                values=[800, 810], seq=0, lost=0, recv_ns=recv))  # fmt: skip
+    view.on_update(Update.build(topic=topic, board_us=[349_002_000, 0], host_ns=[arrived, 0],
+                                values=[820, None], seq=1, lost=0, recv_ns=recv,
+                                clock_flags=NOT_SYNCED))  # fmt: skip
+    st = view.stats["/b/dist"]
+    assert list(st.latency_us) == [2500.0, 1500.0]
+    assert (st.count, st.missing) == (3, 1)
+
+
+def test_the_view_of_a_board_with_its_own_clock_shows_its_latency(serve: Serve) -> None:
+    """A virtual board whose clock is 349 s ahead of this host's: before, -349 s."""
+    server = serve(make_sim("rangers", seed=1, name="far", clock=AffineClock(349e6, 20.0)))
+    with Daemon(Config(boards=[BoardSpec(server.url)], publishers=["bus"])) as daemon:
+        assert daemon.wait_until_up(10)
+        view = LiveView(daemon, io.StringIO())
+        try:
+            assert wait_for(
+                lambda: len(view.stats.get("/far/dist_ir", TopicStats()).latency_us) > 50, 10
+            )
+        finally:
+            view.close()
+        lat = view.stats["/far/dist_ir"].latency_us
+    p50 = percentile(lat, 0.5)
+    assert 0 <= p50 < 1e6, p50  # (µs: the sample's way here, not the board's 349 s head start)

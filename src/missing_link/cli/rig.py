@@ -8,8 +8,8 @@ actuator topic ``/board_a/servo/cmd`` (an RPC of ``a2j_set_servo``).  A live ter
 per topic rate, latency and last value, per board link state and errors; at the end (``duration``
 or Ctrl-C) a summary.  Exit code 0 when both boards stayed up, samples flowed and the servo moved.
 
-The virtual boards' clocks are this machine's CLOCK_MONOTONIC, so the latency shown (board's
-moment of measurement -> host subscriber callback) is exact, not estimated.
+The latency shown is from the board's moment of measurement (the sample's synchronised host
+time) to its arrival at the host (view.py).
 """
 
 from __future__ import annotations

@@ -3,7 +3,10 @@
 On a terminal it redraws in place (rich's ``Live``): per board the link state, RTT, clock bound
 and every loss counter that is not zero, per topic the rate (and the rate configured on the
 board, "off" when it is disabled), the latency from the board's moment
-of measurement to the host callback, and the last value with its unit.  Columns appear only
+of measurement to its arrival at the host, and the last value with its unit.  The moment of
+measurement is the sample's synchronised host time (the board's stamp through its clock map),
+so the latency is right for any board clock, a real board's uptime or a replay's; samples
+without a clock map yet (``NOT_SYNCED``) have none and are left out of it.  Columns appear only
 where they apply (servo commands only for boards with actuators).  When the output is not a
 terminal it prints a plain block every ``plain_period`` seconds instead.  All times in µs.
 
@@ -23,6 +26,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
+from ..timesync.sync import NOT_SYNCED
 from ..topics import Update
 
 if TYPE_CHECKING:
@@ -81,10 +85,16 @@ class LiveView:
         self.plain_period = 5.0
         self.stats: dict[str, TopicStats] = {}
         self.lock = threading.Lock()
+        #: CLOCK_REALTIME - CLOCK_MONOTONIC of the daemon: an arrival (monotonic) as a host time
+        self.realtime_offset_ns = int(
+            getattr(daemon, "realtime_offset_ns", time.time_ns() - time.monotonic_ns())
+        )
         self.subscription = daemon.subscribe("/**", self.on_update)
 
     def on_update(self, u: Update) -> None:
         recv_us = u.recv_ns / 1000
+        arrived_ns = u.recv_ns + self.realtime_offset_ns  # (as a host time: the samples' clock)
+        timed = not u.clock_flags & NOT_SYNCED
         with self.lock:
             st = self.stats.get(u.topic.name)
             if st is None:
@@ -94,12 +104,13 @@ class LiveView:
                 )
             st.last = list(u.values)
             st.recent.append(recv_us)
-            for stamp, v in zip(u.board_us, u.values, strict=True):
+            for host_ns, v in zip(u.host_ns, u.values, strict=True):
                 if v is None:
                     st.missing += 1
                 else:
                     st.count += 1
-                    st.latency_us.append(recv_us - stamp)
+                    if timed:
+                        st.latency_us.append((arrived_ns - host_ns) / 1000)
 
     # ---- drawing -----------------------------------------------------------------------------
     def render(self, elapsed: float, duration: float | None) -> Any:
