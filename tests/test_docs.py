@@ -84,3 +84,14 @@ def test_every_benchmark_table_says_its_command_machine_and_date() -> None:
             continue  # (prose only)
         assert "*Machine:" in section and "Date:" in section, f"{title}: no machine or date"
         assert "bench/" in section or "missing-link" in section, f"{title}: no command"
+
+
+def test_the_readme_stays_inside_the_repository() -> None:
+    """The README names nothing outside the repository (no ``../`` path, no link out of it,
+    checked above) and no commit hash (a figure's reference is said in words; the commits are
+    in docs/performance.md's tables)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "../" not in text, "README.md names a path outside the repository"
+    assert (ROOT / "LICENSE").is_file(), "pyproject.toml declares a licence: LICENSE says it"
+    hashes = [h for h in re.findall(r"\b[0-9a-f]{7,40}\b", text) if re.search(r"[a-f]", h)]
+    assert not [h for h in hashes if re.search(r"\d", h)], f"commit hashes in README.md: {hashes}"
