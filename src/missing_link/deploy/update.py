@@ -128,23 +128,14 @@ def update_via_daemon(
         f.write(image.data)
     request = {"op": "update", "board": board, "image": name, "version": image.version,
                "key_file": image.key_file, "trial_s": trial_s,
-               "target": {"model": target.model, "mcu": target.mcu,
-                          "board_id": target.board_id}}  # fmt: skip
+               "target": target.to_json()}  # fmt: skip
     try:
         with _Progress(path, board, report):
             answer = _ask(path, request, DAEMON_S)
     finally:
         with contextlib.suppress(OSError):
             os.unlink(name)
-    return Outcome(**_outcome_fields(answer["outcome"]))
-
-
-def _outcome_fields(o: dict[str, Any]) -> dict[str, Any]:
-    return {"board": o["board"], "url": o["url"], "state": o["state"],
-            "old_version": o["old_version"], "old_hash": o["old_hash"],
-            "new_version": o["new_version"], "new_hash": o["new_hash"], "size": o["bytes"],
-            "seconds": o["seconds"], "slot": o["slot"], "why": o["why"],
-            "sent_hash": o["sent_hash"]}  # fmt: skip
+    return Outcome.from_json(answer["outcome"])
 
 
 def _ask(path: str, request: dict[str, Any], timeout: float) -> dict[str, Any]:

@@ -31,9 +31,9 @@ import hashlib
 import math
 import struct
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from ..board.identity import BOARD_FILE, FirmwareHash
 from ..errors import MissingLinkError
@@ -113,6 +113,15 @@ class Target:
     mcu: str
     board_id: str = ""
 
+    def to_json(self) -> dict[str, str]:
+        """As a client asks a daemon for the update (``missing-link update`` -> the control
+        endpoint: daemon/control/updates.py)."""
+        return {"model": self.model, "mcu": self.mcu, "board_id": self.board_id}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, object]) -> Target:
+        return cls(**{k: str(v) for k, v in d.items()})
+
 
 @dataclass(frozen=True)
 class Outcome:
@@ -143,11 +152,18 @@ class Outcome:
                 f"fw.hash {self.sent_hash}, {moved})")  # fmt: skip
 
     def to_json(self) -> dict[str, object]:
+        """As the daemon answers an update (``from_json`` reads it back in the client)."""
         return {"board": self.board, "url": self.url, "state": self.state,
                 "old_version": self.old_version, "old_hash": self.old_hash,
                 "new_version": self.new_version, "new_hash": self.new_hash,
                 "sent_hash": self.sent_hash, "bytes": self.size,
                 "seconds": round(self.seconds, 3), "slot": self.slot, "why": self.why}  # fmt: skip
+
+    @classmethod
+    def from_json(cls, o: Mapping[str, Any]) -> Outcome:
+        return cls(o["board"], o["url"], o["state"], o["old_version"], o["old_hash"],
+                   o["new_version"], o["new_hash"], o["bytes"], o["seconds"], o["slot"],
+                   o["why"], o["sent_hash"])  # fmt: skip
 
 
 def read_info(board: Board) -> dict[str, str]:

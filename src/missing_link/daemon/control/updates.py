@@ -85,7 +85,7 @@ class BoardUpdates:
         if s.state != SessionState.UP or board is None:
             raise BoardError(s.name, f"not up ({s.state}): no update now")
         image = _image(r)
-        target = Target(**{k: str(v) for k, v in dict(r.get("target") or {}).items()})
+        target = Target.from_json(dict(r.get("target") or {}))
         trial_s = int(r.get("trial_s", TRIAL_S))
         old = board.properties.get("fw.hash", "")
 
