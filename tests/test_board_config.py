@@ -133,7 +133,7 @@ def test_the_host_checks_before_it_sends_and_says_what_is_allowed() -> None:
     server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
     try:
         with Board.open(server.url) as board:
-            calls = board.conn.stats.requests
+            calls = board.link.conn.stats.requests
             cases = {
                 "dist_ir.rate_hz": ("30", "0.1..26"),
                 "dist_ir.enabled": ("maybe", "true or false"),
@@ -143,11 +143,11 @@ def test_the_host_checks_before_it_sends_and_says_what_is_allowed() -> None:
                 "dist_ir.rate": ("2", "dist_ir has: dist_ir.aligned, dist_ir.enabled, dist_ir.ph"),
             }
             board.settings.keys()  # (the table is read once)
-            calls = board.conn.stats.requests
+            calls = board.link.conn.stats.requests
             for key, (value, said) in cases.items():
                 with pytest.raises(ConfigError, match=said):
                     board.configure({"dist_ir.rate_hz": 5, key: value})
-            assert board.conn.stats.requests == calls  # nothing was sent
+            assert board.link.conn.stats.requests == calls  # nothing was sent
             assert board.config()["dist_ir.rate_hz"] == 25.0
             # the board refuses a combination: nothing changed, the board's reason
             with pytest.raises(ConfigRefused, match="min_deg < max_deg"):

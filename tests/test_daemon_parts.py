@@ -222,7 +222,7 @@ def test_a_prober_reports_through_its_context(serve: Serve) -> None:
         prober.push_map()  # the thesis board acts at host times: it takes the map
         prober.start()
         assert wait_for(lambda: len(rtts) > 12)  # probes go on, on the board's reading thread
-        board.set_ticker(None)
+        board.link.set_ticker(None)
     assert len(pushes) >= 1 and errors == []  # (then once a second while it probes)
 
 

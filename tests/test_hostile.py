@@ -131,7 +131,7 @@ def test_stop_during_a_slow_handshake_is_prompt(serve: Serve) -> None:
     d = daemon_for(BoardSpec(server.url, handshake_timeout=60.0)).start()
     assert wait_for(lambda: d.sessions[0].board is not None, 15)
     board = d.sessions[0].board
-    wait_for(lambda: board.conn.stats.replies >= 3, 15)  # well inside the 60 s handshake
+    wait_for(lambda: board.link.conn.stats.replies >= 3, 15)  # well inside the 60 s handshake
     t0 = time.monotonic()
     d.stop()
     assert time.monotonic() - t0 < 3.0
@@ -145,12 +145,12 @@ def test_original_offset_bug_is_named_and_fails_fast(serve: Serve, periodic: boo
     server = serve(make_sim("hostile_offset_bug", seed=1, periodic=periodic, size=600))
     with Board.open(server.url) as board:
         assert board.is_original
-        requests = board.conn.stats.requests
+        requests = board.link.conn.stats.requests
         t0 = time.monotonic()
         with pytest.raises(CallError, match="offset bug"):
             board.read_many("bigBlob")
         elapsed = time.monotonic() - t0
-        assert board.conn.stats.requests - requests == 2  # two chunks; not 269,516
+        assert board.link.conn.stats.requests - requests == 2  # two chunks; not 269,516
         assert elapsed < 5.0
         # a read under ~500 bytes is fine on the buggy board, as on the original
         assert len(board.read_many("a2jGetProperties")) > 0

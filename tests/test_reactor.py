@@ -124,9 +124,9 @@ def test_ticker_and_async_clock_exchange_run_on_the_reading_thread(
                 lambda r: got.append((threading.current_thread().name, r)), timeout=1.0
             )
 
-        board.set_ticker(lambda: state["due"], tick)
+        board.link.set_ticker(lambda: state["due"], tick)
         assert wait_for(lambda: len(got) >= 5)
-        board.set_ticker(None)
+        board.link.set_ticker(None)
         names = {name for name, _ in got}
         assert names == {reader}
         for _, ex in got:
@@ -192,7 +192,7 @@ def test_a_ticker_runs_when_due_on_the_boards_clock_and_not_before(
         board.handshake()
         start = clock.monotonic()
         ticks: list[float] = []
-        board.set_ticker(lambda: None if ticks else start + 1.0, ticks.append)
+        board.link.set_ticker(lambda: None if ticks else start + 1.0, ticks.append)
         assert board.link.next_due == start + 1.0
         clock.advance(0.999)
         _settle(board)
@@ -255,6 +255,7 @@ class _FakeBoard:
     def __init__(self) -> None:
         self.sent = 0
         self.clock = FakeClock()  # (the prober reads it for lost probes)
+        self.link = self  # (its ticker's: reschedule)
 
     def clock_exchange_async(self, callback: Any, timeout: float, *, byte_ns: float) -> None:
         self.sent += 1

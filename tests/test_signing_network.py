@@ -180,7 +180,7 @@ def test_an_attacker_between_host_and_board(wifi: tuple[FirmwareSim, Path]) -> N
         with pytest.raises(MissingLinkError):
             board.call("a2jEcho", timeout=1.0)
         relay.to_host = lambda b: b
-        stats = board.transport.link_stats()  # type: ignore[attr-defined]
+        stats = board.link.transport.link_stats()  # type: ignore[attr-defined]
         assert stats["signed_bad_tags"] >= 1
         assert board.call("a2jEcho").code == 0xBA  # and the link goes on
         assert after[0] < link_stats(board)[0]

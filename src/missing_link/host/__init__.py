@@ -6,7 +6,10 @@
   drives their links by public verbs
 - :mod:`.board` - :class:`Board` (holds a link): open by URL, handshake, calls by name, blobs,
   clock exchanges
-- :mod:`.clock` - the clock the host side runs on, passed in (the system's, or a fake one)
+- :mod:`.handshake` - what the host reads of a board first (mapping, properties, descriptors),
+  checked, within one deadline and size caps
+- :mod:`.clock` - the one clock the host side runs on, passed in (the system's, or a fake one:
+  ``missing_link.testing``)
 - :mod:`.config` - a board's run-time configuration from the host (keys, values, all-or-none sets)
 - :mod:`.aio` - :class:`AsyncBoard`: the same engine, awaited
 - :mod:`.samples` - SIFs decoded into samples with the board's descriptors (``listen``)

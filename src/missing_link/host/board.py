@@ -17,20 +17,17 @@ from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
 from ..errors import (
-    BoardError,
     CallError,
-    CallTimeout,
     FunctionFailed,
     MissingLinkError,
     UnknownFunction,
 )
-from ..j2a import BlobError, HostConnection, parse_mapping, parse_properties
-from ..j2a.blobs import mapping_index
 from ..logs import ErrorCounts
 from ..timesync.exchange import Exchange
 from ..transport import Transport, open_transport
 from .board_log import LogLines
 from .clock import Clock
+from .handshake import HANDSHAKE_TIMEOUT, handshake
 from .link import DEFAULT_TIMEOUT, BoardLink, ProgressFn, SifHandler
 from .reactor import Reactor
 from .results import CallResult, LinkStats, exchange_of
@@ -39,16 +36,10 @@ if TYPE_CHECKING:  # (loaded where used: a one-off call reads no descriptors, se
     from ..descriptors import Transducer
     from .config import BoardConfig, Value
 
-#: the whole handshake (mapping, properties, descriptors) must end within this (s)
-HANDSHAKE_TIMEOUT = 5.0
-#: caps on what a board may send during the handshake (bytes): a board is untrusted
-MAX_MAPPING = 16 << 10
-MAX_PROPERTIES = 16 << 10
-MAX_TRANSDS = 64 << 10
 #: a read_many without a deadline of its own must end within this (s)
 TRANSFER_TIMEOUT = 120.0
 
-__all__ = ["Board", "CallResult", "LinkStats", "open_board"]
+__all__ = ["HANDSHAKE_TIMEOUT", "Board", "CallResult", "LinkStats", "open_board"]
 
 
 class Board(LogLines):
@@ -85,7 +76,7 @@ class Board(LogLines):
             faults=faults,
         )
 
-    # ---- the link (board.link: the engine; the rest for callers not yet moved to it) --------
+    # ---- the link (board.link: the engine, with its connection, transport and tickers) -------
     @property
     def link(self) -> BoardLink:
         """The link engine this board holds (what a loop drives; benchmarks step it)."""
@@ -114,29 +105,9 @@ class Board(LogLines):
         """When the last intact frame (reply or SIF) arrived, on the board's clock (s)."""
         return self._link.last_frame
 
-    @property
-    def batch_s(self) -> float:
-        """s its own reader gathers streaming SIFs for (see ``BoardLink.batch_s``)."""
-        return self._link.batch_s
-
-    @batch_s.setter
-    def batch_s(self, value: float) -> None:
-        self._link.batch_s = value
-
     def link_stats(self) -> LinkStats:
         """The link's counters now: frames, damage, calls, SIFs lost, the transport's own."""
         return self._link.stats()
-
-    @property
-    def conn(self) -> HostConnection:
-        """The link's connection (read-only; counters: ``link_stats()``; the SIF seq after an
-        outage: ``link.expect_sif_seq``, ``link.count_lost_sifs``)."""
-        return self._link.conn
-
-    @property
-    def transport(self) -> Transport:
-        """The link's transport (read-only)."""
-        return self._link.transport
 
     def on_sif(self, cmd: int | None, handler: SifHandler) -> None:
         """Call ``handler(sif, host_receive_time)`` for SIFs with ``cmd`` (None: every SIF),
@@ -146,16 +117,6 @@ class Board(LogLines):
     def on_close(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` when the link ends (closed or broken): ``BoardLink.on_close``."""
         self._link.on_close(fn)
-
-    def set_ticker(
-        self, due: Callable[[], float | None] | None, tick: Callable[[float], None] | None = None
-    ) -> None:
-        """Periodic work on the thread that reads the board (``BoardLink.set_ticker``)."""
-        self._link.set_ticker(due, tick)
-
-    def reschedule(self) -> None:
-        """The ticker's ``due()`` moved: look at it again."""
-        self._link.reschedule()
 
     def close(self) -> None:
         """Close the link, fail pending calls, end its reading.  Idempotent."""
@@ -194,79 +155,10 @@ class Board(LogLines):
 
     def handshake(self, *, describe: bool = True, deadline: float | None = None) -> None:
         """Read the mapping, properties and descriptors, all by ``deadline`` (the board
-        clock's s; default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap.  What
-        the board sends is validated here: errors name the board and the field."""
-        clock = self.clock
-        if deadline is None:
-            deadline = clock.monotonic() + HANDSHAKE_TIMEOUT
-        total = deadline - clock.monotonic()
-
-        def left(what: str) -> float:
-            remaining = deadline - clock.monotonic()
-            if remaining <= 0:
-                raise CallTimeout(self.name, what, f"handshake not done within {total:.1f} s")
-            return remaining
-
-        # First contact: ask again on a timeout (a board still booting, stale bytes in a pty).
-        while True:
-            try:
-                first = self.call_index(
-                    0, b"", "a2jGetMapping", min(self.timeout, left("a2jGetMapping"))
-                )
-                break
-            except CallTimeout:
-                left("a2jGetMapping")
-        blob = first.payload
-        # An original board wraps past 255 bytes; a new one stops at a name boundary and offers
-        # the full table through a2jGetMappingMany.
-        head = blob[: blob.rfind(b"\0") + 1] if b"\0" in blob else b""
-        try:
-            names = parse_mapping(head)
-            # (what fits one frame, until the full table is read: it names a2jGetMappingMany,
-            # which tells a Part 2 board, whose a2jMany serves offsets past 255)
-            self.functions, self.index = names, mapping_index(names)
-            if "a2jGetMappingMany" in names:
-                full = self._link.wait(
-                    self._read_future(
-                        names.index("a2jGetMappingMany"),
-                        "a2jGetMappingMany",
-                        max_bytes=MAX_MAPPING,
-                        timeout=min(self.timeout, left("a2jGetMappingMany")),
-                        deadline=deadline,
-                    ),
-                    None,
-                )
-                names = parse_mapping(full)
-            self.functions = names
-            self.index = mapping_index(names)
-        except BlobError as e:
-            raise BoardError(self.url, f"bad function mapping: {e}") from e
-        if "a2jGetProperties" in self.index:
-            raw = self.read_many(
-                "a2jGetProperties",
-                max_bytes=MAX_PROPERTIES,
-                timeout=min(self.timeout, left("a2jGetProperties")),
-                deadline=deadline,
-            )
-            try:
-                self.properties = parse_properties(raw)
-            except BlobError as e:
-                raise BoardError(self.url, f"bad properties: {e}") from e
-            _check_properties(self.name, self.properties)
-        if describe and "a2jGetTransds" in self.index:
-            raw = self.read_many(
-                "a2jGetTransds",
-                max_bytes=MAX_TRANSDS,
-                timeout=min(self.timeout, left("a2jGetTransds")),
-                deadline=deadline,
-            )
-            try:
-                self.transds_text = raw.decode("utf-8")
-            except UnicodeDecodeError as e:
-                raise BoardError(self.name, f"transducer descriptors are not UTF-8: {e}") from e
-            from ..descriptors import parse_transds
-
-            self.transducers = parse_transds(self.transds_text, self.name)
+        clock's s; default: ``HANDSHAKE_TIMEOUT`` from now), each within its size cap
+        (handshake.py).  What the board sends is validated: errors name the board and the
+        field."""
+        handshake(self, describe=describe, deadline=deadline)
 
     # ---- calls -----------------------------------------------------------------------------
     def _lookup(self, name: str) -> int:
@@ -477,20 +369,6 @@ class Board(LogLines):
 
     def __repr__(self) -> str:
         return f"<Board {self.name} at {self.url}>"
-
-
-def _check_properties(board: str, props: dict[str, str]) -> None:
-    """Range-check the numbers a board states about itself (they steer the host)."""
-    res = props.get("clock.res_us")
-    if res is not None:
-        try:
-            value = int(res)
-        except ValueError:
-            value = 0
-        if not 1 <= value <= 1_000_000:
-            raise BoardError(
-                board, f"property clock.res_us = {res!r}: expected whole µs in 1..1000000"
-            )
 
 
 def open_board(

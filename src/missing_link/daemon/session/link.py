@@ -89,7 +89,7 @@ class LinkSource:
         else:
             board = Board(open_transport(spec.url), timeout=spec.timeout, reactor=self.reactor,
                           faults=self.faults, clock=self.clock)  # fmt: skip
-        board.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
+        board.link.batch_s = spec.batch_ms / 1000  # (when it reads on its own thread)
         own(board)
         if stop.is_set():
             raise BoardError(spec.url, "stopping")

@@ -95,12 +95,12 @@ class ClockProber:
 
     def start(self) -> None:
         """From now on, probe on the board's reading thread."""
-        self.board.set_ticker(self.due, self.tick)
+        self.board.link.set_ticker(self.due, self.tick)
 
     def probe_now(self) -> None:
         """A probe as soon as none is in flight (a heartbeat: the link has been silent)."""
         self._asap = True
-        self.board.reschedule()
+        self.board.link.reschedule()
 
     def push_map(self) -> None:
         """Hand the board the current clock map now (blocking; before a trigger)."""
