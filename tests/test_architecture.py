@@ -14,8 +14,8 @@ import its own modules and any room on a lower floor, never one above):
    its configuration (``paths``, ``listen_spec``, ``discover_spec``, ``ros_config``, ``claims``;
    then ``config``),
    ``session/`` (one board), ``intake/`` (boards coming in) and ``control/`` (who steers), then
-   the daemon's own modules (``fanout``, ``health``, ``joints``, ``board_api``) and at the top
-   ``service``
+   the daemon's own modules (``fanout``, ``health``, ``joints``, ``board_api``, ``names``) and at
+   the top ``service``
 5. ``virtual/`` (simulated boards, links, clocks), ``deploy/`` (board files, flashing, firmware)
 6. ``cli/`` (the command line), ``testing/`` (fakes for tests, shipped with the library)
 
@@ -73,6 +73,7 @@ DAEMON_FLOORS = {
     "health": 4,
     "joints": 4,
     "board_api": 4,
+    "names": 4,
     "service": 5,
 }
 #: registries name their plugins by string and import them on first use

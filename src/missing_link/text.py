@@ -3,13 +3,15 @@
 ``clean`` strips what could change the meaning of the place a string lands in: control
 characters (C0, DEL, C1: ``\\r`` would add a line to a generated ``.msg`` file, ESC starts a
 terminal escape sequence), line and paragraph separators, and invisible format characters
-(bidi overrides).  ``slug`` turns a name into a ROS topic token (``board-a`` -> ``board_a``).
-Pure code."""
+(bidi overrides).  ``slug`` turns a name into a ROS topic token (``board-a`` -> ``board_a``);
+``did_you_mean`` names the known name nearest to one that matches nothing (a typo in a
+configuration or a board file).  Pure code."""
 
 from __future__ import annotations
 
 import re
 import unicodedata
+from collections.abc import Iterable
 
 _TOKEN_RE = re.compile(r"[a-z][a-z0-9_]*\Z")
 _UNSAFE = frozenset(("Cc", "Cf", "Zl", "Zp", "Cs", "Co", "Cn"))
@@ -42,3 +44,12 @@ def slug(name: str) -> str:
     if out and out[0].isdigit():
         out = "b_" + out
     return out
+
+
+def did_you_mean(word: str, known: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` with the name of ``known`` nearest to ``word``, or "" when none
+    is near (difflib's ratio below 0.6): for a key or a name that matches nothing."""
+    import difflib
+
+    near = difflib.get_close_matches(str(word), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" (did you mean {near[0]!r}?)" if near else ""

@@ -86,9 +86,7 @@ class LiveView:
         self.stats: dict[str, TopicStats] = {}
         self.lock = threading.Lock()
         #: CLOCK_REALTIME - CLOCK_MONOTONIC of the daemon: an arrival (monotonic) as a host time
-        self.realtime_offset_ns = int(
-            getattr(daemon, "realtime_offset_ns", time.time_ns() - time.monotonic_ns())
-        )
+        self.realtime_offset_ns = int(daemon.realtime_offset_ns)
         self.subscription = daemon.subscribe("/**", self.on_update)
 
     def on_update(self, u: Update) -> None:

@@ -18,7 +18,7 @@ from ..errors import ConfigError
 from ..publishers.registry import check_options, known_publishers
 from ..ros.msgs import DISTROS, check_package
 from ..ros.standard import StdOptions
-from ..text import is_token
+from ..text import did_you_mean, is_token
 from ..topics import check_topic
 from .discover_spec import DiscoverSpec, parse_usb_id
 from .listen_spec import ListenSpec, parse_listen
@@ -197,7 +197,10 @@ def _check_table(table: Any, allowed: dict[str, Any], where: str, fail: Fail) ->
         raise fail(where, "must be a table")
     for key, value in table.items():
         if key not in allowed:
-            raise fail(f"{where}.{key}", f"unknown key (known: {', '.join(allowed)})")
+            raise fail(
+                f"{where}.{key}",
+                f"unknown key{did_you_mean(key, allowed)} (known: {', '.join(allowed)})",
+            )
         if not isinstance(value, allowed[key]) or (
             isinstance(value, bool) and allowed[key] is not bool
         ):
@@ -237,7 +240,8 @@ def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
         if not isinstance(name, str) or name not in known_pubs:
             raise fail(
                 "daemon.publishers",
-                f"unknown publisher {name!r} (available: {', '.join(known_pubs)})",
+                f"unknown publisher {name!r}{did_you_mean(name, known_pubs)} (available: "
+                f"{', '.join(known_pubs)})",
             )
 
 
@@ -300,7 +304,8 @@ def _parse_publisher_tables(
         if table not in known_pubs:
             raise fail(
                 table,
-                f"unknown table (tables: {', '.join(_TABLES)}, {', '.join(known_pubs)})",
+                f"unknown table{did_you_mean(table, [*_TABLES, *known_pubs])} (tables: "
+                f"{', '.join(_TABLES)}, {', '.join(known_pubs)})",
             )
         if not isinstance(value, dict):
             raise fail(table, "must be a table of publisher options")
@@ -335,8 +340,12 @@ def _parse_boards(
         if not is_token(name):
             raise fail(where, f"{name!r} is not a board name ([a-z][a-z0-9_]*)")
         if not isinstance(sub, dict) or set(sub) - {"config", "ros", "id"}:
+            odd = sorted(set(sub) - {"config", "ros", "id"}) if isinstance(sub, dict) else []
+            near = did_you_mean(odd[0], ("config", "ros", "id")) if odd else ""
             raise fail(
-                where, 'has two tables, config and ros ([boards.NAME.config]), and an id = "..."'
+                f"{where}.{odd[0]}" if odd else where,
+                f"unknown key{near}: [boards.NAME] has two tables, config and ros "
+                '([boards.NAME.config]), and an id = "..."',
             )
         if "id" in sub:
             ids[name] = _board_id(sub["id"], ids, f"{where}.id", fail)
@@ -376,7 +385,10 @@ def _parse_discover(table: Any, fail: Any) -> DiscoverSpec:
               "pid": (0, 0xFFFF), "uart_baud": (0, 100_000_000)}  # fmt: skip
     for key, value in table.items():
         if key not in types:
-            raise fail(f"discover.{key}", f"unknown key (known: {', '.join(types)})")
+            raise fail(
+                f"discover.{key}",
+                f"unknown key{did_you_mean(key, types)} (known: {', '.join(types)})",
+            )
         want = types[key]
         if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):
             raise fail(f"discover.{key}", f"expected {_type_name(want)}, got {value!r}")

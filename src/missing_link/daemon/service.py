@@ -49,6 +49,7 @@ from ..publishers.base import Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, LogCallback, Subscription
 from ..publishers.registry import make_publisher
 from ..ros.msgs import typestore_for
+from ..text import did_you_mean
 from ..topics import Command
 from ..transport import check_url
 from .board_api import BoardApi
@@ -62,6 +63,7 @@ from .health import publisher_rows
 from .intake.dialin import DialIns
 from .intake.discovery import DiscoveryService, Enumerator, all_ports
 from .joints import Joints
+from .names import NameCheck
 from .session.context import SessionContext
 from .session.link import Mailbox
 from .session.session import BoardSession
@@ -128,6 +130,7 @@ class Daemon(BoardApi):
                                  self.fanout.route, self._actuator, clock)  # fmt: skip
             self.publishers.append(self.joints)
         self._context = self.session_context()
+        self.names = NameCheck(config)  #: configured names that match nothing (names.py)
         self.sessions = [BoardSession(self._context, spec) for spec in config.boards]
         self._stop = threading.Event()
         self._diag_thread = threading.Thread(
@@ -261,8 +264,9 @@ class Daemon(BoardApi):
         pattern = "*" in topic or "?" in topic
         if not pattern and topic not in self.bus.topics and self._all_boards_known():
             known = ", ".join(sorted(self.bus.topics)) or "none"
+            near = did_you_mean(topic, self.bus.topics)
             raise KeyError(
-                f"no topic {topic!r}: every board is up and none has it (topics: {known})"
+                f"no topic {topic!r}{near}: every board is up and none has it (topics: {known})"
             )
         return self.bus.subscribe(topic, callback, queue=queue, latest=latest)
 
@@ -363,6 +367,9 @@ class Daemon(BoardApi):
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):
+            up = {s.name: [t.transducer.name for t in s.topics.values()]
+                  for s in self.sessions if s.state == SessionState.UP}  # fmt: skip
+            self.names.check(up, self._all_boards_known())
             self.fanout.diagnostics(
                 self.status() + self.publisher_status(), self.clock.realtime_ns()
             )

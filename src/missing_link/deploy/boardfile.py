@@ -18,7 +18,7 @@ from ..board.dtypes import DTYPES
 from ..board.firmware import RESERVED, describe
 from ..descriptors import MAX_NAME, check_unique, read_input_file
 from ..errors import ConfigError, DescriptorError
-from ..text import is_token
+from ..text import did_you_mean, is_token
 
 MCUS = ("rp2040", "esp32", "esp32s3", "atmega328p", "atmega2560", "atmega32u4")
 AVR_MCUS = ("atmega328p", "atmega2560", "atmega32u4")
@@ -122,7 +122,10 @@ def check_board(board: dict[str, Any], where: str) -> None:
     (identifiers, plain file names, text without separators), and every value by type."""
     unknown = sorted(set(board) - set(BOARD_KEYS))
     if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r} (keys: {', '.join(BOARD_KEYS)})")
+        raise ConfigError(
+            f"{where}: unknown key {unknown[0]!r}{did_you_mean(unknown[0], BOARD_KEYS)} (keys: "
+            f"{', '.join(BOARD_KEYS)})"
+        )
     name = board.get("name")
     if not isinstance(name, str) or not is_token(name) or len(name) > MAX_NAME:
         raise ConfigError(f"{where}: name must be a topic token like 'front' (got {name!r})")
@@ -182,7 +185,8 @@ def _check_link(link: Any, mcu: str, where: str) -> None:
         at = f"{where}: link {key}"
         if key not in LINK_KEYS[kind]:
             raise ConfigError(
-                f"{at}: not a key of a {kind} link (keys: {', '.join(LINK_KEYS[kind])})"
+                f"{at}: not a key of a {kind} link{did_you_mean(key, LINK_KEYS[kind])} (keys: "
+                f"{', '.join(LINK_KEYS[kind])})"
             )
         if key in ("key_file", "boot_file", "replay_file"):
             _file_name(value, at)
@@ -246,7 +250,10 @@ def _check_buses(buses: Any, where: str) -> None:
             elif key in BUS_INTS:
                 _integer(value, f"{at} {key}", *BUS_INTS[key])
             else:
-                raise ConfigError(f"{at}: unknown key {key!r} (keys: kind, {', '.join(BUS_INTS)})")
+                raise ConfigError(
+                    f"{at}: unknown key {key!r}{did_you_mean(key, ['kind', *BUS_INTS])} (keys: "
+                    f"kind, {', '.join(BUS_INTS)})"
+                )
 
 
 def _check_entry(
@@ -265,7 +272,10 @@ def _check_entry(
         raise ConfigError(f"{at}: id must be 0..239 (got {tid!r})")
     drv = t.get("driver")
     if not isinstance(drv, str) or drv not in DRIVERS:
-        raise ConfigError(f"{at}: driver {drv!r} is not one of {', '.join(sorted(DRIVERS))}")
+        raise ConfigError(
+            f"{at}: driver {drv!r}{did_you_mean(str(drv), DRIVERS)} is not one of "
+            f"{', '.join(sorted(DRIVERS))}"
+        )
     cls = driver_class(drv)
     _check_reserved(t, at, cls, buses, calls)
     _check_driver_options(t, at, drv, cls)
@@ -324,8 +334,9 @@ def _check_driver_options(t: dict[str, Any], at: str, drv: str, cls: type) -> No
         if key in RESERVED:
             continue
         if key not in accepted:
+            near = did_you_mean(key, [*accepted, *RESERVED])
             raise ConfigError(
-                f"{at}: driver {drv} has no option {key!r} (options: {', '.join(accepted)})"
+                f"{at}: driver {drv} has no option {key!r}{near} (options: {', '.join(accepted)})"
             )
         _typed(t[key], params[key].default, f"{at}: {key}")
         if key in enums and t[key] not in enums[key]:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..errors import BoardError, ConfigError, FunctionFailed
-from ..text import safe_text
+from ..text import did_you_mean, safe_text
 from .link import CallResult
 
 
@@ -300,7 +300,8 @@ class BoardConfig:
                     hint = "transducers: " + ", ".join(
                         dict.fromkeys(k.transducer for k in table.values())
                     )
-                raise ConfigError(f"{name}: no such key on {self.board.name} ({hint})")
+                near_key = did_you_mean(name, table)
+                raise ConfigError(f"{name}: no such key on {self.board.name}{near_key} ({hint})")
             out.append((key, key.parse(given)))
         if len(out) > MAX_PER_SET:
             raise ConfigError(f"{len(out)} keys in one command: at most {MAX_PER_SET}")

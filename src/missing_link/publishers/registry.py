@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ConfigError
+from ..text import did_you_mean
 from .base import Publisher, PublisherError
 
 Factory = Callable[[dict[str, Any]], Publisher]
@@ -111,7 +112,10 @@ def check_options(name: str, options: dict[str, Any]) -> None:
         at = f"[{name}].{key}"
         kind = known.get(key)
         if kind is None:
-            raise ConfigError(f"{at}: unknown key (keys of [{name}]: {', '.join(known)})")
+            raise ConfigError(
+                f"{at}: unknown key{did_you_mean(key, known)} (keys of [{name}]: "
+                f"{', '.join(known)})"
+            )
         if not _is(kind, value):
             raise ConfigError(f"{at}: expected {_KINDS[kind]}, got {value!r}")
         if key in _RANGES and not _RANGES[key][0] <= value <= _RANGES[key][1]:
