@@ -31,6 +31,7 @@
 
 import struct
 
+from .builtins import ERR_INDEX, MANY_CHUNK, MANY_KIND, PLAIN_KIND, install
 from .clock import default_clock, new_epoch
 from .identity import runtime_hash
 from .log import BAD_REPLY, ECHOED, ERROR, LOG_CMD, RAISED_CALL, SOURCE_BOARD, BoardLog, SourceLog
@@ -50,21 +51,11 @@ from .wire import (
 )
 
 J2A_VERSION = "2"
-ERR_INDEX = 0xF0
 ERR_TIMEOUT = 0xF2
 ERR_CHECKSUM = 0xF3
 ERR_ESCAPE = 0xF4
-MANY_CHUNK = 249
 INTERBYTE_TIMEOUT_US = 10000
 SIF_QUEUE_LIMIT = 64
-# what a host map (a2jHostMap) may say: a rate within 10 % of 1 (crystals: 0.01 %, an RC
-# oscillator: a few %), references within the 64-bit sums of the AVR firmware
-MAX_PPB = 100000000
-MAX_BOARD_US = (1 << 63) - 1
-MAX_HOST_NS = 1 << 62
-
-_PLAIN = 0
-_MANY = 1
 
 # Diagnostic values carried in error frames (spec 1.5: any u16; the original sent line numbers).
 DIAG_CUT = 1
@@ -123,20 +114,9 @@ class BoardRuntime:
         self.breaks = 0  # the break between frames (wire.py): the shell's to act on (firmware.py)
         # the board's log (log.py): lines and faults as log SIFs; none without Part 2
         self.log = BoardLog(self.clock, self._queue_log if part2 else None)
-        self.add_function("a2jGetMapping", self._get_mapping)
-        self.add_function("a2jMany", self._many)
-        if builtins:
-            self.add_blob_function("a2jGetProperties", self.properties_blob)
-            self.add_function("a2jDebug", self._get_debug)
-            self.add_function("a2jEcho", _echo)
-            self.add_many_function("a2jEchoMany", _echo_many)
+        install(self, builtins, part2)  # the functions every board has (builtins.py)
         if part2:
-            self.add_blob_function("a2jGetMappingMany", self.mapping_blob)
-            self.add_blob_function("a2jGetTransds", self.transds_blob)
-            self.add_function("a2jClock", self._clock)
-            self._clock_op = self.index["a2jClock"]
-            self.add_function("a2jHostMap", self._host_map_fn)
-            self.add_function("a2jSifCount", self._sif_count)
+            self._clock_op = self.index["a2jClock"]  # (answered here: its t3 as late as possible)
             self.set_property("j2a.version", J2A_VERSION)
         self.set_property("board.name", name)
         self.set_property("board.model", model)
@@ -161,11 +141,11 @@ class BoardRuntime:
 
     def add_function(self, name, handler):
         # handler(payload: bytes) -> (return code 0..255 except 0xF0..0xF4, reply payload)
-        self._add(name, _PLAIN, handler)
+        self._add(name, PLAIN_KIND, handler)
 
     def add_many_function(self, name, handler):
         # handler(is_write, is_last, offset, data) -> (return code, is_last, reply data)
-        self._add(name, _MANY, handler)
+        self._add(name, MANY_KIND, handler)
 
     def add_blob_function(self, name, make_blob):
         # A read-only many-function over the bytes make_blob() returns (snapshot at offset 0).
@@ -219,6 +199,16 @@ class BoardRuntime:
             return code, reply
 
         return call
+
+    def take_debug(self):
+        # a2jDebug's text: what was said since the last read (at most 255 bytes), then none
+        text = bytes(self._debug[:255])
+        self._debug = bytearray()
+        return text
+
+    def sifs_queued(self):
+        # SIFs queued since boot: the next SIF's seq, not wrapped (a2jSifCount)
+        return self._sif_total
 
     def debug(self, text):
         self._debug.extend(text.encode())
@@ -374,14 +364,14 @@ class BoardRuntime:
             t2 = struct.pack("<Q", self._request_us)
             self._replies.append(encode_frame_head(SOF, seq, 0, 16, t2))  # t3: take_frames
             return
-        if kind != _PLAIN:
+        if kind != PLAIN_KIND:
             self._reply(seq, 0xFF, b"")  # many-functions are reached through a2jMany only
             return
         try:
             code, reply = handler(payload)
         except Exception as e:  # noqa: BLE001 - a failing function must not stop the board
             self.debug("%s: %s;" % (_name, e))
-            self._raised(RAISED_CALL, _name, e)
+            self.fault_raised(RAISED_CALL, _name, e)
             code, reply = 0xFF, b""
         if reply is None:  # a2jMany with a target beyond the table (spec 1.7)
             self._error(seq, ERR_INDEX, DIAG_INDEX)
@@ -398,7 +388,7 @@ class BoardRuntime:
             code, reply = 0xFF, b""
         self._reply(seq, code, reply)
 
-    def _raised(self, kind, where, e):
+    def fault_raised(self, kind, where, e):
         # code that raised, said once (ERROR) and counted: the board goes on (log.py)
         self.log.fault(SOURCE_BOARD, kind, "%s raised %s: %s" % (where, type(e).__name__, e), ERROR)
 
@@ -418,49 +408,6 @@ class BoardRuntime:
             lines.append(t.descriptor_line())
         return ("\n".join(lines) + "\n").encode()
 
-    def _get_mapping(self, payload):
-        # As much as fits, cut at a name boundary; the full table is in a2jGetMappingMany.
-        if payload:  # (spec 1.6: len 0) a reply of 0 heard back: no 0 again, to echo for ever
-            return 0xFF, b""
-        blob = self.mapping_blob()
-        if len(blob) > 255:
-            blob = blob[: blob.rfind(b"\0", 0, 255) + 1]
-        return 0, blob
-
-    def _get_debug(self, payload):
-        text = bytes(self._debug[:255])
-        self._debug = bytearray()
-        return 0, text
-
-    def _sif_count(self, payload):
-        # u64: SIFs queued since boot (the next SIF's seq, unwrapped), so a host that lost the
-        # link can count what it missed meanwhile exactly, not modulo 256.
-        return 0, struct.pack("<Q", self._sif_total)
-
-    def _clock(self, payload):
-        # Normally answered from _dispatch/take_output (t3 as late as possible); this path
-        # only runs for a request with a payload, which the spec does not define.
-        return 0xFF, b""
-
-    def _host_map_fn(self, payload):
-        # The host's current map (board µs -> host ns), so the board can act at a host time:
-        # <Q board µs><q host ns><i rate - 1 in ppb>.  Empty payload: read it back.  Every field
-        # is checked (the same on AVR, timing.c): a map the host got wrong is refused, saying
-        # why, and the one before is kept; a rate of -1e9 ppb once divided by zero.
-        if len(payload) == 16 + 4:
-            b0, h0, ppb = struct.unpack("<Qqi", payload)
-            if not -MAX_PPB <= ppb <= MAX_PPB:
-                return 0xFF, b"rate off by more than 10 % (ppb)"
-            if b0 > MAX_BOARD_US or not -MAX_HOST_NS <= h0 <= MAX_HOST_NS:
-                return 0xFF, b"board us beyond 2^63 or host ns beyond +-2^62"
-            self.host_map = (b0, h0, ppb)
-            return 0, b""
-        if not payload and self.host_map is not None:
-            return 0, struct.pack("<Qqi", *self.host_map)
-        if payload:
-            return 0xFF, b"expects <Q board us><q host ns><i ppb> or nothing"
-        return 0xFF, b""
-
     def board_time_at(self, host_ns):
         # Board µs at which the host's map reaches host_ns (None: no map yet).  Integer maths
         # only, so it is exact on boards whose floats are 32 bit.
@@ -468,33 +415,3 @@ class BoardRuntime:
             return None
         b0, h0, ppb = self.host_map
         return b0 + ((host_ns - h0) * 1000000) // (1000000000 + ppb)
-
-    def _many(self, payload):
-        if len(payload) < 6:
-            return 0xFF, payload  # as the original: 0xFF, the request payload echoed (spec 1.11)
-        target = payload[0]
-        flags = payload[1]
-        offset = payload[2] | (payload[3] << 8) | (payload[4] << 16) | (payload[5] << 24)
-        if target >= len(self.functions):
-            return ERR_INDEX, None  # _dispatch turns this into an 0xF0 error frame
-        name, kind, handler = self.functions[target]
-        if kind != _MANY:
-            ret, last, data = 0xFF, True, b""
-        else:
-            try:
-                ret, last, data = handler(bool(flags & 2), bool(flags & 1), offset, payload[6:])
-            except Exception as e:  # noqa: BLE001
-                self.debug("%s: %s;" % (name, e))
-                self._raised(RAISED_CALL, name, e)
-                ret, last, data = 0xFF, True, b""
-        data = data[:MANY_CHUNK]
-        head = bytes((ret & 0xFF, 1 if last else 0)) + payload[2:6]
-        return 0, head + data
-
-
-def _echo(payload):
-    return 0xBA, payload
-
-
-def _echo_many(is_write, is_last, offset, data):
-    return 0xBE, is_last, data
