@@ -1,0 +1,117 @@
+"""The simulated devices on a UART (devices.py says how the models are made): a GPS receiver
+speaking NMEA 0183 at its baud rate, with its PPS pulse, at WORLD.uart_sources[id].  The
+MicroPython subset only.
+"""
+
+from .machine import WORLD, ticks_add, ticks_diff, ticks_us
+
+
+def _now_us():
+    return ticks_us()
+
+
+def _nmea(body, bad):
+    c = 0
+    for ch in body.encode():
+        c ^= ch
+    if bad:
+        c ^= 0x5A
+    return "$%s*%02X\r\n" % (body, c)
+
+
+def civil_date(days):
+    # days since 1970-01-01 -> (year, month, day), Gregorian (not the driver's maths: its inverse)
+    z = days + 719468
+    era = z // 146097
+    doe = z - era * 146097
+    yoe = (doe - doe // 1460 + doe // 36524 - doe // 146096) // 365
+    doy = doe - (365 * yoe + yoe // 4 - yoe // 100)
+    mp = (5 * doy + 2) // 153
+    d = doy - (153 * mp + 2) // 5 + 1
+    m = mp + 3 if mp < 10 else mp - 9
+    return yoe + era * 400 + (1 if m <= 2 else 0), m, d
+
+
+NMEA_EXAMPLE_UTC = 764426119  # 1994-03-23 12:35:19 UTC (NMEA's own example), s since 1970
+
+
+class GpsReceiver:
+    # A GPS receiver's NMEA 0183 output on a UART: each second RMC then GGA (talker GP; latitude
+    # ddmm.mmmm, longitude dddmm.mmmm, speed in knots, course in degrees true, altitude in m;
+    # RMC's date ddmmyy), sent at `baud` (10 bits a byte): the bytes reach the UART as the line
+    # carries them, when the firmware looks.  With a PPS pin, a rising edge at the top of each
+    # second, before that second's sentences, as u-blox receivers send it (the pulse's width is
+    # not modelled).  Every `bad_every`-th sentence has a wrong checksum (0: none).  Seconds
+    # count from when the receiver was made; UTC starts at `utc0` (seconds since 1970: 12:35:19
+    # on 23 March 1994, NMEA's own example; a test may move it, to midnight say) and the date
+    # turns at midnight.  `edges`: (ticks_us, UTC second) of the newest PPS edges (at most 20).
+    def __init__(self, uart, pps_pin=None, baud=9600):
+        self.uart = uart
+        self.pps_pin = pps_pin
+        self.baud = baud
+        self.lat, self.lon, self.alt = 48.1173, 11.516667, 545.4
+        self.quality, self.sats, self.hdop = 1, 8, 0.9
+        self.speed_kn, self.course = 22.4, 84.4
+        self.bad_every = 0
+        self.sent = 0
+        self.utc0 = NMEA_EXAMPLE_UTC
+        self.pps_at = []  # ticks_us of the PPS edges (newest last, at most 20)
+        self.edges = []  # (ticks_us, UTC second) of the same edges
+        self._mark, self._base = _now_us(), 0  # a whole second since it was made, and which
+        self._sec = -1
+        self._out = b""  # this second's sentences
+        self._out_t0 = 0
+        self._fed = 0
+        WORLD.uart_sources[uart] = self
+
+    def _coord(self, deg, width):
+        d = int(abs(deg))
+        minutes = (abs(deg) - d) * 60
+        return ("%02d" if width == 2 else "%03d") % d + "%07.4f" % minutes
+
+    def _sentences(self, utc):
+        t, (y, mo, d) = utc % 86400, civil_date(utc // 86400)
+        hms = "%02d%02d%02d.00" % (t // 3600, (t // 60) % 60, t % 60)
+        date = "%02d%02d%02d" % (d, mo, y % 100)
+        ns, ew = ("N" if self.lat >= 0 else "S"), ("E" if self.lon >= 0 else "W")
+        lat, lon = self._coord(self.lat, 2), self._coord(self.lon, 3)
+        fixed = self.quality > 0
+        rmc = "GPRMC,%s,%s,%s,%s,%s,%s,%05.1f,%05.1f,%s,003.1,W" % (
+            hms, "A" if fixed else "V", lat if fixed else "", ns if fixed else "",
+            lon if fixed else "", ew if fixed else "", self.speed_kn, self.course, date,
+        )  # fmt: skip
+        gga = "GPGGA,%s,%s,%s,%s,%s,%d,%02d,%.1f,%s,M,46.9,M,," % (
+            hms, lat if fixed else "", ns if fixed else "", lon if fixed else "",
+            ew if fixed else "", self.quality, self.sats, self.hdop,
+            ("%.1f" % self.alt) if fixed else "",
+        )  # fmt: skip
+        out = ""
+        for body in (rmc, gga):
+            self.sent += 1
+            out += _nmea(body, self.bad_every and self.sent % self.bad_every == 0)
+        return out.encode()
+
+    def produce(self, now):
+        k = ticks_diff(now, self._mark) // 1000000  # (from a mark moved on: ticks_diff spans 537 s)
+        self._mark, self._base = ticks_add(self._mark, k * 1000000), self._base + k
+        if self._base > self._sec:
+            self._sec = self._base
+            utc = self.utc0 + self._sec
+            if self.pps_pin is not None:
+                self.pps_at.append(now)
+                self.edges.append((now, utc))
+                if len(self.pps_at) > 20:
+                    self.pps_at.pop(0)
+                    self.edges.pop(0)
+                WORLD.set_level(self.pps_pin, 1)
+                WORLD.set_level(self.pps_pin, 0)
+            rest = self._out[self._fed :]  # (a slow reader: the line was still busy)
+            self._out = rest + self._sentences(utc)
+            self._out_t0, self._fed = now, 0
+        due = ticks_diff(now, self._out_t0) * self.baud // 10000000 + 1
+        if due > self._fed:
+            chunk = self._out[self._fed : due]
+            self._fed += len(chunk)
+            uart = WORLD.uarts.get(self.uart)
+            if uart is not None:
+                uart.feed(chunk)
