@@ -133,7 +133,7 @@ static avr_cycle_count_t gps_second(avr_t *a, avr_cycle_count_t when, void *para
     avr_raise_irq(pps_irq, 1);
     avr_cycle_timer_register_usec(avr, 100000, pps_low, NULL);
     long t = (long)(gps_utc % 86400);
-    char hms[16], date[16], body[128];
+    char hms[16], date[40], body[128];
     snprintf(hms, sizeof hms, "%02ld%02ld%02ld.00", t / 3600, (t / 60) % 60, t % 60);
     nmea_date(gps_utc / 86400, date, sizeof date);
     gps_len = gps_pos = 0;
