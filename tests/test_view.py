@@ -157,3 +157,46 @@ def test_the_view_of_a_board_with_its_own_clock_shows_its_latency(serve: Serve) 
         lat = view.stats["/far/dist_ir"].latency_us
     p50 = percentile(lat, 0.5)
     assert 0 <= p50 < 1e6, p50  # (µs: the sample's way here, not the board's 349 s head start)
+
+
+#: board text that rich would read as markup: a tag it cannot close, a hyperlink, blinking
+MARKUP_UNITS = ("mm[/]", "[link=https://evil.example]ok[/link]", "[blink]deg[/blink]", "[/]")
+
+
+@pytest.mark.parametrize("unit", MARKUP_UNITS)
+def test_board_text_is_drawn_as_text_never_as_markup(serve: Serve, unit: str) -> None:
+    """(issue 43.5: a unit of ``mm[/]`` ended the daemon with rich's MarkupError; ``[link=...]``
+    wrote a hyperlink into the terminal, ``[blink]`` made it blink)"""
+    from missing_link.board.transducer import Transducer
+
+    rt = make_sim("thesis", seed=1)
+    t = Transducer("gauge", 30, "gauge", "test", 1, "int16_t", -1, unit=unit, rate_hz=50)
+    rt.add_transducer(t, _Gauge())
+    server = serve(rt)
+    with Daemon(Config(boards=[BoardSpec(server.url)], publishers=["bus"])) as daemon:
+        assert daemon.wait_until_up(10)
+        out = io.StringIO()
+        view = LiveView(daemon, out)
+        try:
+            assert wait_for(lambda: "/thesis/gauge" in view.stats, 10)
+            console = Console(file=out, width=200, force_terminal=True, color_system="truecolor")
+            console.print(view.render(1.0, None))
+        finally:
+            view.close()
+    text = out.getvalue()
+    assert "\x1b]8;" not in text  # no hyperlink (OSC 8)
+    assert "\x1b[5m" not in text and ";5m" not in text  # no blinking
+    assert unit in re.sub(r"\x1b\[[0-9;]*m", "", text)  # the unit as the board wrote it
+
+
+class _Gauge:
+    """A sensor that reports 7 at 50 Hz (its ``rate_hz``)."""
+
+    def set_cb(self, fn: Any) -> None:
+        self._cb = fn
+
+    def poll_us(self) -> int:
+        return 20_000
+
+    def poll(self, now: int) -> None:
+        self._cb(0, 7)

@@ -10,6 +10,10 @@ without a clock map yet (``NOT_SYNCED``) have none and are left out of it.  Colu
 where they apply (servo commands only for boards with actuators).  When the output is not a
 terminal it prints a plain block every ``plain_period`` seconds instead.  All times in µs.
 
+Every string in the view is drawn as text (rich's ``Text``), never read as rich markup: a
+board's unit of ``mm[/]`` ended the daemon (MarkupError) and ``[link=...]`` or ``[blink]`` wrote
+hyperlinks and blinking into the terminal (issue 43.5).
+
 At the width it is drawn at, the topic table keeps every topic name whole if it can and cuts
 the last value instead; names that still do not fit lose their start, never their end, where
 topics of one board differ (:func:`fit_names`: ``/board_b/dist_ir`` and ``/board_b/dist_us``
@@ -133,7 +137,7 @@ class LiveView:
         from rich.table import Table
         from rich.text import Text
 
-        boards = Table(title=title, title_justify="left", expand=False)
+        boards = Table(title=Text(title), title_justify="left", expand=False)
         status = self.daemon.status()
         with_cmds = any(s["commands"] or s["command_errors"] for s in status) or any(
             t.is_actuator for s in self.daemon.sessions for t in _transducers(s)
@@ -146,9 +150,9 @@ class LiveView:
         boards.add_column("losses")
         for s in status:
             losses = ", ".join(f"{s[k]} {label}" for k, label in LOSSES if s.get(k))
-            state = Text(s["state"], style="green" if s["state"] == "up" else "bold red")
-            row = [
-                s["board"],
+            state = Text(str(s["state"]), style="green" if s["state"] == "up" else "bold red")
+            row: list[Any] = [
+                Text(str(s["board"])),
                 state,
                 "-" if s["rtt_us"] is None else str(s["rtt_us"]),
                 "-" if "bound_us" not in s else f"{s['bound_us']:.1f}",
@@ -156,7 +160,7 @@ class LiveView:
             if with_cmds:
                 row.append(str(s["commands"]) if _has_actuator(self.daemon, s["board"]) else "")
             row.append(losses or "none")
-            boards.add_row(*row)
+            boards.add_row(*(Text(c) if isinstance(c, str) else c for c in row))
         return boards
 
     def _topic_rows(self) -> list[tuple[str, ...]]:
@@ -317,6 +321,7 @@ class TopicTable:
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         from rich.table import Table
+        from rich.text import Text
 
         shown, last_width = self.layout(options.max_width)
         table = Table(expand=False)
@@ -324,6 +329,6 @@ class TopicTable:
             table.add_column(head, justify=justify, no_wrap=True)  # type: ignore[arg-type]
         head = TOPIC_COLUMNS[-1][0]
         table.add_column(head, no_wrap=True, overflow="ellipsis", max_width=last_width)
-        for row in self.rows:
-            table.add_row(shown[row[0]], *row[1:])
+        for row in self.rows:  # (as text: a board's unit is no markup)
+            table.add_row(Text(shown[row[0]]), *(Text(cell) for cell in row[1:]))
         yield table
