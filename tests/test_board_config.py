@@ -233,6 +233,7 @@ def test_the_2014_firmware_is_not_configurable_and_keeps_working() -> None:
         (b"config/1\nx;bool;1;;\n", "not transducer.key"),
         (b"config/1\na.b;float;1;5..1;\n", "limits"),
         (b"config/1\na.b;enum;c;a|b;\n", "enum"),
+        (b"config/1\na.b;enum;a;a|\x1b[2Jb;\n", "not printable"),  # (issue 43.6)
         (b"config/1\na.b;int;1;0..9\n", "line 2"),
         (b"config/1\na.b;bool;1;;\na.b;bool;1;;\n", "twice"),
         (b"\xff\xfe", "not UTF-8"),

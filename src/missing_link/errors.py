@@ -5,14 +5,25 @@ One tree: every exception class missing-link defines derives from :class:`Missin
 it raises on purpose.  Errors in the user's input are ``ValueError`` too (``BadURL``,
 ``ConfigError``), so callers that catch ``ValueError`` keep working.  A bug (ours or a case a
 board's data reached unvalidated) is any other exception: where a thread must outlive it, it
-is counted by kind and logged once (``logs.ErrorCounts``).
+is counted by kind and logged once (``logs.ErrorCounts``).  Every message is text: no control
+character or escape sequence of what it quotes survives ``str()``.
 """
 
 from __future__ import annotations
 
+from .text import clean
+
 
 class MissingLinkError(Exception):
-    """Base class of every error missing-link raises on purpose."""
+    """Base class of every error missing-link raises on purpose.
+
+    Its message is text whatever it quotes (``text.clean``): what a board or a network client
+    said (an update refused with a new window title, a cleared screen and a forged line) reaches
+    the CLI's one error line, the logs, the control endpoint's and the web console's replies
+    only through ``str()`` of the error, so it is cleaned here, once for all of them."""
+
+    def __str__(self) -> str:
+        return clean(super().__str__())
 
 
 class TransportError(MissingLinkError):

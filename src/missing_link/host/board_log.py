@@ -74,6 +74,14 @@ class LogLine:
     #: a fault the board said before this host was there: known from its counts (a2jLogInfo)
     earlier: bool = False
 
+    def __post_init__(self) -> None:
+        # every line is text, whoever made it (the board's own are composed clean; the
+        # daemon's about a board, such as an update refused, quote what the board said)
+        for name in ("text", "source", "kind"):
+            value = getattr(self, name)
+            if not value.isprintable():
+                object.__setattr__(self, name, safe_text(value, TEXT_LIMIT))
+
     @property
     def level_name(self) -> str:
         return LEVELS.get(self.level, str(self.level))

@@ -222,6 +222,8 @@ def _parse_line(line: str, index: int) -> ConfigKey:
         return ConfigKey(index, name, kind, default == "1", read_only=ro)
     if kind == "enum":
         choices = tuple(limits.split("|"))
+        if not all(c.isprintable() for c in choices):  # (they reach terminals and faces)
+            raise ValueError(f"{name}: an enum choice that is not printable text")
         if not all(choices) or default not in choices:
             raise ValueError(f"{name}: enum {limits!r} with default {default!r}")
         return ConfigKey(index, name, kind, natural(default), choices=choices, read_only=ro)

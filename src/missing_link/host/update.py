@@ -38,6 +38,7 @@ from typing import Any, TypeVar
 from ..board.identity import BOARD_FILE, FirmwareHash
 from ..errors import MissingLinkError
 from ..j2a import BlobError, parse_properties
+from ..text import safe_text
 from .board import Board
 
 IMAGE_MAGIC = b"MLFW1\n"
@@ -352,7 +353,8 @@ class Updater:
 
 
 def _text(payload: bytes) -> str:
-    return payload.decode("utf-8", "replace").strip("\0").strip()
+    """What a board said, as text (it is quoted in errors, logs and the terminal)."""
+    return safe_text(payload.decode("utf-8", "replace").strip("\0").strip(), 200)
 
 
 def _safe(fn: Callable[[], T]) -> T | None:
