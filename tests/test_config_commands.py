@@ -24,6 +24,7 @@ from missing_link.host.config import Value, actuators_changed, parse_keys
 from missing_link.publishers.base import Publisher
 from missing_link.publishers.web import WebPublisher, context_of
 from missing_link.topics import Update
+from missing_link.virtual import make_sim
 
 KEYS = parse_keys(
     b"config/1\nquad.enabled;bool;1;;\nservo.enabled;bool;1;;\n"
@@ -72,10 +73,14 @@ class ParamFace(Publisher):
 
 
 @contextmanager
-def rig(serve: Any, tmp_path: Path, allowed: list[str]) -> Iterator[tuple[Daemon, Any, Any]]:
+def rig(
+    serve: Any, tmp_path: Path, allowed: list[str], storage: bool = False
+) -> Iterator[tuple[Daemon, Any, Any]]:
     """encoder_servo under a daemon with the allow-list ``allowed``, the web console and a
-    parameter face with commands off, and the control endpoint."""
-    b = serve("encoder_servo")
+    parameter face with commands off, and the control endpoint (``storage``: the board keeps
+    a saved configuration, in a file of ``tmp_path``)."""
+    kw = {"config_file": str(tmp_path / "board.cfg")} if storage else {}
+    b = serve(make_sim("encoder_servo", seed=1, **kw))
     cfg = Config(
         boards=[BoardSpec(b.url, name="rig")],
         publishers=["bus", "web"],
@@ -157,3 +162,22 @@ def test_a_face_without_commands_may_not_change_what_one_with_them_set(
         d.reset_config("rig")  # (the API: allowed)
         assert d.board_config("rig")["servo.failsafe_ms"] == 500
         assert _web(web, {"op": "reset"})["ok"] is True  # (nothing of the servo changes now)
+
+
+def test_what_a_viewer_cannot_set_it_cannot_erase(serve: Any, tmp_path: Path) -> None:
+    """(issue 43.11: a web console with commands off, under a list that admitted only the API's
+    change, reset with erase and so wiped the servo's saved configuration: its guard compared
+    the values now with the defaults and never saw ``erase_saved``)"""
+    with rig(serve, tmp_path, ["/rig/servo/cmd"], storage=True) as (d, web, _params):
+        d.configure("rig", {"servo.failsafe_ms": 250}, save=True)  # the operator's, kept
+        d.reset_config("rig")  # back to the defaults now; the saved record still holds 250
+        sock = str(tmp_path / "control.sock")
+        saved = ask(sock, {"op": "config", "board": "rig"})["state"]
+        assert saved & 1, saved  # (ST_SAVED)
+        reply = _web(web, {"op": "reset", "erase": True})
+        assert reply["ok"] is False and "servo are commands" in reply["text"], reply
+        assert ask(sock, {"op": "config", "board": "rig"})["state"] == saved  # kept
+        assert _refused(d) == {"web": 1}
+        assert actuators_changed(KEYS, {"servo"}, NOW, None, erase=True) == ["servo"]
+        d.reset_config("rig", erase_saved=True)  # (the API, which the list admits: erased)
+        assert not ask(sock, {"op": "config", "board": "rig"})["state"] & 1

@@ -14,7 +14,7 @@ from ..errors import BoardError, MissingLinkError
 from ..host.board import Board
 from ..host.config import Value
 from ..host.link import CallResult
-from .control.allowlist import CommandGate, called_function
+from .control.allowlist import BOARD_WIDE, CommandGate, called_function
 from .control.config_guard import config_guard
 from .control.endpoint import call_timeout
 from .session.session import BoardSession
@@ -88,10 +88,19 @@ class BoardApi:
         return s.farewell.call(b, function, payload, t)
 
     def _gate(self, s: BoardSession, b: Board, function: str, payload: bytes, by: str) -> None:
-        """The allow-list on a plain call: what the call would move is named by its topic."""
-        topic = s.command_topic(called_function(function, payload, b.functions))
+        """The allow-list on a plain call: what the call would move is named by its topic; a
+        configuration or firmware function, by every actuator the board has."""
+        called = called_function(function, payload, b.functions)
+        topic = s.command_topic(called)
         if topic is not None:
             self.commands.check(by, topic)
+        elif called in BOARD_WIDE:
+            self.commands.check_all(by, s.actuator_topics(), f"{s.name}: {called}")
+
+    def gate_board(self, s: BoardSession, what: str, by: str = "control") -> None:
+        """The allow-list on an op that changes what every actuator of a board does or lets go
+        of its port (the control endpoint's ``update`` and ``release``)."""
+        self.commands.check_all(by, s.actuator_topics(), f"{s.name}: {what}")
 
     def set_frame_id(self, board: str, transducer: str, frame_id: str) -> None:
         """The ``frame_id`` of a transducer's standard messages from now on (ValueError for a

@@ -176,7 +176,7 @@ class Daemon(BoardApi):
         if self.config.control:
             try:
                 verbs = (self.session, self._up, self.call, self.configure, self.reset_config)
-                handlers = control_handlers(*verbs, self.fanout.log, self.clock)
+                handlers = control_handlers(*verbs, self.fanout.log, self.clock, self.gate_board)
                 self.control = ControlServer(self.config.control, handlers)
             except MissingLinkError as e:  # another daemon has it: this one runs without
                 log.warning("%s; missing-link config/call/info reach this daemon's boards "

@@ -358,12 +358,15 @@ def actuators_changed(
     now: Mapping[str, Value],
     wanted: Mapping[str, object] | None,
     save: bool = False,
+    erase: bool = False,
 ) -> list[str]:
     """The actuators (transducer names in ``actuators``) whose keys a change would change: a
     set of ``wanted`` (None: a reset to the defaults) against the values ``now``, and with
-    ``save`` what the board boots with (an actuator key saved away from its default).  Keys
-    of an actuator are commands (docs/security.md): a face that may not command it may not
-    change them either.  ConfigError for a key or value the table does not take."""
+    ``save`` what the board boots with (an actuator key saved away from its default); with
+    ``erase`` (a reset that erases the saved configuration) every actuator with a key it may
+    set, since what it boots with may change and the saved values are not read.  Keys of an
+    actuator are commands (docs/security.md): a face that may not command it may not change,
+    reset or erase them either.  ConfigError for a key or value the table does not take."""
     table = {k.name: k for k in keys}
     after = dict(now)
     if wanted is None:
@@ -378,7 +381,7 @@ def actuators_changed(
     for k in keys:
         if k.transducer not in actuators or k.transducer in out:
             continue
-        moved = not _same(k, now.get(k.name), after.get(k.name))
+        moved = not _same(k, now.get(k.name), after.get(k.name)) or (erase and not k.read_only)
         if moved or (save and not _same(k, after.get(k.name), k.default)):
             out.append(k.transducer)
     return out

@@ -17,7 +17,15 @@ plain call of an actuator's function (``Daemon.call``, the control endpoint behi
 ``Daemon.send`` are refused the same way (``check``: CommandRefused, counted under the path's
 name: ``api``, ``control``, ``bus``), named by the actuator's command topic.  So is a change
 of an actuator's run-time configuration (its keys are commands: daemon/session/run_config.py) from
-any face (``check_face``: the face's ``commands`` first, then the list).
+any face (``check_face``: the face's ``commands`` first, then the list).  And so are the paths
+that change what every actuator of a board does or let go of it (``check_all``: the list must
+admit the command topic of every actuator the board has, counted under the path's name): a
+plain call of a configuration function (``a2jConfigSet``, ``a2jConfigReset``: through a raw call
+the daemon does not work out which keys; ``missing-link config`` checks key by key), a firmware
+update (the control endpoint's ``update``, or its ``a2jFw*`` calls one by one) and ``release``
+(the daemon lets go of the board's port: whoever takes it drives the board).  Before, a control
+``call BOARD a2jConfigSet`` set ``servo.failsafe_ms = 0`` under a list that admitted nothing
+(issue 43.7).
 """
 
 from __future__ import annotations
@@ -35,6 +43,13 @@ log = logging.getLogger(__name__)
 Handler = Callable[[Any], None]
 
 
+#: functions whose plain call changes what every actuator of a board may do: its run-time
+#: configuration (an actuator's keys are commands) and its firmware
+BOARD_WIDE = frozenset(
+    ("a2jConfigSet", "a2jConfigReset", "a2jFwBegin", "a2jFwStage", "a2jFwSwitch", "a2jFwConfirm")
+)
+
+
 class CommandRefused(MissingLinkError):
     """A command the allow-list (``[daemon] commands``) does not admit: nothing was sent."""
 
@@ -43,9 +58,15 @@ def called_function(function: str, payload: bytes, functions: Sequence[str]) -> 
     """The function a call of ``function`` with ``payload`` ends up running on the board: for
     ``a2jAt`` the one its payload names ([q host ns][B function index][args]), and so on down
     an ``a2jAt`` of an ``a2jAt`` (boards refuse that now, but an older one ran it: the list
-    must hold whatever the board does), else itself."""
-    while function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
-        function, payload = functions[payload[8]], payload[9:]
+    must hold whatever the board does); for ``a2jMany`` its target ([B function index]...: a
+    staged firmware is written so), else itself."""
+    while len(payload) >= 1:
+        if function == "a2jAt" and len(payload) >= 9 and payload[8] < len(functions):
+            function, payload = functions[payload[8]], payload[9:]
+        elif function == "a2jMany" and payload[0] < len(functions):
+            function, payload = functions[payload[0]], b""
+        else:
+            break
     return function
 
 
@@ -67,6 +88,20 @@ class CommandGate:
         self._count(path)
         log.warning("%s: a command on %s refused: not in [daemon] commands", path, topic)
         raise CommandRefused(f"a command on {topic} refused: not in [daemon] commands")
+
+    def check_all(self, path: str, topics: Sequence[str], what: str) -> None:
+        """Raise CommandRefused (counted once under ``path``) unless the list admits every one
+        of ``topics`` (the command topics of a board's actuators): ``what`` (a call or an op
+        that changes what every one of them does, or lets go of the board) names it."""
+        barred = [t for t in topics if not self.allows(t)]
+        if not barred:
+            return
+        self._count(path)
+        log.warning("%s: %s refused: %s not in [daemon] commands", path, what, barred[0])
+        raise CommandRefused(
+            f"{what} refused: it changes what {', '.join(barred)} moves, which [daemon] "
+            "commands does not list"
+        )
 
     def check_face(self, face: str, takes_commands: bool, topic: str) -> None:
         """``check``, and refused (counted under ``face``) where ``face`` takes no commands:

@@ -29,13 +29,16 @@ def control_handlers(
     reset: Callable[..., dict[str, Any]],
     log_line: Callable[[LogLine], None] | None = None,
     clock: Clock = SYSTEM_CLOCK,
+    gate_board: Callable[[BoardSession, str], None] = lambda s, what: None,
 ) -> dict[str, Handler]:
     """``session(board)``: its session; ``up(board)``: the session and its board, or
     BoardError when it is not up; ``call(board, function, payload, timeout, by=)``: a call
     through the daemon's allow-list; ``configure(board, values, save, by=)`` and ``reset(board,
     erase, by=)``: a configuration change through it (an actuator's keys are commands);
     ``log_line``: a line of a board's log to every face (the firmware updates' ops, updates.py:
-    ``update``, ``update_status``, ``release``, ``retake``)."""
+    ``update``, ``update_status``, ``release``, ``retake``); ``gate_board(session, what)``: the
+    allow-list on an op that changes what every actuator of a board does or lets go of its port
+    (``update``, ``release``: CommandRefused unless it admits them all)."""
 
     def find(r: dict[str, Any]) -> dict[str, Any]:
         s = session(text(r, "board"))
@@ -69,7 +72,8 @@ def control_handlers(
         return {"values": values, "keys": keys, "state": b.settings.state}
 
     ops = {"find": find, "info": info, "call": do_call, "config": config}
-    return {**ops, **BoardUpdates(session, log_line or (lambda line: None), clock).handlers()}
+    updates = BoardUpdates(session, log_line or (lambda line: None), clock, gate_board)
+    return {**ops, **updates.handlers()}
 
 
 def text(request: dict[str, Any], key: str, default: str | None = None) -> str:

@@ -65,10 +65,14 @@ class BoardUpdates:
         session: Callable[[str], BoardSession],
         log_line: Callable[[LogLine], None],
         clock: Clock = SYSTEM_CLOCK,
+        gate: Callable[[BoardSession, str], None] = lambda s, what: None,
     ) -> None:
+        """``gate(session, what)``: the allow-list on an update or a release (either changes
+        what every actuator of the board does: CommandRefused unless it admits them all)."""
         self.clock = clock  #: the daemon's: the update's deadlines
         self._session = session
         self._log_line = log_line
+        self._gate = gate
         self._busy: set[str] = set()
         self._lock = threading.Lock()
 
@@ -84,6 +88,7 @@ class BoardUpdates:
         board = s.board
         if s.state != SessionState.UP or board is None:
             raise BoardError(s.name, f"not up ({s.state}): no update now")
+        self._gate(s, "a firmware update")
         image = _image(r)
         target = Target.from_json(dict(r.get("target") or {}))
         trial_s = int(r.get("trial_s", TRIAL_S))
@@ -138,6 +143,7 @@ class BoardUpdates:
         seconds = float(r.get("seconds", 180))
         if not 0 < seconds <= MAX_RELEASE_S:
             raise ConfigError(f"release: seconds {seconds:g}: expected 0..{MAX_RELEASE_S:g}")
+        self._gate(s, "release of its port")
         s.hold.take(seconds)
         board = s.board
         if board is not None:

@@ -144,23 +144,30 @@ class RunConfig:
     ) -> dict[str, Value]:
         board = self._board()
         with self._lock:
-            if guard is not None:
-                self._guard(board, guard, None, False)
+            if guard is not None:  # (an erase is a change too: issue 43.11)
+                self._guard(board, guard, None, False, erase_saved)
             self.values = board.reset_config(erase_saved)
             self.state = board.settings.state
             self._changed(by, {"(defaults)": True})
         return dict(self.values)
 
     def _guard(
-        self, board: Board, guard: Guard, wanted: Mapping[str, object] | None, save: bool
+        self,
+        board: Board,
+        guard: Guard,
+        wanted: Mapping[str, object] | None,
+        save: bool,
+        erase: bool = False,
     ) -> None:
         """Hand ``guard`` the actuators a change would change, compared with what the board
-        has now (read again: a board that restarted has forgotten what was set)."""
+        has now (read again: a board that restarted has forgotten what was set); an erase of
+        the saved configuration changes every actuator's (what it boots with)."""
         actuators = {t.name for t in board.transducers or () if t.is_actuator}
         if not actuators:
             return
         now = board.config()
-        changed = actuators_changed(board.settings.keys(), actuators, now, wanted, save)
+        keys = board.settings.keys()
+        changed = actuators_changed(keys, actuators, now, wanted, save, erase)
         if changed:
             guard(changed)
 

@@ -209,6 +209,11 @@ class BoardSession(SessionReport):
         nothing here), as of the latest handshake: the allow-list's name for it."""
         return self._actuator_calls.get(function)
 
+    def actuator_topics(self) -> list[str]:
+        """The command topic of every actuator, as of the latest handshake (what the board
+        drives, by the allow-list's names)."""
+        return list(self._actuator_calls.values())
+
     def start(self) -> None:
         self._thread.start()
 
