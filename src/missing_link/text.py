@@ -2,7 +2,7 @@
 
 ``clean`` strips what could change the meaning of the place a string lands in: terminal escape
 sequences whole (CSI such as ``ESC [2J``, OSC such as a window title ``ESC ]0;...BEL``, and their
-one-byte C1 forms), then every other control character (C0, DEL, C1: ``\r`` would add a line
+one-byte C1 forms), then every other control character (C0, DEL, C1: ``\\r`` would add a line
 to a generated ``.msg`` file or forge one on a terminal), line and paragraph separators, and
 invisible format characters (bidi overrides).  Board text leaves the host through two doors
 besides the parsers that read it in: an error's message (``errors.MissingLinkError``) and a
