@@ -19,6 +19,7 @@ from ..board.firmware import RESERVED, describe
 from ..descriptors import MAX_NAME, check_unique, read_input_file
 from ..errors import ConfigError, DescriptorError
 from ..text import did_you_mean, is_token
+from .mppins import check_pins
 
 MCUS = ("rp2040", "esp32", "esp32s3", "atmega328p", "atmega2560", "atmega32u4")
 AVR_MCUS = ("atmega328p", "atmega2560", "atmega32u4")
@@ -154,6 +155,8 @@ def check_board(board: dict[str, Any], where: str) -> None:
         check_unique(lines, where)
     except DescriptorError as e:
         raise ConfigError(str(e)) from None
+    if mcu not in AVR_MCUS:  # (an AVR board's pins: avrgen.py, by the C runtime's tables)
+        check_pins(board, where)
 
 
 def _check_features(features: Any, mcu: str, where: str) -> None:
