@@ -191,23 +191,38 @@ def test_encoder_joint_state_in_radians_over_the_counters_wrap() -> None:
     (m,) = maps(quad)
     assert m.sample is not None
     js = lambda k, values: decode(m.sample([ns(k)] * 2, values), "sensor_msgs/msg/JointState")  # noqa: E731
-    first = js(0, [32000, -5])
+    rad = 2 * math.pi / 2000
+    first = js(0, [32000, -5])  # the board's own counts: its angle since power-up
     assert first.name == ["bot/quad/0", "bot/quad/1"]
-    assert list(first.position) == [0.0, 0.0] and all(math.isnan(v) for v in first.velocity)
+    assert list(first.position) == pytest.approx([32000 * rad, -5 * rad])
+    assert all(math.isnan(v) for v in first.velocity)
     second = js(1, [-32536, -5])  # +1000 counts across the int16 wrap, in 20 ms
-    assert second.position[0] == pytest.approx(1000 * 2 * math.pi / 2000)  # half a turn: pi
+    assert second.position[0] == pytest.approx(33000 * rad)  # half a turn (pi) on
     assert second.velocity[0] == pytest.approx(math.pi / 0.020)
     assert second.velocity[1] == 0.0
     missed = js(2, [None, -5])  # the board says an edge was missed
     assert math.isnan(missed.position[0]) and math.isnan(missed.velocity[0])
     after = js(3, [-32036, -5])
-    assert after.position[0] == pytest.approx(1500 * 2 * math.pi / 2000)
+    assert after.position[0] == pytest.approx(33500 * rad)
     assert math.isnan(after.velocity[0])  # no speed across a missed edge
+
+
+def test_an_encoders_angle_survives_a_daemon_restart() -> None:
+    """Position is the board's count, not counts since the daemon's first sample: a daemon
+    that starts again (a new mapping) says the angle the board has (issue 45.6)."""
+    quad = parse_line("quad,0,quad,HEDS-6500,1,int32_t,-2147483648,unit=count,counts_per_rev=2000")
+    before, after = maps(quad)[0], maps(quad)[0]
+    assert before.sample is not None and after.sample is not None
+    for k, count in enumerate((0, 700, 1400)):
+        last = decode(before.sample([ns(k)], [count]), "sensor_msgs/msg/JointState")
+    again = decode(after.sample([ns(9)], [1500]), "sensor_msgs/msg/JointState")  # restarted
+    assert last.position[0] == pytest.approx(1400 * 2 * math.pi / 2000)
+    assert again.position[0] == pytest.approx(1500 * 2 * math.pi / 2000)  # not 0 rad
 
 
 def test_an_encoder_without_counts_per_rev_says_what_to_set() -> None:
     t = of_driver("quadrature")
-    with pytest.raises(ValueError, match=r"\[boards.bot.ros.quadrature\] counts_per_rev"):
+    with pytest.raises(ValueError, match=r'"options": \{"counts_per_rev": N\} on its board file'):
         maps(t)
     (m,) = maps(t, options=StdOptions(counts_per_rev=400))  # the host's key does it
     assert m.type_name == "sensor_msgs/msg/JointState"

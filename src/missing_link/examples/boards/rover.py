@@ -20,10 +20,11 @@ BOARD = {
          "stop": "brake", "failsafe_ms": 300, "call": "a2j_motor_l"},
         {"name": "motor_r", "id": 3, "driver": "hbridge", "in1": 18, "in2": 19, "ramp": 4.0,
          "stop": "brake", "failsafe_ms": 300, "call": "a2j_motor_r"},
+        # the wheels' encoders: 1440 counts (edges, x4) per wheel turn, for their JointState
         {"name": "wheel_l", "id": 4, "driver": "quadrature", "pin_a": 2, "pin_b": 3,
-         "rate_hz": 50},
+         "rate_hz": 50, "options": {"counts_per_rev": 1440}},
         {"name": "wheel_r", "id": 5, "driver": "quadrature", "pin_a": 6, "pin_b": 7,
-         "rate_hz": 50},
+         "rate_hz": 50, "options": {"counts_per_rev": 1440}},
         {"name": "sonar", "id": 6, "driver": "hcsr04", "trig_pin": 14, "echo_pin": 15,
          "rate_hz": 10},
         {"name": "tof", "id": 7, "driver": "vl53l0x", "bus": "i2c0", "rate_hz": 10},

@@ -13,7 +13,9 @@ BOARD = {
         "i2c0": {"id": 0, "scl": 5, "sda": 4, "freq": 100000},
     },
     "transducers": [
-        {"name": "wheel", "id": 0, "driver": "quadrature", "pin_a": 2, "pin_b": 3, "rate_hz": 50},
+        # a HEDS-5500 of 500 lines, x4: its angle in rad on /rig/wheel/joint_states
+        {"name": "wheel", "id": 0, "driver": "quadrature", "pin_a": 2, "pin_b": 3, "rate_hz": 50,
+         "options": {"counts_per_rev": 2000}},
         {"name": "dist_ir", "id": 1, "driver": "sharp_gp2y0a02", "pin": 26, "rate_hz": 25},
         {"name": "sonar", "id": 2, "driver": "srf02", "bus": "i2c0", "address": 0x70,
          "rate_hz": 10},

@@ -4,9 +4,11 @@ standard command (``std_msgs/msg/Float64`` in SI units) back to the raw value an
 
 Theory of operation
 -------------------
-* quadrature encoder: the count wraps like the board's counter (its data type); the host
-  unwraps it, so ``position`` (rad) = counts since the first sample x 2 pi / ``counts_per_rev``
-  keeps growing over a wrap, and ``velocity`` (rad/s) is the change since the previous sample
+* quadrature encoder: ``position`` (rad) = the board's count x 2 pi / ``counts_per_rev`` (the
+  board counts from its power-up, so a daemon that restarts, or a second one, says the same
+  angle); the count wraps like the board's counter (its data type) and the host unwraps it from
+  the first count it sees, so the position keeps growing over a wrap; ``velocity`` (rad/s) is
+  the change since the previous sample
   over the time between their host stamps (NaN for the first sample and after an N/A one:
   the board says a count with a missed edge is not to be trusted);
 * servo (any actuator or ``ros=`` JointState in an angle unit): ``position`` = the commanded
@@ -78,7 +80,8 @@ def _string(out: bytearray, text: str) -> None:
 
 
 def counts_per_rev(c: Ctx) -> float:
-    """An encoder's counts per revolution: the host's key, else the descriptor's."""
+    """An encoder's counts per revolution: the host's key (``[boards.<board>.ros.<name>]``),
+    else the descriptor's (the board file's ``options``: it is the hardware)."""
     given = c.options.counts_per_rev
     if given is None:
         text = descriptor_key(c.t, "counts_per_rev")
@@ -91,8 +94,9 @@ def counts_per_rev(c: Ctx) -> float:
     if given is None or not given > 0 or not math.isfinite(given):
         raise ValueError(
             f"{c.board}/{c.t.name}: an encoder's JointState needs its counts per revolution: "
-            f"[boards.{c.board}.ros.{c.t.name}] counts_per_rev = N (edges x4 per turn), or "
-            "counts_per_rev in the board file's options; it goes out as counts only until then"
+            f'"options": {{"counts_per_rev": N}} on its board file entry (edges x4 per '
+            f"turn), or [boards.{c.board}.ros.{c.t.name}] counts_per_rev = N in the daemon's "
+            "configuration; it goes out as counts only until then"
         )
     return given
 
@@ -114,7 +118,7 @@ def _encoder(c: Ctx) -> Sample:
     n = t.chan_count
     names = [c.joint(ch) for ch in range(n)]
     raw: list[int | None] = [None] * n  # the previous count (for the wrap)
-    acc = [0] * n  # counts since the first sample, unwrapped
+    acc = [0] * n  # the board's count, unwrapped from the first one seen
     last: list[tuple[int, int] | None] = [None] * n  # (host ns, acc) of the previous good one
 
     def sample(host_ns: list[int], values: list[Any]) -> bytes:
@@ -124,7 +128,9 @@ def _encoder(c: Ctx) -> Sample:
                 last[ch] = None  # (a missed edge: no speed across it)
                 continue
             prev = raw[ch]
-            if prev is not None:
+            if prev is None:
+                acc[ch] = int(v)  # (the board's own count: its angle since power-up)
+            else:
                 acc[ch] += (int(v) - prev + half) % span - half
             raw[ch] = int(v)
             pos[ch] = acc[ch] * rad_per_count
