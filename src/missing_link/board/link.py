@@ -86,6 +86,7 @@ class _Sockets:
     # says there are bytes; a send that cannot go out within SEND_S closes the connection (a
     # host that vanished must not stall the firmware's loop, and with it the failsafe).
     SEND_S = 0.5
+    RECV_BYTES = 512  # what one recv takes at most (a board's RAM)
 
     def __init__(self):
         import select
@@ -111,7 +112,7 @@ class _Sockets:
         if not self._ready(conn):
             return None
         try:
-            data = conn.recv(512)
+            data = conn.recv(self.RECV_BYTES)
         except OSError:
             data = b""
         if not data:
@@ -154,15 +155,18 @@ class _Sockets:
 
 class TcpServer(_Sockets):
     # Connections on one TCP port, by number: accept() -> a new connection's number or None,
-    # and the table's recv, send, drop, wait (above); close().
-    def __init__(self, port=5000, host="0.0.0.0"):
-        import socket
-
+    # and the table's recv, send, drop, wait (above); close().  `listener`: a listening socket
+    # made elsewhere (a virtual board's, virtual/boardfile.py) instead of one on `port`.
+    def __init__(self, port=5000, host="0.0.0.0", listener=None):
         super().__init__()
-        self._srv = socket.socket()
-        self._srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self._srv.bind(socket.getaddrinfo(host, port)[0][-1])
-        self._srv.listen(2)
+        if listener is None:
+            import socket
+
+            listener = socket.socket()
+            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            listener.bind(socket.getaddrinfo(host, port)[0][-1])
+            listener.listen(2)
+        self._srv = listener
 
     def accept(self):
         if not self._ready(self._srv):
@@ -172,9 +176,13 @@ class TcpServer(_Sockets):
         except OSError:  # (out of sockets: the client is gone again)
             return None
         conn.settimeout(self.SEND_S)
+        self._accepted(conn)
         n = self._number()
         self._conns[n] = conn
         return n
+
+    def _accepted(self, conn):
+        pass  # (what a server of a host's own adds to a new connection)
 
     def wait(self, us):
         socks = list(self._conns.values())

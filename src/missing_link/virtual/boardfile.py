@@ -38,7 +38,6 @@ import errno
 import os
 import select
 import socket
-import stat
 import tty
 from collections.abc import Collection
 from pathlib import Path
@@ -47,9 +46,10 @@ from urllib.parse import urlsplit
 
 from ..board.dial import dial_server
 from ..board.firmware import Firmware
-from ..board.link import SocketNet, network_link
+from ..board.link import SocketNet, TcpServer, network_link
 from ..board.store import FileStore
 from ..errors import BadURL, ConfigError, MissingLinkError
+from .listen import listen_socket
 from .world import machine
 from .world.parts import populate
 
@@ -96,78 +96,40 @@ def _wait(fds: list[int], power: Power, us: int) -> list[int]:
     return ready
 
 
-class SocketServer:
-    """link.py's TcpServer interface on a listening socket of this machine: connections by
-    number; a send that cannot go out within SEND_S closes the connection (a host that
-    vanished must not stall the firmware's loop, and with it the failsafe), as on a device."""
+class SocketServer(TcpServer):  # type: ignore[misc]
+    """link.py's TcpServer on a listening socket of this machine (tcp or unix: listen.py), with
+    the power switch: its waits wake on it and accept() checks it.  Its connections send at once
+    (TCP_NODELAY) and a recv takes what a host's buffers hold, not a board's 512 bytes."""
 
-    SEND_S = 0.5
+    RECV_BYTES = 4096
 
     def __init__(self, listener: socket.socket, power: Power) -> None:
-        self.listener = listener
+        super().__init__(listener=listener)
         self.power = power
-        self.conns: dict[int, socket.socket] = {}
-        self._next = 1
 
     def accept(self) -> int | None:
         self.power.check()
-        if not _wait([self.listener.fileno()], self.power, 0):
-            return None
-        try:
-            conn, _addr = self.listener.accept()
-        except OSError:  # (the client is gone again)
-            return None
-        conn.settimeout(self.SEND_S)
-        if conn.family == socket.AF_INET:
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        n = self._next
-        self._next += 1
-        self.conns[n] = conn
+        n: int | None = super().accept()
         return n
 
-    def recv(self, n: int) -> bytes | None:
-        conn = self.conns.get(n)
-        if conn is None:
-            return b""
-        if not _wait([conn.fileno()], self.power, 0):
-            return None
-        try:
-            data = conn.recv(4096)
-        except OSError:
-            data = b""
-        if not data:
-            self.drop(n)
-        return data
+    def _accepted(self, conn: socket.socket) -> None:
+        if conn.family == socket.AF_INET:
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
-    def send(self, n: int, data: bytes) -> bool:
-        conn = self.conns.get(n)
-        if conn is None:
-            return False
-        try:
-            conn.sendall(data)
-        except OSError:
-            self.drop(n)
-            return False
-        return True
+    def _ready(self, sock: socket.socket, ms: int = 0) -> bool:
+        return sock.fileno() in _wait([sock.fileno()], self.power, ms * 1000)
 
-    def drop(self, n: int) -> None:
-        conn = self.conns.pop(n, None)
-        if conn is not None:
-            conn.close()
-
-    def wait(self, us: int) -> None:
-        fds = [self.listener.fileno(), *(c.fileno() for c in self.conns.values())]
-        _wait(fds, self.power, us)
+    def _wait_on(self, socks: list[socket.socket], us: int) -> None:
+        _wait([s.fileno() for s in socks], self.power, us)
 
     def close(self) -> None:
-        for n in list(self.conns):
-            self.drop(n)
-        if self.listener.family == socket.AF_UNIX:
+        path = self._srv.getsockname() if self._srv.family == socket.AF_UNIX else None
+        super().close()
+        if path:
             try:
-                os.unlink(self.listener.getsockname())
+                os.unlink(path)
             except OSError:
                 pass
-        self.listener.close()
 
 
 class DialNet(SocketNet):  # type: ignore[misc]
@@ -308,38 +270,10 @@ class _Link(Protocol):
 def listener(url: str) -> tuple[socket.socket, str]:
     """A listening socket for ``tcp://HOST:PORT`` (0: any free port) or ``unix:///PATH``, and the
     URL a host opens; BadURL for anything else, ListenError when it cannot be bound."""
-    scheme = url.split("://", 1)[0]
-    if scheme == "tcp":
-        parts = urlsplit(url)
-        host = parts.hostname or "127.0.0.1"
-        try:
-            port = parts.port or 0
-        except ValueError as e:
-            raise BadURL(f"{url!r}: bad port") from e
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        where: Any = (host, port)
-    elif scheme == "unix":
-        path = urlsplit(url).path
-        if not path:
-            raise BadURL(f"{url!r}: expected unix:///path")
-        if os.path.exists(path):
-            if not stat.S_ISSOCK(os.stat(path).st_mode):
-                raise ListenError(f"cannot listen on {url}: {path} exists and is not a socket")
-            os.unlink(path)  # a stale socket of an earlier run: nothing else is removed
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        where = path
-    else:
-        raise BadURL(f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path or pty")
     try:
-        sock.bind(where)
-        sock.listen(2)
+        return listen_socket(url, 2, "pty")
     except OSError as e:
-        sock.close()
         raise ListenError(f"cannot listen on {url}: {e.strerror or e}") from None
-    if scheme == "unix":
-        return sock, f"unix://{where}"
-    return sock, f"tcp://{host}:{sock.getsockname()[1]}"
 
 
 def flash_files(board: dict[str, Any], flash: Path) -> dict[str, Any]:

@@ -19,7 +19,6 @@ import itertools
 import os
 import select
 import socket
-import stat
 import threading
 import time
 import tty
@@ -33,6 +32,7 @@ from ..board.runtime import BoardRuntime
 from ..errors import BadURL, TransportBroken, TransportClosed
 from ..transport.in_process import MemoryListener, MemoryTransport
 from ..transport.sockets import enable_rx_stamps, recv_stamped
+from .listen import listen_socket
 
 OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
@@ -204,47 +204,12 @@ class BoardServer:
             self._pty_slave = slave  # kept open so the master never sees EOF between hosts
             self._link = _Link(master)
             return f"serial://{os.ttyname(slave)}"
-        scheme = url.split("://", 1)[0]
-        if scheme == "tcp":
-            parts = urlsplit(url)
-            host = parts.hostname or "127.0.0.1"
-            try:
-                port = parts.port or 0
-            except ValueError as e:
-                raise BadURL(f"{url!r}: bad port") from e
-            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                sock.bind((host, port))
-            except OSError:
-                sock.close()
-                raise
-            sock.listen(1)
-            self._listener = sock
-            return f"tcp://{host}:{sock.getsockname()[1]}"
-        if scheme == "unix":
-            path = urlsplit(url).path
-            if not path:
-                raise BadURL(f"{url!r}: expected unix:///path")
-            if os.path.exists(path):
-                if not stat.S_ISSOCK(os.stat(path).st_mode):
-                    raise FileExistsError(errno.EEXIST, "exists and is not a socket", path)
-                os.unlink(path)  # a stale socket of an earlier run: nothing else is removed
-            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                sock.bind(path)
-            except OSError:
-                sock.close()
-                raise
-            sock.listen(1)
-            self._listener = sock
-            return f"unix://{path}"
-        if scheme == "memory":
+        if url.split("://", 1)[0] == "memory":
             self._memory = MemoryListener(urlsplit(url).netloc)
             return self._memory.url
-        raise BadURL(
-            f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path, pty or memory://NAME"
-        )
+        # tcp or unix (BadURL for anything else, saying what is taken)
+        self._listener, bound = listen_socket(url, 1, "pty or memory://NAME")
+        return bound
 
     # ---- the process loop ---------------------------------------------------------------------
     def _wait_time(self) -> float:

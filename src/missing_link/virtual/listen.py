@@ -1,0 +1,55 @@
+"""Where a virtual board listens for its host, made once for both kinds of virtual board (the
+simulated runtimes of server.py and the board files of boardfile.py): a listening socket for
+``tcp://HOST:PORT`` (0: any free port) or ``unix:///PATH`` (a stale socket of an earlier run
+is removed, nothing else), and the URL a host opens."""
+
+from __future__ import annotations
+
+import errno
+import os
+import socket
+import stat
+from typing import Any
+from urllib.parse import urlsplit
+
+from ..errors import BadURL
+
+
+def listen_socket(url: str, backlog: int, others: str) -> tuple[socket.socket, str]:
+    """The listening socket and the URL a host opens; BadURL for a scheme other than tcp and
+    unix (``others``: what else the caller takes, for the message), OSError when it cannot be
+    bound (FileExistsError: the path is there and is no socket)."""
+    scheme = url.split("://", 1)[0]
+    if scheme == "tcp":
+        parts = urlsplit(url)
+        host = parts.hostname or "127.0.0.1"
+        try:
+            port = parts.port or 0
+        except ValueError as e:
+            raise BadURL(f"{url!r}: bad port") from e
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        where: Any = (host, port)
+    elif scheme == "unix":
+        path = urlsplit(url).path
+        if not path:
+            raise BadURL(f"{url!r}: expected unix:///path")
+        if os.path.exists(path):
+            if not stat.S_ISSOCK(os.stat(path).st_mode):
+                raise FileExistsError(errno.EEXIST, f"{path} exists and is not a socket", path)
+            os.unlink(path)  # a stale socket of an earlier run: nothing else is removed
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        where = path
+    else:
+        raise BadURL(
+            f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path or {others}"
+        )
+    try:
+        sock.bind(where)
+        sock.listen(backlog)
+    except OSError:
+        sock.close()
+        raise
+    if scheme == "unix":
+        return sock, f"unix://{where}"
+    return sock, f"tcp://{host}:{sock.getsockname()[1]}"
