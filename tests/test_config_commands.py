@@ -22,7 +22,7 @@ from missing_link.daemon.control.allowlist import CommandRefused
 from missing_link.daemon.control.endpoint import ask
 from missing_link.host.config import Value, actuators_changed, parse_keys
 from missing_link.publishers.base import Publisher
-from missing_link.publishers.web import WebPublisher, context_of
+from missing_link.publishers.web import WebPublisher
 from missing_link.topics import Update
 from missing_link.virtual import make_sim
 
@@ -91,7 +91,7 @@ def rig(
     params = ParamFace(takes_commands=False)
     with Daemon(cfg, extra_publishers=[params]) as d:
         web = next(p for p in d.publishers if isinstance(p, WebPublisher))
-        web.attach(context_of(d))
+        assert web.server.attached  # (the daemon started it with its verbs)
         assert d.wait_until_up(10)
         yield d, web, params
 

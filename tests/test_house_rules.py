@@ -7,6 +7,7 @@ declared.  (The import structure, the rooms and their floors: tests/test_archite
 from __future__ import annotations
 
 import ast
+import subprocess
 import sys
 from pathlib import Path
 
@@ -123,7 +124,8 @@ STARTS_PROCESSES = {
 SUBPROCESS = {"run", "Popen", "check_output", "check_call", "call"}
 
 #: quick children that make check keeps: a bare interpreter that imports the package
-QUICK_CHILDREN = {"test_architecture.py::test_the_face_imports_nothing_at_run_time"}
+QUICK_CHILDREN = {"test_architecture.py::test_the_face_imports_nothing_at_run_time",
+                  "test_house_rules.py::test_the_core_runs_without_the_extras"}  # fmt: skip
 
 
 def unmarked_process_tests(path: Path) -> list[str]:
@@ -210,6 +212,12 @@ def test_every_imported_package_is_declared() -> None:
         d.split(";")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
         for d in project["dependencies"]
     }, "the installed metadata is stale: reinstall (make venv)"
+    extras = {
+        d.split(";")[0].split("[")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
+        for name, deps in project.get("optional-dependencies", {}).items()
+        if name != "dev"
+        for d in deps
+    }
     dists = packages_distributions()
     missing = {}
     for path in SRC.rglob("*.py"):
@@ -230,9 +238,41 @@ def test_every_imported_package_is_declared() -> None:
                 ):
                     continue
                 owners = {d.lower() for d in dists.get(top, [])}
-                if not owners & declared:
+                if not owners & (declared | extras):
                     missing[top] = str(path.relative_to(ROOT))
     assert not missing, f"imported but not declared in pyproject.toml: {missing}"
+
+
+#: what the faces that are extras import (pyproject's web, zenoh: the core runs without them)
+EXTRAS_ONLY = ("websockets", "zenoh", "xxhash")
+
+
+def test_the_core_runs_without_the_extras() -> None:
+    """The core is light: without the web and zenoh extras the CLI, the daemon and the core faces
+    (bus, console, mcap) load and start; a face that needs an extra says which."""
+    probe = (
+        "import sys\n"
+        f"for m in {EXTRAS_ONLY!r}: sys.modules[m] = None  # (as if not installed)\n"
+        "import missing_link.cli.main\n"
+        "from missing_link.daemon import Config, Daemon\n"
+        "from missing_link.publishers.base import PublisherError\n"
+        "from missing_link.publishers.registry import make_publisher\n"
+        "import tempfile\n"
+        "with tempfile.TemporaryDirectory() as tmp:\n"
+        "    cfg = Config(publishers=['bus', 'console', 'mcap'],\n"
+        "                 publisher_options={'mcap': {'path': tmp}})\n"
+        "    with Daemon(cfg) as d:\n"
+        "        print(sorted(p.name for p in d.publishers))\n"
+        "try:\n"
+        "    make_publisher('web', {})\n"
+        "except PublisherError as e:\n"
+        "    print(e)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    first, second = r.stdout.splitlines()[:2]
+    assert first == "['bus', 'console', 'mcap']"
+    assert "missing-link[web]" in second, second
 
 
 def test_every_module_says_what_it_owns() -> None:

@@ -25,7 +25,7 @@ import websockets
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config, parse_config
 from missing_link.errors import ConfigError
-from missing_link.publishers.web import WebPublisher, context_of, parse_addr, parse_options
+from missing_link.publishers.web import WebPublisher, parse_addr, parse_options
 from missing_link.publishers.web_model import thin
 from missing_link.virtual.sims import rangers
 
@@ -121,7 +121,7 @@ def console(
     )
     with Daemon(cfg) as d:
         face = next(p for p in d.publishers if isinstance(p, WebPublisher))
-        face.attach(context_of(d))
+        assert face.server.attached  # (the daemon started it with its verbs: no CLI needed)
         assert d.wait_until_up(10)
         yield d, face
 

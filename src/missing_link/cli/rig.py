@@ -125,9 +125,6 @@ def _run(
         if fox is not None:
             print(f"  live view for Foxglove: open connection {fox.url}", file=out)
         if console is not None:
-            from ..publishers.web import context_of
-
-            console.attach(context_of(daemon))
             print(f"  device console in a browser: {console.url}", file=out)
         if not daemon.wait_until_up(10.0):
             raise MissingLinkError(f"boards did not come up: {daemon.status()}")

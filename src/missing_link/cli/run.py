@@ -106,7 +106,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..daemon import Daemon
 
     daemon = Daemon(build_config(args))  # config, URL and descriptor errors: exit 2, at once
-    attach_web(daemon)
     given = list(daemon.sessions)  # (boards found by --auto come and go; these were asked for)
     stop = threading.Event()
     interrupted = []
@@ -151,15 +150,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     if interrupted:
         return EXIT_INTERRUPTED
     return EXIT_FAIL if failures else code
-
-
-def attach_web(daemon: Any) -> None:
-    """Hand the web console (if the daemon has one) the daemon's public verbs it uses."""
-    for p in daemon.publishers:
-        if p.name == "web" and hasattr(p, "attach"):
-            from ..publishers.web import context_of
-
-            p.attach(context_of(daemon))
 
 
 def _wait_watching(daemon: Any, stop: threading.Event, duration: float | None) -> None:

@@ -51,7 +51,7 @@ from typing import Any
 from ..descriptors import Transducer
 from ..host.clock import SYSTEM_CLOCK, Clock
 from ..host.config import Value
-from ..publishers.base import Publisher
+from ..publishers.base import DaemonApi, Publisher
 from ..ros.standard import HBRIDGE, JOINT_STATE, STEPPER, command_kind
 from ..ros.standard.joints import joint_state_cdr
 from ..text import safe_text
@@ -287,11 +287,9 @@ class Joints(Publisher):
         self.commands_refused = 0
         self.command_timeouts = 0
 
-    def start(
-        self, declare: Callable[[Topic], None], add_command: Callable[[str, Topic, Any], None]
-    ) -> None:
-        declare(self.state_topic)
-        add_command(self.spec.command_topic, self.command_topic, self.on_command)
+    def start(self, api: DaemonApi) -> None:
+        api.declare(self.state_topic)
+        api.add_command(self.spec.command_topic, self.command_topic, self.on_command)
         if self.spec.command_timeout > 0:
             self._thread = threading.Thread(target=self._watch, name="joints", daemon=True)
             self._thread.start()

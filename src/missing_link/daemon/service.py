@@ -45,9 +45,9 @@ from ..errors import BadURL, BoardError, MissingLinkError, without_prefix
 from ..host.clock import SYSTEM_CLOCK, Clock
 from ..host.reactor import Reactor
 from ..logs import ErrorCounts
-from ..publishers.base import Publisher, PublisherError
+from ..publishers.base import DaemonApi, Publisher, PublisherError
 from ..publishers.bus import Bus, Callback, LogCallback, Subscription
-from ..publishers.registry import make_publisher
+from ..publishers.registry import daemon_settings, make_publisher
 from ..ros.msgs import typestore_for
 from ..text import did_you_mean
 from ..topics import Command
@@ -153,9 +153,8 @@ class Daemon(BoardApi):
 
     def _options(self, name: str) -> dict[str, Any]:
         opts = dict(self.config.publisher_options.get(name, {}))
-        opts.setdefault("distro", self.config.distro)
-        if name in ("zenoh", "ros1", "ros2"):
-            opts.setdefault("node", self.config.node)
+        for key in daemon_settings(name):  # (what the face declares it takes: registry.py)
+            opts.setdefault(key, getattr(self.config, key))
         return opts
 
     def start(self) -> Daemon:
@@ -163,8 +162,10 @@ class Daemon(BoardApi):
         if self._started:
             return self
         self._started = True
-        if self.joints is not None:
-            self.joints.start(self.fanout.declare, self.fanout.add_command)
+        api = DaemonApi(self.status, self.publisher_status, self.configure, self.reset_config,
+                        self.fanout.declare, self.fanout.add_command)  # fmt: skip
+        for p in self.publishers:  # (every face, before any board: base.py)
+            p.start(api)
         self.reactor.start()
         for s in self.sessions:
             s.start()

@@ -2,6 +2,11 @@
 diagnostics).  ``publish`` runs on a board's reading thread: it must not block (queue work to a
 thread of your own).  Publishers are found by name through :mod:`.registry`.
 
+A face's life: made from its options (``make_publisher``: the registry hands it the
+``[daemon]`` settings its entry declares), ``start(api)`` when the daemon starts (every face,
+before any board: ``api`` is the daemon's public verbs a face may use, never the daemon), then
+the calls below as boards come and go, and ``close()``.
+
 Two numbers keep a face honest: ``dropped`` (messages the transport or a queue could not take:
 a full queue, congestion, a write the library refused) and ``faults`` (exceptions: a bug, such
 as an encoder that raises; counted by kind, the first of each logged with its traceback).  An
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from ..errors import MissingLinkError
@@ -26,8 +32,30 @@ from ..topics import Topic, Update
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class DaemonApi:
+    """What the daemon hands every face when it starts (``Publisher.start``): its public verbs,
+    never the daemon itself."""
+
+    status: Callable[[], list[dict[str, Any]]]  #: every board's status (``Daemon.status``)
+    publisher_status: Callable[[], list[dict[str, Any]]]  #: every face's
+    #: (board, values, save, by=, commands=) -> the configuration after it (Daemon.configure:
+    #: an actuator's keys change only where the face takes commands)
+    configure: Callable[..., dict[str, Value]]
+    #: (board, erase_saved, by=, commands=) -> the configuration after it (Daemon.reset_config)
+    reset_config: Callable[..., dict[str, Value]]
+    declare: Callable[[Topic], None]  #: a topic of the face's own, to every face
+    #: (command topic name, its topic, handler): a command topic of the face's own, offered on
+    #: every face (through the allow-list)
+    add_command: Callable[[str, Topic, Callable[[Any], None]], None]
+
+
 class Publisher:
     name = "publisher"
+
+    def start(self, api: DaemonApi) -> None:
+        """The daemon starts (once, before any board): ``api`` for the face's life (a console
+        that shows the status and changes a board's configuration keeps it).  Default: nothing."""
 
     def add_topic(self, topic: Topic) -> None:
         """A topic appeared (a board connected).  Called again after a reconnect."""

@@ -35,7 +35,10 @@ class Entry:
     module: str
     cls: str
     needs: tuple[str, ...] = ()  #: top-level modules that must be importable
-    hint: str = ""  #: how to get them
+    hint: str = ""  #: how to get them (the package's extra, where it has one)
+    #: the ``[daemon]`` settings the face takes unless its own table sets them (``distro``: every
+    #: face), as the daemon hands them over (``daemon_settings``)
+    daemon: tuple[str, ...] = ()
 
 
 BUILTIN: dict[str, Entry] = {
@@ -48,29 +51,34 @@ BUILTIN: dict[str, Entry] = {
         "missing_link.publishers.zenoh",
         "ZenohPublisher",
         ("zenoh", "xxhash", "rosbags"),
-        "pip install eclipse-zenoh xxhash",
+        "pip install 'missing-link[zenoh]'",
+        ("node",),
     ),
     "foxglove": Entry(
         "missing_link.publishers.foxglove",
         "FoxglovePublisher",
         ("websockets", "rosbags"),
-        "pip install websockets",
+        "pip install 'missing-link[web]'",
     ),
     "web": Entry(
-        "missing_link.publishers.web", "WebPublisher", ("websockets",), "pip install websockets"
+        "missing_link.publishers.web",
+        "WebPublisher",
+        ("websockets",),
+        "pip install 'missing-link[web]'",
     ),
     "ros1": Entry(
         "missing_link.publishers.ros1",
         "Ros1Publisher",
         ("rospy",),
         "scripts/system-deps.sh --ros1 (Debian's ros-core and python3-rospy)",
+        ("node",),
     ),
     "ros2": Entry(
         "missing_link.publishers.ros2",
         "Ros2Publisher",
         ("rclpy",),
-        "source your ROS 2 installation, or pip install ros-kilted-rclpy "
-        "ros-kilted-rmw-fastrtps-cpp ros-kilted-sensor-msgs ros-kilted-diagnostic-msgs",
+        "source your ROS 2 installation, or pip install 'missing-link[ros2]'",
+        ("node",),
     ),
 }
 _REGISTERED: dict[str, Factory] = {}
@@ -196,6 +204,13 @@ def unavailable(name: str) -> str | None:
     if name in _entry_points():
         return None
     return f"unknown (available here: {', '.join(available_publishers())})"
+
+
+def daemon_settings(name: str) -> tuple[str, ...]:
+    """The ``[daemon]`` settings publisher ``name`` takes besides its own options (``distro``
+    for every face; ``node`` for the ROS faces), as its entry declares them."""
+    entry = BUILTIN.get(name)
+    return ("distro", *(entry.daemon if entry is not None else ()))
 
 
 def make_publisher(name: str, options: dict[str, Any]) -> Publisher:

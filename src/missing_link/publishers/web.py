@@ -11,10 +11,10 @@ and ``hosts`` (names the console answers to besides loopback ones).  An address 
 loopback needs TLS and a token: the console refuses to start without them.
 
 The face is a publisher (topics, updates, command topics, configuration offers: base.py) and is
-handed a narrow :class:`WebContext` of the daemon's public verbs by whoever starts the daemon
-(``attach``; ``context_of(daemon)`` makes one): the status a few times a second, and setting,
-saving and resetting a board's configuration.  Without it the page shows the status of each
-``/diagnostics`` round and the configuration read-only.
+handed the daemon's public verbs when the daemon starts it (``start(api)``, a
+:class:`~missing_link.publishers.base.DaemonApi`): the status a few times a second, and
+setting, saving and resetting a board's configuration.  Until then the page shows the status of
+each ``/diagnostics`` round and the configuration read-only.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from ..errors import ConfigError
 from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
-from .base import Publisher, PublisherError
+from .base import DaemonApi, Publisher, PublisherError
 from .front_door import is_loopback
 from .registry import check_options
 from .web_model import ConsoleModel
@@ -40,29 +40,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8080
 MIN_TOKEN = 16  #: characters a token has at least
-
-
-@dataclass(frozen=True)
-class WebContext:
-    """The daemon's public verbs the console uses (Daemon.status and friends)."""
-
-    status: Callable[[], list[dict[str, Any]]]
-    publisher_status: Callable[[], list[dict[str, Any]]]
-    #: (board, values, save, by=, commands=) -> the configuration after it (Daemon.configure:
-    #: an actuator's keys change only where this face takes commands)
-    configure: Callable[..., dict[str, Value]]
-    #: (board, erase_saved, by=, commands=) -> the configuration after it (Daemon.reset_config)
-    reset_config: Callable[..., dict[str, Value]]
-
-
-def context_of(daemon: Any) -> WebContext:
-    """The console's context from a running ``Daemon`` (its public methods only)."""
-    return WebContext(
-        status=daemon.status,
-        publisher_status=daemon.publisher_status,
-        configure=daemon.configure,
-        reset_config=daemon.reset_config,
-    )
 
 
 @dataclass
@@ -169,9 +146,9 @@ class WebPublisher(Publisher):
     def _commands_on(self) -> bool:
         return bool(self.takes_commands)
 
-    def attach(self, ctx: WebContext) -> None:
+    def start(self, api: DaemonApi) -> None:
         """The daemon's verbs: status polled while pages are open; configuration changes."""
-        self.server.attach(ctx)
+        self.server.attach(api)
 
     # ---- the publisher interface ---------------------------------------------------------------
     def add_topic(self, topic: Topic) -> None:
