@@ -285,15 +285,12 @@ class BoardLink:
             if 0 < rx_ns <= now_ns:
                 now_ns = rx_ns
             head = first_rx_ns
-        lead: tuple[int, int] | None = None  # (op, head): a reply that headed this read
         with self._lock:
             timer = self.conn.get_timer()
             sifs = self.conn.stats.sifs
             if data:
                 frames = self.conn.decoder.stats.frames
                 events = self.conn.receive_data(data, now, lead=0 < head < now_ns)
-                if self.conn.lead_op is not None:
-                    lead = (self.conn.lead_op, head)
                 if self.conn.decoder.stats.frames != frames:
                     self.last_frame = now
             else:
@@ -303,7 +300,7 @@ class BoardLink:
             self._flush()
             sifs = self.conn.stats.sifs - sifs
         if events:
-            self._dispatch(events, now_ns / 1e9, now_ns, lead)
+            self._dispatch(events, now_ns / 1e9, now_ns, head)
         with self._lock:
             self._update_due()
         return sifs
@@ -393,9 +390,9 @@ class BoardLink:
         if self._done.is_set():
             fn()
 
-    def _dispatch(
-        self, events: list[Any], now: float, now_ns: int, lead: tuple[int, int] | None = None
-    ) -> None:
+    def _dispatch(self, events: list[Any], now: float, now_ns: int, head_ns: int = 0) -> None:
+        """``head_ns``: when the first of the read's bytes had arrived (a reply that headed the
+        read, ``CallCompleted.lead``, arrived then)."""
         by_cmd, any_sif = self._sif_handlers, self._any_sif
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
@@ -417,7 +414,7 @@ class BoardLink:
             elif isinstance(ev, FrameDamaged):
                 log.debug("%s: damaged frame: %s", self.url, ev.error)
             else:
-                self._resolve(ev, now_ns, lead[1] if lead is not None and lead[0] == ev.op else 0)
+                self._resolve(ev, now_ns, head_ns if type(ev) is CallCompleted and ev.lead else 0)
 
     def _resolve(
         self, ev: CallCompleted | CallFailed | TransferCompleted, now_ns: int, head_ns: int = 0

@@ -137,8 +137,6 @@ class HostConnection:
         self._out: list[bytes] = []
         self._sif_expected: int | None = None
         self._closed: FailureReason | None = None
-        #: the call completed by the frame that started the last ``receive_data(lead=True)``
-        self.lead_op: int | None = None
 
     # ---- starting operations ------------------------------------------------------------
     def call(self, index: int, payload: bytes, now: float, timeout: float) -> int:
@@ -287,16 +285,15 @@ class HostConnection:
     # ---- input --------------------------------------------------------------------------
     def receive_data(self, data: bytes, now: float, *, lead: bool = False) -> list[Event]:
         """Bytes from the board: events in arrival order.  ``lead``: the caller knows a moment
-        by which the first of ``data`` had arrived (a clock reply's tighter t4); ``lead_op`` is
-        then the call whose reply is the frame that starts at ``data[0]``, if any."""
+        by which the first of ``data`` had arrived (a clock reply's tighter t4); the reply whose
+        frame starts at ``data[0]``, if any, then says so (``CallCompleted.lead``)."""
         events: list[Event] = []
-        self.lead_op = None
         head = lead and data[:1] == _SOF_BYTE and not self.decoder.in_frame()
         items = self.decoder.feed(data)
         if head and items and not isinstance(items[0], FrameError) and items[0].kind == SOF:
             self._on_reply(items[0], now, events)
             if len(events) == 1 and type(events[0]) is CallCompleted:
-                self.lead_op = events[0].op
+                events[0] = events[0]._replace(lead=True)
             items = items[1:]
         for item in items:
             if isinstance(item, FrameError):

@@ -23,6 +23,9 @@ class CallCompleted(NamedTuple):
     op: int
     code: int
     payload: bytes
+    #: its frame began the bytes of a ``receive_data(lead=True)``: the moment the caller knows
+    #: those arrived by is when this reply did (a clock reply's tighter t4: host/link.py)
+    lead: bool = False
 
 
 class CallFailed(NamedTuple):
