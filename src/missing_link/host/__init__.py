@@ -2,6 +2,7 @@
 
 - :mod:`.link` - the link engine: a board's J2A connection, pending calls, SIF handlers
 - :mod:`.results` - what a link hands back: call results with their stamps, counters
+- :mod:`.sif_handlers` - who hears which SIFs, called inline on the reading thread
 - :mod:`.reactor` - one I/O loop for many boards (the daemon's): it reads their descriptors and
   drives their links by public verbs
 - :mod:`.board` - :class:`Board` (holds a link): open by URL, handshake, calls by name, blobs,

@@ -39,10 +39,6 @@ from concurrent.futures import Future
 from typing import Any, TypeVar
 
 from ..errors import (
-    BoardError,
-    CallError,
-    CallTimeout,
-    FunctionFailed,
     LinkLost,
     TransportBroken,
     TransportClosed,
@@ -61,7 +57,8 @@ from ..logs import ErrorCounts
 from ..transport import FdTransport, Transport
 from .clock import SYSTEM_CLOCK, Clock
 from .reactor import Reactor
-from .results import CallResult, LinkStats
+from .results import Asked, CallResult, LinkStats, settle
+from .sif_handlers import SifHandler, SifHandlers, named
 
 __all__ = ["DEFAULT_TIMEOUT", "BoardLink", "CallResult", "LinkStats", "ProgressFn", "SifHandler"]
 
@@ -71,17 +68,11 @@ T = TypeVar("T")
 DEFAULT_TIMEOUT = 1.0
 _TICK = 0.02  # longest the reader sleeps before looking at timers again ...
 _IDLE = 1.0  # ... when none is pending and close() wakes the transport's read
-SifHandler = Callable[[SifReceived, float], None]
 ProgressFn = Callable[[int, "int | None"], None]
 
 
 def _nothing() -> None:
     """(nothing to stop)"""
-
-
-def _named(fn: Callable[..., Any]) -> str:
-    """A callable as a log line names it: ``SamplePath.on_sif``."""
-    return str(getattr(fn, "__qualname__", None) or repr(fn))
 
 
 class BoardLink:
@@ -120,10 +111,9 @@ class BoardLink:
         self._lock = threading.Lock()
         # op -> (future, label for errors, progress callback, is a many-write)
         self._futures: dict[int, tuple[Future[Any], str, ProgressFn | None, bool]] = {}
-        self._sif_handlers: dict[int, list[SifHandler]] = {}
-        self._unheard = 0  # SIFs no handler took (LinkStats.unheard_sifs; the reading thread's)
+        #: who hears which SIFs (sif_handlers.py); what they raise is counted in ``faults``
+        self.sifs = SifHandlers(lambda kind, e, what: self.faults.caught(kind, e, what))
         self._sent: dict[int, int] = {}  # op -> monotonic ns the request was written
-        self._any_sif: list[SifHandler] = []
         self._on_close: list[Callable[[], None]] = []
         self._idle_until = 0.0  # the reader waits until then unless poked
         # Periodic work on the reading thread (clock-sync probes): (due() -> s or None, tick)
@@ -232,10 +222,7 @@ class BoardLink:
     def on_sif(self, cmd: int | None, handler: SifHandler) -> None:
         """Call ``handler(sif, host_receive_time)`` for SIFs with ``cmd`` (None: every SIF)."""
         with self._lock:
-            if cmd is None:
-                self._any_sif.append(handler)
-            else:
-                self._sif_handlers.setdefault(cmd, []).append(handler)
+            self.sifs.add(cmd, handler)
 
     # ---- the reader thread -----------------------------------------------------------------
     def _reader(self) -> None:
@@ -381,7 +368,7 @@ class BoardLink:
             try:
                 fn()
             except Exception as e:  # noqa: BLE001 - one bug must not keep the others from running
-                self.faults.caught("close callback", e, f"close callback {_named(fn)}")
+                self.faults.caught("close callback", e, f"close callback {named(fn)}")
 
     def on_close(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` when the link ends (closed or broken), on the thread that ends it:
@@ -393,17 +380,10 @@ class BoardLink:
     def _dispatch(self, events: list[Any], now: float, now_ns: int, head_ns: int = 0) -> None:
         """``head_ns``: when the first of the read's bytes had arrived (a reply that headed the
         read, ``CallCompleted.lead``, arrived then)."""
-        by_cmd, any_sif = self._sif_handlers, self._any_sif
+        deliver = self.sifs.deliver
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
-                by = by_cmd.get(ev.cmd)
-                if by is None and not any_sif:
-                    self._unheard += 1
-                for h in any_sif if by is None else (*by, *any_sif):
-                    try:
-                        h(ev, now)
-                    except Exception as e:  # noqa: BLE001 - a handler's bug must not end the reading
-                        self.faults.caught("SIF handler", e, f"SIF handler {_named(h)}")
+                deliver(ev, now)
             elif isinstance(ev, TransferProgress):
                 entry = self._futures.get(ev.op)
                 if entry and entry[2]:
@@ -421,27 +401,9 @@ class BoardLink:
     ) -> None:
         entry = self._futures.pop(ev.op, None)
         sent = self._sent.pop(ev.op, 0)
-        if entry is None:
-            return
-        fut, label, _, is_write = entry
-        if isinstance(ev, CallCompleted):
-            fut.set_result(CallResult(ev.code, ev.payload, sent, now_ns, head_ns))
-        elif isinstance(ev, TransferCompleted):
-            if is_write:
-                fut.set_result(ev.status)  # a write reports the function's status
-            elif ev.status == 0:
-                fut.set_result(ev.data)
-            else:
-                fut.set_exception(FunctionFailed(self.name, label, ev.status, ev.data))
-        else:
-            fut.set_exception(self._failure(label, ev))
-
-    def _failure(self, label: str, ev: CallFailed) -> BoardError:
-        if ev.reason is FailureReason.TIMEOUT:
-            return CallTimeout(self.name, label, ev.detail)
-        if ev.reason in (FailureReason.CLOSED, FailureReason.BROKEN):
-            return LinkLost(self.name, label, ev.detail, ev.reason is FailureReason.BROKEN)
-        return CallError(self.name, label, ev.detail, ev.code)
+        if entry is not None:
+            fut, label, _, is_write = entry
+            settle(fut, ev, Asked(self.name, label, is_write, sent), now_ns, head_ns)
 
     @property
     def alive(self) -> bool:
@@ -452,7 +414,7 @@ class BoardLink:
         with self._lock:
             counts = {**self.conn.decoder.stats.as_dict(), **self.conn.stats.as_dict()}
         return LinkStats(
-            **counts, unheard_sifs=self._unheard, transport=self.transport.link_stats()
+            **counts, unheard_sifs=self.sifs.unheard, transport=self.transport.link_stats()
         )
 
     def expect_sif_seq(self, seq: int) -> None:

@@ -1,13 +1,17 @@
-"""What a link hands back: a call's result with its stamps, the link's counters, and the clock
-exchange a clock call's result makes."""
+"""What a link hands back: a call's result with its stamps (``settle``: a request's future from
+the connection's event), the link's counters, and the clock exchange a clock call's result
+makes."""
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
+from concurrent.futures import Future
 from dataclasses import dataclass, field, fields
+from typing import Any, NamedTuple
 
-from ..errors import FunctionFailed
+from ..errors import BoardError, CallError, CallTimeout, FunctionFailed, LinkLost
+from ..j2a import CallCompleted, CallFailed, FailureReason, TransferCompleted
 from ..timesync.exchange import Exchange
 
 
@@ -65,6 +69,47 @@ class LinkStats:
 
 
 _COUNTS = tuple(f.name for f in fields(LinkStats) if f.name != "transport")
+
+
+class Asked(NamedTuple):
+    """What a request was: the board and the function errors name, a many-write (its status is
+    the result), and when it was written (ns)."""
+
+    board: str
+    label: str
+    write: bool
+    sent_ns: int
+
+
+def settle(
+    fut: Future[Any],
+    ev: CallCompleted | CallFailed | TransferCompleted,
+    asked: Asked,
+    now_ns: int,
+    head_ns: int = 0,
+) -> None:
+    """Resolve a request's future from the event that ended it: a reply (its stamps), a
+    transfer's data or status, or the error that says why there is none."""
+    if isinstance(ev, CallCompleted):
+        fut.set_result(CallResult(ev.code, ev.payload, asked.sent_ns, now_ns, head_ns))
+    elif isinstance(ev, TransferCompleted):
+        if asked.write:
+            fut.set_result(ev.status)  # a write reports the function's status
+        elif ev.status == 0:
+            fut.set_result(ev.data)
+        else:
+            fut.set_exception(FunctionFailed(asked.board, asked.label, ev.status, ev.data))
+    else:
+        fut.set_exception(failure(asked.board, asked.label, ev))
+
+
+def failure(board: str, label: str, ev: CallFailed) -> BoardError:
+    """The error a failed call raises, by why it failed."""
+    if ev.reason is FailureReason.TIMEOUT:
+        return CallTimeout(board, label, ev.detail)
+    if ev.reason in (FailureReason.CLOSED, FailureReason.BROKEN):
+        return LinkLost(board, label, ev.detail, ev.reason is FailureReason.BROKEN)
+    return CallError(board, label, ev.detail, ev.code)
 
 
 def exchange_of(board: str, name: str, result: CallResult, byte_ns: float) -> Exchange:
