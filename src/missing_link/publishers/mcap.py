@@ -29,13 +29,9 @@ uses: ``recorded`` becomes what the file holds, the rest of the bag's messages (
 that never reached the disk, ~``chunk_s`` of data) go to ``dropped``.  So after a full disk,
 ``recover`` restores exactly ``recorded`` messages, and ``messages - recorded`` are in ``dropped``.
 
-What a replay needs (``replay = true``, the default; ``ros/board_record.py``).  Besides the
-topics, the recorder keeps per board its description (when it comes up, and again at the start
-of every bag), its configuration (when read, and after every change), the actuator commands the
-daemon took (``/<board>/<actuator>/cmd``, the actuator's own type) and the board stamps of its
-samples: batched per board and written just before the writer closes a chunk, into that chunk
-(the writer closes a chunk itself before it would outgrow rosbags' 1 MiB, with room for the
-stamps), so a chunk holds its samples' stamps and a file cut by SIGKILL keeps both or neither.
+What a replay needs (``replay = true``, the default) is kept too (mcap_replay.py): the writer
+closes a chunk itself before it would outgrow rosbags' 1 MiB, with room for the samples' board
+stamps, so a chunk holds its samples' stamps and a file cut by SIGKILL keeps both or neither.
 
 A board's log (docs/board-log.md) is recorded on ``/<board>/log`` as ``foxglove_msgs/msg/Log``
 (``ros/logmsgs.py``), which Foxglove's Log panel reads.
@@ -46,7 +42,6 @@ from __future__ import annotations
 import logging
 import os
 import queue
-import struct
 import tempfile
 import threading
 import time
@@ -63,7 +58,7 @@ from ..ros.diagnostics import DIAG_TOPIC, DIAG_TYPE
 from ..ros.logmsgs import FOXGLOVE_LOG, foxglove_log_cdr, log_topic
 from ..topics import Topic, Update
 from .base import PublisherError
-from .mcap_replay import ReplayRecords, command_values
+from .mcap_replay import ReplayRecords, command_cdr
 from .recover import count_complete
 from .rosbase import RosPublisher
 
@@ -320,16 +315,11 @@ class McapPublisher(RosPublisher):
             self._write(name, self._connect_own(name, type_name), stamp, data)
 
     def _command(self, name: str, topic: Topic, value: Any, now_ns: int) -> None:
-        """An actuator command on ``name``, in the actuator's own (thesis) type: ``times[0]``
-        is when it was for, as a command message says it (topics.py, ``Command``)."""
+        """An actuator command on ``name``, in the actuator's own type (mcap_replay.py)."""
         if topic.encoder is None:
             return
-        values, at = command_values(value, now_ns)
-        n = topic.transducer.chan_count
-        values = (values + [None] * n)[:n]
-        try:
-            data = topic.encoder.encode([at] + [0] * (n - 1), values)
-        except (struct.error, TypeError, OverflowError):
+        data = command_cdr(topic, value, now_ns)
+        if data is None:
             self.dropped += 1  # (the daemon took it: a value our encoder cannot carry is a bug)
             return
         if name not in self._conns:

@@ -1,7 +1,9 @@
 """What the MCAP recorder keeps for ``missing-link replay`` (``ros/board_record.py``): per board
-its description, its configuration, the board stamps of its samples, and the actuator commands
-the daemon took.  The recorder's writer thread owns one :class:`ReplayRecords`; nothing here
-writes a file: it turns what the daemon said into (topic, CDR) for the writer.
+its description (when it comes up, and again at the start of every bag), its configuration (when
+read, and after every change), the board stamps of its samples, and the actuator commands the
+daemon took (``/<board>/<actuator>/cmd``, the actuator's own type).  The recorder's writer thread
+owns one :class:`ReplayRecords`; nothing here writes a file: it turns what the daemon said into
+(topic, CDR) for the writer.
 
 Stamps are batched per board (topic index, SIF seq, each channel's board stamp) until the
 writer closes a chunk; ``pending_bytes`` is at most what the batches will take, so the writer
@@ -10,6 +12,7 @@ can keep a chunk's stamps in that chunk (mcap.py)."""
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Sequence
 from typing import Any
 
@@ -71,6 +74,20 @@ def command_values(value: Any, now_ns: int) -> tuple[list[Any], int]:
     if not isinstance(value, (list, tuple)):
         value = [value]
     return list(value), at
+
+
+def command_cdr(topic: Topic, value: Any, now_ns: int) -> bytes | None:
+    """An actuator command as the recorder keeps it: in the actuator's own (thesis) type, its
+    ``times[0]`` when it was for, as a command message says it (topics.py, ``Command``); None
+    when our encoder cannot carry the value (the daemon took it: a bug, counted as dropped)."""
+    assert topic.encoder is not None
+    values, at = command_values(value, now_ns)
+    n = topic.transducer.chan_count
+    values = (values + [None] * n)[:n]
+    try:
+        return topic.encoder.encode([at] + [0] * (n - 1), values)
+    except (struct.error, TypeError, OverflowError):
+        return None
 
 
 class _Batch:
