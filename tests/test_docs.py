@@ -95,3 +95,37 @@ def test_the_readme_stays_inside_the_repository() -> None:
     assert (ROOT / "LICENSE").is_file(), "pyproject.toml declares a licence: LICENSE says it"
     hashes = [h for h in re.findall(r"\b[0-9a-f]{7,40}\b", text) if re.search(r"[a-f]", h)]
     assert not [h for h in hashes if re.search(r"\d", h)], f"commit hashes in README.md: {hashes}"
+
+
+def thread_names() -> dict[str, str]:
+    """Every thread the host side, the daemon and the faces start, by the name it gets (an
+    f-string's fixed start, then ``<``), and where."""
+    import ast
+
+    found = {}
+    for top in ("host", "daemon", "publishers"):
+        for path in sorted((ROOT / "src" / "missing_link" / top).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if not (
+                    isinstance(node, ast.Call) and ast.unparse(node.func) == "threading.Thread"
+                ):
+                    continue
+                name = next((k.value for k in node.keywords if k.arg == "name"), None)
+                if isinstance(name, ast.Constant):
+                    found[str(name.value)] = str(path.relative_to(ROOT))
+                elif isinstance(name, ast.JoinedStr) and isinstance(name.values[0], ast.Constant):
+                    found[f"{name.values[0].value}<"] = str(path.relative_to(ROOT))
+                elif name is None:
+                    found[f"(unnamed, line {node.lineno})"] = str(path.relative_to(ROOT))
+    return found
+
+
+def test_every_thread_of_the_daemon_is_in_the_architecture() -> None:
+    """docs/architecture.md's table of threads names every thread the daemon's rooms start."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    table = text.split("## The threads of a running daemon", 1)[1]
+    names = set(re.findall(r"^\| `([^`]+)`", table, re.M))
+    found = thread_names()
+    assert "listener" in found and "j2a:reactor" in found  # (the walk sees them)
+    missing = {n: where for n, where in found.items() if not any(t.startswith(n) for t in names)}
+    assert not missing, f"threads not in docs/architecture.md: {missing}"

@@ -19,7 +19,7 @@ BENCH = ROOT / "bench"
 TESTS = ROOT / "tests"
 FIRMWARE = SRC / "firmware"
 
-MAX_LINES = 500
+MAX_LINES = 450
 
 #: what the size rule covers, and what it leaves out: vendored or minified code (not ours to
 #: split) and what a build or a tool puts in the tree
@@ -44,7 +44,7 @@ def sized_files() -> list[Path]:
     )
 
 
-def test_no_file_over_500_lines() -> None:
+def test_no_file_over_450_lines() -> None:
     long = {
         str(p.relative_to(ROOT)): n
         for p in sized_files()

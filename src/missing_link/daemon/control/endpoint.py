@@ -228,7 +228,8 @@ class ControlServer:
             self._turn_away(conn, "daemon busy: too many control clients")
             return
         try:
-            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+            threading.Thread(target=self._serve, args=(conn,), name="control:client",
+                             daemon=True).start()  # fmt: skip
         except RuntimeError:  # (no thread to be had: as busy)
             self._slots.release()
             self.busy += 1
