@@ -165,8 +165,12 @@ def test_stock_rclpy_hears_standard_types_diagnostics_and_the_graph(thesis_board
     assert topics["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"]
     assert "missing_link" in got["nodes"]  # type: ignore[operator]
     assert sensor["counts"]["/thesis/dist_us/range"] >= 3  # type: ignore[index]
-    # thesis types were not built: one clear line says how
-    assert "create-msgs <board URL> --ros 2 --build PREFIX" in err
+    # thesis types were not built: one line for them all says how (issue 45.8: a line per
+    # type before), and the face is not in a warning state for it on /diagnostics
+    said = [ln for ln in err.splitlines() if "create-msgs" in ln]
+    assert len(said) == 1 and "create-msgs <board URL> --ros 2 --build PREFIX" in said[0], err
+    (ros2,) = [s for s in diag["status"] if s["name"] == "missing_link publisher: ros2"]
+    assert ros2["level"] == 0 and "thesis-format type(s) not built" in ros2["message"], ros2
 
 
 def test_thesis_types_after_create_msgs_build_and_ros2_commands(

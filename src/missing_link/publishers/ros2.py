@@ -14,9 +14,10 @@ of its message class, and every update is published as the CDR bytes the daemon 
 * Thesis-format types (``missing_link_msgs/msg/DistIr``) need the package ``create-msgs`` writes,
   built (``missing-link create-msgs URL --ros 2 --build PREFIX``): rclpy has no runtime types.
   The daemon finds it on ``PYTHONPATH`` (a sourced ``PREFIX/setup`` or colcon workspace) or
-  through ``prefix`` (``[ros2] prefix = "PREFIX"`` or ``MISSING_LINK_ROS2_PREFIX``).  A type that
-  is not built is skipped with one line that says how to build it; standard types and
-  diagnostics still go out.  A built type whose fields differ from the board's descriptor
+  through ``prefix`` (``[ros2] prefix = "PREFIX"`` or ``MISSING_LINK_ROS2_PREFIX``).  Types
+  that are not built are skipped, said once for them all with how to build them (and not a
+  fault: the status stays OK, since standard types are what most users want); standard types
+  and diagnostics go out.  A built type whose fields differ from the board's descriptor
   (the board changed since the build) is refused, never sent wrong.
 * Actuators: ``/<board>/<name>/cmd`` is subscribed with the thesis type (raw CDR, decoded with
   rosbags) and goes through the daemon's latest-wins path.
@@ -147,6 +148,9 @@ class Ros2Publisher(RosPublisher):
         self.published = 0
         self.dropped = 0
         self.missing_types: dict[str, str] = {}  # type name -> why it is not published
+        #: thesis-format types not built (create-msgs): their topics go out as standard types
+        #: only, which is what a user of standard types wants; said once, not a fault
+        self.not_built: list[str] = []
         self.error = ""
         diag_cls = self._msg_class(DIAG_TYPE)
         assert diag_cls is not None, "diagnostic_msgs is part of every ROS 2 install"
@@ -184,11 +188,7 @@ class Ros2Publisher(RosPublisher):
                 self._missing(topic.type_name, "its package is not installed")
             return cls
         if cls is None:
-            self._missing(
-                topic.type_name,
-                "not built: missing-link create-msgs <board URL> --ros 2 --build PREFIX, then "
-                "[ros2] prefix = PREFIX (or MISSING_LINK_ROS2_PREFIX)",
-            )
+            self._not_built(topic)
             return None
         want = expected_fields(topic.transducer)
         have = dict(cls.get_fields_and_field_types())
@@ -200,6 +200,19 @@ class Ros2Publisher(RosPublisher):
             )
             return None
         return cls
+
+    def _not_built(self, topic: Topic) -> None:
+        if topic.type_name in self.not_built:
+            return
+        self.not_built.append(topic.type_name)
+        if len(self.not_built) == 1:  # (once for them all: a board has many)
+            log.warning(
+                "ros2: %s and the other thesis-format topics go out in their standard types "
+                "only: their own types are not built (for them too: missing-link create-msgs "
+                "<board URL> --ros 2 --build PREFIX, then [ros2] prefix = PREFIX or "
+                "MISSING_LINK_ROS2_PREFIX; [daemon] thesis_types = false: none, unsaid)",
+                topic.name,
+            )
 
     def _missing(self, type_name: str, why: str) -> None:
         if type_name not in self.missing_types:
@@ -376,6 +389,11 @@ class Ros2Publisher(RosPublisher):
     def status(self) -> dict[str, Any]:
         out = super().status()
         out.update(published=self.published, topics=len(self._pubs))
+        if self.not_built and not self.error and not self.missing_types:
+            out["message"] = (
+                f"ok; {len(self.not_built)} thesis-format type(s) not built (create-msgs "
+                "--build): their topics go out in standard types only"
+            )
         if self.missing_types and not self.error:
             out.update(
                 level=1,
