@@ -110,6 +110,10 @@ def test_demo_runs_and_exits_zero(tmp_path: object) -> None:
     sent = int(r.stdout.split("servo commands sent:")[1].split()[0])
     assert sent > 10  # the encoder steered the servo through the actuator topic
     assert f"recording: {tmp_path}/demo_" in r.stdout
+    # the summary says what its columns count, and why a Range topic runs at channels x rate
+    legend = " ".join(r.stdout.split("summary", 1)[1].split())
+    assert "samples: channel values that arrived" in legend and "N/A: channels the board" in legend
+    assert "so it runs at channels x the transducer's rate" in legend
 
 
 def test_create_msgs_from_board_and_file(board_url: str, tmp_path: object) -> None:

@@ -154,6 +154,16 @@ def _run(
         )
 
 
+#: what the topic lines of the summary count (a newcomer asked)
+LEGEND = (
+    "  (samples: channel values that arrived, a topic of 8 channels counting 8 per update; N/A:",
+    "  channels the board sent without a value, e.g. the sonars not in their turn; latency: from",
+    "  the board's moment of measurement, in synchronised host time, to its arrival here.  A",
+    "  /range topic is one sensor_msgs/Range per channel with a value, so it runs at channels x",
+    "  the transducer's rate; a /joint_states one per update, all channels in it)",
+)
+
+
 def _summary(seen: _Seen, out: TextIO) -> bool:
     """The summary at the end; True when both boards stayed up, samples flowed, the servo
     moved and the recording holds them."""
@@ -161,6 +171,8 @@ def _summary(seen: _Seen, out: TextIO) -> bool:
     bags = [str(b) for b in getattr(mcap, "bags", [])]
     print("\nsummary", file=out)
     for line in seen.view.summary():
+        print(line, file=out)
+    for line in LEGEND:
         print(line, file=out)
     for s in status:
         print(

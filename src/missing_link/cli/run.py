@@ -183,9 +183,9 @@ def print_summary(daemon: Any, out: Any) -> None:
             f"missing-link: {s['board']}: {s['samples']} samples"
             + "".join(f", {e}" for e in extra)
             + f", {s['connects']} connect(s), state {s['state']}"
-            + (
+            + (  # (one that never came up: the error line after this says why)
                 f" ({without_prefix(s['url'], s['error'])})"
-                if s["error"] and s["state"] != "up"
+                if s["error"] and s["state"] != "up" and s["connects"]
                 else ""
             ),
             file=out,

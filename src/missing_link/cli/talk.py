@@ -14,6 +14,7 @@ from .common import EXIT_FAIL, EXIT_USAGE, emit_json, open_url
 from .remote import RemoteBoard, reach
 
 if TYPE_CHECKING:  # (what only listen and sync use is imported there: a call loads less)
+    from ..descriptors import Transducer
     from ..host.board import Board
     from ..host.samples import Sample
     from ..j2a import SifReceived
@@ -83,6 +84,8 @@ def cmd_call(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     with reach(args.url, args.timeout, describe=args.value is not None) as board:
         payload = args.hex if args.value is None else value_payload(board, args.name, args.value)
+        t = None if args.value is None else actuator_of(board, args.name)
+        acted = None if t is None else (t, str(args.value))
         result = board.call(args.name, payload, timeout=args.timeout)
     if args.json:
         emit_json(
@@ -100,6 +103,7 @@ def cmd_call(args: argparse.Namespace) -> int:
             print(f"  hex   {result.payload.hex(' ')}")
             if text:
                 print(f"  text  {text}")
+        print(f"  means {meaning(args.name, result.code, text, acted)}")
     if result.code != SUCCESS_CODES.get(args.name, 0) and not args.any_code:
         said = payload_text(result.payload)
         print(
@@ -110,6 +114,44 @@ def cmd_call(args: argparse.Namespace) -> int:
         )
         return EXIT_FAIL
     return 0
+
+
+#: the reply opcodes a board's firmware answers with instead of a function's (spec 1.5)
+ERROR_FRAMES = {
+    0xF0: "no such function on the board (index out of its table)",
+    0xF2: "the board timed out receiving the request (or it was cut)",
+    0xF3: "the board saw a bad checksum",
+    0xF4: "the board saw a bad escape",
+}
+
+
+def meaning(function: str, code: int, text: str, acted: tuple[Transducer, str] | None) -> str:
+    """What a call's return value says (spec 1.5: 0 OK by convention, 0xFF failure, 0xF0..F4
+    the firmware's error frames), with what a ``--value`` set (``acted``: the actuator and
+    the value as given)."""
+    if code == SUCCESS_CODES.get(function, 0):
+        if acted is None:
+            return "OK" + (" (a2jEcho's own code: the payload came back)" if code else "")
+        t, value = acted
+        shown = value
+        if t.scaled:  # (the servo's 40 is 28.35 deg)
+            shown = f"{value} ({t.in_unit(float(value)):.4g} {t.unit})"
+        elif t.unit:
+            shown = f"{value} {t.unit}"
+        return f"OK: {t.name} took {shown}, as send() of its command topic would send it"
+    if code in ERROR_FRAMES:
+        return f"not done: {ERROR_FRAMES[code]}"
+    if code == 0xFF:
+        return "refused: the function's failure" + (f" ({text})" if text else "")
+    return f"{function}'s own return value {code} (not OK by convention: 0 is)"
+
+
+def actuator_of(board: Board | RemoteBoard, function: str) -> Transducer | None:
+    """The actuator whose ``call=`` is ``function`` (``--value``'s)."""
+    for t in board.transducers or []:
+        if t.call == function:
+            return t
+    return None
 
 
 def value_payload(board: Board | RemoteBoard, function: str, text: str) -> bytes:

@@ -33,6 +33,7 @@ class ConsolePublisher(Publisher):
         self.period = 1.0 / rate if rate > 0 else 0.0
         self.out = out or sys.stdout
         self._next: dict[str, float] = {}
+        self._said: dict[str, str] = {}  #: who is in error -> what was said of it
         self._lock = threading.Lock()
 
     def publish(self, update: Update) -> None:
@@ -46,14 +47,19 @@ class ConsolePublisher(Publisher):
             print(f"{update.stamp_ns / 1e9:.6f} {name} {text}", file=self.out, flush=True)
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
+        """A board or publisher in error, said when that changes (not every round: a board
+        that is not there is retried with backoff, quietly); and when it is well again."""
         for s in status:
+            who = s.get("board") or f"publisher {s.get('publisher')}"
             if s.get("level", 0) >= 2:
-                with self._lock:
-                    who = s.get("board") or f"publisher {s.get('publisher')}"
-                    said = without_prefix(str(s.get("url", "")), str(s.get("message", "")))
-                    line = f"{who}: {s.get('state', 'failed')}: {said}"
-                    print(
-                        f"{now_ns / 1e9:.6f} /diagnostics {line}",
-                        file=self.out,
-                        flush=True,
-                    )
+                said = without_prefix(str(s.get("url", "")), str(s.get("message", "")))
+                line = f"{who}: {s.get('state', 'failed')}: {said}"
+                if self._said.get(who) == said:
+                    continue
+                self._said[who] = said
+            elif self._said.pop(who, None) is not None:
+                line = f"{who}: {s.get('state', 'ok')}"
+            else:
+                continue
+            with self._lock:
+                print(f"{now_ns / 1e9:.6f} /diagnostics {line}", file=self.out, flush=True)
