@@ -32,30 +32,65 @@ def _run(cmd: list[str], cwd: Path, timeout: float = 300) -> subprocess.Complete
 
 
 @pytest.fixture(scope="module")
-def venv(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Path]]:
-    """(the fresh venv's bin directory, a working directory outside the checkout)."""
+def core(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Path, Path]]:
+    """The wheel installed without extras: (the fresh venv's bin directory, a working directory
+    outside the checkout, the wheel)."""
     top = tmp_path_factory.mktemp("install")
     tree, wheels = top / "tree", top / "wheels"  # (built from a copy: a build leaves build/)
     shutil.copytree(ROOT / "src", tree / "src", ignore=shutil.ignore_patterns(*NOT_BUILT))
-    for name in ("pyproject.toml", "README.md"):
-        shutil.copy(ROOT / name, tree / name)
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        if (ROOT / name).exists():
+            shutil.copy(ROOT / name, tree / name)
     r = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(wheels),
               str(tree)], top)  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
     (wheel,) = wheels.glob("missing_link-*.whl")
     r = _run([sys.executable, "-m", "venv", str(top / "venv")], top)
     assert r.returncode == 0, r.stderr
+    bin_ = top / "venv" / "bin"
+    r = _run([str(bin_ / "python"), "-m", "pip", "install", "-q", str(wheel)], top)
+    assert r.returncode == 0, r.stderr[-3000:]
+    work = top / "elsewhere"
+    work.mkdir()
+    yield bin_, work, wheel
+
+
+@pytest.fixture(scope="module")
+def venv(core: tuple[Path, Path, Path]) -> tuple[Path, Path]:
+    """The same venv with the extras the demo needs (pyproject's, where it declares them)."""
+    bin_, work, wheel = core
     declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"].get(
         "optional-dependencies", {}
     )
     extras = [e for e in DEMO_EXTRAS if e in declared]
-    spec = f"{wheel}[{','.join(extras)}]" if extras else str(wheel)
-    bin_ = top / "venv" / "bin"
-    r = _run([str(bin_ / "python"), "-m", "pip", "install", "-q", spec], top)
-    assert r.returncode == 0, r.stderr[-3000:]
-    work = top / "elsewhere"
-    work.mkdir()
-    yield bin_, work
+    if extras:
+        spec = f"{wheel}[{','.join(extras)}]"
+        r = _run([str(bin_ / "python"), "-m", "pip", "install", "-q", spec], work)
+        assert r.returncode == 0, r.stderr[-3000:]
+    return bin_, work
+
+
+@pytest.mark.parametrize(
+    ("argv", "extra"),
+    [
+        (["demo", "--duration", "1"], "web"),
+        (["router"], "zenoh"),
+        (["run", "serial:///dev/null", "-p", "zenoh"], "zenoh"),
+        (["flash", "BOARDS/thesis-rig.py", "--dry-run"], "flash"),
+    ],
+)
+def test_a_missing_extra_is_one_line_naming_it(
+    core: tuple[Path, Path, Path], argv: list[str], extra: str
+) -> None:
+    """Before the extras are installed (this test runs first): the core alone."""
+    bin_, work, _ = core
+    boards = str(bin_.parent / "lib")  # (the installed examples, wherever site-packages is)
+    found = next(Path(boards).glob("python3*/site-packages/missing_link/examples/boards"))
+    argv = [a.replace("BOARDS", str(found)) for a in argv]
+    r = _run([str(bin_ / "missing-link"), *argv], work, timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    err = r.stderr.strip()
+    assert "\n" not in err and f"pip install 'missing-link[{extra}]'" in err, err
 
 
 def test_it_is_not_the_checkout(venv: tuple[Path, Path]) -> None:

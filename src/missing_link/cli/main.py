@@ -100,10 +100,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MissingLinkError as e:
         print(f"missing-link: error: {e}", file=sys.stderr)
         return EXIT_FAIL
+    except ModuleNotFoundError as e:
+        extra = _extra_of(str(e.name or "").split(".")[0])
+        if extra is None:
+            raise  # (not a library an extra brings: a bug, with its traceback)
+        print(f"missing-link: error: {args.command} needs {e.name}, which is not installed here "
+              f"(pip install 'missing-link[{extra}]')", file=sys.stderr)  # fmt: skip
+        return EXIT_USAGE
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         return 0
+
+
+def _extra_of(module: str) -> str | None:
+    """The package's extra (pyproject's optional dependencies) that brings ``module``: a
+    requirement named as it (websockets, mpremote) or ending in -module (eclipse-zenoh,
+    ros-kilted-rclpy), as the installed metadata says; None when none does."""
+    import re
+    from importlib.metadata import PackageNotFoundError, requires
+
+    try:
+        wanted = requires("missing-link") or []
+    except PackageNotFoundError:
+        return None
+    for req in wanted:
+        got = re.match(r"([A-Za-z0-9._-]+).*;\s*extra\s*==\s*['\"]([\w-]+)['\"]", req)
+        if got and got.group(2) != "dev":
+            dist = got.group(1).lower().replace("_", "-")
+            if module and (dist == module.lower() or dist.endswith("-" + module.lower())):
+                return got.group(2)
+    return None
 
 
 #: the arguments that name input files (a board file, a configuration, descriptors, recordings)

@@ -242,8 +242,8 @@ def flash(
     fit = check_fit(bf)  # (a board file that cannot fit is refused here: DoesNotFit)
     files = micropython_files(bf, key or None)
     fw_hash = firmware_hash(files)
-    if mpremote is None and importlib.util.find_spec("mpremote") is None:
-        raise FlashError(f"cannot copy to {bf.mcu} boards without mpremote: pip install mpremote")
+    if mpremote is None and importlib.util.find_spec("mpremote") is None:  # (an extra: flash)
+        raise ModuleNotFoundError("No module named 'mpremote'", name="mpremote")
     mp = mpremote or [sys.executable, "-m", "mpremote"]
     url = port if "://" in port else f"serial://{port}"
     with tempfile.TemporaryDirectory(prefix="missing-link-flash-") as tmp:
