@@ -46,7 +46,9 @@ class PlainContext:
         self.names: list[tuple[str, str]] = []
         self.taken = taken or {}  # board name -> URL of the board that holds it
 
-    def claim_name(self, owner: object, wanted: str, url: str) -> tuple[str, str | None]:
+    def claim_name(
+        self, owner: object, wanted: str, url: str, board_id: str | None = None
+    ) -> tuple[str, str | None]:
         self.names.append((wanted, url))
         if wanted in self.taken:
             return f"{wanted}_2", f"board name {wanted!r} is taken by {self.taken[wanted]}"

@@ -4,6 +4,10 @@
 * A board name is held by one owner (a session): a second board that calls itself ``robot``
   publishes as ``robot_2``, and the warning says who holds ``robot``.  An owner keeps its name
   while it reconnects and gives it up only for a new one, or with :meth:`Claims.release`.
+* A configured name belongs to its configured id (``[boards.arm] id = "real-arm-1"``): a board
+  of another id that asks for ``arm`` (its ``board.name``), even first, gets ``arm_2``, said
+  once; the configuration and joint routing that follow the name stay with the real arm
+  (issue 43.3: a board that dialed in first took the name, and the real arm became ``arm_2``).
 * A message type name is held by one definition: a second board whose ``temp`` differs gets
   ``<Board>Temp`` (``BoardBTemp``), so no recording ever holds two layouts under one name.
 * A ``board.id`` is stated by one board at a time: two connected boards that state the same id
@@ -16,6 +20,7 @@ Thread-safe; every claim returns ``(granted, warning or None)``.
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 
 from ..descriptors import Transducer
 from ..errors import BoardError
@@ -49,29 +54,43 @@ def board_token(
 
 
 class Claims:
-    def __init__(self, package: str) -> None:
+    def __init__(self, package: str, reserved: Mapping[str, str] | None = None) -> None:
+        """``reserved``: configured name -> the board.id it belongs to (``[boards.NAME] id``)."""
         self.package = package
+        self.reserved = dict(reserved or {})
         self._lock = threading.Lock()
         self._names: dict[str, tuple[object, str]] = {}  # name -> (owner, owner's URL)
         self._types: dict[str, str] = {}  # message type name -> its definition
         self._ids: dict[object, tuple[str, str]] = {}  # owner -> (board.id, owner's URL)
 
-    def name(self, owner: object, wanted: str, url: str) -> tuple[str, str | None]:
+    def name(
+        self, owner: object, wanted: str, url: str, board_id: str | None = None
+    ) -> tuple[str, str | None]:
         """The topic name ``owner`` publishes under: ``wanted``, or ``wanted_2``, ... when
         another board holds it (said loudly: two boards must not merge into one set of
-        topics)."""
+        topics), or when it is configured for another board.id than ``board_id`` (the id
+        ``owner``'s board states; None: a name the configuration gives its URL, not checked)."""
         with self._lock:
             for held in [n for n, (o, _) in self._names.items() if o is owner]:
                 del self._names[held]
             candidate, k = wanted, 1
-            while candidate in self._names:
+            while candidate in self._names or self._not_for(candidate, board_id):
                 k += 1
                 candidate = f"{wanted}_{k}"
             self._names[candidate] = (owner, url)
-            holder = self._names[wanted][1] if candidate != wanted else ""
+            holder = self._names[wanted][1] if wanted in self._names else ""
         if candidate == wanted:
             return candidate, None
-        return candidate, f"board name {wanted!r} is taken by {holder}: published as {candidate!r}"
+        if self._not_for(wanted, board_id):
+            why = f"belongs to board.id {self.reserved[wanted]!r} ([boards.{wanted}] id)"
+        else:
+            why = f"is taken by {holder}"
+        return candidate, f"board name {wanted!r} {why}: published as {candidate!r}"
+
+    def _not_for(self, name: str, board_id: str | None) -> bool:
+        """``name`` is configured for another id than ``board_id``."""
+        mine = self.reserved.get(name)
+        return board_id is not None and mine is not None and mine != board_id
 
     def release(self, owner: object) -> None:
         """``owner`` is gone (its board was removed): its name is free again."""

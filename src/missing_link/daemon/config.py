@@ -96,6 +96,11 @@ class Config:
     listen: str | None = None
     #: which boards that dial in are taken: "any", or "known" (those with an id above)
     accept: str = "any"
+    #: s a board that dialed in with an id the config does not name is kept after it left
+    #: (then its session and name go: intake/dialin.py); configured ids are kept for good
+    dialin_expire: float = 300.0
+    #: boards of ids the config does not name held at once; more are refused, saying so
+    dialin_max: int = 64
     source: str = "<defaults>"
 
     def std_options(self, board: str, transducer: str) -> StdOptions:
@@ -138,6 +143,8 @@ _DAEMON_KEYS = {
     "thesis_types": bool,
     "listen": str,
     "accept": str,
+    "dialin_expire": (int, float),
+    "dialin_max": int,
 }
 _BOARD_KEYS = {
     "url": str,
@@ -160,6 +167,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     "link_timeout": (0.05, 3600.0),
     "uart_baud": (0, 100_000_000),
     "batch_ms": (0.0, 100.0),
+    "dialin_expire": (0.0, 30 * 86400.0),
+    "dialin_max": (1, 100_000),
 }
 
 
@@ -216,7 +225,8 @@ def _check_table(table: Any, allowed: dict[str, Any], where: str, fail: Fail) ->
 
 def _parse_daemon(cfg: Config, daemon: Any, fail: Fail) -> None:
     for key, value in _check_table(daemon, _DAEMON_KEYS, "daemon", fail).items():
-        setattr(cfg, key, float(value) if type(value) is int else value)  # 1 -> 1.0 (seconds)
+        seconds = type(value) is int and key != "dialin_max"
+        setattr(cfg, key, float(value) if seconds else value)  # 1 -> 1.0 (seconds)
     if not all(isinstance(c, str) and c[:1] in ("/", "*") for c in cfg.commands):
         raise fail("daemon.commands", 'command topics or patterns, e.g. ["/rover/*/cmd"]')
     _check_control(cfg.control, fail)

@@ -110,7 +110,7 @@ class Daemon(BoardApi):
                     except Exception as e:  # zenoh.ZError, a taken port, ...: raised, one line
                         raise PublisherError(f"publisher {name} cannot start: {e}") from e
             if listen is not None:  # (bound here: a taken address fails the daemon at once)
-                self.dialins = DialIns(config, listen, self.add_board, clock)
+                self.dialins = DialIns(config, listen, self.add_board, clock, self.forget)
         except BaseException:  # (broad, raised again: whatever stops the start, none is left)
             for p in self.publishers:  # a publisher that cannot start fails the daemon at once
                 p.close()
@@ -122,7 +122,7 @@ class Daemon(BoardApi):
         self.reactor = Reactor(batch_s=batch_ms / 1000, clock=clock)
         self.realtime_offset_ns = clock.realtime_ns() - clock.monotonic_ns()
         self.typestore = typestore_for(config.distro)
-        self.claims = Claims(config.package)
+        self.claims = Claims(config.package, {n: i for n, i in config.board_ids.items() if i})
         self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
         self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
         if config.joints is not None and config.joints.joints:
@@ -205,14 +205,21 @@ class Daemon(BoardApi):
 
     def remove_board(self, url: str, timeout: float = 1.0) -> bool:
         """End the session of the board at ``url`` (its device vanished) and free its name."""
-        with self._sessions_lock:
-            gone = [s for s in self.sessions if s.spec.url == url]
-            self.sessions = [s for s in self.sessions if s.spec.url != url]
-        for s in gone:
-            s.request_stop()
-            s.stop(timeout)
-            self.claims.release(s)
+        gone = [s for s in self.sessions if s.spec.url == url]
+        self.forget(gone, timeout)
         return bool(gone)
+
+    def forget(self, sessions: list[BoardSession], timeout: float = 1.0) -> None:
+        """End these sessions (all asked at once) and free their names: boards that are gone
+        for good (a device that vanished, an unknown id that dialed in and left)."""
+        with self._sessions_lock:
+            self.sessions = [s for s in self.sessions if all(s is not g for g in sessions)]
+        for s in sessions:
+            s.request_stop()
+        deadline = self.clock.monotonic() + timeout
+        for s in sessions:
+            s.stop(max(0.0, deadline - self.clock.monotonic()))
+            self.claims.release(s)
 
     def close(self) -> None:
         """Stop every board session and close every publisher (the same as ``stop()``)."""
@@ -368,6 +375,8 @@ class Daemon(BoardApi):
 
     def _diagnostics(self) -> None:
         while not self._stop.wait(self.config.diagnostics_period):
+            if self.dialins is not None:
+                self.dialins.sweep()  # (unknown ids gone for dialin_expire: removed)
             up = {s.name: [t.transducer.name for t in s.topics.values()]
                   for s in self.sessions if s.state == SessionState.UP}  # fmt: skip
             self.names.check(up, self._all_boards_known())

@@ -26,10 +26,18 @@ Each id has the sessions of the boards that dialed in with it (one, normally), e
   are shown with the warning (claims.py);
 * else to a new session, named by the config's ``[boards.NAME] id``, else by its
   ``board.name``; it keeps that name when the board comes back.
+
+Ids the config does not name are bounded (issue 43.4: 1,000 ids that dialed once left 1,008
+threads, 143 MB and a third of a core behind): at most ``[daemon] dialin_max`` of them are held
+at once (a new one beyond is refused, saying so: the listener says it once), and the session
+of one whose board has been gone ``[daemon] dialin_expire`` s is removed with its name
+(``sweep``, from the daemon's diagnostics thread; said in the log).  A configured id is the
+operator's: its session stays and counts against nothing.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
@@ -47,6 +55,8 @@ from ..session.session import BoardSession
 from ..session.status import SessionState
 from .listener import Listener, ListenerContext
 
+log = logging.getLogger(__name__)
+
 #: s between looks at an old link while a new board of its id waits for it to go
 _LOOK_S = 0.05
 #: s an old link of the same boot has to answer a probe before a new one replaces it
@@ -54,6 +64,8 @@ PROBE_S = 1.0
 
 #: (spec, mailbox) -> a started session (MissingLinkError once the daemon stops)
 AddSession = Callable[[BoardSpec, Mailbox], BoardSession]
+#: sessions the daemon no longer keeps -> None (stopped, their names released)
+Forget = Callable[[list[BoardSession]], None]
 
 
 def _live(s: BoardSession) -> bool:
@@ -107,12 +119,20 @@ class DialIns:
     of the boards that dialed in; ``start(reactor)``, ``stop()``, ``status()``."""
 
     def __init__(
-        self, config: Config, spec: ListenSpec, add_session: AddSession, clock: Clock = SYSTEM_CLOCK
+        self,
+        config: Config,
+        spec: ListenSpec,
+        add_session: AddSession,
+        clock: Clock = SYSTEM_CLOCK,
+        forget: Forget = lambda sessions: None,
     ) -> None:
         self.config = config
         self.clock = clock  #: the daemon's (its boards' links are on the reactor's, the same)
         self._add_session = add_session
+        self._forget = forget
         self._by_id: dict[str, Held] = {}
+        self._gone: dict[int, float] = {}  # id() of a session of an unknown id -> gone since
+        self.expired = 0  #: sessions of unknown ids removed after dialin_expire
         #: does a link answer (its board alive)?  (tests hand fakes their own)
         self.probe: Callable[[Board], bool] = answers
         self._lock = threading.Lock()
@@ -125,7 +145,40 @@ class DialIns:
         )
 
     def status(self) -> dict[str, Any]:
-        return self.listener.status()
+        with self._lock:
+            unknown = sum(len(h) for i, h in self._by_id.items() if self._unknown(i))
+        return {**self.listener.status(), "unknown_ids": unknown, "expired": self.expired}
+
+    def _unknown(self, board_id: str) -> bool:
+        return self.config.name_of_id(board_id) is None
+
+    def sweep(self) -> None:
+        """Remove the sessions of unknown ids whose boards have been gone ``dialin_expire`` s
+        (a board that comes back later is a new board: a new session, its name again)."""
+        now, expire = self.clock.monotonic(), self.config.dialin_expire
+        out: list[tuple[str, BoardSession]] = []
+        with self._lock:
+            for board_id, held in list(self._by_id.items()):
+                if not self._unknown(board_id):
+                    continue
+                for session, box in list(held):
+                    key = id(session)
+                    if _live(session) or box.waiting is not None:
+                        self._gone.pop(key, None)
+                    elif now - self._gone.setdefault(key, now) >= expire:
+                        held.remove((session, box))
+                        self._gone.pop(key, None)
+                        box.close()
+                        out.append((board_id, session))
+                if not held:
+                    del self._by_id[board_id]
+            self.expired += len(out)
+        for board_id, session in out:
+            why = "an id the config does not name: [daemon] dialin_expire"
+            log.info("%s (board.id %s) gone %g s: its session is removed (%s)", session.name,
+                     board_id, expire, why)  # fmt: skip
+        if out:
+            self._forget([s for _i, s in out])
 
     def hand_over(self, board: Board) -> str | None:
         """Give ``board`` to its session (see the theory above); None, or why it is refused."""
@@ -140,6 +193,13 @@ class DialIns:
             return (
                 f'board.id {board_id!r} is not in the config (accept = "known"): name it with '
                 f'[boards.NAME] id = "{board_id}"'
+            )
+        if name is None and self._full(board_id):
+            return (
+                f"{self.config.dialin_max} boards of ids not in the config are held already "
+                f"([daemon] dialin_max); one that left is forgotten "
+                f"{self.config.dialin_expire:g} s later ([daemon] dialin_expire), or name "
+                f'this one: [boards.NAME] id = "{board_id}"'
             )
         epoch = props.get("clock.epoch", "")
         with self._lock:
@@ -164,6 +224,14 @@ class DialIns:
                 verdict = self._replace(board_id, epoch, answered, claim, board)
                 if verdict is not None:
                     return verdict or None
+
+    def _full(self, board_id: str) -> bool:
+        """A new unknown id would be one more than ``dialin_max`` (one known already is not)."""
+        with self._lock:
+            if board_id in self._by_id:
+                return False
+            held = sum(len(h) for i, h in self._by_id.items() if self._unknown(i))
+        return held >= self.config.dialin_max
 
     def _replace(
         self,

@@ -35,8 +35,9 @@ class SessionContext:
     reactor: Reactor | None  #: the loop that reads the boards (None: a reader thread each)
     typestore: Any  #: rosbags typestore of the configured distro (standard types)
     realtime_offset_ns: int  #: CLOCK_REALTIME - CLOCK_MONOTONIC at start (published host times)
-    #: (owner, wanted name, owner's URL) -> (granted name, warning or None)
-    claim_name: Callable[[object, str, str], tuple[str, str | None]]
+    #: (owner, wanted name, owner's URL, the board.id its board states or None for a name the
+    #: config gives its URL) -> (granted name, warning or None)
+    claim_name: Callable[[object, str, str, str | None], tuple[str, str | None]]
     #: (board name, transducer) -> (message type name, warning or None)
     claim_type: Callable[[str, Transducer], tuple[str, str | None]]
     declare: Callable[[Topic], None]  #: a topic to every publisher

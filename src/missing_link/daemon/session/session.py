@@ -291,7 +291,8 @@ class BoardSession(SessionReport):
         twice = self.ctx.claim_id(self, self.identity.board_id, spec.url)
         if twice:  # (shown while it lasts: level())
             log.warning("%s: %s", spec.url, twice)
-        self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url)
+        by_id = None if spec.name else self.identity.board_id  # (a configured name is its id's)
+        self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url, by_id)
         if taken:
             self.warn(taken)
         no_clock = self.clock.start(
