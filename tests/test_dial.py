@@ -29,8 +29,6 @@ from missing_link.daemon.session.status import SessionState
 from missing_link.deploy.boardfile import check_board, load_board_file
 from missing_link.errors import BadURL, CallTimeout, ConfigError
 from missing_link.host.link import CallResult
-from missing_link.virtual import make_sim
-from missing_link.virtual.server import BoardServer
 
 from .helpers import FirmwareSim, wait_for
 
@@ -263,46 +261,6 @@ def test_a_board_goes_to_the_session_of_its_id(dialins: tuple[DialIns, list[Fake
     d.config.accept = "known"
     why = d.hand_over(FakeBoard("e5", board_id="b9"))  # type: ignore[arg-type]
     assert why is not None and '[boards.NAME] id = "b9"' in why and len(made) == 2
-
-
-def _counted(kinds: str, *names: str) -> int:
-    """How many of ``refused_kinds`` ("busy x3, silent x1") are of these kinds."""
-    got = dict(k.rsplit(" x", 1) for k in kinds.split(", ") if k)
-    return sum(int(got.get(n, 0)) for n in names)
-
-
-def test_a_flood_of_clients_costs_the_listener_nothing_it_keeps() -> None:
-    """Clients that connect and say nothing or junk: at most PER_ADDRESS from one address are
-    greeted at once (MAX_PENDING in all), the rest closed at once; all counted by kind; a board
-    that dials afterwards gets in."""
-    from missing_link.daemon.intake.listener import MAX_PENDING, PER_ADDRESS
-
-    with listening("tcp://127.0.0.1:0") as d:
-        assert d.dialins is not None
-        port = d.dialins.listener.port
-        held = [socket.create_connection(("127.0.0.1", port)) for _ in range(MAX_PENDING + 3)]
-        held[0].sendall(os.urandom(300))
-        try:
-            st = d.dialins.status
-            n = MAX_PENDING + 3
-            assert wait_for(lambda: st()["accepted"] + _counted(st()["refused_kinds"], "busy") == n)
-            assert st()["accepted"] >= PER_ADDRESS and st()["greeting"] <= PER_ADDRESS, st()
-        finally:
-            for s in held:
-                s.close()
-        kinds = lambda: d.dialins.status()["refused_kinds"]  # type: ignore[union-attr]  # noqa: E731
-        accepted = d.dialins.status()["accepted"]
-        gone = ("handshake failed", "silent", "evicted")
-        assert wait_for(lambda: _counted(kinds(), *gone) == accepted, 20), kinds()
-        server = BoardServer(make_sim("rangers", seed=2), f"tcp://127.0.0.1:{port}", dial=True)
-        thread = threading.Thread(target=server.serve_forever, daemon=True)
-        thread.start()
-        try:
-            assert wait_for(lambda: d.sessions and d.wait_until_up(0.1), 20), d.status()
-            assert d.dialins.status()["errors"] == 0 and d.sessions[0].name == "board_b"
-        finally:
-            server.stop()
-            thread.join(5)
 
 
 # ---- MicroPython boards dialing a real daemon ---------------------------------------------------

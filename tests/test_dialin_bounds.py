@@ -5,6 +5,7 @@ and what the others leave behind is bounded."""
 
 from __future__ import annotations
 
+import os
 import selectors
 import socket
 import threading
@@ -166,3 +167,37 @@ def test_unknown_ids_that_left_expire_and_are_capped() -> None:
         assert len(threading.enumerate()) < threads  # (their supervisors ended)
         with dialing(port, seed=8, board_id="u-3"):  # room again
             assert wait_for(lambda: _up(d) == 1 and len(d.sessions) == 2, 10), d.status()
+
+
+def _counted(kinds: str, *names: str) -> int:
+    """How many of ``refused_kinds`` ("busy x3, silent x1") are of these kinds."""
+    got = dict(k.rsplit(" x", 1) for k in kinds.split(", ") if k)
+    return sum(int(got.get(n, 0)) for n in names)
+
+
+def test_a_flood_of_clients_costs_the_listener_nothing_it_keeps() -> None:
+    """Clients that connect and say nothing or junk: at most PER_ADDRESS from one address are
+    greeted at once (MAX_PENDING in all), the rest closed at once; all counted by kind; a board
+    that dials afterwards gets in."""
+    from missing_link.daemon.intake.listener import MAX_PENDING, PER_ADDRESS
+
+    with listening() as d:
+        assert d.dialins is not None
+        port = d.dialins.listener.port
+        held = [socket.create_connection(("127.0.0.1", port)) for _ in range(MAX_PENDING + 3)]
+        held[0].sendall(os.urandom(300))
+        try:
+            st = d.dialins.status
+            n = MAX_PENDING + 3
+            assert wait_for(lambda: st()["accepted"] + _counted(st()["refused_kinds"], "busy") == n)
+            assert st()["accepted"] >= PER_ADDRESS and st()["greeting"] <= PER_ADDRESS, st()
+        finally:
+            for s in held:
+                s.close()
+        kinds = lambda: d.dialins.status()["refused_kinds"]  # type: ignore[union-attr]  # noqa: E731
+        accepted = d.dialins.status()["accepted"]
+        gone = ("handshake failed", "silent", "evicted")
+        assert wait_for(lambda: _counted(kinds(), *gone) == accepted, 20), kinds()
+        with dialing(port, seed=2):
+            assert wait_for(lambda: d.sessions and d.wait_until_up(0.1), 20), d.status()
+            assert d.dialins.status()["errors"] == 0 and d.sessions[0].name == "board_b"
