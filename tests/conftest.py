@@ -108,3 +108,10 @@ def avr_rig(avr_build: Path) -> Iterator[AvrRig]:
     yield start
     for sim in sims:
         sim.close()
+
+
+@pytest.fixture
+def uno_rig(avr_rig: AvrRig) -> AvrSim:
+    """The thesis rig's Uno (examples/boards/thesis-rig-uno.py) in simavr, closed after the
+    test."""
+    return avr_rig("uno_rig")

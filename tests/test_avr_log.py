@@ -5,8 +5,6 @@ counted on the board (``a2jLogInfo``, the daemon's ``log_faults``); put back, it
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -20,23 +18,14 @@ from .helpers import AvrSim, wait_for
 pytestmark = pytest.mark.avr
 
 
-@pytest.fixture
-def rig(avr_build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf")
-    try:
-        yield sim
-    finally:
-        sim.close()
-
-
 def faults(d: Daemon) -> dict[tuple[int, int], int]:
     info = parse_info(d.call("uno_rig", "a2jLogInfo").payload)
     return {(s, k): n for s, k, n in info.faults}
 
 
 @pytest.mark.slow
-def test_an_absent_srf02_is_said_once_then_counted(rig: AvrSim) -> None:
-    cfg = Config(boards=[BoardSpec(rig.url, timeout=2.0, uart_baud=115200)])
+def test_an_absent_srf02_is_said_once_then_counted(uno_rig: AvrSim) -> None:
+    cfg = Config(boards=[BoardSpec(uno_rig.url, timeout=2.0, uart_baud=115200)])
     with Daemon(cfg) as d:
         lines: list[LogLine] = []
         sonar: list[Update] = []
@@ -45,7 +34,7 @@ def test_an_absent_srf02_is_said_once_then_counted(rig: AvrSim) -> None:
         assert d.wait_until_up(20), d.status()
         assert wait_for(lambda: sonar and sonar[-1].values[0] is not None, 10)
         assert lines == [] and faults(d) == {}  # nothing wrong yet
-        assert rig.ctl("srf02_absent 1") == "ok"
+        assert uno_rig.ctl("srf02_absent 1") == "ok"
         sid = 2  # the sonar's transducer id (thesis-rig-uno.py)
         assert wait_for(lambda: faults(d).get((sid, 1), 0) >= 5, 10)  # 15 Hz: counted on
         absent = [x for x in lines if x.kind == "not answering"]
@@ -60,7 +49,7 @@ def test_an_absent_srf02_is_said_once_then_counted(rig: AvrSim) -> None:
         assert sonar[-1].values[0] is None  # (and its samples are N/A)
         # the daemon's own reading of the counts, once a diagnostics period
         assert wait_for(lambda: "sonar not answering x" in d.status()[0]["log_faults"], 10)
-        assert rig.ctl("srf02_absent 0") == "ok"
+        assert uno_rig.ctl("srf02_absent 0") == "ok"
         n = len(sonar)
         assert wait_for(lambda: len(sonar) > n + 2 and sonar[-1].values[0] is not None, 10)
         assert len([x for x in lines if x.kind == "not answering"]) == 1

@@ -7,7 +7,6 @@ from __future__ import annotations
 import struct
 import subprocess
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -27,19 +26,12 @@ def _symbol(elf: Path, name: str) -> int:
     return next(int(x.split()[0], 16) & 0xFFFF for x in nm.splitlines() if x.endswith(" " + name))
 
 
-@pytest.fixture
-def rig(avr_build: Path) -> Iterator[AvrSim]:
-    sim = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf")
-    try:
-        yield sim
-    finally:
-        sim.close()
-
-
-def test_the_boards_stack_low_point_is_the_one_the_rig_sees(avr_build: Path, rig: AvrSim) -> None:
+def test_the_boards_stack_low_point_is_the_one_the_rig_sees(
+    avr_build: Path, uno_rig: AvrSim
+) -> None:
     elf = avr_build / "uno_rig" / "firmware.elf"
     end = _symbol(elf, "_end")
-    board = Board(open_transport(rig.url), timeout=5.0)
+    board = Board(open_transport(uno_rig.url), timeout=5.0)
     try:
         board.handshake()
         board.config()  # (deep calls: the configuration, a map, aligned sampling, a timed pulse)
@@ -48,11 +40,11 @@ def test_the_boards_stack_low_point_is_the_one_the_rig_sees(avr_build: Path, rig
         board.configure({"dist_ir.aligned": True})
         at = H0 + (board.clock_exchange(5.0).t3 + 50_000 - b0) * 1000
         board.call_ok("a2jAt", struct.pack("<qB", at, board.index["a2j_trigger"]) + b"\x2c\x01")
-        rig.ctl("enc 100")
+        uno_rig.ctl("enc 100")
         time.sleep(0.3)
         board.call_ok("a2jMemory")  # (its own frames are as deep as the next one's)
         first = parse_memory(board.call_ok("a2jMemory"))
-        low = int(rig.ctl("stack").split()[1], 16)
+        low = int(uno_rig.ctl("stack").split()[1], 16)
         again = parse_memory(board.call_ok("a2jMemory"))
     finally:
         board.close()

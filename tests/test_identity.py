@@ -165,15 +165,11 @@ def test_avr_id_goes_into_the_eeprom_and_survives_a_reflash(
 
 @pytest.mark.slow
 @pytest.mark.avr
-def test_avr_properties_are_parsed_by_the_host_byte_for_byte(avr_build: Path) -> None:
+def test_avr_properties_are_parsed_by_the_host_byte_for_byte(uno_rig: AvrSim) -> None:
     """The properties blob of the AVR firmware, read raw: every key once, board.id in it."""
-    sim = AvrSim(avr_build, avr_build / "uno_rig" / "firmware.elf")
-    try:
-        board = Board.open(sim.url, timeout=2.0)
-        raw = board.read_many("a2jGetProperties")
-        board.close()
-    finally:
-        sim.close()
+    board = Board.open(uno_rig.url, timeout=2.0)
+    raw = board.read_many("a2jGetProperties")
+    board.close()
     fields = raw.split(b"\0")[:-1]
     keys = fields[0::2]
     assert keys == [b"j2a.version", b"board.name", b"board.model", b"board.serial", b"board.id",
