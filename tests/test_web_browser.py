@@ -36,6 +36,7 @@ FLAGS = [
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]  # fmt: skip
 LINK_TIMEOUT = BoardSpec.link_timeout  # (the default: the config below does not change it)
+RIG = Path(__file__).resolve().parent.parent / "examples" / "boards" / "thesis-rig.py"
 
 
 @contextmanager
@@ -55,7 +56,10 @@ def daemon(
     daemon_proc = None
     try:
         for name, sim in boards.items():
-            proc, url = start_board_process(sim, 0, "tcp://127.0.0.1:0", name=name)
+            if sim.endswith(".py"):  # (a board file: its parts simulated from their datasheets)
+                proc, url = board_file_process(sim)
+            else:
+                proc, url = start_board_process(sim, 0, "tcp://127.0.0.1:0", name=name)
             procs.append(proc)
             urls.append(url)
         cmd = [*ML, "run", *urls, "--config", str(config)]
@@ -82,6 +86,15 @@ def daemon(
         for p in procs:
             os.kill(p.pid, signal.SIGCONT)
             stop_process(p)
+
+
+def board_file_process(path: str) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen([*ML, "board", "--file", path, "--listen", "tcp://127.0.0.1:0"],
+                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert line.startswith("LISTENING "), line
+    return proc, line.split()[1]
 
 
 def board_pid(env: dict[str, str], name: str) -> int:
@@ -140,11 +153,12 @@ def test_both_boards_appear_within_5_s_and_values_change(page: Any, shots: Path)
         expect(page.get_by_role("heading", name=name, level=2)).to_be_visible(timeout=5000)
         expect(board(page, name).locator(".state")).to_have_text("up", timeout=5000)
     assert time.monotonic() - page.started < 5.0
-    quad = board(page, "board_a").get_by_role("article").filter(has_text="quad").locator(".value")
-    expect(quad).to_contain_text("count")
-    first = quad.text_content()
-    expect(quad).not_to_have_text(first, timeout=5000)
-    expect(board(page, "board_a").get_by_role("img", name="quad: the last 30 s")).to_be_visible()
+    quad = board(page, "board_a").get_by_role("article").filter(has_text="quad")
+    value = quad.locator(".value").first
+    expect(value).to_have_text(re.compile(r"^-?[\d.]+ rad · -?\d+ counts$"))  # (SI, and counts)
+    first = value.text_content()
+    expect(value).not_to_have_text(first, timeout=5000)
+    expect(quad.get_by_role("img", name="quad angle (rad): the last 30 s")).to_be_visible()
     expect(page.locator("#recording-state")).to_contain_text("recording to")
     page.wait_for_timeout(3000)  # (some seconds on the plots)
     page.screenshot(path=str(shots / "web-console.png"))
@@ -181,16 +195,81 @@ def test_a_rate_set_with_the_keyboard_reaches_the_board(
     )
 
 
-def test_actuator_controls_where_commands_are_on(page: Any) -> None:
+def test_actuator_controls_in_si_with_their_range(page: Any) -> None:
+    """A servo's angle in rad, within its range (a slider and a number), its degrees beside;
+    before, a raw int8 (typing 60 gave 42.52 deg)."""
     from playwright.sync_api import expect
 
     a = board(page, "board_a")
+    form = a.locator("form.actuator")
+    expect(form).to_contain_text("-1.571..1.571 rad (-90..90 °)")
     field = a.get_by_label("servo command", exact=True)
-    field.fill("40")
+    field.fill("0.5")
+    expect(form).to_contain_text("28.65 °")  # (what 0.5 rad is, before it is sent)
     field.press("Enter")
-    expect(a.locator(".actuator [role=status]")).to_have_text("sent")
+    expect(form.get_by_role("status")).to_have_text("sent")
     servo = a.get_by_role("article").filter(has_text="servo").locator(".value")
-    expect(servo).to_have_text(re.compile(r"^28\.3\d* deg$"))  # 40 x 0.708661 deg, from the board
+    # 0.5 rad = 28.65 deg, the nearest the int8 takes is 40 x 0.708661 = 28.35 deg: from the board
+    expect(servo).to_have_text("0.4947 rad · 28.35 °")
+    slider = a.get_by_role("slider", name="servo command (slider)")
+    assert (slider.get_attribute("min"), slider.get_attribute("max"))[0].startswith("-1.570")
+    slider.fill("-1")  # (let go of the slider: the servo goes there, one raw step at most off)
+    expect(servo).to_have_text("-1.002 rad · -57.4 °")  # -81 x 0.708661 deg
+    assert field.input_value() == slider.input_value()  # (the number follows the slider)
+
+
+@pytest.fixture
+def rig_page(browser: Any, tmp_path: Path) -> Iterator[Any]:
+    """The thesis rig's board file, on a daemon and a page of its own, for one test (the
+    timings of the demo's boards are not to share the machine with it)."""
+    with daemon(tmp_path, {"rig": str(RIG)}) as (url, _env):
+        page = browser.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(url)
+        yield page
+        assert not errors, errors
+        page.close()
+
+
+def test_every_channel_named_one_plot_per_quantity(rig_page: Any, shots: Path) -> None:
+    """The thesis rig's board file: the IMU's seven channels named, in SI and in the unit the
+    part is sold in, one plot per quantity (before: one "imu (SI)" plot of ch0..ch6); its wheel
+    in rad and counts (its board file declares counts_per_rev); time axes in seconds before now;
+    an actuator's plot drawn in steps."""
+    from playwright.sync_api import expect
+
+    rig = board(rig_page, "rig")
+    expect(rig.locator(".state")).to_have_text("up", timeout=10000)
+    imu = rig.get_by_role("article").filter(has_text="MPU-6050")
+    expect(imu.locator("dl.channels dt")).to_have_text(["ax", "ay", "az", "temperature", "gx",
+                                                         "gy", "gz"])  # fmt: skip
+    expect(imu.locator(".value").nth(2)).to_have_text(re.compile(r"^9\.80\d m/s² · 1(\.0+)? g$"))
+    expect(imu.locator(".value").nth(4)).to_contain_text(" rad/s · ")
+    expect(imu.locator(".value").nth(4)).to_contain_text(" °/s")
+    expect(imu.locator("figcaption")).to_have_text(["acceleration (m/s²)", "temperature (°C)",
+                                                     "angular velocity (rad/s)"])  # fmt: skip
+    wheel = rig.get_by_role("article").filter(has_text="quadrature").locator(".value")
+    expect(wheel).to_have_text(re.compile(r"^-?[\d.]+ rad · -?\d+ counts$"))
+    ticks = rig_page.evaluate("timeAxis().values({scales: {x: {max: 1000}}}, "
+                          "[970, 975, 980, 985, 990, 995, 1000])")  # fmt: skip
+    assert ticks == ["-30 s", "-25 s", "-20 s", "-15 s", "-10 s", "-5 s", "now"]
+    rig_page.wait_for_function("[...S.topics.values()].every(t => t.plots.every(p => p.plot))")
+    stepped = rig_page.evaluate(
+        "[...S.topics.values()].map(t => [t.meta.name, t.meta.kind, "
+        "t.plots.every(p => p.plot.series[1].stepped === true)])"
+    )
+    assert all(steps == (kind == "actuator") for _name, kind, steps in stepped), stepped
+    field = rig.get_by_label("servo command", exact=True)
+    servo = rig.get_by_role("article").filter(has_text="HS-645MG")
+    for angle, shown in (("0.6", "0.6061 rad · 34.72 °"), ("-0.3", "-0.2968 rad · -17.01 °")):
+        field.fill(angle)
+        field.press("Enter")
+        expect(servo.locator(".value")).to_have_text(shown)
+        rig_page.wait_for_timeout(1500)  # (a step on its plot)
+    imu.screenshot(path=str(shots / "web-imu.png"))
+    servo.screenshot(path=str(shots / "web-servo.png"))
+    rig.locator(".actuators").screenshot(path=str(shots / "web-actuators.png"))
 
 
 def test_a_stopped_board_shows_as_lost(page: Any, rig: tuple[str, dict[str, str]],
@@ -226,7 +305,7 @@ def test_without_commands_no_controls_and_a_forged_command_is_refused(
         a = board(page, "board_a")
         expect(a.locator(".state")).to_have_text("up", timeout=10000)
         expect(page.locator("#link")).to_contain_text("commands off")
-        expect(a.get_by_role("heading", name="servo (deg)")).to_be_visible()
+        expect(a.get_by_role("heading", name="servo · HS-645MG")).to_be_visible()
         assert a.get_by_label("servo command").count() == 0
         assert page.get_by_role("button", name="Send").count() == 0
         reply = page.evaluate(FORGE)  # (the page's own origin: only the face's option stops it)

@@ -6,10 +6,11 @@ Theory of operation
 -------------------
 ``add_sample`` runs on a board's reading thread for every update: it only appends the update to
 its topic's bounded inbox (a full inbox drops the oldest and counts it).  Everything else is the
-console loop's: every tick (``drain``) takes what arrived, converts it to the transducer's unit
-(``scale``/``offset``), thins it to at most ``POINTS_PER_TICK`` points per topic (the newest
-always kept) and keeps a thinner copy, at most one point per ``HISTORY_STEP_S``, for the last
-``WINDOW_S``: a page that opens later is handed that history (``snapshot``) and the ticks after.
+console loop's: every tick (``drain``) takes what arrived, converts each channel to its SI unit
+(web_channels.py: the page shows the part's unit beside it), thins it to at most
+``POINTS_PER_TICK`` points per topic (the newest always kept) and keeps a thinner copy, at
+most one point per ``HISTORY_STEP_S``, for the last ``WINDOW_S``: a page that opens later is
+handed that history (``snapshot``) and the ticks after.
 Each topic's rate is what arrived over the last ``RATE_WINDOW_S``.
 
 Configuration: the keys a board offers (``add_config``) with their kind, unit, range and
@@ -35,6 +36,7 @@ from typing import Any
 from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
+from .web_channels import channels, control, describe
 
 WINDOW_S = 30.0
 POINTS_PER_TICK = 50
@@ -72,11 +74,12 @@ def thin(points: list[list[Any]], most: int) -> list[list[Any]]:
 
 
 class _TopicState:
-    def __init__(self, topic: Topic, command: str | None) -> None:
-        t = topic.transducer
+    def __init__(self, topic: Topic, command: str | None, si_command: str | None = None) -> None:
         self.topic = topic
-        self.convert: Callable[[float], float] | None = t.in_unit if t.scaled else None
-        self.command = command
+        #: per channel raw -> the SI unit it is shown in (web_channels.py)
+        self.convert = [(c.scale, c.offset) for c in channels(topic.transducer)]
+        self.command = command  #: its thesis-format command topic (raw values)
+        self.si_command = si_command  #: its standard command topic (SI values)
         self.inbox: deque[Update] = deque(maxlen=INBOX)
         self.history: deque[list[Any]] = deque(maxlen=HISTORY_POINTS)
         self.count = 0
@@ -96,6 +99,8 @@ class _TopicState:
             "dtype": t.dtype,
             "kind": t.kind,
             "command": self.command,
+            "layout": describe(t),  #: every channel named, its SI and its part's unit
+            "control": control(t, self.si_command, self.command),
         }
 
     def drain(self, now: float) -> list[list[Any]]:
@@ -105,7 +110,7 @@ class _TopicState:
                 u = self.inbox.popleft()
             except IndexError:
                 break
-            values = [self._value(v) for v in u.values]
+            values = [self._value(v, ch) for ch, v in enumerate(u.values)]
             got.append([u.stamp_ns / 1e9, *values])
         if got:
             self.last = got[-1]
@@ -119,11 +124,12 @@ class _TopicState:
             self.rates.popleft()
         return thin(got, POINTS_PER_TICK)
 
-    def _value(self, v: Any) -> float | int | None:
+    def _value(self, v: Any, ch: int) -> float | int | None:
         n = _number(v)
-        if n is not None and self.convert is not None:
-            return _number(self.convert(n))
-        return n
+        if n is None or ch >= len(self.convert):
+            return n
+        scale, offset = self.convert[ch]
+        return n if (scale, offset) == (1.0, 0.0) else _number(n * scale + offset)
 
     def rate(self) -> float | None:
         if len(self.rates) < 2:
@@ -181,7 +187,7 @@ class ConsoleModel:
             return  # (a standard ROS type's mirror of a transducer's topic: shown once, as it)
         with self._lock:
             old = self._topics.get(topic.name)
-            state = _TopicState(topic, old.command if old else None)
+            state = _TopicState(topic, *((old.command, old.si_command) if old else (None, None)))
             if old is not None:
                 state.history, state.count = old.history, old.count
             self._topics[topic.name] = state
@@ -197,8 +203,18 @@ class ConsoleModel:
         st.count += 1
 
     def add_command(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
+        """A command topic: the thesis-format one of a transducer's (raw), or its standard one
+        (``/<board>/<name>/command``, SI: the page's controls use it where there is one)."""
         with self._lock:
             self._commands[name] = deliver
+            if topic.standard:  # (its transducer's topic, found by board and name)
+                t = topic.transducer
+                st = next((s for s in self._topics.values() if s.topic.board == topic.board
+                           and s.topic.transducer.name == t.name), None)  # fmt: skip
+                if st is not None and st.si_command != name:
+                    st.si_command = name
+                    self._new_topics.append(st.topic.name)
+                return
             st = self._topics.get(topic.name)
             if st is not None and st.command != name:
                 st.command = name

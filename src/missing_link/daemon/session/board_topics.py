@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Container, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ...descriptors import Transducer, load_descriptor_file
@@ -81,6 +81,9 @@ def declare_topics(
     for t in transducers:
         name = cfg.remap.get(f"/{board}/{t.name}", f"/{board}/{t.name}")
         opts = cfg.std_options(board, t.name)
+        if opts.counts_per_rev is not None:  # (the host's key wins on every face: ros.md)
+            per = {**t.options, "counts_per_rev": f"{opts.counts_per_rev:g}"}
+            t = replace(t, options=per)
         type_name = None
         if opts.thesis:
             type_name, clash = ctx.claim_type(board, t)

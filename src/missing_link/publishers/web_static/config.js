@@ -110,5 +110,5 @@ async function send(board, form, msg, what) {
 }
 
 $("login-form").addEventListener("submit", login);
-window.addEventListener("resize", () => { for (const t of S.topics.values()) if (t.plot) t.plot.setSize({ width: Math.max(300, t.plotBox.clientWidth), height: 150 }); });
+window.addEventListener("resize", resizePlots);
 start();
