@@ -19,8 +19,9 @@ from missing_link.virtual.mpyboard import find_micropython
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples" / "boards"
 UNO = EXAMPLES / "thesis-rig-uno.py"
-#: the thesis rig on an Uno and a motor and a stepper more, without run-time configuration
-#: (its keys would be more than the AVR runtime holds): under 384 bytes left for the stack
+#: the thesis rig on an Uno and two motors, a stepper, an HC-SR04 and a battery more, without
+#: run-time configuration (its keys would be more than the AVR runtime holds): under 384 bytes
+#: left for the stack
 UNO_AND_A_MOTOR = (
     UNO.read_text()
     .replace('"mcu": "atmega328p",', '"mcu": "atmega328p", "features": ["timing", "log"],')
@@ -32,6 +33,10 @@ UNO_AND_A_MOTOR = (
          "call": "a2j_motor"},
         {"name": "mast", "id": 6, "driver": "stepper", "step_pin": 8, "dir_pin": 12,
          "steps_per_rev": 200, "call": "a2j_mast"},
+        {"name": "motor_b", "id": 7, "driver": "hbridge", "pwm_pin": 5, "dir_pin": 4,
+         "call": "a2j_motor_b"},
+        {"name": "front", "id": 8, "driver": "hcsr04", "trig_pin": 13, "echo_pin": 15},
+        {"name": "pack", "id": 9, "driver": "battery", "pin": 1},
     ],""",
     )
 )

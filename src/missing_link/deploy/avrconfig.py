@@ -155,13 +155,17 @@ def generate_config(
     if 16 + 2 * slot > EEPROM[mcu] - 32:  # (the last 32 bytes: board.id, identity.c)
         raise ConfigError(f"{where}: the configuration record does not fit the {mcu}'s EEPROM")
     blob = keys_blob(keys)
-    rows = [_key_row(a.key) for a in keys]
+    limits: list[tuple[int, int]] = []  # (keys share their limits: a pair each, once)
+    rows = [_key_row(a.key, limits) for a in keys]
     cases, checks = _apply_cases(keys, wiring or {})
     n = len(keys)
     return [
         "/* run-time configuration (config.c): keys, limits and defaults from the board file */",
-        f"const config_key_t board_config_keys[{max(n, 1)}] PROGMEM = {{",
+        f"const config_row_t board_config_keys[{max(n, 1)}] PROGMEM = {{",
         *rows,
+        "};",
+        "const uint32_t board_config_limits[] PROGMEM = {",
+        *(f"    0x{lo:08x}UL, 0x{hi:08x}UL," for lo, hi in limits or [(0, 0)]),
         "};",
         f"const uint8_t board_config_count = {n};",
         f"uint32_t board_config_values[{max(n, 1)}];",
@@ -187,17 +191,21 @@ def generate_config(
     ], blob
 
 
-def _key_row(key: Key) -> str:
-    """A key's row in the table: its kind, read-only flag, limits and default, raw."""
+def _key_row(key: Key, limits: list[tuple[int, int]]) -> str:
+    """A key's row in the table: its kind and read-only flag, its limits' pair (added to
+    ``limits`` if new), its default, raw."""
     if key.kind == "enum":
         lo, hi = 0, len(key.limits) - 1
     elif key.limits is None:
         lo, hi = 0, 1
     else:
         lo, hi = (_raw(key.kind, x, None) for x in key.limits)
+    if (lo, hi) not in limits:
+        limits.append((lo, hi))
     return (
-        f"    {{{_KIND[key.kind]}, {1 if key.read_only else 0}, 0x{lo:08x}UL, 0x{hi:08x}UL, "
-        f"0x{_raw(key.kind, key.default, key.limits):08x}UL}}, /* {c_comment(key.name)} */"
+        f"    {{{_KIND[key.kind]}{' | CONFIG_RO' if key.read_only else ''}, "
+        f"{limits.index((lo, hi))}, 0x{_raw(key.kind, key.default, key.limits):08x}UL}}, "
+        f"/* {c_comment(key.name)} */"
     )
 
 

@@ -126,7 +126,7 @@ def _add_entry(
     if t.chan_count > 16:  # (runtime.h: a bit per channel in a uint16_t)
         raise ConfigError(f"{at}: {t.chan_count} channels; the AVR runtime keeps 16 at most")
     parts.lines.append(t.descriptor_line())
-    parts.decls.append(f"static uint64_t stamps_{k}[{t.chan_count}];")
+    parts.decls.append(f"static uint32_t stamps_{k}[{t.chan_count}];")
     parts.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
     part: Part = part_of(k, e, t, pins, mcu, inst, at)
     for call, _fn in part.funcs:
@@ -256,7 +256,7 @@ def _hardware_dispatch(parts: Parts) -> list[str]:
         return []
     index = {name: 11 + j for j, (name, _fn) in enumerate(parts.funcs)}  # (builtins.h, timing)
     return [
-        "static uint8_t hardware(uint8_t fn, uint64_t tick, const uint8_t *payload, uint8_t n) {",
+        "static uint8_t hardware(uint8_t fn, uint32_t tick, const uint8_t *payload, uint8_t n) {",
         *(
             f"    if (fn == {index[call]} && {enabled}) return {fn}(payload, n, tick);"
             for call, enabled, fn in parts.hardware
@@ -312,7 +312,7 @@ def _setup_and_poll(parts: Parts, features: tuple[str, ...]) -> list[str]:
         *(boot if "config" in features else []),
         "}",
         "",
-        "void board_poll(uint64_t now) {",
+        "void board_poll(uint32_t now) {",
         *([f"    {line}" for line in parts.polls] or ["    (void)now;"]),
         "}",
         "",

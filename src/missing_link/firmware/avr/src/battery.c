@@ -54,13 +54,13 @@ static float battery_charge(float volts) {
     return PF(end - 1);
 }
 
-static void put(uint8_t ch, float v, uint64_t now) {
+static void put(uint8_t ch, float v, uint32_t now) {
     uint32_t raw;
     __builtin_memcpy(&raw, &v, 4);
     record(bt, ch, raw, now);
 }
 
-void battery_poll(uint64_t now) {
+void battery_poll(uint32_t now) {
     if (!bt || !sched_due(&bs, &now)) return;
     ADMUX = _BV(REFS0) | b_channel; /* AVcc */
     sched_wait(&bs, &now); /* the first conversion starts on the instant */

@@ -16,5 +16,5 @@ void battery_init(transducer_t *t, uint8_t adc_channel, float rate_hz, float vre
                   const uint8_t *starts);
 void battery_set(float rate_hz, float ratio, uint8_t cells, uint8_t chemistry);
 void battery_align(uint8_t aligned, float phase);
-void battery_poll(uint64_t now);
+void battery_poll(uint32_t now);
 #endif

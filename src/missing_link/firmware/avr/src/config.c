@@ -42,7 +42,14 @@ uint16_t crc16(const uint8_t *data, uint16_t n, uint16_t crc) {
     return crc;
 }
 
-static void key_of(uint8_t i, config_key_t *k) { memcpy_P(k, &board_config_keys[i], sizeof *k); }
+static void key_of(uint8_t i, config_key_t *k) {
+    config_row_t r;
+    memcpy_P(&r, &board_config_keys[i], sizeof r);
+    k->kind = r.kind & (uint8_t)~CONFIG_RO;
+    k->read_only = r.kind >> 7;
+    k->def = r.def;
+    memcpy_P(&k->lo, &board_config_limits[2 * r.limits], 8);
+}
 
 /* ---- the key table's text: field f (0 name, 3 limits) of key i's line, appended to out --- */
 static uint8_t append_field(uint8_t i, uint8_t f, uint8_t *out, uint8_t at) {
@@ -65,10 +72,8 @@ static uint8_t append_field(uint8_t i, uint8_t f, uint8_t *out, uint8_t at) {
     return at;
 }
 
-static uint8_t say(uint8_t *out, uint8_t at, const char *text) { /* text in flash */
-    while (pgm_read_byte(text) && at < 250) out[at++] = pgm_read_byte(text++);
-    return at;
-}
+#define say runtime_say
+static const char no_key[] PROGMEM = "no key index";
 
 /* 0 if raw is a value key i allows, else the reply text's length (in out) */
 static uint8_t refuse(uint8_t i, uint32_t raw, uint8_t *out) {
@@ -195,7 +200,7 @@ void config_boot(void) {
 uint8_t config_get(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     uint8_t first = n ? in[0] : 0;
     if (first > board_config_count) {
-        *out_n = (uint8_t)(say(out, 0, PSTR("no key index")));
+        *out_n = (uint8_t)(say(out, 0, no_key));
         return 0xFF;
     }
     out[0] = first;
@@ -222,7 +227,7 @@ uint8_t config_set(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
         uint32_t raw;
         memcpy(&raw, in + p + 1, 4);
         if (i >= board_config_count) {
-            *out_n = say(out, 0, PSTR("no key index"));
+            *out_n = say(out, 0, no_key);
             return 0xFF;
         }
         uint8_t why = refuse(i, raw, out);

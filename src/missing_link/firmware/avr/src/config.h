@@ -9,16 +9,24 @@
 
 enum { KIND_BOOL = 0, KIND_INT, KIND_FLOAT, KIND_ENUM };
 
-/* One key, in flash: its kind, limits (raw bits: int32, or float for KIND_FLOAT; an enum's
- * choices are 0..hi) and default (raw bits). */
+/* One key: its kind, limits (raw bits: int32, or float for KIND_FLOAT; an enum's choices are
+ * 0..hi) and default (raw bits). */
 typedef struct {
     uint8_t kind;
     uint8_t read_only;
     uint32_t lo, hi, def;
 } config_key_t;
+/* ... as it is in flash: the kind (CONFIG_RO: read-only), its limits' pair in
+ * board_config_limits (keys share them), the default */
+#define CONFIG_RO 0x80
+typedef struct {
+    uint8_t kind, limits;
+    uint32_t def;
+} config_row_t;
 
 /* Generated from the board file (board_gen.c): */
-extern const config_key_t board_config_keys[];        /* PROGMEM */
+extern const config_row_t board_config_keys[];        /* PROGMEM */
+extern const uint32_t board_config_limits[];          /* PROGMEM: (lo, hi) pairs */
 extern const uint8_t board_config_count;
 extern const blob_t board_config_keys_blob;           /* "config/1\n" + one line per key */
 extern const uint16_t board_config_schema_crc;        /* crc16 of that blob */

@@ -10,18 +10,18 @@
 void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse);
 void quadrature_set(float rate_hz, uint8_t reverse); /* run-time configuration (config.c) */
 void quadrature_align(uint8_t aligned, float phase); /* on the host-time grid (timing.c) */
-void quadrature_poll(uint64_t now);
+void quadrature_poll(uint32_t now);
 extern volatile uint16_t quadrature_errors;
 
 void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz);
 void sharp_set(float rate_hz);
 void sharp_align(uint8_t aligned, float phase);
-void sharp_poll(uint64_t now);
+void sharp_poll(uint32_t now);
 
 void srf02_init(transducer_t *t, uint8_t address, uint16_t rate_hz, uint8_t min_range_cm);
 void srf02_set(float rate_hz, uint16_t min_range_cm);
 void srf02_align(uint8_t aligned, float phase);
-void srf02_poll(uint64_t now);
+void srf02_poll(uint32_t now);
 extern uint16_t srf02_timeouts, srf02_bus_errors;
 
 void servo_init(transducer_t *t, uint16_t min_us, uint16_t max_us, uint16_t centre_us,
@@ -36,6 +36,6 @@ uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n
 void trigger_init(transducer_t *t, uint16_t pulse_us);
 void trigger_set(uint16_t pulse_us);
 uint8_t trigger_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint64_t tick); /* 1: armed */
-void trigger_poll(uint64_t now);
+uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint32_t tick); /* 1: armed */
+void trigger_poll(uint32_t now);
 #endif

@@ -18,6 +18,8 @@
 #include "timing.h"
 
 #define NO_SILENCE 0xFFFFFFFFUL
+static const char silent[] PROGMEM = "no frame from the host";
+static const char goodbye[] PROGMEM = "the host said goodbye";
 
 static const failsafe_entry_t *table;
 static uint16_t *ms;
@@ -42,20 +44,7 @@ static void trip(uint8_t i, const char *why, uint32_t silent_ms) {
     runtime_debug_P(PSTR("failsafe: "));
     runtime_debug_P(e.name);
     runtime_debug_P(PSTR(" safe ("));
-    runtime_debug_P(why);
-    if (silent_ms != NO_SILENCE) {
-        char num[12];
-        uint8_t n = sizeof num - 1;
-        num[n] = 0;
-        do {
-            num[--n] = (char)('0' + silent_ms % 10);
-            silent_ms /= 10;
-        } while (silent_ms);
-        runtime_debug_P(PSTR(" for "));
-        runtime_debug(num + n);
-        runtime_debug_P(PSTR(" ms"));
-    }
-    runtime_debug_P(PSTR(");"));
+    runtime_debug_why(why, silent_ms);
 }
 
 void failsafe_arm(uint8_t k) {
@@ -63,17 +52,17 @@ void failsafe_arm(uint8_t k) {
         if (pgm_read_byte(&table[i].k) == k) armed |= (uint8_t)(1 << i);
 }
 
-void failsafe_poll(uint64_t now) {
-    uint64_t last = runtime_last_frame_us;
+void failsafe_poll(uint32_t now) {
+    uint32_t quiet = now - runtime_last_frame_us; /* (hal.h: within 71 min, a trip's long past) */
     uint16_t least = 0; /* the shortest non-zero failsafe_ms */
     for (uint8_t i = 0; i < count; i++) {
         if (ms[i] && (!least || ms[i] < least)) least = ms[i];
-        if (ms[i] && (armed & (1 << i)) && now - last >= (uint64_t)ms[i] * 1000)
-            trip(i, PSTR("no frame from the host"), (uint32_t)((now - last) / 1000));
+        if (ms[i] && (armed & (1 << i)) && quiet >= (uint32_t)ms[i] * 1000)
+            trip(i, silent, quiet / 1000);
     }
-    uint64_t gone = last + (uint64_t)least * 1000; /* the host is gone since */
-    if (least && now >= gone && timing_pending()) /* the timed calls due after that */
-        timing_cancel(PSTR("no frame from the host"), (uint32_t)((now - last) / 1000), (int64_t)gone);
+    if (least && quiet >= (uint32_t)least * 1000 && timing_pending()) /* those due after then */
+        timing_cancel(silent, quiet / 1000, 0,
+                      runtime_last_frame_us + (uint32_t)least * 1000);
 }
 
 uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
@@ -81,9 +70,9 @@ uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *ou
     (void)n;
     (void)out;
     *out_n = 0;
-    timing_cancel(PSTR("the host said goodbye"), NO_SILENCE, -1); /* (first: none runs meanwhile) */
+    timing_cancel(goodbye, NO_SILENCE, 1, 0); /* (first: none runs meanwhile) */
     for (uint8_t i = 0; i < count; i++)
-        if (armed & (1 << i)) trip(i, PSTR("the host said goodbye"), NO_SILENCE);
+        if (armed & (1 << i)) trip(i, goodbye, NO_SILENCE);
     return 0;
 }
 

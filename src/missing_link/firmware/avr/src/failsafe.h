@@ -12,7 +12,7 @@ typedef struct {
 /* board_gen.c hands its actuators (in flash) and their failsafe_ms (set by config.c) */
 void failsafe_init(const failsafe_entry_t *table, uint16_t *ms, uint8_t count);
 void failsafe_arm(uint8_t k); /* transducer k took a command (board_gen.c's call functions) */
-void failsafe_poll(uint64_t now);
+void failsafe_poll(uint32_t now);
 uint8_t failsafe_goodbye(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 uint8_t failsafe_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
 #endif

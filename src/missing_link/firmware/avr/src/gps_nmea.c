@@ -31,7 +31,7 @@ static volatile uint8_t dollar_head, pps_seen;
 static uint8_t dollar_tail;
 static char line[MAX_SENTENCE + 2];
 static uint8_t line_n, in_line;
-static uint64_t line_us;
+static uint32_t line_us;
 static char rmc_time[12];
 static int32_t rmc_speed, rmc_course; /* NA_I32 when none */
 static int32_t rmc_day = -1, rmc_tod;  /* the last valid RMC's date (days since 1970), time (ms) */
@@ -175,7 +175,7 @@ static void utc(const char *tm, uint8_t n, int32_t *v) {
     v[9] = tod;
 }
 
-static void gga(const char *b, uint64_t at_us) {
+static void gga(const char *b, uint32_t at_us) {
     uint8_t n, hn;
     const char *q = field(b, 6, &n);
     int32_t quality = n ? digits(q, n) : 0;
@@ -198,7 +198,7 @@ static void gga(const char *b, uint64_t at_us) {
         v[6] = rmc_speed;
         v[7] = rmc_course;
     }
-    uint64_t stamp = at_us;
+    uint32_t stamp = at_us;
     uint32_t w;
     uint16_t t;
     uint8_t seen;
@@ -208,8 +208,8 @@ static void gga(const char *b, uint64_t at_us) {
         seen = pps_seen;
     }
     if (seen) {
-        uint64_t pps = clock_at(w, t);
-        if (at_us >= pps && at_us - pps < PPS_VALID_US) {
+        uint32_t pps = clock_at(w, t);
+        if (at_us - pps < PPS_VALID_US) { /* (and not before it: that wraps far) */
             uint32_t frac_us = 0;
             uint8_t i = 0;
             while (i < n && tm[i] != '.') i++;
@@ -248,7 +248,7 @@ static void bad_sentence(void) { /* dropped, counted; the first said (log.c) */
     log_fault_P(gt->tid, FAULT_CHECKSUM, 0);
 }
 
-static void sentence(uint64_t at_us) {
+static void sentence(uint32_t at_us) {
     /* line: "$...*hh" without the "\r\n" */
     char *star = strchr(line, '*');
     if (!star || star + 3 != line + line_n) {
@@ -269,7 +269,7 @@ static void sentence(uint64_t at_us) {
     else if (!strncmp(body + 2, "GGA,", 4)) gga(body, at_us);
 }
 
-void gps_poll(uint64_t now) {
+void gps_poll(uint32_t now) {
     (void)now;
     while (tail != head) {
         uint8_t b = ring[tail];
@@ -301,6 +301,6 @@ void gps_init(transducer_t *t, uint32_t baud, uint8_t pps) {
     (void)baud;
     (void)pps;
 }
-void gps_poll(uint64_t now) { (void)now; }
+void gps_poll(uint32_t now) { (void)now; }
 uint16_t gps_sentences, gps_checksum_errors, gps_overruns;
 #endif

@@ -6,6 +6,6 @@
 #include "runtime.h"
 
 void gps_init(transducer_t *t, uint32_t baud, uint8_t pps);
-void gps_poll(uint64_t now);
+void gps_poll(uint32_t now);
 extern uint16_t gps_sentences, gps_checksum_errors, gps_overruns;
 #endif

@@ -1,7 +1,8 @@
 /* Board clock and UART link on an ATmega (328P, 2560, 32U4) at 16 MHz.
  *
  * The clock: Timer1 in fast PWM mode 14 (TOP = ICR1) at 2 MHz (prescaler 8) wraps every 20 ms;
- * its overflow interrupt counts wraps, so the clock is wraps * 20000 + TCNT1 / 2 µs, 64 bit.
+ * its overflow interrupt counts wraps, so the clock is wraps * 20000 + TCNT1 / 2 µs, 64 bit
+ * (hal.h: what runs on its low 32 bits).
  * The same timer drives the servo's 50 Hz PWM on OC1A, so one timer serves both.  A read with
  * interrupts off checks the pending overflow flag, so a read just after the wrap (before the
  * interrupt ran) is not 20 ms early.  Where there is a Timer2 (not on the 32U4) it starts in the
@@ -14,7 +15,7 @@
  * through a TX ring drained by the data-register-empty interrupt.
  *
  * Interrupts are held off only to take a snapshot of the counts (tens of cycles), never for the
- * 64-bit sums: the trigger's compare interrupt (trigger.c) must run within its step's lead. */
+ * sums: the trigger's compare interrupt (trigger.c) must run within its step's lead. */
 #include "hal.h"
 
 #include <avr/interrupt.h>
@@ -28,13 +29,20 @@
 #define TIMER_TOP 39999u /* 40000 ticks of 0.5 µs = 20 ms */
 
 static volatile uint32_t clock_wraps;
-/* clock_wraps * CLOCK_PERIOD_US, kept by the interrupt: a 64-bit multiply per read would cost
- * ~30 µs on an AVR, too coarse for the aligned drivers' last wait (drivers.c) */
-static volatile uint64_t clock_base_us;
+/* clock_wraps * CLOCK_PERIOD_US, kept by the interrupt (a multiply per read would cost more than
+ * the read): its low and high words, so that the 32-bit clock reads the low one alone */
+static volatile union {
+    uint64_t us;
+    struct {
+        uint32_t lo, hi;
+    } w;
+} clock_base;
 
 ISR(TIMER1_OVF_vect) {
     clock_wraps++;
-    clock_base_us += CLOCK_PERIOD_US;
+    uint32_t lo = clock_base.w.lo + CLOCK_PERIOD_US;
+    clock_base.w.lo = lo;
+    if (lo < CLOCK_PERIOD_US) clock_base.w.hi++;
 }
 
 void board_clock_init(void) {
@@ -53,18 +61,17 @@ void board_clock_init(void) {
 }
 
 /* The clock at `wraps` (within 256 of `now_wraps`) and `ticks`, from a snapshot of the
- * interrupt's counts (`base` = clock_base_us when clock_wraps was `now_wraps`): the arithmetic
- * runs with interrupts on, so the trigger's compare interrupt (trigger.c) is never held off by it */
-static uint64_t clock_from(uint64_t base, uint32_t now_wraps, uint32_t wraps, uint16_t ticks) {
-    int32_t d = (int32_t)(wraps - now_wraps) * (int32_t)CLOCK_PERIOD_US;
-    return base + (uint64_t)(int64_t)d + (ticks >> 1);
+ * interrupt's counts (`base` = the low word of clock_base when clock_wraps was `now_wraps`): the
+ * arithmetic runs with interrupts on, so the trigger's compare interrupt (trigger.c) is never
+ * held off by it */
+static uint32_t clock_from(uint32_t base, uint32_t now_wraps, uint32_t wraps, uint16_t ticks) {
+    return base + (uint32_t)((int32_t)(wraps - now_wraps) * (int32_t)CLOCK_PERIOD_US) + (ticks >> 1);
 }
 
-uint64_t clock_at(uint32_t wraps, uint16_t ticks) {
-    uint64_t base;
-    uint32_t now_wraps;
+uint32_t clock_at(uint32_t wraps, uint16_t ticks) {
+    uint32_t base, now_wraps;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-        base = clock_base_us;
+        base = clock_base.w.lo;
         now_wraps = clock_wraps;
     }
     return clock_from(base, now_wraps, wraps, ticks);
@@ -76,32 +83,41 @@ uint32_t clock_wraps_at(uint16_t ticks) {
     return w;
 }
 
-uint64_t board_clock_from_isr(void) {
+/* 1 when Timer1 wrapped at `t` and its interrupt has not run yet (interrupts off) */
+static uint8_t wrap_pending(uint16_t t) { return (TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2; }
+
+uint32_t clock_now_from_isr(void) {
     uint16_t t = TCNT1;
-    uint64_t base = clock_base_us;
-    if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US; /* wrapped, not yet counted */
+    uint32_t base = clock_base.w.lo;
+    if (wrap_pending(t)) base += CLOCK_PERIOD_US;
     return base + (t >> 1);
 }
 
-uint64_t clock_ticks_from_isr(void) {
+uint32_t clock_ticks_from_isr(void) {
     uint16_t t = TCNT1;
-    uint64_t base = clock_base_us;
-    if ((TIFR1 & _BV(TOV1)) && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US;
+    uint32_t base = clock_base.w.lo;
+    if (wrap_pending(t)) base += CLOCK_PERIOD_US;
     return (base << 1) + t; /* (a wrap: 20000 µs, 40000 ticks) */
 }
 
-uint8_t clock_wait_prepare(uint64_t at_us, clock_wait_t *w) {
+uint8_t clock_wait_prepare(uint32_t at_us, clock_wait_t *w) {
     uint32_t wraps;
     uint16_t t;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         t = TCNT1;
         wraps = clock_wraps_at(t);
     }
-    uint64_t now = clock_at(wraps, t); /* (the slow part, from the counts read above) */
-    if (at_us <= now || at_us - now >= CLOCK_PERIOD_US) return 0;
+    int32_t d = (int32_t)(at_us - clock_at(wraps, t));
+    if (d <= 0 || d >= (int32_t)CLOCK_PERIOD_US) return 0;
     w->from = t;
-    w->ticks = (uint16_t)((at_us - now) * 2 - (t & 1));
+    w->ticks = (uint16_t)((uint16_t)d * 2 - (t & 1));
     return 1;
+}
+
+uint32_t clock_now(void) {
+    uint32_t now;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { now = clock_now_from_isr(); }
+    return now;
 }
 
 uint64_t board_clock(void) {
@@ -110,12 +126,17 @@ uint64_t board_clock(void) {
     uint16_t t;
     uint8_t wrapped;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-        base = clock_base_us;
+        base = clock_base.us;
         t = TCNT1;
-        wrapped = TIFR1 & _BV(TOV1);
+        wrapped = wrap_pending(t);
     }
-    if (wrapped && t < TIMER_TOP / 2) base += CLOCK_PERIOD_US; /* wrapped, not yet counted */
+    if (wrapped) base += CLOCK_PERIOD_US;
     return base + (t >> 1);
+}
+
+uint64_t clock_widen(uint32_t us) {
+    uint64_t now = board_clock();
+    return now + (int64_t)(int32_t)(us - (uint32_t)now);
 }
 
 /* ---- UART ---------------------------------------------------------------------------------- */
@@ -201,17 +222,16 @@ void link_init(uint32_t baud) {
     UCSRB = _BV(RXEN) | _BV(TXEN) | _BV(RXCIE);
 }
 
-uint8_t link_read(uint8_t *b, uint64_t *rx_us) {
+uint8_t link_read(uint8_t *b, uint32_t *rx_us) {
     uint8_t ok = 0, w8 = 0;
     uint16_t t = 0;
-    uint32_t now_wraps = 0;
-    uint64_t base = 0;
+    uint32_t now_wraps = 0, base = 0;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { /* the byte and the counts; the sums after */
         if (rx_tail != rx_head) {
             *b = rx_buf[rx_tail];
             w8 = rx_wraps[rx_tail];
             t = rx_ticks[rx_tail];
-            base = clock_base_us;
+            base = clock_base.w.lo;
             now_wraps = clock_wraps;
             rx_tail = (rx_tail + 1) & (RX_SIZE - 1);
             ok = 1;

@@ -33,7 +33,8 @@ typedef struct {
     pin_t dir;
     uint8_t brake, invert;
     float target, duty, ramp;
-    uint64_t last_us, due;
+    uint32_t last_us, due; /* board µs (hal.h) */
+    uint8_t ramping;       /* due: the ramp's next step */
 } hbridge_t;
 
 static hbridge_t motors[2];
@@ -117,14 +118,14 @@ void hbridge_set(uint8_t i, float ramp, uint8_t brake, uint32_t freq) {
     if (m->duty == 0.0f) apply(m, 0.0f); /* a new stop mode shows at once */
 }
 
-static void report(hbridge_t *m, uint64_t now) {
+static void report(hbridge_t *m, uint32_t now) {
     uint32_t raw;
     __builtin_memcpy(&raw, &m->duty, 4);
     record(m->t, 0, raw, now);
 }
 
-static void step(hbridge_t *m, uint64_t now) {
-    float dt = m->last_us ? (float)(now - m->last_us) / 1e6f : 0.0f;
+static void step(hbridge_t *m, uint32_t now) { /* (last_us: the command's, or the step's before) */
+    float dt = (float)(now - m->last_us) / 1e6f;
     m->last_us = now;
     float most = m->ramp * (dt > RAMP_STEP_US / 1e6f ? dt : RAMP_STEP_US / 1e6f);
     float delta = m->target - m->duty;
@@ -132,7 +133,8 @@ static void step(hbridge_t *m, uint64_t now) {
     else m->duty += delta > 0 ? most : -most;
     apply(m, m->duty);
     report(m, now);
-    m->due = m->duty == m->target ? 0 : now + RAMP_STEP_US;
+    m->ramping = m->duty != m->target;
+    m->due = now + RAMP_STEP_US;
 }
 
 uint8_t hbridge_command(uint8_t i, const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
@@ -143,7 +145,7 @@ uint8_t hbridge_command(uint8_t i, const uint8_t *in, uint8_t n, uint8_t *out, u
     float d;
     __builtin_memcpy(&d, in, 4);
     if (!(d >= -1.0f && d <= 1.0f)) return 0xFF; /* (NaN too) */
-    uint64_t now = board_clock();
+    uint32_t now = clock_now();
     m->target = d;
     m->last_us = now;
     if (m->ramp <= 0) {
@@ -156,15 +158,15 @@ uint8_t hbridge_command(uint8_t i, const uint8_t *in, uint8_t n, uint8_t *out, u
     return 0;
 }
 
-void hbridge_poll(uint8_t i, uint64_t now) {
+void hbridge_poll(uint8_t i, uint32_t now) {
     hbridge_t *m = &motors[i & 1];
-    if (m->due && now >= m->due) step(m, now);
+    if (m->ramping && clock_due(now, m->due)) step(m, now);
 }
 
 void hbridge_make_safe(uint8_t i) {
     hbridge_t *m = &motors[i & 1];
     m->target = m->duty = 0.0f;
-    m->due = 0;
+    m->ramping = 0;
     apply(m, 0.0f);
-    report(m, board_clock());
+    report(m, clock_now());
 }

@@ -11,6 +11,6 @@ void hbridge_init(uint8_t i, transducer_t *t, uint8_t out, pin_t dir, float ramp
                   uint8_t invert, uint32_t freq);
 void hbridge_set(uint8_t i, float ramp, uint8_t brake, uint32_t freq);
 uint8_t hbridge_command(uint8_t i, const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n);
-void hbridge_poll(uint8_t i, uint64_t now);
+void hbridge_poll(uint8_t i, uint32_t now);
 void hbridge_make_safe(uint8_t i);
 #endif

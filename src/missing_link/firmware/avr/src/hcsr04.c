@@ -18,7 +18,7 @@ static pin_t trig_pin, echo_pin;
 static schedule_t hs;
 static float temperature;
 static uint16_t max_range;
-static uint64_t deadline;
+static uint32_t deadline; /* board µs (hal.h) */
 static volatile uint8_t state; /* 0 idle, 1 waiting for the echo to rise, 2 to fall, 3 done */
 static volatile uint32_t rise_w, fall_w;
 static volatile uint16_t rise_t, fall_t;
@@ -61,10 +61,10 @@ void hcsr04_edge(void) {
 
 static float sound(void) { return 331.3f + 0.606f * temperature; }
 
-void hcsr04_poll(uint64_t now) {
+void hcsr04_poll(uint32_t now) {
     if (!ht) return;
     if (state == 3) {
-        uint64_t rise = clock_at(rise_w, rise_t), fall = clock_at(fall_w, fall_t);
+        uint32_t rise = clock_at(rise_w, rise_t), fall = clock_at(fall_w, fall_t);
         state = 0;
         uint32_t width = (uint32_t)(fall - rise);
         uint32_t mm = (uint32_t)((float)width * sound() / 2000.0f + 0.5f);
@@ -73,7 +73,7 @@ void hcsr04_poll(uint64_t now) {
         return;
     }
     if (state) {
-        if (now > deadline) { /* no echo, or none that ended within the range */
+        if ((int32_t)(now - deadline) > 0) { /* no echo, or none that ended within the range */
             /* (a module always answers a trigger: no echo at all is an absent one) */
             if (state == 1) log_fault_P(ht->tid, FAULT_NO_ANSWER, 0);
             state = 0;
@@ -91,5 +91,5 @@ void hcsr04_poll(uint64_t now) {
     state = 1;
     sei();
     /* the round trip to max_range, and 1 ms for the burst before the echo rises */
-    deadline = now + (uint64_t)(2.0f * max_range / 100.0f / sound() * 1e6f) + 1000;
+    deadline = now + (uint32_t)(2.0f * max_range / 100.0f / sound() * 1e6f) + 1000;
 }

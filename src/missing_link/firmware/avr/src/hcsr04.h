@@ -12,6 +12,6 @@ void hcsr04_init(transducer_t *t, pin_t trig, pin_t echo, uint8_t pcie, volatile
 void hcsr04_set(float rate_hz, float temperature_c, uint16_t max_range_cm);
 void hcsr04_align(uint8_t aligned, float phase);
 void hcsr04_edge(void); /* the echo pin's pin-change interrupt (board_gen.c's ISR) */
-void hcsr04_poll(uint64_t now);
+void hcsr04_poll(uint32_t now);
 extern uint16_t hcsr04_timeouts;
 #endif

@@ -78,10 +78,10 @@ void log_fault_P(uint8_t source, uint8_t kind, const char *text_P) {
     }
 }
 
-void log_poll(uint64_t now) {
+void log_poll(uint32_t now) {
     uint32_t t = (uint32_t)now;
     if ((int32_t)(tat - t) < 0) tat = t; /* (idle: within a turn of now, whatever the wrap) */
-    if (pending) emit(now, LOG_WARN, LOG_BOARD, FAULT_LINE, 0, 0);
+    if (pending) emit(clock_widen(now), LOG_WARN, LOG_BOARD, FAULT_LINE, 0, 0);
 }
 
 static uint8_t put32(uint8_t *out, uint16_t v) {

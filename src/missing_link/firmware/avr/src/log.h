@@ -33,13 +33,13 @@ void log_line_P(uint8_t level, uint8_t source, const char *text_P, const char *m
 /* A fault: said once per (source, kind) - WARN, ERROR for a reply J2A cannot carry - then
  * counted; text_P (may be 0: the host names the kind) from flash. */
 void log_fault_P(uint8_t source, uint8_t kind, const char *text_P);
-void log_poll(uint64_t now); /* a count of dropped lines, once the budget has room */
+void log_poll(uint32_t now); /* a count of dropped lines, once the budget has room */
 uint8_t log_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n); /* a2jLogInfo */
 #else /* no log: the drivers' counters are all there is */
 static inline void log_line_P(uint8_t l, uint8_t s, const char *t, const char *m) {
     (void)l, (void)s, (void)t, (void)m;
 }
 static inline void log_fault_P(uint8_t s, uint8_t k, const char *t) { (void)s, (void)k, (void)t; }
-static inline void log_poll(uint64_t now) { (void)now; }
+static inline void log_poll(uint32_t now) { (void)now; }
 #endif
 #endif

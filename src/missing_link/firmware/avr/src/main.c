@@ -46,7 +46,7 @@ int main(void) {
     sei();
     for (;;) {
         uint8_t b = 0;
-        uint64_t rx_us;
+        uint32_t rx_us;
         /* At most a ring's worth of bytes a turn: a stream whose error replies outrun it (a
          * 7-byte F2 for every 2 bytes of cut frames) must not keep the failsafe from its turn. */
         for (uint8_t k = 0; k < FEED_PER_TURN && link_read(&b, &rx_us); k++) {
@@ -59,7 +59,7 @@ int main(void) {
             runtime_feed(b, rx_us);
 #endif
         }
-        uint64_t now = board_clock();
+        uint32_t now = clock_now();
         failsafe_poll(now); /* first: a silent host's timed calls are dropped, not run */
         timing_poll(now);   /* then the timed calls that are due (timing.c) */
         runtime_poll();

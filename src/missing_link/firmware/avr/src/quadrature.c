@@ -26,7 +26,7 @@ static const int8_t quad_step[16] PROGMEM = {0, -1, 1, 0, 1, 0, 0, -1, -1, 0, 0,
 static transducer_t *quad_t;
 static volatile int32_t quad_count;
 static volatile uint8_t quad_state, quad_bad, quad_moved;
-static volatile uint64_t quad_edge_us;
+static volatile uint32_t quad_edge_us;
 static int8_t quad_sign = 1;
 static schedule_t quad_s;
 volatile uint16_t quadrature_errors;
@@ -47,7 +47,7 @@ static void quad_edge(void) {
         return;
     }
     quad_count += d * quad_sign;
-    quad_edge_us = board_clock_from_isr(); /* stamped in the interrupt */
+    quad_edge_us = clock_now_from_isr(); /* stamped in the interrupt */
     quad_moved = 1;
 }
 
@@ -71,11 +71,11 @@ void quadrature_set(float rate_hz, uint8_t reverse) {
 
 void quadrature_align(uint8_t aligned, float phase) { sched_align(&quad_s, aligned, phase); }
 
-void quadrature_poll(uint64_t now) {
+void quadrature_poll(uint32_t now) {
     if (!quad_t || !sched_due(&quad_s, &now)) return;
     sched_wait(&quad_s, &now);
     int32_t count;
-    uint64_t stamp;
+    uint32_t stamp;
     uint8_t bad, moved;
     cli();
     count = quad_count;

@@ -32,11 +32,11 @@
 
 static frame_parser_t parser;
 static uint8_t scratch[255];
-static uint64_t last_byte_us, request_us;
+static uint32_t last_byte_us, request_us;
 static char debug_text[64];
 static uint8_t debug_len;
 static uint8_t sif_seq;
-uint64_t runtime_last_frame_us;
+uint32_t runtime_last_frame_us;
 uint32_t sifs_dropped, sifs_sent, sif_total, calls;
 char clock_epoch[9];
 
@@ -52,6 +52,34 @@ void runtime_debug_P(const char *text) {
     char c;
     while ((c = (char)pgm_read_byte(text++)) && debug_len < sizeof debug_text)
         debug_text[debug_len++] = c;
+}
+
+uint8_t runtime_decimal(uint8_t *out, uint8_t at, uint32_t v) {
+    uint8_t d[10], n = 0;
+    do {
+        d[n++] = (uint8_t)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    while (n) out[at++] = d[--n];
+    return at;
+}
+
+void runtime_debug_why(const char *why, uint32_t ms) {
+    runtime_debug_P(why);
+    if (ms != 0xFFFFFFFFUL) {
+        char text[11];
+        text[runtime_decimal((uint8_t *)text, 0, ms)] = 0;
+        runtime_debug_P(PSTR(" for "));
+        runtime_debug(text);
+        runtime_debug_P(PSTR(" ms"));
+    }
+    runtime_debug_P(PSTR(");"));
+}
+
+uint8_t runtime_say(uint8_t *out, uint8_t at, const char *text) {
+    char c;
+    while ((c = (char)pgm_read_byte(text++)) && at < 250) out[at++] = (uint8_t)c;
+    return at;
 }
 
 static void reply(uint8_t seq, uint8_t code, const uint8_t *payload, uint8_t n) {
@@ -120,14 +148,11 @@ uint8_t echo(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     return 0xBA;
 }
 
-static void put_u64(uint8_t *out, uint64_t v) {
-    for (uint8_t i = 0; i < 8; i++) out[i] = (uint8_t)(v >> (8 * i));
-}
-
 uint8_t sif_count(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
     (void)in;
     (void)n;
-    put_u64(out, sif_total);
+    memset(out + 4, 0, 4); /* (a Q: the count's high word) */
+    memcpy(out, &sif_total, 4);
     *out_n = 8;
     return 0;
 }
@@ -212,8 +237,9 @@ static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
     }
     if (f->kind == KIND_CLOCK && n == 0) {
         /* t2: the stamp of the request's last byte; t3: now, as the reply enters the ring */
-        put_u64(scratch, request_us);
-        put_u64(scratch + 8, board_clock());
+        uint64_t t[2] = {clock_widen(request_us), 0};
+        t[1] = board_clock();
+        memcpy(scratch, t, 16);
         reply(seq, 0, scratch, 16);
         return;
     }
@@ -228,7 +254,7 @@ static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
     reply(seq, code, scratch, out_n);
 }
 
-void runtime_feed(uint8_t b, uint64_t rx_us) {
+void runtime_feed(uint8_t b, uint32_t rx_us) {
     last_byte_us = rx_us;
     uint8_t ev = frame_parser_feed(&parser, b);
     if (ev == EV_NONE) return;
@@ -252,11 +278,13 @@ void runtime_feed(uint8_t b, uint64_t rx_us) {
 
 /* ---- samples -------------------------------------------------------------------------------- */
 static uint8_t sif_payload(transducer_t *t, uint64_t now) {
-    /* [t0 v0 t1 v1 ...]; channels without a new value carry N/A, stamped now */
+    /* [t0 v0 t1 v1 ...]; channels without a new value carry N/A, stamped now; each stamp widened
+     * to 64 bits against now (hal.h) */
     uint8_t k = 0;
     for (uint8_t ch = 0; ch < t->chan_count; ch++) {
         uint16_t has = t->pending & (1u << ch);
-        put_u64(scratch + k, has ? t->stamps[ch] : now);
+        uint64_t stamp = has ? now + (int64_t)(int32_t)(t->stamps[ch] - (uint32_t)now) : now;
+        memcpy(scratch + k, &stamp, 8);
         k += 8;
         uint32_t v = has ? t->values[ch] : t->na;
         for (uint8_t i = 0; i < t->size; i++) scratch[k++] = (uint8_t)(v >> (8 * i));
@@ -298,9 +326,9 @@ uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *
     return 1;
 }
 
-static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
+static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint32_t stamp) {
     if (t->pending & (1u << ch)) {
-        if (!flush_sif(t, stamp)) { /* no room: the older value goes, counted */
+        if (!flush_sif(t, clock_widen(stamp))) { /* no room: the older value goes, counted */
             sifs_dropped++;
             t->pending &= (uint16_t)~(1u << ch);
         }
@@ -310,21 +338,22 @@ static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint64_t stamp) {
     t->pending |= (uint16_t)(1u << ch);
 }
 
-void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us) {
+void record(transducer_t *t, uint8_t channel, uint32_t raw, uint32_t stamp_us) {
     if (channel >= t->chan_count || !t->enabled) return;
     keep(t, channel, raw, stamp_us);
 }
 
-void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us) {
+void record_na(transducer_t *t, uint8_t channel, uint32_t stamp_us) {
     if (channel >= t->chan_count || !t->enabled) return;
     keep(t, channel, t->na, stamp_us);
 }
 
 void runtime_poll(void) {
-    uint64_t now = board_clock();
+    uint64_t wide = board_clock(); /* (the SIFs' N/A stamps, and what the others widen against) */
+    uint32_t now = (uint32_t)wide;
     board_poll(now);
     for (uint8_t i = 0; i < board_transducer_count; i++) {
-        if (board_transducers[i].pending) flush_sif(&board_transducers[i], now);
+        if (board_transducers[i].pending) flush_sif(&board_transducers[i], wide);
     }
     log_poll(now); /* a count of dropped log lines, when the budget has room (log.c) */
     if (frame_parser_in_frame(&parser) && now - last_byte_us > INTERBYTE_TIMEOUT_US) {

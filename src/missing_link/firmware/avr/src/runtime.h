@@ -44,7 +44,7 @@ typedef struct {
     uint8_t size;       /* bytes per value */
     uint32_t na;        /* N/A value, raw little-endian bits */
     volatile uint16_t pending; /* bit per channel with an unsent value */
-    uint64_t *stamps;   /* chan_count stamps (board µs) */
+    uint32_t *stamps;   /* chan_count stamps (board µs, low 32 bits: hal.h) */
     uint32_t *values;   /* chan_count raw values */
     uint16_t values_dropped;
     uint8_t enabled;    /* run-time configuration (config.c): off = not polled, no SIFs */
@@ -57,14 +57,15 @@ extern const uint8_t board_function_count;
 extern transducer_t board_transducers[];
 extern const uint8_t board_transducer_count;
 void board_setup(void);              /* drivers and their pins */
-void board_poll(uint64_t now_us);    /* drivers that need CPU time */
+void board_poll(uint32_t now);       /* drivers that need CPU time (now: hal.h) */
 
 void runtime_init(void);
-void runtime_feed(uint8_t b, uint64_t rx_us);
+void runtime_feed(uint8_t b, uint32_t rx_us);
 void runtime_poll(void);
-/* Drivers: a value (raw bits of the transducer's type) or N/A, stamped at stamp_us. */
-void record(transducer_t *t, uint8_t channel, uint32_t raw, uint64_t stamp_us);
-void record_na(transducer_t *t, uint8_t channel, uint64_t stamp_us);
+/* Drivers: a value (raw bits of the transducer's type) or N/A, stamped at stamp_us (board µs,
+ * low 32 bits: widened when its SIF is written, hal.h). */
+void record(transducer_t *t, uint8_t channel, uint32_t raw, uint32_t stamp_us);
+void record_na(transducer_t *t, uint8_t channel, uint32_t stamp_us);
 /* A SIF whose payload is head[0..hn) then the flash strings a, b (0: none), written whole into
  * the UART's ring if it has room; 1 if it was, 0 if not (nothing written).  The log's (log.c). */
 uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b);
@@ -73,7 +74,14 @@ uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *
 uint8_t *runtime_scratch(void);
 void runtime_debug(const char *text);
 void runtime_debug_P(const char *text); /* from flash */
-extern uint64_t runtime_last_frame_us;  /* when the last intact frame came (failsafe.c) */
+/* a2jDebug's tail of a note (failsafe.c, timing.c): why (in flash), " for MS ms" unless ms is
+ * 0xFFFFFFFF, ");" */
+void runtime_debug_why(const char *why, uint32_t ms);
+/* text (in flash) at out[at..] (up to 250 bytes in all): the index after it */
+uint8_t runtime_say(uint8_t *out, uint8_t at, const char *text);
+/* v in decimal at out[at..]: the index after it */
+uint8_t runtime_decimal(uint8_t *out, uint8_t at, uint32_t v);
+extern uint32_t runtime_last_frame_us;  /* when the last intact frame came (failsafe.c) */
 
 extern uint32_t sifs_dropped, sifs_sent, sif_total, calls;
 extern char clock_epoch[9];

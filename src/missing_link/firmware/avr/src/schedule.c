@@ -8,7 +8,7 @@
  * few µs of it; without a valid map it runs free and each such measurement is counted
  * (timing_unaligned), as the Python drivers do. */
 
-static uint8_t sched_grid(schedule_t *s, uint64_t now) {
+static uint8_t sched_grid(schedule_t *s, uint32_t now) {
     s->free = 1;
     if (!s->aligned || !timing_next_grid(s->period_us, s->phase, now, &s->due)) return 0;
     s->free = 0;
@@ -19,7 +19,7 @@ static uint8_t sched_grid(schedule_t *s, uint64_t now) {
  * readies its measurement and calls sched_wait just before it starts).  The next instant is
  * reckoned on the call after a measurement, not before it: a grid instant costs a few 64-bit
  * divisions (about 1 ms on an AVR), which must not sit between the instant and the measurement. */
-uint8_t sched_due(schedule_t *s, uint64_t *now) {
+uint8_t sched_due(schedule_t *s, uint32_t *now) {
     if (!s->started) {
         s->started = 1;
         s->stale = 0;
@@ -30,11 +30,12 @@ uint8_t sched_due(schedule_t *s, uint64_t *now) {
         s->stale = 0;
         if (!sched_grid(s, *now)) {
             s->due += s->period_us;
-            if (s->due <= *now) s->due = *now + s->period_us;
+            if (clock_due(*now, s->due)) s->due = *now + s->period_us;
         }
-        *now = board_clock();
+        *now = clock_now();
     }
-    if (*now < s->due && !(s->aligned && !s->free && s->due - *now < SCHED_SPIN_US)) return 0;
+    if (!clock_due(*now, s->due) && !(s->aligned && !s->free && s->due - *now < SCHED_SPIN_US))
+        return 0;
 #if ML_TIMING
     if (s->aligned && s->free) timing_unaligned++;
 #endif
@@ -44,7 +45,7 @@ uint8_t sched_due(schedule_t *s, uint64_t *now) {
 
 void sched_rate(schedule_t *s, float rate_hz) {
     uint32_t p = (uint32_t)(1000000.0f / rate_hz);
-    uint64_t last = s->stale ? s->due : s->due - s->period_us;
+    uint32_t last = s->stale ? s->due : s->due - s->period_us;
     if (s->aligned) s->started = 0; /* the grid of the new period */
     else if (s->started && p < s->period_us) { /* sooner */
         s->due = last + p;

@@ -10,20 +10,20 @@
 #endif
 
 typedef struct {
-    uint64_t due; /* the next measurement (stale: the last one's) */
+    uint32_t due; /* the next measurement (stale: the last one's), board µs (hal.h) */
     uint32_t period_us;
     float phase;
     uint8_t aligned : 1, started : 1, free : 1, stale : 1;
 } schedule_t;
 
-uint8_t sched_due(schedule_t *s, uint64_t *now);
+uint8_t sched_due(schedule_t *s, uint32_t *now);
 void sched_rate(schedule_t *s, float rate_hz);
 void sched_align(schedule_t *s, uint8_t aligned, float phase);
 
 /* the last stretch to an aligned measurement's instant (*now: that instant, within a tick) */
-static inline __attribute__((always_inline)) void sched_wait(schedule_t *s, uint64_t *now) {
+static inline __attribute__((always_inline)) void sched_wait(schedule_t *s, uint32_t *now) {
     clock_wait_t w;
-    if (*now >= s->due || !clock_wait_prepare(s->due, &w)) return;
+    if (clock_due(*now, s->due) || !clock_wait_prepare(s->due, &w)) return;
     *now = s->due;
     clock_wait(&w);
 }

@@ -51,8 +51,8 @@ void servo_make_safe(void) {
         PORTB &= (uint8_t)~_BV(SERVO_BIT); /* (OC1A is on port B on every MCU here) */
         servo_on = 0;
     }
-    if (servo_on) record(servo_t, 0, (uint8_t)servo_value, board_clock());
-    else record_na(servo_t, 0, board_clock());
+    if (servo_on) record(servo_t, 0, (uint8_t)servo_value, clock_now());
+    else record_na(servo_t, 0, clock_now());
 }
 
 uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n) {
@@ -66,7 +66,7 @@ uint8_t servo_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n
     SERVO_DDR |= _BV(SERVO_BIT);
     TCCR1A |= _BV(COM1A1); /* the pulse starts with the next frame */
     servo_commands++;
-    record(servo_t, 0, (uint8_t)v, board_clock());
+    record(servo_t, 0, (uint8_t)v, clock_now());
     out[0] = (uint8_t)us;
     out[1] = (uint8_t)(us >> 8);
     *out_n = 2;

@@ -16,7 +16,8 @@ static const uint16_t sharp_mm[] PROGMEM = {200, 300, 400, 500, 600, 700, 800,
 static transducer_t *sharp_t;
 static uint8_t sharp_channel;
 static schedule_t sharp_s;
-static uint64_t sharp_start;
+static uint32_t sharp_start;
+static uint8_t sharp_warm; /* 50 ms since it was powered: its first reading is good */
 
 void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz) {
     sharp_t = t;
@@ -24,7 +25,7 @@ void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz) {
     if (rate_hz > 26) rate_hz = 26; /* the sensor updates every 38 ms */
     sharp_s.period_us = 1000000UL / rate_hz;
     ADCSRA = _BV(ADEN) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0); /* 125 kHz ADC clock */
-    sharp_start = board_clock();
+    sharp_start = clock_now();
 }
 
 void sharp_set(float rate_hz) { sched_rate(&sharp_s, rate_hz); }
@@ -53,10 +54,11 @@ static uint16_t sharp_volts_to_mm(uint16_t mv) {
     return 0;
 }
 
-void sharp_poll(uint64_t now) {
+void sharp_poll(uint32_t now) {
     if (!sharp_t || !sched_due(&sharp_s, &now)) return;
     ADMUX = _BV(REFS0) | sharp_channel; /* AVcc */
-    uint8_t warm = now - sharp_start >= 50000UL;
+    if (!sharp_warm) sharp_warm = now - sharp_start >= 50000UL;
+    uint8_t warm = sharp_warm;
     sched_wait(&sharp_s, &now); /* the first conversion starts on the instant */
     if (!warm) {
         record_na(sharp_t, 0, now);

@@ -10,7 +10,7 @@
 static transducer_t *srf02_t;
 static uint8_t srf02_addr, srf02_min;
 static schedule_t srf02_s;
-static uint64_t srf02_ping_us, srf02_check_us;
+static uint32_t srf02_ping_us, srf02_check_us; /* board µs (hal.h) */
 static uint8_t srf02_ranging;
 uint16_t srf02_timeouts, srf02_bus_errors;
 
@@ -30,7 +30,7 @@ void srf02_set(float rate_hz, uint16_t min_range_cm) {
 
 void srf02_align(uint8_t aligned, float phase) { sched_align(&srf02_s, aligned, phase); }
 
-void srf02_poll(uint64_t now) {
+void srf02_poll(uint32_t now) {
     if (!srf02_t) return;
     if (!srf02_ranging) {
         if (!sched_due(&srf02_s, &now)) return;
@@ -43,12 +43,12 @@ void srf02_poll(uint64_t now) {
             record_na(srf02_t, 0, now);
             return;
         }
-        srf02_ping_us = board_clock();
+        srf02_ping_us = clock_now();
         srf02_check_us = srf02_ping_us + 65000UL;
         srf02_ranging = 1;
         return;
     }
-    if (now < srf02_check_us) return;
+    if (!clock_due(now, srf02_check_us)) return;
     uint8_t rev = 0xFF;
     uint8_t st = twi_transfer(srf02_addr, 0, 0, 0, &rev, 1);
     if (st == 2) {

@@ -19,7 +19,8 @@ static uint8_t has_en, invert, velocity_mode, mode = STOP;
 static uint16_t per_rev;
 static float max_speed, accel, speed, goal; /* steps/s, steps/s^2, steps/s, steps or steps/s */
 static int32_t position;
-static uint64_t next_us, last_step, reported;
+static uint32_t next_us, last_step, reported; /* board µs (hal.h) */
+static uint8_t moving, stepped, said; /* next_us, last_step and reported hold one */
 
 void stepper_init(transducer_t *t, pin_t step, pin_t dir, pin_t enable, uint8_t has_enable,
                   uint16_t steps_per_rev, float max_rev_s, float accel_rev_s2, uint8_t velocity,
@@ -47,14 +48,15 @@ static void enable(uint8_t on) {
     if (has_en) pin_set(&en_pin, !on);
 }
 
-static void put(uint8_t ch, float v, uint64_t now) {
+static void put(uint8_t ch, float v, uint32_t now) {
     uint32_t raw;
     __builtin_memcpy(&raw, &v, 4);
     record(st, ch, raw, now);
 }
 
-static void report(uint64_t now) {
+static void report(uint32_t now) {
     reported = now;
+    said = 1;
     put(0, (float)position / per_rev, now);
     put(1, speed / per_rev, now);
 }
@@ -79,11 +81,14 @@ uint8_t stepper_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out
      * stepper.py; lroundf of such a goal is undefined */
     if (!(fabsf(v) <= 1e6f) || fabsf(v) * per_rev >= 2147483648.0f) return 0xFF;
     if (velocity_mode && fabsf(v) > max_speed) return 0xFF;
-    uint64_t now = board_clock();
+    uint32_t now = clock_now();
     mode = velocity_mode ? SPEED : GOTO;
     goal = v * per_rev;
     if (mode == GOTO || v != 0) enable(1);
-    if (!next_us && wants_motion()) next_us = now;
+    if (!moving && wants_motion()) {
+        moving = 1;
+        next_us = now;
+    }
     report(now);
     return 0;
 }
@@ -99,10 +104,10 @@ static float target_speed(void) {
     return togo > 0 ? vmax : -vmax;
 }
 
-void stepper_poll(uint64_t now) {
-    if (!st || !next_us || now < next_us) return;
+void stepper_poll(uint32_t now) {
+    if (!st || !moving || !clock_due(now, next_us)) return;
     float a = accel * per_rev, v0 = sqrtf(2 * a);
-    float dt = last_step ? (float)(now - last_step) / 1e6f : 0;
+    float dt = stepped ? (float)(now - last_step) / 1e6f : 0;
     float want = target_speed(), v = speed;
     if (v == 0) {
         v = want > 0 ? v0 : want < 0 ? -v0 : 0;
@@ -119,8 +124,11 @@ void stepper_poll(uint64_t now) {
     int32_t togo = mode == GOTO ? lroundf(goal) - position : 1;
     if (v == 0 || (mode == GOTO && togo == 0 && fabsf(v) <= v0 * 1.5f)) {
         speed = 0;
-        next_us = last_step = 0;
-        if (togo != 0 && wants_motion()) next_us = now; /* (turning round) */
+        moving = stepped = 0;
+        if (togo != 0 && wants_motion()) { /* (turning round) */
+            moving = 1;
+            next_us = now;
+        }
         report(now);
         return;
     }
@@ -132,14 +140,15 @@ void stepper_poll(uint64_t now) {
     pin_set(&step_pin, 0);
     position += forward ? 1 : -1;
     last_step = now;
+    stepped = 1;
     next_us = now + (uint32_t)(1e6f / fabsf(v));
-    if (!reported || now - reported >= REPORT_US) report(now);
+    if (!said || now - reported >= REPORT_US) report(now);
 }
 
 void stepper_make_safe(void) {
     mode = STOP;
     speed = 0;
-    next_us = last_step = 0;
+    moving = stepped = 0;
     enable(0);
-    report(board_clock());
+    report(clock_now());
 }

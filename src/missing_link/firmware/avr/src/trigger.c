@@ -65,7 +65,7 @@
 enum { IDLE, RISING, FALLING };
 static transducer_t *trig_t;
 static uint16_t trig_pulse_us, trig_width;
-static uint64_t trig_tick;          /* board µs of the rising edge (pending or under way) */
+static uint32_t trig_tick;          /* board µs (hal.h) of the rising edge (pending or under way) */
 static uint8_t trig_pending;        /* a timed pulse waits to be armed */
 static uint8_t trig_timed;          /* the pulse under way is a timed call (timing_done) */
 static volatile uint8_t trig_state; /* IDLE, RISING (armed), FALLING */
@@ -145,10 +145,11 @@ ISR(TIMER2_COMPA_vect) {
 #if ML_TIMING
 /* timing_hardware_held (timing.c): a timed pulse due after `after`, taken and not yet begun
  * (waiting to be armed, or armed and its rising edge not made), dropped when `drop` */
-static uint8_t held(uint8_t drop, int64_t after) {
+static uint8_t held(uint8_t drop, uint8_t all, uint32_t after) {
     uint8_t n = 0;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-        if (trig_timed && (trig_pending || trig_state == RISING) && (int64_t)trig_tick > after) {
+        if (trig_timed && (trig_pending || trig_state == RISING) &&
+            (all || (int32_t)(trig_tick - after) > 0)) {
             n = 1;
             if (drop) {
                 trig_pending = 0;
@@ -173,12 +174,14 @@ void trigger_init(transducer_t *t, uint16_t pulse_us) {
 void trigger_set(uint16_t pulse_us) { trig_pulse_us = pulse_us; }
 
 /* Arms the rising edge at trig_tick (board µs): 0 when that is less than MIN_STEP ticks away,
- * unless `now_ok`: then it is armed MIN_STEP ticks from now (trig_tick moved there). */
+ * unless `now_ok`: then it is armed MIN_STEP ticks from now (trig_tick moved there), as it
+ * always is with `now_ok` NOW (a pulse commanded now: trig_tick is not set). */
+#define NOW 2
 static uint8_t arm(uint8_t now_ok) {
     cli();
-    uint64_t now = clock_ticks_from_isr(); /* TCNT2 = now mod 256 */
-    int64_t r = (int64_t)(trig_tick * 2) - (int64_t)now;
-    if (r < MIN_STEP) {
+    uint32_t now = clock_ticks_from_isr(); /* TCNT2 = now mod 256 */
+    int32_t r = (int32_t)(trig_tick * 2 - now); /* (ticks mod 2^32: hal.h) */
+    if (r < MIN_STEP || now_ok == NOW) {
         if (!now_ok) {
             sei();
             return 0;
@@ -211,13 +214,12 @@ uint8_t trigger_command(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out
     }
     trig_width = width_of(in, n);
     trig_timed = 0;
-    trig_tick = 0;
-    arm(1);
+    arm(NOW);
     return 0;
 }
 
 #if ML_TIMING
-uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint64_t tick) {
+uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint32_t tick) {
     if (trig_state != IDLE || trig_pending || n != 2) return 0; /* timing.c queues it */
     trig_width = width_of(payload, n);
     trig_tick = tick;
@@ -227,7 +229,7 @@ uint8_t trigger_at(const uint8_t *payload, uint8_t n, uint64_t tick) {
 }
 #endif
 
-void trigger_poll(uint64_t now) {
+void trigger_poll(uint32_t now) {
     if (trig_fired) {
         trig_fired = 0;
         trigger_pulses++;
@@ -236,7 +238,7 @@ void trigger_poll(uint64_t now) {
 #endif
         record(trig_t, 0, trig_width, trig_tick + trig_rose_late / 2); /* where the edge was */
     }
-    if (!trig_pending || trig_tick > now + ARM_US) return;
+    if (!trig_pending || (int32_t)(trig_tick - now) > (int32_t)ARM_US) return;
     trig_pending = 0;
     if (!arm(0)) { /* the loop came too late: now, late by that much, and counted */
         trigger_late++;

@@ -62,4 +62,4 @@ const function_t board_functions[] PROGMEM = {
 const uint8_t board_function_count = 9;
 
 void board_setup(void) {}
-void board_poll(uint64_t now) { (void)now; }
+void board_poll(uint32_t now) { (void)now; }
