@@ -9,11 +9,17 @@ pseudo-terminal), with the reference in the same run: the UART's own byte rate.
 * CPU cycles per received byte (parse and answer, a2jEcho with 16 bytes) and per sample SIF
   written (a profiling build: Timer1 ticks around runtime_feed / the SIF encoder);
 * clock sync against the simulated crystal (80 ppm fast): the daemon's map of the simulator's own
-  (board µs, host ns) readings, taken at the same instant in the simulator thread, after 8 s."""
+  (board µs, host ns) readings, taken at the same instant in the simulator thread, after 8 s.
+
+``--reference DIR``: the same figures for the firmware of another source tree (``git worktree
+add DIR COMMIT``, or ``git archive COMMIT | tar -x -C DIR``), built by its own Makefile and
+generator and run in this tree's rig in the same run, side by side: the cycle counts are
+simulated cycles, so a busy machine changes the rates, not them."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import statistics
 import subprocess
@@ -35,11 +41,26 @@ from missing_link.transport import open_transport  # noqa: E402
 BOARDS = ROOT / "examples" / "boards"
 
 
-def make(board: Path, build: Path, extra: str = "") -> str:
-    cmd = ["make", "-C", str(AVR), f"BOARD={board}", f"BUILD={build}", f"PYTHON={sys.executable}"]
+def firmware_dir(tree: Path | None) -> Path:
+    """The AVR firmware of a source tree (this one's: None); older trees had it at the top."""
+    if tree is None:
+        return AVR
+    inside = tree / "src" / "missing_link" / "firmware" / "avr"
+    return inside if inside.is_dir() else tree / "firmware" / "avr"
+
+
+def make(board: Path, build: Path, extra: str = "", tree: Path | None = None) -> str:
+    """Build ``board`` (and the rig, into build) with the firmware and generator of ``tree``."""
+    cmd = ["make", "-C", str(firmware_dir(tree)), f"BOARD={board}", f"BUILD={build}",
+           f"PYTHON={sys.executable}"]  # fmt: skip
     if extra:
         cmd.append(f"EXTRA_CFLAGS={extra}")
-    out = subprocess.run([*cmd, "all", "sim"], capture_output=True, text=True, check=True).stdout
+    env = dict(os.environ)
+    if tree is not None:  # (its own generator: board_gen.c must match its C)
+        env["PYTHONPATH"] = str(tree / "src")
+    out = subprocess.run(
+        [*cmd, "all", "sim"], capture_output=True, text=True, check=True, env=env
+    ).stdout
     return next(line for line in out.splitlines() if ": flash " in line)
 
 
@@ -62,10 +83,12 @@ def peek_u32(sim: AvrSim, elf: Path, symbol: str) -> int:
     return int.from_bytes(bytes(int(x, 16) for x in b), "little")
 
 
-def sif_rate(build: Path, name: str, baud: int, seconds: float) -> tuple[float, float, int]:
-    """(SIFs/s received, cycles per SIF written, SIF bytes)"""
+def sif_rate(
+    build: Path, name: str, baud: int, seconds: float, rig: Path
+) -> tuple[float, float, int]:
+    """(SIFs/s received, cycles per SIF written, SIF bytes); rig: where rig_sim is"""
     elf = build / name / "firmware.elf"
-    sim = AvrSim(build, elf)
+    sim = AvrSim(rig, elf)
     try:
         board = Board(open_transport(f"{sim.url}?baud={baud}"), timeout=3.0)
         board.handshake()
@@ -89,9 +112,9 @@ def sif_rate(build: Path, name: str, baud: int, seconds: float) -> tuple[float, 
         sim.close()
 
 
-def rx_cycles(build: Path, name: str) -> float:
+def rx_cycles(build: Path, name: str, rig: Path) -> float:
     elf = build / name / "firmware.elf"
-    sim = AvrSim(build, elf)
+    sim = AvrSim(rig, elf)
     try:
         board = Board(open_transport(sim.url), timeout=3.0)
         board.handshake()
@@ -120,10 +143,10 @@ def wander_us(pairs: list[tuple[int, int]]) -> float:
     return max(abs(y - (my + k * (x - mx))) for x, y in zip(xs, ys, strict=True))
 
 
-def sync_accuracy(build: Path) -> tuple[list[float], list[float], float, float]:
+def sync_accuracy(build: Path, rig: Path) -> tuple[list[float], list[float], float, float]:
     """(|error| µs, bound µs, skew ppm, simulator wander µs) for the daemon's map of the
     simulator's readings."""
-    sim = AvrSim(build, build / "uno_rig" / "firmware.elf", skew_ppm=80.0)
+    sim = AvrSim(rig, build / "uno_rig" / "firmware.elf", skew_ppm=80.0)
     errs, bounds, pairs = [], [], []
     try:
         with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0, uart_baud=115200)])) as d:
@@ -146,23 +169,26 @@ def sync_accuracy(build: Path) -> tuple[list[float], list[float], float, float]:
     return errs, bounds, skew, wander_us(pairs)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seconds", type=float, default=5.0)
-    a = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp_s:
-        tmp = Path(tmp_s)
-        sizes = [make(BOARDS / "thesis-rig-uno.py", tmp), make(BOARDS / "thesis-rig-mega.py", tmp)]
-        rows = []
-        for baud in (115200, 1000000):
-            name = f"rate_{baud}"
-            make(variant(tmp, name, baud), tmp, "-DJ2A_PROFILE")
-            rows.append((baud, *sif_rate(tmp, name, baud, a.seconds)))
-        per_byte = rx_cycles(tmp, "rate_115200")
-        errs, bounds, skew, wander = sync_accuracy(tmp)
+def measure(tmp: Path, tree: Path | None, seconds: float) -> dict[str, object]:
+    """One firmware's figures: sizes, SIF rates and cycles, cycles per byte received."""
+    out = tmp / ("reference" if tree is not None else "now")
+    out.mkdir()
+    sizes = [make(BOARDS / "thesis-rig-uno.py", out, tree=tree),
+             make(BOARDS / "thesis-rig-mega.py", out, tree=tree)]  # fmt: skip
+    rows = []
+    for baud in (115200, 1000000):
+        name = f"rate_{baud}"
+        make(variant(out, name, baud), out, "-DJ2A_PROFILE", tree)
+        rows.append((baud, *sif_rate(out, name, baud, seconds, tmp)))
+    return {"sizes": sizes, "rows": rows, "per_byte": rx_cycles(out, "rate_115200", tmp)}
+
+
+def print_figures(label: str, got: dict[str, object]) -> None:
+    print(f"**{label}**")
+    print()
     print("| firmware (thesis rig) | flash | static RAM |")
     print("|---|---|---|")
-    for line in sizes:
+    for line in got["sizes"]:  # type: ignore[attr-defined]
         m = re.match(r"(\S+): flash (\d+) of (\d+) bytes, RAM (\d+) of (\d+)", line)
         assert m
         mcu, fl, fmax, ram, rmax = m.groups()
@@ -172,11 +198,30 @@ def main() -> None:
         "| UART | SIFs/s sustained (1 x int32) | line limit (reference) | cycles per SIF written |"
     )
     print("|---|---|---|---|")
-    for baud, rate, cyc, size in rows:
+    for baud, rate, cyc, size in got["rows"]:  # type: ignore[attr-defined]
         frame = 1 + 3 + size + 1  # SOS, seq/cmd/len, payload, checksum (no escapes counted)
         print(f"| {baud} | {rate:,.0f} | {baud / 10 / frame:,.0f} | {cyc:,.0f} |")
     print()
-    print(f"cycles per received byte (parse + answer, a2jEcho 16 B): {per_byte:,.0f}")
+    print(f"cycles per received byte (parse + answer, a2jEcho 16 B): {got['per_byte']:,.0f}")
+    print()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--reference", type=Path, help="another source tree, measured beside")
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp_s:
+        tmp = Path(tmp_s)  # (this tree's rig_sim, in tmp, runs both firmwares)
+        subprocess.run(
+            ["make", "-C", str(AVR), "sim", f"BUILD={tmp}"], capture_output=True, check=True
+        )
+        ref = measure(tmp, a.reference.resolve(), a.seconds) if a.reference else None
+        now = measure(tmp, None, a.seconds)
+        errs, bounds, skew, wander = sync_accuracy(tmp / "now", tmp)
+    if ref is not None:
+        print_figures(f"reference: {a.reference}", ref)
+    print_figures("this tree", now)
     inside = sum(e <= b for e, b in zip(errs, bounds, strict=True)) / len(errs) * 100
     errs.sort()
     p = lambda q: errs[min(len(errs) - 1, int(q * len(errs)))]  # noqa: E731

@@ -90,3 +90,38 @@ def test_a_pin_error_says_its_prefix_once(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as e:
         generate_avr(load_board_file(p))
     assert str(e.value).count("steer:") == 1 and str(e.value).count("mybot_uno2.py") == 1, e.value
+
+#: an H-bridge, a stepper and an HC-SR04 on an Uno (issue 46: "no longer fits" at bb0fb70)
+MOTOR_UNO = """BOARD = {"name": "uno_motor", "mcu": "atmega328p", "buses": {"twi": {"id": 0}},
+"transducers": [
+    {"name": "motor", "id": 0, "driver": "hbridge", "pwm_pin": 6, "dir_pin": 7,
+     "call": "a2j_motor"},
+    {"name": "mast", "id": 1, "driver": "stepper", "step_pin": 8, "dir_pin": 12,
+     "steps_per_rev": 200, "call": "a2j_mast"},
+    {"name": "sonar", "id": 2, "driver": "hcsr04", "trig_pin": 4, "echo_pin": 15},%s
+]}
+"""
+#: ... and one driver more: an SRF02 (the biggest driver with its TWI master)
+ONE_MORE = """
+    {"name": "front", "id": 3, "driver": "srf02", "bus": "twi", "address": 0x70},"""
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_the_thesis_rig_takes_at_most_80_percent_of_an_uno(tmp_path: Path) -> None:
+    flash, _ = gen(UNO, tmp_path / "out")
+    assert flash <= 0.8 * 32256, flash
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_a_motor_a_stepper_and_a_sonar_fit_an_uno_with_room_for_one_more_driver(
+    tmp_path: Path,
+) -> None:
+    board = tmp_path / "uno_motor.py"
+    board.write_text(MOTOR_UNO % "")
+    flash, rows = gen(board, tmp_path / "out")
+    assert {"driver hbridge", "driver stepper", "driver hcsr04"} <= set(rows)
+    board.write_text(MOTOR_UNO % ONE_MORE)
+    more, rows = gen(board, tmp_path / "more")  # (gen-firmware refuses what does not fit)
+    assert "driver srf02" in rows and flash < more <= 32256

@@ -222,7 +222,9 @@ static void many(uint8_t seq, const uint8_t *in, uint8_t n) {
 }
 
 /* ---- requests ------------------------------------------------------------------------------- */
-static void dispatch(uint8_t seq, uint8_t op, const uint8_t *in, uint8_t n) {
+/* (out of line: runtime_feed, run for every byte, stays light) */
+static __attribute__((noinline)) void dispatch(uint8_t seq, uint8_t op, const uint8_t *in,
+                                               uint8_t n) {
     calls++;
     if (op >= board_function_count) {
         error_frame(seq, ERR_INDEX, DIAG_INDEX);
