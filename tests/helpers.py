@@ -15,7 +15,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -222,16 +222,20 @@ class AvrSim:
         eeprom: Path | None = None,
         rover: bool = False,
         mcu: str | None = None,
+        parts: Sequence[str] = (),
     ) -> None:
         """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
         power-up and writes at power-off); ``rover``: a Mega with the rover's parts
-        (firmware/avr/sim/rover.c); ``mcu``: another part than the Uno's (atmega2560)."""
+        (firmware/avr/sim/rover.c); ``mcu``: another part than the Uno's (atmega2560);
+        ``parts``: rig_sim's --part specs (the thesis rig's without)."""
         self.elf = elf
         extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
         if rover:
             extra += ["--mcu", "atmega2560", "--rover"]
         elif mcu is not None:
             extra += ["--mcu", mcu]
+        for spec in parts:
+            extra += ["--part", spec]
         self.proc = subprocess.Popen(
             [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra],
             stdin=subprocess.PIPE,

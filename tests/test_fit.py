@@ -36,7 +36,7 @@ UNO_AND_A_MOTOR = (
         {"name": "motor_b", "id": 7, "driver": "hbridge", "pwm_pin": 5, "dir_pin": 4,
          "call": "a2j_motor_b"},
         {"name": "front", "id": 8, "driver": "hcsr04", "trig_pin": 13, "echo_pin": 15},
-        {"name": "pack", "id": 9, "driver": "battery", "pin": 1},
+        {"name": "pack", "id": 9, "driver": "battery", "pin": 2},
     ],""",
     )
 )

@@ -21,7 +21,7 @@ from .cgen import c_comment, c_text
 #: (``{name}``: the index of that key's value in v[]; ``{inst}``: which of the driver's
 #: instances, for the drivers a board may have more than one of)
 APPLY = {
-    "quadrature": ("quadrature_set(F(v[{rate_hz}]), (uint8_t)v[{reverse}]);", ()),
+    "quadrature": ("quadrature_set(&quad_{inst}, F(v[{rate_hz}]), (uint8_t)v[{reverse}]);", ()),
     "sharp_gp2y0a02": ("sharp_set(F(v[{rate_hz}]));", ()),
     "srf02": ("srf02_set(F(v[{rate_hz}]), (uint16_t)v[{min_range}]);", ("units",)),
     "servo": (
@@ -48,7 +48,7 @@ APPLY = {
 }
 #: sampling on the host-time grid (timing.c), for the drivers that align (``ALIGNABLE``)
 ALIGN = {
-    "quadrature": "quadrature_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "quadrature": "quadrature_align(&quad_{inst}, (uint8_t)v[{aligned}], F(v[{phase}]));",
     "sharp_gp2y0a02": "sharp_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "srf02": "srf02_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "hcsr04": "hcsr04_align((uint8_t)v[{aligned}], F(v[{phase}]));",
@@ -225,7 +225,7 @@ def _apply_cases(
                 f"if (!v[{i}]) board_transducers[{a.k}].pending = 0; break;"
             )
         elif key.key in ("aligned", "phase"):
-            cases.append(f"    case {i}: {ALIGN[a.driver].format(**sibling)} break;")
+            cases.append(f"    case {i}: {ALIGN[a.driver].format(inst=a.inst, **sibling)} break;")
         elif key.key == "failsafe_ms":
             slot = safe_slots.setdefault(a.k, len(safe_slots))
             cases.append(f"    case {i}: board_failsafe_ms[{slot}] = (uint16_t)v[{i}]; break;")

@@ -1,8 +1,8 @@
 """What each board file entry adds to an AVR board's ``board_gen.c``: its driver's set-up, its
-poll, its J2A function, its interrupt, its place in the failsafe (deploy/avrgen.py puts the
+poll, its J2A function, its interrupts, its place in the failsafe (deploy/avrgen.py puts the
 parts together).  The C drivers own hardware (timers, interrupts, a UART), so most exist once and
 on fixed pins (avrpins.py); what an entry asks that the MCU cannot do is refused here, naming
-the entry."""
+the entry, and so is a pin two entries (or an entry and the J2A link) would share."""
 
 from __future__ import annotations
 
@@ -14,11 +14,11 @@ from typing import Any
 from ..board.drivers import battery
 from ..board.runtime import Transducer
 from ..errors import ConfigError
-from .avrpins import PCINT, FixedPins, pin_c
+from .avrpins import LINK_PINS, PCINT, FixedPins, pin_c, pin_interrupt
 from .cgen import c_comment, c_ident, c_text
 
 #: the drivers of the C runtime, and how many of each a board may have
-AVR_DRIVERS = {"quadrature": 1, "sharp_gp2y0a02": 1, "srf02": 1, "servo": 1, "trigger": 1,
+AVR_DRIVERS = {"quadrature": 8, "sharp_gp2y0a02": 1, "srf02": 1, "servo": 1, "trigger": 1,
                "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1, "battery": 1}  # fmt: skip
 #: the C sources (firmware/avr/src/NAME.c) each driver's code is in: an image links those of
 #: the drivers its board file names, and no other (avrgen.sources)
@@ -36,7 +36,8 @@ class Part:
     funcs: list[tuple[str, str]] = field(default_factory=list)  #: (J2A name, C function)
     hardware: list[tuple[str, str, str]] = field(default_factory=list)  #: timed by the timer
     make_safe: str | None = None  #: the failsafe's C function for this actuator
-    isrs: list[str] = field(default_factory=list)
+    #: (interrupt vector, a statement of its routine): board_gen.c gathers them by vector
+    isrs: list[tuple[str, str]] = field(default_factory=list)
     #: (C condition over v[{key}], why) a run-time set must keep (config.c refuses otherwise)
     checks: list[tuple[str, str]] = field(default_factory=list)
 
@@ -79,6 +80,8 @@ class Entry:
     mcu: str
     inst: int  #: the inst-th of its driver
     at: str  #: names it in errors
+    #: digital pin -> who has it, shared by every entry of the board (claim())
+    claims: dict[int, str] = field(default_factory=dict)
     p: Part = field(default_factory=Part)
 
     @property
@@ -95,10 +98,35 @@ class Entry:
         return float(self.e.get("rate_hz", default))
 
     def pin(self, key: str) -> str:
+        """The pin_t of the entry's pin ``key``, claimed for it."""
         try:
-            return pin_c(self.pins, int(self.e[key]), f"{self.at}: {key}")
+            c = pin_c(self.pins, int(self.e[key]), f"{self.at}: {key}")
         except ValueError as err:
             raise ConfigError(str(err)) from None
+        self.claim(int(self.e[key]), key)
+        return c
+
+    def claim(self, pin: int, what: str, shared: str = "") -> None:
+        """Pin ``pin`` is this entry's (``what``: which of its pins); ConfigError naming the one
+        that has it already.  ``shared``: a bus its other users may claim too (the TWI)."""
+        mine = shared or f"{self.t.name} ({what})"
+        had = self.claims.setdefault(pin, mine)
+        if had != mine:
+            raise ConfigError(f"{self.at}: {what} {pin} is {had}'s already")
+
+    def adc(self) -> int:
+        """The entry's ADC channel (``pin``: 0..7 = A0..A7), its digital pin claimed."""
+        ch = int(self.e["pin"])
+        if not 0 <= ch <= 7:
+            raise ConfigError(f"{self.at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
+        if self.pins.adc0 is not None:
+            self.claim(self.pins.adc0 + ch, f"pin (A{ch})")
+        return ch
+
+    def twi(self) -> None:
+        """The TWI's SDA and SCL, shared by the parts on it."""
+        for pin, what in zip(self.pins.twi, ("SDA", "SCL"), strict=True):
+            self.claim(pin, f"{what} (the TWI)", shared="the TWI bus")
 
     def actuator(self, fn: str) -> None:
         self.p.funcs.append((c_ident(self.t.options["call"], f"{self.at}: call"), f"call_{self.k}"))
@@ -106,33 +134,54 @@ class Entry:
 
 
 def part_of(
-    k: int, e: dict[str, Any], t: Transducer, pins: FixedPins, mcu: str, inst: int, at: str
+    k: int,
+    e: dict[str, Any],
+    t: Transducer,
+    pins: FixedPins,
+    mcu: str,
+    inst: int,
+    at: str,
+    claims: dict[int, str],
 ) -> Part:
-    """The part of entry ``e`` (transducer index ``k``, the ``inst``-th of its driver)."""
-    x = Entry(k, e, t, pins, mcu, inst, at)
+    """The part of entry ``e`` (transducer index ``k``, the ``inst``-th of its driver); ``claims``:
+    the board's pins so far (link_claims() to start), this entry's added."""
+    x = Entry(k, e, t, pins, mcu, inst, at, claims)
     MAKERS[e["driver"]](x)
     return x.p
 
 
+def link_claims() -> dict[int, str]:
+    """The pins every AVR board has taken: the J2A link's UART."""
+    return {pin: "the J2A link" for pin in LINK_PINS}
+
+
 def _quadrature(x: Entry) -> None:
-    e, pins = x.e, x.pins
-    if (e["pin_a"], e["pin_b"]) != pins.quad:
-        raise ConfigError(
-            f"{x.at}: on the {pins.board} the encoder is on pins {pins.quad[0]} and "
-            f"{pins.quad[1]} (INT0/INT1), not {e['pin_a']} and {e['pin_b']}"
-        )
-    x.p.setup.append(f"quadrature_init({x.tref}, {int(x.rate)}, {1 if e.get('reverse') else 0});")
-    x.p.polls.append(f"if ({x.enabled}) quadrature_poll(now);")
+    """Each phase's pin interrupts on any change: its own INTn, else its port's pin-change
+    interrupt (avrpins.pin_interrupt); their routines (board_gen.c) decode it."""
+    e, q = x.e, f"quad_{x.inst}"
+    ints = []
+    for key in ("pin_a", "pin_b"):
+        try:
+            ints.append(pin_interrupt(x.pins, x.mcu, int(e[key]), f"{x.at}: {key}"))
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
+    x.p.decls.append(f"static quadrature_t {q};")
+    x.p.setup.append(
+        f"quadrature_init(&{q}, {x.tref}, (pin_t){x.pin('pin_a')}, (pin_t){x.pin('pin_b')}, "
+        f"{int(x.rate)}, {1 if e.get('reverse') else 0});"
+    )
+    x.p.setup += [i.enable for i in ints]
+    x.p.polls.append(f"if ({x.enabled}) quadrature_poll(&{q}, now);")
+    x.p.isrs += [(i.vector, f"quadrature_edge(&{q});") for i in ints]
 
 
 def _sharp(x: Entry) -> None:
-    if not 0 <= int(x.e["pin"]) <= 7:
-        raise ConfigError(f"{x.at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
-    x.p.setup.append(f"sharp_init({x.tref}, {int(x.e['pin'])}, {int(x.rate)});")
+    x.p.setup.append(f"sharp_init({x.tref}, {x.adc()}, {int(x.rate)});")
     x.p.polls.append(f"if ({x.enabled}) sharp_poll(now);")
 
 
 def _srf02(x: Entry) -> None:
+    x.twi()
     x.p.setup.append(
         f"srf02_init({x.tref}, 0x{int(x.e.get('address', 0x70)):02x}, {int(x.rate)}, "
         f"{int(x.e.get('min_range', 16))});"
@@ -149,6 +198,7 @@ def _trigger(x: Entry) -> None:
             f"{x.at}: on the {pins.board} the trigger is on pin {pins.trigger} "
             "(OC2A: its edges are made by Timer2's compare)"
         )
+    x.claim(pins.trigger, "pin (OC2A)")
     x.p.setup.append(f"trigger_init({x.tref}, {int(x.e.get('pulse_us', 10))});")
     x.p.setup.append("timing_hardware = hardware;")
     x.p.polls.append(f"if ({x.enabled}) trigger_poll(now);")
@@ -160,6 +210,7 @@ def _servo(x: Entry) -> None:
     e, pins = x.e, x.pins
     if int(e["pin"]) != pins.servo:
         raise ConfigError(f"{x.at}: on the {pins.board} the servo is on pin {pins.servo} (OC1A)")
+    x.claim(pins.servo, "pin (OC1A)")
     x.p.setup.append(
         f"servo_init({x.tref}, {int(e.get('min_us', 900))}, {int(e.get('max_us', 2100))}, "
         f"{int(e.get('centre_us', 1500))}, {int(e.get('span_us', 1200))}, "
@@ -195,13 +246,14 @@ def _hcsr04(x: Entry) -> None:
             f"(ports {', '.join(PCINT.get(mcu, {})) or 'none'})"
         )
     pcie, pcmsk, vect = PCINT[mcu][port]
+    x.claim(echo, "echo_pin")
     x.p.setup.append(
-        f"hcsr04_init({x.tref}, (pin_t){x.pin('trig_pin')}, (pin_t){x.pin('echo_pin')}, "
+        f"hcsr04_init({x.tref}, (pin_t){x.pin('trig_pin')}, (pin_t){pin_c(pins, echo, '')}, "
         f"{pcie}, &{pcmsk}, {_f(x.rate)}, {_f(e.get('temperature_c', 20.0))}, "
         f"{int(e.get('max_range_cm', 400))});"
     )
     x.p.polls.append(f"if ({x.enabled}) hcsr04_poll(now);")
-    x.p.isrs.append(f"ISR({vect}) {{ hcsr04_edge(); }}")
+    x.p.isrs.append((vect, "hcsr04_edge();"))
 
 
 def _gps(x: Entry) -> None:
@@ -216,6 +268,10 @@ def _gps(x: Entry) -> None:
         raise ConfigError(f"{x.at}: on the {pins.board} the PPS input is pin {pins.pps} (INT4)")
     if int(e.get("uart", 1)) != 1:
         raise ConfigError(f"{x.at}: the AVR runtime reads a GPS on uart 1 (USART1)")
+    x.claim(pins.gps[0], "RX1")
+    x.claim(pins.gps[1], "TX1")
+    if pps is not None:
+        x.claim(int(pps), "pps_pin (INT4)")
     x.p.setup.append(
         f"gps_init({x.tref}, {int(e.get('baud', 9600))}UL, {0 if pps is None else 1});"
     )
@@ -233,6 +289,8 @@ def _hbridge(x: Entry) -> None:
                 f"{x.at}: on the {pins.board} an IN1/IN2 bridge is on pins {a} and {b} "
                 "(Timer0's OC0A/OC0B), and it is the only one"
             )
+        x.claim(a, "in1 (OC0A)")
+        x.claim(b, "in2 (OC0B)")
         out, dirpin = 2, "{0, 0}"
     else:
         pwm = int(e["pwm_pin"])
@@ -240,6 +298,7 @@ def _hbridge(x: Entry) -> None:
             raise ConfigError(
                 f"{x.at}: on the {pins.board} a motor's pwm_pin is {a} or {b} (Timer0's OC0A/OC0B)"
             )
+        x.claim(pwm, "pwm_pin")
         out, dirpin = (0 if pwm == a else 1), x.pin("dir_pin")
     stop = e.get("stop", "coast")
     if out < 2:
@@ -266,8 +325,7 @@ def _battery(x: Entry) -> None:
     """The Python driver's checks and curves (board/drivers/battery.py: its single source); the
     ADC's reference is AVcc, 5 V on every AVR board here unless the entry's vref says else."""
     e = x.e
-    if not 0 <= int(e["pin"]) <= 7:
-        raise ConfigError(f"{x.at}: pin is the ADC channel on AVR (0..7 = A0..A7)")
+    channel = x.adc()
     params = inspect.signature(battery.Battery.__init__).parameters
 
     def get(key: str) -> Any:
@@ -296,7 +354,7 @@ def _battery(x: Entry) -> None:
         f"static const uint8_t battery_starts[] = {{{', '.join(map(str, starts))}}};",
     ]
     x.p.setup.append(
-        f"battery_init({x.tref}, {int(e['pin'])}, {_f(min(x.rate, 100.0))}, {_f(vref)}, "
+        f"battery_init({x.tref}, {channel}, {_f(min(x.rate, 100.0))}, {_f(vref)}, "
         f"{_f((top + bottom) / bottom)}, {cells}, {battery.CHEMISTRIES.index(chemistry)}, "
         f"{reads}, battery_points, battery_starts);"
     )

@@ -19,7 +19,7 @@ from ..board.firmware import describe
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 from .avrconfig import generate_config, keys_of
-from .avrdrivers import AVR_DRIVERS, DRIVER_SOURCES, Part, part_of
+from .avrdrivers import AVR_DRIVERS, DRIVER_SOURCES, Part, link_claims, part_of
 from .avrpins import PINS
 from .boardfile import FEATURES, BoardFile
 from .cgen import c_comment, c_ident, c_string
@@ -49,7 +49,8 @@ class Parts:
     funcs: list[tuple[str, str]] = field(default_factory=list)  #: (J2A name, C function)
     hardware: list[tuple[str, str, str]] = field(default_factory=list)  #: the trigger's
     safe: list[tuple[int, str]] = field(default_factory=list)  #: (index, make_safe)
-    isrs: list[str] = field(default_factory=list)
+    isrs: list[tuple[str, str]] = field(default_factory=list)  #: (vector, statement)
+    claims: dict[int, str] = field(default_factory=link_claims)  #: pin -> who has it
     checks: dict[int, list[tuple[str, str]]] = field(default_factory=dict)
     lines: list[str] = field(default_factory=lambda: ["transds/1"])  #: the descriptor
     described: list[tuple[int, dict[str, Any], Transducer, type]] = field(default_factory=list)
@@ -63,7 +64,7 @@ def generate_avr(bf: BoardFile) -> str:
     c_ident(bf.name, f"{where}: name")
     parts = collect_parts(bf, where)
     n = len(bf.transducers)
-    out = [*_head(bf), *parts.decls, *parts.isrs]
+    out = [*_head(bf), *parts.decls, *_isrs(parts.isrs)]
     out += [
         f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
         f"const uint8_t board_transducer_count = {n};",
@@ -128,7 +129,7 @@ def _add_entry(
     parts.lines.append(t.descriptor_line())
     parts.decls.append(f"static uint32_t stamps_{k}[{t.chan_count}];")
     parts.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
-    part: Part = part_of(k, e, t, pins, mcu, inst, at)
+    part: Part = part_of(k, e, t, pins, mcu, inst, at, parts.claims)
     for call, _fn in part.funcs:
         c_ident(call, f"{at}: call")
     parts.setup += part.setup
@@ -149,11 +150,31 @@ def _add_entry(
     )
 
 
+def _isrs(isrs: list[tuple[str, str]]) -> list[str]:
+    """An interrupt routine per vector, with every statement the parts put in it (a port's
+    pin-change interrupt serves all its pins: two encoders, an echo); a routine the same as one
+    before it is an alias of that one (no second copy in flash)."""
+    bodies: dict[str, list[str]] = {}
+    for vector, statement in isrs:
+        body = bodies.setdefault(vector, [])
+        if statement not in body:  # (an encoder with both phases on one port: once)
+            body.append(statement)
+    out, seen = [], {}
+    for vector, statements in bodies.items():
+        body = " ".join(statements)
+        if body in seen:
+            out.append(f"ISR({vector}, ISR_ALIASOF({seen[body]}));")
+        else:
+            seen[body] = vector
+            out.append(f"ISR({vector}) {{ {body} }}")
+    return out
+
+
 #: the C runtime's headers (firmware/avr/src)
 HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"battery.h"', '"builtins.h"',
            '"config.h"',
            '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
-           '"identity.h"', '"log.h"', '"memory.h"', '"runtime.h"', '"stepper.h"',
+           '"identity.h"', '"log.h"', '"memory.h"', '"quadrature.h"', '"runtime.h"', '"stepper.h"',
            '"timing.h"')  # fmt: skip
 
 

@@ -14,6 +14,7 @@ static struct encoder {
     int a, b;     /* the phases' levels */
     long pending; /* edges still to make (> 0 forward) */
     long pos;     /* edges made */
+    avr_cycle_count_t last; /* the cycle of the newest edge */
 } enc[ENCODERS];
 static int n_enc;
 
@@ -33,13 +34,14 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
     else set_b(e, seq[i][1]);
     e->pending -= dir;
     e->pos += dir;
+    e->last = avr->cycle; /* (the timer runs at or just after `when`) */
     return when + avr_usec_to_cycles(avr, EDGE_US);
 }
 
 int encoder_add(char a_port, int a_bit, char b_port, int b_bit) {
     if (n_enc == ENCODERS) return -1;
     struct encoder *e = &enc[n_enc];
-    *e = (struct encoder){a_port, b_port, a_bit, b_bit, 1, 1, 0, 0};
+    *e = (struct encoder){a_port, b_port, a_bit, b_bit, 1, 1, 0, 0, 0};
     set_a(e, 1); /* both high: what the pull-ups read at rest */
     set_b(e, 1);
     return n_enc++;
@@ -76,7 +78,7 @@ int encoder_command(const char *cmd) {
         set_b(&enc[k], !enc[k].b);
         printf("ok\n");
     } else if ((k = which(cmd, "encpos", &v, 0)) >= 0) {
-        printf("encpos %d %ld\n", k, enc[k].pos);
+        printf("encpos %d %ld %.3f\n", k, enc[k].pos, enc[k].last ? board_us_at(enc[k].last) : -1.0);
     } else {
         return 0;
     }

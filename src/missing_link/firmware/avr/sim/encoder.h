@@ -3,7 +3,8 @@
  * Control lines (K: the encoder, in the order they were added; 0 when left out):
  *   enc [K] STEPS: STEPS edges (x4 counts), forward (> 0) or back
  *   glitch [K]: both phases at once (an edge missed)
- *   encpos [K]: "encpos K COUNT", the edges made so far (forward minus back) */
+ *   encpos [K]: "encpos K COUNT US", the edges made so far (forward minus back) and the newest
+ *          one's time in the board's µs (-1: none yet) */
 #ifndef RIG_ENCODER_H
 #define RIG_ENCODER_H
 #include "rig.h"

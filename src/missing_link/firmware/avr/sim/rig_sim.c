@@ -8,11 +8,15 @@
  *              (OC2A), ADC0's conversions, the lowest stack pointer, the board's clock
  *   rover.c    the rover's motors, stepper, HC-SR04 and GPS (--rover)
  *   eeprom.c   the EEPROM across power cycles, and power cuts
- * Without --rover the rig is the thesis rig: a Sharp on ADC0, an SRF02 at 0x70 and an encoder on
- * INT0/INT1.
  *
  *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--rover]
+ *           [--part SPEC]...
  *
+ * --part SPEC: a part at the firmware's pins (deploy/avrsim.py writes them from a board file):
+ *   quadrature PIN_A PIN_B   an encoder (pins as port and bit: D2, PK0)
+ *   sharp CH                 a Sharp on ADC channel CH
+ *   srf02 ADDR               an SRF02 at 7-bit address ADDR (0x70) on the TWI
+ * Without any, the thesis rig: a Sharp on ADC0, an SRF02 at 0x70 and an encoder on INT0/INT1.
  * --rover (with --mcu atmega2560): the rover's parts too (rover.c: motors, a stepper, an
  * HC-SR04 and a GPS at examples/boards/rover-mega.py's pins).
  * --eeprom FILE (eeprom.c): the EEPROM's contents are read from FILE at power-up (when it
@@ -144,6 +148,21 @@ static void pace(void) {
 }
 
 /* ---- start-up ------------------------------------------------------------------------------------ */
+/* simavr 1.6 models the Mega 2560's pin-change interrupts on port B only (PCINT0); port K's
+ * (A8-A15: PCINT16-23, PCMSK2, PCIE2/PCIF2, vector 11), which the datasheet has and the
+ * firmware uses (an encoder's phases, an echo), is given the same wiring here. */
+static void mega_port_k_pcint(void) {
+    for (avr_io_t *io = avr->io_port; io; io = io->next) {
+        avr_ioport_t *p = (avr_ioport_t *)io;
+        if (strcmp(io->kind, "port") != 0 || p->name != 'K') continue;
+        p->r_pcint = 0x6D;                                        /* PCMSK2 */
+        p->pcint.enable = (avr_regbit_t)AVR_IO_REGBIT(0x68, 2);   /* PCICR: PCIE2 */
+        p->pcint.raised = (avr_regbit_t)AVR_IO_REGBIT(0x3B, 2);   /* PCIFR: PCIF2 */
+        p->pcint.vector = 11;                                     /* PCINT2_vect */
+        avr_register_vector(avr, &p->pcint);
+    }
+}
+
 static int load(const char *elf, const char *mcu, const char *eeprom_file) {
     elf_firmware_t f;
     memset(&f, 0, sizeof f);
@@ -162,20 +181,44 @@ static int load(const char *elf, const char *mcu, const char *eeprom_file) {
     avr_init(avr);
     avr_load_firmware(avr, &f);
     avr->log = 0;
+    if (!strcmp(mcu, "atmega2560")) mega_port_k_pcint();
     eeprom_open(avr, eeprom_file);
     uart_pty_init(avr, &uart);
     uart_pty_connect(&uart, strcmp(mcu, "atmega32u4") ? '0' : '1');
     return 1;
 }
 
-/* the thesis rig's parts, and with `rover` the rover's */
-static void wire(const char *mcu, int rover) {
+/* one --part SPEC: 0 if it is not one */
+static int add_part(const char *spec) {
+    char kind[16], a[8], b[8], pa, pb;
+    int ba, bb;
+    unsigned v;
+    int n = sscanf(spec, "%15s %7s %7s", kind, a, b);
+    if (n == 3 && !strcmp(kind, "quadrature") && rig_parse_pin(a, &pa, &ba) &&
+        rig_parse_pin(b, &pb, &bb))
+        return encoder_add(pa, ba, pb, bb) >= 0;
+    if (n == 2 && !strcmp(kind, "sharp") && sscanf(a, "%u", &v) == 1 && v < 16) sharp_add((int)v);
+    else if (n == 2 && !strcmp(kind, "srf02") && sscanf(a, "%x", &v) == 1 && v < 128) srf02_add((uint8_t)v);
+    else return 0;
+    return 1;
+}
+
+/* the parts of --part, else the thesis rig's; and with `rover` the rover's */
+static int wire(const char *mcu, int rover, const char **specs, int n_specs) {
     int uno = !strcmp(mcu, "atmega328p"); /* INT0/INT1: PD2/PD3; Mega and Leonardo: PD0/PD1 */
     probes_init(mcu);
     twi_bus_init();
-    sharp_add(0);
-    srf02_add(0x70);
-    encoder_add('D', uno ? 2 : 0, 'D', uno ? 3 : 1);
+    for (int i = 0; i < n_specs; i++) {
+        if (!add_part(specs[i])) {
+            fprintf(stderr, "rig_sim: --part %s: not a part the rig has\n", specs[i]);
+            return 0;
+        }
+    }
+    if (!n_specs) {
+        sharp_add(0);
+        srf02_add(0x70);
+        encoder_add('D', uno ? 2 : 0, 'D', uno ? 3 : 1);
+    }
     parts[n_parts++] = rig_command;
     parts[n_parts++] = probes_command;
     parts[n_parts++] = analog_command;
@@ -185,24 +228,26 @@ static void wire(const char *mcu, int rover) {
         rover_init(avr, board_us_at);
         parts[n_parts++] = rover_command;
     }
+    return 1;
 }
 
 int main(int argc, char **argv) {
-    const char *elf = NULL, *mcu = "atmega328p", *eeprom_file = NULL;
-    int rover = 0;
+    const char *elf = NULL, *mcu = "atmega328p", *eeprom_file = NULL, *specs[32];
+    int rover = 0, n_specs = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--mcu") && i + 1 < argc) mcu = argv[++i];
         else if (!strcmp(argv[i], "--skew-ppm") && i + 1 < argc) skew = atof(argv[++i]) * 1e-6;
         else if (!strcmp(argv[i], "--eeprom") && i + 1 < argc) eeprom_file = argv[++i];
         else if (!strcmp(argv[i], "--rover")) rover = 1;
+        else if (!strcmp(argv[i], "--part") && i + 1 < argc && n_specs < 32) specs[n_specs++] = argv[++i];
         else elf = argv[i];
     }
     if (!elf) {
-        fprintf(stderr, "usage: rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P]\n");
+        fprintf(stderr, "usage: rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] "
+                        "[--rover] [--part SPEC]...\n");
         return 2;
     }
-    if (!load(elf, mcu, eeprom_file)) return 1;
-    wire(mcu, rover);
+    if (!load(elf, mcu, eeprom_file) || !wire(mcu, rover, specs, n_specs)) return 1;
     fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
     printf("PTY %s\n", uart.port[0].slavename);
     fflush(stdout);

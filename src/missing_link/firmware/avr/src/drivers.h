@@ -1,17 +1,12 @@
 /* Drivers for the thesis rig on AVR: the same names and behaviour as the MicroPython drivers
- * (board/drivers/ (Python)).  One instance of each (they own fixed hardware: INT0/INT1, Timer1's
- * OC1A, the TWI); the generator refuses a second. */
+ * (board/drivers/ (Python)).  One instance of each (they own fixed hardware: Timer1's OC1A,
+ * Timer2's OC2A, the TWI's SRF02 state); the generator refuses a second.  The encoders:
+ * quadrature.h. */
 #ifndef J2A_DRIVERS_H
 #define J2A_DRIVERS_H
 #include <stdint.h>
 
 #include "runtime.h"
-
-void quadrature_init(transducer_t *t, uint16_t rate_hz, uint8_t reverse);
-void quadrature_set(float rate_hz, uint8_t reverse); /* run-time configuration (config.c) */
-void quadrature_align(uint8_t aligned, float phase); /* on the host-time grid (timing.c) */
-void quadrature_poll(uint32_t now);
-extern volatile uint16_t quadrature_errors;
 
 void sharp_init(transducer_t *t, uint8_t adc_channel, uint16_t rate_hz);
 void sharp_set(float rate_hz);
