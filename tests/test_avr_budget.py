@@ -91,6 +91,7 @@ def test_a_pin_error_says_its_prefix_once(tmp_path: Path) -> None:
         generate_avr(load_board_file(p))
     assert str(e.value).count("steer:") == 1 and str(e.value).count("mybot_uno2.py") == 1, e.value
 
+
 #: an H-bridge, a stepper and an HC-SR04 on an Uno (issue 46: "no longer fits" at bb0fb70)
 MOTOR_UNO = """BOARD = {"name": "uno_motor", "mcu": "atmega328p", "buses": {"twi": {"id": 0}},
 "transducers": [

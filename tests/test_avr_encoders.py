@@ -141,9 +141,7 @@ def test_three_encoders_on_a_mega_two_sharing_a_pin_change_interrupt(
         for k, steps in enumerate((-123, 321, 77)):  # edges at the same instants on port K
             assert sim.ctl(f"enc {k} {steps}") == "ok"
         want = {0: -123, 1: 321, 2: 77}
-        assert wait_for(lambda: all(counts.value(k) == n for k, n in want.items()), 10), (
-            counts.last
-        )
+        assert wait_for(lambda: all(counts.value(k) == n for k, n in want.items()), 10), counts.last
         for k in range(3):  # (three interrupts at once: the last stamped up to ~40 µs on)
             pos, at = edge_us(sim, k)
             assert pos == want[k] and 0 <= counts.stamp(k) - at < 60, (k, counts.last, at)
@@ -163,9 +161,9 @@ ENC = '{{"name": "{n}", "id": {i}, "driver": "quadrature", "pin_a": {a}, "pin_b"
 
 
 def test_the_generator_puts_each_phase_on_its_interrupt(tmp_path: Path) -> None:
-    src = generate_avr(load_board_file(_board(tmp_path, "atmega2560", ",".join(
-        ENC.format(n=f"e{k}", i=k, a=a, b=b)
-        for k, (a, b) in enumerate(((21, 20), (19, 18), (2, 3), (62, 69), (10, 11)))))))  # fmt: skip
+    pairs = ((21, 20), (19, 18), (2, 3), (62, 69), (10, 11))
+    entries = ",".join(ENC.format(n=f"e{k}", i=k, a=a, b=b) for k, (a, b) in enumerate(pairs))
+    src = generate_avr(load_board_file(_board(tmp_path, "atmega2560", entries)))
     for n in range(6):  # INT0..INT5: any change (ISCn0)
         reg, bit = ("EICRA", 2 * n) if n < 4 else ("EICRB", 2 * (n - 4))
         assert f"{reg} |= 1 << {bit}; EIMSK |= 1 << {n};" in src

@@ -156,10 +156,11 @@ def _isrs(isrs: list[tuple[str, str]]) -> list[str]:
     before it is an alias of that one (no second copy in flash)."""
     bodies: dict[str, list[str]] = {}
     for vector, statement in isrs:
-        body = bodies.setdefault(vector, [])
-        if statement not in body:  # (an encoder with both phases on one port: once)
-            body.append(statement)
-    out, seen = [], {}
+        got = bodies.setdefault(vector, [])
+        if statement not in got:  # (an encoder with both phases on one port: once)
+            got.append(statement)
+    out: list[str] = []
+    seen: dict[str, str] = {}  # routine -> the vector that has it
     for vector, statements in bodies.items():
         body = " ".join(statements)
         if body in seen:
