@@ -198,7 +198,8 @@ class WebPublisher(Publisher):
             "origins_refused": s.door.refused_origins,
             "hosts_refused": s.door.refused_hosts,
             "clients_refused": s.door.refused_clients,
-            "logins_refused": s.logins_refused,
+            "logins_refused": s.logins.refused,
+            "sockets_refused": s.logins.sockets_refused,
             "pages_closed": s.pages_closed,
             "client_messages_dropped": s.dropped_messages,
         }

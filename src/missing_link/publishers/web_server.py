@@ -12,14 +12,11 @@ checked whenever TLS is off, token or not: a name rebound to 127.0.0.1 is refuse
 * ``/`` and ``/static/NAME``: the page and its assets, from a table made at start (no path from
   a request ever reaches the file system), with a strict Content-Security-Policy (scripts,
   styles and connections from this origin only);
-* ``/session``: whether a login is needed and done (JSON, by the session cookie only);
-  ``/login``, the one place the token is taken: in the ``Authorization: Bearer`` header (never
-  in a URL), checked in constant time and answered with an ``HttpOnly``, ``SameSite=Strict``
-  session cookie (``Secure`` over TLS); failures are counted per client address, and after
-  ``LOGIN_FAILURES`` in ``LOGIN_WINDOW_S`` that address's logins are refused (429) until its
-  window ends - nobody else's (front_door.py's ``LoginLimiter``, a bounded table); ``/logout`` ends
-  the session;
-* ``/ws``: the WebSocket, for a session where a token is set.
+* ``/session``: whether a login is needed (JSON); ``/login``, the one place the token is taken,
+  answered with a session secret the page keeps; ``/logout`` ends a session (web_auth.py: no
+  cookie, since cookies do not isolate ports);
+* ``/ws``: the WebSocket; where a token is set, its first message must be the session the page
+  keeps, made for this socket's ``Origin`` (web_auth.py), or it is closed.
 
 A page gets a ``hello`` (everything: model.snapshot) and then a ``tick`` every ``TICK_S`` (what
 arrived, thinned; the status, polled from the daemon while pages are open).  A page that reads
@@ -36,10 +33,8 @@ them, and the page shows no actuator controls; so does a configuration change of
 from __future__ import annotations
 
 import asyncio
-import hmac
 import json
 import logging
-import secrets
 import ssl
 import threading
 import time
@@ -52,7 +47,8 @@ from ..errors import ConfigError, MissingLinkError
 from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
-from .front_door import FrontDoor, LoginLimiter
+from .front_door import FrontDoor
+from .web_auth import AUTH_S, CLOSE_UNAUTHENTICATED, Logins
 from .web_model import ConsoleModel
 
 log = logging.getLogger(__name__)
@@ -62,9 +58,6 @@ MAX_CLIENTS = 16
 MAX_CLIENT_MESSAGE = 16384
 BACKLOG = 50  #: ticks waiting for one page (10 s)
 MAX_QUEUE = 200  #: messages waiting for one page at most (ticks and replies): more closes it
-LOGIN_FAILURES, LOGIN_WINDOW_S = 5, 60.0
-SESSION_S = 12 * 3600.0
-COOKIE = "ml_session"
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
          ".css": "text/css; charset=utf-8", ".png": "image/png", ".txt": "text/plain"}  # fmt: skip
 CSP = (
@@ -118,9 +111,7 @@ class WebServer:
         )  # fmt: skip
         self.ctx: Any = None
         self._pages: set[_Page] = set()
-        self._sessions: dict[str, float] = {}  # session id -> expiry (monotonic)
-        self.logins = LoginLimiter(LOGIN_FAILURES, LOGIN_WINDOW_S)
-        self.logins_refused = 0
+        self.logins = Logins(options.token or "")
         self.pages_closed = 0  #: pages closed because they did not read their queue
         self.dropped_messages = 0
         self.dropped = 0
@@ -230,20 +221,23 @@ class WebServer:
         why = self.door.refusal(request, len(self._pages) if path == "/ws" else 0)
         if why is not None:
             return self._respond(why[0], why[1].encode(), "text/plain")
-        authed = self._authenticated(request)
         if path == "/ws":
-            return None if authed else self._respond(401, b"Log in first\n", "text/plain")
+            return None  # (a session is its first message: web_auth.py)
         if path == "/session":
-            body = {"token": bool(self.opts.token), "authenticated": authed, "name": self.opts.name}
+            body = {"token": bool(self.opts.token), "name": self.opts.name}
             return self._respond(200, json.dumps(body).encode(), "application/json")
         if path == "/login":
-            return self._login(connection, request)
+            status, text = self.logins.login(
+                request.headers.get("Authorization", ""), _address(connection),
+                self._origin_of(request), time.monotonic(),
+            )  # fmt: skip
+            if status == 401:
+                log.warning("web: a login refused (wrong token)")  # (never what was given)
+            ctype = "application/json" if status == 200 else "text/plain"
+            return self._respond(status, text, ctype)
         if path == "/logout":
-            resp = self._respond(204, b"", "text/plain")
-            sid = _cookie(request.headers.get("Cookie", ""))
-            self._sessions.pop(sid or "", None)
-            resp.headers["Set-Cookie"] = f"{COOKIE}=; Path=/; Max-Age=0; HttpOnly; SameSite=Strict"
-            return resp
+            self.logins.logout(request.headers.get("Authorization", ""))
+            return self._respond(204, b"", "text/plain")
         found = self.files.get(path)
         if found is None:
             return self._respond(404, b"Not found\n", "text/plain")
@@ -264,39 +258,6 @@ class WebServer:
         )  # fmt: skip
         return Response(status, reason, headers, body)
 
-    def _authenticated(self, request: Any) -> bool:
-        """A session's cookie (the token is taken at ``/login`` only, where it is limited)."""
-        if not self.opts.token:
-            return True
-        sid = _cookie(request.headers.get("Cookie", ""))
-        expiry = self._sessions.get(sid or "")
-        return expiry is not None and expiry > time.monotonic()
-
-    def _token_ok(self, given: str) -> bool:
-        return hmac.compare_digest(given.encode(), self.opts.token.encode())
-
-    def _login(self, connection: Any, request: Any) -> Any:
-        now = time.monotonic()
-        auth = request.headers.get("Authorization", "")
-        if not self.opts.token:
-            return self._respond(204, b"", "text/plain")
-        client = _address(connection)
-        if not self.logins.allows(client, now):
-            self.logins_refused += 1
-            return self._respond(429, b"Too many failed logins: wait a minute\n", "text/plain")
-        if not (auth.startswith("Bearer ") and self._token_ok(auth[7:].strip())):
-            self.logins.failed(client, now)
-            self.logins_refused += 1
-            log.warning("web: a login refused (wrong token)")  # (never what was given)
-            return self._respond(401, b"Wrong token\n", "text/plain")
-        sid = secrets.token_urlsafe(32)
-        self._sessions = {s: e for s, e in self._sessions.items() if e > now}
-        self._sessions[sid] = now + SESSION_S
-        resp = self._respond(204, b"", "text/plain")
-        secure = "; Secure" if self.opts.tls else ""
-        resp.headers["Set-Cookie"] = f"{COOKIE}={sid}; Path=/; HttpOnly; SameSite=Strict{secure}"
-        return resp
-
     # ---- a page's WebSocket -------------------------------------------------------------------
     async def _handle(self, ws: Any) -> None:
         from websockets.exceptions import ConnectionClosed
@@ -304,6 +265,9 @@ class WebServer:
         page = _Page(ws)
         writer: asyncio.Future[None] | None = None
         try:
+            if not await self._admitted(ws):
+                await ws.close(CLOSE_UNAUTHENTICATED, "log in first")
+                return
             if self.ctx is not None:  # (the status now: polled only while pages are open)
                 self.model.set_status(self.ctx.status(), self.ctx.publisher_status())
             hello = {"op": "hello", "name": self.opts.name, "commands": self.commands_on(),
@@ -334,6 +298,30 @@ class WebServer:
             if writer is not None:
                 writer.cancel()
                 await asyncio.gather(writer, return_exceptions=True)
+
+    def _origin_of(self, request: Any) -> str | None:
+        """The page's origin a login comes from: its ``Origin``, or this console's own where
+        the browser says the request is same-origin (a GET sends no ``Origin`` then); None
+        for a script (web_auth.py)."""
+        origin = request.headers.get("Origin")
+        if origin is None and request.headers.get("Sec-Fetch-Site") == "same-origin":
+            origin = f"{self.door.scheme}://{request.headers.get('Host', '')}"
+        return None if origin is None else str(origin)
+
+    async def _admitted(self, ws: Any) -> bool:
+        """Where a token is set: the socket's first message is a session made for its Origin
+        (web_auth.py), within AUTH_S."""
+        if not self.opts.token:
+            return True
+        try:
+            first = await asyncio.wait_for(ws.recv(), AUTH_S)
+        except TimeoutError:
+            first = None
+        origin = ws.request.headers.get("Origin") if ws.request is not None else None
+        if self.logins.admits(first, origin, time.monotonic()):
+            return True
+        log.warning("web: a page's WebSocket closed: no session of its origin")
+        return False
 
     async def _write(self, page: _Page) -> None:
         from websockets.exceptions import ConnectionClosed
@@ -428,11 +416,3 @@ def _address(connection: Any) -> str:
         return str(connection.remote_address[0])
     except (AttributeError, IndexError, TypeError):  # (no address: one shared entry)
         return "?"
-
-
-def _cookie(header: str) -> str | None:
-    for part in header.split(";"):
-        name, _, value = part.strip().partition("=")
-        if name == COOKIE:
-            return value
-    return None

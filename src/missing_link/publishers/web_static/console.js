@@ -39,14 +39,20 @@ function boardId(name) {
 }
 
 // ---- connection -------------------------------------------------------------------------------
+// A login's session secret is kept in sessionStorage, this origin's own (port included), and
+// sent as the WebSocket's first message: no cookie, since cookies go to every port of a host
+// (docs/security.md).
+const SESSION = "ml_session";
+
 async function start() {
-  let session = { token: false, authenticated: true };
+  let session = { token: false };
   try {
     const r = await fetch("/session", { cache: "no-store" });
     if (r.ok) session = await r.json();
   } catch (e) { /* the daemon is gone: retried below */ }
   if (session.name) $("title").textContent = session.name;
-  if (session.token && !session.authenticated) {
+  S.token = session.token;
+  if (session.token && !sessionStorage.getItem(SESSION)) {
     $("login").hidden = false;
     $("link").textContent = "log in to see the boards";
     $("token").focus();
@@ -61,7 +67,11 @@ async function login(ev) {
   const token = $("token").value;
   const r = await fetch("/login", { headers: { Authorization: "Bearer " + token }, cache: "no-store" });
   $("token").value = "";
-  if (r.ok) { $("login-message").textContent = ""; start(); }
+  if (r.ok) {
+    sessionStorage.setItem(SESSION, (await r.json()).session);
+    $("login-message").textContent = "";
+    start();
+  }
   else $("login-message").textContent = r.status === 429 ? "Too many failed logins: wait a minute." : "Wrong token.";
 }
 
@@ -69,9 +79,13 @@ function connect() {
   const proto = location.protocol === "https:" ? "wss://" : "ws://";
   const ws = new WebSocket(proto + location.host + "/ws");
   S.ws = ws;
-  ws.onopen = () => { $("link").textContent = "connected"; };
+  ws.onopen = () => {
+    if (S.token) ws.send(JSON.stringify({ op: "auth", session: sessionStorage.getItem(SESSION) || "" }));
+    $("link").textContent = "connected";
+  };
   ws.onmessage = (ev) => handle(JSON.parse(ev.data));
-  ws.onclose = () => {
+  ws.onclose = (ev) => {
+    if (ev.code === 4401) sessionStorage.removeItem(SESSION);  // (expired, or another daemon)
     $("link").textContent = "disconnected from the daemon: trying again…";
     for (const done of S.pending.values()) done({ ok: false, text: "disconnected" });
     S.pending.clear();
