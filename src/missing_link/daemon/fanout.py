@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ..host.board_log import LogLine
@@ -40,12 +41,17 @@ class Fanout:
         self.errors += 1
         p.faults.caught(where, e, what)
 
-    def declare(self, topic: Topic) -> None:
+    def _each(self, op: str, what: str, call: Callable[[Publisher], object]) -> None:
+        """``call(p)`` for every publisher; what one raises is counted (``op``, ``what``): one
+        face that cannot carry something must not stop a board or the other faces."""
         for p in self.publishers:
             try:
-                p.add_topic(topic)
-            except Exception as e:  # noqa: BLE001 - one face that cannot carry a topic must
-                self._failed(p, "add_topic", e, f"declaring {topic.name}")  # not stop the board
+                call(p)
+            except Exception as e:  # noqa: BLE001 - (counted by kind in the face's status)
+                self._failed(p, op, e, what)
+
+    def declare(self, topic: Topic) -> None:
+        self._each("add_topic", f"declaring {topic.name}", lambda p: p.add_topic(topic))
 
     def publish(self, update: Update) -> None:
         for p in self.publishers:
@@ -55,35 +61,22 @@ class Fanout:
                 self._failed(p, "publish", e, f"publishing on {update.topic.name}")
 
     def record_clock(self, topic: str, record: ClockRecord) -> None:
-        for p in self.publishers:
-            try:
-                p.clock_record(topic, record)
-            except Exception as e:  # noqa: BLE001 - (as publish)
-                self._failed(p, "clock_record", e, f"a clock record on {topic}")
+        what = f"a clock record on {topic}"
+        self._each("clock_record", what, lambda p: p.clock_record(topic, record))
 
     def describe_board(self, record: BoardDescription) -> None:
-        for p in self.publishers:
-            try:
-                p.board_description(record)
-            except Exception as e:  # noqa: BLE001 - (as declare)
-                self._failed(p, "board_description", e, f"{record.board}'s description")
+        what = f"{record.board}'s description"
+        self._each("board_description", what, lambda p: p.board_description(record))
 
     def log(self, line: LogLine) -> None:
-        for p in self.publishers:
-            try:
-                p.log(line)
-            except Exception as e:  # noqa: BLE001 - (as publish)
-                self._failed(p, "log", e, f"{line.board}'s log")
+        self._each("log", f"{line.board}'s log", lambda p: p.log(line))
 
     def add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
         def sent(value: Any) -> None:  # (what the actuator refuses raises: not recorded)
             handler(value)
             now = time.time_ns()
-            for p in self.publishers:
-                try:
-                    p.command_sent(name, topic, value, now)
-                except Exception as e:  # noqa: BLE001 - (as declare)
-                    self._failed(p, "command_sent", e, f"recording a command to {name}")
+            what = f"recording a command to {name}"
+            self._each("command_sent", what, lambda p: p.command_sent(name, topic, value, now))
 
         gate = self.gate  # (who may command what: control/allowlist.py)
         self.bus.add_command(name, gate.wrap("bus", True, name, sent))
@@ -114,15 +107,11 @@ class Fanout:
                 self._failed(p, "add_config", e, f"offering {board}'s configuration")
 
     def config_changed(self, board: str, values: dict[str, Value]) -> None:
-        for p in self.publishers:
-            try:
-                p.config_changed(board, values)
-            except Exception as e:  # noqa: BLE001 - (as declare)
-                self._failed(p, "config_changed", e, f"following {board}'s configuration")
+        what = f"following {board}'s configuration"
+        self._each("config_changed", what, lambda p: p.config_changed(board, values))
 
     def diagnostics(self, status: list[dict[str, Any]], now_ns: int) -> None:
-        for p in self.publishers:
-            try:
-                p.diagnostics(status, now_ns)
-            except Exception as e:  # noqa: BLE001 - (as declare: the next round tries again)
-                self._failed(p, "diagnostics", e, "publishing /diagnostics")
+        # (the next round tries again)
+        self._each(
+            "diagnostics", "publishing /diagnostics", lambda p: p.diagnostics(status, now_ns)
+        )

@@ -66,6 +66,11 @@ def handshake(board: Handshaken, *, describe: bool = True, deadline: float | Non
             raise CallTimeout(board.name, what, f"handshake not done within {total:.1f} s")
         return remaining
 
+    def read(name: str, cap: int) -> bytes:  # (a blob of the handshake: its cap, the deadline)
+        return board.read_many(
+            name, max_bytes=cap, timeout=min(board.timeout, left(name)), deadline=deadline
+        )
+
     # First contact: ask again on a timeout (a board still booting, stale bytes in a pty).
     while True:
         try:
@@ -85,36 +90,22 @@ def handshake(board: Handshaken, *, describe: bool = True, deadline: float | Non
         # which tells a Part 2 board, whose a2jMany serves offsets past 255)
         board.functions, board.index = names, mapping_index(names)
         if "a2jGetMappingMany" in names:
-            full = board.read_many(
-                "a2jGetMappingMany",
-                max_bytes=MAX_MAPPING,
-                timeout=min(board.timeout, left("a2jGetMappingMany")),
-                deadline=deadline,
-            )
+            full = read("a2jGetMappingMany", MAX_MAPPING)
             names = parse_mapping(full)
         board.functions = names
         board.index = mapping_index(names)
     except BlobError as e:
         raise BoardError(board.url, f"bad function mapping: {e}") from e
+
     if "a2jGetProperties" in board.index:
-        raw = board.read_many(
-            "a2jGetProperties",
-            max_bytes=MAX_PROPERTIES,
-            timeout=min(board.timeout, left("a2jGetProperties")),
-            deadline=deadline,
-        )
+        raw = read("a2jGetProperties", MAX_PROPERTIES)
         try:
             board.properties = parse_properties(raw)
         except BlobError as e:
             raise BoardError(board.url, f"bad properties: {e}") from e
         _check_properties(board.name, board.properties)
     if describe and "a2jGetTransds" in board.index:
-        raw = board.read_many(
-            "a2jGetTransds",
-            max_bytes=MAX_TRANSDS,
-            timeout=min(board.timeout, left("a2jGetTransds")),
-            deadline=deadline,
-        )
+        raw = read("a2jGetTransds", MAX_TRANSDS)
         try:
             board.transds_text = raw.decode("utf-8")
         except UnicodeDecodeError as e:

@@ -24,7 +24,7 @@ counter in ``DecoderStats``.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -89,13 +89,7 @@ class DecoderStats:
     cut_frames: int = 0
 
     def as_dict(self) -> dict[str, int]:
-        return {
-            "frames": self.frames,
-            "junk_bytes": self.junk_bytes,
-            "bad_checksums": self.bad_checksums,
-            "bad_escapes": self.bad_escapes,
-            "cut_frames": self.cut_frames,
-        }
+        return asdict(self)
 
 
 def checksum(seq: int, opcode: int, payload: bytes) -> int:

@@ -31,6 +31,10 @@ from ..topics import Topic, Update
 
 log = logging.getLogger(__name__)
 
+#: (values) -> the configuration after it: a board's configuration changed by a face, all or
+#: none (``Publisher.add_config``)
+ApplyConfig = Callable[[dict[str, object]], dict[str, Value]]
+
 
 @dataclass(frozen=True)
 class DaemonApi:
@@ -73,11 +77,7 @@ class Publisher:
         """Per-board status, about once a second (also published on /diagnostics)."""
 
     def add_config(
-        self,
-        board: str,
-        keys: list[ConfigKey],
-        values: dict[str, Value],
-        apply: Callable[[dict[str, object]], dict[str, Value]],
+        self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: ApplyConfig
     ) -> None:
         """A board's run-time configuration (host/config.py), offered where a face has such a
         thing (ROS 2 parameters): ``apply(values)`` changes keys, all or none, raising

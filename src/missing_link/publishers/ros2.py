@@ -50,7 +50,7 @@ from ..ros.logmsgs import ROS2_LOG, ROSOUT, rosout_cdr
 from ..ros.msgs import ROS_TYPES
 from ..ros.standard import FrameId
 from ..topics import Command, Topic, Update
-from .base import PublisherError
+from .base import ApplyConfig, PublisherError
 from .ros2_params import RosParameters
 from .rosbase import RosPublisher
 from .zenoh_config import takes_commands
@@ -337,11 +337,7 @@ class Ros2Publisher(RosPublisher):
         return SetParametersResult(successful=True)
 
     def add_config(
-        self,
-        board: str,
-        keys: list[ConfigKey],
-        values: dict[str, Value],
-        apply: Callable[[dict[str, object]], dict[str, Value]],
+        self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: ApplyConfig
     ) -> None:
         with self._lock:
             if not self._closed:

@@ -31,7 +31,7 @@ from ..errors import ConfigError
 from ..host.board_log import LogLine
 from ..host.config import ConfigKey, Value
 from ..topics import Topic, Update
-from .base import DaemonApi, Publisher, PublisherError
+from .base import ApplyConfig, DaemonApi, Publisher, PublisherError
 from .front_door import is_loopback
 from .registry import check_options
 from .web_model import ConsoleModel
@@ -169,11 +169,7 @@ class WebPublisher(Publisher):
             self.model.set_status(boards, [s for s in status if "publisher" in s])
 
     def add_config(
-        self,
-        board: str,
-        keys: list[ConfigKey],
-        values: dict[str, Value],
-        apply: Callable[[dict[str, object]], dict[str, Value]],
+        self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: ApplyConfig
     ) -> None:
         self.model.add_config(board, keys, values)
 

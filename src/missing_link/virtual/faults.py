@@ -90,6 +90,10 @@ class _Corrupter:
         return bytes(out)
 
 
+#: what a relay counts (``counters()``), in its order
+_COUNTERS = ("connections", "forwarded", "corrupted", "dropped_bytes", "blackholed_bytes")
+
+
 class FaultRelay:
     def __init__(
         self, upstream: str, faults: Faults | None = None, listen: str = "tcp://127.0.0.1:0"
@@ -157,13 +161,7 @@ class FaultRelay:
         self.stop()
 
     def counters(self) -> dict[str, int]:
-        return {
-            "connections": self.connections,
-            "forwarded": self.forwarded,
-            "corrupted": self.corrupted,
-            "dropped_bytes": self.dropped_bytes,
-            "blackholed_bytes": self.blackholed_bytes,
-        }
+        return {k: getattr(self, k) for k in _COUNTERS}
 
     # ---- the relay ----------------------------------------------------------------------------
     def _accept_loop(self) -> None:

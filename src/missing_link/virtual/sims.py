@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
+from typing import Any
 
 from ..board.config import RuntimeConfig
 from ..board.failsafe import Failsafe
@@ -116,34 +117,34 @@ def _configurable(rt: BoardRuntime, config_file: str | None) -> BoardRuntime:
     return rt
 
 
-def thesis(
-    seed: int = 0, name: str = "thesis", config_file: str | None = None, **kw: object
-) -> BoardRuntime:
-    rt = BoardRuntime(name, "missing-link virtual thesis board", f"sim-{name}-{seed}", **kw)
-    _add_encoders(rt, seed)
-    _add_rangers(rt, seed)
-    _add_servo(rt, seed)
+def _rig(
+    kind: str, parts: tuple[Callable[[BoardRuntime, int], object], ...], seed: int, name: str,
+    config_file: str | None, kw: dict[str, Any],
+) -> BoardRuntime:  # fmt: skip
+    """A virtual rig: ``parts`` added in order, then what every rig has."""
+    rt = BoardRuntime(name, f"missing-link virtual {kind} board", f"sim-{name}-{seed}", **kw)
+    for add in parts:
+        add(rt, seed)
     _common(rt, seed)
     return _configurable(rt, config_file)
+
+
+def thesis(
+    seed: int = 0, name: str = "thesis", config_file: str | None = None, **kw: Any
+) -> BoardRuntime:
+    return _rig("thesis", (_add_encoders, _add_rangers, _add_servo), seed, name, config_file, kw)
 
 
 def encoder_servo(
-    seed: int = 0, name: str = "board_a", config_file: str | None = None, **kw: object
+    seed: int = 0, name: str = "board_a", config_file: str | None = None, **kw: Any
 ) -> BoardRuntime:
-    rt = BoardRuntime(name, "missing-link virtual encoder+servo board", f"sim-{name}-{seed}", **kw)
-    _add_encoders(rt, seed)
-    _add_servo(rt, seed)
-    _common(rt, seed)
-    return _configurable(rt, config_file)
+    return _rig("encoder+servo", (_add_encoders, _add_servo), seed, name, config_file, kw)
 
 
 def rangers(
-    seed: int = 0, name: str = "board_b", config_file: str | None = None, **kw: object
+    seed: int = 0, name: str = "board_b", config_file: str | None = None, **kw: Any
 ) -> BoardRuntime:
-    rt = BoardRuntime(name, "missing-link virtual ranger board", f"sim-{name}-{seed}", **kw)
-    _add_rangers(rt, seed)
-    _common(rt, seed)
-    return _configurable(rt, config_file)
+    return _rig("ranger", (_add_rangers,), seed, name, config_file, kw)
 
 
 def rate(

@@ -15,7 +15,7 @@ settings, clock sync) stay the plain dicts those modules give.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
@@ -150,12 +150,7 @@ class Identity:
         )
 
     def to_json(self) -> dict[str, str]:
-        return {
-            "board_id": self.board_id,
-            "fw_version": self.fw_version,
-            "fw_hash": self.fw_hash,
-            "address": self.address,
-        }
+        return asdict(self)  # (its fields are its JSON keys, in order)
 
 
 def session_level(
