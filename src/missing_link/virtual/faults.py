@@ -32,9 +32,9 @@ from collections import deque
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
-from ..errors import BadURL, TransportBroken, TransportClosed
+from ..errors import TransportBroken, TransportClosed
 from ..transport import Transport, open_transport
-from ..transport.sockets import parse_host_port
+from .listen import listen_socket
 
 _TICK = 0.01
 
@@ -252,28 +252,12 @@ def _in_window(elapsed: float, f: Faults) -> bool:
 
 
 def _listen(url: str) -> socket.socket:
-    scheme = url.split("://", 1)[0]
-    if scheme == "tcp":
-        host, port = parse_host_port(url if urlsplit(url).port is not None else url + ":0")
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            sock.bind((host, port))
-        except OSError as e:
-            sock.close()
-            raise TransportBroken(f"cannot listen on {url}: {e.strerror}") from None
-        sock.listen(4)
-        return sock
-    if scheme == "unix":
-        path = urlsplit(url).path
-        if not path:
-            raise BadURL(f"{url!r}: expected unix:///path")
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            sock.bind(path)
-        except OSError as e:
-            sock.close()
-            raise TransportBroken(f"cannot listen on {url}: {e.strerror}") from None
-        sock.listen(4)
-        return sock
-    raise BadURL(f"relay listens on tcp://127.0.0.1:PORT or unix:///path, not {url!r}")
+    """The relay's listening socket (listen.py: tcp, with any free port when none is given, or
+    unix); TransportBroken when it cannot be bound."""
+    if url.startswith("tcp://") and urlsplit(url).port is None:
+        url += ":0"
+    try:
+        sock, _bound = listen_socket(url, 4)
+    except OSError as e:
+        raise TransportBroken(f"cannot listen on {url}: {e.strerror}") from None
+    return sock

@@ -15,7 +15,7 @@ from urllib.parse import urlsplit
 from ..errors import BadURL
 
 
-def listen_socket(url: str, backlog: int, others: str) -> tuple[socket.socket, str]:
+def listen_socket(url: str, backlog: int, *others: str) -> tuple[socket.socket, str]:
     """The listening socket and the URL a host opens; BadURL for a scheme other than tcp and
     unix (``others``: what else the caller takes, for the message), OSError when it cannot be
     bound (FileExistsError: the path is there and is no socket)."""
@@ -41,9 +41,8 @@ def listen_socket(url: str, backlog: int, others: str) -> tuple[socket.socket, s
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         where = path
     else:
-        raise BadURL(
-            f"cannot listen on {url!r}: use tcp://127.0.0.1:PORT, unix:///path or {others}"
-        )
+        kinds = ["tcp://127.0.0.1:PORT", "unix:///path", *others]
+        raise BadURL(f"cannot listen on {url!r}: use {', '.join(kinds[:-1])} or {kinds[-1]}")
     try:
         sock.bind(where)
         sock.listen(backlog)

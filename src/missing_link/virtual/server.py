@@ -208,7 +208,7 @@ class BoardServer:
             self._memory = MemoryListener(urlsplit(url).netloc)
             return self._memory.url
         # tcp or unix (BadURL for anything else, saying what is taken)
-        self._listener, bound = listen_socket(url, 1, "pty or memory://NAME")
+        self._listener, bound = listen_socket(url, 1, "pty", "memory://NAME")
         return bound
 
     # ---- the process loop ---------------------------------------------------------------------
