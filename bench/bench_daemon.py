@@ -110,7 +110,7 @@ def throughput(seconds: float) -> tuple[float, float]:
     session = BoardSession(ctx, BoardSpec("memory://bench"))
     topic = Topic.for_transducer("/b/dist_ir", "b", t, "missing_link_msgs")
     replace(session.path, "topics", {t.id: topic})  # (the session's own table, as at connect)
-    ctx.declare(topic)
+    ctx.faces.declare(topic)
     got = [0]
     daemon.subscribe("/b/dist_ir", lambda u: got.__setitem__(0, got[0] + 8), queue=0)
 

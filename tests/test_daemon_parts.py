@@ -36,7 +36,8 @@ Serve = Callable[..., Any]
 
 
 class PlainContext:
-    """A session's whole world, in lists and dicts."""
+    """A session's whole world, in lists and dicts: its claims and its faces (what a session
+    does not use here, it is not told of)."""
 
     def __init__(self, taken: dict[str, str] | None = None) -> None:
         self.published: list[Update] = []
@@ -46,7 +47,8 @@ class PlainContext:
         self.names: list[tuple[str, str]] = []
         self.taken = taken or {}  # board name -> URL of the board that holds it
 
-    def claim_name(
+    # ---- Claims ----
+    def name(
         self, owner: object, wanted: str, url: str, board_id: str | None = None
     ) -> tuple[str, str | None]:
         self.names.append((wanted, url))
@@ -54,11 +56,45 @@ class PlainContext:
             return f"{wanted}_2", f"board name {wanted!r} is taken by {self.taken[wanted]}"
         return wanted, None
 
-    def claim_type(self, board: str, t: Transducer) -> tuple[str, str | None]:
+    def type(self, board: str, t: Transducer) -> tuple[str, str | None]:
         return f"missing_link_msgs/msg/T{t.id}", None
+
+    def claim_id(self, owner: object, board_id: str, url: str) -> str | None:
+        return None
+
+    def release_id(self, owner: object) -> None:
+        pass
+
+    def id_conflict(self, owner: object) -> str | None:
+        return None
+
+    # ---- Faces ----
+    def declare(self, topic: Topic) -> None:
+        self.declared.append(topic)
+
+    def publish(self, update: Update) -> None:
+        self.published.append(update)
 
     def add_command(self, name: str, topic: Topic, handler: CommandHandler) -> None:
         self.commands[name] = handler
+
+    def remove_command(self, name: str) -> None:
+        self.removed.append(name)
+
+    def record_clock(self, topic: str, record: object) -> None:
+        pass
+
+    def offer_config(self, board: str, keys: list[Any], values: dict[str, Any]) -> None:
+        pass
+
+    def config_changed(self, board: str, values: dict[str, Any]) -> None:
+        pass
+
+    def describe_board(self, record: object) -> None:
+        pass
+
+    def log(self, line: object) -> None:
+        pass
 
     def build(self) -> SessionContext:
         return SessionContext(
@@ -66,13 +102,9 @@ class PlainContext:
             reactor=None,  # each board on a reader thread of its own
             typestore=typestore_for("jazzy"),
             realtime_offset_ns=0,
-            claim_name=self.claim_name,
-            claim_type=self.claim_type,
-            declare=self.declared.append,
-            publish=self.published.append,
-            add_command=self.add_command,
-            remove_command=self.removed.append,
             probe_gap=lambda: 0.05,
+            claims=self,
+            faces=self,
         )
 
 

@@ -21,8 +21,11 @@ from typing import Any, cast
 import pytest
 
 from missing_link.daemon import Daemon
+from missing_link.daemon.claims import Claims
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.daemon.control.allowlist import CommandGate
 from missing_link.daemon.control.endpoint import ask
+from missing_link.daemon.fanout import Fanout
 from missing_link.daemon.session.context import SessionContext
 from missing_link.daemon.session.liveness import LinkWatch
 from missing_link.daemon.session.session import BoardSession, LinkStale
@@ -30,6 +33,7 @@ from missing_link.daemon.session.status import SessionState
 from missing_link.descriptors import parse_transds
 from missing_link.host.board import Board
 from missing_link.host.link import CallResult
+from missing_link.publishers.bus import Bus
 from missing_link.ros.msgs import typestore_for
 from missing_link.testing import FakeClock
 from missing_link.virtual import make_sim
@@ -154,13 +158,9 @@ def mute_session(clock: FakeClock, timeout: float = 10.0) -> BoardSession:
         reactor=None,
         typestore=typestore_for("jazzy"),
         realtime_offset_ns=0,
-        claim_name=lambda owner, name, url, board_id: (name, None),
-        claim_type=lambda board, t: ("missing_link_msgs/msg/T", None),
-        declare=lambda topic: None,
-        publish=lambda update: None,
-        add_command=lambda name, topic, handler: None,
-        remove_command=lambda name: None,
         probe_gap=lambda: 0.05,
+        claims=Claims("missing_link_msgs"),  # (the daemon's own claims and a fan-out to no face)
+        faces=Fanout([], Bus(), CommandGate(["**"]), lambda *args, **face: {}),
         clock=clock,
     )
     # a call timeout of 10 s: a supervisor that waited for a call would wait that long

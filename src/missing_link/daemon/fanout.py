@@ -30,11 +30,20 @@ from .session.context import CommandHandler
 
 
 class Fanout:
-    def __init__(self, publishers: list[Publisher], bus: Bus, gate: CommandGate) -> None:
-        """``publishers``: the daemon's list (read at each call: it may still grow)."""
+    def __init__(
+        self,
+        publishers: list[Publisher],
+        bus: Bus,
+        gate: CommandGate,
+        configure: Callable[..., dict[str, Value]],
+    ) -> None:
+        """``publishers``: the daemon's list (read at each call: it may still grow);
+        ``configure(board, values, save, by=, commands=)``: a board's configuration changed by
+        a face, gated (``Daemon.configure``)."""
         self.publishers = publishers
         self.bus = bus
         self.gate = gate
+        self._configure = configure
         self.errors = 0  #: calls into a publisher that raised (each also in its ``faults``)
 
     def _failed(self, p: Publisher, where: str, e: Exception, what: str) -> None:
@@ -94,11 +103,13 @@ class Fanout:
         self.gate.check("bus", topic)
         self.bus.send(topic, value)
 
-    def offer_config(
-        self, board: str, keys: list[ConfigKey], values: dict[str, Value], apply: Any
-    ) -> None:
-        """``apply(values, by=, commands=)``: each face gets it as itself (its name, whether
-        it takes commands: the keys of an actuator are commands, daemon/session/run_config.py)."""
+    def remove_command(self, name: str) -> None:
+        self.bus.remove_command(name)
+
+    def offer_config(self, board: str, keys: list[ConfigKey], values: dict[str, Value]) -> None:
+        """Each face gets the board's ``configure`` as itself (its name, whether it takes
+        commands: the keys of an actuator are commands, daemon/session/run_config.py)."""
+        apply = functools.partial(self._configure, board)
         for p in self.publishers:
             try:
                 mine = functools.partial(apply, by=p.name, commands=bool(p.takes_commands))

@@ -5,8 +5,9 @@ Theory of operation
 The daemon owns the publishers and one :class:`~missing_link.daemon.session.session.BoardSession`
 per configured board; the session module says how a board is connected, validated, served and
 reconnected, and how its host times are made.  A session is handed a
-:class:`~missing_link.daemon.session.context.SessionContext` (``session_context()``: values and
-callables), never the daemon.  The daemon's own job is the fan-out and what sessions must agree
+:class:`~missing_link.daemon.session.context.SessionContext` (``session_context()``: a few
+values, the daemon's claims and its fan-out, each behind a narrow interface), never the
+daemon.  The daemon's own job is the fan-out and what sessions must agree
 on:
 
 * every ``Update`` a session makes goes to every publisher (``fanout.py``); a publisher that
@@ -33,7 +34,6 @@ another.
 
 from __future__ import annotations
 
-import functools
 import logging
 import threading
 from collections.abc import Iterable
@@ -123,7 +123,7 @@ class Daemon(BoardApi):
         self.realtime_offset_ns = clock.realtime_ns() - clock.monotonic_ns()
         self.typestore = typestore_for(config.distro)
         self.claims = Claims(config.package, {n: i for n, i in config.board_ids.items() if i})
-        self.fanout = Fanout(self.publishers, self.bus, self.commands)  # (fanout.py)
+        self.fanout = Fanout(self.publishers, self.bus, self.commands, self.configure)
         self.joints: Joints | None = None  #: the robot-level JointState ([joints]; joints.py)
         if config.joints is not None and config.joints.joints:
             self.joints = Joints(config.joints, config.remap, self.typestore, self.fanout.publish,
@@ -353,23 +353,9 @@ class Daemon(BoardApi):
             reactor=self.reactor,
             typestore=self.typestore,
             realtime_offset_ns=self.realtime_offset_ns,
-            claim_name=self.claims.name,
-            claim_type=self.claims.type,
-            declare=self.fanout.declare,
-            publish=self.fanout.publish,
-            add_command=self.fanout.add_command,
-            remove_command=self.bus.remove_command,
             probe_gap=lambda: self.probe_gap,
-            record_clock=self.fanout.record_clock,
-            offer_config=lambda b, keys, values, _c: self.fanout.offer_config(
-                b, keys, values, functools.partial(self.configure, b)
-            ),  # (each face changes them as itself: fanout.py)
-            config_changed=self.fanout.config_changed,
-            describe_board=self.fanout.describe_board,
-            claim_id=self.claims.claim_id,
-            release_id=self.claims.release_id,
-            id_conflict=self.claims.id_conflict,
-            log=self.fanout.log,
+            claims=self.claims,
+            faces=self.fanout,  # (each face changes a configuration as itself: fanout.py)
             clock=self.clock,
         )
 

@@ -4,7 +4,7 @@ configuration and claims below it, never the intake, control or service above it
 - :mod:`.session` - :class:`~.session.BoardSession`: connect, validate, serve, notice loss,
 reconnect
 - :mod:`.link` - how a session gets its board (by URL, or handed over into its ``Mailbox``)
-- :mod:`.context` - the values and callables a session is handed instead of the daemon
+- :mod:`.context` - what a session is handed instead of the daemon: values, its claims, its faces
 - :mod:`.status` - a session's state (an enum) and status (a dataclass, its JSON keys)
 - :mod:`.report` - what a session reports: its level and status, from its parts
 - :mod:`.board_topics` - a board's topics, message types and command topics at each handshake

@@ -86,13 +86,13 @@ def declare_topics(
             t = replace(t, options=per)
         type_name = None
         if opts.thesis:
-            type_name, clash = ctx.claim_type(board, t)
+            type_name, clash = ctx.claims.type(board, t)
             if clash:
                 warn(clash)
         topic = Topic.for_transducer(name, board, t, cfg.package, type_name)
         out.topics[t.id] = topic
         if opts.thesis:
-            ctx.declare(topic)
+            ctx.faces.declare(topic)
         else:
             out.quiet.add(t.id)
         frame = frames.holder(t.name, frame_of(t, board, opts))
@@ -106,7 +106,7 @@ def declare_topics(
                 f"{name}/{mapping.suffix}", board, t, mapping.type_name, ctx.typestore, frame
             )
             out.standard.setdefault(t.id, []).append((std, mapping))
-            ctx.declare(std)
+            ctx.faces.declare(std)
         if t.is_actuator:
             _commands(ctx, board, functions, t, name, handler, out, opts.thesis and topic)
             if opts.standard:
@@ -134,7 +134,7 @@ def _commands(
 
 def _offer(ctx: SessionContext, out: BoardTopics, name: str, topic: Topic, h: Any) -> None:
     out.commands.append(name)
-    ctx.add_command(name, topic, h)
+    ctx.faces.add_command(name, topic, h)
 
 
 def si_command(

@@ -50,7 +50,7 @@ class SessionReport:
 
     def _warnings_now(self) -> list[str]:
         """The warnings, and while it lasts, another connected board with this board's id."""
-        twice = self.ctx.id_conflict(self)
+        twice = self.ctx.claims.id_conflict(self)
         return [*self.warnings, twice] if twice else self.warnings
 
     def snapshot(self) -> SessionStatus:

@@ -228,15 +228,17 @@ class Follows:
         follow: Callable[[dict[str, Any]], bool],
         push_map: Callable[[], None],
         wake: Callable[[], None],
-        offer: Callable[[str, list[ConfigKey], dict[str, Value], Any], None],
+        offer: Callable[[str, list[ConfigKey], dict[str, Value]], None],
         changed: Callable[[str, dict[str, Value]], None],
     ) -> None:
         self._follow, self._push_map, self._wake = follow, push_map, wake
         self._offer, self._changed = offer, changed
 
     def on_keys(self, name: str, keys: list[Any], values: dict[str, Any], apply: Any) -> None:
+        """(``apply``: the configuration's own, unguarded: the faces change it through the
+        daemon instead, each as itself, where an actuator's keys are gated.)"""
         self._follow(values)
-        self._offer(name, keys, values, apply)
+        self._offer(name, keys, values)
 
     def on_change(self, name: str, values: dict[str, Any]) -> None:
         if self._follow(values):

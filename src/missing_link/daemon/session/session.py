@@ -124,7 +124,7 @@ class BoardSession(SessionReport):
         self.update_status: dict[str, Any] | None = None
         self._serving = False  # serve() runs: late answers may still say something
         # what happens to each sample (sample_path.py)
-        self.path = SamplePath(ctx.publish, ctx.realtime_offset_ns, ctx.log)
+        self.path = SamplePath(ctx.faces.publish, ctx.realtime_offset_ns, ctx.faces.log)
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
@@ -139,7 +139,7 @@ class BoardSession(SessionReport):
                 byte_ns=spec.byte_ns,
                 realtime_offset_ns=ctx.realtime_offset_ns,
                 probe_gap=ctx.probe_gap,
-                record_clock=ctx.record_clock,
+                record_clock=ctx.faces.record_clock,
                 on_error=self._probe_failed,
                 on_rtt=lambda us: setattr(self, "rtt_us", us),
                 wants_map=lambda: bool(self.path.grid),
@@ -155,8 +155,8 @@ class BoardSession(SessionReport):
         self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
         self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
         self.follows = Follows(  # (the grid, the map, the supervisor and the faces)
-            self.path.follow, self._push_map_now, self._wake.set, ctx.offer_config,
-            ctx.config_changed,
+            self.path.follow, self._push_map_now, self._wake.set, ctx.faces.offer_config,
+            ctx.faces.config_changed,
         )  # fmt: skip
         self.run_config = RunConfig(
             RunConfigContext(
@@ -288,11 +288,11 @@ class BoardSession(SessionReport):
         transducers = transducers_of(board.name, board.transducers, spec.descriptors or "")
         self.warnings = []
         self.identity = Identity.of(board.properties, board.url)
-        twice = self.ctx.claim_id(self, self.identity.board_id, spec.url)
+        twice = self.ctx.claims.claim_id(self, self.identity.board_id, spec.url)
         if twice:  # (shown while it lasts: level())
             log.warning("%s: %s", spec.url, twice)
         by_id = None if spec.name else self.identity.board_id  # (a configured name is its id's)
-        self.name, taken = self.ctx.claim_name(self, self._board_name(board), spec.url, by_id)
+        self.name, taken = self.ctx.claims.name(self, self._board_name(board), spec.url, by_id)
         if taken:
             self.warn(taken)
         no_clock = self.clock.start(
@@ -307,7 +307,7 @@ class BoardSession(SessionReport):
             self.ctx, self.name, board.index, transducers, self.actuators.handler, self.warn,
             declared, self.frames, lambda: self.run_config.values,
         )  # fmt: skip
-        self.ctx.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
+        self.ctx.faces.describe_board(BoardDescription.of(self.name, spec.url, board.functions,
             board.properties, transducers,
             [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
@@ -420,9 +420,9 @@ class BoardSession(SessionReport):
     def _disconnect(self) -> None:
         try:
             for name in self._command_topics:
-                self.ctx.remove_command(name)
+                self.ctx.faces.remove_command(name)
         finally:
-            self.ctx.release_id(self)
+            self.ctx.claims.release_id(self)
             board, self.board = self.board, None
             if board is not None:
                 if self.farewell.said(board):  # (stopping: bounded, the actuators safe first)
