@@ -40,6 +40,11 @@ APPLY = {
         (),
     ),
     "gps_nmea": ("", ()),
+    "mpu6050": (
+        "mpu6050_set(&mpu_{inst}, F(v[{rate_hz}]), (uint8_t)v[{accel_g}], (uint8_t)v[{gyro_dps}], "
+        "(uint8_t)v[{dlpf}]);",
+        (),
+    ),
     "battery": (
         "battery_set(F(v[{rate_hz}]), F(v[{ratio}]), (uint8_t)v[{cells}], "
         "(uint8_t)v[{chemistry}]);",
@@ -53,6 +58,7 @@ ALIGN = {
     "srf02": "srf02_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "hcsr04": "hcsr04_align((uint8_t)v[{aligned}], F(v[{phase}]));",
     "battery": "battery_align((uint8_t)v[{aligned}], F(v[{phase}]));",
+    "mpu6050": "mpu6050_align(&mpu_{inst}, (uint8_t)v[{aligned}], F(v[{phase}]));",
 }
 #: a combination a driver refuses (the Python driver's check_config, in C)
 CHECK = {

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..board.drivers import battery
+from ..board.drivers import battery, mpu6050
 from ..board.runtime import Transducer
 from ..errors import ConfigError
 from .avrpins import LINK_PINS, PCINT, FixedPins, pin_c, pin_interrupt
@@ -19,13 +19,15 @@ from .cgen import c_comment, c_ident, c_text
 
 #: the drivers of the C runtime, and how many of each a board may have
 AVR_DRIVERS = {"quadrature": 8, "sharp_gp2y0a02": 1, "srf02": 1, "servo": 1, "trigger": 1,
-               "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1, "battery": 1}  # fmt: skip
+               "hbridge": 2, "stepper": 1, "hcsr04": 1, "gps_nmea": 1, "battery": 1,
+               "mpu6050": 2}  # fmt: skip
 #: the C sources (firmware/avr/src/NAME.c) each driver's code is in: an image links those of
 #: the drivers its board file names, and no other (avrgen.sources)
 DRIVER_SOURCES = {"quadrature": ("quadrature",), "sharp_gp2y0a02": ("sharp",),
                   "srf02": ("srf02", "twi"), "servo": ("servo",), "trigger": ("trigger",),
                   "hbridge": ("hbridge",), "stepper": ("stepper",), "hcsr04": ("hcsr04",),
-                  "gps_nmea": ("gps_nmea",), "battery": ("battery",)}  # fmt: skip
+                  "gps_nmea": ("gps_nmea",), "battery": ("battery",),
+                  "mpu6050": ("mpu6050", "twi")}  # fmt: skip
 
 
 @dataclass
@@ -94,7 +96,9 @@ class Entry:
 
     @property
     def rate(self) -> float:
-        default = {"quadrature": 50, "sharp_gp2y0a02": 25, "battery": 1}.get(self.e["driver"], 10)
+        default = {"quadrature": 50, "sharp_gp2y0a02": 25, "battery": 1, "mpu6050": 100}.get(
+            self.e["driver"], 10
+        )
         return float(self.e.get("rate_hz", default))
 
     def pin(self, key: str) -> str:
@@ -321,6 +325,25 @@ def _hbridge(x: Entry) -> None:
     p.make_safe = f"motor_safe_{inst}"
 
 
+def _mpu6050(x: Entry) -> None:
+    """Two at most (AD0 low and high: 0x68, 0x69), on the TWI; the Python driver's ranges."""
+    e, m = x.e, f"mpu_{x.inst}"
+    accel, gyro, dlpf = e.get("accel_g", 2), e.get("gyro_dps", 250), e.get("dlpf", 3)
+    if accel not in mpu6050.ACCEL_RANGES or gyro not in mpu6050.GYRO_RANGES:
+        raise ConfigError(
+            f"{x.at}: accel_g in {mpu6050.ACCEL_RANGES}, gyro_dps in {mpu6050.GYRO_RANGES}"
+        )
+    if not (isinstance(dlpf, int) and 0 <= dlpf <= 6):
+        raise ConfigError(f"{x.at}: dlpf 0..6")
+    x.twi()
+    x.p.decls.append(f"static mpu6050_t {m};")
+    x.p.setup.append(
+        f"mpu6050_init(&{m}, {x.tref}, 0x{int(e.get('address', 0x68)):02x}, {int(x.rate)}, "
+        f"{mpu6050.ACCEL_RANGES.index(accel)}, {mpu6050.GYRO_RANGES.index(gyro)}, {dlpf});"
+    )
+    x.p.polls.append(f"if ({x.enabled}) mpu6050_poll(&{m}, now);")
+
+
 def _battery(x: Entry) -> None:
     """The Python driver's checks and curves (board/drivers/battery.py: its single source); the
     ADC's reference is AVcc, 5 V on every AVR board here unless the entry's vref says else."""
@@ -364,4 +387,5 @@ def _battery(x: Entry) -> None:
 #: the driver's part maker, by the board file's driver name
 MAKERS = {"quadrature": _quadrature, "sharp_gp2y0a02": _sharp, "srf02": _srf02,
           "trigger": _trigger, "servo": _servo, "hbridge": _hbridge, "stepper": _stepper,
-          "hcsr04": _hcsr04, "gps_nmea": _gps, "battery": _battery}  # fmt: skip
+          "hcsr04": _hcsr04, "gps_nmea": _gps, "battery": _battery,
+          "mpu6050": _mpu6050}  # fmt: skip

@@ -173,10 +173,9 @@ def _isrs(isrs: list[tuple[str, str]]) -> list[str]:
 
 #: the C runtime's headers (firmware/avr/src)
 HEADERS = ("<avr/interrupt.h>", "<avr/pgmspace.h>", "<string.h>", '"battery.h"', '"builtins.h"',
-           '"config.h"',
-           '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"', '"hcsr04.h"',
-           '"identity.h"', '"log.h"', '"memory.h"', '"quadrature.h"', '"runtime.h"', '"stepper.h"',
-           '"timing.h"')  # fmt: skip
+           '"config.h"', '"drivers.h"', '"failsafe.h"', '"gps_nmea.h"', '"hbridge.h"',
+           '"hcsr04.h"', '"identity.h"', '"log.h"', '"memory.h"', '"mpu6050.h"',
+           '"quadrature.h"', '"runtime.h"', '"stepper.h"', '"timing.h"')  # fmt: skip
 
 
 def _head(bf: BoardFile) -> list[str]:

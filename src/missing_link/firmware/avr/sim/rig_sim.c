@@ -2,7 +2,7 @@
  * a pseudo-terminal (simavr's uart_pty part), and the parts are modelled at the pins and buses,
  * each in a file of its own:
  *   analog.c   a Sharp GP2Y0A02YK's voltage on an ADC input, any voltage on another (a battery)
- *   twi_bus.c  the TWI bus, and on it srf02.c (an SRF02 sonar)
+ *   twi_bus.c  the TWI bus, and on it srf02.c (an SRF02 sonar) and mpu6050.c (an IMU)
  *   encoder.c  quadrature encoders (edges on their phases' pins)
  *   probes.c   what the rig measures: the servo's frame and pulse (OC1A), the trigger's edges
  *              (OC2A), ADC0's conversions, the lowest stack pointer, the board's clock
@@ -16,6 +16,7 @@
  *   quadrature PIN_A PIN_B   an encoder (pins as port and bit: D2, PK0)
  *   sharp CH                 a Sharp on ADC channel CH
  *   srf02 ADDR               an SRF02 at 7-bit address ADDR (0x70) on the TWI
+ *   mpu6050 ADDR             an MPU-6050 at ADDR (0x68) on the TWI
  * Without any, the thesis rig: a Sharp on ADC0, an SRF02 at 0x70 and an encoder on INT0/INT1.
  * --rover (with --mcu atmega2560): the rover's parts too (rover.c: motors, a stepper, an
  * HC-SR04 and a GPS at examples/boards/rover-mega.py's pins).
@@ -50,6 +51,7 @@
 #include "analog.h"
 #include "eeprom.h"
 #include "encoder.h"
+#include "mpu6050.h"
 #include "probes.h"
 #include "rover.h"
 #include "srf02.h"
@@ -199,6 +201,8 @@ static int add_part(const char *spec) {
         return encoder_add(pa, ba, pb, bb) >= 0;
     if (n == 2 && !strcmp(kind, "sharp") && sscanf(a, "%u", &v) == 1 && v < 16) sharp_add((int)v);
     else if (n == 2 && !strcmp(kind, "srf02") && sscanf(a, "%x", &v) == 1 && v < 128) srf02_add((uint8_t)v);
+    else if (n == 2 && !strcmp(kind, "mpu6050") && sscanf(a, "%x", &v) == 1 && v < 128)
+        mpu6050_add((uint8_t)v);
     else return 0;
     return 1;
 }
@@ -224,6 +228,7 @@ static int wire(const char *mcu, int rover, const char **specs, int n_specs) {
     parts[n_parts++] = analog_command;
     parts[n_parts++] = srf02_command;
     parts[n_parts++] = encoder_command;
+    parts[n_parts++] = mpu6050_command;
     if (rover) {
         rover_init(avr, board_us_at);
         parts[n_parts++] = rover_command;

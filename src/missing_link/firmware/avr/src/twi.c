@@ -21,9 +21,10 @@ static uint8_t twi_cmd(uint8_t cr) {
     return twi_wait() ? TW_STATUS : 0xFF;
 }
 
-/* A step whose status must differ from the one before it (an address after a start; the
- * bytes of a read of at most 2: 0x40 -> 0x50 -> 0x58).  On a real TWI the new status is there
- * when TWINT is; simavr 1.6 can show TWINT a moment before it, so wait for both. */
+/* A step whose status must differ from the one before it (an address after a start; a read's
+ * first byte and its last: 0x40 -> 0x50 ... 0x50 -> 0x58).  On a real TWI the new status is
+ * there when TWINT is; simavr 1.6 can show TWINT a moment before it, so wait for both.  The
+ * bytes between (0x50 after 0x50) wait for TWINT alone: their status does not change. */
 static uint8_t twi_cmd_change(uint8_t cr) {
     uint8_t prev = TW_STATUS;
     TWCR = (uint8_t)(cr | _BV(TWINT) | _BV(TWEN));
@@ -65,8 +66,8 @@ uint8_t twi_transfer(uint8_t addr, uint8_t reg, const uint8_t *w, uint8_t wn, ui
         }
         if (st != TW_MR_SLA_ACK) goto bus;
         for (uint8_t i = 0; i < rn; i++) {
-            uint8_t last = i + 1 == rn;
-            st = twi_cmd_change(last ? 0 : _BV(TWEA));
+            uint8_t last = i + 1 == rn, cr = last ? 0 : _BV(TWEA);
+            st = i == 0 || last ? twi_cmd_change(cr) : twi_cmd(cr);
             if (st != TW_MR_DATA_NACK && st != TW_MR_DATA_ACK) goto bus; /* a byte came */
             r[i] = TWDR;
         }
