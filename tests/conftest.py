@@ -1,19 +1,18 @@
 from __future__ import annotations
 
 import itertools
-import shutil
-import subprocess
-import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from missing_link.board.runtime import BoardRuntime
-from missing_link.deploy.avr import AVR_DIR as AVR
+from missing_link.testing import RuntimeBoard, build_avr
 from missing_link.virtual import BoardServer, make_sim, start_board_thread
 
 from .helpers import AvrRig, AvrSim, j2a_threads
+
+pytest_plugins = ["missing_link.testing.pytest_plugin"]
 
 ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
@@ -48,42 +47,42 @@ def no_leftover_threads() -> Iterator[None]:
     assert not left, f"reader threads left running: {left}"
 
 
-@pytest.fixture(scope="session")
-def avr_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The AVR firmware of the thesis rig (Uno) and of the rover (Mega), the golden-vector
-    board and rig_sim, built once per session (tests/test_avr*.py)."""
-    for tool in ("avr-gcc", "cc"):
-        if shutil.which(tool) is None:
-            pytest.fail(f"{tool} is required: run scripts/system-deps.sh")
-    if not Path("/usr/include/simavr/sim_avr.h").exists():
-        pytest.fail("libsimavr-dev is required: run scripts/system-deps.sh")
-    out = tmp_path_factory.mktemp("avr")
-    r = subprocess.run(
-        [
-            "make",
-            "-C",
-            str(AVR),
-            f"BOARD={UNO}",
-            f"BUILD={out}",
-            f"PYTHON={sys.executable}",
-            "all",
-            "sim",
-            "golden",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert "atmega328p: flash" in r.stdout  # the size line, budgets checked by make
-    r = subprocess.run(  # the rover's parts on a Mega (tests/test_avr_rover.py)
-        ["make", "-C", str(AVR), f"BOARD={ROVER_MEGA}", f"BUILD={out}", f"PYTHON={sys.executable}"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stdout + r.stderr
+def _avr_build(shared_tmp: Path) -> Path:
+    out = build_avr(shared_tmp, [(UNO, ["all", "sim", "golden"]), (ROVER_MEGA, ["all"])])
+    assert "atmega328p: flash" in (out / "build.log").read_text()  # the size line, checked
     return out
+
+
+@pytest.fixture(scope="session")
+def avr_build(shared_tmp: Path) -> Path:
+    """The AVR firmware of the thesis rig (Uno) and of the rover (Mega), the golden-vector
+    board and rig_sim, built once per run (every pytest-xdist worker's: missing_link.testing's
+    build_avr)."""
+    return _avr_build(shared_tmp)
+
+
+@pytest.fixture(scope="session")
+def avr_firmware(shared_tmp: Path) -> Callable[[Path], tuple[Path, Path]]:
+    """The plugin's (missing_link.testing.pytest_plugin), the thesis rig's from avr_build;
+    built when a test first asks (not for the CPython runs of a test on every runtime)."""
+
+    def find(board_file: Path) -> tuple[Path, Path]:
+        if Path(board_file).resolve() == UNO.resolve():  # (examples/ is the package's)
+            build = _avr_build(shared_tmp)
+            return build, build / "uno_rig" / "firmware.elf"
+        out = build_avr(shared_tmp, [(board_file, ["all", "sim"])])
+        (elf,) = out.glob("*/firmware.elf")
+        return out, elf
+
+    return find
+
+
+@pytest.fixture
+def thesis(start_board: Callable[..., RuntimeBoard]) -> RuntimeBoard:
+    """The thesis rig on every runtime (board_runtime): the ``thesis`` sim on CPython, on a
+    board clock the test turns; examples/boards/thesis-rig.py under MicroPython; its Uno
+    (thesis-rig-uno.py) in simavr."""
+    return start_board(seed=3)
 
 
 @pytest.fixture
@@ -112,6 +111,5 @@ def avr_rig(avr_build: Path) -> Iterator[AvrRig]:
 
 @pytest.fixture
 def uno_rig(avr_rig: AvrRig) -> AvrSim:
-    """The thesis rig's Uno (examples/boards/thesis-rig-uno.py) in simavr, closed after the
-    test."""
+    """The thesis rig's Uno in simavr (uno_rig), closed after the test."""
     return avr_rig("uno_rig")

@@ -116,9 +116,12 @@ def test_the_function_walk_counts_what_it_should() -> None:
 
 #: what starts another process or a real component, by the name a test uses for it (helpers.py,
 #: conftest.py), and subprocess's verbs
+#: (the runtime fixture, board_runtime and what uses it: start_board, thesis, marks its own
+#: MicroPython and AVR params slow; its CPython one runs in this process)
 STARTS_PROCESSES = {
     *("board_process", "start_board_process", "ml", "ML", "FirmwareSim", "HexLinePipe"),
-    *("AvrSim", "avr_rig", "avr_build", "SerialBoard", "sync_playwright", "ROS2_PY"),
+    *("AvrSim", "avr_rig", "avr_build", "uno_rig", "SerialBoard", "sync_playwright", "ROS2_PY"),
+    *("MicroPythonSim", "ProcessBoard"),
 }
 
 SUBPROCESS = {"run", "Popen", "check_output", "check_call", "call"}
