@@ -26,7 +26,7 @@ from typing import Protocol
 __all__ = ["SYSTEM_CLOCK", "Clock", "SystemClock"]
 
 
-def _never() -> None:
+def never() -> None:
     """What ``watch`` returns when there is nothing to stop."""
 
 
@@ -72,7 +72,7 @@ class SystemClock:
     realtime_ns = staticmethod(time.time_ns)
 
     def watch(self, wake: Callable[[], None]) -> Callable[[], None]:
-        return _never  # time only passes: a sleeper's own timeout is enough
+        return never  # time only passes: a sleeper's own timeout is enough
 
     def wait(self, event: threading.Event, timeout: float) -> bool:
         return event.wait(timeout)

@@ -55,7 +55,7 @@ from ..j2a import (
 )
 from ..logs import ErrorCounts
 from ..transport import FdTransport, Transport
-from .clock import SYSTEM_CLOCK, Clock
+from .clock import SYSTEM_CLOCK, Clock, never
 from .reactor import Reactor
 from .results import Asked, CallResult, LinkStats, settle
 from .sif_handlers import SifHandler, SifHandlers, named
@@ -69,10 +69,6 @@ DEFAULT_TIMEOUT = 1.0
 _TICK = 0.02  # longest the reader sleeps before looking at timers again ...
 _IDLE = 1.0  # ... when none is pending and close() wakes the transport's read
 ProgressFn = Callable[[int, "int | None"], None]
-
-
-def _nothing() -> None:
-    """(nothing to stop)"""
 
 
 class BoardLink:
@@ -137,7 +133,7 @@ class BoardLink:
         self._reactor = reactor if on_loop else None
         self._thread: threading.Thread | None = None
         # (a fake clock moved: the reader looks at its timers again; a loop watches for itself)
-        self._unwatch = clock.watch(transport.poke) if self._reactor is None else _nothing
+        self._unwatch = clock.watch(transport.poke) if self._reactor is None else never
         if self._reactor is not None:
             assert isinstance(transport, FdTransport)
             self._reactor.add(self, transport)
@@ -380,10 +376,18 @@ class BoardLink:
     def _dispatch(self, events: list[Any], now: float, now_ns: int, head_ns: int = 0) -> None:
         """``head_ns``: when the first of the read's bytes had arrived (a reply that headed the
         read, ``CallCompleted.lead``, arrived then)."""
-        deliver = self.sifs.deliver
+        sifs = self.sifs
+        by_cmd, every = sifs.by_cmd, sifs.every
         for ev in events:
             if type(ev) is SifReceived:  # the sample path: handlers called inline
-                deliver(ev, now)
+                by = by_cmd.get(ev.cmd)
+                if by is None and not every:
+                    sifs.unheard += 1
+                for h in every if by is None else (*by, *every):
+                    try:
+                        h(ev, now)
+                    except Exception as e:  # noqa: BLE001 - a handler's bug must not end the reading
+                        sifs.failed(h, e)
             elif isinstance(ev, TransferProgress):
                 entry = self._futures.get(ev.op)
                 if entry and entry[2]:

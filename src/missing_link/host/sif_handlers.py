@@ -35,12 +35,7 @@ class SifHandlers:
         else:
             self.by_cmd.setdefault(cmd, []).append(handler)
 
-    def deliver(self, ev: SifReceived, now: float) -> None:
-        by, every = self.by_cmd.get(ev.cmd), self.every
-        if by is None and not every:
-            self.unheard += 1
-        for h in every if by is None else (*by, *every):
-            try:
-                h(ev, now)
-            except Exception as e:  # noqa: BLE001 - a handler's bug must not end the reading
-                self._caught("SIF handler", e, f"SIF handler {named(h)}")
+    def failed(self, handler: SifHandler, e: BaseException) -> None:
+        """``handler`` raised: counted by kind, said once (the link delivers SIFs inline, on
+        the sample path: host/link.py's ``_dispatch``)."""
+        self._caught("SIF handler", e, f"SIF handler {named(handler)}")
