@@ -1,6 +1,7 @@
 # A small rover on one Raspberry Pi Pico (RP2040) running MicroPython: a GPS with its PPS, a
-# compass, two DC motors through a TB6612/DRV8833-style bridge (IN1/IN2 each) with their wheel
-# encoders, an HC-SR04 and a VL53L0X looking ahead, and a stepper turning a sensor mast.
+# compass, an MPU-6050 IMU, two DC motors through a TB6612/DRV8833-style bridge (IN1/IN2 each)
+# with their wheel encoders, an HC-SR04 and a VL53L0X looking ahead, and a stepper turning a
+# sensor mast.
 # Flash it with:  missing-link flash examples/boards/rover.py --port /dev/ttyACM0
 # Wiring: docs/hardware.md (a table per driver).  The motors and the stepper stop when the host
 # has been silent for `failsafe_ms` (the motors brake; the stepper stops and lets go).
@@ -31,5 +32,6 @@ BOARD = {
         {"name": "mast", "id": 8, "driver": "stepper", "step_pin": 20, "dir_pin": 21,
          "enable_pin": 22, "steps_per_rev": 200, "microsteps": 8, "max_speed": 1.0,
          "accel": 2.0, "call": "a2j_mast"},
+        {"name": "imu", "id": 9, "driver": "mpu6050", "bus": "i2c0", "rate_hz": 50},
     ],
 }
