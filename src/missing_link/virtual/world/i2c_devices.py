@@ -1,6 +1,11 @@
 """The simulated devices on an I2C bus (devices.py says how the models are made): the SRF02
 ranger, the MPU-6050 IMU, the HMC5883L and QMC5883L compasses, the VL53L0X time-of-flight ranger,
 each at WORLD.i2c[(bus, address)].  The MicroPython subset only.
+
+What the world (worldfeed.py) sets is kept in small integers at each part's finest step (mm,
+the MPU-6050's LSB at +-2 g and +-250 deg/s, the QMC5883L's 1/12000 gauss), so it is set and
+read into registers without a float: under MicroPython nothing of it in the board's heap.  The
+attributes in SI-like units (distance_cm, accel_g, field_gauss ...) are properties over them.
 """
 
 from .machine import WORLD, ticks_add, ticks_diff, ticks_us
@@ -19,7 +24,7 @@ class SRF02:
     def __init__(self, bus, address=0x70):
         self.bus = bus
         self.address = address
-        self.distance_cm = 100.0
+        self.distance_mm = 1000
         self.echo = True  # False: nothing in range (range reads 0)
         self._busy_until = None
         self._range = 0
@@ -43,8 +48,13 @@ class SRF02:
         if cmd in (0x50, 0x51, 0x52):
             self._seq = []
             self.rangings += 1
-            cm = self.distance_cm if self.echo else 0
-            self._range = {0x50: int(cm / 2.54), 0x51: int(cm), 0x52: int(cm * 58.3)}[cmd]
+            mm = self.distance_mm if self.echo else 0
+            if cmd == 0x50:  # inches
+                self._range = mm * 10 // 254
+            elif cmd == 0x51:
+                self._range = mm // 10
+            else:  # µs of the round trip, 58.3 a cm
+                self._range = mm * 583 // 100
             self._busy_until = ticks_add(_now_us(), self.BUSY_US)
             return
         self._seq.append(cmd)
@@ -57,6 +67,14 @@ class SRF02:
             self._seq = []
         elif self._seq != [0xA0, 0xAA, 0xA5][: len(self._seq)]:
             self._seq = []
+
+    @property
+    def distance_cm(self):
+        return self.distance_mm / 10
+
+    @distance_cm.setter
+    def distance_cm(self, cm):
+        self.distance_mm = int(round(cm * 10))
 
     def read(self, reg, n):
         regs = [
@@ -78,8 +96,8 @@ class MPU6050:
         self.regs = bytearray(128)
         self.regs[0x6B] = 0x40
         self.regs[0x75] = 0x68
-        self.accel_g = (0.0, 0.0, 1.0)
-        self.gyro_dps = (0.0, 0.0, 0.0)
+        self.accel = [0, 0, 16384]  # LSB at +-2 g (1/16384 g)
+        self.gyro = [0, 0, 0]  # LSB at +-250 deg/s (1/131 deg/s)
         self.temp_c = 25.0
         WORLD.i2c[(bus, address)] = self
 
@@ -95,8 +113,8 @@ class MPU6050:
             return bytes(14)
         afs = (self.regs[0x1C] >> 3) & 3
         fs = (self.regs[0x1B] >> 3) & 3
-        a = [int(round(g * (16384 >> afs))) for g in self.accel_g]
-        w = [int(round(d * 131.0 / (1 << fs))) for d in self.gyro_dps]
+        a = [(v + ((1 << afs) >> 1)) >> afs for v in self.accel]  # (rounded)
+        w = [(v + ((1 << fs) >> 1)) >> fs for v in self.gyro]
         t = int(round((self.temp_c - 36.53) * 340))
         vals = a + [t] + w
         out = bytearray()
@@ -111,6 +129,24 @@ class MPU6050:
             return self._sample()[:n]
         return self.regs[reg : reg + n]
 
+    @property
+    def accel_g(self):
+        return tuple(v / 16384 for v in self.accel)
+
+    @accel_g.setter
+    def accel_g(self, g):
+        for i in range(3):
+            self.accel[i] = int(round(g[i] * 16384))
+
+    @property
+    def gyro_dps(self):
+        return tuple(v / 131 for v in self.gyro)
+
+    @gyro_dps.setter
+    def gyro_dps(self, dps):
+        for i in range(3):
+            self.gyro[i] = int(round(dps[i] * 131))
+
 
 def _bytes_i16(values, big):
     out = bytearray()
@@ -120,7 +156,22 @@ def _bytes_i16(values, big):
     return out
 
 
-class HMC5883L:
+class _Field:
+    # a magnetometer's field, kept in 1/12000 gauss (the QMC5883L's finest LSB)
+    def _init_field(self):
+        self.field = [2400, -1200, 4800]  # 0.2, -0.1, 0.4 gauss
+
+    @property
+    def field_gauss(self):
+        return tuple(v / 12000 for v in self.field)
+
+    @field_gauss.setter
+    def field_gauss(self, gauss):
+        for i in range(3):
+            self.field[i] = int(round(gauss[i] * 12000))
+
+
+class HMC5883L(_Field):
     # Honeywell HMC5883L (datasheet rev E): identification "H43" at 10-12; configuration B bits
     # 7-5 the gain (1370 ... 230 LSB/gauss); data X Z Y, big-endian, at 3-8, from a 12-bit
     # converter (-2048..2047): beyond it an axis reads -4096.  A new gain shows from the
@@ -132,7 +183,7 @@ class HMC5883L:
         self.regs = bytearray(13)
         self.regs[0], self.regs[1], self.regs[2] = 0x10, 0x20, 0x01  # power-up: idle
         self.regs[10:13] = b"H43"
-        self.field_gauss = (0.2, -0.1, 0.4)  # x y z
+        self._init_field()  # x y z
         self._gain = 1  # the gain the next reading is made with
         self._data = bytearray(6)
         WORLD.i2c[(bus, address)] = self
@@ -149,7 +200,7 @@ class HMC5883L:
         reg = 0 if reg is None else reg
         if reg <= 3 < reg + n and self.regs[2] & 3 == 0:
             lsb = self.GAINS[self._gain]
-            x, y, z = (round(g * lsb) for g in self.field_gauss)
+            x, y, z = ((v * lsb + 6000) // 12000 for v in self.field)
             raw = [v if -2048 <= v <= 2047 else -4096 for v in (x, z, y)]
             self._data = _bytes_i16(raw, True)
             self._gain = self.regs[1] >> 5
@@ -157,7 +208,7 @@ class HMC5883L:
         return regs[reg : reg + n]
 
 
-class QMC5883L:
+class QMC5883L(_Field):
     # QST QMC5883L (datasheet 1.0): data X Y Z, little-endian, at 0-5; status (6) bit 0 data
     # ready, bit 1 overflow (a raw value beyond the 16 bits); control 1 (9): mode bits 1-0 (01
     # continuous; 00 standby: the data do not change), rate bits 3-2, range bits 5-4 (2 G: 12000
@@ -168,7 +219,7 @@ class QMC5883L:
     def __init__(self, bus, address=0x0D):
         self.regs = bytearray(14)
         self.regs[0x0D] = 0xFF
-        self.field_gauss = (0.2, -0.1, 0.4)
+        self._init_field()
         self.resets = 0
         WORLD.i2c[(bus, address)] = self
 
@@ -188,7 +239,7 @@ class QMC5883L:
         reg = 0 if reg is None else reg
         if reg <= 6 and self.regs[9] & 3 == 1:
             lsb = self.LSB[(self.regs[9] >> 4) & 1]
-            raw = [round(g * lsb) for g in self.field_gauss]
+            raw = self.field if lsb == 12000 else [(v + 2) >> 2 for v in self.field]
             over = any(v < -32768 or v > 32767 for v in raw)
             self.regs[0:6] = _bytes_i16(raw, False)
             self.regs[6] = 0x01 | (0x02 if over else 0)
@@ -282,3 +333,4 @@ class VL53L0X:
         if reg == 0x00 and not self._paged() and self._ready_at is not None:  # ranging under way
             return bytes((0x01,)) + bytes(memoryview(self.regs)[reg + 1 : reg + n])
         return bytes(memoryview(self.regs)[reg : reg + n])
+

@@ -65,6 +65,7 @@ class World:
     def __init__(self):
         self.pins = {}
         self.volts = {}  # pin -> volts at the ADC
+        self.adc_q = {}  # pin -> 1/16 mV at the ADC, in integers (the world's: a battery)
         self.sharp = {}  # pin -> distance in mm seen by a GP2Y0A02YK on that ADC pin
         self.pwms = {}  # pin -> PWM
         self.i2c = {}  # (bus, 7-bit address) -> device model
@@ -76,6 +77,7 @@ class World:
         self.uart_sources = {}  # UART id -> device producing its bytes (.produce(now_us))
         self.pulses = {}  # pin -> device answering time_pulse_us on it (.pulse(level, timeout))
         self.devices = {}  # transducer name -> its device model (devices.py), for tests
+        self.names = []  # the board file's transducer names, in its order (parts.py)
         self.floating = {}  # ADC pin -> (volts, noise state) of an input left open
         self.unique_id = UNIQUE_ID  # what machine.unique_id() says (the board's serial)
         # entries kept in adc_log and each edges list: the simulator's own memory and garbage,
@@ -102,15 +104,16 @@ class World:
 
     # ---- encoder phases: Gray code A/B, one edge per step ----
     def encoder_steps(self, pin_a, pin_b, steps):
-        seq = ((0, 0), (1, 0), (1, 1), (0, 1))  # A leads B: forward
+        # (A, B) go (0, 0) (1, 0) (1, 1) (0, 1): A leads B forward; integers only (the world
+        # turns wheels from between the firmware's steps: nothing of it in the board's heap)
+        d = 1 if steps > 0 else -1
         for _ in range(abs(steps)):
             a, b = self.pin(pin_a).level, self.pin(pin_b).level
-            i = seq.index((a, b))
-            na, nb = seq[(i + (1 if steps > 0 else -1)) % 4]
-            if na != a:
-                self.set_level(pin_a, na)
+            n = (((b << 1) | (a ^ b)) + d) & 3
+            if ((n >> 1) ^ n) & 1 != a:
+                self.set_level(pin_a, ((n >> 1) ^ n) & 1)
             else:
-                self.set_level(pin_b, nb)
+                self.set_level(pin_b, n >> 1)
 
     def encoder_glitch(self, pin_a, pin_b):
         # both phases change between two interrupts: an edge the firmware cannot have seen
@@ -251,8 +254,12 @@ class ADC:
             WORLD.adc_log.append(ticks_us())
             if len(WORLD.adc_log) > WORLD.log_cap:
                 WORLD.adc_log.pop(0)
-        v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
-        code12 = int(v / VREF * 4095 + 0.5)
+        q = WORLD.adc_q.get(self.id)
+        if q is not None and self.id not in WORLD.floating:  # (integers: no float made)
+            code12 = max(0, min(4095, (q * 4095 + 26400) // 52800))  # (3300 mV x 16)
+        else:
+            v = max(0.0, min(VREF, WORLD.adc_volts(self.id)))
+            code12 = int(v / VREF * 4095 + 0.5)
         return (code12 << 4) | (code12 >> 8)  # as rp2 scales 12 to 16 bit
 
 
@@ -307,7 +314,8 @@ class I2C:
 
     def _dev(self, addr):
         dev = WORLD.i2c.get((self.id, addr))
-        if dev is None or not dev.ack():
+        # (off: a part the world made fail, worldfeed.py)
+        if dev is None or getattr(dev, "off", False) or not dev.ack():
             raise OSError(EIO)
         return dev
 
@@ -355,7 +363,7 @@ class UART:
 
     def _produce(self):
         src = WORLD.uart_sources.get(self.id)
-        if src is not None:
+        if src is not None and not getattr(src, "off", False):
             src.produce(ticks_us())
 
     def any(self):
@@ -379,7 +387,7 @@ class UART:
 def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     # -2: no pulse started within the timeout, -1: it did not end within it (MicroPython's)
     dev = WORLD.pulses.get(pin.id)
-    if dev is None:  # nothing drives the pin: the wait runs out, as on a board
+    if dev is None or getattr(dev, "off", False):  # nothing drives the pin: the wait runs out
         sleep_us(timeout_us)
         return -1 if WORLD.pin(pin.id).level == pulse_level else -2
     return dev.pulse(pulse_level, timeout_us)

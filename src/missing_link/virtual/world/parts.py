@@ -48,6 +48,7 @@ def _device(t, buses):
 def populate(board, absent=()):
     # WORLD.devices by transducer name (I2C parts also at WORLD.i2c[(bus, address)])
     buses = board.get("buses", {})
+    WORLD.names = [t["name"] for t in board["transducers"]]  # (worldfeed.attach's by number)
     for t in board["transducers"]:
         drv = t["driver"]
         if t["name"] in absent:

@@ -99,15 +99,50 @@ class Motor:
         return a - b, "shoot-through"
 
 
+def _duty_e4(pin):
+    # a PWM output's duty in 1/10000, in integers (0 when it is not a PWM output)
+    p = WORLD.pwms.get(pin)
+    if p is None or not p._freq:
+        return 0
+    return min(10000, p._duty_ns // max(1, 1000000000 // p._freq // 10000))
+
+
+def motor_code(m):
+    # Motor.state() in one small integer, for the world (worldfeed.py): mode x 100000 + 50000 +
+    # duty in 1/10000 (modes: 0 coast, 1 drive, 2 brake, 3 shoot-through); no float made
+    if m.in1 is None:
+        d = _duty_e4(m.pwm_pin)
+        if d == 0:
+            return 50000
+        return 150000 + (-d if WORLD.pin(m.dir_pin).level else d)
+    a, b = _duty_e4(m.in1), _duty_e4(m.in2)
+    if a >= 9990 and b >= 9990:
+        return 250000
+    if a == 0 and b == 0:
+        return 50000
+    if b == 0 or a == 0:
+        return 150000 + a - b
+    return 350000 + a - b
+
+
 class BatteryPack:
     # A battery pack behind a resistor divider (pack + -> r_top -> pin -> r_bottom -> ground):
     # the ADC pin sees volts * r_bottom / (r_top + r_bottom).  The pack's voltage is what a test
-    # sets (set_volts); discharge, sag under load and the divider's tolerance are not modelled.
+    # (set_volts) or the world (set_mv, in integers: worldfeed.py) sets; its discharge and sag
+    # are the world's (missing_link/world), the divider's tolerance is not modelled.
     def __init__(self, pin, r_top=10000.0, r_bottom=3300.0, volts=7.4):
         self.pin = pin
         self.divider = r_bottom / (r_top + r_bottom)
+        self._k = int(round(self.divider * 16384))  # (the divider in 1/16384)
         self.set_volts(volts)
 
     def set_volts(self, volts):
-        self.volts = volts
-        WORLD.volts[self.pin] = volts * self.divider
+        self.set_mv(int(round(volts * 1000)))
+
+    def set_mv(self, mv):
+        self.mv = mv
+        WORLD.adc_q[self.pin] = (mv * self._k) >> 10  # the pin in 1/16 mV
+
+    @property
+    def volts(self):
+        return self.mv / 1000

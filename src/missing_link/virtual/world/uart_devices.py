@@ -32,6 +32,20 @@ def civil_date(days):
     return yoe + era * 400 + (1 if m <= 2 else 0), m, d
 
 
+def _split(deg):
+    # degrees -> (whole degrees, 1e-7 degree), both of the sign of deg
+    e7 = int(round(deg * 10000000))
+    whole = int(e7 / 10000000)
+    return whole, e7 - whole * 10000000
+
+
+def _tenths(v, width):
+    # an integer of tenths as NMEA writes it: "%0{width}.1f" (width 0: as short as it goes)
+    sign, v = ("-" if v < 0 else ""), abs(v)
+    text = "%d.%d" % (v // 10, v % 10)
+    return sign + "0" * (width - len(text) - len(sign)) + text
+
+
 NMEA_EXAMPLE_UTC = 764426119  # 1994-03-23 12:35:19 UTC (NMEA's own example), s since 1970
 
 
@@ -49,9 +63,12 @@ class GpsReceiver:
         self.uart = uart
         self.pps_pin = pps_pin
         self.baud = baud
-        self.lat, self.lon, self.alt = 48.1173, 11.516667, 545.4
-        self.quality, self.sats, self.hdop = 1, 8, 0.9
-        self.speed_kn, self.course = 22.4, 84.4
+        # (in small integers, as the world sets them: worldfeed.py; lat, lon ... are properties)
+        self.lat_deg, self.lat_e7 = 48, 1173000  # whole degrees and 1e-7, of one sign
+        self.lon_deg, self.lon_e7 = 11, 5166670
+        self.alt_dm, self.hdop_d = 5454, 9  # 0.1 m, 0.1
+        self.quality, self.sats = 1, 8
+        self.speed_dkn, self.course_dd = 224, 844  # 0.1 knot, 0.1 degree
         self.bad_every = 0
         self.sent = 0
         self.utc0 = NMEA_EXAMPLE_UTC
@@ -64,26 +81,79 @@ class GpsReceiver:
         self._fed = 0
         WORLD.uart_sources[uart] = self
 
-    def _coord(self, deg, width):
-        d = int(abs(deg))
-        minutes = (abs(deg) - d) * 60
-        return ("%02d" if width == 2 else "%03d") % d + "%07.4f" % minutes
+    def _coord(self, deg, e7, width):
+        # dd(d)mm.mmmm from whole degrees and 1e-7 degree, in integers
+        d, m4 = abs(deg), (abs(e7) * 6 + 50) // 100  # (1e-4 minute)
+        if m4 >= 600000:
+            d, m4 = d + 1, m4 - 600000
+        return ("%02d" if width == 2 else "%03d") % d + "%02d.%04d" % (m4 // 10000, m4 % 10000)
+
+    @property
+    def lat(self):
+        return self.lat_deg + self.lat_e7 / 10000000
+
+    @lat.setter
+    def lat(self, deg):
+        self.lat_deg, self.lat_e7 = _split(deg)
+
+    @property
+    def lon(self):
+        return self.lon_deg + self.lon_e7 / 10000000
+
+    @lon.setter
+    def lon(self, deg):
+        self.lon_deg, self.lon_e7 = _split(deg)
+
+    @property
+    def alt(self):
+        return self.alt_dm / 10
+
+    @alt.setter
+    def alt(self, m):
+        self.alt_dm = int(round(m * 10))
+
+    @property
+    def speed_kn(self):
+        return self.speed_dkn / 10
+
+    @speed_kn.setter
+    def speed_kn(self, kn):
+        self.speed_dkn = int(round(kn * 10))
+
+    @property
+    def course(self):
+        return self.course_dd / 10
+
+    @course.setter
+    def course(self, deg):
+        self.course_dd = int(round(deg * 10))
+
+    @property
+    def hdop(self):
+        return self.hdop_d / 10
+
+    @hdop.setter
+    def hdop(self, h):
+        self.hdop_d = int(round(h * 10))
 
     def _sentences(self, utc):
         t, (y, mo, d) = utc % 86400, civil_date(utc // 86400)
         hms = "%02d%02d%02d.00" % (t // 3600, (t // 60) % 60, t % 60)
         date = "%02d%02d%02d" % (d, mo, y % 100)
-        ns, ew = ("N" if self.lat >= 0 else "S"), ("E" if self.lon >= 0 else "W")
-        lat, lon = self._coord(self.lat, 2), self._coord(self.lon, 3)
+        south, west = self.lat_deg < 0 or self.lat_e7 < 0, self.lon_deg < 0 or self.lon_e7 < 0
+        ns, ew = ("S" if south else "N"), ("W" if west else "E")
+        lat = self._coord(self.lat_deg, self.lat_e7, 2)
+        lon = self._coord(self.lon_deg, self.lon_e7, 3)
         fixed = self.quality > 0
-        rmc = "GPRMC,%s,%s,%s,%s,%s,%s,%05.1f,%05.1f,%s,003.1,W" % (
+        rmc = "GPRMC,%s,%s,%s,%s,%s,%s,%s,%s,%s,003.1,W" % (
             hms, "A" if fixed else "V", lat if fixed else "", ns if fixed else "",
-            lon if fixed else "", ew if fixed else "", self.speed_kn, self.course, date,
+            lon if fixed else "", ew if fixed else "", _tenths(self.speed_dkn, 5),
+            _tenths(self.course_dd, 5), date,
         )  # fmt: skip
-        gga = "GPGGA,%s,%s,%s,%s,%s,%d,%02d,%.1f,%s,M,46.9,M,," % (
+        gga = "GPGGA,%s,%s,%s,%s,%s,%d,%02d,%s,%s,M,46.9,M,," % (
             hms, lat if fixed else "", ns if fixed else "", lon if fixed else "",
-            ew if fixed else "", self.quality, self.sats, self.hdop,
-            ("%.1f" % self.alt) if fixed else "",
+            ew if fixed else "", self.quality, self.sats, _tenths(self.hdop_d, 0),
+            _tenths(self.alt_dm, 0) if fixed else "",
         )  # fmt: skip
         out = ""
         for body in (rmc, gga):
