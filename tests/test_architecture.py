@@ -7,7 +7,8 @@ import its own modules and any room on a lower floor, never one above):
 
 0. core: ``version``, ``errors``, ``text``, ``descriptors``, ``j2a/``, ``timesync/``, ``board/``
    (one floor: its rooms import each other, without a circle)
-1. ``transport/`` (bytes by URL), ``ros/`` (ROS vocabulary, no I/O)
+1. ``transport/`` (bytes by URL), ``ros/`` (ROS vocabulary, no I/O), ``world/`` (the world a
+   virtual robot lives in: pure, no I/O)
 2. ``host/`` (one board from the host), ``topics`` (what the daemon hands publishers)
 3. ``publishers/``
 4. ``daemon/`` (many boards -> topics), in rooms of its own, from the ground up (``DAEMON_FLOORS``):
@@ -47,6 +48,7 @@ FLOORS = {
     "board": 0,
     "transport": 1,
     "ros": 1,
+    "world": 1,
     "host": 2,
     "topics": 2,
     "publishers": 3,

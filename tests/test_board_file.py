@@ -95,6 +95,9 @@ def every_board(
     signed one with its key in its flash)."""
     runtime = request.param
     tmp = tmp_path_factory.mktemp(f"boards-{runtime}")
+    near = tmp / "near.toml"  # (a small room: every ranger has a wall in reach, docs/world.md)
+    near.write_text("[room]\nwalls = [[[-1.3, -1.3], [1.3, -1.3]], [[1.3, -1.3], [1.3, 1.3]], "
+                    "[[1.3, 1.3], [-1.3, 1.3]], [[-1.3, 1.3], [-1.3, -1.3]]]\n")  # fmt: skip
     started: list[tuple[Path, BoardProcess, str]] = []
     t0 = time.monotonic()
     try:
@@ -104,7 +107,7 @@ def every_board(
             key = load_board_file(file).board.get("link", {}).get("key_file")
             if key:
                 assert ml("key", "new", str(flash / key)).returncode == 0
-            b = BoardProcess(tmp, file, runtime, "--flash", str(flash))
+            b = BoardProcess(tmp, file, runtime, "--flash", str(flash), "--world", str(near))
             started.append((file, b, board_url(b, flash, file)))
         print(f"{runtime}: {len(started)} boards up in {time.monotonic() - t0:.2f} s")
         yield runtime, started
@@ -149,10 +152,9 @@ def test_every_example_board_file_serves_a_daemon(
 @pytest.mark.parametrize("runtime", RUNTIMES)
 def test_an_absent_part_is_na_and_the_rest_is_served(runtime: str, tmp_path: Path) -> None:
     """--absent tof,gps: the VL53L0X does not acknowledge (its topic N/A), the GPS sends
-    nothing; the compass and the sonar go on."""
-    b = BoardProcess(
-        tmp_path, ROOT / "examples" / "boards" / "rover.py", runtime, "--absent", "tof,gps"
-    )
+    nothing; the compass and the sonar go on (no world: the parts' own defaults)."""
+    rover = ROOT / "examples" / "boards" / "rover.py"
+    b = BoardProcess(tmp_path, rover, runtime, "--absent", "tof,gps", "--world", "none")
     try:
         with Daemon(Config(boards=[BoardSpec(b.url, timeout=3.0, handshake_timeout=20.0)])) as d:
             assert d.wait_until_up(30)

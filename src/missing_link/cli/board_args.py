@@ -1,12 +1,21 @@
 """The arguments of the commands that make, run and deploy boards (``flash``, ``update``, ``key``,
-``gen-firmware``, ``board``, ``relay``, ``examples``): commands.py's table names them.  Every help
-text names what an installed package has (``missing-link examples DIR``), not a checkout's paths."""
+``gen-firmware``, ``board``, ``world``, ``relay``, ``examples``): commands.py's table names
+them.  Every help text names what an installed package has (``missing-link examples DIR``), not
+a checkout's paths."""
 
 from __future__ import annotations
 
 import argparse
 
-from .common import MAX_RATE_HZ, add_timeout, count_arg, finite, number, seconds_arg
+from .common import (
+    MAX_DURATION_S,
+    MAX_RATE_HZ,
+    add_timeout,
+    count_arg,
+    finite,
+    number,
+    seconds_arg,
+)
 
 Parser = argparse.ArgumentParser
 
@@ -103,7 +112,20 @@ def board(sp: Parser) -> None:
         "--seed",
         type=int,
         help="random seed of the simulated signals (and of its board.id: sim-NAME-SEED); "
-        "--file: of its chip id (board.id) when it has no --flash (default 0)",
+        "--file: of its chip id (board.id) when it has no --flash (default 0), and of the world's "
+        "noise",
+    )
+    sp.add_argument(
+        "--world",
+        metavar="FILE",
+        help="--file: the world the robot lives in (TOML, docs/world.md; default: a 10 m room, "
+        "the robot at its centre facing +x); `none`: no world, the parts read their defaults",
+    )
+    sp.add_argument(
+        "--world-control",
+        metavar="URL",
+        help="--file: push, turn, place, tilt the robot by hand here (tcp://127.0.0.1:PORT or "
+        "unix:///PATH; `missing-link world URL ...`); prints WORLD URL",
     )
     sim_options(sp)
 
@@ -184,3 +206,45 @@ def relay(sp: Parser) -> None:
 def examples(sp: Parser) -> None:
     sp.add_argument("dir", metavar="DIR", help="where to write them (made if missing)")
     sp.add_argument("--force", action="store_true", help="replace files that are there")
+
+
+def world(sp: Parser) -> None:
+    """``world URL VERB ...``: a hand on a running virtual board's world (docs/world.md)."""
+    sp.add_argument("url", help="the world's control: tcp://127.0.0.1:PORT or unix:///PATH "
+                    "(what `board --world-control` printed after WORLD)")  # fmt: skip
+    sp.add_argument("--json", action="store_true", help="the world's state as JSON")
+    verbs = sp.add_subparsers(dest="verb", required=True, metavar="VERB")
+    verbs.add_parser("state", help="where the robot is and what it does")
+    metres, degrees = number(-1000, 1000, unit=" m"), number(-3600, 3600, unit=" deg")
+    over = number(0, 60, unit=" s")
+    v = verbs.add_parser("push", help="move the body DX m forward and DY m left (its axes)")
+    v.add_argument("dx_m", type=metres)
+    v.add_argument("dy_m", type=metres, nargs="?", default=0.0)
+    v.add_argument("--over", dest="over_s", type=over, default=0.5, help="over S s (0.5)")
+    v = verbs.add_parser("turn", help="turn the body DEG degrees (counter-clockwise positive)")
+    v.add_argument("deg", type=degrees)
+    v.add_argument("--over", dest="over_s", type=over, default=0.5, help="over S s (0.5)")
+    v = verbs.add_parser("bump", help="a knock: a short sharp push (default 1 cm back)")
+    v.add_argument("dx_m", type=metres, nargs="?", default=-0.01)
+    v.add_argument("dy_m", type=metres, nargs="?", default=0.0)
+    v = verbs.add_parser("place", help="lift the robot and set it down at X Y (m), YAW (deg)")
+    v.add_argument("x_m", type=number(-1e6, 1e6, unit=" m"))
+    v.add_argument("y_m", type=number(-1e6, 1e6, unit=" m"))
+    v.add_argument("yaw_deg", type=degrees, nargs="?", default=0.0)
+    v = verbs.add_parser("tilt", help="lean the body to ROLL and PITCH degrees")
+    v.add_argument("roll_deg", type=number(-90, 90, unit=" deg"))
+    v.add_argument("pitch_deg", type=number(-90, 90, unit=" deg"))
+    v.add_argument("--over", dest="over_s", type=over, default=0.5, help="over S s (0.5)")
+    until = number(0, MAX_DURATION_S, unit=" s")
+    v = verbs.add_parser("block", help="something DISTANCE m in front of a ranger")
+    v.add_argument("part")
+    v.add_argument("distance_m", type=number(0, 100, unit=" m"), nargs="?", default=0.05)
+    v.add_argument("--for", dest="for_s", type=until, default=0.0, help="S s (0: for good)")
+    v = verbs.add_parser("fail", help="a sensor fails: silent (no answer) or stuck")
+    v.add_argument("part")
+    v.add_argument("--mode", choices=["silent", "stuck"], default="silent")
+    v.add_argument("--for", dest="for_s", type=until, default=0.0, help="S s (0: for good)")
+    v = verbs.add_parser("slip", help="a wheel (its motor or encoder) slips: FRACTION of 0..1")
+    v.add_argument("part")
+    v.add_argument("fraction", type=number(0, 1), nargs="?", default=1.0)
+    v.add_argument("--for", dest="for_s", type=until, default=0.0, help="S s (0: for good)")

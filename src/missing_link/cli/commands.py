@@ -307,6 +307,14 @@ COMMANDS = (
     ),
     Command("board", "run a virtual board", "virtual:cmd_board", board_args.board),
     Command(
+        "world",
+        "push, turn, place, tilt a virtual board's robot by hand; block, fail its sensors",
+        "world:cmd_world",
+        board_args.world,
+        "A hand on the world of a running `board --file ... --world-control URL` (docs/world.md): "
+        "what it does is applied at the world's next tick; the world's state is printed after.",
+    ),
+    Command(
         "replay",
         "play a recording back as the boards that made it",
         "replay:cmd_replay",

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from ..errors import ConfigError
 from .common import EXIT_FAIL, EXIT_USAGE
 
 
@@ -53,8 +54,10 @@ def cmd_board(args: argparse.Namespace) -> int:
     if args.seed is None:
         args.seed = 0
     try:
-        if args.runtime or args.absent or args.flash:
-            raise ValueError("--runtime, --absent and --flash go with --file BOARDFILE")
+        if args.runtime or args.absent or args.flash or args.world or args.world_control:
+            raise ValueError(
+                "--runtime, --absent, --flash, --world and --world-control go with --file BOARDFILE"
+            )
         extra = _sim_options(args)
         runtime = make_sim(args.sim, seed=args.seed, **extra)
     except ValueError as e:
@@ -141,12 +144,42 @@ def _board_file(args: argparse.Namespace) -> int:
         )
     if key and args.listen in ("pty", "pty://"):
         raise ConfigError(f"{args.file}: its link is signed: serve it on tcp (or unix), not a pty")
+    world = _world(args, board)
     with tempfile.TemporaryDirectory(prefix="ml-flash-") as scratch:
-        return _serve_board_file(args, board, bf.path, flash or Path(scratch), absent)
+        return _serve_board_file(args, board, bf.path, flash or Path(scratch), absent, world)
+
+
+def _world(args: argparse.Namespace, board: dict[str, Any]) -> Any:
+    """The world file's WorldSpec (the default world without one; None for ``--world none``),
+    checked against the board file: a mistake is a ConfigError naming the file and the key."""
+    from ..errors import ConfigError
+    from ..world.robot import build
+    from ..world.spec import WorldSpec
+    from ..world.worldfile import parse
+
+    if args.world == "none":
+        if args.world_control:
+            raise ConfigError("--world-control needs a world: not --world none")
+        return None
+    if args.world is None:
+        spec = WorldSpec()
+    else:
+        try:
+            text = Path(args.world).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"--world {args.world}: cannot read it ({e})") from None
+        spec = parse(text, args.world)
+    build(spec, board)  # (its parts against the board file's, now: one line, exit 2)
+    return spec
 
 
 def _serve_board_file(
-    args: argparse.Namespace, board: dict[str, Any], path: Path, flash: Path, absent: list[str]
+    args: argparse.Namespace,
+    board: dict[str, Any],
+    path: Path,
+    flash: Path,
+    absent: list[str],
+    world: Any,
 ) -> int:
     from ..errors import MissingLinkError
     from ..virtual.boardfile import chip_id
@@ -156,6 +189,9 @@ def _serve_board_file(
         chip = chip_id(flash if args.flash else None, args.seed or 0)
         if args.runtime == "micropython":
             from ..deploy.flashdir import prepare
+
+            if args.world not in (None, "none") or args.world_control:
+                raise ConfigError("--world, --world-control: not yet under --runtime micropython")
             from ..virtual.mpyboard import MicroPythonBoard
 
             if args.flash:  # (the board starts from its flash, as a board does: it takes updates)
@@ -165,7 +201,9 @@ def _serve_board_file(
         else:
             from ..virtual.boardfile import BoardFileBoard
 
-            server = BoardFileBoard(board, url, flash, absent, dial=dial, chip=chip)
+            server = BoardFileBoard(
+                board, url, flash, absent, dial=dial, chip=chip, world=world, seed=args.seed or 0
+            )
     except MissingLinkError:
         raise  # (bad input: exit 2; cannot listen, did not start: exit 1; main.py says it)
     except Exception as e:  # noqa: BLE001 - the firmware failed at boot: one line, exit 1
@@ -177,7 +215,10 @@ def _serve_board_file(
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    control = _world_control(args, server)
     print(_ready(server.url), flush=True)
+    if control is not None:
+        print(f"WORLD {control.url}", flush=True)
     try:
         server.serve_forever()
     except MissingLinkError as e:
@@ -186,7 +227,27 @@ def _serve_board_file(
     except Exception as e:  # noqa: BLE001 - the firmware stopped: said in one line, exit 1
         print(f"missing-link: error: {args.file}: the firmware stopped: {_why(e)}", file=sys.stderr)
         return EXIT_FAIL
+    finally:
+        if control is not None:
+            control.close()
     return 0
+
+
+def _world_control(args: argparse.Namespace, server: Any) -> Any:
+    """The world's control endpoint (virtual/worldctl.py) when --world-control asks for one."""
+    if not args.world_control:
+        return None
+    hand = getattr(server, "world_hand", None)
+    if hand is None:
+        server.stop()
+        raise ConfigError(f"--world-control: the {args.runtime or 'cpython'} runtime has no world")
+    from ..virtual.worldctl import WorldControl
+
+    try:
+        return WorldControl(hand, args.world_control)
+    except BaseException:
+        server.stop()
+        raise
 
 
 def _why(e: BaseException) -> str:

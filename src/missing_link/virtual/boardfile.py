@@ -49,9 +49,13 @@ from ..board.firmware import Firmware
 from ..board.link import SocketNet, TcpServer, network_link
 from ..board.store import FileStore
 from ..errors import BadURL, ConfigError, MissingLinkError
+from ..world.spec import WorldSpec
+from ..world.world import World
 from .listen import listen_socket
 from .world import machine
 from .world.parts import populate
+from .world_cpython import BoardClock, CPythonWorld, WorldAtTheLink
+from .worldlink import WorldLink
 
 LINK_FILES = ("key_file", "boot_file", "replay_file")
 #: the simulated chip's id in the flash directory (16 hex digits), made at its first run
@@ -297,7 +301,9 @@ class BoardFileBoard:
     ``url`` is what a host opens.  ``flash``: the board's flash directory; ``absent``: the
     transducer names whose parts are left unplugged (world/parts.py); ``dial``: connect out
     to ``listen`` (``tcp://HOST:PORT``) instead, ``url`` is then ``dial tcp://HOST:PORT``;
-    ``chip``: the simulated chip's id (:func:`chip_id`), else the world's."""
+    ``chip``: the simulated chip's id (:func:`chip_id`), else the world's; ``world``: the world
+    the robot lives in (missing_link/world, beside the firmware: world_cpython.py), seeded by
+    ``seed``; None: none, the parts read what they are set to."""
 
     def __init__(
         self,
@@ -308,6 +314,8 @@ class BoardFileBoard:
         *,
         dial: bool = False,
         chip: bytes | None = None,
+        world: WorldSpec | None = None,
+        seed: int = 0,
     ) -> None:
         if machine.WORLD.devices or machine.WORLD.pins:
             raise RuntimeError("one board file per process: the simulated world is taken")
@@ -320,6 +328,12 @@ class BoardFileBoard:
         populate(board, set(absent))
         if chip is not None:
             machine.WORLD.unique_id = chip
+        clock = BoardClock()
+        self.world: CPythonWorld | None = None
+        if world is not None:  # (world_cpython.py: beside the firmware, at its link)
+            model = World(world, board, clock(), seed)
+            self.world = CPythonWorld(WorldLink(model, board, set(absent)), clock)
+        self.world_hand = self.world.link if self.world is not None else None
         self.power = Power()
         self._closed = False
         self.link: _Link | None = None
@@ -342,7 +356,8 @@ class BoardFileBoard:
                     server = SocketServer(sock, self.power)
                 self.link = network_link(server, link_cfg, clock_ms)
             store = FileStore(str(flash / board.get("config_file", "mlconfig.bin")))
-            self.firmware = Firmware(board, machine, self.link, store=store)
+            link: Any = self.link if self.world is None else WorldAtTheLink(self.link, self.world)
+            self.firmware = Firmware(board, machine, link, clock=clock, store=store)
         except BaseException:
             self.close()
             raise

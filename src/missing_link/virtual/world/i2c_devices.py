@@ -333,4 +333,3 @@ class VL53L0X:
         if reg == 0x00 and not self._paged() and self._ready_at is not None:  # ranging under way
             return bytes((0x01,)) + bytes(memoryview(self.regs)[reg + 1 : reg + n])
         return bytes(memoryview(self.regs)[reg : reg + n])
-

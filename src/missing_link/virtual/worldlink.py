@@ -1,0 +1,161 @@
+"""The world beside a virtual board's firmware: missing_link/world's World, fed from the board's
+actuators and feeding its sensors, through the simulator's worldfeed.py in small integers, on
+whichever runtime runs the firmware (CPython here, MicroPython in node: virtual/mpyboard.py).
+
+Theory of operation
+-------------------
+A runtime asks :meth:`WorldLink.due_us` when the world next needs it and, once the simulation's
+time (the board's clock, never the host's) has got there, calls :meth:`WorldLink.tick` with
+that time and the integers :attr:`WorldLink.reads` asked of worldfeed.py (each actuator's state,
+read in the simulator).  The tick steps the world (world.py: the sensors now, then on to one
+tick later under these commands) and hands back the feed calls that put the sensors' readings
+into the devices, and the encoders' edges of the tick ahead with their times, which the runtime
+delivers as pin interrupts when its time reaches theirs.  A runtime that comes late (a busy
+CPython loop) first runs the world up to its time, and that stretch's edges go at once.
+
+Pushes by hand (the control endpoint: virtual/worldctl.py) come from another thread: the world
+checks and queues them under a lock and applies them at its next tick, in the simulation's
+time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Collection
+from typing import Any
+
+from ..world.robot import Part
+from ..world.world import Actuation, Frame, World
+
+#: worldfeed.py's number for each kind of part (a ranger by its driver: how it says "nothing
+#: in reach")
+FEED_KINDS = {"hcsr04": 0, "srf02": 1, "vl53l0x": 2, "sharp_gp2y0a02": 3, "imu": 4,
+              "compass": 5, "gps": 6, "battery": 7, "motor": 8, "servo": 9, "stepper": 10,
+              "encoder": 11}  # fmt: skip
+Call = tuple[str, tuple[int, ...]]
+#: an encoder edge: (board µs, pin A, pin B, +1 | -1)
+Edge = tuple[int, int, int, int]
+MODES = ("coast", "drive", "brake", "shoot-through")
+
+
+def _kind(p: Part) -> int:
+    return FEED_KINDS[p.driver if p.kind == "ranger" else p.kind]
+
+
+class WorldLink:
+    """``world`` for the board file's dict ``board``, its parts numbered for worldfeed.py; the
+    ``absent`` ones (left unplugged: virtual/world/parts.py) are neither fed nor read."""
+
+    def __init__(self, world: World, board: dict[str, Any], absent: Collection[str] = ()) -> None:
+        self.world = world
+        self.parts = [p for p in world.robot.parts.values() if p.name not in absent]
+        self.index = {p.name: i for i, p in enumerate(self.parts)}
+        self.order = {t["name"]: k for k, t in enumerate(board.get("transducers", []))}
+        self.tick_us = max(1, round(world.spec.tick_ms * 1000))
+        self.next_us = world.t_us
+        self.pins = {p.name: (int(p.entry["pin_a"]), int(p.entry["pin_b"]))
+                     for p in self.parts if p.kind == "encoder"}  # fmt: skip
+        self.reads: list[Call] = []  #: asked of worldfeed.py before each tick, in this order
+        for p in self.parts:
+            i = self.index[p.name]
+            if p.kind == "motor":
+                self.reads.append(("motor", (i,)))
+            elif p.kind == "servo":
+                self.reads.append(("servo", (i,)))
+            elif p.kind == "stepper":
+                self.reads += [("stepper", (i,)), ("stepper_on", (i,))]
+        self._lock = threading.Lock()
+        self._off: set[str] = set()
+
+    def attach(self) -> list[Call]:
+        """worldfeed.attach's calls: each part's number, its transducer's in the board file,
+        its kind and its pin (an ADC or PWM part's)."""
+        return [("attach", (i, self.order[p.name], _kind(p), int(p.entry.get("pin", -1))))
+                for i, p in enumerate(self.parts)]  # fmt: skip
+
+    def due_us(self) -> int:
+        return self.next_us
+
+    def tick(self, now_us: int, values: list[int]) -> tuple[list[Call], list[Edge]]:
+        """The world at ``now_us`` under the actuators' ``values`` (as :attr:`reads` asked):
+        the feed calls to make now, and the edges to deliver at their times."""
+        act = self._actuation(values)
+        edges: list[Edge] = []
+        with self._lock:
+            if now_us > self.world.t_us:  # (late: the stretch up to now first)
+                edges += self._edges(self.world.step(now_us, act))
+            frame = self.world.step(now_us + self.tick_us, act)
+        self.next_us = now_us + self.tick_us
+        return self._calls(frame), edges + self._edges(frame)
+
+    def push(self, kind: str, args: dict[str, Any]) -> None:
+        """A push by hand, checked now (WorldFileError: one line), applied at the next tick."""
+        with self._lock:
+            self.world.command(kind, args)
+
+    def state(self) -> dict[str, Any]:
+        with self._lock:
+            return self.world.state()
+
+    # ---- integers to and from the simulator ----
+    def _actuation(self, values: list[int]) -> Actuation:
+        act = Actuation()
+        got = dict(zip([(fn, a[0]) for fn, a in self.reads], values, strict=True))
+        for p in self.parts:
+            i = self.index[p.name]
+            if p.kind == "motor":
+                code = got[("motor", i)]
+                mode, rest = divmod(code, 100000)
+                act.motors[p.name] = ((rest - 50000) / 10000, MODES[min(mode, 3)])
+            elif p.kind == "servo":
+                pulse = got[("servo", i)]
+                act.servos[p.name] = None if pulse < 0 else float(pulse)
+            elif p.kind == "stepper":
+                act.steppers[p.name] = (got[("stepper", i)], bool(got[("stepper_on", i)]))
+        return act
+
+    def _edges(self, frame: Frame) -> list[Edge]:
+        out: list[Edge] = []
+        for name, edges in _here(frame.edges.items(), self.pins):
+            a, b = self.pins[name]
+            out += [(t, a, b, d) for t, d in edges]
+        out.sort()
+        return out
+
+    def _calls(self, frame: Frame) -> list[Call]:
+        calls: list[Call] = []
+        silent = set(frame.failed) & set(self.index)
+        for name in silent ^ self._off:  # (failed or back: said once)
+            calls.append(("off", (self.index[name], 1 if name in silent else 0)))
+        self._off = silent
+        for name, metres in _here(frame.ranges.items(), self.index):
+            mm = -1 if metres is None else round(metres * 1000)
+            calls.append(("ranger", (self.index[name], mm)))
+        for name, imu in _here(frame.imus.items(), self.index):
+            a = [round(v / 9.80665 * 16384) for v in imu.accel]
+            g = [round(math.degrees(v) * 131) for v in imu.gyro]
+            calls.append(("imu", (self.index[name], *a, *g)))
+        for name, gauss in _here(frame.fields.items(), self.index):
+            calls.append(("field", (self.index[name], *(round(v * 12000) for v in gauss))))
+        for name, fix in _here(frame.fixes.items(), self.index):
+            lat, lon = _split(fix.latitude_deg), _split(fix.longitude_deg)
+            knots = fix.speed_m_s * 3600 / 1852
+            calls.append(("fix", (self.index[name], *lat, *lon, round(fix.altitude_m * 10),
+                                  round(knots * 10), round(fix.course_deg * 10) % 3600,
+                                  fix.satellites, round(fix.hdop * 10))))  # fmt: skip
+        for name, volts in _here(frame.volts.items(), self.index):
+            calls.append(("volts", (self.index[name], round(volts * 1000))))
+        return calls
+
+
+def _split(deg: float) -> tuple[int, int]:
+    """Degrees as (whole degrees, 1e-7 degree), both of the sign of ``deg``: small integers."""
+    e7 = round(deg * 1e7)
+    whole = int(e7 / 1e7)
+    return whole, e7 - whole * 10_000_000
+
+
+def _here(items: Any, plugged: Collection[str]) -> list[Any]:
+    """The (name, reading) of the parts plugged in."""
+    return [(n, v) for n, v in items if n in plugged]

@@ -1,0 +1,327 @@
+"""The world a virtual board's robot lives in: its body moved by the board's actuators, in a room
+its rangers see, felt by its IMU, compass and GPS, drawing its battery.  Pure: no I/O, no clock
+(time comes in as board µs), a seeded random stream per part.
+
+Theory of operation
+-------------------
+A runtime (virtual/worldlink.py, on CPython, MicroPython or AVR) calls :meth:`World.step`
+once a tick (the world file's ``tick_ms``) with the simulation's time and what the board's
+actuators do now (:class:`Actuation`: each H-bridge's duty and mode, each servo's pulse, each
+stepper's position).  The step first applies what is due (the world file's events, pushes by
+hand), then reads every sensor from the state at that time (:class:`Frame`: ranges, IMU, field,
+fix, volts; the parts that failed), then moves the world on to the step's end under those
+commands (held for the tick, as a sample-and-hold) in substeps of at most SUBSTEP_US: the
+motors turn the wheels (motion.py), the body rolls and meets the walls, the battery drains,
+servos and steppers turn at their speed limits, and every encoder edge on the way is put in the
+frame with its time, so the runtime delivers each as a pin interrupt when the simulation gets
+there.  Readings describe the tick's start and edges its run to the end: nothing the board sees
+comes before its cause.  Every part draws its noise every step whatever it reads, so its
+random stream, and the run, depend only on the seed, the world file and the commands.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass, field
+from typing import Any
+
+from . import motion, sensing
+from .geometry import Segment, Vec, clear_of
+from .motion import Body, DriveGeometry, Imposed, Wheel
+from .robot import Robot, build, counts_per_rev
+from .sensing import Beam, GpsError, GpsReading, ImuReading
+from .spec import Event, WorldSpec
+from .worldfile import WorldFileError, hand
+
+SUBSTEP_US = 2000
+SENSORS = ("ranger", "imu", "compass", "gps", "battery", "encoder")
+
+
+@dataclass
+class Actuation:
+    """What the board's actuators do now, by transducer name."""
+
+    motors: dict[str, tuple[float, str]] = field(default_factory=dict)  #: duty -1..1, mode
+    servos: dict[str, float | None] = field(default_factory=dict)  #: pulse µs (None: limp)
+    steppers: dict[str, tuple[int, bool]] = field(default_factory=dict)  #: microsteps, enabled
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The sensors at ``t_us`` and the encoders' edges from then to ``until_us``."""
+
+    t_us: int
+    until_us: int
+    edges: dict[str, list[tuple[int, int]]]  #: encoder -> [(board µs, +1 | -1)]
+    ranges: dict[str, float | None]  #: metres (None: nothing in reach)
+    imus: dict[str, ImuReading]
+    fields: dict[str, Vec]  #: gauss, the chip's axes
+    fixes: dict[str, GpsReading]
+    volts: dict[str, float]  #: the pack's
+    failed: dict[str, str]  #: part -> "silent" (a stuck one reads its last reading here)
+
+
+class World:
+    """``spec``'s world for ``board`` (a board file's dict), its clock starting at ``start_us``
+    (board µs); ``seed`` when the world file names none."""
+
+    def __init__(self, spec: WorldSpec, board: dict[str, Any], start_us: int, seed: int = 0):
+        self.spec = spec
+        self.robot: Robot = build(spec, board)
+        self.seed = spec.seed if spec.seed is not None else seed
+        self.t_us = start_us
+        self.start_us = start_us
+        self.walls: list[Segment] = list(spec.walls)
+        self.body = Body()
+        self.body.place(*spec.start)
+        if not clear_of((self.body.x, self.body.y), spec.body_radius_m, self.walls):
+            raise WorldFileError(f"{spec.source}: start: the body ({spec.body_radius_m:g} m "
+                                 "round) stands in a wall")  # fmt: skip
+        d = spec.drive
+        self.geometry = DriveGeometry(d.wheel_radius_m, d.track_m, d.speed_per_duty,
+                                      d.time_constant_s)  # fmt: skip
+        self.wheels = (Wheel(), Wheel())
+        encoders = (self.robot.left_encoder, self.robot.right_encoder)
+        self.per_rad = {e: counts_per_rev(self.robot, spec, e) / (2 * math.pi)
+                        for e in encoders if e}  # fmt: skip
+        self.rng = {n: random.Random(f"{self.seed}/{n}") for n in self.robot.parts}
+        self.gps_err = {p.name: GpsError(p, self.rng[p.name], spec.noise)
+                        for p in self.robot.of_kind("gps")}  # fmt: skip
+        self.beams = {p.name: Beam.of(p) for p in self.robot.of_kind("ranger")}
+        self.turned = {p.name: 0.0 for p in self.robot.parts.values()
+                       if p.kind in ("servo", "stepper")}  # fmt: skip
+        self.turning = {n: _turning(self.robot.parts[n]) for n in self.turned}
+        self.charge = spec.battery.charge
+        self.current = spec.battery.idle_a
+        self.imposed: list[Imposed] = []
+        self.blocks: dict[str, tuple[float, float | None]] = {}  # ranger -> distance, until s
+        self.fails: dict[str, tuple[str, float | None]] = {}  # part -> mode, until s
+        self.slips: dict[int, float | None] = {}  # wheel -> until s
+        self.held: dict[str, Any] = {}  # a stuck part's last reading
+        self.last: dict[str, Any] = {}
+        self.queue: list[Event] = sorted(spec.events, key=lambda e: e.at_s)
+        for i, e in enumerate(spec.events):
+            self._check(e, f"{spec.source}: events[{i}].")
+
+    # ---- time ----
+    def now_s(self) -> float:
+        return (self.t_us - self.start_us) / 1e6
+
+    def step(self, until_us: int, act: Actuation) -> Frame:
+        """Read the sensors now, then run the world to ``until_us`` under ``act``."""
+        t0 = self.t_us
+        self._due()
+        frame = self._read(t0, max(t0, until_us))
+        t = t0
+        while t < until_us:
+            dt_us = min(SUBSTEP_US, until_us - t)
+            self._substep(t, dt_us, act, frame.edges)
+            t += dt_us
+        self.t_us = max(t0, until_us)
+        for err in self.gps_err.values():
+            err.step((self.t_us - t0) / 1e6)
+        return frame
+
+    # ---- what happens, by hand or in the world file ----
+    def command(self, kind: str, args: dict[str, Any]) -> None:
+        """A push by hand (``missing-link world URL KIND ...``), applied at the next step;
+        WorldFileError when it cannot be done."""
+        checked = hand(kind, args)
+        event = Event(self.now_s(), kind, checked)
+        self._check(event, f"world: {kind} ")
+        self.queue.insert(0, event)
+
+    def _check(self, e: Event, where: str) -> None:
+        part = e.args.get("part")
+        fit = {"block": ("ranger",), "fail": SENSORS, "slip": ("encoder", "motor")}
+        if part is not None:
+            p = self.robot.parts.get(str(part))
+            if p is None or p.kind not in fit[e.kind]:
+                kinds = [n for n, q in self.robot.parts.items() if q.kind in fit[e.kind]]
+                raise WorldFileError(f"{where}part: {part!r}: a {e.kind} takes one of "
+                                     f"{', '.join(kinds) or 'none on this board'}")  # fmt: skip
+            if e.kind == "slip" and self._wheel_of(str(part)) is None:
+                raise WorldFileError(f"{where}part: {part!r} is on no wheel of the drive")
+        if e.kind == "place":
+            at = (float(e.args["x_m"]), float(e.args["y_m"]))
+            if not clear_of(at, self.spec.body_radius_m, self.walls):
+                raise WorldFileError(f"{where}place: ({at[0]:g}, {at[1]:g}) is in a wall")
+
+    def _wheel_of(self, part: str) -> int | None:
+        r = self.robot
+        if part in (r.left_motor, r.left_encoder):
+            return 0
+        if part in (r.right_motor, r.right_encoder):
+            return 1
+        return None
+
+    def _due(self) -> None:
+        now = self.now_s()
+        while self.queue and self.queue[0].at_s <= now:
+            self._apply(self.queue.pop(0), now)
+        for name, (_, until) in list(self.blocks.items()):
+            if until is not None and now >= until:
+                del self.blocks[name]
+        for name, (_, until) in list(self.fails.items()):
+            if until is not None and now >= until:
+                del self.fails[name]
+                self.held.pop(name, None)
+        for wheel, until in list(self.slips.items()):
+            if until is not None and now >= until:
+                del self.slips[wheel]
+                self.wheels[wheel].slip = 0.0
+        self.imposed = [m for m in self.imposed if not m.over_at(now)]
+
+    def _apply(self, e: Event, now: float) -> None:
+        a, b = e.args, self.body
+        until = now + float(a["for_s"]) if float(a.get("for_s", 0.0) or 0.0) > 0 else None
+        if e.kind in ("push", "bump"):
+            c, s = math.cos(b.yaw), math.sin(b.yaw)
+            dx, dy = float(a["dx_m"]), float(a["dy_m"])
+            self.imposed.append(Imposed(now, float(a["over_s"]), c * dx - s * dy, s * dx + c * dy))
+        elif e.kind == "turn":
+            self.imposed.append(Imposed(now, float(a["over_s"]), dyaw=math.radians(a["deg"])))
+        elif e.kind == "tilt":
+            droll = math.radians(a["roll_deg"]) - b.roll
+            dpitch = math.radians(a["pitch_deg"]) - b.pitch
+            self.imposed.append(Imposed(now, float(a["over_s"]), droll=droll, dpitch=dpitch))
+        elif e.kind == "place":
+            b.place(float(a["x_m"]), float(a["y_m"]), math.radians(a["yaw_deg"]))
+            self.imposed = [m for m in self.imposed if m.dx == m.dy == m.dyaw == 0.0]
+        elif e.kind == "block":
+            self.blocks[str(a["part"])] = (float(a["distance_m"]), until)
+        elif e.kind == "fail":
+            self.fails[str(a["part"])] = (str(a["mode"]), until)
+            if a["mode"] == "stuck" and a["part"] in self.last:
+                self.held[str(a["part"])] = self.last[str(a["part"])]
+        elif e.kind == "slip":
+            wheel = self._wheel_of(str(a["part"]))
+            assert wheel is not None  # (checked when it was made)
+            self.wheels[wheel].slip = float(a["fraction"])
+            self.slips[wheel] = until
+
+    # ---- the sensors at the step's start ----
+    def _read(self, t0: int, until: int) -> Frame:
+        b, noisy, site = self.body, self.spec.noise, self.spec.site
+        ranges: dict[str, float | None] = {}
+        imus: dict[str, ImuReading] = {}
+        fields: dict[str, Vec] = {}
+        fixes: dict[str, GpsReading] = {}
+        volts: dict[str, float] = {}
+        for p in self.robot.parts.values():
+            rng = self.rng[p.name]
+            turned = self.turned.get(p.on, 0.0)
+            if p.kind == "ranger":
+                got: Any = sensing.ranger(p, self.beams[p.name], b, turned, self.walls, rng, noisy)
+                if p.name in self.blocks:
+                    got = self.blocks[p.name][0]
+                ranges[p.name] = got = self.held.get(p.name, got)
+            elif p.kind == "imu":
+                imus[p.name] = got = self.held.get(p.name, sensing.imu(p, b, rng, noisy))
+            elif p.kind == "compass":
+                got = sensing.compass(p, b, site.field_ut, rng, noisy)
+                fields[p.name] = got = self.held.get(p.name, got)
+            elif p.kind == "gps":
+                site_deg = (site.latitude_deg, site.longitude_deg, site.altitude_m)
+                got = sensing.gps(p, b, site_deg, self.gps_err[p.name], noisy)
+                fixes[p.name] = got = self.held.get(p.name, got)
+            elif p.kind == "battery":
+                volts[p.name] = got = self.held.get(p.name, self.pack_volts())
+            else:
+                continue
+            self.last[p.name] = got
+        failed = {n: m for n, (m, _) in self.fails.items() if m == "silent"}
+        edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
+        return Frame(t0, until, edges, ranges, imus, fields, fixes, volts, failed)
+
+    def pack_volts(self) -> float:
+        bat = self.spec.battery
+        return bat.cells * sensing.cell_volts(self.charge) - self.current * bat.internal_ohm
+
+    # ---- the world moves on ----
+    def _substep(self, t: int, dt_us: int, act: Actuation, edges: dict[str, Any]) -> None:
+        dt = dt_us / 1e6
+        r, g = self.robot, self.geometry
+        sides = ((r.left_motor, r.left_encoder), (r.right_motor, r.right_encoder))
+        rolled = [0.0, 0.0]
+        current = self.spec.battery.idle_a
+        for i, (m, enc) in enumerate(sides):
+            duty, mode = act.motors.get(m, (0.0, "coast")) if m else (0.0, "coast")
+            wheel = self.wheels[i]
+            before = wheel.angle
+            turned = wheel.turn(dt, duty, mode, g.speed_per_duty, g.tau) if m else 0.0
+            rolled[i] = turned * (1 - wheel.slip)
+            current += self._motor_current(duty, wheel.speed)
+            if enc and enc in self.per_rad:
+                for frac, d in motion.crossings(before, wheel.angle, self.per_rad[enc]):
+                    edges[enc].append((t + max(1, round(frac * dt_us)), d))
+        now, after = (t - self.start_us) / 1e6, (t + dt_us - self.start_us) / 1e6
+        shares = [(m, m.share(now, after)) for m in self.imposed]
+        imposed = tuple(sum(getattr(m, k) * s for m, s in shares)
+                        for k in ("dx", "dy", "dyaw", "droll", "dpitch"))  # fmt: skip
+        dx, dy, dyaw, droll, dpitch = imposed
+        motion.step(self.body, dt, (rolled[0], rolled[1]), g, (dx, dy, dyaw, droll, dpitch),
+                    self.walls, self.spec.body_radius_m)  # fmt: skip
+        self.current = current
+        self.charge = max(0.0, self.charge - current * dt / (3600 * self.spec.battery.capacity_ah))
+        self._turn_parts(dt, act)
+
+    def _motor_current(self, duty: float, speed: float) -> float:
+        """A motor's current: its free-running current at that duty, and up to its stall
+        current as far as the wheel is slower than the duty would turn it unloaded."""
+        if duty == 0:
+            return 0.0
+        bat = self.spec.battery
+        free = duty * self.geometry.speed_per_duty
+        load = min(1.0, max(0.0, 1 - speed / free))
+        return abs(duty) * (bat.free_a + (bat.stall_a - bat.free_a) * load)
+
+    def _turn_parts(self, dt: float, act: Actuation) -> None:
+        for name, (servo, zero, per_unit, speed) in self.turning.items():
+            if servo:
+                pulse = act.servos.get(name)
+                if pulse is None:
+                    continue  # (limp: it stays)
+                target = (pulse - zero) * per_unit
+            else:
+                steps, enabled = act.steppers.get(name, (0, False))
+                if not enabled:
+                    continue  # (no current: the rotor stays where it is)
+                target = steps * per_unit
+            delta = target - self.turned[name]
+            most = speed * dt
+            self.turned[name] += max(-most, min(most, delta))
+
+    # ---- for a hand and a test ----
+    def state(self) -> dict[str, Any]:
+        """Where the robot is and what it does, in SI units (yaw etc. in degrees)."""
+        b = self.body
+        return {
+            "t_s": round(self.now_s(), 6),
+            "x_m": b.x, "y_m": b.y, "yaw_deg": math.degrees(b.yaw),
+            "roll_deg": math.degrees(b.roll), "pitch_deg": math.degrees(b.pitch),
+            "speed_m_s": math.hypot(b.vx, b.vy), "turn_dps": math.degrees(b.yaw_rate),
+            "wheels_rad": [w.angle for w in self.wheels],
+            "wheels_rad_s": [w.speed for w in self.wheels],
+            "bumps": b.bumps, "against_wall": b.against_wall,
+            "battery_v": self.pack_volts(), "charge": self.charge,
+            "turned_deg": {n: math.degrees(v) for n, v in self.turned.items()},
+            "blocked": sorted(self.blocks), "failed": sorted(self.fails),
+        }  # fmt: skip
+
+
+def _turning(p: Any) -> tuple[bool, float, float, float]:
+    """A servo's or stepper's (is a servo, zero, rad a unit, top speed rad/s): a servo's angle
+    from its pulse (the board file's centre_us and span_us: +-90 degrees, as its driver says),
+    a stepper's from its microsteps (steps_per_rev x microsteps a turn)."""
+    if p.kind == "servo":
+        half = float(p.entry.get("span_us", 1200)) / 2
+        return (
+            True,
+            float(p.entry.get("centre_us", 1500)),
+            math.radians(90.0) / half,
+            math.radians(p.number("speed_dps")),
+        )
+    per_rev = int(p.entry.get("steps_per_rev", 200)) * int(p.entry.get("microsteps", 1))
+    return False, 0.0, 2 * math.pi / per_rev, 2 * math.pi * p.number("speed_rev_s")

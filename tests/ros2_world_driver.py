@@ -1,0 +1,197 @@
+"""An independent ROS 2 node that drives a differential-drive robot and measures it (rclpy and the
+message packages only; nothing from missing_link): Float64 duty on each motor's command topic,
+what it measures from the standard topics the robot's daemon publishes, one JSON object out.
+
+    python ros2_world_driver.py --board rover --seconds 120
+
+Phases, each waiting for what it needs (never a fixed sleep), the commands sent every 0.1 s
+while a phase runs (as a controller publishes every cycle):
+  rest      the IMU's acceleration, the forward ranger, the wheels' positions, the compass, a fix;
+  straight  both motors at --drive until the wheels have rolled --distance m (--wheel-radius),
+            the wheels' velocities and the gyro's z in the drive's second half; stopped: the
+            ranger, the wheels, a fix again;
+  turn      left motor back, right forward (--turn) until the gyro's z integrates to --angle
+            degrees; stopped: the compass again, and the gyro's integral over the whole turn.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import math
+import statistics
+import time
+from typing import Any
+
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Imu, JointState, MagneticField, NavSatFix, Range
+from std_msgs.msg import Float64
+
+
+def stamp(msg: Any) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class Driver:
+    def __init__(self, a: argparse.Namespace) -> None:
+        self.a = a
+        self.node = rclpy.create_node("world_driver")
+        b = a.board
+        self.got: dict[str, list[Any]] = {k: [] for k in ("imu", "wl", "wr", "range", "mag", "fix")}
+        for key, cls, topic in (
+            ("imu", Imu, f"/{b}/imu/imu"), ("wl", JointState, f"/{b}/wheel_l/joint_states"),
+            ("wr", JointState, f"/{b}/wheel_r/joint_states"), ("range", Range, f"/{b}/sonar/range"),
+            ("mag", MagneticField, f"/{b}/compass/field"), ("fix", NavSatFix, f"/{b}/gps/fix"),
+        ):  # fmt: skip
+            self.node.create_subscription(cls, topic, lambda m, k=key: self.got[k].append(m),
+                                          qos_profile_sensor_data)  # fmt: skip
+        self.left = self.node.create_publisher(Float64, f"/{b}/motor_l/command", 10)
+        self.right = self.node.create_publisher(Float64, f"/{b}/motor_r/command", 10)
+        self.cmd = (0.0, 0.0)
+        self.next_cmd = 0.0
+        self.deadline = time.monotonic() + a.seconds
+
+    def spin_until(self, done: Any, what: str) -> None:
+        while not done():
+            if time.monotonic() > self.deadline:
+                raise SystemExit(f"timed out waiting for {what}: {self.counts()}")
+            rclpy.spin_once(self.node, timeout_sec=0.02)
+            if time.monotonic() >= self.next_cmd and self.left.get_subscription_count():
+                self.next_cmd = time.monotonic() + 0.1
+                self.left.publish(Float64(data=self.cmd[0]))
+                self.right.publish(Float64(data=self.cmd[1]))
+
+    def counts(self) -> dict[str, int]:
+        return {k: len(v) for k, v in self.got.items()}
+
+    def since(self, key: str, t: float) -> list[Any]:
+        return [m for m in self.got[key] if stamp(m) > t]
+
+    def stopped_at(self, t: float) -> float | None:
+        """When both wheels stood still for good (three samples on), after host time t."""
+        at = t
+        for k in ("wl", "wr"):
+            run = []
+            for m in self.since(k, t):
+                run = [*run, m] if m.velocity[0] == 0 else []
+            if len(run) < 3:
+                return None
+            at = max(at, stamp(run[0]))
+        return at
+
+    def settled(self, t: float, n: int = 10, ranger: bool = True) -> bool:
+        """The wheels standing still after host time t, and since then n samples of each sensor
+        (the ranger's too, when it is to see a wall) and a fix."""
+        still = self.stopped_at(t)
+        if still is None:
+            return False
+        keys = ("imu", "range", "mag") if ranger else ("imu", "mag")
+        fix = len(self.since("fix", still)) >= 1
+        return fix and all(len(self.since(k, still)) >= n for k in keys)
+
+    def snapshot(self, t: float) -> dict[str, Any]:
+        t = self.stopped_at(t) or t
+        ranges = [m.range for m in self.since("range", t)[-10:]] or [math.nan]
+        mag = self.since("mag", t)[-10:]
+        fix = self.since("fix", t)[-1]
+        return {
+            "range_m": statistics.fmean(ranges), "range_n": len(ranges),
+            "resolution_m": 0.003,  # (HC-SR04: its datasheet's 3 mm)
+            "wheels_rad": [self.got[k][-1].position[0] for k in ("wl", "wr")],
+            "field": [statistics.fmean(m.magnetic_field.x for m in mag),
+                      statistics.fmean(m.magnetic_field.y for m in mag)],
+            "fix": [fix.latitude, fix.longitude],
+        }  # fmt: skip
+
+    def now(self) -> float:
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def rest(self) -> dict[str, Any]:
+        t = self.now()
+        self.spin_until(lambda: self.settled(t, 50), "samples at rest")
+        acc = [m.linear_acceleration for m in self.since("imu", t)]
+        mean = [statistics.fmean(getattr(v, k) for v in acc) for k in "xyz"]
+        return {"accel_mean": mean, "accel_norm": math.hypot(*mean), **self.snapshot(t)}
+
+    def straight(self, before: dict[str, Any]) -> dict[str, Any]:
+        t0 = self.now()
+        self.cmd = (self.a.drive, self.a.drive)
+        target = self.a.distance / self.a.wheel_radius
+        start = before["wheels_rad"]
+
+        def rolled() -> float:
+            if not (self.since("wl", t0) and self.since("wr", t0)):
+                return 0.0
+            return min(self.got[k][-1].position[0] - start[i] for i, k in enumerate(("wl", "wr")))
+
+        self.spin_until(lambda: rolled() >= target, "the wheels to roll")
+        t1 = self.now()
+        self.cmd = (0.0, 0.0)
+        self.spin_until(lambda: self.settled(t1 + 0.5), "the robot to stop")
+        half = (t0 + t1) / 2  # (the drive's second half: the motors' start long over)
+        pairs = self._velocity_pairs(half, t1)
+        gz = [m.angular_velocity.z for m in self.got["imu"] if half < stamp(m) <= t1]
+        return {"velocity_pairs": pairs, "gyro_z": gz, **self.snapshot(t1 + 0.5)}
+
+    def _velocity_pairs(self, t0: float, t1: float) -> list[list[float]]:
+        """(left, right, stamp) velocities of the two wheels' samples nearest in time (each is
+        stamped at its newest edge: within one period)."""
+        right = [(stamp(m), m.velocity[0]) for m in self.got["wr"] if t0 < stamp(m) <= t1]
+        pairs = []
+        for m in self.got["wl"]:
+            t = stamp(m)
+            near = min(right, key=lambda r: abs(r[0] - t), default=None)
+            if t0 < t <= t1 and near and abs(near[0] - t) < 0.01 and not math.isnan(m.velocity[0]):
+                pairs.append([m.velocity[0], near[1], t])
+        return [p for p in pairs if not math.isnan(p[1])]
+
+    def turn(self) -> dict[str, Any]:
+        t0 = self.now()
+        self.cmd = (-self.a.turn, self.a.turn)
+        goal = math.radians(self.a.angle)
+        self.spin_until(lambda: integral(self.since("imu", t0)) >= goal, "the turn")
+        t1 = self.now()
+        self.cmd = (0.0, 0.0)
+        self.spin_until(lambda: self.settled(t1 + 0.5, ranger=False), "the robot to stop turning")
+        imu = self.since("imu", t0)
+        gz = [m.angular_velocity.z for m in imu if stamp(m) <= t1]
+        return {"gyro_integral": integral(imu), "gyro_z_min": min(gz), "gyro_z_max": max(gz),
+                **self.snapshot(t1 + 0.5)}  # fmt: skip
+
+
+def integral(imu: list[Any]) -> float:
+    """The gyro's z integrated over the samples' stamps (trapezoids)."""
+    out = 0.0
+    for a, b in itertools.pairwise(imu):
+        out += (a.angular_velocity.z + b.angular_velocity.z) / 2 * (stamp(b) - stamp(a))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--board", default="rover")
+    ap.add_argument("--seconds", type=float, default=120.0)
+    ap.add_argument("--wheel-radius", type=float, default=0.033)
+    ap.add_argument("--drive", type=float, default=0.6)
+    ap.add_argument("--distance", type=float, default=1.0)
+    ap.add_argument("--turn", type=float, default=0.4)
+    ap.add_argument("--angle", type=float, default=90.0)
+    a = ap.parse_args()
+    rclpy.init()
+    d = Driver(a)
+    out: dict[str, Any] = {}
+    try:
+        out["rest"] = d.rest()
+        out["straight"] = d.straight(out["rest"])
+        out["turn"] = d.turn()
+        out["counts"] = d.counts()
+    finally:
+        d.node.destroy_node()
+        rclpy.shutdown()
+    print(json.dumps(out), flush=True)
+
+
+if __name__ == "__main__":
+    main()
