@@ -1,7 +1,8 @@
 """The rover's parts on AVR (examples/boards/rover-mega.py: the C runtime's hbridge.c,
-stepper.c, hcsr04.c, gps_nmea.c and failsafe.c) as real ATmega2560 machine code in simavr,
-the parts modelled at the pins and the second UART (firmware/avr/sim/rover.c); and gen-firmware
-refusing what an MCU cannot do."""
+stepper.c, hcsr04.c, gps_nmea.c, quadrature.c and failsafe.c) as real ATmega2560 machine code in
+simavr, the parts modelled at the pins and the second UART (firmware/avr/sim/: motor.c turning
+the wheels, stepper.c, hcsr04.c, gps.c, encoder.c); and gen-firmware refusing what an MCU cannot
+do."""
 
 from __future__ import annotations
 
@@ -145,11 +146,44 @@ def test_motors_ramp_on_timer0_and_the_failsafe_stops_them(rover: Daemon, rig: A
     assert wait_for(lambda: got and got[-1].values == [0.5], 5)
     assert len(got) >= 5  # ramped (4 per second), each step reported
     assert abs(motor(rig)[0] - 0.5) < 0.01  # OCR0A = 128: (128 + 1) / 256 of each period
-    rover.send("/mega_rover/motor_r/cmd", -0.25)
-    assert wait_for(lambda: abs(motor(rig)[2] - 0.25) < 0.01 and motor(rig)[3] == 1, 5)
+    rover.send("/mega_rover/motor_r/cmd", -0.25)  # (its bridge inverted: DIR low, forward)
+    assert wait_for(lambda: abs(motor(rig)[2] - 0.25) < 0.01 and motor(rig)[3] == 0, 5)
+    rover.send("/mega_rover/motor_l/cmd", -0.25)  # back: DIR high
+    assert wait_for(lambda: abs(motor(rig)[0] - 0.25) < 0.01 and motor(rig)[1] == 1, 5)
     # a PWM/DIR bridge cannot brake: the board refuses it, naming why (config.c)
     with pytest.raises(ConfigRefused, match="stop = brake needs in1 and in2"):
         rover.configure("mega_rover", {"motor_l.stop": "brake"})
+
+
+def wheels(rig: AvrSim) -> list[tuple[float, float]]:
+    """Each wheel's (turns, turns/s) in the rig (firmware/avr/sim/motor.c)."""
+    f = rig.ctl("wheels").split()[1:]
+    return [(float(f[k + 1]), float(f[k + 2])) for k in range(0, len(f), 3)]
+
+
+@pytest.mark.slow
+def test_the_motors_turn_the_wheels_and_a_world_can_take_them_over(
+    rover: Daemon, rig: AvrSim
+) -> None:
+    left, right = listen(rover, "wheel_l"), listen(rover, "wheel_r")
+    rover.send("/mega_rover/motor_l/cmd", 0.5)
+    rover.send("/mega_rover/motor_r/cmd", -0.5)  # (inverted bridge: forward; the count reversed)
+    assert wait_for(lambda: left and left[-1].values[0] >= 400, 10)  # a turn: 400 edges
+    assert wait_for(lambda: right and right[-1].values[0] <= -400, 10)  # this one goes back
+    # (in each motor's own sense, half of the rig's top 2 turns/s: both forward, the right one
+    # mounted mirrored, so that for the rover it goes back)
+    (_turns_l, speed_l), (_turns_r, speed_r) = wheels(rig)
+    assert speed_l == pytest.approx(1.0, abs=0.05) and speed_r == pytest.approx(1.0, abs=0.05)
+    # the seam for a world: the rig's model lets go of a wheel, the world moves it
+    assert rig.ctl("wheel 0 off") == "ok"
+    time.sleep(0.2)
+    n = left[-1].values[0]
+    assert rig.ctl("enc 0 -1000") == "ok"
+    assert wait_for(lambda: left[-1].values[0] == n - 1000, 5)
+    time.sleep(0.3)  # (the motor still drives; the wheel is the world's now)
+    assert left[-1].values[0] == n - 1000
+    rover.send("/mega_rover/motor_l/cmd", 0.0)
+    rover.send("/mega_rover/motor_r/cmd", 0.0)
 
 
 @pytest.mark.slow

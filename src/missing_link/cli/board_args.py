@@ -95,8 +95,9 @@ def board(sp: Parser) -> None:
     )
     sp.add_argument(
         "--runtime",
-        choices=["cpython", "micropython"],
-        help="--file: our runtime on CPython (default) or our firmware under MicroPython (node)",
+        choices=["cpython", "micropython", "avr"],
+        help="--file: our runtime on CPython (default), our firmware under MicroPython (node), "
+        "or an AVR board file's C firmware in simavr (built for its MCU, cached)",
     )
     sp.add_argument(
         "--absent",

@@ -198,6 +198,10 @@ def _serve_board_file(
                 prepare(path, flash, lambda t: print(f"missing-link: {t}", file=sys.stderr))
             kept = flash if args.flash else None
             server: Any = MicroPythonBoard(path, url, kept, absent, dial=dial, chip=chip)
+        elif args.runtime == "avr":
+            if args.world not in (None, "none") or args.world_control:
+                raise ConfigError("--world, --world-control: not yet under --runtime avr")
+            server = _avr_board(path, url, dial, flash if args.flash else None, absent, chip)
         else:
             from ..virtual.boardfile import BoardFileBoard
 
@@ -248,6 +252,21 @@ def _world_control(args: argparse.Namespace, server: Any) -> Any:
     except BaseException:
         server.stop()
         raise
+
+
+def _avr_board(
+    path: Path, url: str, dial: bool, flash: Path | None, absent: list[str], chip: bytes
+) -> Any:
+    """The board file's C firmware in simavr (deploy/avrsim.py, virtual/avrboard.py); its
+    board.id from the chip id; with --flash its EEPROM kept there."""
+    from ..deploy.avrsim import build
+    from ..deploy.boardfile import load_board_file
+    from ..virtual.avrboard import AvrBoard
+
+    if dial:
+        raise ConfigError("--runtime avr: an AVR board's link is its UART: serve it with --listen")
+    sim = build(load_board_file(path), "avr-" + chip.hex()[:12], absent)
+    return AvrBoard(sim.command(flash / "eeprom.bin" if flash else None), url)
 
 
 def _why(e: BaseException) -> str:

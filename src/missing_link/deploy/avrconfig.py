@@ -68,7 +68,8 @@ CHECK = {
         "need min_us < centre_us < max_us",
     ),
 }
-MAX_KEYS = 32  #: config.c's CONFIG_MAX
+#: config.c's CONFIG_MAX: the run-time keys an MCU's RAM holds (three copies on the stack)
+MAX_KEYS = {"atmega328p": 32, "atmega2560": 64, "atmega32u4": 32}
 EEPROM = {"atmega328p": 1024, "atmega2560": 4096, "atmega32u4": 1024}
 _KIND = {"bool": "KIND_BOOL", "int": "KIND_INT", "float": "KIND_FLOAT", "enum": "KIND_ENUM"}
 
@@ -99,9 +100,10 @@ def keys_of(
     transducers: list[tuple[int, dict[str, Any], Transducer, type]],
     where: str,
     aligned: bool = True,
+    mcu: str = "atmega328p",
 ) -> list[AvrKey]:
     """The run-time keys, as board/config.py makes them; without ``aligned`` (an image without
-    the timing feature) no aligned/phase keys."""
+    the timing feature) no aligned/phase keys; at most as many as ``mcu``'s firmware holds."""
     out: list[AvrKey] = []
     count: dict[str, int] = {}
     for k, entry, t, cls in transducers:
@@ -129,9 +131,10 @@ def keys_of(
             if key == "units" and value != "cm":
                 raise ConfigError(f"{where}: {t.name}: the AVR SRF02 measures in cm only")
             add(Key(t, key, kind, limits, ro, lambda v=value: v, None))
-    if len(out) > MAX_KEYS:
+    most = MAX_KEYS.get(mcu, 32)
+    if len(out) > most:
         raise ConfigError(
-            f"{where}: {len(out)} run-time keys, the AVR runtime has room for {MAX_KEYS}"
+            f"{where}: {len(out)} run-time keys, the AVR runtime has room for {most} on the {mcu}"
         )
     return out
 

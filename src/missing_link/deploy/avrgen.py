@@ -73,7 +73,7 @@ def generate_avr(bf: BoardFile) -> str:
     out += _blobs(bf, parts.lines)
     features = bf.features
     if "config" in features:
-        keys = keys_of(parts.described, where, aligned="timing" in features)
+        keys = keys_of(parts.described, where, aligned="timing" in features, mcu=bf.mcu)
         config_c, _blob = generate_config(keys, bf.mcu, where, parts.checks)
         out += [*config_c, ""]
     out += _failsafe_table(bf, parts.safe)

@@ -17,10 +17,13 @@ import subprocess
 import sys
 import threading
 from collections.abc import Sequence
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from ..deploy.avr import AVR_DIR
+from ..deploy.avrsim import rig_parts
+from ..deploy.boardfile import load_board_file
 from ..virtual.mpyboard import HOST_MJS, find_micropython
 from .runtimes import RuntimeBoard
 
@@ -128,13 +131,17 @@ class AvrSim(RuntimeBoard):
         parts: Sequence[str] = (),
     ) -> None:
         """``eeprom``: the EEPROM's contents across power cycles (a file rig_sim reads at
-        power-up and writes at power-off); ``rover``: a Mega with the rover's parts
-        (firmware/avr/sim/rover.c); ``mcu``: another part than the Uno's (atmega2560);
-        ``parts``: rig_sim's --part specs (the thesis rig's without)."""
+        power-up and writes at power-off); ``rover``: a Mega with the parts of the rover's
+        board file (examples/boards/rover-mega.py, wired by deploy/avrsim.rig_parts); ``mcu``:
+        another part than the Uno's (atmega2560); ``parts``: rig_sim's --part specs (the
+        thesis rig's without)."""
         self.elf = elf
         extra = ["--eeprom", str(eeprom)] if eeprom is not None else []
-        if rover:
-            extra += ["--mcu", "atmega2560", "--rover"]
+        if rover:  # (the rig's parts at the rover's pins, as `board --runtime avr` wires them)
+            examples = Path(str(resources.files("missing_link"))) / "examples" / "boards"
+            rover_mega = examples / "rover-mega.py"
+            extra += ["--mcu", "atmega2560"]
+            parts = [*parts, *rig_parts(load_board_file(rover_mega))]
         elif mcu is not None:
             extra += ["--mcu", mcu]
         for spec in parts:

@@ -31,6 +31,12 @@ static void sharp_update(void) {
     ain(sharp_channel, (uint32_t)lround(v * 1000));
 }
 
+int ain_add(int channel, uint32_t mv) {
+    if (channel < 0 || channel > 15) return 0;
+    ain(channel, mv);
+    return 1;
+}
+
 void sharp_add(int channel) {
     sharp_channel = channel;
     sharp_update();

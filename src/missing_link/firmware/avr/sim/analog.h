@@ -8,5 +8,6 @@
 #include "rig.h"
 
 void sharp_add(int channel); /* a Sharp on ADC channel `channel`, its target at 800 mm */
+int ain_add(int channel, uint32_t mv); /* mv millivolts on it from the start (0: no channel) */
 int analog_command(const char *line);
 #endif

@@ -21,6 +21,10 @@ uint64_t sim_us(void);
 double board_us_at(avr_cycle_count_t cycle);
 /* drive an input pin of port `port` ('A'..'L') to level (0/1) */
 void rig_pin(char port, int bit, int level);
+/* the level the firmware writes to a pin (its PORT bit: an output's level) */
+int rig_port_bit(char port, int bit);
+/* a pin's IRQ (simavr's: what the firmware drives on it, for a part to watch) */
+avr_irq_t *rig_pin_irq(char port, int bit);
 /* "D2", "PD2" or "d2" -> port 'D', bit 2; 0 if it is not a pin */
 int rig_parse_pin(const char *text, char *port, int *bit);
 

@@ -6,20 +6,26 @@
  *   encoder.c  quadrature encoders (edges on their phases' pins)
  *   probes.c   what the rig measures: the servo's frame and pulse (OC1A), the trigger's edges
  *              (OC2A), ADC0's conversions, the lowest stack pointer, the board's clock
- *   rover.c    the rover's motors, stepper, HC-SR04 and GPS (--rover)
+ *   motor.c    DC motors at Timer0's outputs, and the wheels they turn (an encoder each)
+ *   stepper.c, hcsr04.c, gps.c  a stepper driver, an HC-SR04, a GPS receiver on USART1
  *   eeprom.c   the EEPROM across power cycles, and power cuts
  *
- *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--rover]
- *           [--part SPEC]...
+ *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--part SPEC]...
  *
- * --part SPEC: a part at the firmware's pins (deploy/avrsim.py writes them from a board file):
- *   quadrature PIN_A PIN_B   an encoder (pins as port and bit: D2, PK0)
- *   sharp CH                 a Sharp on ADC channel CH
- *   srf02 ADDR               an SRF02 at 7-bit address ADDR (0x70) on the TWI
- *   mpu6050 ADDR             an MPU-6050 at ADDR (0x68) on the TWI
+ * --part SPEC: a part at the firmware's pins (deploy/avrsim.py writes them from a board file;
+ * pins as port and bit: D2, PK0):
+ *   quadrature PIN_A PIN_B     an encoder
+ *   sharp CH                   a Sharp on ADC channel CH
+ *   ain CH MV                  MV millivolts on ADC channel CH (a battery's divider)
+ *   srf02 ADDR, mpu6050 ADDR   an SRF02 (0x70), an MPU-6050 (0x68) on the TWI
+ *   motor OUT DIR              a motor on Timer0's output OUT (0: OC0A, 1: OC0B) with its
+ *                              direction pin; motor 2 -: on both (IN1/IN2)
+ *   wheel MOTOR ENCODER CPR TOP  motor MOTOR (the k-th added) turns encoder ENCODER: CPR edges
+ *                              a turn, TOP turns/s at full drive
+ *   stepper STEP DIR EN        a stepper driver (EN -: none)
+ *   hcsr04 TRIG ECHO           an HC-SR04
+ *   gps PPS                    a GPS receiver on USART1 (PPS -: no PPS pin)
  * Without any, the thesis rig: a Sharp on ADC0, an SRF02 at 0x70 and an encoder on INT0/INT1.
- * --rover (with --mcu atmega2560): the rover's parts too (rover.c: motors, a stepper, an
- * HC-SR04 and a GPS at examples/boards/rover-mega.py's pins).
  * --eeprom FILE (eeprom.c): the EEPROM's contents are read from FILE at power-up (when it
  * exists) and written back when the rig is powered off (quit, stdin closed), as a real EEPROM
  * keeps them.
@@ -52,9 +58,12 @@
 #include "eeprom.h"
 #include "encoder.h"
 #include "mpu6050.h"
+#include "gps.h"
+#include "hcsr04.h"
+#include "motor.h"
 #include "probes.h"
-#include "rover.h"
 #include "srf02.h"
+#include "stepper.h"
 #include "twi_bus.h"
 
 avr_t *avr;
@@ -75,6 +84,18 @@ void rig_pin(char port, int bit, int level) {
     avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit), level);
 }
 
+avr_irq_t *rig_pin_irq(char port, int bit) {
+    return avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit);
+}
+
+int rig_port_bit(char port, int bit) {
+    for (avr_io_t *io = avr->io_port; io; io = io->next) {
+        avr_ioport_t *p = (avr_ioport_t *)io;
+        if (!strcmp(io->kind, "port") && p->name == port) return (avr->data[p->r_port] >> bit) & 1;
+    }
+    return 0;
+}
+
 int rig_parse_pin(const char *text, char *port, int *bit) {
     if ((text[0] == 'P' || text[0] == 'p') && text[1] >= 'A') text++;
     char p = (char)(text[0] & ~0x20);
@@ -85,7 +106,7 @@ int rig_parse_pin(const char *text, char *port, int *bit) {
 }
 
 /* ---- control channel and pacing ---------------------------------------------------------------- */
-static rig_command_t parts[8];
+static rig_command_t parts[16];
 static int n_parts;
 
 static int rig_command(const char *cmd) {
@@ -190,27 +211,48 @@ static int load(const char *elf, const char *mcu, const char *eeprom_file) {
     return 1;
 }
 
+/* pin k of a spec ("-": none, port 0) */
+static int pin_at(char words[][8], int k, char *port, int *bit) {
+    if (!strcmp(words[k], "-")) return *port = 0, *bit = 0, 1;
+    return rig_parse_pin(words[k], port, bit);
+}
+
 /* one --part SPEC: 0 if it is not one */
 static int add_part(const char *spec) {
-    char kind[16], a[8], b[8], pa, pb;
-    int ba, bb;
-    unsigned v;
-    int n = sscanf(spec, "%15s %7s %7s", kind, a, b);
-    if (n == 3 && !strcmp(kind, "quadrature") && rig_parse_pin(a, &pa, &ba) &&
-        rig_parse_pin(b, &pb, &bb))
-        return encoder_add(pa, ba, pb, bb) >= 0;
-    if (n == 2 && !strcmp(kind, "sharp") && sscanf(a, "%u", &v) == 1 && v < 16) sharp_add((int)v);
-    else if (n == 2 && !strcmp(kind, "srf02") && sscanf(a, "%x", &v) == 1 && v < 128) srf02_add((uint8_t)v);
-    else if (n == 2 && !strcmp(kind, "mpu6050") && sscanf(a, "%x", &v) == 1 && v < 128)
+    char kind[16], w[4][8], p[4] = {0};
+    int b[4] = {0};
+    unsigned v, mv;
+    double cpr, top;
+    int n = sscanf(spec, "%15s %7s %7s %7s %7s", kind, w[0], w[1], w[2], w[3]) - 1;
+    for (int k = 0; k < n && k < 3; k++) pin_at(w, k, &p[k], &b[k]); /* (where they are pins) */
+    if (n == 2 && !strcmp(kind, "quadrature") && p[0] && p[1]) return encoder_add(p[0], b[0], p[1], b[1]) >= 0;
+    if (n == 1 && !strcmp(kind, "sharp") && sscanf(w[0], "%u", &v) == 1 && v < 16) sharp_add((int)v);
+    else if (n == 2 && !strcmp(kind, "ain") && sscanf(w[0], "%u", &v) == 1 && sscanf(w[1], "%u", &mv) == 1)
+        return ain_add((int)v, mv);
+    else if (n == 1 && !strcmp(kind, "srf02") && sscanf(w[0], "%x", &v) == 1 && v < 128) srf02_add((uint8_t)v);
+    else if (n == 1 && !strcmp(kind, "mpu6050") && sscanf(w[0], "%x", &v) == 1 && v < 128)
         mpu6050_add((uint8_t)v);
+    else if (n == 2 && !strcmp(kind, "motor") && sscanf(w[0], "%u", &v) == 1 && pin_at(w, 1, &p[1], &b[1]))
+        return motor_add((int)v, p[1], b[1]);
+    else if (n == 4 && !strcmp(kind, "wheel") && sscanf(w[2], "%lf", &cpr) == 1 &&
+             sscanf(w[3], "%lf", &top) == 1)
+        return wheel_add(atoi(w[0]), atoi(w[1]), cpr, top);
+    else if (n == 3 && !strcmp(kind, "stepper") && p[0] && p[1] && pin_at(w, 2, &p[2], &b[2]))
+        stepper_add(p[0], b[0], p[1], b[1], p[2], b[2]);
+    else if (n == 2 && !strcmp(kind, "hcsr04") && p[0] && p[1]) hcsr04_add(p[0], b[0], p[1], b[1]);
+    else if (n == 1 && !strcmp(kind, "gps") && pin_at(w, 0, &p[0], &b[0])) gps_add(p[0], b[0]);
     else return 0;
     return 1;
 }
 
-/* the parts of --part, else the thesis rig's; and with `rover` the rover's */
-static int wire(const char *mcu, int rover, const char **specs, int n_specs) {
+/* the parts of --part, else the thesis rig's */
+static int wire(const char *mcu, const char **specs, int n_specs) {
     int uno = !strcmp(mcu, "atmega328p"); /* INT0/INT1: PD2/PD3; Mega and Leonardo: PD0/PD1 */
+    static const rig_command_t commands[] = {rig_command, probes_command, analog_command,
+        srf02_command, encoder_command, mpu6050_command, motor_command, stepper_command,
+        hcsr04_command, gps_command};
     probes_init(mcu);
+    motor_init(mcu);
     twi_bus_init();
     for (int i = 0; i < n_specs; i++) {
         if (!add_part(specs[i])) {
@@ -223,36 +265,26 @@ static int wire(const char *mcu, int rover, const char **specs, int n_specs) {
         srf02_add(0x70);
         encoder_add('D', uno ? 2 : 0, 'D', uno ? 3 : 1);
     }
-    parts[n_parts++] = rig_command;
-    parts[n_parts++] = probes_command;
-    parts[n_parts++] = analog_command;
-    parts[n_parts++] = srf02_command;
-    parts[n_parts++] = encoder_command;
-    parts[n_parts++] = mpu6050_command;
-    if (rover) {
-        rover_init(avr, board_us_at);
-        parts[n_parts++] = rover_command;
-    }
+    for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++) parts[n_parts++] = commands[i];
     return 1;
 }
 
 int main(int argc, char **argv) {
     const char *elf = NULL, *mcu = "atmega328p", *eeprom_file = NULL, *specs[32];
-    int rover = 0, n_specs = 0;
+    int n_specs = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--mcu") && i + 1 < argc) mcu = argv[++i];
         else if (!strcmp(argv[i], "--skew-ppm") && i + 1 < argc) skew = atof(argv[++i]) * 1e-6;
         else if (!strcmp(argv[i], "--eeprom") && i + 1 < argc) eeprom_file = argv[++i];
-        else if (!strcmp(argv[i], "--rover")) rover = 1;
         else if (!strcmp(argv[i], "--part") && i + 1 < argc && n_specs < 32) specs[n_specs++] = argv[++i];
         else elf = argv[i];
     }
     if (!elf) {
         fprintf(stderr, "usage: rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] "
-                        "[--rover] [--part SPEC]...\n");
+                        "[--part SPEC]...\n");
         return 2;
     }
-    if (!load(elf, mcu, eeprom_file) || !wire(mcu, rover, specs, n_specs)) return 1;
+    if (!load(elf, mcu, eeprom_file) || !wire(mcu, specs, n_specs)) return 1;
     fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
     printf("PTY %s\n", uart.port[0].slavename);
     fflush(stdout);

@@ -26,7 +26,11 @@
 
 #define EE_BASE 16 /* (0..3: the boot counter of clock.epoch, main.c) */
 #define VERSION 1
-#define CONFIG_MAX 32 /* keys; the generator refuses more */
+#if defined(__AVR_ATmega2560__)
+#define CONFIG_MAX 64 /* keys (8 KiB of RAM); the generator refuses more (avrconfig.MAX_KEYS) */
+#else
+#define CONFIG_MAX 32 /* keys (the stack's room on 2 KiB); the generator refuses more */
+#endif
 #define REC_LEN(n) (9u + 4u * (n))
 #define SLOT_LEN(n) (1u + REC_LEN(n))
 enum { ST_SAVED = 1, ST_LOADED = 2, ST_DIRTY = 4 };

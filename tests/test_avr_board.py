@@ -1,0 +1,173 @@
+"""Any AVR board file in simavr from the CLI (issue 46.5): ``missing-link board --file F
+--runtime avr --listen URL`` builds the firmware for the file's MCU (kept in a cache by the hash
+of what went into it: deploy/avrsim.py) and runs it with its parts simulated at its pins
+(virtual/avrboard.py), as ``--runtime micropython`` does; one-line errors for what cannot
+run."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from missing_link.deploy.avrsim import rig_parts
+from missing_link.deploy.boardfile import load_board_file
+from missing_link.host.board import Board
+from missing_link.transport import open_transport
+
+from .helpers import ML, board_process, ml
+
+ROOT = Path(__file__).resolve().parent.parent
+UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
+IMU = ROOT / "tests" / "boards" / "imu-uno.py"
+
+
+@pytest.fixture(autouse=True)
+def cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Builds kept for this session's tests only (the CLI's cache: $XDG_CACHE_HOME)."""
+    where = tmp_path_factory.getbasetemp() / "xdg-cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(where))
+    return where / "missing-link" / "avr"
+
+
+def first_value(url: str, tid: int, na: bool = False) -> tuple[float | int | None, ...]:
+    """The values of the first SIF of transducer ``tid`` from the board at ``url`` (one with
+    a value, unless ``na``: a Sharp's first reading after power-up is N/A, warming up)."""
+    got: list[tuple[float | int | None, ...]] = []
+    done = threading.Event()
+    with Board(open_transport(url), timeout=5.0) as board:
+        board.handshake()
+        assert board.transducers is not None
+        t = next(t for t in board.transducers if t.id == tid)
+
+        def on(sif, _rx) -> None:  # type: ignore[no-untyped-def]
+            values = tuple(v for _stamp, v in t.decode(sif.payload))
+            if na or any(v is not None for v in values):
+                got.append(values)
+                done.set()
+
+        board.on_sif(tid, on)
+        assert done.wait(20.0), f"no SIF from {t.name}"
+    return got[0]
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_the_thesis_rig_runs_built_once_then_from_the_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # (a cache of its own: built here)
+    cache = tmp_path / "missing-link" / "avr"
+    with board_process("--file", str(UNO), "--runtime", "avr") as url:
+        assert url.startswith("tcp://127.0.0.1:")
+        r = ml("info", url, "--json")
+        assert r.returncode == 0, r.stderr
+        (ir,) = first_value(url, 1)  # the Sharp, 800 mm away (its rig part at ADC0)
+        assert ir == pytest.approx(800, abs=15)
+    built = sorted(p.name for p in cache.iterdir())
+    assert [n[:3] for n in built] == ["fw-", "rig"]
+    mtime = (cache / built[0] / "uno_rig" / "firmware.elf").stat().st_mtime
+    t0 = time.monotonic()
+    with board_process("--file", str(UNO), "--runtime", "avr") as url:
+        assert time.monotonic() - t0 < 30  # (no build: ~1 s to the listening line)
+        (count,) = first_value(url, 0)  # the encoder at rest
+        assert count == 0
+    assert sorted(p.name for p in cache.iterdir()) == built
+    assert (cache / built[0] / "uno_rig" / "firmware.elf").stat().st_mtime == mtime
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_a_pty_an_absent_part_and_the_eeprom_kept_in_the_flash(tmp_path: Path) -> None:
+    flash = tmp_path / "flash"
+    cmd = [*ML, "board", "--file", str(IMU), "--runtime", "avr", "--listen", "pty",
+           "--absent", "sonar", "--flash", str(flash)]  # fmt: skip
+    for run in range(2):
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert p.stdout is not None
+            line = p.stdout.readline()
+            assert line.startswith("LISTENING serial:///dev/pts/"), line
+            url = line.split()[1]
+            with Board(open_transport(url), timeout=5.0) as board:
+                board.handshake()
+                if run == 0:  # the IMU's range set and saved (the EEPROM: flash/eeprom.bin)
+                    board.configure({"imu.accel_g": 8}, save=True)
+                else:
+                    assert board.config()["imu.accel_g"] == 8
+            imu = first_value(url, 0)
+            at_rest = math.hypot(*(float(v or 0) for v in imu[:3]))
+            assert at_rest == pytest.approx(9.80665, abs=0.01)
+            (sonar,) = first_value(url, 1, na=True)  # no SRF02 on the bus: N/A
+            assert sonar is None
+        finally:
+            p.terminate()
+            assert p.wait(10) == 0, p.stderr.read() if p.stderr else ""
+            for f in (p.stdout, p.stderr):
+                if f is not None:
+                    f.close()
+    assert (flash / "eeprom.bin").stat().st_size == 1024
+
+
+def test_the_rigs_parts_are_the_board_files_at_its_pins() -> None:
+    rover = load_board_file(ROOT / "examples" / "boards" / "rover-mega.py")
+    parts = rig_parts(rover)
+    assert "gps E4" in parts  # PPS on D2: PE4
+    assert "motor 0 A0" in parts and "motor 1 A1" in parts  # OC0A/OC0B, DIR on D22/D23
+    assert "stepper A4 A5 A6" in parts and "hcsr04 A2 B0" in parts
+    # the wheels on port K, each turned by its motor; the IMU on the TWI; the pack at 7.4 V
+    assert {"quadrature K0 K1", "quadrature K2 K3", "wheel 0 0 400 2", "wheel 1 1 400 2"} <= set(
+        parts
+    )
+    assert "mpu6050 0x68" in parts and f"ain 0 {round(7.4 * 3300 / 13300 * 1000)}" in parts
+    assert rig_parts(rover, absent=("sonar",)).count("hcsr04 A2 B0") == 0
+    uno = rig_parts(load_board_file(UNO))
+    assert uno == ["quadrature D2 D3", "sharp 0", "srf02 0x70"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--dial", "tcp://127.0.0.1:9"], "an AVR board's link is its UART"),
+        (["--listen", "tcp://127.0.0.1:0", "--file-of", "rover.py"], "mcu 'rp2040' is not an AVR"),
+    ],
+)  # fmt: skip
+def test_what_cannot_run_in_simavr_is_one_line(args: list[str], said: str) -> None:
+    board = UNO
+    if "--file-of" in args:
+        board = ROOT / "examples" / "boards" / args[-1]
+        args = args[:-2]
+    r = ml("board", "--file", str(board), "--runtime", "avr", *args, timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert said in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+def test_without_avr_gcc_it_says_where_to_get_it(tmp_path: Path) -> None:
+    bin_dir = tmp_path / "bin"  # a PATH with make and cc but no avr-gcc
+    bin_dir.mkdir()
+    for tool in ("make", "cc"):
+        found = subprocess.run(["which", tool], capture_output=True, text=True).stdout.strip()
+        (bin_dir / tool).symlink_to(found)
+    env = {**os.environ, "PATH": str(bin_dir)}
+    r = ml("board", "--file", str(UNO), "--runtime", "avr", "--listen", "pty", env=env)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "needs avr-gcc, avr-objcopy" in r.stderr and "scripts/system-deps.sh" in r.stderr
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_a_board_file_too_big_for_its_mcu_is_refused_with_the_numbers(tmp_path: Path) -> None:
+    from .test_fit import UNO_AND_A_MOTOR
+
+    bf = tmp_path / "uno_motor.py"
+    bf.write_text(UNO_AND_A_MOTOR)
+    r = ml("board", "--file", str(bf), "--runtime", "avr", "--listen", "pty", timeout=300)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "does not fit the atmega328p" in r.stderr
