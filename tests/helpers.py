@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
 from missing_link.errors import TransportBroken, TransportClosed
 from missing_link.testing import AvrSim as AvrSim
 from missing_link.testing import MicroPythonSim
@@ -151,6 +153,15 @@ def read_blob_raw(exchange: Callable[[bytes], bytes], target: int, size: int) ->
         assert bool(payload[1] & 1) == (offset + 249 >= size)
         blob += payload[6:]
     return blob
+
+
+@contextmanager
+def daemon_up(url: str, **spec: Any) -> Iterator[Daemon]:
+    """A daemon in this process on the board at ``url`` (a BoardSpec: timeout 2 s unless
+    ``spec`` says), up within 30 s (a bound on a hang: its failures in the message)."""
+    with Daemon(Config(boards=[BoardSpec(url, **{"timeout": 2.0, **spec})])) as d:
+        assert d.wait_until_up(30), d.failures()
+        yield d
 
 
 @contextmanager

@@ -8,7 +8,10 @@ MicroPython, simulated devices, ``ctl`` drives the simulated world).  When ``mis
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+
+import pytest
 
 from .helpers import FirmwareSim
 
@@ -24,6 +27,19 @@ def virtual_board(board_file: Path) -> FirmwareSim:
     """A board file running as a virtual board: ``.url`` to connect, ``.ctl(code)`` to act on
     its simulated parts (WORLD), ``.close()``."""
     return FirmwareSim(board_file)
+
+
+@pytest.fixture(scope="module")
+def boards() -> Iterator[dict[str, FirmwareSim]]:
+    """The three boards (rig, rover, power), booted once for a module's tests."""
+    sims: dict[str, FirmwareSim] = {}
+    try:
+        for name, path in (("rig", RIG), ("rover", ROVER), ("power", POWER)):
+            sims[name] = virtual_board(path)
+        yield sims
+    finally:
+        for s in sims.values():
+            s.close()
 
 
 def daemon_toml(rig: str, rover: str, power: str, *, publishers: str = '["bus"]') -> str:

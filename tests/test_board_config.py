@@ -263,10 +263,7 @@ def test_a_board_answering_garbage_is_an_error_and_the_session_lives() -> None:
             assert "configuration unreadable" in st["warnings"], st
             with pytest.raises(BoardError, match="does not fit"):
                 d.configure("thesis", {"dist_ir.rate_hz": 5})
-            deadline = time.monotonic() + 5
-            while not got and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert got and d.status()[0]["state"] == "up"
+            assert wait_for(lambda: got, 5) and d.status()[0]["state"] == "up"
     finally:
         server.stop()
         thread.join(5)

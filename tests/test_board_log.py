@@ -43,6 +43,7 @@ from missing_link.host.board import Board
 from missing_link.host.board_log import LogLine, parse_info, parse_line
 from missing_link.j2a import SOF, Frame, FrameDecoder, encode_frame
 from missing_link.publishers.web_model import ConsoleModel
+from missing_link.testing import FakeBoardClock
 from missing_link.transport import open_transport
 
 from .helpers import free_port, wait_for
@@ -56,14 +57,6 @@ FAULT_FRAME = (
     "20 61 74 20 30 78 32 39 20 28 45 49 4f 29 13"
 )
 DROPPED_FRAME = "ed 06 fe 0d 80 9f d5 00 00 00 00 00 1e ff 00 e0 03 a9"
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 1_000_000
-
-    def __call__(self) -> int:
-        return self.now
 
 
 def log_frames(rt: BoardRuntime) -> list[Frame]:
@@ -112,11 +105,11 @@ def probe_board(clock: Callable[[], int] | None = None) -> tuple[BoardRuntime, P
 
 # ---- the board ------------------------------------------------------------------------------
 def test_a_fault_is_said_once_then_counted() -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt, probe = probe_board(clock)
     probe.absent = True
     for _ in range(100):
-        clock.now += 10_000
+        clock.us += 10_000
         rt.poll()
     (line,) = log_frames(rt)
     stamp, level, source, kind, dropped = struct.unpack("<QBBBH", line.payload[:13])
@@ -128,24 +121,24 @@ def test_a_fault_is_said_once_then_counted() -> None:
 
 
 def test_a_flood_is_bounded_by_the_budget_and_every_dropped_line_counted() -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt, probe = probe_board(clock)
     probe.flood = 1000
     rt.poll()
     flood = log_frames(rt)
     assert [f.payload[13:] for f in flood] == [f"line {i}".encode() for i in range(BURST)]
     assert rt.log.dropped == 1000 - BURST
-    clock.now += INTERVAL_US - 1
+    clock.us += INTERVAL_US - 1
     rt.poll()
     assert log_frames(rt) == []  # the budget has no room yet: the count waits
-    assert rt.next_deadline_us() == clock.now + 1  # (the firmware wakes for it)
-    clock.now += 1
+    assert rt.next_deadline_us() == clock.us + 1  # (the firmware wakes for it)
+    clock.us += 1
     rt.poll()
     (count,) = log_frames(rt)
     line, source, kind = parse_line(count.payload, "probe_board", {7: "probe"}, 0)
     assert line.dropped == 1000 - BURST and line.level == WARN and (source, kind) == (0xFF, 0)
     assert line.text == "992 log lines dropped on the board (its budget)"
-    clock.now += 10 * INTERVAL_US
+    clock.us += 10 * INTERVAL_US
     rt.poll()
     assert log_frames(rt) == []  # said once
     info = parse_info(call(rt, "a2jLogInfo").payload)
@@ -180,7 +173,7 @@ def test_what_a_board_sends_is_cleaned_and_its_levels_made_ros_levels() -> None:
 
 
 def test_a_board_without_part_two_sends_no_log_sif() -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt = BoardRuntime("old", "m", "s", epoch="e", clock=clock, part2=False)
     probe = Probe()
     rt.add_transducer(Transducer("probe", 7, "probe", "P", 1, "uint16_t", 0), probe)
@@ -229,7 +222,7 @@ def test_the_2014_host_ignores_the_log_sif() -> None:
 
 
 def test_board_side_errors_are_said_once_at_their_level_and_counted(tmp_path: Path) -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt = BoardRuntime("b", "m", "s", epoch="e", clock=clock)
 
     class Motor:
@@ -264,7 +257,7 @@ def test_board_side_errors_are_said_once_at_their_level_and_counted(tmp_path: Pa
         rt.feed(encode_frame(SOF, seq, rt.index["boom"]))
     rt.feed(encode_frame(SOF, 9, rt.index["a2jConfigSet"], b"\x01"))  # a save that fails
     rt.feed(encode_frame(SOF, 10, rt.index["go"], b"\x05"))
-    clock.now += 200_000  # the host silent beyond failsafe_ms: the motor's make_safe raises
+    clock.us += 200_000  # the host silent beyond failsafe_ms: the motor's make_safe raises
     rt.poll()
     lines = {
         (f.payload[10], f.payload[8]): f.payload[13:].decode() for f in log_frames(rt)

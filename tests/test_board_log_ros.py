@@ -7,7 +7,6 @@ where ROS 2 or ROS 1 is not installed (test_ros2.py and test_ros1.py say how).""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -18,9 +17,9 @@ from typing import Any
 
 import pytest
 
-from .helpers import FirmwareSim, board_process, free_port, wait_for
+from .helpers import FirmwareSim, board_process
 from .test_board_log import probe_board
-from .test_ros1 import HAVE_ROS1
+from .test_ros1 import HAVE_ROS1, roscore
 from .test_ros2 import ROS2_PY, listen, ros_env, start_daemon, stop
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,42 +81,27 @@ def test_an_absent_vl53l0x_is_one_warn_naming_tof_on_rosout() -> None:
 def test_rospy_hears_a_board_fault_on_rosout(serve: Any, tmp_path: Path) -> None:
     rt, probe = probe_board()
     server = serve(rt, "tcp://127.0.0.1:0")
-    port = free_port()
-    env = {
-        **os.environ,
-        "ROS_MASTER_URI": f"http://127.0.0.1:{port}",
-        "ROS_IP": "127.0.0.1",
-        "ROS_HOME": str(tmp_path / "ros"),
-    }
-    core = subprocess.Popen(
-        ["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
     daemon = listener = None
-    try:
-        online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
-        assert wait_for(
-            lambda: subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode == 0, 20
-        ), "roscore did not come up"
-        daemon = subprocess.Popen(
-            [sys.executable, "-m", "missing_link", "run", server.url, "-p", "ros1",
-             "--duration", "60"],
-            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
-        listener = subprocess.Popen(
-            ["/usr/bin/python3", "-c", ROSPY_ROSOUT, "probe_board"],
-            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
-        assert listener.stdout is not None
-        assert listener.stdout.readline().strip() == "READY"  # matched the daemon's /rosout
-        probe.absent = True
-        out, err = listener.communicate(timeout=60)
-    finally:
-        for p in (listener, daemon):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                p.wait(10)
-        core.terminate()
-        core.wait(15)
+    with roscore(tmp_path) as env:
+        try:
+            daemon = subprocess.Popen(
+                [sys.executable, "-m", "missing_link", "run", server.url, "-p", "ros1",
+                 "--duration", "60"],
+                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            )  # fmt: skip
+            listener = subprocess.Popen(
+                ["/usr/bin/python3", "-c", ROSPY_ROSOUT, "probe_board"],
+                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            )  # fmt: skip
+            assert listener.stdout is not None
+            assert listener.stdout.readline().strip() == "READY"  # matched the daemon's /rosout
+            probe.absent = True
+            out, err = listener.communicate(timeout=60)
+        finally:
+            for p in (listener, daemon):
+                if p is not None and p.poll() is None:
+                    p.terminate()
+                    p.wait(10)
     assert listener.returncode == 0, err
     msg = json.loads(out.strip().splitlines()[-1])
     assert msg["level"] == 4 and msg["function"] == "probe"  # rosgraph_msgs/Log WARN

@@ -5,7 +5,6 @@ from its own exchanges, against a board process whose clock is known."""
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import pytest
@@ -27,6 +26,8 @@ from missing_link.timesync import ClockSync, Exchange, SyncOptions, estimator
 from missing_link.topics import Update
 from missing_link.virtual.clocks import AffineClock
 from missing_link.virtual.process import start_board_process, stop_process
+
+from .helpers import wait_for
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 STORE.register(get_types_from_msg(CLOCK_MSG, CLOCK_TYPE))
@@ -140,9 +141,7 @@ def test_recorded_exchanges_retime_the_run_offline(tmp_path: Path) -> None:
         )
         with Daemon(cfg) as d:
             d.subscribe("/k/signal", updates.append, queue=0)
-            deadline = time.monotonic() + 20
-            while time.monotonic() < deadline and len(updates) < 600:
-                time.sleep(0.1)
+            wait_for(lambda: len(updates) >= 600, 20, step=0.1)
             status = d.status()[0]
             off = d.realtime_offset_ns
             mcap = d.publishers[1]

@@ -22,18 +22,11 @@ from missing_link.j2a import (
     encode_frame,
 )
 from missing_link.j2a.blobs import many_request
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.us = 1_000_000
-
-    def __call__(self) -> int:
-        return self.us
+from missing_link.testing import FakeBoardClock
 
 
 def make_board(blob: bytes = b"") -> BoardRuntime:
-    rt = BoardRuntime("b", "m", "s", epoch="e", clock=Clock())
+    rt = BoardRuntime("b", "m", "s", epoch="e", clock=FakeBoardClock())
     rt.add_blob_function("blob", lambda: blob)
     return rt
 
@@ -237,7 +230,7 @@ def test_close_fails_everything_pending() -> None:
 
 
 def test_board_sifs_never_interleave_with_replies_and_replies_go_first() -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt = BoardRuntime("b", "m", "s", epoch="e", clock=clock)
 
     class Drv:

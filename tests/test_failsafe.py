@@ -20,29 +20,15 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.session.failsafe import goodbye, keepalive_s
 from missing_link.host.board import Board
-from missing_link.j2a import SOF, FrameDecoder, encode_frame
+from missing_link.testing import FakeBoardClock
+from missing_link.testing import call_runtime as call
 from missing_link.virtual import make_sim
 
 from .helpers import ML, board_process, ml, wait_for
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.us = 1_000_000
-
-    def __call__(self) -> int:
-        return self.us
-
-
-def call(rt: object, name: str, payload: bytes = b"") -> tuple[int, bytes]:
-    index = rt.index[name]  # type: ignore[attr-defined]
-    rt.feed(encode_frame(SOF, 7, index, payload))  # type: ignore[attr-defined]
-    (frame,) = FrameDecoder().feed(rt.take_frames()[0])  # type: ignore[attr-defined]
-    return frame.opcode, frame.payload
-
-
 def test_an_actuator_goes_safe_after_its_silence_and_on_goodbye() -> None:
-    clock = Clock()
+    clock = FakeBoardClock()
     rt = make_sim("thesis", 3, clock=clock)
     servo = next(t for t in rt.transducers if t.name == "servo").driver
     assert call(rt, "a2jConfigKeys", b"")[0] is not None

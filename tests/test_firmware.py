@@ -14,13 +14,12 @@ from pathlib import Path
 import pytest
 
 from missing_link.daemon import Daemon
-from missing_link.daemon.config import BoardSpec, Config
 from missing_link.host.board import Board
 from missing_link.host.config import ConfigRefused
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import FirmwareSim, wait_for
+from .helpers import FirmwareSim, daemon_up, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "boards" / "thesis-rig.py"
@@ -30,18 +29,14 @@ Rig = tuple[Daemon, dict[str, list[Update]]]
 
 @pytest.fixture(scope="module")
 def sim() -> Iterator[FirmwareSim]:
-    s = FirmwareSim(RIG)
-    try:
+    with FirmwareSim(RIG) as s:
         yield s
-    finally:
-        s.close()
 
 
 @pytest.fixture
 def daemon(sim: FirmwareSim) -> Iterator[Rig]:
     got: dict[str, list[Update]] = {}
-    with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0)])) as d:
-        assert d.wait_until_up(30), d.failures()
+    with daemon_up(sim.url) as d:
         for name in ("wheel", "dist_ir", "sonar", "servo", "bumper", "imu"):
             got[name] = []
             d.subscribe(f"/rig/{name}", got[name].append, queue=0)

@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.testing import wait_for
 
 
 async def _client(url: str, topic: str) -> tuple[dict, bytes, list[str]]:
@@ -115,9 +116,7 @@ def test_a_late_client_gets_the_actuators_state(serve) -> None:  # type: ignore[
         states: list[Any] = []
         d.subscribe("/thesis/servo", states.append, queue=0)
         d.send("/thesis/servo/cmd", 25)
-        deadline = time.monotonic() + 10
-        while not (states and states[-1].values == [25]) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: states and states[-1].values == [25], 10)
         time.sleep(0.5)
         ch, payload, _topics = asyncio.run(_client(d.foxglove.url, "/thesis/servo"))  # type: ignore[attr-defined]
     ts = get_typestore(Stores.ROS2_JAZZY)

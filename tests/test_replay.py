@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -193,15 +194,13 @@ def test_faults_in_front_of_a_replayed_board(recorded: Path) -> None:
     assert got and status["state"] == "up", status
 
 
-@pytest.mark.slow  # (the recording)
-def test_a_host_that_came_back_late_gets_its_lead_before_samples(
+@contextmanager
+def turned_replay(
     recorded: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A daemon whose handshake lost a reply comes back after the recording's start (its 1 s
-    call timeout, a new connection): samples are due when it has synced, but it takes none
-    until it listens (it reads the board's count of SIFs then: what comes earlier is dropped).
-    The board holds them until then, then sends them, late, in order, as fast as it reads
-    them.  (A fake clock.)"""
+) -> Iterator[tuple[Any, list[int], Callable[[str], list[bytes]]]]:
+    """The recording's board_a as a replay on a fake clock (``now[0]``: its monotonic ns), all
+    of it read ahead and its own thread not started: ``turn(name)`` feeds a call of ``name``,
+    polls once and gives the SIFs that went."""
     now = [10**15]
     monkeypatch.setattr(replay_mod, "time", SimpleNamespace(monotonic_ns=lambda: now[0]))
     replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_a"], lead_s=0.3)
@@ -214,8 +213,23 @@ def test_a_host_that_came_back_late_gets_its_lead_before_samples(
         def turn(name: str) -> list[bytes]:
             rt.feed(encode_frame(SOF, 1, rt.index[name]))
             rt.poll()
-            return rt.take_frames()[1]
+            return list(rt.take_frames()[1])
 
+        yield rt, now, turn
+    finally:
+        replay.stop()
+
+
+@pytest.mark.slow  # (the recording)
+def test_a_host_that_came_back_late_gets_its_lead_before_samples(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A daemon whose handshake lost a reply comes back after the recording's start (its 1 s
+    call timeout, a new connection): samples are due when it has synced, but it takes none
+    until it listens (it reads the board's count of SIFs then: what comes earlier is dropped).
+    The board holds them until then, then sends them, late, in order, as fast as it reads
+    them.  (A fake clock.)"""
+    with turned_replay(recorded, monkeypatch) as (rt, now, turn):
         rt.new_host(1)
         assert turn("a2jGetMapping") == []  # the recording starts 0.3 s after this
         rt.backlog, now[0] = NOBODY, now[0] + 1_100_000_000  # no reply: it went, 1.1 s on
@@ -235,8 +249,6 @@ def test_a_host_that_came_back_late_gets_its_lead_before_samples(
             rt.backlog = 0  # (it read them)
         assert all(sum(map(len, sifs[:-1])) <= BACKLOG for sifs in turns), len(turns)
         assert sum(map(len, turns)) == rt.sent and 0 < rt.late < rt.sent  # (due 0..1.1 s ago)
-    finally:
-        replay.stop()
 
 
 @pytest.mark.slow  # (the recording)
@@ -248,20 +260,7 @@ def test_samples_wait_until_the_host_listens_however_slow_it_is(
     busy machine: the demo's replay once started at other values), and all that are due right
     after.  A handshake again on the same pty (its hosts come and go unseen) is a new host,
     which waits too.  (A fake clock.)"""
-    now = [10**15]
-    monkeypatch.setattr(replay_mod, "time", SimpleNamespace(monotonic_ns=lambda: now[0]))
-    replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", boards=["board_a"], lead_s=0.3)
-    (board,) = replay.boards
-    rt = board.runtime
-    board.feeder.thread.start()  # (the board's own thread is not: this test turns it)
-    try:
-        assert wait_for(lambda: not board.feeder.thread.is_alive(), 10)  # (all read ahead)
-
-        def turn(name: str) -> list[bytes]:
-            rt.feed(encode_frame(SOF, 1, rt.index[name]))
-            rt.poll()
-            return rt.take_frames()[1]
-
+    with turned_replay(recorded, monkeypatch) as (rt, now, turn):
         rt.new_host(1)
         rt.backlog = 0
         assert turn("a2jGetMapping") == []
@@ -275,8 +274,6 @@ def test_samples_wait_until_the_host_listens_however_slow_it_is(
         now[0] += 2_000_000_000
         assert turn("a2jClock") == [] and rt.sent == sent
         assert turn("a2jSifCount") != []
-    finally:
-        replay.stop()
 
 
 @pytest.mark.slow  # (seconds of real time)

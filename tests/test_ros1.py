@@ -21,7 +21,7 @@ import pytest
 
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import ML, free_port
+from .helpers import ML, free_port, wait_for
 
 pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
 
@@ -37,9 +37,9 @@ if not HAVE_ROS1:
 
 
 @contextmanager
-def ros1_graph(tmp_path: Path, sim: str) -> Iterator[tuple[dict[str, str], str]]:
-    """A real roscore on a free 127.0.0.1 port, a virtual board process (sim) over a pty, and the
-    daemon (``run -p ros1``) in its own process; yields the ROS environment and the board URL."""
+def roscore(tmp_path: Path) -> Iterator[dict[str, str]]:
+    """A real roscore on a free 127.0.0.1 port, up (within 20 s: a bound on a hang), stopped
+    after; yields the ROS environment that finds it."""
     port = free_port()
     env = {
         **os.environ,
@@ -50,29 +50,40 @@ def ros1_graph(tmp_path: Path, sim: str) -> Iterator[tuple[dict[str, str], str]]
     core = subprocess.Popen(
         ["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
-    board, url = start_board_process(sim, 0, "pty")
-    daemon = None
     try:
         online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
-        deadline = time.monotonic() + 20
-        while subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode != 0:
-            assert time.monotonic() < deadline, "roscore did not come up"
-            time.sleep(0.3)
-        daemon = subprocess.Popen(
-            [*ML, "run", url, "-p", "ros1", "--duration", "40"],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        yield env, url
+
+        def up() -> bool:
+            return subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode == 0
+
+        assert wait_for(up, 20, step=0.3), "roscore did not come up"
+        yield env
     finally:
-        if daemon is not None:
-            daemon.terminate()
-            daemon.wait(10)
-        stop_process(board)
         core.terminate()
         core.wait(15)
+
+
+@contextmanager
+def ros1_graph(tmp_path: Path, sim: str) -> Iterator[tuple[dict[str, str], str]]:
+    """A real roscore on a free 127.0.0.1 port, a virtual board process (sim) over a pty, and the
+    daemon (``run -p ros1``) in its own process; yields the ROS environment and the board URL."""
+    with roscore(tmp_path) as env:
+        board, url = start_board_process(sim, 0, "pty")
+        daemon = None
+        try:
+            daemon = subprocess.Popen(
+                [*ML, "run", url, "-p", "ros1", "--duration", "40"],
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            yield env, url
+        finally:
+            if daemon is not None:
+                daemon.terminate()
+                daemon.wait(10)
+            stop_process(board)
 
 
 def listen(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:

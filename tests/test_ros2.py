@@ -17,10 +17,11 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from .helpers import ml
+from .helpers import board_process, ml
 
 pytestmark = [pytest.mark.slow]  # (every test here starts a process: make check skips them)
 
@@ -55,26 +56,8 @@ def ros_env(**extra: str) -> dict[str, str]:
 
 @pytest.fixture
 def thesis_board() -> Iterator[str]:
-    p = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "missing_link",
-            "board",
-            "--sim",
-            "thesis",
-            "--listen",
-            "tcp://127.0.0.1:0",
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert p.stdout is not None
-    line = p.stdout.readline()
-    assert line.startswith("LISTENING "), line
-    yield line.split()[1]
-    p.terminate()
-    p.wait(10)
+    with board_process("--sim", "thesis") as url:
+        yield url
 
 
 def start_daemon(url: str, env: dict[str, str], *extra: str) -> subprocess.Popen[str]:
@@ -277,27 +260,18 @@ def test_run_help_names_ros2_where_rclpy_is() -> None:
 PARAMS = Path(__file__).with_name("ros2_param_client.py")
 
 
-def test_board_configuration_is_ros2_parameters_of_the_node(
-    thesis_board: str, tmp_path: Path
-) -> None:
-    """Every key of the board's run-time configuration is a parameter of /missing_link, named
-    <board>.<transducer>.<key>, with its range (read-only where the board says so); a stock
-    rclpy parameter client in its own process sets one, and the board changes (read back
-    through the daemon's control endpoint); a set the board refuses is an unsuccessful result
-    with the board's reason, and nothing changes."""
-    control = str(tmp_path / "control.sock")
-    env = ros_env(MISSING_LINK_CONTROL=control)
-    daemon = start_daemon(thesis_board, env)
+def parameters_set(
+    board_url: str, tmp_path: Path, args: list[str], *daemon_args: str
+) -> tuple[dict[str, Any], subprocess.CompletedProcess[str], str]:
+    """A daemon (``daemon_args``) on the board with its control endpoint, and a stock rclpy
+    parameter client in its own process (ros2_param_client.py ``args``, parameters under
+    ``thesis.``): what the client got, the board's configuration read back through the
+    daemon (``missing-link config thesis --json``), and what the daemon said."""
+    env = ros_env(MISSING_LINK_CONTROL=str(tmp_path / "control.sock"))
+    daemon = start_daemon(board_url, env, *daemon_args)
     try:
         r = subprocess.run(
-            [
-                *(str(ROS2_PY), str(PARAMS), "--prefix", "thesis."),
-                *("--describe", "thesis.dist_ir.rate_hz", "--describe", "thesis.dist_us.groups"),
-                *("--set", "thesis.dist_ir.rate_hz=double:5.0"),
-                *("--set", "thesis.servo.min_deg=integer:60"),
-                *("--set", "thesis.servo.max_deg=integer:50"),  # below min_deg: refused
-                *("--set", "thesis.dist_ir.rate_hz=double:99.0"),  # outside the range
-            ],
+            [str(ROS2_PY), str(PARAMS), "--prefix", "thesis.", *args],
             capture_output=True,
             text=True,
             env=env,
@@ -308,6 +282,28 @@ def test_board_configuration_is_ros2_parameters_of_the_node(
         board = ml("config", "thesis", "--json", env=env, timeout=60)
     finally:
         err = stop(daemon)
+    return got, board, err
+
+
+def test_board_configuration_is_ros2_parameters_of_the_node(
+    thesis_board: str, tmp_path: Path
+) -> None:
+    """Every key of the board's run-time configuration is a parameter of /missing_link, named
+    <board>.<transducer>.<key>, with its range (read-only where the board says so); a stock
+    rclpy parameter client in its own process sets one, and the board changes (read back
+    through the daemon's control endpoint); a set the board refuses is an unsuccessful result
+    with the board's reason, and nothing changes."""
+    got, board, err = parameters_set(
+        thesis_board,
+        tmp_path,
+        [
+            *("--describe", "thesis.dist_ir.rate_hz", "--describe", "thesis.dist_us.groups"),
+            *("--set", "thesis.dist_ir.rate_hz=double:5.0"),
+            *("--set", "thesis.servo.min_deg=integer:60"),
+            *("--set", "thesis.servo.max_deg=integer:50"),  # below min_deg: refused
+            *("--set", "thesis.dist_ir.rate_hz=double:99.0"),  # outside the range
+        ],
+    )
     assert "thesis.servo.enabled" in got["names"], err[-3000:]
     d = got["descriptors"]
     assert d["thesis.dist_ir.rate_hz"]["float_range"] == [[0.1, 26.0]]
@@ -331,26 +327,9 @@ def test_an_actuators_parameters_are_commands(thesis_board: str, tmp_path: Path)
     the board keeps its value."""
     cfg = tmp_path / "off.toml"
     cfg.write_text("[ros2]\ncommands = false\n")
-    control = str(tmp_path / "control.sock")
-    env = ros_env(MISSING_LINK_CONTROL=control)
-    daemon = start_daemon(thesis_board, env, "--config", str(cfg))
-    try:
-        r = subprocess.run(
-            [
-                *(str(ROS2_PY), str(PARAMS), "--prefix", "thesis."),
-                *("--set", "thesis.dist_ir.rate_hz=double:5.0"),
-                *("--set", "thesis.servo.failsafe_ms=integer:0"),
-            ],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=120,
-        )
-        assert r.returncode == 0, r.stderr[-3000:]
-        got = json.loads(r.stdout.strip().splitlines()[-1])
-        board = ml("config", "thesis", "--json", env=env, timeout=60)
-    finally:
-        err = stop(daemon)
+    sets = [*("--set", "thesis.dist_ir.rate_hz=double:5.0")]
+    sets += [*("--set", "thesis.servo.failsafe_ms=integer:0")]
+    got, board, err = parameters_set(thesis_board, tmp_path, sets, "--config", str(cfg))
     sensor, servo = got["results"]
     assert sensor["successful"], (sensor, err[-2000:])
     assert not servo["successful"] and "commands are off on ros2" in servo["reason"], servo

@@ -23,7 +23,7 @@ from missing_link.host.board import Board
 from missing_link.topics import Update
 from missing_link.transport import open_transport
 
-from .helpers import FirmwareSim, wait_for
+from .helpers import FirmwareSim, daemon_up, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 ROVER = ROOT / "examples" / "boards" / "rover.py"
@@ -33,17 +33,13 @@ pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def sim() -> Iterator[FirmwareSim]:
-    s = FirmwareSim(ROVER)
-    try:
+    with FirmwareSim(ROVER) as s:
         yield s
-    finally:
-        s.close()
 
 
 @pytest.fixture
 def rover(sim: FirmwareSim) -> Iterator[Daemon]:
-    with Daemon(Config(boards=[BoardSpec(sim.url, timeout=2.0)])) as d:
-        assert d.wait_until_up(30), d.failures()
+    with daemon_up(sim.url) as d:
         yield d
 
 

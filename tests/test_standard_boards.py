@@ -21,22 +21,11 @@ from missing_link.daemon.config import parse_config
 from missing_link.topics import Update
 
 from .helpers import FirmwareSim, wait_for
-from .standard_boards import POWER, RIG, ROVER, daemon_toml, virtual_board
+from .standard_boards import boards as boards  # (a fixture)
+from .standard_boards import daemon_toml
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 pytestmark = [pytest.mark.micropython, pytest.mark.slow]
-
-
-@pytest.fixture(scope="module")
-def boards() -> Iterator[dict[str, FirmwareSim]]:
-    sims: dict[str, FirmwareSim] = {}
-    try:
-        for name, path in (("rig", RIG), ("rover", ROVER), ("power", POWER)):
-            sims[name] = virtual_board(path)
-        yield sims
-    finally:
-        for s in sims.values():
-            s.close()
 
 
 @pytest.fixture
@@ -172,11 +161,12 @@ def test_joint_states_out_and_joint_commands_in_and_stopped_when_they_stop(
     joints = listen(robot, "/joint_states")
     motor = "result = WORLD.devices['motor_l'].state()"
     command = {"name": ["left_wheel"], "effort": [0.5]}
-    deadline = time.monotonic() + 10
-    while rover.ctl(motor) != (0.5, "drive") and time.monotonic() < deadline:
+
+    def driving() -> bool:
         robot.bus.send("/joint_commands", command)  # as a controller does, every cycle
-        time.sleep(0.1)
-    assert rover.ctl(motor) == (0.5, "drive")
+        return bool(rover.ctl(motor) == (0.5, "drive"))
+
+    assert wait_for(driving, 10, step=0.1)
     # the wheel's joint: its encoder's position and its motor's duty, stamped by the rover
     assert wait_for(lambda: any(_effort(u, "left_wheel") == 0.5 for u in joints), 5)
     timeouts = _joints_status(robot)["command_timeouts"]

@@ -10,13 +10,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 import subprocess
 import sys
-import time
 import tomllib
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +26,12 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import parse_config
 
 from .helpers import ML, FirmwareSim, free_port, wait_for
-from .standard_boards import POWER, RIG, ROVER, daemon_toml, virtual_board
+from .standard_boards import boards as boards  # (a fixture)
+from .standard_boards import daemon_toml
+from .test_ros1 import HAVE_ROS1, roscore
 
 HERE = Path(__file__).resolve().parent
 STORE = get_typestore(Stores.ROS2_JAZZY)
-HAVE_ROS1 = shutil.which("roscore") is not None and Path("/usr/bin/python3").exists()
 pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 STANDARD = {
     "/rig/imu/imu": "sensor_msgs/msg/Imu",
@@ -47,18 +45,6 @@ STANDARD = {
     "/power/battery/battery_state": "sensor_msgs/msg/BatteryState",
     "/power/bumper/active": "std_msgs/msg/Bool",
 }
-
-
-@pytest.fixture(scope="module")
-def boards() -> Iterator[dict[str, FirmwareSim]]:
-    sims: dict[str, FirmwareSim] = {}
-    try:
-        for name, path in (("rig", RIG), ("rover", ROVER), ("power", POWER)):
-            sims[name] = virtual_board(path)
-        yield sims
-    finally:
-        for s in sims.values():
-            s.close()
 
 
 def robot(boards: dict[str, FirmwareSim], publishers: str, tables: str = "") -> Daemon:
@@ -157,40 +143,29 @@ def test_foxglove_decodes_the_standard_types_with_their_advertised_schemas(
 def test_rospy_gets_the_standard_types_and_commands_with_float64(
     boards: dict[str, FirmwareSim], tmp_path: Path
 ) -> None:
-    port = free_port()
-    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1",
-           "ROS_HOME": str(tmp_path / "ros")}  # fmt: skip
-    core = subprocess.Popen(["roscore", "-p", str(port)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     cfg = tmp_path / "robot.toml"
     urls = (boards["rig"].url, boards["rover"].url, boards["power"].url)
     cfg.write_text(daemon_toml(*urls, publishers='["bus", "ros1"]'))
     daemon = None
-    try:
-        online = "import rosgraph,sys; sys.exit(0 if rosgraph.is_master_online() else 1)"
-        deadline = time.monotonic() + 20
-        while subprocess.run(["/usr/bin/python3", "-c", online], env=env).returncode != 0:
-            assert time.monotonic() < deadline, "roscore did not come up"
-            time.sleep(0.3)
-        daemon = subprocess.Popen(
-            [*ML, "run", "--config", str(cfg), "--duration", "60"],
-            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
-        subs = {**{t: ty.replace("/msg/", "/") for t, ty in STANDARD.items()},
-                "/rig/servo/joint_states": "sensor_msgs/JointState"}  # fmt: skip
-        r = subprocess.run(
-            ["/usr/bin/python3", str(HERE / "ros1_standard_listener.py"),
-             *[x for t, ty in subs.items() for x in ("--sub", f"{t}={ty}")],
-             "--float64", "/rig/servo/command=0.5", "--timeout", "50"],
-            env=env, capture_output=True, text=True, timeout=90,
-        )  # fmt: skip
-    finally:
-        if daemon is not None:
-            daemon.terminate()
-            err = daemon.communicate(timeout=15)[1]
-            assert "Traceback" not in err, err[-3000:]
-        core.terminate()
-        core.wait(15)
+    with roscore(tmp_path) as env:
+        try:
+            daemon = subprocess.Popen(
+                [*ML, "run", "--config", str(cfg), "--duration", "60"],
+                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            )  # fmt: skip
+            subs = {**{t: ty.replace("/msg/", "/") for t, ty in STANDARD.items()},
+                    "/rig/servo/joint_states": "sensor_msgs/JointState"}  # fmt: skip
+            r = subprocess.run(
+                ["/usr/bin/python3", str(HERE / "ros1_standard_listener.py"),
+                 *[x for t, ty in subs.items() for x in ("--sub", f"{t}={ty}")],
+                 "--float64", "/rig/servo/command=0.5", "--timeout", "50"],
+                env=env, capture_output=True, text=True, timeout=90,
+            )  # fmt: skip
+        finally:
+            if daemon is not None:
+                daemon.terminate()
+                err = daemon.communicate(timeout=15)[1]
+                assert "Traceback" not in err, err[-3000:]
     assert r.returncode == 0, r.stderr[-3000:]
     got: dict[str, list[dict[str, Any]]] = json.loads(r.stdout.strip().splitlines()[-1])["received"]
     assert all(got[t] for t in subs), {t: len(v) for t, v in got.items()}

@@ -23,7 +23,8 @@ from typing import Any
 import pytest
 
 from .helpers import FirmwareSim
-from .standard_boards import COUNTS_PER_REV, POWER, RIG, ROVER, daemon_toml, virtual_board
+from .standard_boards import COUNTS_PER_REV, daemon_toml
+from .standard_boards import boards as boards  # (a fixture)
 from .test_ros2 import ROS2_PY, ros_env, stop
 
 LISTENER = Path(__file__).with_name("ros2_standard_listener.py")
@@ -46,18 +47,6 @@ SUBS = {
     "/joint_states": "sensor_msgs/msg/JointState",
 }
 SERVO_LSB = math.radians(0.708661)
-
-
-@pytest.fixture(scope="module")
-def boards() -> Iterator[dict[str, FirmwareSim]]:
-    sims: dict[str, FirmwareSim] = {}
-    try:
-        for name, path in (("rig", RIG), ("rover", ROVER), ("power", POWER)):
-            sims[name] = virtual_board(path)
-        yield sims
-    finally:
-        for s in sims.values():
-            s.close()
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ from missing_link.board.runtime import BoardRuntime
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.j2a import SOF, FrameDecoder, encode_frame
+from missing_link.testing import FakeBoardClock
 from missing_link.timesync import (
     NOT_SYNCED,
     OUTLIER,
@@ -29,35 +30,27 @@ from .helpers import ml, wait_for
 
 
 # ---- the board's stamps --------------------------------------------------------------------------
-class StepClock:
-    def __init__(self) -> None:
-        self.now = 1_000
-
-    def __call__(self) -> int:
-        return self.now
-
-
 def _reply(rt: BoardRuntime) -> bytes:
     frames = [f for f in FrameDecoder().feed(rt.take_output()) if hasattr(f, "payload")]
     return frames[0].payload  # type: ignore[no-any-return]
 
 
 def test_a2jclock_t2_is_the_arrival_and_t3_the_hand_off() -> None:
-    clock = StepClock()
+    clock = FakeBoardClock(1_000)
     rt = BoardRuntime("b", "m", "s", clock=clock, epoch="e")
     request = encode_frame(SOF, 7, rt.index["a2jClock"], b"")
     rt.feed(request, rx_us=900)  # the shell saw the bytes at 900
-    clock.now = 1_250  # work happens; the reply leaves later
+    clock.us = 1_250  # work happens; the reply leaves later
     t2, t3 = struct.unpack("<QQ", _reply(rt))
     assert (t2, t3) == (900, 1_250)
-    clock.now = 2_000
+    clock.us = 2_000
     rt.feed(request)  # no shell stamp: the time feed() was called
-    clock.now = 2_500
+    clock.us = 2_500
     assert struct.unpack("<QQ", _reply(rt)) == (2_000, 2_500)
 
 
 def test_host_map_and_board_time_at() -> None:
-    rt = BoardRuntime("b", "m", "s", clock=StepClock(), epoch="e")
+    rt = BoardRuntime("b", "m", "s", clock=FakeBoardClock(1_000), epoch="e")
     assert rt.board_time_at(10**18) is None
     b0, h0, ppb = 7_000_000, 1_700_000_000_000_000_000, -30_000
     rt.feed(encode_frame(SOF, 1, rt.index["a2jHostMap"], struct.pack("<Qqi", b0, h0, ppb)))

@@ -17,6 +17,7 @@ from missing_link.daemon.session.alignment import ECHO_LAG_NS, grid_of, off_grid
 from missing_link.descriptors import Transducer
 from missing_link.errors import MissingLinkError
 from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame
+from missing_link.testing import FakeBoardClock
 from missing_link.timesync import OFF_GRID
 from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
@@ -25,15 +26,7 @@ from missing_link.virtual.server import start_board_thread
 from .helpers import wait_for
 
 
-class TurnedClock:
-    def __init__(self) -> None:
-        self.us = 5_000_000
-
-    def __call__(self) -> int:
-        return self.us
-
-
-def board(clock: TurnedClock) -> object:
+def board(clock: FakeBoardClock) -> object:
     rt = make_sim("aligned", 1, clock=clock)
     return rt
 
@@ -53,7 +46,7 @@ def push_map(rt: object, ppb: int = 150_000) -> None:
 
 
 def test_the_grid_in_board_ticks() -> None:
-    clock = TurnedClock()
+    clock = FakeBoardClock(5_000_000)
     rt = board(clock)
     timing = rt.timing  # type: ignore[attr-defined]
     assert timing.next_grid(20_000, 0.0, clock.us) is None  # no map: no grid
@@ -71,7 +64,7 @@ def test_the_grid_in_board_ticks() -> None:
 
 
 def test_timed_calls_and_their_refusals() -> None:
-    clock = TurnedClock()
+    clock = FakeBoardClock(5_000_000)
     rt = board(clock)
     trig = rt.index["a2j_trigger"]  # type: ignore[attr-defined]
     width = struct.pack("<H", 12)
@@ -105,7 +98,7 @@ def test_timed_calls_and_their_refusals() -> None:
 
 
 def test_aligned_samples_fall_on_the_grid_and_free_ones_are_counted() -> None:
-    clock = TurnedClock()
+    clock = FakeBoardClock(5_000_000)
     rt = board(clock)
     cfg = rt.config  # type: ignore[attr-defined]
     keys = {k.name: k for k in cfg.keys}

@@ -18,7 +18,7 @@ from missing_link.publishers.zenoh import attachment, data_key, dds_type
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
-from .helpers import ML, free_port
+from .helpers import ML, free_port, wait_for
 
 HERE = Path(__file__).resolve().parent
 LISTENER = HERE / "ros2_listener.py"
@@ -70,9 +70,7 @@ def test_independent_ros2_consumer_receives_decodes_and_commands(serve) -> None:
             *("--command", "/thesis/servo/cmd", "--command-type", "missing_link_msgs/msg/Servo"),
             *("--command-msgdef", SERVO, "--command-value", "50"),
         )
-        deadline = time.monotonic() + 5
-        while d.sessions[0].commands == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: d.sessions[0].commands != 0, 5)
         commands = d.sessions[0].commands
         zpub = next(p for p in d.publishers if p.name == "zenoh")
     samples = [x["sample"] for x in lines if "sample" in x]
@@ -119,10 +117,8 @@ def test_a_late_subscriber_gets_the_actuators_state(serve) -> None:  # type: ign
         states: list[Update] = []
         d.subscribe("/thesis/servo", states.append, queue=0)
         d.send("/thesis/servo/cmd", 37)
-        deadline = time.monotonic() + 10  # (the virtual servo moves there step by step)
-        while not (states and states[-1].values == [37]) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert states and states[-1].values == [37]
+        # (the virtual servo moves there step by step)
+        assert wait_for(lambda: states and states[-1].values == [37], 10)
         time.sleep(0.5)  # well after the state went out: only a cache can give it now
         lines = run_listener(
             f"tcp/127.0.0.1:{port}",
@@ -230,9 +226,7 @@ def test_a_command_with_a_future_stamp_acts_at_that_host_time(serve) -> None:  #
             *("--command-count", "1", "--command-at-ms", "400"),
         )
         at = next(x["command_at_ns"] for x in lines if "command_at_ns" in x)
-        deadline = time.monotonic() + 5
-        while not fired and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: fired, 5)
         status = d.status()[0]
     assert len(fired) == 1, fired
     u = fired[0]
@@ -271,18 +265,14 @@ def test_rejected_commands_are_counted_on_diagnostics(serve) -> None:  # type: i
         with zenoh.open(cfg) as client:
             sub = client.declare_subscriber(diag_key, lambda s: diags.append(bytes(s.payload)))
             pub = client.declare_publisher(key)
-            deadline = time.monotonic() + 10
-            while not pub.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.05)  # (until the daemon's subscriber is known here)
+            # (until the daemon's subscriber is known here)
+            wait_for(lambda: pub.matching_status.matching, 10)
             for k in range(50):
                 pub.put(b"\x00\x01\x00\x00" + bytes([k % 7]) * (k % 5))  # not a Servo
-            deadline = time.monotonic() + 10
-            while zp.command_errors < 50 and time.monotonic() < deadline:  # type: ignore[attr-defined]
-                time.sleep(0.05)
+            wait_for(lambda: zp.command_errors >= 50, 10)  # type: ignore[attr-defined]
             st = next(s for s in d.publisher_status() if s["publisher"] == "zenoh")
             seen = len(diags)
-            while len(diags) < seen + 2 and time.monotonic() < deadline + 5:
-                time.sleep(0.05)  # a /diagnostics round after the last of them
+            wait_for(lambda: len(diags) >= seen + 2, 15)  # a /diagnostics round after the last
             pub.undeclare()
             sub.undeclare()
     assert st["commands_rejected"] == 50 and st["commands"] == 0, st

@@ -33,7 +33,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from ..errors import TransportClosed
 from ..host.board import Board
@@ -126,6 +126,12 @@ class RuntimeBoard(ABC):
     def close(self) -> None:
         """Hang up and stop the board (its simulator, its process)."""
         self.hang_up()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.runtime} {self.url}>"
