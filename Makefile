@@ -60,9 +60,13 @@ typecheck: venv
 
 # PYTHONDONTWRITEBYTECODE emptied: the tests start hundreds of Python processes (the CLI, board
 # processes), each of which would compile the package again (0.66 s against 0.22 s for the daemon's
-# imports here).
+# imports here).  On every core (pytest-xdist), the tests that must not run side by side in
+# groups (tests/conftest.py: SERIAL, and a module's shared fixtures); PYTEST_WORKERS=0: in one
+# process.
+PYTEST_WORKERS ?= auto
 unit: venv system-deps node ros2
-	PYTHONDONTWRITEBYTECODE= ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(VENV)/bin/pytest -q
+	PYTHONDONTWRITEBYTECODE= ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(VENV)/bin/pytest -q \
+		-n $(PYTEST_WORKERS) --dist loadgroup
 
 test: lint typecheck unit
 

@@ -1,6 +1,9 @@
 from __future__ import annotations
 
 import itertools
+import os
+import shutil
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -19,6 +22,55 @@ UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 ROVER_MEGA = ROOT / "examples" / "boards" / "rover-mega.py"
 
 _names = itertools.count()
+
+#: Under pytest-xdist (make unit: -n auto --dist loadgroup) the tests of a group run in one
+#: worker, one after another: ``quiet``, those that measure timing against the host's clock or
+#: need the machine to themselves (the soaks in a Pico's heap, simavr's timed edges, clock sync,
+#: the benchmarks' probe rate); ``faces``, those that run ROS 2 (DDS discovery on this host),
+#: ROS 1 or Zenoh sessions next to each other.  A module whose tests share a module-scoped
+#: fixture (a build, a daemon, a browser) is a group of its own: set up once.
+SERIAL = {
+    "quiet": {"test_memory.py", "test_fastclock.py", "test_avr_timing.py", "test_bench.py",
+              "test_timesync_board.py"},
+    "faces": {"test_ros2.py", "test_standard_ros2.py", "test_gps_time_ros2.py", "test_ros1.py",
+              "test_board_log_ros.py", "test_standard_faces.py", "test_command_edges_faces.py",
+              "test_command_refusals.py", "test_zenoh.py"},
+}  # fmt: skip
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The daemon's default control endpoint and runtime files in a directory of this run's
+    (each pytest-xdist worker its own), not the user's: tests run side by side, and beside
+    other runs on the same machine."""
+    run = tempfile.mkdtemp(prefix="ml-tests-run-")
+    config.stash[_RUN_DIR] = (run, os.environ.get("XDG_RUNTIME_DIR"))
+    os.environ["XDG_RUNTIME_DIR"] = run
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    run, before = config.stash.get(_RUN_DIR, (None, None))
+    if run is None:
+        return
+    if before is None:
+        os.environ.pop("XDG_RUNTIME_DIR", None)
+    else:
+        os.environ["XDG_RUNTIME_DIR"] = before
+    shutil.rmtree(run, ignore_errors=True)
+
+
+_RUN_DIR = pytest.StashKey[tuple[str, str | None]]()
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        module = item.path.name
+        group = next((g for g, modules in SERIAL.items() if module in modules), None)
+        info = getattr(item, "_fixtureinfo", None)
+        defs = info.name2fixturedefs.values() if info is not None else []
+        if group is None and any(d.scope == "module" for ds in defs for d in ds):
+            group = module
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
 
 
 @pytest.fixture
