@@ -165,12 +165,14 @@ def daemon_up(url: str, **spec: Any) -> Iterator[Daemon]:
 
 
 @contextmanager
-def board_process(*args: str) -> Iterator[str]:
-    """``missing-link board ARGS`` on a free TCP port in a process of its own; yields its URL."""
+def board_process(*args: str, cmd: list[str] = ML, cwd: Path | None = None) -> Iterator[str]:
+    """``missing-link board ARGS`` on a free TCP port in a process of its own; yields its URL
+    (``cmd``: another ``missing-link``, e.g. an installed one, run in ``cwd``)."""
     p = subprocess.Popen(
-        [*ML, "board", "--listen", "tcp://127.0.0.1:0", *args],
+        [*cmd, "board", "--listen", "tcp://127.0.0.1:0", *args],
         stdout=subprocess.PIPE,
         text=True,
+        cwd=cwd,
     )
     try:
         assert p.stdout is not None

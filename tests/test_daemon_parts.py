@@ -250,8 +250,8 @@ def test_a_prober_reports_through_its_context(serve: Serve) -> None:
         sync = ClockSync(SyncOptions(), seed=1)
         sync.start(time.monotonic())
         prober = ClockProber(ctx, board, sync)
-        prober.first_estimate()
-        assert len(rtts) == 8 and all(r > 0 for r in rtts)
+        prober.first_estimate()  # (a probe slower than 20 x the best is lost: a busy machine)
+        assert len(rtts) + sync.lost == 8 and len(rtts) >= 1 and all(r > 0 for r in rtts)
         assert sync.estimate is not None
         prober.push_map()  # the thesis board acts at host times: it takes the map
         prober.start()

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from .helpers import board_process
+
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,22 +120,10 @@ def test_a_written_example_runs_as_a_board(venv: tuple[Path, Path]) -> None:
     r = _run([ml, "examples", "ex"], work)
     assert r.returncode == 0, r.stderr
     assert (work / "ex" / "missing-link.toml").is_file()
-    board = subprocess.Popen(
-        [ml, "board", "--file", "ex/boards/thesis-rig.py", "--listen", "tcp://127.0.0.1:0"],
-        cwd=work,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert board.stdout is not None
-        line = board.stdout.readline()
-        assert line.startswith("LISTENING "), line
-        r = _run([ml, "info", line.split()[1], "--json"], work, timeout=60)
+    with board_process("--file", "ex/boards/thesis-rig.py", cmd=[ml], cwd=work) as url:
+        r = _run([ml, "info", url, "--json"], work, timeout=60)
         assert r.returncode == 0, r.stderr
         assert '"imu"' in r.stdout and '"servo"' in r.stdout
-    finally:
-        board.terminate()
-        board.wait(10)
 
 
 def test_an_avr_firmware_builds_from_the_installed_sources(venv: tuple[Path, Path]) -> None:
