@@ -180,7 +180,8 @@ def measure(tmp: Path, tree: Path | None, seconds: float) -> dict[str, object]:
         name = f"rate_{baud}"
         make(variant(out, name, baud), out, "-DJ2A_PROFILE", tree)
         rows.append((baud, *sif_rate(out, name, baud, seconds, tmp)))
-    return {"sizes": sizes, "rows": rows, "per_byte": rx_cycles(out, "rate_115200", tmp)}
+    return {"sizes": sizes, "rows": rows, "per_byte": rx_cycles(out, "rate_115200", tmp),
+            "sync": sync_accuracy(out, tmp)}  # fmt: skip
 
 
 def print_figures(label: str, got: dict[str, object]) -> None:
@@ -204,6 +205,18 @@ def print_figures(label: str, got: dict[str, object]) -> None:
     print()
     print(f"cycles per received byte (parse + answer, a2jEcho 16 B): {got['per_byte']:,.0f}")
     print()
+    errs, bounds, skew, wander = got["sync"]  # type: ignore[misc]
+    inside = sum(e <= b for e, b in zip(errs, bounds, strict=True)) / len(errs) * 100
+    errs.sort()
+    p = lambda q: errs[min(len(errs) - 1, int(q * len(errs)))]  # noqa: E731
+    print(
+        f"clock sync, 115200 baud, crystal +80 ppm: error p50 {p(0.5):.0f} µs, p99 {p(0.99):.0f}"
+        f" µs, max {errs[-1]:.0f} µs; bound p50 {statistics.median(bounds):.0f} µs; "
+        f"in bound {inside:.0f} %; "
+        f"skew estimate {skew:.1f} ppm ({len(errs)} readings over 10 s); the simulated clock "
+        f"itself strays up to {wander:.0f} µs from a straight line (pacing on this machine)"
+    )
+    print()
 
 
 def main() -> None:
@@ -218,20 +231,9 @@ def main() -> None:
         )
         ref = measure(tmp, a.reference.resolve(), a.seconds) if a.reference else None
         now = measure(tmp, None, a.seconds)
-        errs, bounds, skew, wander = sync_accuracy(tmp / "now", tmp)
     if ref is not None:
         print_figures(f"reference: {a.reference}", ref)
     print_figures("this tree", now)
-    inside = sum(e <= b for e, b in zip(errs, bounds, strict=True)) / len(errs) * 100
-    errs.sort()
-    p = lambda q: errs[min(len(errs) - 1, int(q * len(errs)))]  # noqa: E731
-    print(
-        f"clock sync, 115200 baud, crystal +80 ppm: error p50 {p(0.5):.0f} µs, p99 {p(0.99):.0f}"
-        f" µs, max {errs[-1]:.0f} µs; bound p50 {statistics.median(bounds):.0f} µs; "
-        f"in bound {inside:.0f} %; "
-        f"skew estimate {skew:.1f} ppm ({len(errs)} readings over 10 s); the simulated clock "
-        f"itself strays up to {wander:.0f} µs from a straight line (pacing on this machine)"
-    )
 
 
 if __name__ == "__main__":
