@@ -64,8 +64,8 @@ def make(board: Path, build: Path, extra: str = "", tree: Path | None = None) ->
     return next(line for line in out.splitlines() if ": flash " in line)
 
 
-def variant(tmp: Path, name: str, baud: int) -> Path:
-    text = (BOARDS / "thesis-rig-uno.py").read_text()
+def variant(tmp: Path, name: str, baud: int, boards: Path = BOARDS) -> Path:
+    text = (boards / "thesis-rig-uno.py").read_text()
     text = text.replace('"name": "uno_rig"', f'"name": "{name}"')
     text = text.replace('"baudrate": 115200', f'"baudrate": {baud}')
     text = text.replace('"pin_b": 3, "rate_hz": 50', '"pin_b": 3, "rate_hz": 20000')
@@ -173,12 +173,13 @@ def measure(tmp: Path, tree: Path | None, seconds: float) -> dict[str, object]:
     """One firmware's figures: sizes, SIF rates and cycles, cycles per byte received."""
     out = tmp / ("reference" if tree is not None else "now")
     out.mkdir()
-    sizes = [make(BOARDS / "thesis-rig-uno.py", out, tree=tree),
-             make(BOARDS / "thesis-rig-mega.py", out, tree=tree)]  # fmt: skip
+    boards = BOARDS if tree is None else tree / "examples" / "boards"  # (its own board files)
+    sizes = [make(boards / "thesis-rig-uno.py", out, tree=tree),
+             make(boards / "thesis-rig-mega.py", out, tree=tree)]  # fmt: skip
     rows = []
     for baud in (115200, 1000000):
         name = f"rate_{baud}"
-        make(variant(out, name, baud), out, "-DJ2A_PROFILE", tree)
+        make(variant(out, name, baud, boards), out, "-DJ2A_PROFILE", tree)
         rows.append((baud, *sif_rate(out, name, baud, seconds, tmp)))
     return {"sizes": sizes, "rows": rows, "per_byte": rx_cycles(out, "rate_115200", tmp),
             "sync": sync_accuracy(out, tmp)}  # fmt: skip
