@@ -1,11 +1,14 @@
 from __future__ import annotations
 
+import ast
 import itertools
 import os
 import shutil
 import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -38,10 +41,30 @@ SERIAL = {
 }  # fmt: skip
 
 
+def _one_at_a_time(parse: Callable[..., ast.AST]) -> Callable[..., ast.AST]:
+    lock = threading.RLock()
+
+    def parse_alone(*args: Any, **kw: Any) -> ast.AST:
+        with lock:
+            return parse(*args, **kw)
+
+    return parse_alone
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """The daemon's default control endpoint and runtime files in a directory of this run's
     (each pytest-xdist worker its own), not the user's: tests run side by side, and beside
-    other runs on the same machine."""
+    other runs on the same machine.
+
+    And ast.parse one thread at a time: CPython 3.11 keeps the AST constructor's recursion
+    count per interpreter, so two threads that parse at once (a board's thread formatting a
+    traceback, whose carets 3.11 finds with ast.parse, while pytest renders a failure) make
+    one of them raise SystemError "AST constructor recursion depth mismatch": a worker of
+    pytest-xdist ended with it, and the rest of its tests with it."""
+    if not getattr(ast.parse, "__wrapped__", None):
+        alone = _one_at_a_time(ast.parse)
+        alone.__wrapped__ = ast.parse  # type: ignore[attr-defined]
+        ast.parse = alone  # type: ignore[assignment]
     run = tempfile.mkdtemp(prefix="ml-tests-run-")
     config.stash[_RUN_DIR] = (run, os.environ.get("XDG_RUNTIME_DIR"))
     os.environ["XDG_RUNTIME_DIR"] = run

@@ -5,7 +5,6 @@ serial port the daemon has locked), by URL or board name."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import re
@@ -51,10 +50,12 @@ def test_config_file_keys_are_applied_at_connect_and_after_a_board_reset(tmp_pat
             assert wait_for(lambda: "board reset" in d.status()[0]["config_changed_by"], 5)
             assert d.board_config("thesis")["servo.min_deg"] == -45
             n = len(got)
-            wait_for(lambda: len(got) >= n + 5, 10)  # (the first of them perhaps on its way)
-            recent = [u.board_us[0] for u in got[-4:]]
-            gaps = [b - a for a, b in itertools.pairwise(recent)]
-            assert all(150_000 <= g <= 250_000 for g in gaps), gaps  # 5 Hz after the reset too
+            wait_for(lambda: len(got) >= n + 12, 15)  # (the first of them perhaps on its way)
+            # 5 Hz after the reset too: the mean of ten periods (a virtual board stamps a sample
+            # when its loop reads it, late by up to 0.4 s on a busy machine, measured; its grid
+            # stays, and the rate is the configuration's)
+            recent = [u.board_us[0] for u in got[-11:]]
+            assert 150_000 <= (recent[-1] - recent[0]) / 10 <= 250_000, recent
     finally:
         stop_process(proc)
 

@@ -94,8 +94,10 @@ def test_srf02_ranges_over_i2c_and_changes_address(daemon: Rig, sim: FirmwareSim
     assert wait_for(lambda: len(got["sonar"]) > n + 2)
     assert got["sonar"][-1].values[0] is None
     sim.ctl("WORLD.i2c[(0, 0x70)].echo = True")
-    # the datasheet's address change sequence, written by the driver, moves the device
-    sim.ctl("fw.drivers['sonar'].change_address(0x71)")
+    # the datasheet's address change sequence, written by the driver, moves the device; asked
+    # while a ranging is in flight (the SRF02 acknowledges nothing then), it waits for its end
+    # (before: EIO, when the loop happened to be ranging)
+    sim.ctl("d = fw.drivers['sonar']\nd.measure(rt.clock())\nd.change_address(0x71)")
     assert sim.ctl("result = sorted(a for (b, a) in WORLD.i2c)") == [0x68, 0x71]
     sim.ctl("WORLD.i2c[(0, 0x71)].distance_cm = 77")
     n = len(got["sonar"])

@@ -130,6 +130,11 @@ class SRF02(Periodic):
         # 7-bit address (0x70..0x7F); the datasheet lists 8-bit 0xE0..0xFE.
         if not 0x70 <= new_address <= 0x7F:
             raise ValueError("SRF02 addresses are 0x70..0x7F (8-bit 0xE0..0xFE)")
+        # A ranging in flight: the SRF02 acknowledges nothing until it ends (the sequence
+        # failed with EIO); its range first, or its give-up, as the loop would (bounded: 100 ms)
+        while self._ping_us is not None:
+            self._check_us = 0
+            self.poll(self.clock())
         for b in (0xA0, 0xAA, 0xA5, new_address << 1):
             self._i2c.writeto_mem(self.address, 0, bytes((b,)))
         self.address = new_address
