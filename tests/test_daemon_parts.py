@@ -24,6 +24,7 @@ from missing_link.daemon.session.status import SessionState
 from missing_link.descriptors import Transducer, parse_transds
 from missing_link.host.board import Board
 from missing_link.j2a import SifReceived
+from missing_link.logs import ErrorCounts
 from missing_link.ros.msgs import typestore_for
 from missing_link.ros.standard import StandardMapping
 from missing_link.timesync.sync import NOT_SYNCED, ClockSync, SyncOptions
@@ -273,3 +274,30 @@ def test_claims_name_and_type_without_a_daemon() -> None:
     assert claims.type("board_a", i16) == ("missing_link_msgs/msg/Temp", None)
     name, clash = claims.type("board_b", f32)
     assert name == "missing_link_msgs/msg/BoardBTemp" and clash is not None
+
+
+def test_a_held_sif_that_raises_is_counted_and_the_handshake_goes_on() -> None:
+    """The SIFs held during a handshake go out in ``resume``, on the supervisor's thread: a
+    bug in what takes them (here the publisher) is counted as the SIF handler's would be, and
+    the handshake goes on (it ended the connect, and the session reconnected over and over)."""
+    faults = ErrorCounts(logging.getLogger(__name__), "b")
+    published: list[Update] = []
+
+    def publish(u: Update) -> None:
+        if u.values[0] == 1:
+            raise AttributeError("a bug on the sample path")
+        published.append(u)
+
+    path = SamplePath(publish, realtime_offset_ns=0, faults=faults)
+    (t,) = parse_transds("transds/1\nx,1,p,M,1,int16_t,-1\n")
+    path.topics[1] = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    board = cast(Board, SimpleNamespace(index={}, properties={}, timeout=1.0))  # (no log)
+    now = time.monotonic()
+    path.listen(board, same_boot=False)
+    for seq in range(3):
+        path.on_sif(SifReceived(1, seq, struct.pack("<Qh", 10 + seq, seq), 0), now)
+    path.resume(board, same_boot=False, count=3)
+    assert [u.values[0] for u in published] == [0, 2]  # the one that raised, and no other, lost
+    (kind,) = faults.kinds()
+    assert kind.kind == "AttributeError in SIF handler" and kind.count == 1
+    assert "a bug on the sample path" in kind.first

@@ -24,6 +24,10 @@ Per SIF:
    ``quiet``), and on each of its standard-type topics (``ros/standard``) one per sample or
    one per channel with a value, as the type is made.
 
+A bug past the decoding (a publisher that raises) is the SIF handler's: the link counts it by
+kind and reads on; the SIFs held during a handshake (``resume``) are guarded and counted the
+same way, in the session's ``faults``, so a bug never ends a connect.
+
 A log SIF (the board's log, cmd ``LOG_CMD``) counts in 1 like any SIF, then goes to the board's
 log path (``board_log.py``), which hands its lines to ``log``.
 
@@ -46,7 +50,9 @@ from typing import Any
 from ...board.log import LOG_CMD
 from ...host.board import Board
 from ...host.board_log import LogLine
+from ...host.sif_handlers import named
 from ...j2a import SifReceived
+from ...logs import ErrorCounts
 from ...ros.standard import StandardMapping
 from ...timesync.sync import NOT_SYNCED, OFF_GRID, OUTLIER, ClockSync
 from ...topics import Topic, Update
@@ -67,8 +73,12 @@ class SamplePath:
         publish: Callable[[Update], None],
         realtime_offset_ns: int,
         log: Callable[[LogLine], None] = lambda line: None,
+        faults: ErrorCounts | None = None,
     ) -> None:
+        """``faults``: where a bug on the path is counted when no SIF handler's guard is
+        around it (the held SIFs ``resume`` takes: the session's, as the reading thread's)."""
         self.publish = publish
+        self.faults = faults if faults is not None else ErrorCounts(logging.getLogger(__name__))
         self.log = BoardLogPath(log, realtime_offset_ns)  #: the board's log (board_log.py)
         self.realtime_offset_ns = realtime_offset_ns
         self.name = ""  #: the board's topic name (for log lines)
@@ -144,7 +154,10 @@ class SamplePath:
             self._outage_count = None
         with self._hold_lock:
             for sif, now_mono in self._holding or ():
-                self._take(sif, now_mono)
+                try:
+                    self._take(sif, now_mono)
+                except Exception as e:  # noqa: BLE001 - as the SIF handler's: never ends a handshake
+                    self.faults.caught("SIF handler", e, f"SIF handler {named(self.on_sif)}")
             self._holding = None
 
     def _hold(self, sif: SifReceived, now_mono: float) -> bool:

@@ -123,8 +123,12 @@ class BoardSession(SessionReport):
         #: the last firmware update's state (control/updates.py)
         self.update_status: dict[str, Any] | None = None
         self._serving = False  # serve() runs: late answers may still say something
-        # what happens to each sample (sample_path.py)
-        self.path = SamplePath(ctx.faces.publish, ctx.realtime_offset_ns, ctx.faces.log)
+        #: bugs caught by the supervisor and on the board's reading thread, by kind (cumulative)
+        self.faults = ErrorCounts(log, spec.url)
+        # what happens to each sample (sample_path.py; its bugs counted with the reading thread's)
+        self.path = SamplePath(
+            ctx.faces.publish, ctx.realtime_offset_ns, ctx.faces.log, self.faults
+        )
         self.warnings: list[str] = []
         self.connects = 0
         self.failures = 0
@@ -146,8 +150,6 @@ class BoardSession(SessionReport):
             )
         )
         self.past_links = LinkStats()  #: link counters of its earlier links (cumulative)
-        #: bugs caught by the supervisor and on the board's reading thread, by kind (cumulative)
-        self.faults = ErrorCounts(log, spec.url)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self.actuators = Actuators(self._wake.set, self._set_error, self.farewell.call_future)
