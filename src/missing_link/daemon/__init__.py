@@ -21,8 +21,9 @@ Its rooms, from the top down (each imports only the ones below it: tests/test_ar
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..lazy import lazy_names
 
 if TYPE_CHECKING:  # (at run time loaded on first use: ``missing-link call`` imports .control only)
     from .config import BoardSpec, Config
@@ -40,8 +41,4 @@ _WHERE = {
 __all__ = ["BoardSession", "BoardSpec", "Config", "Daemon", "connect"]
 
 
-def __getattr__(name: str) -> Any:
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+__getattr__ = lazy_names(__name__, _WHERE, globals())

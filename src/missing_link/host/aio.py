@@ -7,6 +7,7 @@ import asyncio
 import threading
 from collections import deque
 
+from ..delegate import Delegate
 from ..descriptors import Transducer
 from ..j2a import SifReceived
 from .board import Board
@@ -30,17 +31,9 @@ class AsyncBoard:
         )
         return cls(board)
 
-    @property
-    def functions(self) -> list[str]:
-        return self.board.functions
-
-    @property
-    def properties(self) -> dict[str, str]:
-        return self.board.properties
-
-    @property
-    def transducers(self) -> list[Transducer] | None:
-        return self.board.transducers
+    functions = Delegate[list[str]]("board")
+    properties = Delegate[dict[str, str]]("board")
+    transducers = Delegate[list[Transducer] | None]("board")
 
     async def call(
         self, name: str, payload: bytes = b"", timeout: float | None = None

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
+from ..delegate import Delegate
 from ..errors import (
     CallError,
     FunctionFailed,
@@ -82,28 +83,14 @@ class Board(LogLines):
         """The link engine this board holds (what a loop drives; benchmarks step it)."""
         return self._link
 
-    @property
-    def url(self) -> str:
-        return self._link.url
-
-    @property
-    def timeout(self) -> float:
-        """A call's timeout when it gives none (s)."""
-        return self._link.timeout
-
-    @property
-    def clock(self) -> Clock:
-        """What the board's deadlines, timers and ``last_frame`` run on."""
-        return self._link.clock
-
-    @property
-    def alive(self) -> bool:
-        return self._link.alive
-
-    @property
-    def last_frame(self) -> float:
-        """When the last intact frame (reply or SIF) arrived, on the board's clock (s)."""
-        return self._link.last_frame
+    url = Delegate[str]("_link")
+    #: a call's timeout when it gives none (s)
+    timeout = Delegate[float]("_link")
+    #: what the board's deadlines, timers and ``last_frame`` run on
+    clock = Delegate[Clock]("_link")
+    alive = Delegate[bool]("_link")
+    #: when the last intact frame (reply or SIF) arrived, on the board's clock (s)
+    last_frame = Delegate[float]("_link")
 
     def link_stats(self) -> LinkStats:
         """The link's counters now: frames, damage, calls, SIFs lost, the transport's own."""
@@ -254,19 +241,9 @@ class Board(LogLines):
         timeout: float | None = None,
         deadline: float | None = None,
     ) -> Future[bytes]:
-        return self._read_future(self._lookup(name), name, progress, max_bytes, timeout, deadline)
-
-    def _read_future(
-        self,
-        target: int,
-        label: str,
-        progress: ProgressFn | None = None,
-        max_bytes: int = 64 << 20,
-        timeout: float | None = None,
-        deadline: float | None = None,
-    ) -> Future[bytes]:
+        target = self._lookup(name)
         return self._link.request(
-            label,
+            name,
             lambda now, t: self._link.conn.read_many(
                 target,
                 now,

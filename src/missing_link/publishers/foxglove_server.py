@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from ..delegate import Delegate
 from ..logs import ErrorCounts
 from .front_door import FrontDoor
 
@@ -104,13 +105,8 @@ class LiveView:
         if self._error is not None:
             raise self._error
 
-    @property
-    def refused_origins(self) -> int:
-        return self.door.refused_origins
-
-    @property
-    def refused_clients(self) -> int:
-        return self.door.refused_clients
+    refused_origins = Delegate[int]("door")
+    refused_clients = Delegate[int]("door")
 
     @property
     def clients(self) -> int:
