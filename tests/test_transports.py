@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import io
 import os
+import select
 import socket
 import sys
+import threading
 import time
 import types
 from typing import Any
@@ -14,6 +16,7 @@ import pytest
 
 from missing_link import BadURL, Board, LinkLost, TransportBroken, TransportClosed, open_board
 from missing_link.board.runtime import BoardRuntime
+from missing_link.testing import wait_for
 from missing_link.transport import FdTransport, open_transport
 from missing_link.transport import usb as usb_transport
 from missing_link.transport.spy import SpyTransport
@@ -368,3 +371,40 @@ def test_a_clock_reply_heading_a_read_is_stamped_at_the_wake_and_stays_causal(
         if reactor is not None:
             reactor.stop()
         stop_process(proc)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="a pty")
+def test_a_serial_write_into_a_full_buffer_waits_for_the_board_to_read() -> None:
+    """A board that reads slower than the host writes (a UART; simavr's pty under load) fills
+    the port's buffer: the write waits for room and goes on (it failed at once with EAGAIN,
+    and the link ended); a board that takes nothing for the port's write timeout fails it,
+    saying so."""
+    master, slave = os.openpty()
+    t = open_transport(f"serial://{os.ttyname(slave)}")
+    data = bytes(range(256)) * 1024  # 256 KiB: many times a pty's buffer
+    ended: list[BaseException | None] = []
+
+    def write() -> None:
+        try:
+            t.write(data)
+            ended.append(None)
+        except BaseException as e:  # noqa: BLE001 - the test reports it
+            ended.append(e)
+
+    writer = threading.Thread(target=write)
+    try:
+        writer.start()
+        # the board reads nothing until the port is full (a write that did not wait has ended)
+        assert wait_for(lambda: ended or not select.select([], [slave], [], 0)[1])
+        got = bytearray()
+        while len(got) < len(data) and select.select([master], [], [], 5.0)[0]:
+            got += os.read(master, 4096)  # a page at a time: the writer waits between
+        writer.join(5.0)
+        assert ended == [None] and bytes(got) == data
+        t.write_timeout = 0.2  # (the port's, 2 s by default)
+        with pytest.raises(TransportBroken, match=r"the board took nothing for 0\.2 s"):
+            t.write(data)  # nothing reads now
+    finally:
+        t.close()
+        os.close(master)
+        os.close(slave)

@@ -95,6 +95,8 @@ class FdTransport(Transport):
     """A transport over a readable/writable file descriptor (socket, pty, serial port)."""
 
     wakes_on_close = True
+    #: s a write waits for room in a full buffer, the board reading nothing, before it fails
+    write_timeout = 2.0
 
     def __init__(self, url: str, fd: int) -> None:
         self.url = url
@@ -209,14 +211,32 @@ class FdTransport(Transport):
         return data, arrived if 0 < arrived <= now else now, counted[2]
 
     def write(self, data: bytes) -> None:
+        """All of ``data``.  A descriptor whose buffer is full (a board that reads slower than
+        this host writes: a UART, simavr's pty under load) takes the rest once it has room; one
+        that takes nothing for ``write_timeout`` s fails the write (TransportBroken)."""
         self._check()
         view = memoryview(data)
         with self._wlock:
             self.last_write_ns = time.monotonic_ns()
             try:
                 while view:
-                    n = self._send(view)
+                    try:
+                        n = self._send(view)
+                    except BlockingIOError:  # (EAGAIN: a non-blocking descriptor, full)
+                        self._wait_writable(len(view))
+                        continue
                     view = view[n:]
             except (OSError, ValueError) as e:
                 self._check()
                 raise TransportBroken(f"{self.url}: write failed: {e}") from e
+
+    def _wait_writable(self, left: int) -> None:
+        """Until the descriptor has room again, at most ``write_timeout`` s (``left``: the
+        bytes still to go, for the error)."""
+        _, ready, _ = select.select([], [self._fd], [], self.write_timeout)
+        self._check()
+        if not ready:
+            raise TransportBroken(
+                f"{self.url}: write failed: the board took nothing for {self.write_timeout:g} s "
+                f"({left} bytes not sent: its input is full, it reads no more)"
+            )

@@ -29,6 +29,8 @@ class SerialTransport(FdTransport):
     def __init__(self, url: str, port: serial.Serial) -> None:
         super().__init__(url, port.fileno())
         self.port = port
+        if port.write_timeout:  # (the descriptor is non-blocking: FdTransport.write waits)
+            self.write_timeout = port.write_timeout
 
     def _recv(self, n: int) -> tuple[bytes, int]:
         try:
