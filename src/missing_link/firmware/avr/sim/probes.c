@@ -127,10 +127,44 @@ static void stack_watch(void) {
     }
 }
 
+/* ---- interrupts off ---------------------------------------------------------------------------
+ * The longest stretch with SREG's I bit clear since the firmware first set it, by where it
+ * began: an interrupt routine (its vector: the routine runs with I clear) or the main loop (an
+ * atomic block).  An edge's interrupt waits for the stretch in flight, then for any
+ * higher-priority routine pending meanwhile.  Measured from the first instruction seen with I
+ * clear (a routine: after its entry's 4 cycles) to the one that set it again. */
+#define PLACES 65 /* vectors 0-63; 64: the main loop */
+static avr_cycle_count_t off_since, off_max[PLACES];
+static int off_place, irq_seen;
+
+static void irq_watch(void) {
+    if (avr->sreg[S_I]) {
+        irq_seen = 1;
+        if (off_since && avr->cycle - off_since > off_max[off_place]) off_max[off_place] = avr->cycle - off_since;
+        off_since = 0;
+    } else if (irq_seen && !off_since) {
+        unsigned size = avr->vector_size ? avr->vector_size : 4, v = avr->pc / size;
+        off_since = avr->cycle;
+        off_place = avr->pc % size == 0 && v < PLACES - 1 ? (int)v : PLACES - 1;
+    }
+}
+
+static void irqoff_say(void) {
+    printf("irqoff");
+    for (int k = 0; k < PLACES; k++) {
+        if (!off_max[k]) continue;
+        if (k == PLACES - 1) printf(" main:%llu", (unsigned long long)off_max[k]);
+        else printf(" %d:%llu", k, (unsigned long long)off_max[k]);
+        off_max[k] = 0;
+    }
+    printf("\n");
+}
+
 void probes_watch(void) {
     if (!t1_start && (avr->data[0x81] & 7)) t1_start = avr->cycle; /* TCCR1B */
     trig_watch();
     stack_watch();
+    irq_watch();
 }
 
 void probes_init(const char *mcu) {
@@ -156,6 +190,8 @@ int probes_command(const char *cmd) {
         printf("adc %u", n);
         for (unsigned i = adc_n - n; i < adc_n; i++) printf(" %.3f", board_us_at(adc_starts[i % ADC_LOG]));
         printf("\n");
+    } else if (!strncmp(cmd, "irqoff", 6)) {
+        irqoff_say();
     } else if (!strncmp(cmd, "stack", 5)) {
         printf("stack 0x%04x 0x%x\n", sp_min, (unsigned)sp_min_pc);
     } else {

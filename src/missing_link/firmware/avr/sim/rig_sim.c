@@ -5,7 +5,8 @@
  *   twi_bus.c  the TWI bus, and on it srf02.c (an SRF02 sonar) and mpu6050.c (an IMU)
  *   encoder.c  quadrature encoders (edges on their phases' pins)
  *   probes.c   what the rig measures: the servo's frame and pulse (OC1A), the trigger's edges
- *              (OC2A), ADC0's conversions, the lowest stack pointer, the board's clock
+ *              (OC2A), ADC0's conversions, the lowest stack pointer, the board's clock, the
+ *              longest stretches with interrupts off
  *   motor.c    DC motors at Timer0's outputs, and the wheels they turn (an encoder each)
  *   stepper.c, hcsr04.c, gps.c  a stepper driver, an HC-SR04, a GPS receiver on USART1
  *   eeprom.c   the EEPROM across power cycles, and power cuts
