@@ -209,9 +209,17 @@ def test_avr_flash_builds_then_real_avrdude_fails_on_a_missing_port(tmp_path: Pa
 def test_avr_board_file_errors_name_the_fixed_pins(tmp_path: Path) -> None:
     from missing_link.deploy.avrgen import generate_avr
 
-    body = UNO.read_text().replace('"pin_a": 2, "pin_b": 3', '"pin_a": 4, "pin_b": 5')
-    with pytest.raises(ConfigError, match="on the Uno/Nano the encoder is on pins 2 and 3"):
-        generate_avr(load_board_file(board_file(tmp_path, body)))
+    def encoder_at(a: int, b: int) -> Path:
+        text = UNO.read_text().replace('"pin_a": 2, "pin_b": 3', f'"pin_a": {a}, "pin_b": {b}')
+        return board_file(tmp_path, text)
+
+    assert "PCINT2_vect" in generate_avr(load_board_file(encoder_at(4, 5)))  # (pin-change)
+    with pytest.raises(ConfigError, match=r"servo: pin \(OC1A\) 9 is wheel \(pin_b\)'s already"):
+        generate_avr(load_board_file(encoder_at(2, 9)))
+    said = r"wheel: pin_a: pin 0 has no interrupt on the Uno/Nano \(external: 2, 3; pin-change"
+    with pytest.raises(ConfigError, match=said) as e:
+        generate_avr(load_board_file(encoder_at(0, 1)))
+    assert str(e.value).count(".py:") == 1, e.value  # (its prefix once)
     body = UNO.read_text().replace('"pin": 9,', '"pin": 10,')
     with pytest.raises(ConfigError, match=r"the servo is on pin 9 \(OC1A\)"):
         generate_avr(load_board_file(board_file(tmp_path, body)))
