@@ -25,6 +25,7 @@ import pytest
 
 from missing_link.daemon.config import BoardSpec
 from missing_link.virtual.process import start_board_process, stop_process
+from missing_link.world.datasheets import DLPF_DEFAULT, FIGURES, G, imu_sigmas
 
 from .helpers import ML, ml
 
@@ -244,7 +245,17 @@ def test_every_channel_named_one_plot_per_quantity(rig_page: Any, shots: Path) -
     imu = rig.get_by_role("article").filter(has_text="MPU-6050")
     expect(imu.locator("dl.channels dt")).to_have_text(["ax", "ay", "az", "temperature", "gx",
                                                          "gy", "gz"])  # fmt: skip
-    expect(imu.locator(".value").nth(2)).to_have_text(re.compile(r"^9\.80\d m/s² · 1(\.0+)? g$"))
+    az = imu.locator(".value").nth(2)
+    shown = r"^(\d+(?:\.\d+)?) m/s² · (\d+(?:\.\d+)?) g$"  # (four significant digits each)
+    expect(az).to_have_text(re.compile(shown))
+    m = re.match(shown, az.inner_text())
+    assert m, az.inner_text()
+    si, in_g = m.groups()
+    assert all(len(v.replace(".", "").lstrip("0")) <= 4 for v in (si, in_g)), (si, in_g)
+    # at rest in the default world: g, give or take six of the datasheet's noise sigmas
+    sigma = imu_sigmas(FIGURES["imu"], DLPF_DEFAULT)[0]
+    assert abs(float(si) - G) <= 6 * sigma, si
+    assert abs(float(in_g) - float(si) / G) <= 6e-4  # the same value (each rounded to 4)
     expect(imu.locator(".value").nth(4)).to_contain_text(" rad/s · ")
     expect(imu.locator(".value").nth(4)).to_contain_text(" °/s")
     expect(imu.locator("figcaption")).to_have_text(["acceleration (m/s²)", "temperature (°C)",
