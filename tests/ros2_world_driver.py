@@ -1,6 +1,8 @@
 """An independent ROS 2 node that drives a differential-drive robot and measures it (rclpy and the
-message packages only; nothing from missing_link): Float64 duty on each motor's command topic,
-what it measures from the standard topics the robot's daemon publishes, one JSON object out.
+message packages only; nothing from missing_link): the wheels' duty as effort on
+/joint_commands (ros2_control's topic-based interface), stamped a little ahead so that both
+wheels act at the same instant, and what it measures from the standard topics the robot's
+daemon publishes; one JSON object out.
 
     python ros2_world_driver.py --board rover --seconds 120
 
@@ -11,7 +13,8 @@ while a phase runs (as a controller publishes every cycle):
             the wheels' velocities and the gyro's z in the drive's second half; stopped: the
             ranger, the wheels, a fix again;
   turn      left motor back, right forward (--turn) until the gyro's z integrates to --angle
-            degrees; stopped: the compass again, and the gyro's integral over the whole turn.
+            degrees; stopped: the gyro's integral over the whole turn and the compass's heading
+            followed over it.
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ from typing import Any
 import rclpy
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu, JointState, MagneticField, NavSatFix, Range
-from std_msgs.msg import Float64
 
 
 def stamp(msg: Any) -> float:
@@ -47,8 +49,7 @@ class Driver:
         ):  # fmt: skip
             self.node.create_subscription(cls, topic, lambda m, k=key: self.got[k].append(m),
                                           qos_profile_sensor_data)  # fmt: skip
-        self.left = self.node.create_publisher(Float64, f"/{b}/motor_l/command", 10)
-        self.right = self.node.create_publisher(Float64, f"/{b}/motor_r/command", 10)
+        self.joints = self.node.create_publisher(JointState, "/joint_commands", 10)
         self.cmd = (0.0, 0.0)
         self.next_cmd = 0.0
         self.deadline = time.monotonic() + a.seconds
@@ -58,10 +59,12 @@ class Driver:
             if time.monotonic() > self.deadline:
                 raise SystemExit(f"timed out waiting for {what}: {self.counts()}")
             rclpy.spin_once(self.node, timeout_sec=0.02)
-            if time.monotonic() >= self.next_cmd and self.left.get_subscription_count():
+            if time.monotonic() >= self.next_cmd and self.joints.get_subscription_count():
                 self.next_cmd = time.monotonic() + 0.1
-                self.left.publish(Float64(data=self.cmd[0]))
-                self.right.publish(Float64(data=self.cmd[1]))
+                m = JointState(name=["left_wheel", "right_wheel"], effort=list(self.cmd))
+                at = self.node.get_clock().now().nanoseconds + int(self.a.lead * 1e9)
+                m.header.stamp.sec, m.header.stamp.nanosec = divmod(at, 10**9)
+                self.joints.publish(m)
 
     def counts(self) -> dict[str, int]:
         return {k: len(v) for k, v in self.got.items()}
@@ -157,7 +160,13 @@ class Driver:
         self.spin_until(lambda: self.settled(t1 + 0.5, ranger=False), "the robot to stop turning")
         imu = self.since("imu", t0)
         gz = [m.angular_velocity.z for m in imu if stamp(m) <= t1]
+        # the compass's heading, followed sample by sample (a turn may pass half a circle):
+        # the field turns the other way in the body's axes
+        heads = [math.atan2(m.magnetic_field.y, m.magnetic_field.x) for m in self.since("mag", t0)]
+        compass = -sum(math.remainder(b - a, 2 * math.pi) for a, b in itertools.pairwise(heads))
         return {"gyro_integral": integral(imu), "gyro_z_min": min(gz), "gyro_z_max": max(gz),
+                "gyro_gaps": gaps(imu), "compass_turn": compass,
+                "imu_gap_s": max(stamp(b) - stamp(a) for a, b in itertools.pairwise(imu)),
                 **self.snapshot(t1 + 0.5)}  # fmt: skip
 
 
@@ -169,6 +178,25 @@ def integral(imu: list[Any]) -> float:
     return out
 
 
+def brief(m: Any) -> list[float]:
+    if isinstance(m, Imu):
+        return [m.angular_velocity.z, m.linear_acceleration.x]
+    if isinstance(m, JointState):
+        return [m.position[0], m.velocity[0]]
+    if isinstance(m, Range):
+        return [m.range]
+    if isinstance(m, MagneticField):
+        return [m.magnetic_field.x, m.magnetic_field.y]
+    return [m.latitude, m.longitude]
+
+
+def gaps(imu: list[Any]) -> float:
+    """How far the trapezoids can be from the rate's true integral where it changed between two
+    samples (a rate that moved monotonically between them: half the gap times the change)."""
+    return sum(abs(b.angular_velocity.z - a.angular_velocity.z) * (stamp(b) - stamp(a)) / 2
+               for a, b in itertools.pairwise(imu))  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--board", default="rover")
@@ -178,6 +206,8 @@ def main() -> None:
     ap.add_argument("--distance", type=float, default=1.0)
     ap.add_argument("--turn", type=float, default=0.4)
     ap.add_argument("--angle", type=float, default=90.0)
+    ap.add_argument("--lead", type=float, default=0.4, help="s a command is stamped ahead")
+    ap.add_argument("--dump", help="a JSON file for every IMU and compass sample")
     a = ap.parse_args()
     rclpy.init()
     d = Driver(a)
@@ -187,6 +217,9 @@ def main() -> None:
         out["straight"] = d.straight(out["rest"])
         out["turn"] = d.turn()
         out["counts"] = d.counts()
+        if a.dump:  # (every sample, for a look at a failure)
+            with open(a.dump, "w") as f:
+                json.dump({k: [[stamp(m), *brief(m)] for m in v] for k, v in d.got.items()}, f)
     finally:
         d.node.destroy_node()
         rclpy.shutdown()

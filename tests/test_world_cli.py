@@ -2,7 +2,8 @@
 takes a world file or says in one line what is wrong with it (exit 2); ``--world-control``
 opens the world's endpoint on loopback or a unix socket (0600) only; ``missing-link world URL
 VERB`` pushes the robot by hand and prints its state, one line and exit 2 for a push the world
-refuses, exit 1 when no world answers; a push shows in what the board's sensors report."""
+refuses, exit 1 when no world answers; a push shows in what the board's sensors report, on
+CPython and under MicroPython (its world beside node: virtual/world_mpy.py)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from .helpers import ML, ml, wait_for
 ROOT = Path(__file__).resolve().parent.parent
 ROVER = ROOT / "examples" / "boards" / "rover.py"
 pytestmark = pytest.mark.slow
+RUNTIMES = ("cpython", pytest.param("micropython", marks=pytest.mark.micropython))
 
 
 class Rover:
@@ -61,7 +63,19 @@ def rover(tmp_path: Path) -> Iterator[Rover]:
     assert r.proc.returncode == 0
 
 
-def test_a_hand_pushes_turns_and_blocks_and_the_sensors_say_so(rover: Rover) -> None:
+@pytest.fixture(params=RUNTIMES)
+def any_rover(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rover]:
+    """The rover on each runtime that has a world."""
+    r = Rover(tmp_path, "--runtime", request.param)
+    try:
+        yield r
+    finally:
+        r.close()
+    assert r.proc.returncode == 0
+
+
+def test_a_hand_pushes_turns_and_blocks_and_the_sensors_say_so(any_rover: Rover) -> None:
+    rover = any_rover
     assert stat.S_IMODE(os.stat(rover.control).st_mode) == 0o600
     with Daemon(Config(boards=[BoardSpec(rover.url, timeout=3.0)])) as d:
         assert d.wait_until_up(30)

@@ -1,8 +1,9 @@
 """Item 5 of issue 47, end to end against a node we did not write: the example rover runs as a
 virtual board in its world (``missing-link board --file --world``, each runtime), the daemon
 publishes it on ROS 2 (rclpy, Fast DDS on loopback), and a stock rclpy node
-(tests/ros2_world_driver.py: rclpy and the message packages only) drives it with Float64 on
-each motor's command topic and checks, from what the daemon publishes: at rest the
+(tests/ros2_world_driver.py: rclpy and the message packages only) drives it with each wheel's
+effort on /joint_commands (stamped ahead: both wheels act at one instant) and checks, from
+what the daemon publishes: at rest the
 accelerometer reads g; driving straight both wheels' JointState velocities agree and the gyro's
 z stays near 0, the forward ranger's distance falls by what the wheels rolled (within its
 resolution) and the GPS fix moves with the body; turning in place the gyro's z has REP-103's
@@ -56,6 +57,14 @@ timeout = 2.0
 counts_per_rev = 400
 [boards.rover.ros.wheel_r]
 counts_per_rev = 400
+[joints]
+command_timeout = 1.0
+[joints.left_wheel]
+state = "rover/wheel_l"
+command = "rover/motor_l"
+[joints.right_wheel]
+state = "rover/wheel_r"
+command = "rover/motor_r"
 """
 
 
@@ -67,18 +76,22 @@ def driven(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[dict[str,
     cfg = tmp_path / "robot.toml"
     cfg.write_text(daemon_toml(board.url))
     env = ros_env()
+    log = (tmp_path / "daemon.err").open("w")  # (kept with the samples: a failure's look)
     daemon = subprocess.Popen(
         [str(ROS2_PY), "-m", "missing_link", "run", "--config", str(cfg), "--duration", "300"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        stdout=subprocess.PIPE, stderr=log, text=True, env=env,
     )  # fmt: skip
     try:
-        r = subprocess.run([str(ROS2_PY), str(DRIVER), "--seconds", "240"], capture_output=True,
-                           text=True, env=env, timeout=300)  # fmt: skip
+        dump = tmp_path / "samples.json"  # (kept where pytest keeps tmp_path: a failure's look)
+        r = subprocess.run([str(ROS2_PY), str(DRIVER), "--seconds", "240", "--dump", str(dump)],
+                           capture_output=True, text=True, env=env, timeout=300)  # fmt: skip
         assert r.returncode == 0, r.stderr[-3000:]
         yield json.loads(r.stdout.strip().splitlines()[-1])
     finally:
-        err = stop(daemon)
+        stop(daemon)
+        log.close()
         board.close()
+        err = (tmp_path / "daemon.err").read_text()
         assert "Traceback" not in err, err[-3000:]
     assert board.proc.returncode == 0, board.stderr()
 
@@ -93,11 +106,10 @@ def test_a_stock_rclpy_node_drives_the_rover_in_its_world(driven: dict[str, Any]
     assert len(pairs) >= 10
     # (a sample's velocity is its counts over the time between its stamp and the last one's:
     # the two wheels' samples of one instant share that time, so their ratio is the check)
-    ratios = sorted(b / a for a, b, _t in pairs if a > 0)
-    assert len(ratios) >= 0.9 * len(pairs) and statistics.median(ratios) == pytest.approx(
-        1, abs=0.02
-    )
-    assert sum(abs(r - 1) <= 0.1 for r in ratios) >= 0.8 * len(ratios), pairs
+    ratios = [b / a for a, b, _t in pairs if a > 0 and b > 0]
+    assert len(ratios) >= 10 and statistics.median(ratios) == pytest.approx(1, abs=0.02), pairs
+    agree = [abs(a - b) <= 0.1 * max(abs(a), abs(b)) for a, b, _t in pairs]
+    assert sum(agree) >= 0.8 * len(pairs), pairs
     gz = straight["gyro_z"]
     # (rad/s; the noise 0.00057 a sample; the bridges' ramps, each motor's own, end a few ms
     # apart: a turn of a fraction of a degree a second while they do)
@@ -119,7 +131,15 @@ def test_a_stock_rclpy_node_drives_the_rover_in_its_world(driven: dict[str, Any]
     # turning in place: counter-clockwise is positive (REP-103), and the gyro's integral is the
     # compass's change of heading (the field turns the other way in the body's axes)
     assert turn["gyro_z_max"] > 1.0 and turn["gyro_z_min"] > -0.005
-    (x0, y0), (x1, y1) = straight["field"], turn["field"]
-    heading = -math.remainder(math.atan2(y1, x1) - math.atan2(y0, x0), 2 * math.pi)
     assert math.degrees(turn["gyro_integral"]) >= 90
-    assert math.degrees(heading) == pytest.approx(math.degrees(turn["gyro_integral"]), abs=2.0)
+    # (the world holds a reading for its tick, 10 ms: at the turn's start and end the gyro's
+    # samples may be that late, 2 x 10 ms x the fastest rate; the trapezoids, where the rate
+    # changed between two samples; a board held up (a busy machine: the simulator moves the
+    # world between the firmware's steps only) reads a stale world, as late as its longest gap
+    # between two samples, once at the start and once at the end; the compass's 2 mG of
+    # 0.21 G horizontal field, at the first and the last sample: 0.8 degree)
+    late = 2 * max(0.010, turn["imu_gap_s"] - 0.020) * turn["gyro_z_max"]  # (50 Hz: 20 ms)
+    bound = math.degrees(late + turn["gyro_gaps"]) + 0.8
+    assert math.degrees(turn["compass_turn"]) == pytest.approx(
+        math.degrees(turn["gyro_integral"]), abs=bound
+    )

@@ -189,15 +189,18 @@ def _serve_board_file(
         chip = chip_id(flash if args.flash else None, args.seed or 0)
         if args.runtime == "micropython":
             from ..deploy.flashdir import prepare
-
-            if args.world not in (None, "none") or args.world_control:
-                raise ConfigError("--world, --world-control: not yet under --runtime micropython")
             from ..virtual.mpyboard import MicroPythonBoard
+            from ..virtual.world_mpy import NodeWorld
 
             if args.flash:  # (the board starts from its flash, as a board does: it takes updates)
                 prepare(path, flash, lambda t: print(f"missing-link: {t}", file=sys.stderr))
             kept = flash if args.flash else None
-            server: Any = MicroPythonBoard(path, url, kept, absent, dial=dial, chip=chip)
+            node_world = None
+            if world is not None:  # (beside the firmware, in this process: world_mpy.py)
+                node_world = NodeWorld(world, board, args.seed or 0, frozenset(absent))
+            server: Any = MicroPythonBoard(
+                path, url, kept, absent, dial=dial, chip=chip, world=node_world
+            )
         elif args.runtime == "avr":
             if args.world not in (None, "none") or args.world_control:
                 raise ConfigError("--world, --world-control: not yet under --runtime avr")

@@ -41,6 +41,7 @@ from urllib.parse import urlsplit
 
 from ..errors import BadURL, ConfigError, MissingLinkError
 from .boardfile import Pty, dial_target
+from .world_mpy import NodeWorld
 
 HOST_MJS = Path(__file__).resolve().parent / "world" / "host.mjs"
 MPY_ENTRY = Path("@micropython") / "micropython-webassembly-pyscript" / "micropython.mjs"
@@ -84,7 +85,8 @@ class MicroPythonBoard:
     """The board file at ``board_file`` under MicroPython, served on ``listen`` (tcp or pty);
     ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged; ``dial``: the
     board connects out to ``listen`` (tcp://HOST:PORT: host.mjs --dial, board/dial.py) instead;
-    ``chip``: the simulated chip's id (boardfile.chip_id)."""
+    ``chip``: the simulated chip's id (boardfile.chip_id); ``world``: the world beside the
+    firmware (world_mpy.py; None: none)."""
 
     def __init__(
         self,
@@ -95,6 +97,7 @@ class MicroPythonBoard:
         *,
         dial: bool = False,
         chip: bytes | None = None,
+        world: NodeWorld | None = None,
     ) -> None:
         node, entry = find_micropython()
         pty = listen in ("pty", "pty://") and not dial
@@ -109,11 +112,21 @@ class MicroPythonBoard:
             cmd += ["--flash", str(flash)]
         if absent:
             cmd += ["--absent", ",".join(absent)]
+        if world is not None:  # (the world beside the firmware, here: world_mpy.py)
+            cmd += world.node_args()
+        self.world_hand = world
         self._relay: _PtyRelay | None = None
         # (a session of its own: a terminal's Ctrl-C is this process's to handle, not node's)
         self.proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True
+            cmd,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+            pass_fds=world.pass_fds if world is not None else (),
         )
+        if world is not None:
+            world.started()
         self.lines: queue.Queue[str | None] = queue.Queue()
         threading.Thread(target=self._pump, name="board:node", daemon=True).start()
         try:

@@ -60,6 +60,7 @@ import { FastClock } from "./fastclock.mjs";
 import { copyTree } from "./mpfs.mjs";
 import { FlashCut } from "./flashcut.mjs";
 import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
+import { worldBeside } from "./worldtick.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const args = process.argv.slice(2);
@@ -110,23 +111,9 @@ if (!fromFlash) mp.FS.writeFile("/lib/board.py", readFileSync(boardFile));
 
 // ---- the board's flash ----------------------------------------------------------------------
 const FLASH = "/flash";
-function loadFlash(dir, at) {
-  for (const name of readdirSync(dir)) {
-    const p = join(dir, name);
-    if (statSync(p).isDirectory()) {
-      mp.FS.mkdir(at + "/" + name);
-      loadFlash(p, at + "/" + name);
-    } else {
-      mp.FS.writeFile(at + "/" + name, readFileSync(p));
-    }
-  }
-}
-mp.FS.mkdir(FLASH);
-if (flashDir) {
-  mkdirSync(flashDir, { recursive: true });
-  loadFlash(flashDir, FLASH);
-  writeThrough(flashDir);
-}
+if (flashDir) mkdirSync(flashDir, { recursive: true });
+copyTree(mp, flashDir, FLASH, true); // (every file of DIR, as it is; none: an empty flash)
+if (flashDir) writeThrough(flashDir);
 mp.FS.chdir(FLASH);
 for (const spec of files) {
   const eq = spec.indexOf("=");
@@ -211,6 +198,7 @@ const dialTo = dialArg !== null ?
   `link.pop("port", None)\nboard.BOARD["link"] = link\n` :
   noDial ? `import board\nboard.BOARD.get("link", {}).pop("dial", None)\n` : "";
 mp.runPython(bootPy + "\n" + seed + "from simworld import mpyhost");
+const world = worldBeside(mp, opt("--world-fds"), fast); // (--world-fds R,W: worldtick.mjs)
 if (heapArg !== null) {
   const [base, slack] = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
   mp.runPython(
@@ -306,6 +294,7 @@ function run() {
   if (held()) return; // (on data)
   let out;
   try {
+    world?.before(); // (the world's tick and its edges due, in the simulation's time)
     if (!fast) feedSome();
     out = tick();
   } catch (e) {

@@ -20,11 +20,13 @@ from .machine import WORLD
 from .pin_devices import motor_code
 
 MAX_PARTS = 32
+TICKS_MAX = (1 << 30) - 1  # (the board clock's wrap: simtime.py)
 HCSR04, SRF02, VL53L0X, SHARP, IMU, COMPASS, GPS, BATTERY = 0, 1, 2, 3, 4, 5, 6, 7
 MOTOR, SERVO, STEPPER, ENCODER = 8, 9, 10, 11
 _devs = [None] * MAX_PARTS  # index -> device model (an ADC or PWM part: its pin)
 _kinds = [0] * MAX_PARTS
-clock = None  # simtime (host.mjs --fast): the clock an edge's handler reads
+clock = None  # simtime (--fast) or heldtime (real time): the clock an edge's handler reads
+release = None  # heldtime's: the port's clock again after the edges
 
 
 def attach(i, t, kind, pin):
@@ -89,6 +91,17 @@ def step_at(t, pin_a, pin_b, d):
     if clock is not None:
         clock.set_now(t)
     WORLD.encoder_steps(pin_a, pin_b, d)
+
+
+def steps_at(pin_a, pin_b, d, n, t0, span):
+    # n edges the same way, spread evenly from t0 to t0 + span (µs; t0 wrapped as the clock
+    # is, and the sum kept a small integer: 2^30 is not one on a 32-bit port)
+    rest = TICKS_MAX - t0
+    for k in range(n):
+        dt = span * k // (n - 1) if n > 1 else 0
+        step_at(t0 + dt if dt <= rest else dt - rest - 1, pin_a, pin_b, d)
+    if release is not None:  # (heldtime: the port's clock again)
+        release()
 
 
 def motor(i):
