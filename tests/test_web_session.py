@@ -105,3 +105,15 @@ def test_commands_beyond_their_type_are_refused_and_the_board_stays(serve: Any) 
         (s,) = d.status()
         assert s["state"] == "up" and s["connects"] == 1 and s["values_refused"] == 6, s
         assert face.faults.total == 0
+
+
+def test_requests_without_a_token_lock_nobody_out(serve: Any, tmp_path: Path) -> None:
+    """A page of another origin in the owner's browser can make the browser request /login
+    (an image, a link: no header it chooses, no Origin), from the owner's own address: such a
+    request is no guess and counts nothing (found attacking the fixed console: ten of them
+    locked the owner out for a minute)."""
+    with console(serve, token_file=_token_file(tmp_path)) as (_d, face):
+        for _ in range(10):
+            assert _get(face.url + "login")[0] == 401
+        assert login(face)  # (the owner, from the same address: in)
+        assert face.status()["logins_refused"] == 0

@@ -10,9 +10,12 @@ a script does: no ``Origin``) and moved a servo (issue 43.2).  So the console se
 * ``/login`` takes the token in ``Authorization: Bearer`` (never in a URL), checked in constant
   time; failures are counted per client address, and after ``LOGIN_FAILURES`` in
   ``LOGIN_WINDOW_S`` that address's logins are refused (429) until its window ends - nobody
-  else's (front_door.py's ``LoginLimiter``).  A login answers a fresh session secret in its body,
-  bound to the page's origin the login came from (its ``Origin``, or the console's own where the
-  browser says ``Sec-Fetch-Site: same-origin``); a login by a script binds none.
+  else's (front_door.py's ``LoginLimiter``).  A request without a token is no guess and is not
+  counted: a page of another origin in the owner's browser (an image, a link: no header, no
+  ``Origin``) would otherwise lock the owner's own address out.  A login answers a fresh
+  session secret in its body, bound to the page's origin the login came from (its ``Origin``,
+  or the console's own where the browser says ``Sec-Fetch-Site: same-origin``); a login by a
+  script binds none.
 * The page keeps the secret in ``sessionStorage`` - its own origin's, port included: a page of
   another port cannot read it - and sends it as its WebSocket's first message (``{"op": "auth",
   "session": ...}``).  The console takes it only on a socket whose ``Origin`` is the one the
@@ -66,6 +69,8 @@ class Logins:
             self.refused += 1
             return 429, b"Too many failed logins: wait a minute\n"
         given = authorization[7:].strip() if authorization.startswith("Bearer ") else ""
+        if not given:  # (no guess: a page of another origin can make one without a header,
+            return 401, b"Send the token as Authorization: Bearer\n"  # never count it)
         if not hmac.compare_digest(given.encode(), self.token.encode()):
             self.limiter.failed(client, now)
             self.refused += 1
