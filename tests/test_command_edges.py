@@ -247,3 +247,16 @@ def test_a_call_that_raises_ends_neither_the_session_nor_the_timed_batch(serve: 
         d.send("/thesis/motor/cmd", 0.25, at_ns=time.time_ns() + 300_000_000)
         assert wait_for(lambda: kept["motor"].got[-1:] == [0.25], 5)
         _session_kept(d)
+
+
+def test_a_timed_command_beyond_a_host_time_is_refused(
+    robot: tuple[Daemon, dict[str, Recorder]],
+) -> None:
+    """(found attacking the fixed faces: an ``at_ns`` beyond an int64 was queued and failed
+    where it was packed, the caller told a struct.error)"""
+    d, kept = robot
+    for at in (1 << 63, 1 << 64, -1, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="not a host time"):
+            d.bus.send("/thesis/motor/cmd", Command([0.5], at))
+    tick = d.send("/thesis/motor/cmd", 0.25, at_ns=time.time_ns() + 300_000_000)
+    assert tick is not None and wait_for(lambda: kept["motor"].got[-1:] == [0.25], 5)

@@ -98,14 +98,17 @@ class Actuators:
             elif isinstance(value, (list, tuple)):
                 value = value[0] if value else None
             payload = self._packed(t, value)
+            at = timed.at_ns if timed is not None else None
+            if at is not None and not (_number(at) and 0 <= at < 1 << 63):  # (NaN, inf: out)
+                raise ValueError(f"{t.name}: at {at!r:.40}: not a host time (int64 ns)")
             with self._lock:
                 if timed is None:
                     self._pending[t.name] = (t, payload)
                 elif len(self._timed) >= MAX_TIMED:
                     raise ValueError(f"{t.name}: {MAX_TIMED} timed commands wait already")
                 else:
-                    assert timed.at_ns is not None
-                    self._timed.append((t, payload, timed.at_ns, timed.done))
+                    assert timed is not None and at is not None
+                    self._timed.append((t, payload, int(at), timed.done))
             self._wake()
 
         return handle
@@ -265,3 +268,7 @@ def _outcome(board: Board, name: str, fut: Future[CallResult]) -> CallResult | E
     if result.code != 0:
         return FunctionFailed(board.name, name, result.code, result.payload)
     return result
+
+
+def _number(x: object) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
