@@ -235,6 +235,8 @@ def test_the_2014_firmware_is_not_configurable_and_keeps_working() -> None:
         (b"config/1\na.b;enum;c;a|b;\n", "enum"),
         (b"config/1\na.b;enum;a;a|\x1b[2Jb;\n", "not printable"),  # (issue 43.6)
         (b"config/1\na.b;int;1;0..9\n", "line 2"),
+        (b"config/1\na.b;int;1e400;0..9;\n", "default"),  # (issue 43.8: OverflowError)
+        (b"config/1\na.b;float;-inf;0..9;\n", "default"),
         (b"config/1\na.b;bool;1;;\na.b;bool;1;;\n", "twice"),
         (b"\xff\xfe", "not UTF-8"),
         (b"config/1\n" + b"a.b;bool;1;;\n" * 3000, "over"),

@@ -36,6 +36,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     replay.start()
     for b in replay.boards:
         print(f"LISTENING {b.server.url}", flush=True)
+    rec = replay.recording
+    if rec.damaged or rec.skipped_chunks:
+        _say(f"replay: {rec.damaged} damaged record(s) and {rec.skipped_chunks} damaged chunk(s) "
+             "of the recording skipped")  # fmt: skip
     for b in replay.boards:
         _say(f"replay: {b.name} at {b.server.url}: {b.recorded.samples} samples")
         if b.recorded.changed:
@@ -51,10 +55,13 @@ def _serve(replay: Any, done: threading.Event) -> int:
     said_done, said_errors = False, 0
     next_progress = time.monotonic() + PROGRESS_S
     while not done.wait(0.1):
+        stopped = replay.stopped_serving()  # (a board's server ended: the replay cannot go on)
         errors = replay.errors()
         for line in errors[said_errors:]:
             _say(f"missing-link: error: {line}")
         said_errors = len(errors)
+        if stopped:
+            break
         sent = ", ".join(f"{b.name} {b.runtime.sent}" for b in replay.boards)
         if replay.finished and not said_done:
             said_done = True
@@ -65,7 +72,8 @@ def _serve(replay: Any, done: threading.Event) -> int:
     replay.stop()
     for b in replay.boards:
         _say(f"replay: {b.summary()}")
-    return EXIT_FAIL if replay.errors() else 0
+    failed = replay.stopped_serving() or any(b.feeder.error for b in replay.boards)
+    return EXIT_FAIL if failed else 0
 
 
 def _say(line: str) -> None:

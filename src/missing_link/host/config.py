@@ -231,11 +231,12 @@ def _parse_line(line: str, index: int) -> ConfigKey:
         raise ValueError(f"{name}: kind {kind!r}")
     lo_text, hi_text = limits.split("..")
     lo, hi = float(lo_text), float(hi_text)
-    value: Value = float(default)
+    number = float(default)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise ValueError(f"{name}: limits {limits!r}")
-    if kind == "int":
-        value = int(value)
+    if not math.isfinite(number):  # (int(inf) raised OverflowError: a board's, or a recording's)
+        raise ValueError(f"{name}: default {default[:40]!r}")
+    value: Value = int(number) if kind == "int" else number
     return ConfigKey(index, name, kind, value, lo, hi, read_only=ro)
 
 

@@ -20,12 +20,13 @@ import logging
 import struct
 from collections import Counter, deque
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from ..descriptors import Transducer, parse_transds
-from ..errors import DescriptorError, MissingLinkError
+from ..errors import BoardError, DescriptorError, MissingLinkError
+from ..host.config import parse_keys
 from ..publishers.recover import MCAP_MAGIC, complete_messages
 from ..ros.board_record import (
     CONFIG_TYPE,
@@ -156,6 +157,7 @@ def _first_pass(
         c = config_from_cdr(msg.data)
         board = rec.boards.get(c.board)
         if board is not None:
+            check_config(c)  # (ValueError: a bad record, counted and skipped)
             board.configs.append((msg.log_time, c))
     elif kind == CLOCK_TYPE:
         clocks.setdefault(topic, []).append(clock_record_from_cdr(msg.data))
@@ -169,6 +171,22 @@ def _first_pass(
     else:
         lo, hi = spans.get(topic, (msg.log_time, msg.log_time))
         spans[topic] = (min(lo, msg.log_time), max(hi, msg.log_time))
+
+
+def check_config(c: ConfigRecord) -> None:
+    """A recorded configuration is what a board could have had: its key table parses (host/
+    config.py's own checks) and every value is one its key takes (a whole number in range, a
+    finite one, a choice: ``failsafe_ms = "1e400"`` ended a replay in a traceback, issue 43.8);
+    ValueError naming the key otherwise."""
+    try:
+        table = {k.name: k for k in parse_keys(c.keys.encode(), c.board)}
+    except BoardError as e:
+        raise ValueError(str(e)) from None
+    for name, text in zip(c.names, c.values, strict=True):
+        key = table.get(name)
+        if key is None:
+            raise ValueError(f"{c.board}: a value for {name!r}, which its key table lacks")
+        replace(key, read_only=False).parse(text)  # (ConfigError, a ValueError, if not)
 
 
 @dataclass

@@ -43,24 +43,22 @@ board that restarted.
 
 from __future__ import annotations
 
+import functools
 import queue
 import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
-from ..board.config import Key, RuntimeConfig, crc16
 from ..board.failsafe import Failsafe
 from ..board.runtime import BoardRuntime
 from ..board.timing import Timing
 from ..descriptors import Transducer
-from ..host.config import ConfigKey, Value, natural, parse_keys
 from ..j2a.codec import SOS, encode_frame
-from ..ros.board_record import ConfigRecord
 from .recording import PairStats, RecordedBoard, RecordedSif, Recording, recorded_sifs
 from .replay_clock import Clock
+from .replay_config import Channel, ReplayConfig, config_keys
 
 READY_EXCHANGES = 8  #: clock exchanges answered before the host counts as synced
 #: ... or this long after its first request: a host that does not sync, or does not read the
@@ -74,15 +72,6 @@ LATE_NS = 50_000_000  #: a SIF sent this long after it was due counts as late
 BACKLOG = 16 * 1024  #: output bytes waiting for the host above which samples wait too
 NOBODY = 1 << 62  #: the backlog when no host is connected
 _PLAIN = 0  # a plain function (board/runtime.py's kind)
-
-
-@dataclass
-class _Channel:
-    """A replayed transducer as configuration and actuator calls see it."""
-
-    name: str
-    enabled: bool = True
-    driver: Any = None  # (board/config.py asks a key's driver for check_config: none here)
 
 
 class Feeder:
@@ -140,10 +129,12 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
                          epoch=clock.epoch(*self._boot))  # fmt: skip
         self.properties = props
         self._epoch()
-        self.channels = {t.name: _Channel(t.name) for t in board.transducers.values()}
+        self.channels = {t.name: Channel(t.name) for t in board.transducers.values()}
         self.commands: dict[str, int] = {}
         self.sent = self.withheld = 0
         self.late = 0  #: SIFs sent more than LATE_NS after they were due (a host not ready)
+        self.bad = 0  #: recorded samples and changes that could not be played (skipped)
+        self.said = ""  #: the first of them, said by the replay (replay_serve.py)
         self.exchanges = 0  # a2jClock requests answered
         self.first_request: int | None = None  # monotonic ns
         self.hosts = 0  #: host connections so far (the server counts them)
@@ -291,8 +282,8 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
             at, record = configs[self._changes]
             if self.timeline.mono_at(self.passes, at) > now:
                 break
-            self.config.follow(record)  # changed then, by the recording's host
             self._changes += 1
+            self._safely(functools.partial(self.config.follow, record), "a configuration change")
         while True:
             sif = self._peek()
             if sif is None:
@@ -302,8 +293,19 @@ class ReplayRuntime(BoardRuntime):  # type: ignore[misc]
                 return
             if now - due > LATE_NS:
                 self.late += 1
-            self._send(sif)
             self._next = None
+            self._safely(functools.partial(self._send, sif), "a sample")
+
+    def _safely(self, step: Callable[[], None], what: str) -> None:
+        """One step of the recording played; one that fails is counted and skipped (the file
+        is anyone's: a record recording.py let through that still cannot be played must not
+        end the board's thread), the first said."""
+        try:
+            step()
+        except Exception as e:  # noqa: BLE001 - (see above: counted, said once, skipped)
+            self.bad += 1
+            if self.bad == 1:
+                self.said = f"{what} of the recording cannot be played ({type(e).__name__}: {e})"
 
     def _peek(self) -> RecordedSif | None:
         """The next recorded SIF (its due time in ``_due_h``), None while none is there."""
@@ -378,73 +380,3 @@ def _not_reproduced(name: str) -> Callable[[bytes], tuple[int, bytes]]:
         return 0xFF, f"{name}: not reproduced by a replay (recorded: its name only)".encode()
 
     return call
-
-
-class ReplayConfig(RuntimeConfig):  # type: ignore[misc]
-    """The recorded key table and values, served with the board's own rules (board/config.py:
-    all or none, limits, read-only keys); no storage, so a save is refused, saying so."""
-
-    def __init__(self, runtime: BoardRuntime, keys: list[Any]) -> None:  # (no super: no drivers)
-        self.rt = runtime
-        self.store = None
-        self.keys = keys
-        self.changes = 0
-        self.state = 0
-        self.schema_crc = crc16(self.keys_blob())
-        runtime.add_blob_function("a2jConfigKeys", self.keys_blob)
-        runtime.add_function("a2jConfigGet", self._get)
-        runtime.add_function("a2jConfigSet", self._set)
-        runtime.add_function("a2jConfigReset", self._reset)
-
-    def follow(self, record: ConfigRecord) -> None:
-        """Take the values of a recorded configuration (a change the recording's host made)."""
-        given = dict(zip(record.names, record.values, strict=True))
-        for k in self.keys:
-            text = given.get(k.name)
-            if text is not None:
-                k.put(_value(k.kind, text))
-
-
-def config_keys(board: RecordedBoard, channels: dict[str, _Channel]) -> list[Any]:
-    """The board-side keys of the recorded configuration, at their recorded values."""
-    rec = board.config
-    assert rec is not None
-    table = parse_keys(rec.keys.encode(), board.name)
-    values = dict(zip(rec.names, rec.values, strict=True))
-    out = []
-    for ck in table:
-        ch = channels.setdefault(ck.transducer, _Channel(ck.transducer))
-        text = values.get(ck.name)
-        out.append(_key(ck, ch, ck.default if text is None else _value(ck.kind, text)))
-    return out
-
-
-def _value(kind: str, text: str) -> Value:
-    if kind == "bool":
-        return text in ("true", "1")
-    if kind == "int":
-        return int(float(text))
-    if kind == "float":
-        return float(text)
-    return natural(text)
-
-
-def _key(ck: ConfigKey, ch: _Channel, value: Value) -> Any:
-    held = [value]
-
-    def put(v: Any) -> None:
-        held[0] = v
-        if ck.key == "enabled":
-            ch.enabled = bool(v)
-
-    if ck.kind == "enum":
-        limits: Any = tuple(natural(c) for c in ck.choices)
-    elif ck.kind == "int":
-        assert ck.lo is not None and ck.hi is not None
-        limits = (int(ck.lo), int(ck.hi))
-    else:
-        limits = None if ck.kind == "bool" else (ck.lo, ck.hi)
-    put(value)
-    key = Key(ch, ck.key, ck.kind, limits, ck.read_only, lambda: held[0], put)
-    key.default = ck.default
-    return key

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..errors import BadURL
 from .recording import RecordedBoard, RecordingError, open_recording
@@ -40,7 +40,21 @@ class ReplayedBoard:
     runtime: ReplayRuntime
     server: BoardServer
     feeder: Feeder
-    thread: threading.Thread
+    error: str = ""  #: why its server ended, if it ended by itself
+    thread: threading.Thread = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.thread = threading.Thread(target=self.serve, name=f"replay:{self.name}", daemon=True)
+
+    def serve(self) -> None:
+        """The board's server until stopped; what ends it otherwise is kept (``error``)."""
+        try:
+            self.server.serve_forever()
+        except Exception as e:  # noqa: BLE001 - said by the replay, which then fails
+            self.error = f"{self.name} stopped serving: {type(e).__name__}: {e}"
+        else:
+            if not self.server.stopping:
+                self.error = f"{self.name} stopped serving"
 
     @property
     def name(self) -> str:
@@ -54,6 +68,7 @@ class ReplayedBoard:
             (rt.late, "late"), (rt.withheld, "withheld (disabled)"),
             (st.unstamped, "without board stamps (not replayed)"),
             (st.unmatched, "stamps without their sample"), (st.damaged, "damaged records"),
+            (rt.bad, "that could not be played (skipped)"),
         ) if n]  # fmt: skip
         return (
             f"{self.name}: {rt.sent} SIFs sent in {rt.passes + int(rt.finished)} pass(es)"
@@ -106,9 +121,7 @@ class Replay:
         model = ClockModel.from_records(b.clock, b.anchor or (first, 0), epoch)
         feeder = Feeder(self.recording, b.name, self.timeline.loop)
         runtime = ReplayRuntime(b, Clock(model, self.timeline), feeder)
-        server = _Server(runtime, self.listen)
-        thread = threading.Thread(target=server.serve_forever, name=f"replay:{b.name}", daemon=True)
-        return ReplayedBoard(b, runtime, server, feeder, thread)
+        return ReplayedBoard(b, runtime, _Server(runtime, self.listen), feeder)
 
     def start(self) -> Replay:
         for b in self.boards:
@@ -123,7 +136,15 @@ class Replay:
         return all(b.runtime.finished for b in self.boards)
 
     def errors(self) -> list[str]:
-        return [b.feeder.error for b in self.boards if b.feeder.error]
+        """What went wrong, said once each: a feed that broke, a record that could not be
+        played, a board that stopped serving (the replay then ends, and fails)."""
+        out = [b.feeder.error for b in self.boards if b.feeder.error]
+        out += [f"{b.name}: {b.runtime.said}" for b in self.boards if b.runtime.said]
+        return out + [b.error for b in self.boards if b.error]
+
+    def stopped_serving(self) -> bool:
+        """A board's server ended by itself (the replay cannot go on as recorded)."""
+        return any(b.error for b in self.boards)
 
     def position_s(self) -> float:
         """Seconds of the recording played in this pass (0 before the hosts came)."""

@@ -339,6 +339,11 @@ class BoardServer:
                 link.close()
             self.close()
 
+    @property
+    def stopping(self) -> bool:
+        """``stop()`` was called (a server that ends otherwise ended by itself)."""
+        return self._stop.is_set()
+
     def stop(self) -> None:
         self._stop.set()
 

@@ -1,0 +1,158 @@
+"""A crafted recording cannot crash ``replay`` (issue 43.8): a real recording (two virtual
+boards, a configuration change on the way: test_replay.py's) rewritten with the ``mcap``
+package's own writer (tests/replay_craft.py), its configuration records given values no board
+could have had.  Before, ``failsafe_ms = "1e400"`` in the first record was an OverflowError
+traceback, and in a later change it ended the board's thread where the change was due, while
+the process went on to exit 0 having sent a part of the samples.  Now such a record is counted
+and skipped where the recording is read (the replay says so), what still cannot be played is
+counted and skipped where it is played, and a replay whose board stopped serving ends and exits
+non-zero."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from missing_link.cli.common import EXIT_FAIL
+from missing_link.cli.replay import _serve
+from missing_link.ros.board_record import (
+    CONFIG_TYPE,
+    ConfigRecord,
+    config_cdr,
+    config_from_cdr,
+)
+from missing_link.virtual.recording import open_recording
+from missing_link.virtual.replay_serve import Replay
+
+from .replay_craft import craft
+from .test_replay import recorded, replay_and_record  # noqa: F401 - (recorded: a fixture)
+
+pytestmark = pytest.mark.slow  # (the recording: seconds of real time)
+Edit = Callable[[ConfigRecord], ConfigRecord]
+
+
+def _value(key: str, value: str) -> Edit:
+    def edit(c: ConfigRecord) -> ConfigRecord:
+        values = tuple(value if n == key else v for n, v in zip(c.names, c.values, strict=True))
+        return ConfigRecord(c.board, c.keys, c.names, values)
+
+    return edit
+
+
+def _keys(edit_text: Callable[[str], str]) -> Edit:
+    return lambda c: ConfigRecord(c.board, edit_text(c.keys), c.names, c.values)
+
+
+def crafted(src: Path, dest: Path, board: str, which: int, edit: Edit) -> Path:
+    """``src`` with the ``which``-th configuration record of ``board`` (0: as the recording
+    began; -1: its last change) changed by ``edit``."""
+    seen: list[int] = []
+    total = sum(1 for c in _configs(src) if c.board == board)
+    at = which % total
+
+    def rewrite(kind: str, topic: str, t: int, data: bytes) -> list[tuple[str, int, bytes]]:
+        if kind == CONFIG_TYPE:
+            c = config_from_cdr(data)
+            if c.board == board:
+                seen.append(t)
+                if len(seen) - 1 == at:
+                    data = config_cdr(edit(c))
+        return [(topic, t, data)]
+
+    return craft(src, dest, rewrite)
+
+
+def _configs(src: Path) -> list[ConfigRecord]:
+    out: list[ConfigRecord] = []
+
+    def keep(kind: str, topic: str, t: int, data: bytes) -> list[tuple[str, int, bytes]]:
+        if kind == CONFIG_TYPE:
+            out.append(config_from_cdr(data))
+        return []
+
+    craft(src, src.parent / "scratch.mcap", keep)
+    return out
+
+
+BAD: dict[str, tuple[str, Edit]] = {
+    "failsafe_ms 1e400": ("board_a", _value("servo.failsafe_ms", "1e400")),
+    "failsafe_ms -1e400": ("board_a", _value("servo.failsafe_ms", "-1e400")),
+    "failsafe_ms nan": ("board_a", _value("servo.failsafe_ms", "nan")),
+    "failsafe_ms 400 digits": ("board_a", _value("servo.failsafe_ms", "9" * 400)),
+    "failsafe_ms 0.5": ("board_a", _value("servo.failsafe_ms", "0.5")),
+    "safe not a choice": ("board_a", _value("servo.safe", "\x1b[2Jevil")),
+    "rate_hz inf": ("board_b", _value("dist_ir.rate_hz", "inf")),
+    "a default of 1e400": ("board_a", _keys(lambda k: k.replace(";500;", ";1e400;", 1))),
+    "a key table of junk": ("board_b", _keys(lambda k: "config/1\nx;y\n")),
+}
+
+
+@pytest.mark.parametrize("which", [0, -1], ids=["first", "last"])
+@pytest.mark.parametrize("bad", sorted(BAD))
+def test_a_bad_configuration_record_is_counted_and_skipped(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    tmp_path: Path,
+    bad: str,
+    which: int,
+) -> None:
+    board, edit = BAD[bad]
+    path = crafted(recorded, tmp_path / "crafted.mcap", board, which, edit)
+    rec = open_recording([str(path)])  # (before: OverflowError for the first record)
+    assert rec.damaged == 1, bad
+    assert all(c.board != board or not _is(c, edit) for _t, c in rec.boards[board].configs)
+
+
+def _is(c: ConfigRecord, edit: Edit) -> bool:
+    return edit(c) == c  # (a record the edit would not change is not the crafted one)
+
+
+@pytest.mark.parametrize(
+    ("board", "which", "key"),
+    [("board_a", 0, "servo.failsafe_ms"), ("board_b", -1, "dist_ir.rate_hz")],
+    ids=["first", "a change"],
+)
+def test_a_bad_record_costs_the_replay_nothing_else(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    tmp_path: Path,
+    board: str,
+    which: int,
+    key: str,
+) -> None:
+    """board_a's first configuration, or the change of board_b's rate, crafted to 1e400:
+    every sample of both boards is played (before: the first was a traceback; the change
+    ended board_b's thread where it was due, a part of its samples sent)."""
+    path = crafted(recorded, tmp_path / "crafted.mcap", board, which, _value(key, "1e400"))
+    replay, again = replay_and_record(path, tmp_path / "again")
+    assert replay.recording.damaged == 1
+    for b in replay.boards:
+        assert b.runtime.sent == b.recorded.samples and not b.error, b.summary()
+    assert again  # (and a daemon recorded them: replay_and_record waited for every one)
+
+
+def test_a_replay_whose_board_stopped_serving_ends_and_fails(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Whatever ends a board's server (here: its turn raises) ends the replay, said, with
+    EXIT_FAIL (before: the process went on, and exited 0)."""
+    replay = Replay([str(recorded)], listen="tcp://127.0.0.1:0", lead_s=0.5)
+
+    def broken(*_a: Any) -> Any:
+        raise RuntimeError("a bug")
+
+    replay.boards[0].server._turn = broken  # type: ignore[method-assign]
+    replay.start()
+    try:
+        host, port = replay.boards[0].server.url.split("//")[1].split(":")
+        with socket.create_connection((host, int(port))) as s:
+            s.sendall(b"\x12\x00\x00\x00\x00")  # (any input: the board takes a turn)
+            assert _serve(replay, threading.Event()) == EXIT_FAIL
+    finally:
+        replay.stop()
+    err = capsys.readouterr().err
+    assert f"{replay.boards[0].name} stopped serving: RuntimeError: a bug" in err, err
