@@ -139,13 +139,14 @@ def test_malformed_frames_get_the_right_error_frames(rig: AvrSim) -> None:
         def ask(raw: bytes, *want: tuple[int, int, bytes]) -> list[tuple[int, int, bytes]]:
             """Send ``raw``; the replies seen until all of ``want`` came (or 3 s passed)."""
             t.write(raw)
-            out = b""
-            end = time.monotonic() + 3
-            while time.monotonic() < end:
-                out += t.read(0.1)
-                if all(w in _frames(out) for w in want):
-                    break
-            return _frames(out)
+            out = bytearray()
+
+            def came() -> bool:
+                out.extend(t.read(0.1))
+                return all(w in _frames(bytes(out)) for w in want)
+
+            wait_for(came, 3, step=0)
+            return _frames(bytes(out))
 
         good = encode_frame(SOF, 7, 4, b"abc")
         bad_csum = good[:-1] + bytes([good[-1] ^ 1])
@@ -173,14 +174,16 @@ def test_golden_vectors_against_the_avr_code(avr_rig: AvrRig) -> None:
 
         def exchange(request: bytes) -> bytes:
             t.write(request)
-            out = b""
-            end = time.monotonic() + 3
-            while time.monotonic() < end:
-                out += t.read(0.05)
-                if _frames(out):
-                    time.sleep(0.05)
-                    return out + t.read(0.05)
-            return out
+            out = bytearray()
+
+            def came() -> bool:
+                out.extend(t.read(0.05))
+                return bool(_frames(bytes(out)))
+
+            if wait_for(came, 3, step=0):
+                time.sleep(0.05)  # (a reply in pieces: its rest)
+                out.extend(t.read(0.05))
+            return bytes(out)
 
         for case, request, reply in VECTORS:
             assert exchange(request) == reply, case

@@ -13,6 +13,7 @@ from missing_link.board.runtime import INTERBYTE_TIMEOUT_US, BoardRuntime, Trans
 from missing_link.board.wire import encode_frame as board_encode_frame
 from missing_link.board.wire import encode_frame_head, encode_frame_tail
 from missing_link.j2a import SOF, Frame, FrameDecoder, FrameKind, encode_frame, parse_mapping
+from missing_link.testing import wait_for
 from missing_link.virtual.sims import original
 
 from .vectors import ORIGINAL_TABLE, PROPS_REPLY_HEAD, PROPS_REQUEST, SIF, VECTORS
@@ -208,13 +209,14 @@ def test_silence_after_sof_gets_f2_over_a_real_pty() -> None:
     try:
         tty.setraw(fd)
         os.write(fd, bytes.fromhex("120e"))  # SOF, seq 0x0e, then nothing
-        got = b""
-        deadline = 50
-        while b"\x12\x0e\xf2" not in got and deadline:
-            ready, _, _ = select.select([fd], [], [], 0.1)
-            if ready:
-                got += os.read(fd, 4096)
-            deadline -= 1
+        got = bytearray()
+
+        def answered() -> bool:
+            if select.select([fd], [], [], 0)[0]:
+                got.extend(os.read(fd, 4096))
+            return b"\x12\x0e\xf2" in got
+
+        assert wait_for(answered, 5), got
         (f,) = [f for f in FrameDecoder().feed(got) if isinstance(f, Frame) and f.kind == SOF]
         assert (f.seq, f.opcode, len(f.payload)) == (0x0E, 0xF2, 2)
     finally:

@@ -117,25 +117,23 @@ def test_another_users_endpoint_is_never_asked_nor_used(tmp_path: Path) -> None:
 
 # ---- up ----------------------------------------------------------------------------------------
 CHILD = """
-import os, resource, sys, threading, time
+import os, resource, sys, threading
 from missing_link.daemon.control.endpoint import ControlServer
+from missing_link.testing import wait_for
 resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
 server = ControlServer(sys.argv[1], {"find": lambda r: {"name": "x", "url": "u", "state": "up"}})
 print("READY", flush=True)
 held = []
 for line in sys.stdin:
     if line.strip() == "fill":
-        while threading.active_count() > 2:  # (the last client's descriptor closed first)
-            time.sleep(0.01)
+        wait_for(lambda: threading.active_count() <= 2, 10, 0.01)  # (the last client's closed)
         try:
             while True:
                 held.append(os.open(os.devnull, os.O_RDONLY))
         except OSError:
             print("FULL", flush=True)
     elif line.strip() == "free":
-        end = time.monotonic() + 10
-        while not server.accept_errors and time.monotonic() < end:
-            time.sleep(0.01)
+        wait_for(lambda: server.accept_errors, 10, 0.01)
         for fd in held:
             os.close(fd)
         held.clear()

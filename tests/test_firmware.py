@@ -244,8 +244,7 @@ def test_aligned_sampling_and_a_timed_trigger_on_micropython() -> None:
     board = Board(open_transport(sim.url), timeout=5.0)
 
     def wait_board(until: int) -> None:  # (the simulation moves on as this host talks to it)
-        while board.clock_exchange(5.0).t3 < until:
-            time.sleep(0.01)
+        assert wait_for(lambda: board.clock_exchange(5.0).t3 >= until, 60, step=0.01)
 
     try:
         board.handshake()

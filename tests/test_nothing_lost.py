@@ -372,13 +372,16 @@ def test_run_view_redraws_in_place_on_a_terminal(board_url: str) -> None:
         env={**os.environ, "TERM": "xterm-256color", "COLUMNS": "160", "LINES": "60"},
     )
     os.close(slave)
-    screen = b""
-    deadline = time.monotonic() + 30
-    while p.poll() is None and time.monotonic() < deadline:
+    screen = bytearray()
+
+    def ended() -> bool:  # (what it drew read meanwhile: a full pty would hold it up)
         try:
-            screen += os.read(master, 65536)
+            screen.extend(os.read(master, 65536))
         except (BlockingIOError, OSError):
-            time.sleep(0.05)
+            pass
+        return p.poll() is not None
+
+    wait_for(ended, 30, step=0.05)
     p.wait(10)
     os.close(master)
     text = screen.decode("utf-8", "replace")

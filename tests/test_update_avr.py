@@ -10,8 +10,8 @@ line of avrdude's error, the board back up on its old firmware)."""
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,7 +19,7 @@ from missing_link.daemon import Config, Daemon
 from missing_link.daemon.config import BoardSpec
 from missing_link.virtual import make_sim, start_board_thread
 
-from .helpers import AvrRig, ml
+from .helpers import AvrRig, ml, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
@@ -74,14 +74,13 @@ def test_the_daemon_lets_go_of_the_port_for_avrdude_and_takes_it_back(
         port = rig.url.removeprefix("serial://")
         assert last.startswith(f"missing-link: error: avrdude on {port} failed: "), last
         assert "Traceback" not in r.stderr
+
         # the daemon let go of the port (a second connect) and has the board again, unchanged
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            st = {s["board"]: s for s in d.status()}["uno_rig"]
-            if st["state"] == "up" and st["connects"] == 2:
-                break
-            time.sleep(0.2)
-        assert (st["state"], st["connects"]) == ("up", 2), st
+        def rig() -> dict[str, Any]:
+            return {s["board"]: s for s in d.status()}["uno_rig"]
+
+        assert wait_for(lambda: (st := rig())["state"] == "up" and st["connects"] == 2, 30), rig()
+        st = rig()
         assert st["fw_hash"] == before["fw_hash"]
         assert st["update"]["state"] == "port taken back", st["update"]
 
