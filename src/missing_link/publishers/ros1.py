@@ -124,41 +124,32 @@ class Ros1Publisher(RosPublisher):
         return self._dynamic(f"{pkg}/{name}", text)[f"{pkg}/{name}"]
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        """``/<board>/<name>/cmd`` in the thesis type: a ROS 1 node drives the actuator."""
-        if topic.standard:
-            self._standard_command(name, topic, deliver)
-            return
+        """``/<board>/<name>/cmd``: a ROS 1 node drives the actuator.  In the thesis type each
+        message is a ``Command`` to the handler; of a standard type (``std_msgs/Float64`` per
+        actuator, the robot's ``sensor_msgs/JointState`` commands), the ROS 1 message itself."""
+        standard = topic.standard
+        cls: Any = None
+        if standard:
+            pkg, _, type_ = topic.type_name.split("/")
+            cls = self._get_class(f"{pkg}/{type_}")
+            if cls is None:
+                log.warning(
+                    "ros1: no ROS 1 class for %s; %s takes no commands", topic.type_name, name
+                )
+                return
         with self._lock:
             if self._closed or name in self._subs:
                 return
-            cls = self._thesis_class(topic)
+            if not standard:
+                cls = self._thesis_class(topic)
 
             def on_command(msg: Any) -> None:  # rospy's thread: hand over, never raise
                 try:
-                    at = msg.times[0].to_nsec() if msg.times else 0  # (future: timed; else now)
-                    deliver(Command(list(msg.values), at if at > time.time_ns() else None))
-                    self.commands += 1
-                except Exception as e:  # noqa: BLE001 - a bad command is counted, not fatal
-                    self.dropped += 1
-                    log.warning("ros1: command on %s refused: %s", name, e)
-
-            self._subs[name] = self.rospy.Subscriber(name, cls, on_command, queue_size=10)
-
-    def _standard_command(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        """A command topic of a standard type (``std_msgs/Float64`` per actuator, the robot's
-        ``sensor_msgs/JointState`` commands): the ROS 1 message to the handler."""
-        pkg, _, type_ = topic.type_name.split("/")
-        cls = self._get_class(f"{pkg}/{type_}")
-        if cls is None:
-            log.warning("ros1: no ROS 1 class for %s; %s takes no commands", topic.type_name, name)
-            return
-        with self._lock:
-            if self._closed or name in self._subs:
-                return
-
-            def on_command(msg: Any) -> None:  # rospy's thread: hand over, never raise
-                try:
-                    deliver(msg)
+                    if standard:
+                        deliver(msg)
+                    else:  # (times[0] in the future: timed; else now)
+                        at = msg.times[0].to_nsec() if msg.times else 0
+                        deliver(Command(list(msg.values), at if at > time.time_ns() else None))
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command is counted, not fatal
                     self.dropped += 1

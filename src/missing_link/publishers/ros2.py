@@ -233,41 +233,21 @@ class Ros2Publisher(RosPublisher):
             self._pubs[topic.name] = self.node.create_publisher(cls, topic.name, qos)
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        if topic.standard:
-            self._standard_command(name, topic, deliver)
-            return
+        """A command topic: of the thesis type, each message a ``Command`` to the handler; of a
+        standard type (``std_msgs/msg/Float64`` per actuator, the robot's ``JointState``
+        commands), the message itself, decoded by rosbags."""
         cls = self._class_for(topic)
         if cls is None:
             return
-        type_name = topic.type_name
-        topic.register_type(self.typestore)  # to decode commands
+        type_name, standard = topic.type_name, topic.standard
+        if not standard:
+            topic.register_type(self.typestore)  # to decode commands
 
         def on_command(raw: bytes) -> None:
             try:
                 msg: Any = self.typestore.deserialize_cdr(raw, type_name)
-                deliver(Command.from_message(msg, time.time_ns()))  # (times[0]: when to act)
-            except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
-                self.dropped += 1
-                log.warning("ros2: command on %s refused: %s", name, e)
-
-        with self._lock:
-            if self._closed or name in self._subs:
-                return
-            self._subs[name] = self.node.create_subscription(
-                cls, name, on_command, self.qos, raw=True
-            )
-
-    def _standard_command(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        """A command topic of a standard type (``std_msgs/msg/Float64`` per actuator, the
-        robot's ``JointState`` commands): the message, decoded by rosbags, to the handler."""
-        cls = self._class_for(topic)
-        if cls is None:
-            return
-        type_name = topic.type_name
-
-        def on_command(raw: bytes) -> None:
-            try:
-                deliver(self.typestore.deserialize_cdr(raw, type_name))
+                # (a Command's times[0]: when to act)
+                deliver(msg if standard else Command.from_message(msg, time.time_ns()))
             except Exception as e:  # noqa: BLE001 - a bad command is counted, never fatal
                 self.dropped += 1
                 log.warning("ros2: command on %s refused: %s", name, e)

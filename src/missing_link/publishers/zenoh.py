@@ -209,49 +209,25 @@ class ZenohPublisher(RosPublisher):
         return ent
 
     def add_command_topic(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        """Subscribe to ``name`` (the actuator's command topic, of ``topic``'s type)."""
-        if topic.standard:
-            self._standard_command(name, topic, deliver)
-            return
+        """Subscribe to ``name`` (the actuator's command topic, of ``topic``'s type): of the
+        thesis type each message a ``Command`` to the handler; of a standard type
+        (``std_msgs/msg/Float64`` per actuator, the robot's ``JointState`` commands), the
+        message itself, decoded by rosbags."""
+        type_name, standard = topic.type_name, topic.standard
         with self._lock:
             if self._closed or name in self._subs:
                 return
-            topic.register_type(self.typestore)
-            hash_ = type_hash(self.typestore, topic.type_name, self.distro)
+            if not standard:
+                topic.register_type(self.typestore)
+            hash_ = type_hash(self.typestore, type_name, self.distro)
             eid = self._next_id
             self._next_id += 1
-            key = data_key(self.domain, name, topic.type_name, hash_)
-            type_name = topic.type_name
 
             def on_sample(sample: Any) -> None:  # zenoh's thread: decode and hand over
                 try:
                     msg: Any = self.typestore.deserialize_cdr(bytes(sample.payload), type_name)
-                    deliver(Command.from_message(msg, time.time_ns()))  # (times[0]: when to act)
-                    self.commands += 1
-                except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
-                    self.command_errors += 1  # (in status(): /diagnostics shows it)
-                    log.warning("zenoh: a command on %s rejected: %s", name, e)
-
-            sub = self.session.declare_subscriber(key, on_sample)
-            token = self.session.liveliness().declare_token(
-                self._token("MS", eid, name, topic.type_name, hash_)
-            )
-            self._subs[name] = (sub, token)
-
-    def _standard_command(self, name: str, topic: Topic, deliver: Callable[[Any], None]) -> None:
-        """A command topic of a standard type (``std_msgs/msg/Float64`` per actuator, the
-        robot's ``JointState`` commands): the message, decoded by rosbags, to the handler."""
-        with self._lock:
-            if self._closed or name in self._subs:
-                return
-            hash_ = type_hash(self.typestore, topic.type_name, self.distro)
-            eid = self._next_id
-            self._next_id += 1
-            type_name = topic.type_name
-
-            def on_sample(sample: Any) -> None:  # zenoh's thread: decode and hand over
-                try:
-                    deliver(self.typestore.deserialize_cdr(bytes(sample.payload), type_name))
+                    # (a Command's times[0]: when to act)
+                    deliver(msg if standard else Command.from_message(msg, time.time_ns()))
                     self.commands += 1
                 except Exception as e:  # noqa: BLE001 - a bad command must not kill zenoh's thread
                     self.command_errors += 1  # (in status(): /diagnostics shows it)

@@ -85,44 +85,50 @@ def default_control_path() -> str:
     return os.path.join(runtime_dir(), "control.sock")  # (os.path: a one-off call skips pathlib)
 
 
+#: how a control endpoint's directory and its socket are said when they are not ours: a failed
+#: lstat's prefix, what it is not, whose it is, and a hint
+_DIR = ("its directory: ", "{at} is not a directory", "{at}", ": another user may have made it")
+_SOCKET = ("", "exists and is not a socket", "the socket", "")
+_FIX = "remove it, or choose another place ([daemon] control, $MISSING_LINK_CONTROL)"
+
+
 def check_endpoint(path: str, uid: int | None = None) -> None:
     """Raise NotOurs unless the endpoint at ``path`` is ours (``uid``: this process's): its
     directory a real directory (not a link) owned by us that no one else can write to, and the
     socket, when there is one, a socket owned by us.  Nothing there yet is fine."""
     uid = os.getuid() if uid is None else uid
     parent = os.path.dirname(path) or "."  # (os.path: a one-off call skips pathlib)
-    fix = "remove it, or choose another place ([daemon] control, $MISSING_LINK_CONTROL)"
-    try:
-        d = os.lstat(parent)
-    except FileNotFoundError:
+    d = _ours(path, parent, uid, stat.S_ISDIR, _DIR)
+    if d is None:
         return
-    except OSError as e:
-        raise NotOurs(f"control endpoint {path}: its directory: {e.strerror or e}") from None
-    if not stat.S_ISDIR(d.st_mode):
-        raise NotOurs(f"control endpoint {path}: {parent} is not a directory; {fix}")
-    if d.st_uid != uid:
-        raise NotOurs(
-            f"control endpoint {path}: {parent} belongs to uid {d.st_uid}, not to you "
-            f"(uid {uid}): another user may have made it; {fix}"
-        )
     if d.st_mode & 0o022:
         raise NotOurs(
             f"control endpoint {path}: others may write to {parent} (mode "
-            f"{stat.S_IMODE(d.st_mode):o}); {fix}"
+            f"{stat.S_IMODE(d.st_mode):o}); {_FIX}"
         )
+    _ours(path, path, uid, stat.S_ISSOCK, _SOCKET)
+
+
+def _ours(
+    path: str, at: str, uid: int, is_kind: Callable[[int], bool], say: tuple[str, str, str, str]
+) -> os.stat_result | None:
+    """``at``'s lstat (None: nothing there); NotOurs, naming the endpoint ``path``, unless it is
+    of its kind and ``uid``'s (``say``: :data:`_DIR` or :data:`_SOCKET`)."""
+    unreadable, not_kind, whose, hint = say
     try:
-        s = os.lstat(path)
+        st = os.lstat(at)
     except FileNotFoundError:
-        return
+        return None
     except OSError as e:
-        raise NotOurs(f"control endpoint {path}: {e.strerror or e}") from None
-    if not stat.S_ISSOCK(s.st_mode):
-        raise NotOurs(f"control endpoint {path}: exists and is not a socket; {fix}")
-    if s.st_uid != uid:
+        raise NotOurs(f"control endpoint {path}: {unreadable}{e.strerror or e}") from None
+    if not is_kind(st.st_mode):
+        raise NotOurs(f"control endpoint {path}: {not_kind.format(at=at)}; {_FIX}")
+    if st.st_uid != uid:
         raise NotOurs(
-            f"control endpoint {path}: the socket belongs to uid {s.st_uid}, not to you "
-            f"(uid {uid}); {fix}"
+            f"control endpoint {path}: {whose.format(at=at)} belongs to uid {st.st_uid}, not to "
+            f"you (uid {uid}){hint}; {_FIX}"
         )
+    return st
 
 
 def call_timeout(value: object) -> float | None:
