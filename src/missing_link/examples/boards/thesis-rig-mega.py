@@ -12,7 +12,9 @@ BOARD = {
     "link": {"kind": "uart", "baudrate": 115200},
     "buses": {"twi": {"id": 0}},
     "transducers": [
-        {"name": "wheel", "id": 0, "driver": "quadrature", "pin_a": 2, "pin_b": 3, "rate_hz": 50},
+        # a HEDS-5500 of 500 lines, x4: its angle in rad on /mega_rig/wheel/joint_states
+        {"name": "wheel", "id": 0, "driver": "quadrature", "pin_a": 2, "pin_b": 3, "rate_hz": 50,
+         "options": {"counts_per_rev": 2000}},
         {"name": "dist_ir", "id": 1, "driver": "sharp_gp2y0a02", "pin": 0, "rate_hz": 25},
         {"name": "sonar", "id": 2, "driver": "srf02", "bus": "twi", "address": 0x70,
          "rate_hz": 10},
