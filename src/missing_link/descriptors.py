@@ -237,6 +237,15 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
     def fail(fld: str, why: str) -> DescriptorError:
         return DescriptorError(board, f"{where}, field {fld}: {why} (line: {line!r})")
 
+    def number(fld: str, text: str, lo: int, hi: int, why: str = "") -> int:
+        try:
+            n = int(text, 0)
+        except ValueError:
+            raise fail(fld, f"{text!r} is not a number") from None
+        if not lo <= n <= hi:
+            raise fail(fld, f"{n} outside {lo}..{hi}{why}")
+        return n
+
     # Board text is untrusted: a \r or an escape sequence in a model string must not reach a
     # generated .msg file or a terminal.
     parts = [clean(p).strip() for p in line.split(",")]
@@ -247,22 +256,12 @@ def parse_line(line: str, board: str = "board", where: str = "transducer") -> Tr
         raise fail("name", f"{name!r} is not a topic name ([a-z][a-z0-9_]*)")
     if len(name) > MAX_NAME:
         raise fail("name", f"{len(name)} characters; at most {MAX_NAME} (it names files too)")
-    try:
-        tid = int(id_s, 0)
-    except ValueError:
-        raise fail("id", f"{id_s!r} is not a number") from None
-    if not 0 <= tid <= 239:
-        raise fail("id", f"{tid} outside 0..239 (0xF0.. are error codes)")
+    tid = number("id", id_s, 0, 239, " (0xF0.. are error codes)")
     if not prefix:
         raise fail("prefix", "empty")
     if not model:
         raise fail("model", "empty")
-    try:
-        chan_count = int(count_s, 0)
-    except ValueError:
-        raise fail("chan_count", f"{count_s!r} is not a number") from None
-    if not 1 <= chan_count <= 255:
-        raise fail("chan_count", f"{chan_count} outside 1..255")
+    chan_count = number("chan_count", count_s, 1, 255)
     if dtype not in DTYPES:
         raise fail("type", f"{dtype!r} is not one of {', '.join(DTYPES)}")
     try:

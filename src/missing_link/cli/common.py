@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -16,6 +17,13 @@ if TYPE_CHECKING:
 EXIT_FAIL = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+
+
+def error(text: object, code: int = EXIT_FAIL) -> int:
+    """Say ``text`` as the command's one-line error on stderr; the exit code to return."""
+    print(f"missing-link: error: {text}", file=sys.stderr)
+    return code
+
 
 #: the longest one call may wait for its reply (s).  A board answers in milliseconds; a
 #: timeout reaches the link and, through a daemon, its control endpoint, where a huge one

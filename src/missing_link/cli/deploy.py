@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
+from .common import EXIT_USAGE, error
+
 if TYPE_CHECKING:
     from ..deploy.boardfile import BoardFile
 
@@ -22,13 +24,11 @@ def cmd_key_new(args: argparse.Namespace) -> int:
     """A new signing key (docs/signing.md): 32 random bytes as 64 hex digits, mode 0600."""
     import os
     import secrets
-    import sys
     from pathlib import Path
 
     path = Path(args.file)
     if path.exists() and not args.force:
-        print(f"missing-link: error: {path} exists (--force replaces it)", file=sys.stderr)
-        return 2
+        return error(f"{path} exists (--force replaces it)", EXIT_USAGE)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as f:
         f.write(secrets.token_hex(32) + "\n")

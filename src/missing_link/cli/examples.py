@@ -11,7 +11,7 @@ import sys
 from importlib import resources
 from pathlib import Path
 
-from .common import EXIT_USAGE
+from .common import EXIT_FAIL, EXIT_USAGE, error
 
 
 def installed() -> Path:
@@ -32,8 +32,7 @@ def cmd_examples(args: argparse.Namespace) -> int:
     out = Path(args.dir)
     files = example_files()
     if not files:
-        print(f"missing-link: error: no examples installed at {installed()}", file=sys.stderr)
-        return 1
+        return error(f"no examples installed at {installed()}", EXIT_FAIL)
     there = [f for f in files if (out / f).exists()]
     if there and not args.force:
         print(

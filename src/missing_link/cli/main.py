@@ -22,7 +22,7 @@ from ..errors import BadURL, ConfigError, DescriptorError, MissingLinkError
 from ..logs import install as install_log
 from ..version import __version__
 from .commands import COMMANDS
-from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
+from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE, error
 
 NAMES = frozenset(c.name for c in COMMANDS)
 
@@ -95,11 +95,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         run = getattr(importlib.import_module(f"{__package__}.{module}"), name)
         return int(run(args))
     except (BadURL, DescriptorError, ConfigError) as e:
-        print(f"missing-link: error: {e}{_examples_hint(args)}", file=sys.stderr)
-        return EXIT_USAGE
+        return error(f"{e}{_examples_hint(args)}", EXIT_USAGE)
     except MissingLinkError as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
-        return EXIT_FAIL
+        return error(e, EXIT_FAIL)
     except ModuleNotFoundError as e:
         extra = _extra_of(str(e.name or "").split(".")[0])
         if extra is None:

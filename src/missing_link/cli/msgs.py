@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from ..descriptors import Transducer
 from ..errors import BadURL, ConfigError
 from ..host.board import Board
-from .common import EXIT_FAIL, EXIT_USAGE
+from .common import EXIT_FAIL, EXIT_USAGE, error
 
 if TYPE_CHECKING:
     from ..daemon.claims import Claims
@@ -87,8 +87,7 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
     try:
         check_package(args.package)
     except ValueError as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
-        return EXIT_USAGE
+        return error(e, EXIT_USAGE)
     if args.build and args.ros != 2:
         print("missing-link: error: --build builds ROS 2 packages (--ros 2)", file=sys.stderr)
         return EXIT_USAGE
@@ -118,8 +117,7 @@ def cmd_create_msgs(args: argparse.Namespace) -> int:
             manifest=manifest_text(args.ros, types),
         )
     except (FileExistsError, NotADirectoryError) as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
-        return EXIT_USAGE
+        return error(e, EXIT_USAGE)
     except OSError as e:
         print(
             f"missing-link: error: cannot write into {args.out}: {e.strerror or e}", file=sys.stderr

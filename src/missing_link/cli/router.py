@@ -7,7 +7,7 @@ import signal
 import sys
 import threading
 
-from .common import EXIT_FAIL, EXIT_USAGE
+from .common import EXIT_FAIL, EXIT_USAGE, error
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -25,8 +25,7 @@ def cmd_router(args: argparse.Namespace) -> int:
         check_endpoints("--listen/--connect", (args.listen or []) + (args.connect or []))
         cfg = session_config("router", args.connect or [], args.listen, args.config)
     except ConfigError as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
-        return EXIT_USAGE
+        return error(e, EXIT_USAGE)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     signal.signal(signal.SIGINT, lambda *a: stop.set())

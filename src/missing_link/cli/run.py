@@ -10,7 +10,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from ..errors import BadURL, ConfigError, without_prefix
-from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE
+from .common import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_USAGE, error
 
 if TYPE_CHECKING:
     from ..daemon import Daemon
@@ -213,10 +213,8 @@ def cmd_recover(args: argparse.Namespace) -> int:
     try:
         dest, count = recover_bag(args.path, args.out)
     except (FileNotFoundError, FileExistsError, ValueError) as e:
-        print(f"missing-link: error: {e}", file=sys.stderr)
-        return EXIT_USAGE
+        return error(e, EXIT_USAGE)
     except OSError as e:
-        print(f"missing-link: error: cannot recover {args.path}: {e}", file=sys.stderr)
-        return EXIT_FAIL
+        return error(f"cannot recover {args.path}: {e}", EXIT_FAIL)
     print(f"recovered {count} messages into {dest}")
     return 0

@@ -10,7 +10,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, payload_text
-from .common import EXIT_FAIL, EXIT_USAGE, emit_json, open_url
+from .common import EXIT_FAIL, EXIT_USAGE, emit_json, error, open_url
 from .remote import RemoteBoard, reach
 
 if TYPE_CHECKING:  # (what only listen and sync use is imported there: a call loads less)
@@ -252,8 +252,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
             done.wait(0.1)
         done.set()
         if not board.alive:
-            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
-            return EXIT_FAIL
+            return error(f"{board.url}: link lost", EXIT_FAIL)
     return 0
 
 
@@ -306,8 +305,7 @@ def cmd_sync(args: argparse.Namespace) -> int:
                 else:
                     print(format_sync(st), flush=True)
         if not board.alive:
-            print(f"missing-link: error: {board.url}: link lost", file=sys.stderr)
-            return EXIT_FAIL
+            return error(f"{board.url}: link lost", EXIT_FAIL)
     return 0
 
 

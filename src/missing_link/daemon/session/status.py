@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from enum import IntEnum, StrEnum
-from typing import Any
+from typing import Any, ClassVar
 
 from ...host.results import LinkStats
 
@@ -49,28 +49,42 @@ def link_json(stats: LinkStats) -> dict[str, int]:
     return {**{k: getattr(stats, k) for k in LINK_KEYS}, **dict(sorted(stats.transport.items()))}
 
 
+class _Account:
+    """A board's own account of something, read by a call: its figures once read, or the
+    ``problem`` (under ``PROBLEM_KEY``) when its reply made no sense."""
+
+    PROBLEM_KEY: ClassVar[str]
+    problem: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {self.PROBLEM_KEY: self.problem} if self.problem else self.figures()
+
+    def figures(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+
 @dataclass(frozen=True)
-class FailsafeStatus:
+class FailsafeStatus(_Account):
     """The board's own count of failsafe trips (``a2jFailsafe``), once read; ``problem`` when
     its reply made no sense."""
 
+    PROBLEM_KEY = "failsafe"
     trips: int | None = None
     last_trip_ms: int | None = None
     problem: str = ""
 
-    def to_json(self) -> dict[str, Any]:
-        if self.problem:
-            return {"failsafe": self.problem}
+    def figures(self) -> dict[str, Any]:
         if self.trips is None:
             return {}
         return {"failsafe_trips": self.trips, "failsafe_last_trip_ms": self.last_trip_ms}
 
 
 @dataclass(frozen=True)
-class AlignInfo:
+class AlignInfo(_Account):
     """The board's account of its grid (``a2jAlignInfo``), once read; ``problem`` when its
     reply made no sense."""
 
+    PROBLEM_KEY = "align_info"
     map_valid: bool | None = None
     map_age_ms: int | None = None
     unaligned_samples: int = 0
@@ -78,9 +92,7 @@ class AlignInfo:
     timed_refused: int = 0
     problem: str = ""
 
-    def to_json(self) -> dict[str, Any]:
-        if self.problem:
-            return {"align_info": self.problem}
+    def figures(self) -> dict[str, Any]:
         if self.map_valid is None:
             return {}
         return {
@@ -93,13 +105,14 @@ class AlignInfo:
 
 
 @dataclass(frozen=True)
-class MemoryStatus:
+class MemoryStatus(_Account):
     """The board's own memory figures (``a2jMemory``, board_memory.py), once read; ``problem``
     when its reply made no sense.  A MicroPython board says its heap (bytes free now and at the
     lowest, allocated) and its garbage collections (how many, the longest and the last in µs,
     how many reached an instant it had to be on time for, how many it put off for one); an AVR
     board its stack (bytes never touched since boot, of how many) and its static RAM."""
 
+    PROBLEM_KEY = "memory"
     heap_free: int | None = None
     heap_free_low: int | None = None
     heap_alloc: int | None = None
@@ -114,9 +127,7 @@ class MemoryStatus:
     ram_size: int | None = None
     problem: str = ""
 
-    def to_json(self) -> dict[str, Any]:
-        if self.problem:
-            return {"memory": self.problem}
+    def figures(self) -> dict[str, Any]:
         return {
             f.name: getattr(self, f.name)
             for f in _MEMORY_FIELDS
