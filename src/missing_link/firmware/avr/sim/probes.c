@@ -132,10 +132,11 @@ static void stack_watch(void) {
  * began: an interrupt routine (its vector: the routine runs with I clear) or the main loop (an
  * atomic block).  An edge's interrupt waits for the stretch in flight, then for any
  * higher-priority routine pending meanwhile.  Measured from the first instruction seen with I
- * clear (a routine: after its entry's 4 cycles) to the one that set it again. */
+ * clear (a routine: after its entry's 4 cycles) to the one that set it again, from the first
+ * time it is asked on (a look after every instruction: the rig's runs that never ask skip it). */
 #define PLACES 65 /* vectors 0-63; 64: the main loop */
 static avr_cycle_count_t off_since, off_max[PLACES];
-static int off_place, irq_seen;
+static int off_place, irq_seen, irq_asked;
 
 static void irq_watch(void) {
     if (avr->sreg[S_I]) {
@@ -150,6 +151,7 @@ static void irq_watch(void) {
 }
 
 static void irqoff_say(void) {
+    irq_asked = 1;
     printf("irqoff");
     for (int k = 0; k < PLACES; k++) {
         if (!off_max[k]) continue;
@@ -164,7 +166,7 @@ void probes_watch(void) {
     if (!t1_start && (avr->data[0x81] & 7)) t1_start = avr->cycle; /* TCCR1B */
     trig_watch();
     stack_watch();
-    irq_watch();
+    if (irq_asked) irq_watch();
 }
 
 void probes_init(const char *mcu) {

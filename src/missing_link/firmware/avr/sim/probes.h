@@ -9,7 +9,8 @@
  *   adc:   "adc N T1 T2 ...": the starts of the last conversions of ADC0, in the board's µs
  *   stack: "stack MIN_SP PC": the lowest the stack pointer has been, and where (a byte address)
  *   irqoff: "irqoff V:CYCLES ... main:CYCLES", the longest stretch with interrupts off since last
- *          asked, by where it began: interrupt routine V (its vector number) or the main loop */
+ *          asked (measured from the first time it is asked), by where it began: interrupt routine V
+ *          (its vector number) or the main loop */
 #ifndef RIG_PROBES_H
 #define RIG_PROBES_H
 #include "rig.h"
