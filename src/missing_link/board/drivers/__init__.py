@@ -8,9 +8,9 @@
 # A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS);
 # a board file entry may override any of them.  Its run-time configuration (board/config.py) is
 # CONFIG, a tuple of (key, kind, limits, read_only), with get_config(key) and set_config(key,
-# value); check_config() (optional) says what is wrong with a combination after a set.  An
-# actuator has command(payload) -> (code, reply), registered as the J2A function named by the
-# entry's `call`.
+# value) (a Periodic's PLAIN keys are its attributes of the same name, nothing more to do);
+# check_config() (optional) says what is wrong with a combination after a set.  An actuator has
+# command(payload) -> (code, reply), registered as the J2A function named by the entry's `call`.
 #
 # DRIVERS maps the board file's `driver` names to module and class, imported only when used (RAM).
 
@@ -53,6 +53,8 @@ class Periodic:
     # each such measurement is counted (timing.unaligned).
     MAX_RATE_HZ = 1000.0
     CONFIG = (("rate_hz", "float", (0.1, 1000.0), False),)
+    # run-time keys that are the driver's attribute of the same name, read and set as they are
+    PLAIN = ()
     ALIGNABLE = True
 
     def __init__(self, clock, rate_hz):
@@ -73,11 +75,16 @@ class Periodic:
         self._due = None
 
     def get_config(self, key):
+        if key in self.PLAIN:
+            return getattr(self, key)
         if key == "rate_hz":
             return round(1000000.0 / self.period_us, 3)
         raise ValueError("no key " + key)
 
     def set_config(self, key, value):
+        if key in self.PLAIN:
+            setattr(self, key, value)
+            return
         if key != "rate_hz":
             raise ValueError("no key " + key)
         self.period_us = max(1, int(1000000 / value))

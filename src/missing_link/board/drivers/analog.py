@@ -13,25 +13,15 @@ class AnalogIn(Periodic):
     NA = 0xFFFF
     OPTIONS = {"kind": "sensor"}
     CONFIG = Periodic.CONFIG + (("reads", "int", (1, 15), False),)
+    PLAIN = ("reads",)
 
     def __init__(self, machine, clock, pin, rate_hz=100, vref=3.3, millivolts=False, reads=1):
         Periodic.__init__(self, clock, rate_hz)
         self._adc = machine.ADC(machine.Pin(pin))
         self._mv = vref * 1000.0 / 65535.0 if millivolts else None
-        self._reads = max(1, reads)
-
-    def get_config(self, key):
-        if key == "reads":
-            return self._reads
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key == "reads":
-            self._reads = value
-        else:
-            Periodic.set_config(self, key, value)
+        self.reads = max(1, reads)
 
     def measure(self, now):
-        r = sorted(self._adc.read_u16() for _ in range(self._reads))
+        r = sorted(self._adc.read_u16() for _ in range(self.reads))
         raw = r[len(r) // 2]
         self.emit(0, raw if self._mv is None else min(0xFFFE, int(raw * self._mv + 0.5)), now)

@@ -52,6 +52,7 @@ class Battery(Periodic):
         ("cells", "int", (1, 24), False),
         ("chemistry", "enum", CHEMISTRIES, False),
     )
+    PLAIN = ("ratio", "cells", "chemistry")
 
     def __init__(
         self,
@@ -82,17 +83,6 @@ class Battery(Periodic):
         self.chemistry = chemistry
         self._linear = ((cell_empty, 0.0), (cell_full, 1.0))
         self._reads = max(1, reads)
-
-    def get_config(self, key):
-        if key in ("ratio", "cells", "chemistry"):
-            return getattr(self, key)
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key in ("ratio", "cells", "chemistry"):
-            setattr(self, key, value)
-        else:
-            Periodic.set_config(self, key, value)
 
     def curve(self):
         return self._linear if self.chemistry == "linear" else CURVES[self.chemistry]

@@ -31,23 +31,46 @@ GAUSS = 1e-4
 
 
 class _Compass(Periodic):
+    # A chip's RANGES (+- gauss: the range_gauss key's choices) and its LSB per gauss at each
     PREFIX = "compass"
     CHANNELS = 3
     DTYPE = "float"
     NA = float("nan")
     OPTIONS = {"unit": "T", "kind": "sensor", "ros": "sensor_msgs/msg/MagneticField"}
 
-    def __init__(self, clock, i2c, address, rate_hz):
+    def __init__(self, clock, i2c, address, rate_hz, range_gauss):
+        if range_gauss not in self.RANGES:
+            raise ValueError("%s: range_gauss in %s" % (self.MODEL.lower(), self.RANGES))
         Periodic.__init__(self, clock, rate_hz)
         self._i2c = i2c
         self.address = address
+        self._range = self.RANGES.index(range_gauss)
         self._ok = False
         self.bus_errors = 0
         self.overflows = 0
 
+    def get_config(self, key):
+        if key == "range_gauss":
+            return self.RANGES[self._range]
+        return Periodic.get_config(self, key)
+
     def set_config(self, key, value):
-        Periodic.set_config(self, key, value)
-        self._ok = False  # the chip's output rate follows the new rate
+        if key == "range_gauss":
+            self._range = self.RANGES.index(value)
+        else:
+            Periodic.set_config(self, key, value)
+        self._ok = False  # the chip gets the new range, or the output rate that follows ours
+
+    def _tesla_per_lsb(self):
+        return GAUSS / self.LSB[self._range]
+
+    def _rate_code(self, rates):
+        # the slowest of the chip's output rates at least as fast as ours (else its fastest)
+        rate = 1000000 / self.period_us
+        for i, r in enumerate(rates):
+            if r >= rate:
+                return i
+        return len(rates) - 1
 
     def _na(self, now):
         for ch in range(3):
@@ -78,46 +101,25 @@ class _Compass(Periodic):
 
 class HMC5883L(_Compass):
     MODEL = "HMC5883L"
+    RANGES = HMC_RANGES
+    LSB = HMC_GAINS
     CONFIG = (
         ("rate_hz", "float", (0.1, 75.0), False),
         ("range_gauss", "enum", HMC_RANGES, False),
     )
 
     def __init__(self, machine, clock, i2c, address=0x1E, rate_hz=15, range_gauss=1.3):
-        if range_gauss not in HMC_RANGES:
-            raise ValueError("hmc5883l: range_gauss in %s" % (HMC_RANGES,))
-        _Compass.__init__(self, clock, i2c, address, rate_hz)
-        self._gain = HMC_RANGES.index(range_gauss)
+        _Compass.__init__(self, clock, i2c, address, rate_hz, range_gauss)
         self._skip = 0
-
-    def get_config(self, key):
-        if key == "range_gauss":
-            return HMC_RANGES[self._gain]
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key == "range_gauss":
-            self._gain = HMC_RANGES.index(value)
-            self._ok = False
-        else:
-            _Compass.set_config(self, key, value)
-
-    def _tesla_per_lsb(self):
-        return GAUSS / HMC_GAINS[self._gain]
 
     def init(self):
         i2c, a = self._i2c, self.address
         ident = bytes(i2c.readfrom_mem(a, 10, 3))
         if ident != b"H43":
             raise WrongPart("identification %r, not an HMC5883L (b'H43')" % ident)
-        rate = 1000000 / self.period_us
-        do = len(HMC_RATES) - 1
-        for i, r in enumerate(HMC_RATES):  # the slowest output rate at least as fast as ours
-            if r >= rate:
-                do = i
-                break
+        do = self._rate_code(HMC_RATES)
         i2c.writeto_mem(a, 0, bytes(((3 << 5) | (do << 2),)))  # 8-sample average, rate, normal
-        i2c.writeto_mem(a, 1, bytes((self._gain << 5,)))
+        i2c.writeto_mem(a, 1, bytes((self._range << 5,)))
         i2c.writeto_mem(a, 2, b"\x00")  # continuous
         self._skip = 1  # the first reading after a gain change has the old gain
 
@@ -131,31 +133,15 @@ class HMC5883L(_Compass):
 
 class QMC5883L(_Compass):
     MODEL = "QMC5883L"
+    RANGES = QMC_RANGES
+    LSB = QMC_LSB
     CONFIG = (
         ("rate_hz", "float", (0.1, 200.0), False),
         ("range_gauss", "enum", QMC_RANGES, False),
     )
 
     def __init__(self, machine, clock, i2c, address=0x0D, rate_hz=50, range_gauss=8):
-        if range_gauss not in QMC_RANGES:
-            raise ValueError("qmc5883l: range_gauss in %s" % (QMC_RANGES,))
-        _Compass.__init__(self, clock, i2c, address, rate_hz)
-        self._rng = QMC_RANGES.index(range_gauss)
-
-    def get_config(self, key):
-        if key == "range_gauss":
-            return QMC_RANGES[self._rng]
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key == "range_gauss":
-            self._rng = QMC_RANGES.index(value)
-            self._ok = False
-        else:
-            _Compass.set_config(self, key, value)
-
-    def _tesla_per_lsb(self):
-        return GAUSS / QMC_LSB[self._rng]
+        _Compass.__init__(self, clock, i2c, address, rate_hz, range_gauss)
 
     def init(self):
         i2c, a = self._i2c, self.address
@@ -164,13 +150,8 @@ class QMC5883L(_Compass):
             raise WrongPart("chip id 0x%02x, not a QMC5883L (0xff)" % chip)
         i2c.writeto_mem(a, 0x0A, b"\x80")  # soft reset
         i2c.writeto_mem(a, 0x0B, b"\x01")  # SET/RESET period, as the datasheet asks
-        rate = 1000000 / self.period_us
-        odr = len(QMC_RATES) - 1
-        for i, r in enumerate(QMC_RATES):
-            if r >= rate:
-                odr = i
-                break
-        i2c.writeto_mem(a, 0x09, bytes(((self._rng << 4) | (odr << 2) | 0x01,)))  # OSR 512
+        odr = self._rate_code(QMC_RATES)
+        i2c.writeto_mem(a, 0x09, bytes(((self._range << 4) | (odr << 2) | 0x01,)))  # OSR 512
 
     def read(self):
         status = self._i2c.readfrom_mem(self.address, 6, 1)[0]

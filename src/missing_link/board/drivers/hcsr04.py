@@ -33,6 +33,7 @@ class HCSR04(Periodic):
         ("temperature_c", "float", (-40.0, 85.0), False),
         ("max_range_cm", "int", (20, 400), False),
     )
+    PLAIN = ("temperature_c", "max_range_cm")
 
     def __init__(
         self, machine, clock, trig_pin, echo_pin, rate_hz=10, temperature_c=20.0, max_range_cm=400
@@ -45,21 +46,6 @@ class HCSR04(Periodic):
         self.temperature_c = temperature_c
         self.max_range_cm = max_range_cm
         self.timeouts = 0
-
-    def get_config(self, key):
-        if key == "temperature_c":
-            return self.temperature_c
-        if key == "max_range_cm":
-            return self.max_range_cm
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key == "temperature_c":
-            self.temperature_c = value
-        elif key == "max_range_cm":
-            self.max_range_cm = value
-        else:
-            Periodic.set_config(self, key, value)
 
     def measure(self, now):
         c = sound_m_per_s(self.temperature_c)

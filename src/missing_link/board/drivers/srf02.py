@@ -36,6 +36,7 @@ class SRF02(Periodic):
         ("min_range", "int", (0, 600), False),
         ("units", "enum", ("cm", "us", "inch"), True),
     )
+    PLAIN = ("min_range", "units")  # (units: read only)
 
     def __init__(self, machine, clock, i2c, address=0x70, rate_hz=10, units="cm", min_range=16):
         Periodic.__init__(self, clock, min(rate_hz, 1000000 / RANGING_US))
@@ -43,26 +44,13 @@ class SRF02(Periodic):
         self.address = address
         if units not in ("cm", "us", "inch"):
             raise ValueError("srf02 units: cm, us or inch")
-        self._units = units
+        self.units = units
         self._cmd = {"cm": CMD_CM, "us": CMD_US, "inch": CMD_INCH}[units]
-        self._min = min_range
+        self.min_range = min_range
         self._ping_us = None  # when the running ranging started
         self._check_us = None
         self.timeouts = 0
         self.bus_errors = 0
-
-    def get_config(self, key):
-        if key == "min_range":
-            return self._min
-        if key == "units":
-            return self._units
-        return Periodic.get_config(self, key)
-
-    def set_config(self, key, value):
-        if key == "min_range":
-            self._min = value
-        else:
-            Periodic.set_config(self, key, value)
 
     def next_due_us(self):
         return self._check_us if self._ping_us is not None else self._due
@@ -115,12 +103,12 @@ class SRF02(Periodic):
             self.emit(0, None, now)
             return
         value = (hi << 8) | lo
-        if self._units == "us":
-            flight, too_close = value, value < self._min * US_PER_CM
-        elif self._units == "cm":
-            flight, too_close = value * US_PER_CM, value < self._min
+        if self.units == "us":
+            flight, too_close = value, value < self.min_range * US_PER_CM
+        elif self.units == "cm":
+            flight, too_close = value * US_PER_CM, value < self.min_range
         else:
-            flight, too_close = value * 2.54 * US_PER_CM, value * 2.54 < self._min
+            flight, too_close = value * 2.54 * US_PER_CM, value * 2.54 < self.min_range
         if value == 0 or too_close:
             self.emit(0, None, now)
         else:
