@@ -17,7 +17,7 @@ from missing_link.host.board import Board
 from missing_link.host.config import ConfigRefused
 from missing_link.transport import open_transport
 
-from .helpers import AvrSim, FirmwareSim
+from .helpers import AvrSim, FirmwareSim, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
@@ -26,7 +26,9 @@ pytestmark = [pytest.mark.avr, pytest.mark.slow]
 
 def open_rig(build: Path, eeprom: Path) -> tuple[AvrSim, Board]:
     sim = AvrSim(build, build / "uno_rig" / "firmware.elf", eeprom=eeprom)
-    board = Board(open_transport(sim.url), timeout=2.0)
+    # (a bound on a call: a rig behind the host's time answers late, and one whose power was
+    # cut has exited, its link gone at once)
+    board = Board(open_transport(sim.url), timeout=20.0)
     board.handshake()
     return sim, board
 
@@ -36,8 +38,18 @@ def power_off(sim: AvrSim, board: Board) -> None:
     sim.power_off()
 
 
-def rangings(sim: AvrSim) -> int:
-    return int(sim.ctl("stats").split("rangings ")[1].split()[0])
+def rangings(sim: AvrSim, seconds: float) -> tuple[int, float]:
+    """The SRF02's rangings over at least ``seconds`` of simulated time, and that time (the
+    rig's own count and clock, read together: a rig behind the host's time is not short)."""
+
+    def stats() -> tuple[float, int]:
+        f = sim.ctl("stats").split()
+        return int(f[f.index("sim_us") + 1]) / 1e6, int(f[f.index("rangings") + 1])
+
+    t0, n0 = stats()
+    assert wait_for(lambda: stats()[0] - t0 >= seconds, 60)
+    t1, n1 = stats()
+    return n1 - n0, t1 - t0
 
 
 @pytest.mark.micropython
@@ -68,25 +80,20 @@ def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> N
     try:
         assert board.config()["sonar.rate_hz"] == 10.0
         # the SRF02 pings at the new rate (the firmware's own timer decides)
-        board.configure({"sonar.rate_hz": 2})
-        a = rangings(sim)
-        time.sleep(2.0)
-        assert 3 <= rangings(sim) - a <= 5
-        board.configure({"sonar.rate_hz": 10})
-        a = rangings(sim)
-        time.sleep(2.0)
-        assert 16 <= rangings(sim) - a <= 22
+        for rate in (2, 10):
+            board.configure({"sonar.rate_hz": rate})
+            n, span = rangings(sim, 2.0)
+            assert rate * span - 1.5 <= n <= rate * span + 1, (rate, n, span)
         # disabled: no SIF of that transducer at all
         seen: list[int] = []
         board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
         board.configure({"dist_ir.enabled": False})
         time.sleep(0.2)
         seen.clear()
-        time.sleep(1.0)
-        assert 1 not in seen and 0 in seen  # dist_ir (id 1) silent, the wheel (id 0) not
+        assert wait_for(lambda: seen.count(0) >= 25, 10)  # the wheel (id 0): 0.5 s of the board's
+        assert 1 not in seen  # dist_ir (id 1, 25 Hz) silent meanwhile
         board.configure({"dist_ir.enabled": True})
-        time.sleep(0.5)
-        assert 1 in seen
+        assert wait_for(lambda: 1 in seen, 5)
         # the servo: limits clamp the pulse; a combination it cannot take changes nothing
         assert board.call("a2j_set_servo", struct.pack("<b", 127)).code == 0
         time.sleep(0.1)

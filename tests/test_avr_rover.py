@@ -168,8 +168,8 @@ def test_the_motors_turn_the_wheels_and_a_world_can_take_them_over(
     left, right = listen(rover, "wheel_l"), listen(rover, "wheel_r")
     rover.send("/mega_rover/motor_l/cmd", 0.5)
     rover.send("/mega_rover/motor_r/cmd", -0.5)  # (inverted bridge: forward; the count reversed)
-    assert wait_for(lambda: left and left[-1].values[0] >= 400, 10)  # a turn: 400 edges
-    assert wait_for(lambda: right and right[-1].values[0] <= -400, 10)  # this one goes back
+    assert wait_for(lambda: left and left[-1].values[0] >= 400, 30)  # a turn: 400 edges
+    assert wait_for(lambda: right and right[-1].values[0] <= -400, 30)  # this one goes back
     # (in each motor's own sense, half of the rig's top 2 turns/s: both forward, the right one
     # mounted mirrored, so that for the rover it goes back)
     (_turns_l, speed_l), (_turns_r, speed_r) = wheels(rig)
