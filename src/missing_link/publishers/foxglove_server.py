@@ -40,6 +40,7 @@ from typing import Any
 from ..delegate import Delegate
 from ..logs import ErrorCounts
 from .front_door import FrontDoor
+from .outbox import Outbox
 
 log = logging.getLogger(__name__)
 
@@ -58,14 +59,13 @@ INBOX = 8192  #: data messages waiting for the loop
 _U32 = 0xFFFFFFFF
 
 
-class _Client:
+class _Client(Outbox):
+    """A client: its control messages (``urgent``) go before its data messages (``out``)."""
+
     def __init__(self, ws: Any) -> None:
-        self.ws = ws
+        Outbox.__init__(self, ws)
         self.subs: dict[int, int] = {}  # subscription id -> channel id
         self.by_channel: dict[int, int] = {}  # channel id -> subscription id
-        self.control: deque[str] = deque()
-        self.data: deque[bytes] = deque()
-        self.wake = asyncio.Event()
 
 
 class LiveView:
@@ -192,13 +192,13 @@ class LiveView:
         client = _Client(ws)
         info = {"op": "serverInfo", "name": self.name, "capabilities": [],
                 "metadata": {}, "sessionId": self._session}  # fmt: skip
-        client.control.append(json.dumps(info))
+        client.urgent.append(json.dumps(info))
         with self._lock:
             channels = list(self._channels.values())
-        client.control.append(json.dumps({"op": "advertise", "channels": channels}))
+        client.urgent.append(json.dumps({"op": "advertise", "channels": channels}))
         client.wake.set()
         self._clients.add(client)
-        writer = asyncio.ensure_future(self._write(client))
+        writer = asyncio.ensure_future(client.write(self.faults, "client writer"))
         try:
             async for msg in ws:
                 if not self._take(client, msg):
@@ -213,26 +213,10 @@ class LiveView:
             writer.cancel()
             await asyncio.gather(writer, return_exceptions=True)
 
-    async def _write(self, client: _Client) -> None:
-        from websockets.exceptions import ConnectionClosed
-
-        try:
-            while True:
-                await client.wake.wait()
-                client.wake.clear()
-                while client.control or client.data:
-                    q = client.control if client.control else client.data
-                    await client.ws.send(q.popleft())
-        except (ConnectionClosed, OSError):  # the reader sees the connection end too
-            await client.ws.close()
-        except Exception as e:  # noqa: BLE001 - a bug: counted, said once; that client ends
-            self.faults.caught("client writer", e)
-            await client.ws.close()
-
     def _advertise(self, channels: list[dict[str, Any]]) -> None:
         msg = json.dumps({"op": "advertise", "channels": channels})
         for client in self._clients:
-            client.control.append(msg)
+            client.urgent.append(msg)
             client.wake.set()
 
     def _fan_out(self) -> None:
@@ -246,10 +230,10 @@ class LiveView:
                 sub = client.by_channel.get(channel)
                 if sub is None:
                     continue
-                if len(client.data) >= BACKLOG:
-                    client.data.popleft()
+                if len(client.out) >= BACKLOG:
+                    client.out.popleft()
                     self.dropped += 1
-                client.data.append(head.pack(1, sub, stamp) + data)
+                client.out.append(head.pack(1, sub, stamp) + data)
                 client.wake.set()
 
     # ---- what a client says -------------------------------------------------------------------

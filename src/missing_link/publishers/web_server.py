@@ -38,7 +38,6 @@ import logging
 import ssl
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from importlib import resources
 from typing import Any
@@ -48,6 +47,7 @@ from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
 from .front_door import FrontDoor
+from .outbox import Outbox
 from .web_auth import AUTH_S, CLOSE_UNAUTHENTICATED, Logins
 from .web_model import ConsoleModel
 
@@ -78,13 +78,6 @@ def static_files() -> dict[str, tuple[bytes, str]]:
     return files
 
 
-class _Page:
-    def __init__(self, ws: Any) -> None:
-        self.ws = ws
-        self.out: deque[str] = deque()
-        self.wake = asyncio.Event()
-
-
 class WebServer:
     def __init__(
         self,
@@ -110,7 +103,7 @@ class WebServer:
             hosts=None if options.tls else options.hosts,
         )  # fmt: skip
         self.ctx: Any = None
-        self._pages: set[_Page] = set()
+        self._pages: set[Outbox] = set()
         self.logins = Logins(options.token or "")
         self.pages_closed = 0  #: pages closed because they did not read their queue
         self.dropped_messages = 0
@@ -262,7 +255,7 @@ class WebServer:
     async def _handle(self, ws: Any) -> None:
         from websockets.exceptions import ConnectionClosed
 
-        page = _Page(ws)
+        page = Outbox(ws)
         writer: asyncio.Future[None] | None = None
         try:
             if not await self._admitted(ws):
@@ -276,7 +269,7 @@ class WebServer:
             page.out.append(json.dumps(hello, separators=(",", ":")))
             page.wake.set()
             self._pages.add(page)
-            writer = asyncio.ensure_future(self._write(page))
+            writer = asyncio.ensure_future(page.write(self.faults, "page writer"))
             async for msg in ws:
                 reply = await self._take(msg)
                 if reply is None:
@@ -322,21 +315,6 @@ class WebServer:
             return True
         log.warning("web: a page's WebSocket closed: no session of its origin")
         return False
-
-    async def _write(self, page: _Page) -> None:
-        from websockets.exceptions import ConnectionClosed
-
-        try:
-            while True:
-                await page.wake.wait()
-                page.wake.clear()
-                while page.out:
-                    await page.ws.send(page.out.popleft())
-        except (ConnectionClosed, OSError):  # the reader sees the connection end too
-            await page.ws.close()
-        except Exception as e:  # noqa: BLE001 - a bug: counted, said once; that page ends
-            self.faults.caught("page writer", e)
-            await page.ws.close()
 
     async def _take(self, msg: Any) -> dict[str, Any] | None:
         """A page's operation done, and its reply; None: not an operation of the console."""
