@@ -40,6 +40,7 @@ from typing import Any
 from ..delegate import Delegate
 from ..logs import ErrorCounts
 from .front_door import FrontDoor
+from .loop_server import LoopServer
 from .outbox import Outbox
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,9 @@ class _Client(Outbox):
         self.by_channel: dict[int, int] = {}  # channel id -> subscription id
 
 
-class LiveView:
+class LiveView(LoopServer):
+    loop_kind = "view loop"
+
     def __init__(
         self,
         host: str,
@@ -92,18 +95,8 @@ class LiveView:
         self._lock = threading.Lock()
         self._scheduled = False
         self._session = str(time.time_ns())
-        self._loop = asyncio.new_event_loop()
-        self._ready = threading.Event()
-        self._stop: asyncio.Future[None] | None = None
-        self._error: BaseException | None = None
-        self.port = 0
-        self._thread = threading.Thread(
-            target=self._run, args=(host, port), name="foxglove-view", daemon=True
-        )
-        self._thread.start()
-        self._ready.wait(10)
-        if self._error is not None:
-            raise self._error
+        self._host, self._port = host, port
+        self._start("foxglove-view")
 
     refused_origins = Delegate[int]("door")
     refused_clients = Delegate[int]("door")
@@ -141,47 +134,21 @@ class LiveView:
             self._scheduled = True
         self._call(self._fan_out)
 
-    def _call(self, fn: Any, *args: Any) -> None:
-        try:
-            self._loop.call_soon_threadsafe(fn, *args)
-        except RuntimeError:  # (the loop has closed: shutting down)
-            pass
-
-    def close(self) -> None:
-        stop = self._stop
-        if stop is not None:
-            self._call(_finish, stop)
-        self._thread.join(5)
-
     # ---- the loop -----------------------------------------------------------------------------
-    def _run(self, host: str, port: int) -> None:
-        asyncio.set_event_loop(self._loop)
-        try:
-            self._loop.run_until_complete(self._serve(host, port))
-        except BaseException as e:  # noqa: BLE001 - before it is ready: raised by the constructor;
-            if self._ready.is_set():  # later (a bug): counted, its traceback said once
-                self.faults.caught("view loop", e)
-            self._error = e
-            self._ready.set()
-        finally:
-            self._loop.close()
-
-    async def _serve(self, host: str, port: int) -> None:
+    async def _serve(self, stop: asyncio.Future[None]) -> None:
         from websockets.asyncio.server import serve
 
-        self._stop = self._loop.create_future()
         async with serve(
             self._handle,
-            host,
-            port,
+            self._host,
+            self._port,
             subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
             process_request=self._check,
             max_size=MAX_CLIENT_MESSAGE,
             logger=logging.getLogger(__name__ + ".websockets"),
         ) as server:
-            self.port = int(next(iter(server.sockets)).getsockname()[1])
-            self._ready.set()
-            await self._stop
+            self._listening(server)
+            await stop
 
     def _check(self, connection: Any, request: Any) -> Any:
         return self.door.check(connection, request, len(self._clients))
@@ -276,11 +243,6 @@ class LiveView:
                 client.subs[sub] = cid
                 client.by_channel[cid] = sub
         return True
-
-
-def _finish(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
 
 
 def _u32(v: Any) -> bool:

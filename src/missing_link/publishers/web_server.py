@@ -36,7 +36,6 @@ import asyncio
 import json
 import logging
 import ssl
-import threading
 import time
 from collections.abc import Callable
 from importlib import resources
@@ -47,6 +46,7 @@ from ..logs import ErrorCounts
 from ..text import safe_text
 from ..topics import Command
 from .front_door import FrontDoor
+from .loop_server import LoopServer
 from .outbox import Outbox
 from .web_auth import AUTH_S, CLOSE_UNAUTHENTICATED, Logins
 from .web_model import ConsoleModel
@@ -78,7 +78,7 @@ def static_files() -> dict[str, tuple[bytes, str]]:
     return files
 
 
-class WebServer:
+class WebServer(LoopServer):
     def __init__(
         self,
         model: ConsoleModel,
@@ -109,16 +109,7 @@ class WebServer:
         self.dropped_messages = 0
         self.dropped = 0
         self.commands_sent = 0
-        self.port = 0
-        self._loop = asyncio.new_event_loop()
-        self._ready = threading.Event()
-        self._stop: asyncio.Future[None] | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="web-console", daemon=True)
-        self._thread.start()
-        self._ready.wait(10)
-        if self._error is not None:
-            raise self._error
+        self._start("web-console")
 
     @property
     def attached(self) -> bool:
@@ -131,28 +122,6 @@ class WebServer:
     def attach(self, ctx: Any) -> None:
         self.ctx = ctx
 
-    def close(self) -> None:
-        stop = self._stop
-        if stop is not None:
-            try:
-                self._loop.call_soon_threadsafe(_finish, stop)
-            except RuntimeError:  # (the loop has closed)
-                pass
-        self._thread.join(5)
-
-    # ---- the loop -----------------------------------------------------------------------------
-    def _run(self) -> None:
-        asyncio.set_event_loop(self._loop)
-        try:
-            self._loop.run_until_complete(self._serve())
-        except BaseException as e:  # noqa: BLE001 - before it is ready: raised by the constructor;
-            if self._ready.is_set():  # later (a bug): counted, its traceback said once
-                self.faults.caught("server loop", e)
-            self._error = e
-            self._ready.set()
-        finally:
-            self._loop.close()
-
     def _ssl(self) -> ssl.SSLContext | None:
         if not self.opts.tls:
             return None
@@ -163,10 +132,10 @@ class WebServer:
             raise ConfigError(f"[web] cert/key: cannot load {self.opts.cert}: {e}") from None
         return ctx
 
-    async def _serve(self) -> None:
+    # ---- the loop -----------------------------------------------------------------------------
+    async def _serve(self, stop: asyncio.Future[None]) -> None:
         from websockets.asyncio.server import serve
 
-        self._stop = self._loop.create_future()
         async with serve(
             self._handle,
             self.opts.host,
@@ -177,11 +146,10 @@ class WebServer:
             server_header=None,
             logger=_quiet_logger(),
         ) as server:
-            self.port = int(next(iter(server.sockets)).getsockname()[1])
-            self._ready.set()
+            self._listening(server)
             ticker = asyncio.ensure_future(self._tick())
             try:
-                await self._stop
+                await stop
             finally:
                 ticker.cancel()
                 await asyncio.gather(ticker, return_exceptions=True)
@@ -381,11 +349,6 @@ def _quiet_logger() -> logging.Logger:
     logger = logging.getLogger(__name__ + ".websockets")
     logger.setLevel(logging.INFO)
     return logger
-
-
-def _finish(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
 
 
 def _address(connection: Any) -> str:
