@@ -22,11 +22,15 @@ from missing_link.cli.common import EXIT_FAIL
 from missing_link.cli.replay import _serve
 from missing_link.ros.board_record import (
     CONFIG_TYPE,
+    STAMPS_TYPE,
     ConfigRecord,
     config_cdr,
     config_from_cdr,
 )
-from missing_link.virtual.recording import open_recording
+from missing_link.ros.clock import ClockRecord
+from missing_link.virtual import recording
+from missing_link.virtual.recording import PairStats, open_recording, recorded_sifs
+from missing_link.virtual.replay_clock import KNOT_NS, ClockKnots
 from missing_link.virtual.replay_serve import Replay
 
 from .replay_craft import craft
@@ -156,3 +160,74 @@ def test_a_replay_whose_board_stopped_serving_ends_and_fails(
         replay.stop()
     err = capsys.readouterr().err
     assert f"{replay.boards[0].name} stopped serving: RuntimeError: a bug" in err, err
+
+
+def without_stamps(kind: str, topic: str, t: int, data: bytes) -> list[tuple[str, int, bytes]]:
+    return [] if kind == STAMPS_TYPE else [(topic, t, data)]
+
+
+def _played(path: Path, board: str) -> tuple[list[tuple[Any, ...]], PairStats]:
+    stats = PairStats()
+    rec = open_recording([str(path)])
+    out = [(s.log_ns, s.seq, s.board_us, s.raw) for s in recorded_sifs(rec, board, stats)]
+    return out, stats
+
+
+def test_samples_stream_in_bounded_memory_whatever_the_file_holds(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """(issue 43.10: a recording whose samples have no board stamps was held whole: 7.8 MB
+    made 202 MB; bench/bench_replay.py measures it)"""
+    full, st = _played(recorded, "board_b")
+    assert full and st.unstamped == st.unmatched == 0
+    bare = craft(recorded, tmp_path / "bare.mcap", without_stamps)
+    monkeypatch.setattr(recording, "MAX_WAITING", 100)
+    got, st = _played(bare, "board_b")
+    assert got == [] and st.unstamped == len(full) and st.held_max == 100
+    # fewer than a chunk's samples may wait: what cannot wait is given up, with its other
+    # half, and every pair played is a true one
+    monkeypatch.setattr(recording, "MAX_WAITING", 10)
+    got, st = _played(recorded, "board_b")
+    assert got and set(got) <= set(full), "a sample paired with another's stamps"
+    assert len(got) + st.unstamped == len(full) and st.held_max == 10
+
+
+def test_the_boards_wait_within_one_budget(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Each board's feeder reads the file on its own thread: the places for samples waiting
+    for their stamps are counted for all of them together (a file of many boards whose stamps
+    never come holds MAX_WAITING samples, not as many a board), and given back whatever ends
+    a pass."""
+    monkeypatch.setattr(recording, "MAX_WAITING", 10)
+    rec = open_recording([str(recorded)])
+    st_a, st_b = PairStats(), PairStats()
+    a = recorded_sifs(rec, "board_a", st_a)
+    next(a)  # (suspended at a pair: the samples that still wait hold their places)
+    held_a = rec.waiting.taken
+    assert 0 < held_a <= 10
+    list(recorded_sifs(rec, "board_b", st_b))
+    assert st_b.held_max <= 10 - held_a and rec.waiting.taken == held_a
+    a.close()
+    assert rec.waiting.taken == 0
+    st_b = PairStats()  # (board_b alone: every place its own)
+    assert list(recorded_sifs(rec, "board_b", st_b)) and st_b.held_max == 10
+
+
+def test_a_recorded_clock_costs_its_knots_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Clock records come one by one into knots (one per stretch of KNOT_NS per boot), at most
+    MAX_KNOTS of them: a recording of any length, or one of nothing but clock records, holds
+    no more."""
+    monkeypatch.setattr(ClockKnots, "MAX_KNOTS", 50)
+    knots = ClockKnots()
+    step = KNOT_NS // 4
+    for i in range(1000):  # (four exchanges a stretch: 250 stretches, one boot)
+        t = i * step
+        knots.add(ClockRecord(t, t // 1000, t // 1000 + 5, t + 20_000, 10_000, 10_000,
+                              t // 1000, t, 0.0, 100.0, 10.0, 8, "ep", 0))  # fmt: skip
+    assert knots.knots == 50 and knots.left_out == 1000 - 50 * 4
+    model = knots.model((0, 0))
+    assert len(model.boots) == 1 and len(model.boots[0].knots_h) == 50

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import struct
+import threading
 from collections import Counter, deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
@@ -38,10 +39,18 @@ from ..ros.board_record import (
     description_from_cdr,
     stamps_from_cdr,
 )
-from ..ros.clock import CLOCK_TYPE, ClockRecord, clock_record_from_cdr, clock_topic
+from ..ros.clock import CLOCK_TYPE, clock_record_from_cdr, clock_topic
 from ..ros.msgs import CdrEncoder
+from .replay_clock import ClockKnots
 
 log = logging.getLogger(__name__)
+
+
+#: what the first pass keeps at most, whatever the file holds (more is counted as damaged):
+#: boards (their descriptions, their clocks), and configuration changes per board (a day of
+#: one every nine seconds)
+MAX_BOARDS = 256
+MAX_CONFIGS = 10_000
 
 
 class RecordingError(MissingLinkError, ValueError):
@@ -54,7 +63,7 @@ class RecordedBoard:
     transducers: dict[str, Transducer]  #: thesis-format topic -> its transducer
     #: every configuration recorded, with its host time: the first, then each change
     configs: list[tuple[int, ConfigRecord]] = field(default_factory=list)
-    clock: list[ClockRecord] = field(default_factory=list)
+    clock: ClockKnots = field(default_factory=ClockKnots)  #: its clock records, as knots
     samples: int = 0  #: samples with board stamps
     first_ns: int | None = None  #: the recording's host time of its first sample
     last_ns: int = 0
@@ -77,9 +86,32 @@ class Recording:
     boards: dict[str, RecordedBoard]
     damaged: int = 0  #: records that did not decode (skipped)
     skipped_chunks: int = 0
+    #: the samples that may wait for their stamps, every board's second pass together
+    waiting: Budget = field(default_factory=lambda: Budget(MAX_WAITING))
 
 
-@dataclass(frozen=True)
+class Budget:
+    """A count of places shared by threads (each board's feeder reads the file on its own)."""
+
+    def __init__(self, places: int) -> None:
+        self.places = places
+        self.taken = 0
+        self._lock = threading.Lock()
+
+    def take(self) -> bool:
+        """One place; False when none is left."""
+        with self._lock:
+            if self.taken >= self.places:
+                return False
+            self.taken += 1
+            return True
+
+    def give(self, n: int) -> None:
+        with self._lock:
+            self.taken -= n
+
+
+@dataclass(frozen=True, slots=True)  # (20,000 wait per board: no __dict__ each)
 class RecordedSif:
     log_ns: int  #: the recording's host time of the sample (its newest channel)
     transducer: Transducer
@@ -110,7 +142,7 @@ def open_recording(paths: list[str]) -> Recording:
     span."""
     files = mcap_files(paths)
     rec = Recording(files, {})
-    clocks: dict[str, list[ClockRecord]] = {}
+    clocks: dict[str, ClockKnots] = {}
     spans: dict[str, tuple[int, int]] = {}
     skipped: Counter[str] = Counter()
     for schema, ch, msg in complete_messages(files, skipped):
@@ -126,8 +158,8 @@ def open_recording(paths: list[str]) -> Recording:
             "[mcap] replay = false): nothing to replay"
         )
     for board in rec.boards.values():
-        board.clock = clocks.get(clock_topic(board.name, set(board.description.transducer_names)),
-                                 [])  # fmt: skip
+        topic = clock_topic(board.name, set(board.description.transducer_names))
+        board.clock = clocks.get(topic) or ClockKnots()
         got = [spans[t] for t in board.transducers if t in spans]
         if got:
             board.first_ns = min(a for a, _ in got)
@@ -140,12 +172,14 @@ def _first_pass(
     kind: str,
     topic: str,
     msg: Any,
-    clocks: dict[str, list[ClockRecord]],
+    clocks: dict[str, ClockKnots],
     spans: dict[str, tuple[int, int]],
 ) -> None:
     if kind == DESCRIPTION_TYPE:
         d = description_from_cdr(msg.data)
         known = rec.boards.get(d.board)
+        if known is None and len(rec.boards) >= MAX_BOARDS:
+            raise ValueError(f"a board more than {MAX_BOARDS}: {d.board[:40]!r}")
         if known is None:
             ts = parse_transds(d.transds, d.board)
             if len(ts) != len(d.topics):
@@ -158,9 +192,15 @@ def _first_pass(
         board = rec.boards.get(c.board)
         if board is not None:
             check_config(c)  # (ValueError: a bad record, counted and skipped)
+            if len(board.configs) >= MAX_CONFIGS:
+                raise ValueError(f"{c.board}: a configuration change more than {MAX_CONFIGS}")
+            if board.configs and board.configs[-1][1].keys == c.keys:  # (one key table, kept once)
+                c = replace(c, keys=board.configs[-1][1].keys)
             board.configs.append((msg.log_time, c))
     elif kind == CLOCK_TYPE:
-        clocks.setdefault(topic, []).append(clock_record_from_cdr(msg.data))
+        if topic not in clocks and len(clocks) >= MAX_BOARDS:
+            raise ValueError(f"a clock more than {MAX_BOARDS}: {topic[:60]!r}")
+        clocks.setdefault(topic, ClockKnots()).add(clock_record_from_cdr(msg.data))
     elif kind == STAMPS_TYPE:
         s = stamps_from_cdr(msg.data)
         board = rec.boards.get(s.board)
@@ -195,42 +235,81 @@ class PairStats:
     unstamped: int = 0  #: samples without board stamps (not replayed)
     unmatched: int = 0  #: stamps without their sample
     damaged: int = 0
+    held_max: int = 0  #: the most halves (samples, stamps) that waited at once
+
+
+#: samples waiting for their stamps, every board's together (Recording.waiting): the recorder
+#: writes the boards' stamps when it closes a chunk (1 MiB at most: fewer samples than this),
+#: after the chunk's samples, so a chunk's samples wait at most; beyond this a board's oldest is
+#: given up (counted), so memory is bounded whatever the file holds (samples whose stamps never
+#: came were held whole: 7.8 MB made 202 MB, issue 43.10)
+MAX_WAITING = 50_000
 
 
 def recorded_sifs(rec: Recording, name: str, stats: PairStats) -> Iterator[RecordedSif]:
-    """The second pass: board ``name``'s samples in the order it sent them."""
+    """The second pass: board ``name``'s samples in the order it sent them, streamed.  A stamps
+    record of the board stamps exactly the samples of it written since the one before (the
+    recorder writes both on one thread: mcap.py), so there each topic's entries are paired with
+    its waiting samples, the newest with the newest: samples left over before them lost their
+    stamps (a damaged record), entries left over lost their samples; both are counted and
+    dropped, and the pairs after are in step again."""
     board = rec.boards[name]
     decoders = {topic: CdrEncoder(t).struct for topic, t in board.transducers.items()}
     waiting: dict[str, deque[tuple[int, tuple[Any, ...]]]] = {t: deque() for t in decoders}
-    entries: deque[tuple[str, int, tuple[int, ...]]] = deque()  # (topic, seq, stamps)
+    budget, held = rec.waiting, 0
+    try:
+        for schema, ch, msg in complete_messages(rec.files):
+            topic = ch.topic
+            try:
+                if topic in decoders:
+                    n = board.transducers[topic].chan_count
+                    waiting[topic].append((msg.log_time, decoders[topic].unpack(msg.data)[-n:]))
+                    if budget.take():
+                        held += 1
+                        stats.held_max = max(stats.held_max, held)
+                    else:  # (none left: the topic's oldest; its stamps, if they come, find it
+                        waiting[topic].popleft()  # gone)
+                        stats.unstamped += 1
+                elif schema.name == STAMPS_TYPE:
+                    s = stamps_from_cdr(msg.data)
+                    if s.board != name:
+                        continue
+                    entries = _entries(s.topics, s.topic, s.seq, s.board_us, board)
+                    before = sum(len(q) for q in waiting.values())
+                    yield from _paired(entries, waiting, board, stats)
+                    gone = before - sum(len(q) for q in waiting.values())
+                    budget.give(gone)
+                    held -= gone
+            except (ValueError, struct.error) as e:
+                stats.damaged += 1
+                log.debug("%s: a damaged record skipped: %s", topic, e)
+        stats.unstamped += held
+    finally:
+        budget.give(held)  # (a pass ended, or its reader stopped)
 
-    def pairs() -> Iterator[RecordedSif]:
-        while entries and waiting[entries[0][0]]:
-            topic, seq, stamps = entries.popleft()
-            log_ns, raw = waiting[topic].popleft()
-            stats.sifs += 1
-            yield RecordedSif(log_ns, board.transducers[topic], stamps, raw, seq)
 
-    for schema, ch, msg in complete_messages(rec.files):
-        topic = ch.topic
-        try:
-            if topic in decoders:
-                n = board.transducers[topic].chan_count
-                waiting[topic].append((msg.log_time, decoders[topic].unpack(msg.data)[-n:]))
-            elif schema.name == STAMPS_TYPE:
-                s = stamps_from_cdr(msg.data)
-                if s.board != name:
-                    continue
-                entries.extend(_entries(s.topics, s.topic, s.seq, s.board_us, board))
-            else:
-                continue
-        except (ValueError, struct.error) as e:
-            stats.damaged += 1
-            log.debug("%s: a damaged record skipped: %s", topic, e)
+def _paired(
+    entries: list[tuple[str, int, tuple[int, ...]]],
+    waiting: dict[str, deque[tuple[int, tuple[Any, ...]]]],
+    board: RecordedBoard,
+    stats: PairStats,
+) -> Iterator[RecordedSif]:
+    """One stamps record's entries with the samples waiting for them (see recorded_sifs)."""
+    wanted = Counter(topic for topic, _seq, _us in entries)
+    for topic, q in waiting.items():
+        extra = len(q) - wanted[topic]
+        for _ in range(max(0, extra)):  # (older samples whose stamps were lost)
+            q.popleft()
+            stats.unstamped += 1
+        wanted[topic] = max(0, -extra)  # (entries whose samples were lost: the oldest go)
+    for topic, seq, us in entries:
+        if wanted[topic]:
+            wanted[topic] -= 1
+            stats.unmatched += 1
             continue
-        yield from pairs()
-    stats.unstamped += sum(len(q) for q in waiting.values())
-    stats.unmatched += len(entries)
+        log_ns, raw = waiting[topic].popleft()
+        stats.sifs += 1
+        yield RecordedSif(log_ns, board.transducers[topic], us, raw, seq)
 
 
 def _entries(

@@ -67,7 +67,10 @@ READY_EXCHANGES = 8  #: clock exchanges answered before the host counts as synce
 #: first sync's call (``timeout``, 1 s): a daemon whose handshake lost a reply (it waits its 1 s
 #: call timeout) is not taken for one and sent samples it drops
 READY_S = 6.0
-AHEAD = 20_000  #: recorded SIFs read ahead per board
+#: recorded SIFs read ahead, all boards together (what a replay holds of them), each board at
+#: least MIN_AHEAD (a second of a 1 kHz board)
+AHEAD = 20_000
+MIN_AHEAD = 1_000
 LATE_NS = 50_000_000  #: a SIF sent this long after it was due counts as late
 BACKLOG = 16 * 1024  #: output bytes waiting for the host above which samples wait too
 NOBODY = 1 << 62  #: the backlog when no host is connected
@@ -77,9 +80,10 @@ _PLAIN = 0  # a plain function (board/runtime.py's kind)
 class Feeder:
     """Reads one board's recorded SIFs ahead, pass after pass; ``None`` ends a pass."""
 
-    def __init__(self, rec: Recording, board: str, loop: bool) -> None:
+    def __init__(self, rec: Recording, board: str, loop: bool, boards: int = 1) -> None:
+        """``boards``: how many read ahead beside it (their share of AHEAD each)."""
         self.stats = PairStats()
-        self.queue: queue.Queue[RecordedSif | None] = queue.Queue(AHEAD)
+        self.queue: queue.Queue[RecordedSif | None] = queue.Queue(max(MIN_AHEAD, AHEAD // boards))
         self._stop = threading.Event()
         self._args = (rec, board, loop)
         self.error = ""

@@ -74,24 +74,10 @@ class ClockModel:
     ) -> ClockModel:
         """The clock of ``records`` (in recorded order); ``anchor`` (host ns, board µs) is used
         when there are none (a board without ``a2jClock``): the nominal rate through it."""
-        groups: list[list[ClockRecord]] = []
-        last_t3 = -1
+        knots = ClockKnots()
         for r in records:
-            if r.result == REFUSED or r.t4_ns < r.t1_ns or r.t3_us < r.t2_us:
-                continue
-            if not groups or r.t2_us < last_t3 or r.clock_epoch != groups[-1][0].clock_epoch:
-                groups.append([])
-            groups[-1].append(r)
-            last_t3 = r.t3_us
-        if not groups:
-            return cls([Boot(epoch, -math.inf, [float(anchor[0])], [float(anchor[1])])])
-        boots = [_boot(g) for g in groups]
-        boots[0].start_h = -math.inf
-        for k in range(1, len(boots)):
-            lo, hi = float(groups[k - 1][-1].t4_ns), float(groups[k][0].t1_ns)
-            zero = boots[k].host_at(0.0)
-            boots[k].start_h = min(max(zero, lo), hi) if lo <= hi else hi
-        return cls(boots)
+            knots.add(r)
+        return knots.model(anchor, epoch)
 
     def boot_at(self, h: float) -> int:
         return max(0, bisect.bisect_right(self._starts, h) - 1)
@@ -100,33 +86,91 @@ class ClockModel:
         return self.boots[self.boot_at(h)].board_at(h)
 
 
-def _boot(records: list[ClockRecord]) -> Boot:
-    """One boot's knots: per stretch of ``KNOT_NS`` the best estimate, else the fastest
-    exchange's midpoint; kept only where both times go forward at a plausible rate."""
-    stretches: dict[int, tuple[float, float, float]] = {}  # stretch -> (quality, h, b)
-    first = records[0].t1_ns
-    for r in records:
-        k = (r.t4_ns - first) // KNOT_NS
+class _Stretches:
+    """One boot's exchanges as they come: per stretch of ``KNOT_NS`` the best estimate, else
+    the fastest exchange's midpoint (its quality, host ns, board µs)."""
+
+    def __init__(self, r: ClockRecord) -> None:
+        self.epoch, self.first_t1, self.last_t4 = r.clock_epoch, r.t1_ns, r.t4_ns
+        self.best: dict[int, tuple[float, float, float]] = {}
+        self.skew = 0.0
+
+    def add(self, r: ClockRecord, room: bool) -> bool:
+        """Take ``r``; False when it would be a stretch more and there is no ``room``."""
+        k = (r.t4_ns - self.first_t1) // KNOT_NS
+        if k not in self.best and not room:
+            return False
         if r.bound_ns >= 0 and r.host_ns:
             best = (r.bound_ns, float(r.host_ns), float(r.board_us))
         else:  # no estimate: the midpoint, good to half the round trip
             rtt = (r.t4_ns - r.t1_ns) - 1000.0 * (r.t3_us - r.t2_us)
             best = (1e12 + rtt, (r.t1_ns + r.t4_ns) / 2.0, (r.t2_us + r.t3_us) / 2.0)
-        if k not in stretches or best[0] < stretches[k][0]:
-            stretches[k] = best
-    kh: list[float] = []
-    kb: list[float] = []
-    for _k, (_q, h, b) in sorted(stretches.items()):
-        # (knots close together would make a rate of their few µs of error)
-        if kh and not (
-            h - kh[-1] >= KNOT_NS / 2 and abs((b - kb[-1]) / (h - kh[-1]) / NOMINAL - 1) < MAX_SKEW
-        ):
-            continue
-        kh.append(h)
-        kb.append(b)
-    skew = records[-1].skew_ppm if math.isfinite(records[-1].skew_ppm) else 0.0
-    slope = NOMINAL * (1 + skew * 1e-6) if abs(skew) < MAX_SKEW * 1e6 else NOMINAL
-    return Boot(records[0].clock_epoch, -math.inf, kh, kb, slope)
+        if k not in self.best or best[0] < self.best[k][0]:
+            self.best[k] = best
+        self.last_t4 = r.t4_ns
+        self.skew = r.skew_ppm if math.isfinite(r.skew_ppm) else 0.0
+        return True
+
+    def boot(self) -> Boot:
+        """The boot's knots, kept only where both times go forward at a plausible rate."""
+        kh: list[float] = []
+        kb: list[float] = []
+        for _k, (_q, h, b) in sorted(self.best.items()):
+            # (knots close together would make a rate of their few µs of error)
+            if kh and not (
+                h - kh[-1] >= KNOT_NS / 2
+                and abs((b - kb[-1]) / (h - kh[-1]) / NOMINAL - 1) < MAX_SKEW
+            ):
+                continue
+            kh.append(h)
+            kb.append(b)
+        skew = self.skew
+        slope = NOMINAL * (1 + skew * 1e-6) if abs(skew) < MAX_SKEW * 1e6 else NOMINAL
+        return Boot(self.epoch, -math.inf, kh, kb, slope)
+
+
+class ClockKnots:
+    """A recorded clock read record by record (``add``), keeping only what its model needs:
+    per boot a knot per ``KNOT_NS`` stretch, at most ``MAX_KNOTS`` in all (a day and more of
+    them; what would be more is left out and counted), so a recording of any length, or one
+    crafted of nothing but clock records, costs bounded memory (issue 43.10)."""
+
+    MAX_KNOTS = 100_000
+
+    def __init__(self) -> None:
+        self.boots: list[_Stretches] = []
+        self.knots = 0
+        self.left_out = 0  #: exchanges beyond MAX_KNOTS, not used
+        self._last_t3 = -1
+
+    def add(self, r: ClockRecord) -> None:
+        if r.result == REFUSED or r.t4_ns < r.t1_ns or r.t3_us < r.t2_us:
+            return
+        boots = self.boots
+        room = self.knots < self.MAX_KNOTS
+        if not boots or r.t2_us < self._last_t3 or r.clock_epoch != boots[-1].epoch:
+            if not room:
+                self.left_out += 1
+                return
+            boots.append(_Stretches(r))
+        before = len(boots[-1].best)
+        if not boots[-1].add(r, room):
+            self.left_out += 1
+            return
+        self.knots += len(boots[-1].best) - before
+        self._last_t3 = r.t3_us
+
+    def model(self, anchor: tuple[int, int], epoch: str = "") -> ClockModel:
+        """The clock; ``anchor`` (host ns, board µs) when no exchange was kept."""
+        if not self.boots:
+            return ClockModel([Boot(epoch, -math.inf, [float(anchor[0])], [float(anchor[1])])])
+        boots = [s.boot() for s in self.boots]
+        boots[0].start_h = -math.inf
+        for k in range(1, len(boots)):
+            lo, hi = float(self.boots[k - 1].last_t4), float(self.boots[k].first_t1)
+            zero = boots[k].host_at(0.0)
+            boots[k].start_h = min(max(zero, lo), hi) if lo <= hi else hi
+        return ClockModel(boots)
 
 
 class Timeline:

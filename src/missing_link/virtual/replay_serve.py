@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from ..errors import BadURL
 from .recording import RecordedBoard, RecordingError, open_recording
 from .replay import NOBODY, Feeder, ReplayRuntime
-from .replay_clock import Clock, ClockModel, Timeline
+from .replay_clock import Clock, Timeline
 from .server import BoardServer
 
 
@@ -111,15 +111,15 @@ class Replay:
         self.boards: list[ReplayedBoard] = []
         try:
             for b in picked:
-                self.boards.append(self._board(b, first))
+                self.boards.append(self._board(b, first, len(picked)))
         except BaseException:
             self.stop()
             raise
 
-    def _board(self, b: RecordedBoard, first: int) -> ReplayedBoard:
+    def _board(self, b: RecordedBoard, first: int, boards: int) -> ReplayedBoard:
         epoch = dict(b.description.properties).get("clock.epoch", "")
-        model = ClockModel.from_records(b.clock, b.anchor or (first, 0), epoch)
-        feeder = Feeder(self.recording, b.name, self.timeline.loop)
+        model = b.clock.model(b.anchor or (first, 0), epoch)
+        feeder = Feeder(self.recording, b.name, self.timeline.loop, boards)
         runtime = ReplayRuntime(b, Clock(model, self.timeline), feeder)
         return ReplayedBoard(b, runtime, _Server(runtime, self.listen), feeder)
 
