@@ -13,6 +13,7 @@ from __future__ import annotations
 import socket
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +23,13 @@ from missing_link.cli.common import EXIT_FAIL
 from missing_link.cli.replay import _serve
 from missing_link.ros.board_record import (
     CONFIG_TYPE,
+    DESCRIPTION_TYPE,
     STAMPS_TYPE,
     ConfigRecord,
     config_cdr,
     config_from_cdr,
+    description_cdr,
+    description_from_cdr,
 )
 from missing_link.ros.clock import ClockRecord
 from missing_link.virtual import recording
@@ -136,6 +140,32 @@ def test_a_bad_record_costs_the_replay_nothing_else(
     for b in replay.boards:
         assert b.runtime.sent == b.recorded.samples and not b.error, b.summary()
     assert again  # (and a daemon recorded them: replay_and_record waited for every one)
+
+
+@pytest.mark.parametrize("prop", ["board.model", "clock.epoch", "other"])
+def test_a_description_no_board_could_give_is_counted_and_skipped(
+    recorded: Path,  # noqa: F811 - (the fixture)
+    tmp_path: Path,
+    prop: str,
+) -> None:
+    """A NUL in a property of board_b's description (which its replay would serve as the board's
+    own): board_b is left out, counted, and board_a is replayed (before: ValueError from the
+    replayed board's runtime for the whole replay)."""
+
+    def edit(kind: str, topic: str, t: int, data: bytes) -> list[tuple[str, int, bytes]]:
+        if kind == DESCRIPTION_TYPE:
+            d = description_from_cdr(data)
+            if d.board == "board_b":
+                props = (*((k, v) for k, v in d.properties if k != prop), (prop, "a\0b"))
+                data = description_cdr(replace(d, properties=props))
+        return [(topic, t, data)]
+
+    path = craft(recorded, tmp_path / "crafted.mcap", edit)
+    rec = open_recording([str(path)])
+    assert rec.damaged >= 1 and list(rec.boards) == ["board_a"]
+    replay = Replay([str(path)], listen="tcp://127.0.0.1:0")
+    replay.stop()
+    assert [b.name for b in replay.boards] == ["board_a"]
 
 
 def test_a_replay_whose_board_stopped_serving_ends_and_fails(

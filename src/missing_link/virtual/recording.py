@@ -181,6 +181,7 @@ def _first_pass(
         if known is None and len(rec.boards) >= MAX_BOARDS:
             raise ValueError(f"a board more than {MAX_BOARDS}: {d.board[:40]!r}")
         if known is None:
+            check_description(d)
             ts = parse_transds(d.transds, d.board)
             if len(ts) != len(d.topics):
                 raise ValueError(f"{d.board}: {len(ts)} transducers, {len(d.topics)} topics")
@@ -211,6 +212,15 @@ def _first_pass(
     else:
         lo, hi = spans.get(topic, (msg.log_time, msg.log_time))
         spans[topic] = (min(lo, msg.log_time), max(hi, msg.log_time))
+
+
+def check_description(d: BoardDescription) -> None:
+    """A recorded description is what a board could have said: its properties non-empty text
+    without NUL (the board's own rule, board/runtime.py, which its replay is held to: a NUL in
+    one ended ``replay`` before it served any board); ValueError otherwise."""
+    for key, value in d.properties:
+        if not key or "\0" in key or "\0" in value:
+            raise ValueError(f"{d.board}: a property {key[:40]!r}: empty, or with a NUL")
 
 
 def check_config(c: ConfigRecord) -> None:
