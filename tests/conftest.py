@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from missing_link.board.runtime import BoardRuntime
 from missing_link.testing import RuntimeBoard, build_avr
@@ -25,6 +26,14 @@ UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 ROVER_MEGA = ROOT / "examples" / "boards" / "rover-mega.py"
 
 _names = itertools.count()
+
+# Hypothesis's deadline (200 ms an example) and its too_slow health check are wall-clock
+# thresholds: a busy machine fails them, not the code (test_codec's round trip did, at a load
+# of 15 on two cores).  The examples' number bounds a property test's work instead.
+settings.register_profile(
+    "missing-link", deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.load_profile("missing-link")
 
 #: Under pytest-xdist (make unit: -n auto --dist loadgroup) the tests of a group run in one
 #: worker, one after another: ``quiet``, those that measure timing against the host's clock or
