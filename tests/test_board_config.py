@@ -19,7 +19,6 @@ from missing_link.host.board import Board
 from missing_link.host.config import ConfigRefused, NotConfigurable, parse_keys
 from missing_link.j2a.codec import SOF, encode_frame
 from missing_link.virtual import make_sim
-from missing_link.virtual.server import start_board_thread
 
 from .helpers import wait_for
 from .vectors import CONFIG_KEYS, CONFIG_VECTORS
@@ -128,102 +127,84 @@ def test_file_store_survives_a_torn_temporary_file(tmp_path: Path) -> None:
     assert store.read() == b"new record"
 
 
-def test_the_host_checks_before_it_sends_and_says_what_is_allowed() -> None:
+def test_the_host_checks_before_it_sends_and_says_what_is_allowed(serve: Any) -> None:
     rt = make_sim("thesis", 1)
-    server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
-    try:
-        with Board.open(server.url) as board:
-            calls = board.link.conn.stats.requests
-            cases = {
-                "dist_ir.rate_hz": ("30", "0.1..26"),
-                "dist_ir.enabled": ("maybe", "true or false"),
-                "servo.min_deg": ("1.5", "a whole number"),
-                "dist_us.groups": ("2", "read-only"),
-                "sonar.rate_hz": ("2", "transducers: quad, dist_ir"),
-                "dist_ir.rate": ("2", "dist_ir has: dist_ir.aligned, dist_ir.enabled, dist_ir.ph"),
-            }
-            board.settings.keys()  # (the table is read once)
-            calls = board.link.conn.stats.requests
-            for key, (value, said) in cases.items():
-                with pytest.raises(ConfigError, match=said):
-                    board.configure({"dist_ir.rate_hz": 5, key: value})
-            assert board.link.conn.stats.requests == calls  # nothing was sent
-            assert board.config()["dist_ir.rate_hz"] == 25.0
-            # the board refuses a combination: nothing changed, the board's reason
-            with pytest.raises(ConfigRefused, match="min_deg < max_deg"):
-                board.configure({"servo.min_deg": 40, "servo.max_deg": 30, "dist_ir.rate_hz": 5})
-            assert board.config()["dist_ir.rate_hz"] == 25.0
-            got = board.configure({"servo.min_deg": -30, "servo.max_deg": 30})
-            assert (got["servo.min_deg"], got["servo.max_deg"]) == (-30, 30)
-    finally:
-        server.stop()
-        thread.join(5)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    with Board.open(server.url) as board:
+        calls = board.link.conn.stats.requests
+        cases = {
+            "dist_ir.rate_hz": ("30", "0.1..26"),
+            "dist_ir.enabled": ("maybe", "true or false"),
+            "servo.min_deg": ("1.5", "a whole number"),
+            "dist_us.groups": ("2", "read-only"),
+            "sonar.rate_hz": ("2", "transducers: quad, dist_ir"),
+            "dist_ir.rate": ("2", "dist_ir has: dist_ir.aligned, dist_ir.enabled, dist_ir.ph"),
+        }
+        board.settings.keys()  # (the table is read once)
+        calls = board.link.conn.stats.requests
+        for key, (value, said) in cases.items():
+            with pytest.raises(ConfigError, match=said):
+                board.configure({"dist_ir.rate_hz": 5, key: value})
+        assert board.link.conn.stats.requests == calls  # nothing was sent
+        assert board.config()["dist_ir.rate_hz"] == 25.0
+        # the board refuses a combination: nothing changed, the board's reason
+        with pytest.raises(ConfigRefused, match="min_deg < max_deg"):
+            board.configure({"servo.min_deg": 40, "servo.max_deg": 30, "dist_ir.rate_hz": 5})
+        assert board.config()["dist_ir.rate_hz"] == 25.0
+        got = board.configure({"servo.min_deg": -30, "servo.max_deg": 30})
+        assert (got["servo.min_deg"], got["servo.max_deg"]) == (-30, 30)
 
 
-def test_a_disabled_transducer_sends_nothing_and_its_actuator_refuses() -> None:
+def test_a_disabled_transducer_sends_nothing_and_its_actuator_refuses(serve: Any) -> None:
     rt = make_sim("thesis", 1)
-    server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
-    try:
-        with Board.open(server.url) as board:
-            seen: list[int] = []
-            board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
-            board.configure({"dist_ir.enabled": False, "servo.enabled": "off"})
-            seen.clear()
-            # two dist_us SIFs from later polls than the configure: every older SIF is here
-            wait_for(lambda: seen.count(2) >= 2)
-            seen.clear()
-            # ~0.5 s of the board's time: dist_us sends 75 SIFs/s (dist_ir 25 had it been on)
-            wait_for(lambda: seen.count(2) >= 36)
-            assert 1 not in seen and 2 in seen  # no dist_ir SIF; dist_us goes on
-            result = board.call("a2j_set_servo", b"\x10")
-            assert result.code == 0xFF and b"disabled" in result.payload
-            board.configure({"dist_ir.enabled": True})
-            wait_for(lambda: 1 in seen)
-            assert 1 in seen
-    finally:
-        server.stop()
-        thread.join(5)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    with Board.open(server.url) as board:
+        seen: list[int] = []
+        board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
+        board.configure({"dist_ir.enabled": False, "servo.enabled": "off"})
+        seen.clear()
+        # two dist_us SIFs from later polls than the configure: every older SIF is here
+        wait_for(lambda: seen.count(2) >= 2)
+        seen.clear()
+        # ~0.5 s of the board's time: dist_us sends 75 SIFs/s (dist_ir 25 had it been on)
+        wait_for(lambda: seen.count(2) >= 36)
+        assert 1 not in seen and 2 in seen  # no dist_ir SIF; dist_us goes on
+        result = board.call("a2j_set_servo", b"\x10")
+        assert result.code == 0xFF and b"disabled" in result.payload
+        board.configure({"dist_ir.enabled": True})
+        wait_for(lambda: 1 in seen)
+        assert 1 in seen
 
 
 @pytest.mark.slow  # (seconds of real time)
-def test_a_new_rate_shows_within_one_period() -> None:
+def test_a_new_rate_shows_within_one_period(serve: Any) -> None:
     rt = make_sim("rate", 1, rate_hz=20.0)
-    server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
-    try:
-        with Board.open(server.url) as board:
-            stamps: list[int] = []
-            board.on_sif(
-                0, lambda sif, now: stamps.append(struct.unpack_from("<Q", sif.payload)[0])
-            )
-            wait_for(lambda: len(stamps) >= 3)
-            board.configure({"signal.rate_hz": 200})
-            changed = rt.clock()
-            wait_for(lambda: sum(s > changed for s in stamps) >= 40)  # (0.2 s at the new rate)
-            after = [s for s in stamps if s > changed]
-            assert after and after[0] - changed <= 5_000 + 2_000  # the new period (5 ms), + slack
-            gaps = [b - a for a, b in itertools.pairwise(after)]
-            assert 4_000 <= sorted(gaps)[len(gaps) // 2] <= 6_000
-            board.configure({"signal.rate_hz": 2})
-            changed = rt.clock()
-            time.sleep(1.2)
-            later = [s for s in stamps if s > changed]
-            assert 1 <= len(later) <= 3  # about 2 Hz now
-    finally:
-        server.stop()
-        thread.join(5)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    with Board.open(server.url) as board:
+        stamps: list[int] = []
+        board.on_sif(0, lambda sif, now: stamps.append(struct.unpack_from("<Q", sif.payload)[0]))
+        wait_for(lambda: len(stamps) >= 3)
+        board.configure({"signal.rate_hz": 200})
+        changed = rt.clock()
+        wait_for(lambda: sum(s > changed for s in stamps) >= 40)  # (0.2 s at the new rate)
+        after = [s for s in stamps if s > changed]
+        assert after and after[0] - changed <= 5_000 + 2_000  # the new period (5 ms), + slack
+        gaps = [b - a for a, b in itertools.pairwise(after)]
+        assert 4_000 <= sorted(gaps)[len(gaps) // 2] <= 6_000
+        board.configure({"signal.rate_hz": 2})
+        changed = rt.clock()
+        time.sleep(1.2)
+        later = [s for s in stamps if s > changed]
+        assert 1 <= len(later) <= 3  # about 2 Hz now
 
 
-def test_the_2014_firmware_is_not_configurable_and_keeps_working() -> None:
+def test_the_2014_firmware_is_not_configurable_and_keeps_working(serve: Any) -> None:
     rt = make_sim("original", 1)
-    server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
-    try:
-        with Board.open(server.url) as board:
-            with pytest.raises(NotConfigurable, match="2014 firmware"):
-                board.config()
-            assert board.call("a2jEcho", b"ok").payload == b"ok"
-    finally:
-        server.stop()
-        thread.join(5)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    with Board.open(server.url) as board:
+        with pytest.raises(NotConfigurable, match="2014 firmware"):
+            board.config()
+        assert board.call("a2jEcho", b"ok").payload == b"ok"
 
 
 @pytest.mark.parametrize(
@@ -247,7 +228,7 @@ def test_a_key_table_from_a_board_is_checked(blob: bytes, said: str) -> None:
         parse_keys(blob, "hostile")
 
 
-def test_a_board_answering_garbage_is_an_error_and_the_session_lives() -> None:
+def test_a_board_answering_garbage_is_an_error_and_the_session_lives(serve: Any) -> None:
     """A board whose a2jConfigGet answers a reply that does not fit its table: a clear error
     naming the board, nothing changed; the daemon publishes its samples all the same."""
     from missing_link.daemon import Daemon
@@ -255,17 +236,13 @@ def test_a_board_answering_garbage_is_an_error_and_the_session_lives() -> None:
 
     rt = make_sim("thesis", 1)
     rt.functions[rt.index["a2jConfigGet"]] = ("a2jConfigGet", 0, lambda p: (0, b"\x00\x09\x00"))
-    server, thread = start_board_thread(rt, "tcp://127.0.0.1:0")
-    try:
-        with Daemon(Config(boards=[BoardSpec(server.url)])) as d:
-            got: list[object] = []
-            d.subscribe("/thesis/quad", got.append)
-            assert d.wait_until_up(10)
-            st = d.status()[0]
-            assert "configuration unreadable" in st["warnings"], st
-            with pytest.raises(BoardError, match="does not fit"):
-                d.configure("thesis", {"dist_ir.rate_hz": 5})
-            assert wait_for(lambda: got, 5) and d.status()[0]["state"] == "up"
-    finally:
-        server.stop()
-        thread.join(5)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    with Daemon(Config(boards=[BoardSpec(server.url)])) as d:
+        got: list[object] = []
+        d.subscribe("/thesis/quad", got.append)
+        assert d.wait_until_up(10)
+        st = d.status()[0]
+        assert "configuration unreadable" in st["warnings"], st
+        with pytest.raises(BoardError, match="does not fit"):
+            d.configure("thesis", {"dist_ir.rate_hz": 5})
+        assert wait_for(lambda: got, 5) and d.status()[0]["state"] == "up"

@@ -137,26 +137,30 @@ def test_a_page_that_sends_and_never_reads_is_closed(serve: Any) -> None:
         assert face.faults.total == 0
 
 
+def _replies(face: WebPublisher, ops: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each of ``ops`` sent for board_b from a page of the console's own origin, and its reply."""
+    url = face.url.replace("http", "ws") + "ws"
+
+    async def go() -> list[dict[str, Any]]:
+        out = []
+        async with websockets.connect(
+            url, additional_headers={"Origin": face.url.rstrip("/")}
+        ) as ws:
+            await ws.recv()
+            for i, op in enumerate(ops):
+                await ws.send(json.dumps({"id": i, "board": "board_b", **op}))
+                while (m := json.loads(await asyncio.wait_for(ws.recv(), 10)))["op"] != "reply":
+                    pass
+                out.append(m)
+        return out
+
+    return asyncio.run(go())
+
+
 def test_huge_numbers_from_a_page_are_refused_not_bugs(serve: Any) -> None:
     with console(serve) as (_d, face):
-        url = face.url.replace("http", "ws") + "ws"
         sets: list[object] = [10**400, "1_0", "\u0667", "7\x00", "1e999", 1e300, "0x10"]
-
-        async def go() -> list[dict[str, Any]]:
-            out = []
-            async with websockets.connect(
-                url, additional_headers={"Origin": face.url.rstrip("/")}
-            ) as ws:
-                await ws.recv()
-                for i, v in enumerate(sets):
-                    await ws.send(json.dumps({"op": "config", "id": i, "board": "board_b",
-                                              "set": {"dist_ir.rate_hz": v}}))  # fmt: skip
-                    while (m := json.loads(await asyncio.wait_for(ws.recv(), 10)))["op"] != "reply":
-                        pass
-                    out.append(m)
-            return out
-
-        replies = asyncio.run(go())
+        replies = _replies(face, [{"op": "config", "set": {"dist_ir.rate_hz": v}} for v in sets])
         assert [r["ok"] for r in replies] == [False] * len(sets), replies
         assert all("dist_ir.rate_hz" in r["text"] for r in replies), replies
         assert face.faults.total == 0
@@ -164,24 +168,9 @@ def test_huge_numbers_from_a_page_are_refused_not_bugs(serve: Any) -> None:
 
 def test_save_and_erase_are_true_or_false(serve: Any) -> None:
     with console(serve) as (_d, face):
-        url = face.url.replace("http", "ws") + "ws"
         ops: list[dict[str, Any]] = [{"op": "config", "set": {}, "save": [1]},
                                      {"op": "reset", "erase": "yes"}]  # fmt: skip
-
-        async def go() -> list[dict[str, Any]]:
-            out = []
-            async with websockets.connect(
-                url, additional_headers={"Origin": face.url.rstrip("/")}
-            ) as ws:
-                await ws.recv()
-                for i, op in enumerate(ops):
-                    await ws.send(json.dumps({"id": i, "board": "board_b", **op}))
-                    while (m := json.loads(await asyncio.wait_for(ws.recv(), 10)))["op"] != "reply":
-                        pass
-                    out.append(m)
-            return out
-
-        replies = asyncio.run(go())
+        replies = _replies(face, ops)
         assert [(r["ok"], r["text"]) for r in replies] == [
             (False, "save and erase: true or false")
         ] * 2, replies
