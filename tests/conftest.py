@@ -48,6 +48,11 @@ SERIAL = {
               "test_board_log_ros.py", "test_standard_faces.py", "test_command_edges_faces.py",
               "test_command_refusals.py", "test_zenoh.py"},
 }  # fmt: skip
+#: The work units that take longest (measured: docs/development.md, "The suite's time"), handed
+#: out first, longest first (as collected: pytest_configure), so that no worker is left with
+#: one of them at the end while the others idle; the rest follow by their number of tests.
+LONG_FIRST = ("quiet", "test_world_ros2.py", "faces", "test_update_powercut.py", "test_install.py",
+              "test_update_mpy.py", "test_web_update.py")  # fmt: skip
 
 
 def _one_at_a_time(parse: Callable[..., ast.AST]) -> Callable[..., ast.AST]:
@@ -70,6 +75,9 @@ def pytest_configure(config: pytest.Config) -> None:
     traceback, whose carets 3.11 finds with ast.parse, while pytest renders a failure) make
     one of them raise SystemError "AST constructor recursion depth mismatch": a worker of
     pytest-xdist ended with it, and the rest of its tests with it."""
+    # pytest-xdist hands out the work units in the order collected (_longest_first), not by
+    # their number of tests
+    config.option.loadscopereorder = False
     if not getattr(ast.parse, "__wrapped__", None):
         alone = _one_at_a_time(ast.parse)
         alone.__wrapped__ = ast.parse  # type: ignore[attr-defined]
@@ -104,6 +112,28 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             group = module
         if group is not None:
             item.add_marker(pytest.mark.xdist_group(group))
+        item.stash[_UNIT] = group or item.nodeid
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # (one process: the order as collected)
+        items[:] = _longest_first(items)
+
+
+_UNIT = pytest.StashKey[str]()
+
+
+def _longest_first(items: list[pytest.Item]) -> list[pytest.Item]:
+    """``items`` by work unit (a group, else one test): the units in LONG_FIRST (a group, or a
+    module's tests) first, then by their number of tests, most first (pytest-xdist's own
+    order); each unit's tests in the order collected."""
+    units: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        units.setdefault(item.stash[_UNIT], []).append(item)
+
+    def rank(unit: str) -> tuple[int, int]:
+        name = unit if unit in LONG_FIRST else units[unit][0].path.name  # (a group, a module)
+        first = LONG_FIRST.index(name) if name in LONG_FIRST else len(LONG_FIRST)
+        return first, -len(units[unit])
+
+    return [item for unit in sorted(units, key=rank) for item in units[unit]]
 
 
 @pytest.fixture
