@@ -83,6 +83,7 @@ bench: venv ros2
 	$(PY) bench/bench_timesync.py
 	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(PY) bench/bench_zenoh.py
 	$(PY) bench/bench_idle.py
+	$(PY) bench/bench_world.py
 	# the soak (minutes, not in make test): $(PY) bench/soak.py --boards 4 --minutes 3
 
 clean:

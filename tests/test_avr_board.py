@@ -63,7 +63,8 @@ def test_the_thesis_rig_runs_built_once_then_from_the_cache(
 ) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # (a cache of its own: built here)
     cache = tmp_path / "missing-link" / "avr"
-    with board_process("--file", str(UNO), "--runtime", "avr") as url:
+    # (no world: the rig's own parts, the Sharp's target at 800 mm, the encoder still)
+    with board_process("--file", str(UNO), "--runtime", "avr", "--world", "none") as url:
         assert url.startswith("tcp://127.0.0.1:")
         r = ml("info", url, "--json")
         assert r.returncode == 0, r.stderr
@@ -73,7 +74,7 @@ def test_the_thesis_rig_runs_built_once_then_from_the_cache(
     assert [n[:3] for n in built] == ["fw-", "rig"]
     mtime = (cache / built[0] / "uno_rig" / "firmware.elf").stat().st_mtime
     t0 = time.monotonic()
-    with board_process("--file", str(UNO), "--runtime", "avr") as url:
+    with board_process("--file", str(UNO), "--runtime", "avr", "--world", "none") as url:
         assert time.monotonic() - t0 < 30  # (no build: ~1 s to the listening line)
         (count,) = first_value(url, 0)  # the encoder at rest
         assert count == 0
@@ -86,7 +87,7 @@ def test_the_thesis_rig_runs_built_once_then_from_the_cache(
 def test_a_pty_an_absent_part_and_the_eeprom_kept_in_the_flash(tmp_path: Path) -> None:
     flash = tmp_path / "flash"
     cmd = [*ML, "board", "--file", str(IMU), "--runtime", "avr", "--listen", "pty",
-           "--absent", "sonar", "--flash", str(flash)]  # fmt: skip
+           "--absent", "sonar", "--flash", str(flash), "--world", "none"]  # fmt: skip
     for run in range(2):
         p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:

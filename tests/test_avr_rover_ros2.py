@@ -40,7 +40,8 @@ def daemon(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[dict[str, str]]:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.getbasetemp() / "xdg-cache"))
-    with board_process("--file", str(ROVER), "--runtime", "avr") as url:
+    # (no world: the rig's own models turn the wheels and hold the pack at 7.4 V)
+    with board_process("--file", str(ROVER), "--runtime", "avr", "--world", "none") as url:
         cfg = tmp_path / "robot.toml"
         # (the wheels' counts_per_rev come in their descriptors, from the board file)
         cfg.write_text(

@@ -8,9 +8,11 @@ CPython and under MicroPython (its world beside node: virtual/world_mpy.py)."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import stat
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -32,9 +34,9 @@ RUNTIMES = ("cpython", pytest.param("micropython", marks=pytest.mark.micropython
 class Rover:
     """The rover as a virtual board with a world and its control on a unix socket."""
 
-    def __init__(self, tmp: Path, *extra: str) -> None:
+    def __init__(self, tmp: Path, *extra: str, file: Path = ROVER) -> None:
         self.control = tmp / "world.sock"
-        cmd = [*ML, "board", "--file", str(ROVER), "--listen", "tcp://127.0.0.1:0",
+        cmd = [*ML, "board", "--file", str(file), "--listen", "tcp://127.0.0.1:0",
                "--world-control", f"unix://{self.control}", *extra]  # fmt: skip
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert self.proc.stdout is not None
@@ -112,6 +114,56 @@ def test_a_push_the_world_refuses_is_one_line(
 ) -> None:
     r = ml("world", rover.world, *args)
     assert r.returncode == 2 and says in r.stderr and r.stderr.count("\n") == 1, r.stderr
+
+
+@pytest.mark.avr
+def test_the_avr_rover_drives_in_its_world_and_its_sonar_sees_the_wall(tmp_path: Path) -> None:
+    """The AVR rover (rover-mega.py, its right motor and encoder mirrored) in simavr, its world
+    beside it (world_avr.py): driven forward, both wheels count forward, the body turns by what
+    their difference says and moves by what they rolled, and the HC-SR04 sees the wall where
+    the body now is."""
+    rover = Rover(tmp_path, "--runtime", "avr", file=ROVER.with_name("rover-mega.py"))
+    try:
+        assert ml("world", rover.world, "place", "2", "0").returncode == 0
+        with Daemon(Config(boards=[BoardSpec(rover.url, timeout=3.0)])) as d:
+            assert d.wait_until_up(30)
+            got: dict[str, list[Update]] = {}
+            d.subscribe("/mega_rover/*", lambda u: got.setdefault(u.topic.name, []).append(u),
+                        queue=0)  # fmt: skip
+            sonar = got.setdefault("/mega_rover/sonar", [])
+            assert wait_for(lambda: len(sonar) >= 3, 10)
+            before = rover.state()
+            assert sonar[-1].values[0] == pytest.approx(5000 - 2000 - 120, abs=12)  # mm, 4 sigma
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 2.0:  # (as a controller does: every 0.2 s)
+                for side in ("l", "r"):
+                    d.send(f"/mega_rover/motor_{side}/cmd", 0.5)
+                time.sleep(0.2)
+            for side in ("l", "r"):
+                d.send(f"/mega_rover/motor_{side}/cmd", 0.0)
+            assert wait_for(lambda: rover.state()["speed_m_s"] == 0.0, 10)
+            time.sleep(0.5)  # (the wheels' last samples)
+            left, right = (got[f"/mega_rover/wheel_{s}"][-1].values[0] for s in ("l", "r"))
+            after = rover.state()
+            # turned back to face the wall square on by hand: it sees it where the body is
+            assert ml("world", rover.world, "turn", f"{-after['yaw_deg']:.4f}").returncode == 0
+            assert wait_for(lambda: abs(rover.state()["yaw_deg"]) < 0.01, 10)
+            n = len(sonar)
+            assert wait_for(lambda: len(sonar) > n + 2, 10)
+            x = rover.state()["x_m"]
+            assert sonar[-1].values[0] == pytest.approx(5000 - 1000 * x - 120, abs=12)
+    finally:
+        rover.close()
+    assert rover.proc.returncode == 0
+    # (each motor's command goes on its own, with its ramp: on a busy machine they reach the AVR
+    # tens of ms apart and one wheel turns longer than the other: the body turns)
+    assert left > 300 and right > 300, (left, right)
+    per_count = 2 * math.pi * 0.033 / 400  # (m: 400 counts a turn, r 33 mm; track 0.16 m)
+    turned = (right - left) * per_count / 0.16  # (counter-clockwise: the right one further)
+    assert math.radians(after["yaw_deg"] - before["yaw_deg"]) == pytest.approx(turned, abs=0.01)
+    rolled = (left + right) / 2 * per_count  # (the path; its chord is shorter when it turned)
+    moved = math.hypot(after["x_m"] - before["x_m"], after["y_m"] - before["y_m"])
+    assert rolled * math.cos(turned / 2) - 0.01 <= moved <= rolled + 0.01, (left, right, after)
 
 
 def test_no_world_there_is_one_line_exit_1(tmp_path: Path) -> None:

@@ -63,6 +63,19 @@ def test_a_straight_drive_in_an_empty_room_odometry_is_the_pose(
     assert w.body.y == pytest.approx(0.0, abs=1e-12) and w.body.yaw == 0.0
 
 
+def test_a_mirrored_motor_and_encoder_drive_straight_as_their_firmware_flips_them() -> None:
+    """A right motor mounted mirrored ("invert": its firmware drives its bridge backward for
+    forward) turns its wheel forward, and its encoder ("reverse") counts backward, as the
+    AVR rover's (examples/boards/rover-mega.py): the body rolls straight ahead."""
+    mega: dict[str, Any] = ast.literal_eval(
+        (ROOT / "examples" / "boards" / "rover-mega.py").read_text().split("BOARD = ", 1)[1]
+    )
+    w = world("[room]\nwalls = [[[-1000, -1000], [1000, -1000]]]\n", mega)
+    frames = drive(w, 0.5, -0.5, 1.0)  # (the bridges' pins: the right one backward)
+    assert w.body.x > 0.1 and w.body.yaw == pytest.approx(0.0, abs=1e-12)
+    assert counts(frames, "wheel_l") == -counts(frames, "wheel_r") > 0
+
+
 @settings(max_examples=25, deadline=None)
 @given(duty=st.floats(0.05, 1), seconds=st.floats(0.05, 1.5), yaw=st.floats(-3, 3))
 def test_a_turn_in_place_keeps_the_position(duty: float, seconds: float, yaw: float) -> None:

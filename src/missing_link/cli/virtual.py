@@ -202,9 +202,9 @@ def _serve_board_file(
                 path, url, kept, absent, dial=dial, chip=chip, world=node_world
             )
         elif args.runtime == "avr":
-            if args.world not in (None, "none") or args.world_control:
-                raise ConfigError("--world, --world-control: not yet under --runtime avr")
             server = _avr_board(path, url, dial, flash if args.flash else None, absent, chip)
+            if world is not None:  # (beside simavr, in this process: world_avr.py)
+                server.world_hand = _avr_world(server, world, board, args.seed or 0, absent)
         else:
             from ..virtual.boardfile import BoardFileBoard
 
@@ -270,6 +270,24 @@ def _avr_board(
         raise ConfigError("--runtime avr: an AVR board's link is its UART: serve it with --listen")
     sim = build(load_board_file(path), "avr-" + chip.hex()[:12], absent)
     return AvrBoard(sim.command(flash / "eeprom.bin" if flash else None), url)
+
+
+def _avr_world(server: Any, spec: Any, board: dict[str, Any], seed: int, absent: list[str]) -> Any:
+    """The world beside the AVR in simavr, driving the rig through its control lines, from
+    the simulation's time now."""
+    from ..virtual.world_avr import AvrWorld, sim_us
+    from ..virtual.worldlink import WorldLink
+    from ..world.world import World
+
+    try:
+        world = World(spec, board, sim_us(server.ctl), seed)
+        hand = AvrWorld(WorldLink(world, board, absent), server.ctl,
+                        board.get("transducers", []), absent)  # fmt: skip
+        hand.start()
+    except BaseException:
+        server.close()
+        raise
+    return hand
 
 
 def _why(e: BaseException) -> str:

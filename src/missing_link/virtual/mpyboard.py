@@ -86,7 +86,8 @@ class MicroPythonBoard:
     ``flash``: the board's filesystem on disk; ``absent``: parts left unplugged; ``dial``: the
     board connects out to ``listen`` (tcp://HOST:PORT: host.mjs --dial, board/dial.py) instead;
     ``chip``: the simulated chip's id (boardfile.chip_id); ``world``: the world beside the
-    firmware (world_mpy.py; None: none)."""
+    firmware (world_mpy.py; None: none); ``heap``: a board's fixed heap in bytes (host.mjs
+    --heap: a Pico's is 209936; None: the port's own)."""
 
     def __init__(
         self,
@@ -98,6 +99,7 @@ class MicroPythonBoard:
         dial: bool = False,
         chip: bytes | None = None,
         world: NodeWorld | None = None,
+        heap: int | None = None,
     ) -> None:
         node, entry = find_micropython()
         pty = listen in ("pty", "pty://") and not dial
@@ -112,6 +114,8 @@ class MicroPythonBoard:
             cmd += ["--flash", str(flash)]
         if absent:
             cmd += ["--absent", ",".join(absent)]
+        if heap is not None:
+            cmd += ["--heap", str(heap)]
         if world is not None:  # (the world beside the firmware, here: world_mpy.py)
             cmd += world.node_args()
         self.world_hand = world

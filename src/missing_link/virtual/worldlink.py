@@ -67,6 +67,7 @@ class WorldLink:
                 self.reads += [("stepper", (i,)), ("stepper_on", (i,))]
         self._lock = threading.Lock()
         self._off: set[str] = set()
+        self._sent: dict[tuple[str, int], tuple[int, ...]] = {}  # (fn, part) -> what it was fed
 
     def attach(self) -> list[Call]:
         """worldfeed.attach's calls: each part's number, its transducer's in the board file,
@@ -87,7 +88,11 @@ class WorldLink:
                 edges += self._edges(self.world.step(now_us, act))
             frame = self.world.step(now_us + self.tick_us, act)
         self.next_us = now_us + self.tick_us
-        return self._calls(frame), edges + self._edges(frame)
+        calls = [
+            (fn, args) for fn, args in self._calls(frame) if self._sent.get((fn, args[0])) != args
+        ]  # (what changed only: a call costs)
+        self._sent.update(((fn, args[0]), args) for fn, args in calls)
+        return calls, edges + self._edges(frame)
 
     def push(self, kind: str, args: dict[str, Any]) -> None:
         """A push by hand, checked now (WorldFileError: one line), applied at the next tick."""

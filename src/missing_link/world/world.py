@@ -85,6 +85,12 @@ class World:
         encoders = (self.robot.left_encoder, self.robot.right_encoder)
         self.per_rad = {e: counts_per_rev(self.robot, spec, e) / (2 * math.pi)
                         for e in encoders if e}  # fmt: skip
+        # a motor mounted mirrored (its board-file entry's "invert": the firmware flips its
+        # command) turns its wheel forward when its bridge drives backward; an encoder on a
+        # mirrored wheel ("reverse": the firmware flips its count) counts backward going forward
+        flips = {"motor": "invert", "encoder": "reverse"}
+        self.mirrored = {p.name for p in self.robot.parts.values()
+                         if p.kind in flips and p.entry.get(flips[p.kind])}  # fmt: skip
         self.rng = {n: random.Random(f"{self.seed}/{n}") for n in self.robot.parts}
         self.gps_err = {p.name: GpsError(p, self.rng[p.name], spec.noise)
                         for p in self.robot.of_kind("gps")}  # fmt: skip
@@ -248,14 +254,16 @@ class World:
         current = self.spec.battery.idle_a
         for i, (m, enc) in enumerate(sides):
             duty, mode = act.motors.get(m, (0.0, "coast")) if m else (0.0, "coast")
+            duty = -duty if m in self.mirrored else duty
             wheel = self.wheels[i]
             before = wheel.angle
             turned = wheel.turn(dt, duty, mode, g.speed_per_duty, g.tau) if m else 0.0
             rolled[i] = turned * (1 - wheel.slip)
             current += self._motor_current(duty, wheel.speed)
             if enc and enc in self.per_rad:
+                back = -1 if enc in self.mirrored else 1
                 for frac, d in motion.crossings(before, wheel.angle, self.per_rad[enc]):
-                    edges[enc].append((t + max(1, round(frac * dt_us)), d))
+                    edges[enc].append((t + max(1, round(frac * dt_us)), d * back))
         now, after = (t - self.start_us) / 1e6, (t + dt_us - self.start_us) / 1e6
         shares = [(m, m.share(now, after)) for m in self.imposed]
         imposed = tuple(sum(getattr(m, k) * s for m, s in shares)

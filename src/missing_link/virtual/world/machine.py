@@ -107,7 +107,9 @@ class World:
         # (A, B) go (0, 0) (1, 0) (1, 1) (0, 1): A leads B forward; integers only (the world
         # turns wheels from between the firmware's steps: nothing of it in the board's heap)
         d = 1 if steps > 0 else -1
-        for _ in range(abs(steps)):
+        left = steps * d  # (a while loop: a range object would be garbage in the board's heap)
+        while left > 0:
+            left -= 1
             a, b = self.pin(pin_a).level, self.pin(pin_b).level
             n = (((b << 1) | (a ^ b)) + d) & 3
             if ((n >> 1) ^ n) & 1 != a:

@@ -64,7 +64,8 @@ def field(i, x, y, z):
 
 def fix(i, lat_deg, lat_e7, lon_deg, lon_e7, alt_dm, speed_dkn, course_dd, sats, hdop_d):
     dev = _devs[i]
-    dev.lat_deg, dev.lat_e7, dev.lon_deg, dev.lon_e7 = lat_deg, lat_e7, lon_deg, lon_e7
+    dev.lat_deg, dev.lat_e7 = lat_deg, lat_e7
+    dev.lon_deg, dev.lon_e7 = lon_deg, lon_e7
     dev.alt_dm, dev.speed_dkn, dev.course_dd = alt_dm, speed_dkn, course_dd
     dev.sats, dev.hdop_d = sats, hdop_d
 
@@ -96,10 +97,13 @@ def step_at(t, pin_a, pin_b, d):
 def steps_at(pin_a, pin_b, d, n, t0, span):
     # n edges the same way, spread evenly from t0 to t0 + span (µs; t0 wrapped as the clock
     # is, and the sum kept a small integer: 2^30 is not one on a 32-bit port)
+    # (no range object, no tuple of four: nothing of the world's garbage in the board's heap)
     rest = TICKS_MAX - t0
-    for k in range(n):
+    k = 0
+    while k < n:
         dt = span * k // (n - 1) if n > 1 else 0
         step_at(t0 + dt if dt <= rest else dt - rest - 1, pin_a, pin_b, d)
+        k += 1
     if release is not None:  # (heldtime: the port's clock again)
         release()
 

@@ -7,7 +7,8 @@
 // -------------------
 // At the firmware's first step: "HELLO <now µs>" on REQ; the answer (one JSON line on RESP) numbers the world's parts
 // for worldfeed.attach and says which actuator reads it wants before each tick and how long a
-// tick is.  Before every firmware step (before(), at the simulation's `now`): when it has reached the next tick, the
+// tick is.  Before every firmware step (before(), at the simulation's `now`): when it has
+// reached the next tick, the
 // actuators are read (worldfeed: one small integer each), "T <now> <values...>" goes out and the
 // answer comes back at once (a blocking read: the simulation stands still meanwhile, so the
 // world's time is the simulation's, and the same simulation gives the same world); its feed
@@ -28,12 +29,24 @@ const FEED = ["attach", "ranger", "imu", "field", "fix", "volts", "off", "steps_
 function portClock(portUs) {
   let last = portUs();
   let total = last;
-  return () => {
+  const read = () => {
     const raw = portUs();
     total += (raw - last + WRAP) % WRAP;
     last = raw;
     return total;
   };
+  // Not yet at `us` for certain: the port's clock is node's in whole ms (the wasm port's
+  // ticks_us), so while node's own says `us` is more than a ms off, the port is not asked (a
+  // call into the interpreter each step costs): whether it is there is the port's to say.
+  let readAt = performance.now();
+  let readUs = total;
+  read.before = (us) => readUs + (performance.now() - readAt) * 1000 < us - 1000;
+  read.asked = () => {
+    readAt = performance.now();
+    readUs = read();
+    return readUs;
+  };
+  return read;
 }
 
 // host.mjs's one call, after the simulator's modules are in and before the board's heap is
@@ -51,6 +64,7 @@ export function worldBeside(mp, fds, fast) {
       `sys.modules['time'] = ${clock}\nfrom ${clock} import port_us as _wf_port_us`));
   const feed = Object.fromEntries(FEED.map((f) => [f, mp.globals.get(`_wf_${f}`)]));
   const now = fast ? () => Math.floor(fast.now) : portClock(mp.globals.get("_wf_port_us"));
+  if (fast) [now.before, now.asked] = [() => false, now];
   return new WorldTick(fds, feed, now);
 }
 
@@ -108,7 +122,9 @@ export class WorldTick {
 
   // before each firmware step (host.mjs run)
   before() {
-    const now = this.now();
+    const next = this.edges.length ? Math.min(this.due, this.edges[0][0]) : this.due;
+    if (this.due !== null && this.now.before(next)) return; // (neither a tick nor an edge due)
+    const now = this.now.asked();
     if (this.due === null) this.start(now);
     if (now >= this.due) this.tick(now);
     let n = 0;

@@ -1,0 +1,219 @@
+"""What a world costs a virtual board (issue 47.6): the example rover (on AVR rover-mega.py)
+as `missing-link board --file`, on each runtime, with `--world none` (the reference: the same
+board without a world, measured in the same run), in its default world at rest, and in it
+driving (duty 0.5 on both motors: its wheels turn, its encoders' edges flow, it meets the wall
+and its wheels spin on), a daemon taking its samples at their rates.  Per case: the board's CPU
+(its process and those under it, node or simavr's rig, from /proc, in % of one core over the
+window) and of it the board's own process (under MicroPython and AVR: the world's side), and
+what the firmware says of itself: its heap (MicroPython: allocated, and free at the lowest) and
+its IMU's sample timing (the period between two board stamps: mean and worst).  The cases
+alternate, ``--rounds`` times; each figure is the median over the rounds.  Then the world link
+alone in this process (worldlink.py ticked as a runtime ticks it, driving), per simulated
+second, and the rover under MicroPython in a Pico's heap with and without its world.  Driving
+costs the firmware its encoders' interrupts too (some 2000 edges a second), as on a board.
+
+    .venv/bin/python bench/bench_world.py [--seconds 20] [--rounds 2] \
+        [--runtimes cpython,micropython,avr]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from missing_link.daemon import Daemon
+from missing_link.daemon.config import BoardSpec, Config
+from missing_link.topics import Update
+
+ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.py"
+#: the AVR's rover (an ATmega2560 in simavr: rover-mega.py), its board's name
+AVR_ROVER, NAMES = ROVER.with_name("rover-mega.py"), {"avr": "mega_rover"}
+TICK_S = os.sysconf("SC_CLK_TCK")
+PICO_HEAP = 209936  # (a Raspberry Pi Pico's heap after MicroPython boots: docs/hardware.md)
+MEMORY = ("heap_free", "heap_free_low", "heap_alloc", "gc_collections", "gc_longest_us")
+
+
+def tree_cpu_s(pid: int, children: bool = True) -> float:
+    """CPU seconds (user + system) of ``pid`` and (``children``) every live process under it."""
+    parents: dict[int, int] = {}
+    times: dict[int, float] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # (gone meanwhile)
+        parents[int(entry)] = int(fields[1])
+        times[int(entry)] = (int(fields[11]) + int(fields[12])) / TICK_S
+    ours, total = {pid}, 0.0
+    if not children:
+        return times.get(pid, 0.0)
+    for p in sorted(parents):  # (children have larger pids here; a second pass catches the rest)
+        if parents[p] in ours:
+            ours.add(p)
+    for p in sorted(parents):
+        if parents[p] in ours:
+            ours.add(p)
+    for p in ours:
+        total += times.get(p, 0.0)
+    return total
+
+
+def start(runtime: str, world: bool) -> tuple[subprocess.Popen[str], str]:
+    file = AVR_ROVER if runtime == "avr" else ROVER
+    cmd = [sys.executable, "-m", "missing_link", "board", "--file", str(file), "--runtime",
+           runtime, "--listen", "tcp://127.0.0.1:0"]  # fmt: skip
+    cmd += [] if world else ["--world", "none"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    if not line.startswith("LISTENING "):
+        proc.kill()
+        raise SystemExit(f"the rover ({runtime}) did not come up: {line!r}")
+    return proc, line.split()[1]
+
+
+def drive(d: Daemon, duty: float, name: str = "rover") -> None:
+    for side in ("l", "r"):
+        try:
+            d.send(f"/{name}/motor_{side}/cmd", duty)
+        except KeyError:  # (the board is away: its session comes back)
+            print("(the rover was away: its motors not commanded once)", file=sys.stderr)
+
+
+def measure(runtime: str, world: bool, duty: float, seconds: float) -> dict[str, float]:
+    proc, url = start(runtime, world)
+    imu: list[Update] = []
+    name = NAMES.get(runtime, "rover")
+    try:
+        with Daemon(Config(boards=[BoardSpec(url, timeout=3.0, handshake_timeout=20.0)])) as d:
+            if not d.wait_until_up(60):
+                raise SystemExit(f"no daemon on the rover ({runtime}): {d.status()}")
+            d.subscribe(f"/{name}/imu", imu.append, queue=0)
+            drive(d, duty, name)
+            time.sleep(3.0)  # (settled: the wheels up to speed)
+            n0, c0, t0 = len(imu), tree_cpu_s(proc.pid), time.monotonic()
+            own0 = tree_cpu_s(proc.pid, children=False)
+            while time.monotonic() - t0 < seconds:
+                time.sleep(0.5)
+                drive(d, duty, name)  # (as a controller does: its failsafe stays quiet)
+            c1, t1, n1 = tree_cpu_s(proc.pid), time.monotonic(), len(imu)
+            own1 = tree_cpu_s(proc.pid, children=False)
+            status = d.status()[0]
+    finally:
+        proc.terminate()
+        proc.wait(15)
+    got = imu[n0:n1]
+    periods = [(b.board_us[0] - a.board_us[0]) / 1000 for a, b in itertools.pairwise(got)]
+    return {
+        "cpu": (c1 - c0) / (t1 - t0) * 100,
+        "own": (own1 - own0) / (t1 - t0) * 100,
+        "period_ms": statistics.mean(periods),
+        "worst_ms": max(periods),
+        "heap_alloc": status.get("heap_alloc", -1),
+        "heap_free_low": status.get("heap_free_low", -1),
+    }
+
+
+def world_alone(sim_s: float) -> float:
+    """The world link's own CPU (this process) per simulated second, % of a core: the rover's
+    default world ticked as a runtime ticks it, its motors at duty 0.5 (the feed's integers)."""
+    from missing_link.deploy.boardfile import load_board_file
+    from missing_link.virtual.worldlink import WorldLink
+    from missing_link.world.spec import WorldSpec
+    from missing_link.world.world import World
+
+    board = dict(load_board_file(ROVER).board)
+    link = WorldLink(World(WorldSpec(), board, 0), board)
+    values = [100000 + 55000 if fn == "motor" else 0 for fn, _a in link.reads]  # (drive, 0.5)
+    c0 = time.process_time()
+    now = 0
+    while now < sim_s * 1e6:
+        link.tick(now, values)
+        now = link.due_us()
+    return (time.process_time() - c0) / sim_s * 100
+
+
+def pico_heap(world: bool, seconds: float) -> dict[str, Any]:
+    """The rover under MicroPython in a Pico's heap (host.mjs --heap), its world beside it or
+    none, driven at duty 0.5 for ``seconds``: the firmware's own memory figures (a2jMemory)."""
+    import threading
+
+    from missing_link.deploy.boardfile import load_board_file
+    from missing_link.virtual.mpyboard import MicroPythonBoard
+    from missing_link.virtual.world_mpy import NodeWorld
+    from missing_link.world.spec import WorldSpec
+
+    board = dict(load_board_file(ROVER).board)
+    beside = NodeWorld(WorldSpec(), board, 0, frozenset()) if world else None
+    server = MicroPythonBoard(ROVER, "tcp://127.0.0.1:0", None, world=beside, heap=PICO_HEAP)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        with Daemon(
+            Config(boards=[BoardSpec(server.url, timeout=3.0, handshake_timeout=20.0)])
+        ) as d:
+            if not d.wait_until_up(60):
+                raise SystemExit(f"no daemon on the rover in a Pico's heap: {d.status()}")
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < seconds:
+                drive(d, 0.5)
+                time.sleep(0.5)
+            return {k: d.status()[0].get(k) for k in MEMORY}
+    finally:
+        server.stop()
+
+
+def median(runs: list[dict[str, float]], key: str) -> float:
+    return statistics.median(r[key] for r in runs)
+
+
+def row(runtime: str, what: str, runs: list[dict[str, float]]) -> str:
+    heap = (f"{median(runs, 'heap_alloc'):.0f} | {median(runs, 'heap_free_low'):.0f}"
+            if runs[0]["heap_alloc"] >= 0 else "- | -")  # fmt: skip
+    cpu = f"{median(runs, 'cpu'):.2f} | {median(runs, 'own'):.2f}"
+    timing = f"{median(runs, 'period_ms'):.2f} | {median(runs, 'worst_ms'):.1f}"
+    return f"| {runtime} | {what} | {cpu} | {heap} | {timing} |"
+
+
+CASES = {"--world none (reference)": (False, 0.5), "its world, at rest": (True, 0.0),
+         "its world, driving (duty 0.5)": (True, 0.5)}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--runtimes", default="cpython,micropython,avr")
+    a = ap.parse_args()
+    print("| runtime | rover | board's CPU, % of a core | of it its own process | heap allocated, "
+          "B | heap free at the lowest, B | IMU period, ms (50 Hz: 20) | worst, ms |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
+    for runtime in a.runtimes.split(","):
+        runs: dict[str, list[dict[str, Any]]] = {k: [] for k in CASES}
+        for _ in range(a.rounds):  # (alternating: a load that comes and goes hits all alike)
+            for what, (world, duty) in CASES.items():
+                runs[what].append(measure(runtime, world, duty, a.seconds))
+        for what in CASES:
+            print(row(runtime, what, runs[what]))
+    print(f"\nthe world link alone (this process, driving): {world_alone(60):.2f} % of a core")
+    if "micropython" in a.runtimes:
+        print(
+            f"\nthe rover under MicroPython in a Pico's heap ({PICO_HEAP} B), driven for "
+            f"{a.seconds:g} s:\n\n| rover | {' | '.join(MEMORY)} |\n|---|{'---|' * len(MEMORY)}"
+        )
+        for what, world in (("--world none (reference)", False), ("its world", True)):
+            got = pico_heap(world, a.seconds)
+            print(f"| {what} | {' | '.join(str(got[k]) for k in MEMORY)} |")
+
+
+if __name__ == "__main__":
+    main()
