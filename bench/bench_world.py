@@ -172,6 +172,32 @@ def pico_heap(world: bool, seconds: float) -> dict[str, Any]:
         server.stop()
 
 
+#: node's calls into MicroPython with small integers, as worldtick.mjs makes them: what they
+#: leave in the interpreter's heap (the one the firmware has), garbage collection off meanwhile
+CALL_PROBE = """
+const { loadMicroPython } = await import(process.env.MPY_ENTRY);
+const mp = await loadMicroPython({});
+mp.runPython("import gc\\ndef f(i, a, b, c, d, e, g):\\n    return i\\n" +
+  "def used():\\n    return gc.mem_alloc()");
+const [f, used] = [mp.globals.get("f"), mp.globals.get("used")];
+mp.runPython("gc.collect()\\ngc.disable()");
+const before = used();
+for (let k = 0; k < 10000; k++) f(3, 16384, -120, 7, 131, -262, 5);
+console.log(used() - before);
+"""
+
+
+def feed_call_bytes() -> int:
+    """Bytes left in MicroPython's heap by 10000 calls from node with seven small integers."""
+    from missing_link.virtual.mpyboard import find_micropython
+
+    node, entry = find_micropython()
+    env = {**os.environ, "MPY_ENTRY": str(entry)}  # (not an argument: the module runs its REPL)
+    r = subprocess.run([node, "--input-type=module", "-e", CALL_PROBE], env=env,
+                       capture_output=True, text=True, timeout=60, check=True)  # fmt: skip
+    return int(r.stdout.split()[-1])
+
+
 def median(runs: list[dict[str, float]], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
@@ -206,6 +232,10 @@ def main() -> None:
             print(row(runtime, what, runs[what]))
     print(f"\nthe world link alone (this process, driving): {world_alone(60):.2f} % of a core")
     if "micropython" in a.runtimes:
+        print(
+            f"\n10000 calls from node into MicroPython, 7 small integers each: "
+            f"{feed_call_bytes()} B left in its heap"
+        )
         print(
             f"\nthe rover under MicroPython in a Pico's heap ({PICO_HEAP} B), driven for "
             f"{a.seconds:g} s:\n\n| rover | {' | '.join(MEMORY)} |\n|---|{'---|' * len(MEMORY)}"
