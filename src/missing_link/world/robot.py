@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .datasheets import DLPF_DEFAULT, KINDS, figures
-from .spec import Mount, WorldSpec
+from .spec import LIMIT, Mount, WorldSpec
 from .worldfile import WorldFileError
 
 LEFT_HINTS = ("l", "left")
@@ -75,6 +75,8 @@ def _figure(spec: WorldSpec, where: str, default: Any, value: Any) -> Any:
         return [_figure(spec, where, 0.0, v) for v in value]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise _fail(spec, where, f"expected a number, got {value!r}")
+    if abs(value) > LIMIT:
+        raise _fail(spec, where, f"{value!r} is out of range (-{LIMIT:g}..{LIMIT:g})")
     if value < 0 and not where.endswith(("_c", "_dps", "_mg")):
         raise _fail(spec, where, f"{value!r} must be 0 or more")
     return value

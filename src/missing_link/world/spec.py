@@ -10,6 +10,9 @@ from typing import Any
 
 from .geometry import Segment, square_room
 
+#: no number of a world is larger (metres, seconds, degrees, a part's figures): beyond it a
+#: reading overflows what its part holds (a place 1e308 m away ended the board: issue 43.1)
+LIMIT = 1e6
 #: the default room: 10 m x 10 m around the origin, where the robot starts
 ROOM_SIDE_M = 10.0
 

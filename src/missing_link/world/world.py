@@ -62,6 +62,11 @@ class Frame:
     failed: dict[str, str]  #: part -> "silent" (a stuck one reads its last reading here)
 
 
+#: the most encoder edges a second a world makes (a 2000-count encoder at 6,000 rpm); beyond,
+#: a tick's edges ran into the millions (speed_per_duty = 1e6 held the board for good)
+MAX_EDGES_S = 200_000
+
+
 class World:
     """``spec``'s world for ``board`` (a board file's dict), its clock starting at ``start_us``
     (board µs); ``seed`` when the world file names none."""
@@ -85,6 +90,7 @@ class World:
         encoders = (self.robot.left_encoder, self.robot.right_encoder)
         self.per_rad = {e: counts_per_rev(self.robot, spec, e) / (2 * math.pi)
                         for e in encoders if e}  # fmt: skip
+        _edge_rate(spec, self.per_rad.values())
         # a motor mounted mirrored (its board-file entry's "invert": the firmware flips its
         # command) turns its wheel forward when its bridge drives backward; an encoder on a
         # mirrored wheel ("reverse": the firmware flips its count) counts backward going forward
@@ -317,6 +323,18 @@ class World:
             "turned_deg": {n: math.degrees(v) for n, v in self.turned.items()},
             "blocked": sorted(self.blocks), "failed": sorted(self.fails),
         }  # fmt: skip
+
+
+def _edge_rate(spec: WorldSpec, per_rad: Any) -> None:
+    """WorldFileError when the drive's fastest wheel makes more than MAX_EDGES_S encoder edges a
+    second (each an interrupt a tick delivers)."""
+    d = spec.drive
+    fastest = d.speed_per_duty * max(per_rad, default=0.0)
+    if fastest > MAX_EDGES_S:
+        raise WorldFileError(
+            f"{spec.source}: drive.speed_per_duty: {d.speed_per_duty:g} rad/s is {fastest:.0f} "
+            f"encoder edges/s; at most {MAX_EDGES_S} (a wheel's counts_per_rev x its speed)"
+        )
 
 
 def _turning(p: Any) -> tuple[bool, float, float, float]:

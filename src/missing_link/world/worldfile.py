@@ -12,7 +12,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from .geometry import Segment
-from .spec import Battery, Drive, Event, Mount, Site, WorldSpec
+from .spec import LIMIT, Battery, Drive, Event, Mount, Site, WorldSpec
 
 #: event kind -> its keys (besides at_s and kind) and their defaults (None: required)
 EVENTS: dict[str, dict[str, Any]] = {
@@ -52,8 +52,9 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(key, f"expected a number, got {value!r}")
         v = float(value)
+        lo, hi = max(lo, -LIMIT), min(hi, LIMIT)
         if not (math.isfinite(v) and lo <= v <= hi):
-            bounds = f"{lo:g}..{hi:g}" if math.isfinite(hi) else f">= {lo:g}"
+            bounds = f"{lo:g}..{hi:g}"
             raise self.fail(key, f"{v:g} is out of range ({bounds})")
         return v
 
@@ -107,6 +108,8 @@ def parse(text: str, source: str) -> WorldSpec:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise WorldFileError(f"{source}: not TOML: {e}") from None
+    except RecursionError:  # (tomllib reads nested arrays and tables by recursion)
+        raise WorldFileError(f"{source}: not TOML: nested too deep") from None
     r.known(doc, TOP, "")
     spec = WorldSpec(source=source)
     spec = _world(r, doc.get("world", {}), spec)
@@ -121,7 +124,7 @@ def parse(text: str, source: str) -> WorldSpec:
             spec = replace(spec, body_radius_m=r.positive(body["radius_m"], "body.radius_m"))
     spec = replace(spec, drive=_drive(r, doc.get("drive", {})))
     spec = replace(spec, battery=_battery(r, doc.get("battery", {})))
-    spec = replace(spec, site=r.dataclass_table(Site, doc.get("site", {}), "site."))
+    spec = replace(spec, site=_site(r, doc.get("site", {})))
     parts = r.table(doc.get("parts", {}), "parts")
     spec = replace(spec, parts={k: _mount(r, v, f"parts.{k}.") for k, v in parts.items()})
     events = doc.get("events", [])
@@ -182,13 +185,20 @@ def _drive(r: _Reader, given: Any) -> Drive:
 
 def _battery(r: _Reader, given: Any) -> Battery:
     b: Battery = r.dataclass_table(Battery, given, "battery.")
-    if b.cells < 1:
-        raise r.fail("battery.cells", f"{b.cells}: at least 1")
+    if not 1 <= b.cells <= 100:
+        raise r.fail("battery.cells", f"{b.cells}: 1..100")
     r.number(b.charge, "battery.charge", 0.0, 1.0)
     r.positive(b.capacity_ah, "battery.capacity_ah")
     for key in ("internal_ohm", "idle_a", "stall_a", "free_a"):
         r.number(getattr(b, key), "battery." + key, 0.0)
     return b
+
+
+def _site(r: _Reader, given: Any) -> Site:
+    s: Site = r.dataclass_table(Site, given, "site.")
+    r.number(s.latitude_deg, "site.latitude_deg", -90.0, 90.0)
+    r.number(s.longitude_deg, "site.longitude_deg", -180.0, 180.0)
+    return s
 
 
 def _mount(r: _Reader, given: Any, where: str) -> Mount:

@@ -1,0 +1,102 @@
+"""A world's numbers beyond what its parts hold (issue 43.1, attacking the world): a world file or
+a hand's push with a value finite but huge (a place 1e308 m away, a magnetic field of 1e308 uT)
+ended the board ("the firmware stopped: OverflowError" where a reading became the feed's
+integers); a drive of 1e6 rad/s made billions of encoder edges a tick (the board held for good);
+a world file nested too deep was a RecursionError traceback.  Each is refused in one
+line naming the key now, or, within the bounds, runs: every feed call is integers."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from missing_link.errors import ConfigError
+from missing_link.virtual.worldlink import WorldLink
+from missing_link.world.world import World
+from missing_link.world.worldfile import WorldFileError, parse
+
+ROOT = Path(__file__).resolve().parent.parent
+ROVER: dict[str, Any] = ast.literal_eval(
+    (ROOT / "examples" / "boards" / "rover.py").read_text().split("BOARD = ", 1)[1]
+)
+
+
+def run(text: str, pushes: tuple[tuple[str, dict[str, Any]], ...] = (), ticks: int = 50) -> None:
+    """The rover's world from ``text`` through its link for ``ticks`` ticks, the motors at full
+    duty, each push by hand after the first tick: every call the link makes is integers."""
+    link = WorldLink(World(parse(text, "room.toml"), ROVER, 0), ROVER)
+    full = {"motor": 100000 + 50000 + 10000, "servo": 1500, "stepper": 0, "stepper_on": 1}
+    values = [full[fn] for fn, _ in link.reads]
+    now = link.due_us()
+    for n in range(ticks):
+        if n == 1:
+            for kind, args in pushes:
+                link.push(kind, args)
+        calls, edges = link.tick(now, values)
+        for _fn, args in calls:
+            assert all(type(a) is int for a in args), args
+        assert all(type(t) is int for t, *_ in edges)
+        now = link.due_us()
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("[[events]]\nat_s = 1\nkind = 'place'\nx_m = 1e308\ny_m = 0\n", "events[0].x_m: 1e+308"),
+        ("[site]\nfield_ut = [1e308, 0, 0]\n", "site.field_ut: 1e+308 is out of range"),
+        ("[site]\nlatitude_deg = 91.0\n", "site.latitude_deg: 91 is out of range (-90..90)"),
+        ("[site]\nlongitude_deg = 1e300\n", "site.longitude_deg: 1e+300 is out of range"),
+        ("[start]\nx_m = -1e300\n", "start.x_m: -1e+300 is out of range (-1e+06..1e+06)"),
+        ("[drive]\nspeed_per_duty = 1e308\n", "drive.speed_per_duty: 1e+308"),
+        ("[drive]\nspeed_per_duty = 1e6\n", "1e+06 rad/s is 63661977 encoder edges/s"),
+        ("[parts.wheel_l]\ncounts_per_rev = 1e6\n", "is 2387324 encoder edges/s; at most 200000"),
+        ("[battery]\ncells = 100000000000000000\n", "battery.cells: 100000000000000000: 1..100"),
+        ("[parts.imu]\naccel_density_ug = 1e308\n", "parts.imu.accel_density_ug: 1e+308 is out"),
+        ("[parts.sonar]\nmax_m = 1e300\n", "parts.sonar.max_m: 1e+300 is out of range"),
+        ("[room]\nwalls = " + "[" * 5000 + "]" * 5000 + "\n", "not TOML: nested too deep"),
+        ("x = " + "{a = " * 5000 + "1" + "}" * 5000 + "\n", "not TOML: nested too deep"),
+    ],
+)
+def test_a_number_beyond_a_world_is_one_line_naming_its_key(text: str, says: str) -> None:
+    with pytest.raises(WorldFileError) as e:
+        run(text)
+    msg = str(e.value)
+    assert msg.startswith("room.toml: ") and says in msg and "\n" not in msg, msg
+    assert isinstance(e.value, ConfigError)  # (the CLI's exit 2)
+
+
+@pytest.mark.parametrize(
+    ("kind", "args", "says"),
+    [
+        ("place", {"x_m": 1e308, "y_m": 1e308}, "place x_m: 1e+308 is out of range"),
+        ("push", {"dx_m": 1e300, "over_s": 1.0}, "push dx_m: 1e+300 is out of range"),
+        ("turn", {"deg": 1e300, "over_s": 1e-9}, "turn deg: 1e+300 is out of range"),
+        ("tilt", {"roll_deg": -1e300}, "tilt roll_deg: -1e+300 is out of range"),
+        ("block", {"part": "sonar", "for_s": 1e300}, "block for_s: 1e+300 is out of range"),
+    ],
+)
+def test_a_push_by_hand_beyond_a_world_is_refused_and_the_world_goes_on(
+    kind: str, args: dict[str, Any], says: str
+) -> None:
+    link = WorldLink(World(parse("", "room.toml"), ROVER, 0), ROVER)
+    with pytest.raises(WorldFileError, match=says.replace("+", r"\+")):
+        link.push(kind, args)
+    run("")
+
+
+def test_the_largest_numbers_a_world_takes_still_feed_integers() -> None:
+    far = 1e6 - 1
+    run(
+        "[drive]\nspeed_per_duty = 870\nwheel_radius_m = 1e6\n"
+        "[site]\nfield_ut = [1e6, -1e6, 1e6]\nlatitude_deg = 90\nlongitude_deg = -180\n"
+        "[parts.imu]\naccel_density_ug = 1e6\ngyro_density_dps = 1e6\n",
+        pushes=(
+            ("push", {"dx_m": far, "dy_m": -far, "over_s": 0.0}),
+            ("turn", {"deg": far, "over_s": 0.0}),
+            ("tilt", {"roll_deg": far, "pitch_deg": -far, "over_s": 0.0}),
+            ("place", {"x_m": far, "y_m": -far, "yaw_deg": far}),
+        ),
+    )
