@@ -1,4 +1,4 @@
-"""Garbage-collection pauses of the MicroPython firmware in a Raspberry Pi Pico's heap, measured
+"""Garbage-collection pauses of the MicroPython firmware in a Raspberry Pi Pico's heap, run
 in the real MicroPython interpreter (1.27, WebAssembly port under node) with the simulator's
 ``--heap 209936 --fast`` (src/missing_link/virtual/world/host.mjs), against a board file with no
 transducers as the reference in the same run.
@@ -7,10 +7,10 @@ transducers as the reference in the same run.
 
 Each board runs SECONDS simulated seconds (default 60) with nobody connected (its SIFs queue
 and are dropped, as on a board with no host).  On this port a collection runs when a step
-returns to node (simgc.py); the simulator times each as the interpreter's CPU time from the
-step's end to its return (fastclock.mjs), and the firmware's own (board/memory.py) or the
-allocator's.  These are this machine's CPU running WebAssembly, not an RP2040's: a Cortex-M0+
-at 125 MHz is slower, by a factor this bench cannot tell (docs/hardware.md, "Memory")."""
+returns to node (simgc.py); a pause is what the simulator's cost model makes of it for the heap
+as it was (simcost.py: a Pico's, estimated, from the live blocks and the heap's size), the
+firmware's own (board/memory.py) or the allocator's: the same on any machine, and not measured
+on a Pico (docs/hardware.md, "Memory")."""
 
 from __future__ import annotations
 

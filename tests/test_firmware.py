@@ -236,10 +236,10 @@ def test_aligned_sampling_and_a_timed_trigger_on_micropython() -> None:
     """Given a map of the board's clock (a2jHostMap), an aligned ranger's ADC reads at the
     simulated device fall on the host-time grid in board ticks, and a timed trigger's edge at
     the device lands on the tick its host time maps to.  In simulated time (host.mjs --fast:
-    the board's clock moves by what its steps cost in CPU time, never by how long a loaded
-    machine kept node waiting for a core, which made a read in real time up to 25 ms late with
-    the garbage collector off altogether: docs/hardware.md, "Memory"); --lead-ms keeps it
-    within 200 ms of this host's last bytes, so a map stays fresh."""
+    the board's clock moves by what its work costs on a Pico, simcost.py, never by how long a
+    loaded machine kept node waiting for a core, which made a read in real time up to 25 ms
+    late with the garbage collector off altogether: docs/hardware.md, "Memory"); --lead-ms
+    keeps it within 200 ms of this host's last bytes, so a map stays fresh."""
     sim = FirmwareSim(RIG, args=["--fast", "--lead-ms", "200"])
     board = Board(open_transport(sim.url), timeout=5.0)
 

@@ -4,7 +4,7 @@
 //   node host.mjs BOARDFILE [--port N] [--host ADDR] [--flash DIR] [--absent NAME,...]
 //                 [--file NAME=PATH]... [--mpy PATH/micropython.mjs] [--seed N] [--lib DIR]
 //                 [--dial HOST:PORT] [--chip-id HEX] [--heap BYTES]
-//                 [--fast [--cpu-scale K] [--lead-ms MS]]
+//                 [--fast [--lead-ms MS | --lockstep]]
 //   (--seed: the simulated chip's machine.unique_id(), so each board has its own; --chip-id:
 //   that id itself, 16 hex digits (board --file keeps one in its --flash DIR); --lib: the
 //   runtime's files from DIR, e.g. a flashed board's lib/mlboard, not from the package;
@@ -41,15 +41,15 @@
 //
 // --heap BYTES: the firmware gets a board's fixed heap of BYTES (a Raspberry Pi Pico: 209936,
 // docs/hardware.md "Memory"): heap.mjs.  --fast: simulated time (fastclock.mjs, simtime.py): the
-// clock jumps over what the firmware sleeps and moves on by what its steps cost in CPU time
-// (times K, --cpu-scale), so simulated minutes pass in real seconds; the link still carries
-// every byte, at most 512 bytes into the firmware per step (as link.py's reads), and the steps
-// wait while a host has 64 KiB of output not taken; --lead-ms: and while the simulation is MS
-// ahead of the last bytes from a host (a board and its host go on together, however slow the
-// host: a host map it keeps fresh stays fresh).  A control line {"sim": "time"} answers the
-// simulated µs since the start, {"sim": "held"} whether --lead-ms holds it now (it waits for a
-// host's bytes), {"sim": "gc"} the collections so far (fastclock.mjs).  (A
-// board started from its flash is loaded as flashboot.py loads it, not a module a call.)
+// clock jumps over what the firmware sleeps and moves on by what its work costs on a Pico
+// (simcost.py), never by the host's CPU time or clock; the link still carries every byte, at
+// most 512 into the firmware a step (as link.py's reads), and the steps wait while a host has
+// 64 KiB of output not taken; --lead-ms: and while the simulation is MS ahead of a host's last
+// bytes (a host map it keeps fresh stays fresh); --lockstep: it runs only when its controller
+// says, taking a host's bytes when the controller says they were sent (lockstep.mjs): the same
+// host, the same run.  Control lines {"sim": "time"} (simulated µs since the start), "held"
+// (whether --lead-ms holds it now), "gc" (the collections: fastclock.mjs).  (A board started
+// from its flash is loaded as flashboot.py loads it, not a module a call.)
 import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
   writeFileSync } from "node:fs";
 import { connect as dialTcp, createServer } from "node:net";
@@ -57,6 +57,7 @@ import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
 import { fileURLToPath, pathToFileURL } from "node:url";
 import { FastClock } from "./fastclock.mjs";
+import { Lockstep } from "./lockstep.mjs";
 import { copyTree } from "./mpfs.mjs";
 import { FlashCut } from "./flashcut.mjs";
 import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
@@ -88,8 +89,9 @@ if (heapArg !== null && !(Number.isInteger(heapArg) && heapArg > 0)) {
   process.stderr.write(`--heap ${opt("--heap")}: a number of bytes, as a board's gc.mem_free()\n`);
   process.exit(2);
 }
-const fast = args.includes("--fast") ? new FastClock(Number(opt("--cpu-scale") ?? 1)) : null;
+const fast = args.includes("--fast") ? new FastClock() : null;
 const leadUs = opt("--lead-ms") === null ? null : Number(opt("--lead-ms")) * 1000;
+const lock = fast && args.includes("--lockstep") ? new Lockstep() : null;
 let heardAt = 0; // --lead-ms: simulated µs when bytes last came from a host
 if (heapArg !== null) quietGrowth();
 const fromFlash = flashDir !== null && existsSync(join(flashDir, "main.py")); // (flashboot.py)
@@ -203,10 +205,10 @@ if (heapArg !== null) {
   const [base, slack] = capHeap(mp, heapArg); // (before the firmware: it gets heapArg bytes)
   mp.runPython(
     `import simworld.simgc\nsimworld.simgc.BASE = ${base}\nsimworld.simgc.SLACK = ${slack}\n` +
-      `simworld.machine.WORLD.log_cap = 0\nmpyhost.watch_gc = ${fast ? "True" : "False"}`,
+      `simworld.simgc.heap_blocks = ${Math.floor(heapArg / 16)}\n` +
+      "simworld.machine.WORLD.log_cap = 0",
   );
 }
-if (fast) mp.registerJsModule("simjs", { mark: () => fast.mark(), cpu: () => fast.cpu() });
 // The firmware loads as on a board, but a module a call: this port collects only between calls
 // (simgc.py), where a board collects while it imports; then it is built from the board file.
 // A firmware that cannot boot (a MemoryError, perhaps) says so in one line and exits 1 (node's
@@ -221,13 +223,11 @@ function boot(code) {
     process.exit(1);
   }
 }
-mp.runPython(
-  `import simworld.simgc\nsimworld.simgc.fast = ${fast ? "True" : "False"}` +
-    (fast ? "\nimport simjs" : ""),
-);
+mp.runPython(`import simworld.simgc as G\nG.fast = ${fast ? "True" : "False"}\nG._gc.collect()`);
+if (fast) mp.runPython("import simworld.simgc\nsimworld.simgc.settle()"); // (its live blocks)
 if (fromFlash) {
   boot("from simworld import flashboot\n" + `flashboot.adjust = ${JSON.stringify(dialTo)}\n` +
-    `mpyhost.start_flash(flashboot, ${JSON.stringify(absent)}${fast ? ", simjs.mark" : ""})`);
+    `mpyhost.start_flash(flashboot, ${JSON.stringify(absent)})`);
 } else {
   boot(dialTo + "from board import BOARD");
   for (const m of BOOT_ORDER) boot(`import mlboard.${m}`);
@@ -236,19 +236,23 @@ if (fromFlash) {
   // fw.hash reads every runtime file (the whole package here; a board has only the drivers its
   // board file uses): a step of its own, where a board collects as it reads (identity.py caches)
   boot("mlboard.identity.runtime_hash()");
-  boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)}` +
-    `${fast ? ", simjs.mark" : ""})`);
+  boot(`import mlboard\nmpyhost.start(BOARD, mlboard, ${JSON.stringify(absent)})`);
 }
-// (after the boot: from here on the firmware's clock moves with its steps' CPU time)
-if (fast) mp.runPython("import simworld.simtime\nsimworld.simtime.cpu = simjs.cpu");
+if (fast) mp.registerJsModule("simjs", { report: (...f) => fast.report(...f) });
+if (fast) mp.runPython("import simjs\nfrom simworld import mpyhost\nmpyhost.report = simjs.report");
+// (after the boot: the heap watched, the allocator's threshold kept by simgc.py)
+if (fast && heapArg !== null) mp.runPython("import simworld.simgc\nsimworld.simgc.watch_heap()");
 mp.runPython(
-  "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _due_us, _ctl, _ident",
+  "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _settle, _due_us, _ctl, " +
+    "_ident",
 );
 const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
 const closed = mp.globals.get("_closed");
 const step = mp.globals.get("_step"); // (--fast: the connections' bytes go in with the step)
-const tick = fast ? () => fast.step((now, gc) => step(now, gc, feedSome())) : mp.globals.get("_tick");
+const settle = mp.globals.get("_settle");
+const tick = fast ? () => fast.step((now, ns) => step(now, ns, feedSome()), settle) :
+  mp.globals.get("_tick");
 const dueUs = mp.globals.get("_due_us");
 const ctl = mp.globals.get("_ctl");
 const ident = mp.globals.get("_ident")();
@@ -272,12 +276,14 @@ function cancel() {
 function feedSome() {
   const toks = [];
   for (const [n, buf] of inbox) {
-    if (buf.length) {
-      const hex = buf.subarray(0, CHUNK).toString("hex");
+    const take = Math.min(CHUNK, buf.length, lock ? lock.allowance(n) : Infinity);
+    if (take > 0) {
+      const hex = buf.subarray(0, take).toString("hex");
       if (fast) toks.push(`${n}:${hex}`);
       else feed(n, hex);
-      inbox.set(n, buf.subarray(CHUNK));
-    } else if (ended.has(n)) {
+      inbox.set(n, buf.subarray(take));
+      if (lock) lock.took(n, take);
+    } else if (!buf.length && ended.has(n) && (!lock || lock.mayClose(n))) {
       inbox.delete(n);
       ended.delete(n);
       if (fast) toks.push(`-${n}`);
@@ -286,12 +292,14 @@ function feedSome() {
   }
   return toks.join(" ");
 }
-const waiting = () => [...inbox.values()].some((b) => b.length) || ended.size > 0;
+const waiting = () => lock ? [...inbox.keys()].some((n) => lock.allowance(n) > 0) :
+  [...inbox.values()].some((b) => b.length) || ended.size > 0;
 // --lead-ms: the simulation waits for a host's bytes (it is MS past the last)
 const held = () => fast && leadUs !== null && !waiting() && fast.now - heardAt > leadUs;
 function run() {
   pending = null;
   if (held()) return; // (on data)
+  if (lock && !lock.begin(fast.nowNs)) return; // (on the controller's word)
   let out;
   try {
     world?.before(); // (the world's tick and its edges due, in the simulation's time)
@@ -303,11 +311,13 @@ function run() {
     // board/firmware.py), the world stays for control requests
     process.stdout.write("CRASH\n");
     stopped = true;
+    if (lock) lock.after(fast.nowNs, true);
     return;
   }
   if (out === "BREAK") {
     process.stdout.write("BREAK\n");
     stopped = true;
+    if (lock) lock.after(fast.nowNs, true);
     return;
   }
   let full = null; // --fast: a host that does not take its output holds the steps up
@@ -323,6 +333,7 @@ function run() {
       const at = tok.indexOf(":");
       const s = conns.get(Number(tok.slice(0, at)));
       if (s) s.write(Buffer.from(tok.slice(at + 1), "hex"));
+      if (s && lock) lock.wrote(Number(tok.slice(0, at)), (tok.length - at - 1) / 2);
       if (s && fast && s.writableLength > BACKLOG) full = s;
     }
   }
@@ -331,7 +342,8 @@ function run() {
     full.once("close", () => schedule(true));
     return;
   }
-  if (fast && !out && !waiting()) fast.idle(); // (nothing to do: a board sleeps)
+  if (fast && !out && !waiting()) fast.idle(lock ? lock.untilNs : Infinity); // (a board sleeps)
+  if (lock) lock.after(fast.nowNs, false);
   schedule(Boolean(out) || waiting() || fast !== null);
 }
 // Step again at once after input or output (more may be queued), else at the drivers' next
@@ -352,10 +364,12 @@ function attach(n, s) {
   s.on("data", (d) => {
     if (inbox.has(n)) inbox.set(n, Buffer.concat([inbox.get(n), d]));
     if (fast) heardAt = fast.now;
+    if (lock) lock.received(n, d.length);
     schedule(true);
   });
   s.on("close", () => {
     if (conns.delete(n) && inbox.has(n)) ended.add(n);
+    if (lock) lock.ended(n);
     schedule(true);
   });
   s.on("error", () => {});
@@ -379,7 +393,8 @@ function dial(spec) {
 const server = createServer((s) => {
   const n = nextConn++;
   conns.set(n, s);
-  open(n);
+  if (lock) lock.accept(n, () => open(n)); // (the firmware sees it at the run that names it)
+  else open(n);
   attach(n, s);
 });
 server.on("error", (e) => {
@@ -397,8 +412,8 @@ function simCtl(what) {
   if (what === "time") return String(Math.floor(fast.now));
   if (what === "held") return String(Boolean(held()));
   if (what === "gc") {
-    const { log, collections, gcUs, scale } = fast;
-    return JSON.stringify({ collections, log, us: gcUs, scale });
+    const { log, collections, gcUs, steps } = fast;
+    return JSON.stringify({ collections, log, us: gcUs, steps });
   }
   throw new Error(`no such figure: ${what}`);
 }
@@ -407,6 +422,12 @@ const rl = createInterface({ input: process.stdin });
 rl.on("line", (line) => {
   try {
     const req = JSON.parse(line); // (code, {"cut": N}: flashcut.mjs, or {"sim": what})
+    if (req?.sim === "run" && lock) { // (answered when the run is over: lockstep.mjs)
+      lock.request(req.us, req.rx, (out) => process.stdout.write("OK " + out + "\n"));
+      if (stopped) lock.after(fast.nowNs, true, true); // (nothing runs any more)
+      schedule(true);
+      return;
+    }
     const out = typeof req === "string" ? ctl(req, fast ? Math.floor(fast.now) : null) :
       "cut" in req ? cut.arm(req.cut) : simCtl(req.sim);
     process.stdout.write("OK " + out + "\n");

@@ -21,6 +21,8 @@ MicroPython subset only (this file runs inside the board's interpreter).
 
 import time
 
+from . import simcost
+
 try:  # MicroPython: the port's tick counter (it wraps; ticks_diff copes)
     ticks_us = time.ticks_us
     ticks_add = time.ticks_add
@@ -41,10 +43,20 @@ except AttributeError:  # CPython: the same over CLOCK_MONOTONIC, as board/clock
         time.sleep(us / 1000000)
 
 
-# Under simulated time (host.mjs --fast: simtime.py) a bus transfer takes its bus time: a driver
-# that polls a part over I2C waits as long in simulated time as on a board.  In real time the
-# transfer takes what the interpreter takes.
-_advance = getattr(time, "advance", None)
+# Under simulated time (host.mjs --fast: simtime.py) a peripheral call costs a board's time
+# (simcost.py): the call, and what its hardware takes (an ADC conversion, an I2C transfer's bus
+# time: a driver that polls a part waits as long in simulated time as on a board).  In real
+# time, and under CPython, it takes what the interpreter takes.  The world's own reads of the
+# clock (the logs here, the devices) are free: it is not the board's work.
+_charge = getattr(time, "charge_ns", None)
+if hasattr(time, "now_us"):
+    ticks_us = time.now_us  # noqa: F811 - (simulated time: the world's reads are free)
+
+
+def _call(ns=0):
+    if _charge is not None:
+        _charge(simcost.CALL_NS + ns)
+
 
 EIO = 5
 VREF = 3.3
@@ -224,6 +236,7 @@ class Pin:
             st.level = 1 if value else 0
 
     def value(self, v=None):
+        _call()
         st = WORLD.pin(self.id)
         if v is None:
             return st.level
@@ -251,6 +264,7 @@ class ADC:
         self.id = pin.id if isinstance(pin, Pin) else pin
 
     def read_u16(self):
+        _call(simcost.ADC_NS)
         WORLD.adc_reads += 1
         if WORLD.log_cap:
             WORLD.adc_log.append(ticks_us())
@@ -277,6 +291,7 @@ class PWM:
             self.duty_ns(duty_ns)
 
     def freq(self, f=None):
+        _call()
         if f is None:
             return self._freq
         if not 8 <= f <= 62500000:
@@ -285,6 +300,7 @@ class PWM:
         return None
 
     def duty_ns(self, ns=None):
+        _call()
         if ns is None:
             return self._duty_ns
         if ns < 0:
@@ -294,6 +310,7 @@ class PWM:
         return None
 
     def duty_u16(self, d=None):
+        _call()
         period = 1000000000 // self._freq
         if d is None:
             return self._duty_ns * 65535 // period
@@ -310,9 +327,8 @@ class I2C:
         self.freq = freq
 
     def _bus(self, nbytes):
-        # address and data bytes, 9 bits each, and start/stop (simulated time only)
-        if _advance is not None:
-            _advance((nbytes + 1) * 9 * 1000000 // self.freq + 1)
+        # the call, and the address and data bytes, 9 bits each, and start/stop on the bus
+        _call((nbytes + 1) * 9 * (1000000000 // self.freq))  # (small ints: no garbage)
 
     def _dev(self, addr):
         dev = WORLD.i2c.get((self.id, addr))
@@ -369,10 +385,12 @@ class UART:
             src.produce(ticks_us())
 
     def any(self):
+        _call()
         self._produce()
         return len(self.rx)
 
     def read(self, n=None):
+        _call()
         self._produce()
         if not self.rx:
             return None
@@ -382,12 +400,14 @@ class UART:
         return out
 
     def write(self, data):
+        _call()
         self.tx.extend(data)
         return len(data)
 
 
 def time_pulse_us(pin, pulse_level, timeout_us=1000000):
     # -2: no pulse started within the timeout, -1: it did not end within it (MicroPython's)
+    _call()
     dev = WORLD.pulses.get(pin.id)
     if dev is None or getattr(dev, "off", False):  # nothing drives the pin: the wait runs out
         sleep_us(timeout_us)

@@ -18,15 +18,19 @@ should restart (after an update's switch, a trial not confirmed in time), and re
 it from the flash again, as a board's reset does (every connection ends); so does a firmware on
 trial that raises, and machine.reset().
 
-Fast mode (host.mjs --fast, simtime.py): _step(now, last_gc_us, inputs) feeds the connections'
-bytes and runs _tick at simulated µs `now`, and says what the host needs to move the clock on:
-"SLEPT REQ AT CLK0 AUTO DUE|" before the output (µs slept in the step; collections it asked for
-(simgc.py) and where, µs into the step; the board clock at the step's start; whether a
-collection nobody asked for ran after the step before, seen from the heap's allocated bytes
-when watch_gc is set: two heap scans a step; µs to the drivers' next deadline, -1 none).
+Fast mode (host.mjs --fast, simtime.py): _step(now, ns, inputs) feeds the connections' bytes
+and runs _tick at simulated µs `now` (and `ns` below it), charging the step's own cost and its
+bytes (simcost.py), and tells the host what it needs to move the clock on with report(SLEPT,
+NS, REQ, AT, CHARGED, CLK0, AUTO, DUE) (µs the clock moved in the step and the ns left over;
+collections it asked for (simgc.py), where, µs into the step, and what they were charged, ns;
+the board clock at the step's start; whether the allocator collects as it returns (simgc.py,
+--heap); µs to the drivers' next deadline, -1 none): a call into node with small ints, which
+makes no garbage (a string of them made the firmware's heap pay ~40 bytes more a step).  After
+a step that collected, _settle() says what the collection took (ns).  The simulator's own
+reads of the board clock are free.
 """
 
-from . import devices, machine, simgc, simtime
+from . import devices, machine, simcost, simgc, simtime
 from .machine import WORLD
 from .parts import populate
 
@@ -71,11 +75,13 @@ class SimServer:
                 return b""
             return None
         self.rx[n] = bytearray()
+        simtime.charge_ns(simcost.BYTE_IN_NS * len(data))  # (fast mode: what decoding costs)
         return bytes(data)
 
     def send(self, n, data):
         if n not in self.rx or n in self.ended:
             return False
+        simtime.charge_ns(simcost.BYTE_OUT_NS * len(data))  # (fast mode: what encoding cost)
         self.out.append("%d:%s" % (n, bytes(data).hex()))
         return True
 
@@ -91,10 +97,10 @@ class SimServer:
 
 
 wire = SimServer()  # node's connections
-_sim = {}  # what start() made: board, mlboard, link, fw, rt, stopped; fast mode: alloc_end
+_sim = {}  # what start() made: board, mlboard, link, fw, rt, stopped
 boot = None  # flashboot.py, for a board that starts from its flash (start_flash)
-watch_gc = False  # fast mode: tell collections nobody asked for (two heap scans a step)
 spare = None  # --heap: room held back so that a MemoryError can still be said (heap.mjs)
+report = None  # fast mode: how a step tells the host its figures (host.mjs: small ints, no garbage)
 
 
 def release():
@@ -105,10 +111,8 @@ def release():
         spare.clear()
 
 
-def start(board, mlboard, absent=(), mark=None):
+def start(board, mlboard, absent=()):
     # The world from the board file, less its absent parts; the firmware on node's connections.
-    # mark: fast mode's mark of the interpreter's CPU time at the end of a step (host.mjs)
-    _sim["mark"] = mark
     populate(board, absent)
     link = _link(mlboard, board.get("link", {}))
     _sim.update(board=board, mlboard=mlboard, link=link, stopped=False)
@@ -139,13 +143,11 @@ def reboot():
         boot.attach(fw.runtime, _sim["board"])
 
 
-def start_flash(flashboot, absent=(), mark=None):
+def start_flash(flashboot, absent=()):
     # The board starts from its flash (flashboot.py: as main.py on a device), its parts those
-    # of the first board file that loads (the wiring stays whatever firmware runs); mark: as
-    # start()'s
+    # of the first board file that loads (the wiring stays whatever firmware runs)
     global boot
     boot = flashboot
-    _sim["mark"] = mark
     _sim.update(absent=absent, populated=False)
     restart()
 
@@ -177,7 +179,7 @@ def restart():
 def _restart_due():
     # the updater's restart, if due: what the board drives goes safe, the host hears why
     upd = boot.updater if boot is not None else None
-    why = upd.due(_sim["rt"].clock()) if upd is not None else None
+    why = upd.due(_free(_sim["rt"].clock)) if upd is not None else None
     if why:
         upd.before_restart(why)
         out = _sim["rt"].take_output()
@@ -187,8 +189,16 @@ def _restart_due():
     return bool(why)
 
 
+def _free(read):
+    # the simulator reads the board's clock: no charge (simtime.py)
+    simtime.free = True
+    try:
+        return read()
+    finally:
+        simtime.free = False
+
+
 def _open(n):
-    _sim["alloc_end"] = None
     if wire.dialing.pop(n, None):  # (a connection the board made: up)
         wire.rx[n] = bytearray()
         return
@@ -237,38 +247,42 @@ def _tick():
     return out
 
 
-def _step(now, last_gc_us, inputs):
-    # One fast-mode step at simulated µs `now` (wrapped), with what came from the connections
-    # ("n:hex" and "-n" for closed, as _feed and _closed; all within the step, so nothing runs
-    # in the interpreter between two steps but the collection the last one left)
-    auto = 0
-    if watch_gc:
-        end = _sim.get("alloc_end")
-        auto = 1 if end is not None and simgc._gc.mem_alloc() < end else 0
-    simtime.set_now(now)
-    simgc.last_us = last_gc_us
-    simgc.requested = 0
-    simgc.at = 0
+def _step(now, ns, inputs):
+    # One fast-mode step at simulated µs `now` (wrapped) and `ns` below it, with what came from
+    # the connections ("n:hex" and "-n" for closed, as _feed and _closed; all within the step,
+    # so nothing runs in the interpreter between two steps but the collection the last one left)
+    simtime.set_now(now, ns)
+    simgc.begin_step()
+    if not _sim["stopped"]:  # (the turn's own work, at its start)
+        simtime.charge_ns(simcost.turn_ns(len(_sim["rt"].transducers)))
     for tok in inputs.split() if inputs else ():
         if tok[0] == "-":
             _closed(int(tok[1:]))
         else:
             i = tok.index(":")
             _feed(int(tok[:i]), tok[i + 1 :])
-    clk0 = _sim["rt"].clock() if not _sim["stopped"] else 0
+    clk0 = _free(_sim["rt"].clock) if not _sim["stopped"] else 0
     out = _tick()
     due = -1 if _sim["stopped"] else _due_us()
-    if watch_gc:
-        _sim["alloc_end"] = simgc._gc.mem_alloc()
-    _sim["mark"]()  # (host.mjs: the interpreter's CPU time at the end of the step)
-    head = "%d %d %d %d %d %d|" % (simtime.slept(), simgc.requested, simgc.at, clk0, auto, due)
-    return head + out
+    auto = simgc.end_step() if simgc.watch else 0
+    gc = simgc
+    report(simtime.slept(), simtime.ns(), gc.requested, gc.at, gc.charged, clk0, auto, due)
+    return out
+
+
+def _settle():
+    # after a step whose collection ran as it returned: what it took, ns (simgc.py)
+    return simgc.settle()
 
 
 def _due_us():
     rt = _sim["rt"]
-    due = rt.next_deadline_us()
-    return -1 if due is None else max(0, due - rt.clock())
+    simtime.free = True
+    try:
+        due = rt.next_deadline_us()
+        return -1 if due is None else max(0, due - rt.clock())
+    finally:
+        simtime.free = False
 
 
 def _ctl(src, sim_us=None):
@@ -284,9 +298,14 @@ def _ctl(src, sim_us=None):
         "slot": boot.slot() if boot is not None else "",
         "result": None,
     }
-    exec(src, env)
-    _sim["alloc_end"] = None  # (its own allocations and frees: no sign of a collection)
-    return repr(env["result"])
+    simtime.free = True  # (a test's reads of the clock are not the board's work)
+    before = simgc.allocated() if simgc.watch else 0
+    try:
+        exec(src, env)
+        return repr(env["result"])
+    finally:
+        simtime.free = False
+        simgc.not_the_firmwares(before)
 
 
 def _ident():

@@ -6,67 +6,78 @@ simulated machine and the devices all read it.  The MicroPython subset only.
 Theory of operation
 -------------------
 The clock counts simulated µs, wrapping at TICKS_PERIOD as the RP2040 port's ticks_us does
-(board/clock.py extends it to 64 bit, as on a board).  Between two firmware steps the host
-sets it (set_now): it jumps over the time the firmware would have slept and adds what the step
-cost (the interpreter's CPU time, and a garbage collection's after it: fastclock.mjs).  Within
-a step it moves by the step's CPU time so far at each read (`cpu`, fastclock.mjs: as a board's
-clock runs on while its loop works, so the firmware's turn-end reading, where it decides on a
-collection, board/memory.py, is not stale by the turn's work), READ_US a read (a read takes time
-on a board too, and code that waits for the clock to move, board/clock.py resolution_us, must
-see it move), what a sleep slept (sleep_us, a pulse waited for: machine.time_pulse_us), and what
-a collection took at a gc.collect() (simgc.py); the step's total (slept()) goes back to the host
-with its output.
+(board/clock.py extends it to 64 bit, as on a board), with the ns below a µs kept apart (work
+is charged in ns: a clock read costs 9.6 µs, so reads land 9 or 10 µs apart, as on a board).
+Between two firmware steps the host sets it (set_now, fastclock.mjs).  Within a step it moves
+only by what the step's work costs in the cost model (simcost.py), charged as the work happens,
+so every read sees the work before it: the step's own cost (mpyhost.py), each clock read
+(READ_NS), the link's bytes, each peripheral call (machine.py), each heap scan and the blocks
+allocated before it (simgc.py); and by what a sleep slept (sleep_us, a pulse waited for:
+machine.time_pulse_us) and what a collection is charged at gc.collect() (simgc.py).  The step's
+total (slept(), with the ns left over: ns()) goes back to the host with its output.  Never by
+the host's CPU time or its clock: the same simulation moves the clock the same way on any
+machine.  The simulator's own reads (the world's devices, the host's bookkeeping, a test's
+control request) are free: now_us(), or while `free` is set.
 """
+
+from . import simcost
 
 TICKS_PERIOD = 1 << 30
 TICKS_MAX = TICKS_PERIOD - 1
-READ_US = 1
 
 _now = 0  # simulated µs, wrapped
-_slept = 0  # µs advanced within the current step
-cpu = None  # fast mode: the step's CPU time so far, simulated µs (host.mjs: fastclock.mjs)
-_worked = 0  # ... of it the clock has moved by
+_ns = 0  # ... and the ns below it (0..999)
+_slept = 0  # µs the clock moved in the current step
+free = False  # the simulator reads the clock: no charge (mpyhost.py)
 
 
-def set_now(us):
-    # a new step begins at simulated µs `us` (wrapped): nothing slept in it yet
-    global _now, _slept, _worked
+def set_now(us, ns=0):
+    # a new step begins at simulated µs `us` (wrapped) and `ns` below it: nothing spent yet
+    global _now, _ns, _slept
     _now = us & TICKS_MAX
+    _ns = ns
     _slept = 0
-    _worked = 0
 
 
 def advance(us):
+    # the clock moves on by `us` (a sleep, a transfer on a bus, a charge)
     global _now, _slept
     if us > 0:
         _now = (_now + us) & TICKS_MAX
         _slept += us
 
 
+def charge_ns(ns):
+    # the work of `ns` nanoseconds on the board: the clock moves on by it
+    global _ns
+    if ns > 0:
+        total = _ns + ns
+        _ns = total % 1000
+        advance(total // 1000)
+
+
 def slept():
     return _slept
 
 
-def _work():
-    # the clock moves on by the step's CPU time so far: the firmware sees its turn take time
-    global _worked
-    w = cpu()
-    if w > _worked:
-        advance(w - _worked)
-        _worked = w
+def ns():
+    return _ns
+
+
+def now_us():
+    # the clock as the simulator reads it: free, it is not the board's work
+    return _now
 
 
 def ticks_us():
-    if cpu is not None:
-        _work()
-    advance(READ_US)
+    if not free:
+        charge_ns(simcost.READ_NS)
     return _now
 
 
 def ticks_ms():
-    if cpu is not None:
-        _work()
-    advance(READ_US)
+    if not free:
+        charge_ns(simcost.READ_NS)
     return (_now // 1000) & TICKS_MAX
 
 
