@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
+from ..text import clean
 from .common import emit_json
 
 #: each verb's arguments as the world's event keys (cli/board_args.py names them so)
@@ -38,7 +39,7 @@ def cmd_world(args: argparse.Namespace) -> int:
         f"yaw {state['yaw_deg']:.1f} deg  speed {state['speed_m_s']:.3f} m/s  "
         f"turn {state['turn_dps']:.1f} deg/s  battery {state['battery_v']:.2f} V  "
         f"bumps {state['bumps']}"
-        + (f"  blocked {','.join(state['blocked'])}" if state["blocked"] else "")
-        + (f"  failed {','.join(state['failed'])}" if state["failed"] else "")
+        + (f"  blocked {clean(','.join(state['blocked']))}" if state.get("blocked") else "")
+        + (f"  failed {clean(','.join(state['failed']))}" if state.get("failed") else "")
     )
     return 0

@@ -30,6 +30,9 @@ MAX_CLIENTS = 4
 REQUEST_S = 2.0
 MAX_REQUEST = 4096
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
+MAX_ANSWER = 1 << 20
+#: what a state holds that the CLI prints (cli/world.py), each a number
+NUMBERS = ("t_s", "x_m", "y_m", "yaw_deg", "speed_m_s", "turn_dps", "battery_v", "bumps")
 
 
 class Hand(Protocol):
@@ -140,7 +143,7 @@ def ask(url: str, verb: str, args: dict[str, Any], timeout: float = 5.0) -> dict
         try:
             sock.sendall(json.dumps({"verb": verb, "args": args}).encode() + b"\n")
             data = b""
-            while not data.endswith(b"\n"):
+            while not data.endswith(b"\n") and len(data) <= MAX_ANSWER:
                 got = sock.recv(65536)
                 if not got:
                     break
@@ -148,7 +151,27 @@ def ask(url: str, verb: str, args: dict[str, Any], timeout: float = 5.0) -> dict
         except OSError as e:
             raise WorldUnreachable(f"{url}: the world did not answer ({e})") from None
     try:
-        out: dict[str, Any] = json.loads(data)
-    except ValueError:
+        return checked(json.loads(data))
+    except (ValueError, TypeError):  # (JSON's, or an answer of another shape: not a world's)
         raise WorldUnreachable(f"{url}: not a world's answer") from None
+
+
+def checked(out: Any) -> dict[str, Any]:
+    """``out`` if it is an answer as :func:`answer` makes them (an error's text, or a state of
+    the numbers and part names the CLI prints); ValueError else: whatever listens at a URL
+    may answer, and its answer is not to end the CLI in a traceback."""
+    if len(json.dumps(out)) > MAX_ANSWER or not isinstance(out, dict):
+        raise ValueError("not an answer")
+    if "error" in out:
+        return {"error": str(out["error"]), "kind": str(out.get("kind", "usage"))}
+    state = out.get("state")
+    if not isinstance(state, dict):
+        raise ValueError("no state")
+    for key in NUMBERS:
+        if isinstance(state.get(key), bool) or not isinstance(state.get(key), (int, float)):
+            raise ValueError(key)
+    for key in ("blocked", "failed"):
+        names = state.get(key, [])
+        if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+            raise ValueError(key)
     return out
