@@ -355,3 +355,10 @@ def test_all_na_update_is_logged_at_host_realtime() -> None:
     (u,) = got
     assert u.values == [None, None] and u.host_ns == [0, 0]
     assert before - 10**7 <= u.stamp_ns <= after + 10**7
+    # after a sample: just after it, where the board sent it (its arrival, late on a busy
+    # machine, could come after the next sample's measurement)
+    session.path.on_sif(SifReceived(1, 1, struct.pack("<QhQh", 7, 3, 8, 4), 0), time.monotonic())
+    time.sleep(0.01)
+    session.path.on_sif(SifReceived(1, 2, struct.pack("<QhQh", 9, -1, 9, -1), 0), time.monotonic())
+    measured, na = got[-2:]
+    assert na.host_ns == [0, 0] and na.stamp_ns == measured.stamp_ns + 1

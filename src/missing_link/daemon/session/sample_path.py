@@ -256,8 +256,12 @@ class SamplePath:
                 )
             self._last_host[cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
-        else:  # all channels N/A: log at the arrival time (never at 0 or a monotonic stamp)
+        else:  # all N/A: just after the topic's last sample, where the board sent it (its
+            # arrival, late on a busy machine, may pass the next one's measurement)
+            last = self._last_host.get(cmd)
             stamp = arrived
+            if last is not None:
+                stamp = self._last_host[cmd] = min(arrived, last + 1)
         update = Update.build(
             topic=topic,
             board_us=board_us,
