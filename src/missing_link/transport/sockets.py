@@ -74,7 +74,8 @@ class SocketTransport(FdTransport):
         return data, stamp - offset
 
     def _send(self, data: memoryview) -> int:
-        return self.sock.send(data)
+        # (never blocks: a full buffer is BlockingIOError, and write() waits write_timeout)
+        return self.sock.send(data, socket.MSG_DONTWAIT)
 
     def close(self) -> None:
         if not self._closed:
