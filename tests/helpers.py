@@ -24,6 +24,7 @@ from missing_link.testing import wait_for as wait_for
 from missing_link.testing.sims import pump_lines as pump_lines
 from missing_link.transport import Transport
 from missing_link.virtual.mpyboard import HOST_MJS
+from missing_link.virtual.process import hang_up, reap
 
 
 class HexLinePipe(Transport):
@@ -89,15 +90,10 @@ class HexLinePipe(Transport):
         self._closed = True
         try:
             self.send_line("QUIT")
-            assert self.proc.stdin is not None
-            self.proc.stdin.close()  # (node's readline holds the loop open while stdin is)
         except (BrokenPipeError, OSError, ValueError):
             pass
-        try:
-            self.proc.wait(5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+        hang_up(self.proc)  # (node's readline holds the loop open while stdin is)
+        reap(self.proc)
         self._lines.put(None)
 
 

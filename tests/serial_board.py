@@ -14,6 +14,8 @@ import threading
 import tty
 from pathlib import Path
 
+from missing_link.virtual.process import hang_up, reap
+
 ROOT = Path(__file__).resolve().parent.parent
 DEVICE = ROOT / "tests" / "micropython" / "serial_board.mjs"
 
@@ -77,16 +79,9 @@ class SerialBoard:
 
     def close(self) -> None:
         """Power off: the filesystem goes back to ``flash`` (if the board is still running)."""
-        if self.proc.poll() is None and self.proc.stdin is not None:
-            try:
-                self.proc.stdin.close()
-            except OSError:
-                pass
-        try:
-            self.proc.wait(20)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+        if self.proc.poll() is None:
+            hang_up(self.proc)
+        reap(self.proc, 20)
         self._closed.wait(5)
         for f in (self.proc.stdout, self.proc.stderr):
             if f is not None:

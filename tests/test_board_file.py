@@ -23,6 +23,7 @@ from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.deploy.boardfile import load_board_file
 from missing_link.topics import Update
+from missing_link.virtual.process import reap
 
 from .helpers import ML, ml, wait_for
 
@@ -69,11 +70,7 @@ class BoardProcess:
         """SIGTERM, as a user's Ctrl-C or a service manager: the exit code."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-        try:
-            return self.proc.wait(15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            return self.proc.wait(5)
+        return reap(self.proc, 15)
 
     def close(self) -> None:
         self.stop()

@@ -23,6 +23,7 @@ from missing_link.daemon.config import BoardSpec, parse_config
 from missing_link.daemon.session.status import SessionState
 from missing_link.errors import ConfigError
 from missing_link.virtual.boardfile import CHIP_ID_FILE, chip_id
+from missing_link.virtual.process import reap
 
 from .helpers import ML, ml, wait_for
 
@@ -75,11 +76,7 @@ class Board:
         self._end()
 
     def _end(self) -> int:
-        try:
-            code = self.proc.wait(15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            code = self.proc.wait(5)
+        code = reap(self.proc, 15)
         if self.proc.stdout is not None:
             self.proc.stdout.close()
         self._err.close()

@@ -38,6 +38,7 @@ from typing import Any, Self
 from ..errors import TransportClosed
 from ..host.board import Board
 from ..transport import Transport, open_transport
+from ..virtual.process import stop_process
 from .board_clock import FakeBoardClock
 from .calls import Answer
 
@@ -251,11 +252,6 @@ class ProcessBoard(RuntimeBoard):
 
     def close(self) -> None:
         super().close()
-        self.proc.terminate()
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(10)
+        stop_process(self.proc, grace=10)
         if self.proc.stdout is not None:
             self.proc.stdout.close()

@@ -28,6 +28,7 @@ import tty
 
 from ..errors import MissingLinkError
 from .boardfile import listener
+from .process import hang_up, reap
 
 START_TIMEOUT_S = 30.0
 
@@ -153,16 +154,8 @@ class AvrBoard:
             os.write(self._wake_w, b"x")
 
     def close(self) -> None:
-        try:
-            if self.proc.stdin is not None:
-                self.proc.stdin.close()
-        except OSError:
-            pass
-        try:
-            self.proc.wait(5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+        hang_up(self.proc)
+        reap(self.proc)
         if self._server is not None:
             self._server.close()
             self._server = None

@@ -41,6 +41,7 @@ from urllib.parse import urlsplit
 
 from ..errors import BadURL, ConfigError, MissingLinkError
 from .boardfile import Pty, dial_target
+from .process import hang_up, reap
 from .world_mpy import NodeWorld
 
 HOST_MJS = Path(__file__).resolve().parent / "world" / "host.mjs"
@@ -180,21 +181,13 @@ class MicroPythonBoard:
 
     def stop(self) -> None:
         """Power off: node's stdin closes and node ends (the flash is on disk already)."""
-        try:
-            if self.proc.stdin is not None:
-                self.proc.stdin.close()
-        except OSError:
-            pass
+        hang_up(self.proc)
 
     def close(self) -> None:
         self.stop()
         if self._relay is not None:
             self._relay.stop()
-        try:
-            self.proc.wait(5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+        reap(self.proc)
 
 
 class _PtyRelay:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from typing import Any
 
 from ..errors import MissingLinkError
 
@@ -36,11 +37,28 @@ def start_board_process(
     return proc, line.split(" ", 1)[1].strip()
 
 
-def stop_process(proc: subprocess.Popen[str]) -> None:
+def hang_up(proc: subprocess.Popen[Any]) -> None:
+    """Close the child's stdin, the end our children take as "power off" (a pipe already broken
+    means it is going anyway)."""
+    try:
+        if proc.stdin is not None:
+            proc.stdin.close()
+    except (OSError, ValueError):
+        pass
+
+
+def reap(proc: subprocess.Popen[Any], grace: float = 5.0) -> int:
+    """Wait up to ``grace`` seconds for the child to end by itself, then kill it; its exit code.
+    No child outlives its owner, and none is left a zombie."""
+    try:
+        return proc.wait(grace)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait(5)
+
+
+def stop_process(proc: subprocess.Popen[Any], grace: float = 5.0) -> None:
+    """SIGTERM, then :func:`reap` (SIGKILL after ``grace`` seconds)."""
     if proc.poll() is None:
         proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    reap(proc, grace)
