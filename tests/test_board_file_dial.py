@@ -154,8 +154,8 @@ def test_seed_and_flash_and_a_dial_that_is_not_tcp_are_usage_errors(
     small.write_text(SMALL)
     for argv, words in (
         (["--listen", "tcp://127.0.0.1:0", "--flash", str(tmp_path), "--seed", "2"], "--seed"),
-        (["--dial", "unix:///tmp/daemon.sock"], "cannot dial 'unix:///tmp/daemon.sock'"),
-        (["--dial", "tcp://127.0.0.1"], "use tcp://HOST:PORT"),
+        (["--dial", "unix:///tmp/daemon.sock"], "'unix:///tmp/daemon.sock': dial tcp://HOST:PORT"),
+        (["--dial", "tcp://127.0.0.1"], "dial tcp://HOST:PORT"),
     ):
         assert main(["board", "--file", str(small), *argv]) == 2
         out, err = capsys.readouterr()

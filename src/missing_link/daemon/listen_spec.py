@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
 from ..errors import BadURL
+from ..transport.sockets import parse_host_port
 
 #: addresses a listener may take unsigned J2A on (boards that dial in; docs/signing.md)
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
@@ -35,18 +36,14 @@ def parse_listen(url: str) -> ListenSpec:
     """``tcp://ADDR:PORT`` (loopback only) or ``signed+tcp://ADDR:PORT?key=FILE``; ``BadURL``
     saying what is wrong (signing is required off loopback: whoever reaches the port would
     otherwise command the board that dials in)."""
-    signed = url.startswith("signed+")
-    parts = urlsplit(url[len("signed+") :] if signed else url)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme != "tcp" or not parts.hostname or port is None:
-        raise BadURL(f"{url!r}: listen on tcp://ADDR:PORT or signed+tcp://ADDR:PORT?key=FILE")
+    usage = "listen on tcp://ADDR:PORT or signed+tcp://ADDR:PORT?key=FILE"
+    host, port = parse_host_port(url, usage, schemes=("tcp", "signed+tcp"))
+    parts = urlsplit(url)
+    signed = parts.scheme == "signed+tcp"
     keys = parse_qs(parts.query).get("key", [])
     if signed and not keys:
         raise BadURL(f"{url!r}: signed+ needs ?key=FILE (the boards' signing key)")
-    spec = ListenSpec(url, parts.hostname, port, keys[-1] if signed else None)
+    spec = ListenSpec(url, host, port, keys[-1] if signed else None)
     if not signed and not spec.loopback:
         raise BadURL(
             f"{url!r}: boards that dial in off loopback must sign: listen on "

@@ -88,14 +88,18 @@ class SocketTransport(FdTransport):
             self.sock.close()
 
 
-def parse_host_port(url: str) -> tuple[str, int]:
+def parse_host_port(
+    url: str, usage: str = "expected tcp://HOST:PORT", schemes: tuple[str, ...] = ("tcp",)
+) -> tuple[str, int]:
+    """``tcp://HOST:PORT`` -> (HOST, PORT), for whoever opens, listens on or dials one; BadURL
+    ``'URL': usage`` (what the caller takes) for another scheme, no host or no port."""
     parts = urlsplit(url)
     try:
         port = parts.port
     except ValueError as e:
-        raise BadURL(f"{url!r}: bad port ({e})") from e
-    if not parts.hostname or port is None:
-        raise BadURL(f"{url!r}: expected tcp://HOST:PORT")
+        raise BadURL(f"{url!r}: bad port ({e}); {usage}") from None
+    if parts.scheme not in schemes or not parts.hostname or port is None:
+        raise BadURL(f"{url!r}: {usage}")
     return parts.hostname, port
 
 

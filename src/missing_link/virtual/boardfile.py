@@ -42,16 +42,15 @@ import tty
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any, Protocol
-from urllib.parse import urlsplit
 
 from ..board.dial import dial_server
 from ..board.firmware import Firmware
 from ..board.link import SocketNet, TcpServer, network_link
 from ..board.store import FileStore
-from ..errors import BadURL, ConfigError, MissingLinkError
+from ..errors import ConfigError, MissingLinkError
 from ..world.spec import WorldSpec
 from ..world.world import World
-from .listen import listen_socket
+from .listen import dial_address, listen_socket
 from .world import machine
 from .world.parts import populate
 from .world_cpython import BoardClock, CPythonWorld, WorldAtTheLink
@@ -171,14 +170,8 @@ class DialNet(SocketNet):  # type: ignore[misc]
 def dial_target(url: str) -> str:
     """``tcp://HOST:PORT`` -> the ``HOST:PORT`` a board file's link dials (board/dial.py);
     BadURL for anything else."""
-    parts = urlsplit(url)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme != "tcp" or not parts.hostname or not port:
-        raise BadURL(f"cannot dial {url!r}: use tcp://HOST:PORT (a daemon that runs run --listen)")
-    return f"{parts.hostname}:{port}"
+    host, port = dial_address(url)
+    return f"{host}:{port}"
 
 
 def chip_id(flash: Path | None, seed: int) -> bytes:

@@ -1,7 +1,8 @@
 """Where a virtual board listens for its host, made once for both kinds of virtual board (the
 simulated runtimes of server.py and the board files of boardfile.py): a listening socket for
 ``tcp://HOST:PORT`` (0: any free port) or ``unix:///PATH`` (a stale socket of an earlier run
-is removed, nothing else), and the URL a host opens."""
+is removed, nothing else), and the URL a host opens; or, for a board that dials its host
+instead (``--dial``), where it dials."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ..errors import BadURL
+from ..transport.sockets import parse_host_port
 
 
 def listen_socket(url: str, backlog: int, *others: str) -> tuple[socket.socket, str]:
@@ -52,3 +54,12 @@ def listen_socket(url: str, backlog: int, *others: str) -> tuple[socket.socket, 
     if scheme == "unix":
         return sock, f"unix://{where}"
     return sock, f"tcp://{host}:{sock.getsockname()[1]}"
+
+
+def dial_address(url: str) -> tuple[str, int]:
+    """``tcp://HOST:PORT`` (a daemon that runs ``run --listen``) -> (HOST, PORT) a board dials;
+    BadURL for anything else."""
+    host, port = parse_host_port(url, "dial tcp://HOST:PORT (a daemon that runs run --listen)")
+    if not port:
+        raise BadURL(f"{url!r}: a board cannot dial port 0")
+    return host, port

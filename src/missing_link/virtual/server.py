@@ -29,10 +29,10 @@ from urllib.parse import urlsplit
 from ..board.dial import DialServer
 from ..board.link import SocketNet
 from ..board.runtime import BoardRuntime
-from ..errors import BadURL, TransportBroken, TransportClosed
+from ..errors import TransportBroken, TransportClosed
 from ..transport.in_process import MemoryListener, MemoryTransport
 from ..transport.sockets import enable_rx_stamps, recv_stamped
-from .listen import listen_socket
+from .listen import dial_address, listen_socket
 
 OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
@@ -135,15 +135,9 @@ class _Dialer:
     socket once it is up, ``ended()`` when it went (the next dial after the backoff)."""
 
     def __init__(self, url: str) -> None:
-        parts = urlsplit(url)
-        try:
-            port = parts.port
-        except ValueError:
-            port = None
-        if parts.scheme != "tcp" or not parts.hostname or port is None:
-            raise BadURL(f"{url!r}: dial tcp://HOST:PORT (a daemon that runs run --listen)")
+        host, port = dial_address(url)
         self.net = SocketNet()
-        self.dial = DialServer(self.net, parts.hostname, port, lambda: time.monotonic_ns() // 10**6)
+        self.dial = DialServer(self.net, host, port, lambda: time.monotonic_ns() // 10**6)
         self._n: int | None = None
 
     def poll(self) -> socket.socket | None:
