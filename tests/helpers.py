@@ -21,7 +21,7 @@ from missing_link.errors import TransportBroken, TransportClosed
 from missing_link.testing import AvrSim as AvrSim
 from missing_link.testing import MicroPythonSim
 from missing_link.testing import wait_for as wait_for
-from missing_link.testing.sims import pump_lines as pump_lines
+from missing_link.testing.sims import start_with_lines as start_with_lines
 from missing_link.transport import Transport
 from missing_link.virtual.mpyboard import HOST_MJS
 from missing_link.virtual.process import hang_up, reap
@@ -33,12 +33,8 @@ class HexLinePipe(Transport):
 
     def __init__(self, cmd: list[str], ready_prefix: str = "READY", timeout: float = 60.0) -> None:
         self.url = "pipe:" + " ".join(cmd[:2])
-        self.proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
-        self._lines: queue.Queue[str | None] = queue.Queue()
+        self.proc, self._lines = start_with_lines(cmd)
         self._closed = False
-        pump_lines(self.proc, self._lines)
         first = self._lines.get(timeout=timeout)
         if first is None or not first.startswith(ready_prefix):
             err = self.proc.stderr.read() if self.proc.stderr else ""

@@ -19,10 +19,8 @@ loop, its drivers against the simulated parts, the SIF encoding and the link all
 from __future__ import annotations
 
 import json
-import queue
 import shutil
 import struct
-import subprocess
 import threading
 import time
 from collections import Counter
@@ -41,7 +39,7 @@ from missing_link.testing import FakeClock
 from missing_link.transport import Transport, open_transport
 from missing_link.transport.base import Received
 
-from .helpers import FirmwareSim, pump_lines
+from .helpers import FirmwareSim, start_with_lines
 
 T = TypeVar("T")
 MAP_EVERY_US = 2_000_000  # a fresh host map this often (board µs): it vouches for 10 s
@@ -73,12 +71,7 @@ class FastSim(FirmwareSim):
         cmd = ["node", str(self.HOST), str(board_file), "--heap", str(heap), "--fast"]
         cmd += ["--lockstep"] if lead_ms is None else ["--lead-ms", str(lead_ms)]
         cmd += ["--seed", str(seed)]
-        self.proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            text=True, cwd=self.ROOT,
-        )  # fmt: skip
-        self._lines: queue.Queue[str | None] = queue.Queue()
-        pump_lines(self.proc, self._lines)
+        self.proc, self._lines = start_with_lines(cmd, cwd=self.ROOT)
         self.stderr: list[str] = []  # (read as it comes: a full pipe would stall the simulation)
         pump = threading.Thread(target=self._pump_stderr, daemon=True)
         pump.start()

@@ -42,6 +42,20 @@ def pump_lines(proc: subprocess.Popen[str], into: queue.Queue[str | None]) -> No
     threading.Thread(target=run, daemon=True).start()
 
 
+def start_with_lines(
+    cmd: list[str], cwd: Path | None = None
+) -> tuple[subprocess.Popen[str], queue.Queue[str | None]]:
+    """Start ``cmd`` with its stdin, stdout and stderr piped (text); the child, and a queue of
+    its stdout lines as they come (pump_lines)."""
+    proc = subprocess.Popen(
+        cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=cwd,
+    )  # fmt: skip
+    lines: queue.Queue[str | None] = queue.Queue()
+    pump_lines(proc, lines)
+    return proc, lines
+
+
 def _end(proc: subprocess.Popen[str]) -> None:
     if proc.poll() is None:
         proc.kill()
@@ -72,15 +86,8 @@ class MicroPythonSim(RuntimeBoard):
         extra += args or []
         if "--seed" not in extra:  # (each simulated chip its own machine.unique_id(): board.id)
             extra += ["--seed", str(next(_SEEDS))]
-        self.proc = subprocess.Popen(
-            [node, str(HOST_MJS), str(board_file), "--mpy", str(entry), *extra],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self._lines: queue.Queue[str | None] = queue.Queue()
-        pump_lines(self.proc, self._lines)
+        cmd = [node, str(HOST_MJS), str(board_file), "--mpy", str(entry), *extra]
+        self.proc, self._lines = start_with_lines(cmd)
         first = self._lines.get(timeout=60)
         if first is None or not first.startswith("LISTEN "):
             err = self.proc.stderr.read() if self.proc.stderr else ""
@@ -146,15 +153,8 @@ class AvrSim(RuntimeBoard):
             extra += ["--mcu", mcu]
         for spec in parts:
             extra += ["--part", spec]
-        self.proc = subprocess.Popen(
-            [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self.lines: queue.Queue[str | None] = queue.Queue()
-        pump_lines(self.proc, self.lines)
+        cmd = [str(build / "rig_sim"), str(elf), "--skew-ppm", str(skew_ppm), *extra]
+        self.proc, self.lines = start_with_lines(cmd)
         while True:
             line = self.lines.get(timeout=20)
             if line is None:
