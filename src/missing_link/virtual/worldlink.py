@@ -27,7 +27,6 @@ from typing import Any
 
 from ..world.robot import Part
 from ..world.world import Actuation, Frame, World
-from .world.units import split_degrees
 
 #: worldfeed.py's number for each kind of part (a ranger by its driver: how it says "nothing
 #: in reach")
@@ -145,7 +144,7 @@ class WorldLink:
         for name, gauss in _here(frame.fields.items(), self.index):
             calls.append(("field", (self.index[name], *(round(v * 12000) for v in gauss))))
         for name, fix in _here(frame.fixes.items(), self.index):
-            lat, lon = split_degrees(fix.latitude_deg), split_degrees(fix.longitude_deg)
+            lat, lon = _split(fix.latitude_deg), _split(fix.longitude_deg)
             knots = fix.speed_m_s * 3600 / 1852
             calls.append(("fix", (self.index[name], *lat, *lon, round(fix.altitude_m * 10),
                                   round(knots * 10), round(fix.course_deg * 10) % 3600,
@@ -153,6 +152,13 @@ class WorldLink:
         for name, volts in _here(frame.volts.items(), self.index):
             calls.append(("volts", (self.index[name], round(volts * 1000))))
         return calls
+
+
+def _split(deg: float) -> tuple[int, int]:
+    """Degrees as (whole degrees, 1e-7 degree), both of the sign of ``deg``: small integers."""
+    e7 = round(deg * 1e7)
+    whole = int(e7 / 1e7)
+    return whole, e7 - whole * 10_000_000
 
 
 def _here(items: Any, plugged: Collection[str]) -> list[Any]:
