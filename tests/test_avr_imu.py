@@ -150,6 +150,25 @@ def test_a_bus_fault_is_said_once_a_kind_counted_and_the_chip_set_up_again(
     assert len(lines) == 2  # (counted, never said again)
 
 
+def test_a_burst_is_one_sample_when_the_link_cannot_carry_them_all(
+    imu: tuple[AvrSim, Board, Samples],
+) -> None:
+    """1000 bursts a second, ~120 SIFs of 7 channels the link carries: the older sample that
+    has no room when a new burst comes is dropped whole.  Dropping only the channel being
+    written tore it: the next channel found room (the UART had drained a byte), went out beside
+    older values, and the rest followed with N/A in front (an Imu with NaN acceleration)."""
+    _sim, board, _s = imu
+    sifs: list[tuple[float, ...]] = []
+    board.on_sif(0, lambda sif, _rx: sifs.append(struct.unpack("<" + "Qf" * 7, sif.payload)))
+    board.configure({"imu.rate_hz": 1000})
+    assert wait_for(lambda: len(sifs) >= 400, 30)
+    got = sifs[20:400]  # (after the rate took)
+    span_us = got[-1][0] - got[0][0]
+    assert len(got) < span_us / 1000 / 2  # most bursts had no room: the drop path ran
+    torn = [f for f in got if len(set(f[0::2])) != 1 or 0 < sum(map(math.isnan, f[1::2])) < 7]
+    assert torn == [], f"{len(torn)} of {len(got)} samples torn: {torn[:3]}"
+
+
 @pytest.mark.micropython
 def test_the_same_descriptor_keys_and_values_as_the_micropython_firmware(
     imu: tuple[AvrSim, Board, Samples],

@@ -9,7 +9,8 @@
  * drivers run, then writes each transducer with new values as one sample SIF, but only when the
  * TX ring has room for the SIF's worst case: a SIF never waits and never splits a reply.  A value
  * that arrives on a channel that still holds an unsent one flushes that SIF first; if the ring
- * is full then, the older value is dropped and counted (sifs_dropped): the newest value wins,
+ * is full then, that older SIF is dropped whole and counted (sifs_dropped): the newest sample
+ * wins, a sample is never torn (the Python runtime's queue drops its oldest SIF whole too), and
  * every loss has a number.
  *
  * Function table order and every reply byte follow the Python runtime (board/runtime.py), so
@@ -328,11 +329,15 @@ uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *
     return 1;
 }
 
+/* A value on a channel that holds an unsent one: that SIF goes first, or, with no room for it,
+ * is dropped whole.  Dropping the one channel tore a sample: the next channel's flush could find
+ * room (the UART drained a byte meanwhile) and send the new value beside the older ones, the
+ * rest following with N/A where the new ones had been sent (an MPU-6050 burst as two SIFs). */
 static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint32_t stamp) {
     if (t->pending & (1u << ch)) {
-        if (!flush_sif(t, clock_widen(stamp))) { /* no room: the older value goes, counted */
+        if (!flush_sif(t, clock_widen(stamp))) { /* no room: the older SIF goes, counted */
             sifs_dropped++;
-            t->pending &= (uint16_t)~(1u << ch);
+            t->pending = 0;
         }
     }
     t->stamps[ch] = stamp;
