@@ -41,7 +41,7 @@ from ..delegate import Delegate
 from ..logs import ErrorCounts
 from .front_door import FrontDoor
 from .loop_server import LoopServer
-from .outbox import Outbox
+from .outbox import Outbox, PeerLife
 
 log = logging.getLogger(__name__)
 
@@ -154,8 +154,6 @@ class LiveView(LoopServer):
         return self.door.check(connection, request, len(self._clients))
 
     async def _handle(self, ws: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
-
         client = _Client(ws)
         info = {"op": "serverInfo", "name": self.name, "capabilities": [],
                 "metadata": {}, "sessionId": self._session}  # fmt: skip
@@ -164,21 +162,12 @@ class LiveView(LoopServer):
             channels = list(self._channels.values())
         client.urgent.append(json.dumps({"op": "advertise", "channels": channels}))
         client.wake.set()
-        self._clients.add(client)
-        writer = asyncio.ensure_future(client.write(self.faults, "client writer"))
-        try:
+        async with PeerLife(self.faults, "client") as life:  # (what ends it ends this client only)
+            life.join(client, self._clients)
             async for msg in ws:
                 if not self._take(client, msg):
                     self.dropped_messages += 1
                     log.warning("foxglove: a client message dropped (not a view operation)")
-        except (ConnectionClosed, OSError):  # a client's broken connection ends the client only
-            pass
-        except Exception as e:  # noqa: BLE001 - a bug serving a client ends that client only:
-            self.faults.caught("client", e)  # counted, said once
-        finally:
-            self._clients.discard(client)
-            writer.cancel()
-            await asyncio.gather(writer, return_exceptions=True)
 
     def _advertise(self, channels: list[dict[str, Any]]) -> None:
         msg = json.dumps({"op": "advertise", "channels": channels})

@@ -47,7 +47,7 @@ from ..text import safe_text
 from ..topics import Command
 from .front_door import FrontDoor
 from .loop_server import LoopServer
-from .outbox import Outbox
+from .outbox import Outbox, PeerLife
 from .web_auth import AUTH_S, CLOSE_UNAUTHENTICATED, Logins
 from .web_model import ConsoleModel
 
@@ -221,11 +221,8 @@ class WebServer(LoopServer):
 
     # ---- a page's WebSocket -------------------------------------------------------------------
     async def _handle(self, ws: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
-
         page = Outbox(ws)
-        writer: asyncio.Future[None] | None = None
-        try:
+        async with PeerLife(self.faults, "page") as life:  # (what ends it ends this page only)
             if not await self._admitted(ws):
                 await ws.close(CLOSE_UNAUTHENTICATED, "log in first")
                 return
@@ -236,8 +233,7 @@ class WebServer(LoopServer):
                      **self.model.snapshot()}  # fmt: skip
             page.out.append(json.dumps(hello, separators=(",", ":")))
             page.wake.set()
-            self._pages.add(page)
-            writer = asyncio.ensure_future(page.write(self.faults, "page writer"))
+            life.join(page, self._pages)
             async for msg in ws:
                 reply = await self._take(msg)
                 if reply is None:
@@ -250,15 +246,6 @@ class WebServer(LoopServer):
                 else:
                     page.out.append(json.dumps(reply))
                     page.wake.set()
-        except (ConnectionClosed, OSError):  # a page's broken connection ends that page only
-            pass
-        except Exception as e:  # noqa: BLE001 - a bug serving a page ends that page only:
-            self.faults.caught("page", e)  # counted, said once
-        finally:
-            self._pages.discard(page)
-            if writer is not None:
-                writer.cancel()
-                await asyncio.gather(writer, return_exceptions=True)
 
     def _origin_of(self, request: Any) -> str | None:
         """The page's origin a login comes from: its ``Origin``, or this console's own where
