@@ -8,6 +8,7 @@ line naming the key now, or, within the bounds, runs: every feed call is integer
 from __future__ import annotations
 
 import ast
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ import pytest
 
 from missing_link.errors import ConfigError
 from missing_link.virtual.worldlink import WorldLink
+from missing_link.world.sensing import ImuReading
 from missing_link.world.world import World
 from missing_link.world.worldfile import WorldFileError, parse
 
@@ -100,3 +102,32 @@ def test_the_largest_numbers_a_world_takes_still_feed_integers() -> None:
             ("place", {"x_m": far, "y_m": -far, "yaw_deg": far}),
         ),
     )
+
+
+class _Unreadable(World):
+    """The rover's world, but its IMU reads NaN and a turn rate beyond any small integer and its
+    sonar infinity on every other step (a model that went wrong): the link's own guard."""
+
+    def step(self, until_us: int, act: Any) -> Any:
+        frame = super().step(until_us, act)
+        if frame.t_us // round(self.spec.tick_ms * 1000) % 2:
+            frame.imus["imu"] = ImuReading((math.nan, 0.0, 9.8), (0.0, 0.0, 1e30), 20.0)
+            frame.ranges["sonar"] = math.inf
+        return frame
+
+
+def test_a_reading_that_is_no_small_integer_is_not_fed_and_is_counted() -> None:
+    world = _Unreadable(parse("", "room.toml"), ROVER, 0)
+    link = WorldLink(world, ROVER)
+    values = [0 for _ in link.reads]
+    fed: list[tuple[str, tuple[int, ...]]] = []
+    now = link.due_us()
+    for _ in range(10):
+        calls, _edges = link.tick(now, values)
+        fed += calls
+        now = link.due_us()
+    imu, sonar = link.index["imu"], link.index["sonar"]
+    assert [a for fn, a in fed if fn == "imu" and a[0] == imu]  # (the steps between: fed)
+    assert all(abs(v) < 1 << 30 for _fn, args in fed for v in args)
+    assert link.state()["readings_dropped"] == 10  # (five steps' IMU and sonar each)
+    assert [a for fn, a in fed if fn == "ranger" and a[0] == sonar]

@@ -37,6 +37,8 @@ Call = tuple[str, tuple[int, ...]]
 #: an encoder edge: (board µs, pin A, pin B, +1 | -1)
 Edge = tuple[int, int, int, int]
 MODES = ("coast", "drive", "brake", "shoot-through")
+#: a reading's integers are below this in size: MicroPython's small integers on a 32-bit port
+SMALL_INT = 1 << 30
 
 
 def _kind(p: Part) -> int:
@@ -68,6 +70,7 @@ class WorldLink:
         self._lock = threading.Lock()
         self._off: set[str] = set()
         self._sent: dict[tuple[str, int], tuple[int, ...]] = {}  # (fn, part) -> what it was fed
+        self.dropped = 0  #: readings not fed: not finite, or beyond a small integer
 
     def attach(self) -> list[Call]:
         """worldfeed.attach's calls: each part's number, its transducer's in the board file,
@@ -101,7 +104,7 @@ class WorldLink:
 
     def state(self) -> dict[str, Any]:
         with self._lock:
-            return self.world.state()
+            return {**self.world.state(), "readings_dropped": self.dropped}
 
     # ---- integers to and from the simulator ----
     def _actuation(self, values: list[int]) -> Actuation:
@@ -134,24 +137,44 @@ class WorldLink:
         for name in silent ^ self._off:  # (failed or back: said once)
             calls.append(("off", (self.index[name], 1 if name in silent else 0)))
         self._off = silent
+        readings: list[tuple[str, str, list[float]]] = []
         for name, metres in _here(frame.ranges.items(), self.index):
-            mm = -1 if metres is None else round(metres * 1000)
-            calls.append(("ranger", (self.index[name], mm)))
+            readings.append(("ranger", name, [-1.0 if metres is None else metres * 1000]))
         for name, imu in _here(frame.imus.items(), self.index):
-            a = [round(v / 9.80665 * 16384) for v in imu.accel]
-            g = [round(math.degrees(v) * 131) for v in imu.gyro]
-            calls.append(("imu", (self.index[name], *a, *g)))
+            readings.append(("imu", name, [v / 9.80665 * 16384 for v in imu.accel]
+                             + [math.degrees(v) * 131 for v in imu.gyro]))  # fmt: skip
         for name, gauss in _here(frame.fields.items(), self.index):
-            calls.append(("field", (self.index[name], *(round(v * 12000) for v in gauss))))
+            readings.append(("field", name, [v * 12000 for v in gauss]))
         for name, fix in _here(frame.fixes.items(), self.index):
-            lat, lon = _split(fix.latitude_deg), _split(fix.longitude_deg)
-            knots = fix.speed_m_s * 3600 / 1852
-            calls.append(("fix", (self.index[name], *lat, *lon, round(fix.altitude_m * 10),
-                                  round(knots * 10), round(fix.course_deg * 10) % 3600,
-                                  fix.satellites, round(fix.hdop * 10))))  # fmt: skip
+            readings.append(("fix", name, _fix(fix)))
         for name, volts in _here(frame.volts.items(), self.index):
-            calls.append(("volts", (self.index[name], round(volts * 1000))))
+            readings.append(("volts", name, [volts * 1000]))
+        for fn, name, values in readings:
+            args = _small_ints(values)
+            if args is None:  # (not a number a part holds: it keeps its last reading)
+                self.dropped += 1
+            else:
+                calls.append((fn, (self.index[name], *args)))
         return calls
+
+
+def _fix(fix: Any) -> list[float]:
+    """A fix as worldfeed.fix's numbers (its whole degrees and 1e-7 degree split here)."""
+    if not (math.isfinite(fix.latitude_deg) and math.isfinite(fix.longitude_deg)):
+        return [math.nan]
+    lat, lon = _split(fix.latitude_deg), _split(fix.longitude_deg)
+    knots = fix.speed_m_s * 3600 / 1852
+    course = round(fix.course_deg * 10) % 3600 if math.isfinite(fix.course_deg) else math.nan
+    return [*lat, *lon, fix.altitude_m * 10, knots * 10, course, fix.satellites, fix.hdop * 10]
+
+
+def _small_ints(values: list[float]) -> tuple[int, ...] | None:
+    """``values`` rounded, or None when one is not finite or not a small integer of a 32-bit
+    MicroPython (|v| < 2^30: a larger one would be an object in the board's heap)."""
+    if not all(map(math.isfinite, values)):
+        return None
+    out = tuple(map(round, values))
+    return out if min(out) >= -SMALL_INT and max(out) < SMALL_INT else None
 
 
 def _split(deg: float) -> tuple[int, int]:

@@ -50,8 +50,7 @@
 // host, the same run.  Control lines {"sim": "time"} (simulated µs since the start), "held"
 // (whether --lead-ms holds it now), "gc" (the collections: fastclock.mjs).  (A board started
 // from its flash is loaded as flashboot.py loads it, not a module a call.)
-import { existsSync, mkdirSync, readFileSync, readdirSync, renameSync, rmSync, statSync,
-  writeFileSync } from "node:fs";
+import { existsSync, mkdirSync, readFileSync, renameSync, rmSync, writeFileSync } from "node:fs";
 import { connect as dialTcp, createServer } from "node:net";
 import { createInterface } from "node:readline";
 import { dirname, join, posix } from "node:path";
