@@ -281,7 +281,7 @@ def _avr_world(server: Any, spec: Any, board: dict[str, Any], seed: int, absent:
 
     try:
         world = World(spec, board, sim_us(server.ctl), seed)
-        hand = AvrWorld(WorldLink(world, board, absent), server.ctl,
+        hand = AvrWorld(WorldLink(world, board, absent), server.ctl_lines,
                         board.get("transducers", []), absent)  # fmt: skip
         hand.start()
     except BaseException:

@@ -82,13 +82,21 @@ class AvrBoard:
 
     def ctl(self, line: str, timeout: float = 10.0) -> str:
         """One line to the rig's control channel, its answer (rig.h: the parts' lines)."""
+        return self.ctl_lines([line], timeout)[0]
+
+    def ctl_lines(self, lines: list[str], timeout: float = 10.0) -> list[str]:
+        """Lines to the rig's control channel at once, their answers in order: one round trip
+        (the rig takes every line it has between two runs of the AVR)."""
         assert self.proc.stdin is not None
         with self._lock:
-            self.proc.stdin.write(line + "\n")
+            self.proc.stdin.write("".join(line + "\n" for line in lines))
             self.proc.stdin.flush()
-            got = self.lines.get(timeout=timeout)
-        if got is None:
-            raise FirmwareStopped("the rig ended")
+            got: list[str] = []
+            while len(got) < len(lines):
+                answer = self.lines.get(timeout=timeout)
+                if answer is None:
+                    raise FirmwareStopped("the rig ended")
+                got.append(answer)
         return got
 
     def serve_forever(self) -> None:

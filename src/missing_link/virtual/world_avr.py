@@ -5,18 +5,19 @@ rig's control lines (firmware/avr/sim/*.h), as the rig's own models do without a
 Theory of operation
 -------------------
 At start every wheel of the rig is taken from the rig's own motor model (``wheel K off``,
-motor.h): from then on only the world turns its encoder.  A thread of its own (``world``) reads
-the simulation's time (``stats``: simavr's µs, never the host's clock) and, when it has reached
-the world's next tick, reads the motors' drives (``motor``: duty and direction, as the rig's
-model reads them from Timer0's outputs) and the stepper, ticks the world link with them, and
-puts what the world says into the parts: a ranger's target (``hcsr04 MM``, ``srf02 CM``,
-``sharp MM``), the IMU's specific force and turn rate in SI (``imu K ...``), the battery's
-voltage at its ADC pin through its divider (``ain CH MV``), a part that fails silent taken off
-the bus (``imu_absent``, ``srf02_absent``), and each encoder's edges of the tick as one
-``enc K STEPS`` (the rig makes them 100 µs apart from then: they come at the tick, not at their
-own times).  Then it sleeps until the next tick's simulated time (simavr runs paced to the
+motor.h): from then on only the world turns its encoder. A thread of its own (``world``) reads
+the simulation's time (``stats``: simavr's µs, never the host's clock) with the motors' drives
+(``motor``: duty and direction, as the rig's model reads them from Timer0's outputs) and the
+stepper, in one round trip (the rig takes every line it has between two runs of the AVR); once
+the time has reached the world's next tick, it ticks the world link with those drives, and puts
+what the world says into the parts, again in one round trip: a ranger's target (``hcsr04 MM``,
+``srf02 CM``, ``sharp MM``), the IMU's specific force and turn rate in SI (``imu K ...``), the
+battery's voltage at its ADC pin through its divider (``ain CH MV``), a part that fails silent
+taken off the bus (``imu_absent``, ``srf02_absent``), and each encoder's edges of the tick as
+one ``enc K STEPS`` (the rig makes them 100 µs apart from then: they come at the tick, not at
+their own times). Then it sleeps until the next tick's simulated time (simavr runs paced to the
 host's clock, so a simulated ms takes about a real one); a tick that comes late first runs the
-world up to the simulation's time (worldlink.py).  The rig ending ends the thread.
+world up to the simulation's time (worldlink.py). The rig ending ends the thread.
 
 What the rig has no control line for is not fed: the GPS's position (its fix stays where the
 rig's model puts it), a compass (the rig has none), a VL53L0X.
@@ -33,25 +34,32 @@ from typing import Any
 from .worldlink import WorldLink
 
 G = 9.80665
+#: how far past a tick's time the world sleeps (s): a tick a little late costs nothing (the
+#: world runs up to the simulation's time first), asking for the time again costs a round trip
+LATE_S = 0.0005
 #: the world link's integers back to SI (worldlink.py: the MPU-6050's LSB at +-2 g, +-250 deg/s)
 ACCEL_LSB, GYRO_LSB = 16384 / G, 131.0
 
 
 def sim_us(ctl: Callable[[str], str]) -> int:
     """The simulation's time, simavr's µs since the rig started (its ``stats`` line)."""
-    words = ctl("stats").split()
+    return _stats_us(ctl("stats"))
+
+
+def _stats_us(stats: str) -> int:
+    words = stats.split()
     return int(words[words.index("sim_us") + 1])
 
 
 class AvrWorld:
-    """``link``'s world on the rig answering ``ctl`` (AvrBoard.ctl: one line in, one out), for
-    the board file's ``transducers`` (the rig numbers each kind's parts in their order, the
-    ``absent`` ones left out: deploy/avrsim.rig_parts)."""
+    """``link``'s world on the rig answering ``ctl`` (AvrBoard.ctl_lines: lines in, as many
+    out, one round trip), for the board file's ``transducers`` (the rig numbers each kind's
+    parts in their order, the ``absent`` ones left out: deploy/avrsim.rig_parts)."""
 
     def __init__(
         self,
         link: WorldLink,
-        ctl: Callable[[str], str],
+        ctl: Callable[[list[str]], list[str]],
         transducers: list[dict[str, Any]],
         absent: Collection[str] = (),
     ) -> None:
@@ -65,6 +73,9 @@ class AvrWorld:
                 self.k[t["name"]] = k
         self.wheels = min(sum(t["driver"] == d for t in here) for d in ("quadrature", "hbridge"))
         self.enc_of_pin = {a: self.k[name] for name, (a, _b) in link.pins.items()}
+        #: what is asked before each tick: the simulation's time, the drives, the stepper's
+        self.asks = ["stats", "motor"] + (["stepper"] if any(
+            fn == "stepper" for fn, _a in link.reads) else [])  # fmt: skip
         self.ticks = 0
         self.failed: str | None = None
         self._stop = threading.Event()
@@ -78,8 +89,7 @@ class AvrWorld:
         return self.link.state()
 
     def start(self) -> None:
-        for k in range(self.wheels):
-            self.ctl(f"wheel {k} off")
+        self.ctl([f"wheel {k} off" for k in range(self.wheels)])
         self._thread.start()
 
     def stop(self) -> None:
@@ -88,34 +98,36 @@ class AvrWorld:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                now = sim_us(self.ctl)
+                got = self.ctl(self.asks)
+                now = _stats_us(got[0])
                 due = self.link.due_us()
-                if now < due:
-                    time.sleep(min(0.01, (due - now) / 1e6))
+                if now < due:  # (paced: a simulated µs takes about a real one; a little
+                    # past it, not to ask twice)
+                    time.sleep(min(0.02, (due - now) / 1e6 + LATE_S))
                     continue
-                self.tick(now)
+                self.tick(now, self._reads(got[1], got[2] if len(got) > 2 else "stepper 0 0"))
         except Exception as e:  # noqa: BLE001 - the rig ended (power off, a crash): said once
             self.failed = f"{type(e).__name__}: {e}"
 
-    def tick(self, now: int) -> None:
-        calls, edges = self.link.tick(now, self._reads())
-        for fn, args in calls:
-            for line in self._lines(fn, args):
-                self.ctl(line)
+    def tick(self, now: int, values: list[int]) -> None:
+        """The world's tick at ``now`` under the actuators' ``values`` (worldlink.py's reads),
+        what it says put into the rig's parts in one round trip."""
+        calls, edges = self.link.tick(now, values)
+        lines = [line for fn, args in calls for line in self._lines(fn, args)]
         steps: dict[int, int] = {}
         for _t, a, _b, d in edges:
             k = self.enc_of_pin[a]
             steps[k] = steps.get(k, 0) + d
-        for k, n in sorted(steps.items()):
-            if n:
-                self.ctl(f"enc {k} {n}")
+        lines += [f"enc {k} {n}" for k, n in sorted(steps.items()) if n]
+        if lines:
+            self.ctl(lines)
         self.ticks += 1
 
-    def _reads(self) -> list[int]:
-        """The integers worldlink.py's reads ask for, from the rig's lines."""
-        drives = self.ctl("motor").split()[1:]  # (D0 R0 D1 R1 ...: each motor's drive)
-        stepper = self.ctl("stepper").split()[1:] if any(
-            fn == "stepper" for fn, _a in self.link.reads) else ["0", "0"]  # fmt: skip
+    def _reads(self, motor: str, stepper: str) -> list[int]:
+        """The integers worldlink.py's reads ask for, from the rig's ``motor`` and ``stepper``
+        lines."""
+        drives = motor.split()[1:]  # (D0 R0 D1 R1 ...: each motor's drive)
+        steps = stepper.split()[1:]
         out = []
         for fn, (i,) in self.link.reads:
             name = self.link.parts[i].name
@@ -126,9 +138,9 @@ class AvrWorld:
             elif fn == "servo":
                 out.append(-1)  # (the rig measures its pulse, it does not hand it on: none)
             elif fn == "stepper":
-                out.append(int(stepper[0]))
+                out.append(int(steps[0]))
             else:  # stepper_on
-                out.append(int(stepper[1]))
+                out.append(int(steps[1]))
         return out
 
     def _lines(self, fn: str, args: tuple[int, ...]) -> list[str]:

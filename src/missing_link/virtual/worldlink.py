@@ -87,8 +87,8 @@ class WorldLink:
         act = self._actuation(values)
         edges: list[Edge] = []
         with self._lock:
-            if now_us > self.world.t_us:  # (late: the stretch up to now first)
-                edges += self._edges(self.world.step(now_us, act))
+            if now_us > self.world.t_us:  # (late: the stretch up to now first, unread)
+                edges += self._edges(self.world.step(now_us, act, read=False))
             frame = self.world.step(now_us + self.tick_us, act)
         self.next_us = now_us + self.tick_us
         calls = [

@@ -15,8 +15,10 @@ motors turn the wheels (motion.py), the body rolls and meets the walls, the batt
 servos and steppers turn at their speed limits, and every encoder edge on the way is put in the
 frame with its time, so the runtime delivers each as a pin interrupt when the simulation gets
 there.  Readings describe the tick's start and edges its run to the end: nothing the board sees
-comes before its cause.  Every part draws its noise every step whatever it reads, so its
-random stream, and the run, depend only on the seed, the world file and the commands.
+comes before its cause.  Every part draws its noise every step that reads whatever it reads, so
+its random stream, and the run, depend only on the seed, the world file and the commands (and
+the times the runtime ticks at: a step that only catches up with a runtime come late reads
+nothing, draws nothing).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from .sensing import Beam, GpsError, GpsReading, ImuReading
 from .spec import Event, WorldSpec
 from .worldfile import WorldFileError, hand
 
-SUBSTEP_US = 2000
+SUBSTEP_US = 5000
 SENSORS = ("ranger", "imu", "compass", "gps", "battery", "encoder")
 
 
@@ -120,11 +122,12 @@ class World:
     def now_s(self) -> float:
         return (self.t_us - self.start_us) / 1e6
 
-    def step(self, until_us: int, act: Actuation) -> Frame:
-        """Read the sensors now, then run the world to ``until_us`` under ``act``."""
+    def step(self, until_us: int, act: Actuation, read: bool = True) -> Frame:
+        """Read the sensors now (``read``; else the frame has the edges alone), then run the
+        world to ``until_us`` under ``act``."""
         t0 = self.t_us
         self._due()
-        frame = self._read(t0, max(t0, until_us))
+        frame = self._read(t0, max(t0, until_us)) if read else self._unread(t0, until_us)
         t = t0
         while t < until_us:
             dt_us = min(SUBSTEP_US, until_us - t)
@@ -247,6 +250,10 @@ class World:
         edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
         return Frame(t0, until, edges, ranges, imus, fields, fixes, volts, failed)
 
+    def _unread(self, t0: int, until: int) -> Frame:
+        edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
+        return Frame(t0, max(t0, until), edges, {}, {}, {}, {}, {}, {})
+
     def pack_volts(self) -> float:
         bat = self.spec.battery
         return bat.cells * sensing.cell_volts(self.charge) - self.current * bat.internal_ohm
@@ -270,16 +277,20 @@ class World:
                 back = -1 if enc in self.mirrored else 1
                 for frac, d in motion.crossings(before, wheel.angle, self.per_rad[enc]):
                     edges[enc].append((t + max(1, round(frac * dt_us)), d * back))
-        now, after = (t - self.start_us) / 1e6, (t + dt_us - self.start_us) / 1e6
-        shares = [(m, m.share(now, after)) for m in self.imposed]
-        imposed = tuple(sum(getattr(m, k) * s for m, s in shares)
-                        for k in ("dx", "dy", "dyaw", "droll", "dpitch"))  # fmt: skip
-        dx, dy, dyaw, droll, dpitch = imposed
-        motion.step(self.body, dt, (rolled[0], rolled[1]), g, (dx, dy, dyaw, droll, dpitch),
-                    self.walls, self.spec.body_radius_m)  # fmt: skip
+        imposed = self._imposed(t, dt_us) if self.imposed else (0.0, 0.0, 0.0, 0.0, 0.0)
+        motion.step(self.body, dt, (rolled[0], rolled[1]), g, imposed, self.walls,
+                    self.spec.body_radius_m)  # fmt: skip
         self.current = current
         self.charge = max(0.0, self.charge - current * dt / (3600 * self.spec.battery.capacity_ah))
         self._turn_parts(dt, act)
+
+    def _imposed(self, t: int, dt_us: int) -> tuple[float, float, float, float, float]:
+        """What the motions imposed from outside move the body by in the substep at ``t``."""
+        now, after = (t - self.start_us) / 1e6, (t + dt_us - self.start_us) / 1e6
+        shares = [(m, m.share(now, after)) for m in self.imposed]
+        keys = ("dx", "dy", "dyaw", "droll", "dpitch")
+        dx, dy, dyaw, droll, dpitch = (sum(getattr(m, k) * s for m, s in shares) for k in keys)
+        return dx, dy, dyaw, droll, dpitch
 
     def _motor_current(self, duty: float, speed: float) -> float:
         """A motor's current: its free-running current at that duty, and up to its stall

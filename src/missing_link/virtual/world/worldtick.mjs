@@ -80,12 +80,13 @@ export class WorldTick {
     this.reads = [];
     this.tickUs = 10000;
     this.buf = Buffer.alloc(0);
+    this.chunk = Buffer.alloc(65536); // (one, read into each time: not 64 KiB of garbage a tick)
     this.ticks = 0;
     this.delivered = 0;
   }
 
   line() {
-    const chunk = Buffer.alloc(65536);
+    const chunk = this.chunk;
     for (;;) {
       const at = this.buf.indexOf(10);
       if (at >= 0) {
@@ -101,7 +102,7 @@ export class WorldTick {
         throw e;
       }
       if (n === 0) throw new Error("the world went away");
-      this.buf = Buffer.concat([this.buf, chunk.subarray(0, n)]);
+      this.buf = Buffer.concat([this.buf, chunk.subarray(0, n)]); // (a copy: chunk is reused)
     }
   }
 
