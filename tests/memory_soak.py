@@ -38,6 +38,7 @@ from missing_link.j2a import SifReceived
 from missing_link.testing import FakeClock
 from missing_link.transport import Transport, open_transport
 from missing_link.transport.base import Received
+from missing_link.virtual.world_mpy import NodeWorld
 
 from .helpers import FirmwareSim, start_with_lines
 
@@ -64,14 +65,23 @@ class FastSim(FirmwareSim):
     lockstep with its host (``lead_ms`` None) or ``lead_ms`` ahead of it at most."""
 
     def __init__(
-        self, board_file: Path, heap: int, lead_ms: int | None = None, seed: int = 1
+        self,
+        board_file: Path,
+        heap: int,
+        lead_ms: int | None = None,
+        seed: int = 1,
+        world: NodeWorld | None = None,
     ) -> None:
         if shutil.which("node") is None:
             raise RuntimeError("node is required: run `make node`")
         cmd = ["node", str(self.HOST), str(board_file), "--heap", str(heap), "--fast"]
         cmd += ["--lockstep"] if lead_ms is None else ["--lead-ms", str(lead_ms)]
-        cmd += ["--seed", str(seed)]
-        self.proc, self._lines = start_with_lines(cmd, cwd=self.ROOT)
+        cmd += ["--seed", str(seed)] + (world.node_args() if world else [])
+        self.proc, self._lines = start_with_lines(
+            cmd, cwd=self.ROOT, pass_fds=world.pass_fds if world else ()
+        )
+        if world is not None:  # (beside the firmware, in this process: world_mpy.py)
+            world.started()
         self.stderr: list[str] = []  # (read as it comes: a full pipe would stall the simulation)
         pump = threading.Thread(target=self._pump_stderr, daemon=True)
         pump.start()
@@ -205,6 +215,7 @@ class SoakResult:
     board_us: int  #: simulated µs the host saw pass on the board's clock
     samples: Counter[str] = field(default_factory=Counter)  #: decoded samples per transducer
     valid: Counter[str] = field(default_factory=Counter)  #: ... with a value (not N/A)
+    stamps: dict[str, list[int]] = field(default_factory=dict)  #: board µs of each sample
     maps: list[int] = field(default_factory=list)  #: board µs by when each host map was in
     memory: MemoryStatus = field(default_factory=MemoryStatus)
     align: tuple[int, ...] = ()  #: a2jAlignInfo
@@ -235,6 +246,7 @@ def soak(
             if on_sif is not None:
                 on_sif(ev)
             if got:
+                res.stamps.setdefault(names[ev.cmd], []).append(got[0].board_us)
                 res.samples[names[ev.cmd]] += 1
                 res.valid[names[ev.cmd]] += any(s.value is not None for s in got)
 

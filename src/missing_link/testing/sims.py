@@ -43,13 +43,13 @@ def pump_lines(proc: subprocess.Popen[str], into: queue.Queue[str | None]) -> No
 
 
 def start_with_lines(
-    cmd: list[str], cwd: Path | None = None
+    cmd: list[str], cwd: Path | None = None, pass_fds: tuple[int, ...] = ()
 ) -> tuple[subprocess.Popen[str], queue.Queue[str | None]]:
-    """Start ``cmd`` with its stdin, stdout and stderr piped (text); the child, and a queue of
-    its stdout lines as they come (pump_lines)."""
+    """Start ``cmd`` with its stdin, stdout and stderr piped (text) and ``pass_fds`` passed on;
+    the child, and a queue of its stdout lines as they come (pump_lines)."""
     proc = subprocess.Popen(
         cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=cwd,
+        cwd=cwd, pass_fds=pass_fds,
     )  # fmt: skip
     lines: queue.Queue[str | None] = queue.Queue()
     pump_lines(proc, lines)

@@ -1,0 +1,94 @@
+"""The world beside the firmware, not in it (issue 47.6): the rover's MicroPython firmware in a
+Raspberry Pi Pico's heap, in simulated time and in lockstep with its host (memory_soak.py:
+host.mjs --heap --fast --lockstep), served the same way with its world beside it and with
+none, shows the same heap, the same collections and the same sample timing.
+
+The world runs in this process (world_mpy.py) and reaches the firmware's devices between its
+steps with small integers only; the simulated clock moves on by what the firmware's own work
+costs (simcost.py), never by the world's.  The world puts the rover 1 m before a wall, where
+the simulator's parts put their target without a world (pin_devices.py, i2c_devices.py), so
+the firmware does the same work in both: what differs is only what its sensors read.  Same
+host, same commands, same simulated seconds: the figures are statements about the firmware, on
+a quiet machine or a busy one."""
+
+from __future__ import annotations
+
+import ast
+import itertools
+import statistics
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from missing_link.deploy.heap import FREE_HEAP
+from missing_link.virtual.world_mpy import NodeWorld
+from missing_link.world.worldfile import parse
+
+from .memory_soak import FastSim, SoakResult, soak
+
+ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.py"
+BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[1])
+PICO = FREE_HEAP["rp2040"].bytes
+SECONDS = 20
+NEAR_WALL = "[start]\nx_m = 3.88\n"  # (its rangers' front edge 1 m from the wall ahead)
+HEAP_SLACK = 1024  # B: a few allocations (measured: 160)
+JITTER_US = 100  # (measured: 16 at most; a sample is 20 ms apart at the most)
+pytestmark = [pytest.mark.micropython, pytest.mark.slow]
+
+
+def _soaked(world: bool) -> tuple[SoakResult, dict[str, Any], NodeWorld | None]:
+    beside = NodeWorld(parse(NEAR_WALL, "near-wall.toml"), BOARD, 0, frozenset()) if world else None
+    sim = FastSim(ROVER, PICO, world=beside)
+    try:
+        res = soak(sim, SECONDS, ["compass", "wheel_l", "wheel_r"])
+        gc = sim.figure("gc")
+        assert sim.ctl("result = 1") == 1  # (the firmware still steps)
+    finally:
+        sim.close()
+    return res, gc, beside
+
+
+@pytest.fixture(scope="module")
+def both() -> dict[bool, tuple[SoakResult, dict[str, Any], NodeWorld | None]]:
+    return {world: _soaked(world) for world in (False, True)}
+
+
+def _periods(stamps: list[int]) -> list[int]:
+    return [b - a for a, b in itertools.pairwise(stamps)]
+
+
+def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> None:
+    res, _gc, world = both[True]
+    assert world is not None and world.link is not None and world.failed is None
+    assert world.link.world.now_s() >= SECONDS  # (it ticked all along, in simulated time)
+    assert res.valid["imu"] > 0 and res.valid["sonar"] > 0
+
+
+def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without(
+    both: dict[bool, Any],
+) -> None:
+    """The same collections, at the same cost within a block or two, the heap's lowest within
+    a few allocations (what the firmware makes of what it reads: a fix's digits, a number's
+    size) and the same simulated seconds: the world took no simulated time of the board's."""
+    (without, gc0, _), (beside, gc1, _) = both[False], both[True]
+    m0, m1 = without.memory, beside.memory
+    assert m1.gc_collections == m0.gc_collections and gc1["collections"] == gc0["collections"]
+    assert m0.heap_free_low is not None and m1.heap_free_low is not None
+    assert abs(m1.heap_free_low - m0.heap_free_low) <= HEAP_SLACK, (m0, m1)
+    assert max(abs(a - b) for a, b in zip(gc0["us"], gc1["us"], strict=True)) <= 20
+    assert beside.board_us // 1000 == without.board_us // 1000
+
+
+@pytest.mark.parametrize("name", ["imu", "compass", "wheel_l", "sonar", "tof", "gps"])
+def test_each_sensors_sample_timing_is_the_same_with_its_world_and_without(
+    both: dict[bool, Any], name: str
+) -> None:
+    """Every sample in its place: as many, the same mean period, and the shortest and longest
+    within JITTER_US of each other's (each step's cost is its work's, and that work reads
+    other numbers)."""
+    without, beside = both[False][0], both[True][0]
+    p0, p1 = _periods(without.stamps[name]), _periods(beside.stamps[name])
+    assert len(p1) == len(p0) >= SECONDS - 2  # (the GPS: once a second)
+    assert statistics.mean(p1) == pytest.approx(statistics.mean(p0), abs=JITTER_US / 10)
+    assert abs(max(p1) - max(p0)) <= JITTER_US and abs(min(p1) - min(p0)) <= JITTER_US
