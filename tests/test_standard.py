@@ -142,6 +142,23 @@ def test_imu_at_rest_reads_one_g_without_orientation_and_datasheet_noise() -> No
     assert t.temperature == 25.0 and t.header.frame_id == "bot/mpu6050"
 
 
+def test_an_imu_vector_with_an_na_axis_is_no_estimate_not_nan() -> None:
+    imu, _ = maps(of_driver("mpu6050"))
+    assert imu.sample is not None
+    # (the message's rule: element 0 of the covariance -1 means "disregard the estimate")
+    no_accel = [None, 0.0, G, 25.0, 0.1, 0.2, 0.3]
+    msg = decode(imu.sample([0, *[ns(1)] * 6], no_accel), "sensor_msgs/msg/Imu")
+    a, w = msg.linear_acceleration, msg.angular_velocity
+    assert (a.x, a.y, a.z) == (0.0, 0.0, 0.0) and msg.linear_acceleration_covariance[0] == -1
+    assert (w.x, w.y, w.z) == (0.1, 0.2, 0.3) and msg.angular_velocity_covariance[0] > 0
+    no_gyro = [0.0, 0.0, G, 25.0, 0.1, math.nan, 0.3]
+    msg = decode(imu.sample([ns(2)] * 7, no_gyro), "sensor_msgs/msg/Imu")
+    assert msg.angular_velocity_covariance[0] == -1 and msg.angular_velocity.y == 0.0
+    assert msg.linear_acceleration.z == G and msg.linear_acceleration_covariance[0] > 0
+    neither = [None, None, None, 25.0, None, None, 0.3]
+    assert imu.sample([0, 0, 0, ns(3), 0, 0, ns(3)], neither) is None
+
+
 def test_imu_covariance_follows_the_boards_range_and_filter() -> None:
     settings = {"mpu6050.accel_g": 2, "mpu6050.gyro_dps": 250, "mpu6050.dlpf": 3}
     imu, _ = maps(of_driver("mpu6050"), settings=lambda: settings)

@@ -3,8 +3,10 @@
 rad/s, all from one burst read: one instant).
 
 No orientation (the chip does not fuse): ``orientation_covariance[0] = -1`` as REP 145 / the
-message says.  The covariances are diagonal, from the datasheet (MPU-6000/6050 product
-specification rev 3.4) at the range and filter the board runs now (its run-time keys
+message says; an acceleration or angular velocity with an N/A axis is said the same way (the
+vector 0, its covariance's element 0 -1: "disregard the associated estimate"), and a sample
+with neither is not published.  The covariances are diagonal, from the datasheet (MPU-6000/6050
+product specification rev 3.4) at the range and filter the board runs now (its run-time keys
 ``accel_g``, ``gyro_dps``, ``dlpf``): noise density squared times the filter's bandwidth
 (register map rev 4.2, CONFIG), plus the quantisation of the range's LSB (LSB^2 / 12).  For the
 gyro at DLPF 2 (98 Hz) that is 0.005 deg/s/sqrt(Hz) x sqrt(98) = 0.05 deg/s rms, the
@@ -50,6 +52,7 @@ def build(c: Ctx) -> list[StandardMapping]:
     Quaternion, Temperature = c.T("geometry_msgs/msg/Quaternion"), c.T(TEMPERATURE)
     no_orientation = np.zeros(9, dtype=np.float64)
     no_orientation[0] = -1.0
+    no_estimate = no_orientation  # (the same -1 in element 0; never written to)
     cache: dict[tuple[Any, ...], tuple[Any, Any]] = {}
 
     def covariances() -> tuple[Any, Any]:
@@ -62,9 +65,17 @@ def build(c: Ctx) -> list[StandardMapping]:
 
     def imu(host_ns: list[int], values: list[Any]) -> bytes | None:
         ax, ay, az, _t, gx, gy, gz = (math.nan if v is None else float(v) for v in values)
-        if math.isnan(ax) and math.isnan(gx):
-            return None
         accel_cov, gyro_cov = covariances()
+        # an N/A on an axis: the vector is no estimate (covariance[0] = -1, as the message
+        # says; never a NaN a consumer would take for a reading); neither vector: no message
+        if any(map(math.isnan, (ax, ay, az))):
+            ax = ay = az = 0.0
+            accel_cov = no_estimate
+        if any(map(math.isnan, (gx, gy, gz))):
+            gx = gy = gz = 0.0
+            gyro_cov = no_estimate
+        if accel_cov is no_estimate and gyro_cov is no_estimate:
+            return None
         msg = Imu(
             header=c.header(max(host_ns)),
             orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=0.0),
