@@ -5,8 +5,8 @@ Every import counts (module level, inside functions, under ``TYPE_CHECKING``): a
 lazy at run time is still a circle for the reader.  The rooms, from the ground up (a room may
 import its own modules and any room on a lower floor, never one above):
 
-0. core: ``version``, ``errors``, ``text``, ``lazy``, ``delegate``, ``descriptors``, ``j2a/``,
-   ``timesync/``, ``board/`` (one floor: its rooms import each other, without a circle)
+0. core: ``version``, ``errors``, ``text``, ``lazy``, ``delegate``, ``closing``, ``descriptors``,
+   ``j2a/``, ``timesync/``, ``board/`` (one floor: its rooms import each other, without a circle)
 1. ``transport/`` (bytes by URL), ``ros/`` (ROS vocabulary, no I/O), ``world/`` (the world a
    virtual robot lives in: pure, no I/O)
 2. ``host/`` (one board from the host), ``topics`` (what the daemon hands publishers)
@@ -44,6 +44,7 @@ FLOORS = {
     "logs": 0,
     "lazy": 0,
     "delegate": 0,
+    "closing": 0,
     "descriptors": 0,
     "j2a": 0,
     "timesync": 0,

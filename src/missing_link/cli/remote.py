@@ -8,6 +8,7 @@ import os
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
+from ..closing import Closing
 from ..daemon.control.endpoint import ask, default_control_path
 from ..errors import BadURL, BoardError, ConfigError
 from ..host.board import Board
@@ -17,7 +18,7 @@ if TYPE_CHECKING:
     from ..descriptors import Transducer
 
 
-class RemoteBoard:
+class RemoteBoard(Closing):
     """What the CLI asks of a board, answered by the daemon that holds it."""
 
     def __init__(self, path: str, board: str, timeout: float) -> None:
@@ -84,12 +85,6 @@ class RemoteBoard:
 
     def close(self) -> None:
         pass
-
-    def __enter__(self) -> RemoteBoard:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def reach(target: str, timeout: float, *, describe: bool = True) -> Board | RemoteBoard:

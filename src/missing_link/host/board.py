@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
+from ..closing import Closing
 from ..delegate import Delegate
 from ..errors import (
     CallError,
@@ -43,7 +44,7 @@ TRANSFER_TIMEOUT = 120.0
 __all__ = ["HANDSHAKE_TIMEOUT", "Board", "CallResult", "LinkStats", "open_board"]
 
 
-class Board(LogLines):
+class Board(LogLines, Closing):
     """A connected J2A board (blocking API; its log: ``on_log``).  Use ``Board.open(url)``."""
 
     def __init__(
@@ -337,12 +338,6 @@ class Board(LogLines):
     def reset_config(self, erase_saved: bool = False) -> dict[str, Value]:
         """The board file's defaults again (``erase_saved``: forget the saved ones too)."""
         return self.settings.reset(erase_saved)
-
-    def __enter__(self) -> Board:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"<Board {self.name} at {self.url}>"

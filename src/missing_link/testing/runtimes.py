@@ -30,11 +30,12 @@ import subprocess
 import sys
 import threading
 import time
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
+from ..closing import Closing
 from ..errors import TransportClosed
 from ..host.board import Board
 from ..transport import Transport, open_transport
@@ -51,7 +52,7 @@ TURN_US = 20_000
 HANG_S = 60.0
 
 
-class RuntimeBoard(ABC):
+class RuntimeBoard(Closing):
     """A board under test (see the module's docstring).  ``runtime``: one of :data:`RUNTIMES`;
     ``url``: what a host opens (a ``SteppedBoard``'s is only its name)."""
 
@@ -127,12 +128,6 @@ class RuntimeBoard(ABC):
     def close(self) -> None:
         """Hang up and stop the board (its simulator, its process)."""
         self.hang_up()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.runtime} {self.url}>"

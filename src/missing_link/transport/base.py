@@ -10,15 +10,16 @@ import struct
 import termios
 import threading
 import time
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 
+from ..closing import Closing
 from ..errors import TransportBroken, TransportClosed
 
 #: what a stamped read returns: ``(data, rx_ns, first_rx_ns)`` (:meth:`Transport.read_stamped`)
 Received = tuple[bytes, int, int]
 
 
-class Transport(ABC):
+class Transport(Closing):
     """A byte link to one board.  Thread rules: one reader thread, writes from any thread."""
 
     url: str = ""
@@ -61,10 +62,10 @@ class Transport(ABC):
     #: close() and poke() wake a read() that is waiting: a reader may then wait long when idle
     wakes_on_close: bool = False
 
-    def poke(self) -> None:  # noqa: B027 - optional: transports that cannot wake a read skip it
+    def poke(self) -> None:
         """Make a waiting read() return b"" now (the caller has new timers for the reader)."""
 
-    def count_arrived(self, woke_ns: int = 0) -> None:  # noqa: B027 - descriptor transports
+    def count_arrived(self, woke_ns: int = 0) -> None:
         """Right after a wait said bytes are there (it returned at ``woke_ns``): note how many,
         and when (see FdTransport)."""
 
@@ -80,12 +81,6 @@ class Transport(ABC):
     @abstractmethod
     def close(self) -> None:
         """Idempotent."""
-
-    def __enter__(self) -> Transport:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.url}>"
