@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import itertools
 import struct
-import time
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +16,8 @@ from missing_link.board.store import FileStore
 from missing_link.errors import BoardError, ConfigError
 from missing_link.host.board import Board
 from missing_link.host.config import ConfigRefused, NotConfigurable, parse_keys
-from missing_link.j2a.codec import SOF, encode_frame
+from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame
+from missing_link.testing import FakeBoardClock, call_runtime
 from missing_link.virtual import make_sim
 
 from .helpers import wait_for
@@ -176,26 +176,43 @@ def test_a_disabled_transducer_sends_nothing_and_its_actuator_refuses(serve: Any
         assert 1 in seen
 
 
-@pytest.mark.slow  # (seconds of real time)
-def test_a_new_rate_shows_within_one_period(serve: Any) -> None:
-    rt = make_sim("rate", 1, rate_hz=20.0)
-    server = serve(rt, "tcp://127.0.0.1:0")
-    with Board.open(server.url) as board:
-        stamps: list[int] = []
-        board.on_sif(0, lambda sif, now: stamps.append(struct.unpack_from("<Q", sif.payload)[0]))
-        wait_for(lambda: len(stamps) >= 3)
-        board.configure({"signal.rate_hz": 200})
-        changed = rt.clock()
-        wait_for(lambda: sum(s > changed for s in stamps) >= 40)  # (0.2 s at the new rate)
-        after = [s for s in stamps if s > changed]
-        assert after and after[0] - changed <= 5_000 + 2_000  # the new period (5 ms), + slack
-        gaps = [b - a for a, b in itertools.pairwise(after)]
-        assert 4_000 <= sorted(gaps)[len(gaps) // 2] <= 6_000
-        board.configure({"signal.rate_hz": 2})
-        changed = rt.clock()
-        time.sleep(1.2)
-        later = [s for s in stamps if s > changed]
-        assert 1 <= len(later) <= 3  # about 2 Hz now
+def test_a_new_rate_shows_within_one_period() -> None:
+    """On the board's own time (a FakeBoardClock the test turns, the runtime polled at each
+    deadline it asks for, as the board's loop sleeps until then): the first sample at a new
+    rate comes within one period of the change, then one a period."""
+    clock = FakeBoardClock()
+    rt = make_sim("rate", 1, rate_hz=20.0, clock=clock)
+    rate = next(k for k in parse_keys(rt.config.keys_blob(), "rate") if k.name == "signal.rate_hz")
+    stamps: list[int] = []
+
+    def run(us: int) -> None:
+        end = clock.us + us
+        while clock.us < end:
+            due = rt.next_deadline_us()  # (None: a look every 50 ms, as the server's loop)
+            clock.us = min(end, clock.us + 50_000 if due is None else max(clock.us + 1, due))
+            rt.poll()
+            for sif in FrameDecoder().feed(b"".join(rt.take_frames()[1])):
+                stamps.append(struct.unpack_from("<Q", sif.payload)[0])
+
+    def configure(hz: float) -> int:
+        answer = call_runtime(rt, "a2jConfigSet", bytes((0, rate.index)) + rate.to_wire(hz))
+        assert answer == (0, b""), answer
+        return clock.us
+
+    run(200_000)
+    assert len(stamps) >= 3
+    changed = configure(200)
+    run(200_000)
+    after = [s for s in stamps if s > changed]
+    assert 0 < after[0] - changed <= 5_000  # the new period (5 ms)
+    # (on the old samples' phase: the first gap may be shorter)
+    assert 0 < after[1] - after[0] <= 5_000
+    assert {b - a for a, b in itertools.pairwise(after[1:])} == {5_000}
+    changed = configure(2)
+    run(1_200_000)
+    later = [s for s in stamps if s > changed]
+    assert 0 < later[0] - changed <= 5_000  # (the sample already due: the old period's)
+    assert {b - a for a, b in itertools.pairwise(later)} == {500_000} and len(later) == 3
 
 
 def test_the_2014_firmware_is_not_configurable_and_keeps_working(serve: Any) -> None:
