@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 from ..closing import Closing
 from ..delegate import Delegate
@@ -44,39 +44,39 @@ TRANSFER_TIMEOUT = 120.0
 __all__ = ["HANDSHAKE_TIMEOUT", "Board", "CallResult", "LinkStats", "open_board"]
 
 
+class LinkOptions(TypedDict, total=False):
+    """A board's link engine's keywords (:class:`~.link.BoardLink`: their defaults, meanings)."""
+
+    timeout: float
+    window: int
+    reactor: Reactor | None
+    clock: Clock | None
+    faults: ErrorCounts | None
+
+
+class ManyRead(TypedDict, total=False):
+    """An a2jMany read's keywords (``Board.read_many_future``: their defaults)."""
+
+    progress: ProgressFn | None
+    max_bytes: int
+    timeout: float | None
+    deadline: float | None
+
+
 class Board(LogLines, Closing):
     """A connected J2A board (blocking API; its log: ``on_log``).  Use ``Board.open(url)``."""
 
-    def __init__(
-        self,
-        transport: Transport,
-        *,
-        timeout: float = DEFAULT_TIMEOUT,
-        window: int = 1,
-        reactor: Reactor | None = None,
-        clock: Clock | None = None,
-        faults: ErrorCounts | None = None,
-    ):
-        """``reactor``: read this board in a shared I/O loop (the daemon's, for many boards)
-        instead of a reader thread of its own; transports without a descriptor (memory, USB)
-        always get their own thread.  ``clock``: what deadlines, timers and ``last_frame`` run
-        on (default: the loop's, else the system's; tests pass a FakeClock).  ``faults``: where
-        exceptions caught on its reading thread are counted (``BoardLink``)."""
+    def __init__(self, transport: Transport, **link: Unpack[LinkOptions]):
+        """``link``: how its link engine runs (:class:`~.link.BoardLink`'s keywords: the call
+        timeout, the window, a shared ``reactor`` to be read in, the ``clock`` deadlines run
+        on, where ``faults`` on its reading thread are counted)."""
         self.functions: list[str] = []
         self.index: dict[str, int] = {}
         self.properties: dict[str, str] = {}
         self.transducers: list[Transducer] | None = None
         self.transds_text: str | None = None
         self._settings: BoardConfig | None = None
-        self._link = BoardLink(
-            transport,
-            timeout=timeout,
-            window=window,
-            reactor=reactor,
-            clock=clock,
-            name=lambda: self.name,
-            faults=faults,
-        )
+        self._link = BoardLink(transport, name=lambda: self.name, **link)
 
     # ---- the link (board.link: the engine, with its connection, transport and tickers) -------
     @property
@@ -258,23 +258,11 @@ class Board(LogLines, Closing):
             progress,
         )
 
-    def read_many(
-        self,
-        name: str,
-        *,
-        progress: ProgressFn | None = None,
-        max_bytes: int = 64 << 20,
-        timeout: float | None = None,
-        deadline: float | None = None,
-    ) -> bytes:
-        """Read a many-function's whole blob (a2jMany), chunk by chunk.  ``timeout`` is per
-        chunk; ``deadline`` (CLOCK_MONOTONIC s) bounds the whole transfer."""
-        return self._link.wait(
-            self.read_many_future(
-                name, progress=progress, max_bytes=max_bytes, timeout=timeout, deadline=deadline
-            ),
-            None,
-        )
+    def read_many(self, name: str, **many: Unpack[ManyRead]) -> bytes:
+        """Read a many-function's whole blob (a2jMany), chunk by chunk: ``read_many_future``,
+        waited for.  ``timeout`` is per chunk; ``deadline`` (CLOCK_MONOTONIC s) bounds the
+        whole transfer."""
+        return self._link.wait(self.read_many_future(name, **many), None)
 
     def write_many(
         self,
