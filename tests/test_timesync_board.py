@@ -144,15 +144,16 @@ def test_two_boards_trigger_at_one_host_time(serve) -> None:  # type: ignore[no-
         wait_for(lambda: all(st.get("sync_state") == TRACKING for st in d.status()), 30)
         target = time.time_ns() + 300_000_000
         ticks = d.trigger_at(target)
-        wait_for(lambda: all(fired.values()), 10)  # (at the target, 300 ms from now)
+        assert wait_for(lambda: all(fired.values()), 10)  # (at the target, 300 ms from now)
         mono_target = target - d.realtime_offset_ns
     assert set(ticks) == {"r0", "r1"}
     for i, name in enumerate(("r0", "r1")):
         # the tick each board chose is the target in true host time (sync accuracy) ...
         assert abs(clocks[i].host_ns(ticks[name]) - mono_target) < 1_000_000
-        # ... and the trigger fired then (the virtual board wakes up within milliseconds)
-        assert len(fired[name]) == 1
-        assert 0 <= clocks[i].host_ns(fired[name][0]) - mono_target < 50_000_000
+        # ... and the trigger fired once, at or after that tick on the board's clock, never
+        # before.  How late is how soon the virtual board's process woke up: the host's
+        # scheduling, which bench/bench_timesync.py measures; no bound on it here
+        assert len(fired[name]) == 1 and fired[name][0] >= ticks[name], (fired, ticks)
 
 
 @pytest.mark.slow
