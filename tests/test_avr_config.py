@@ -7,7 +7,8 @@ one)."""
 from __future__ import annotations
 
 import struct
-import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -24,18 +25,19 @@ UNO = ROOT / "examples" / "boards" / "thesis-rig-uno.py"
 pytestmark = [pytest.mark.avr, pytest.mark.slow]
 
 
-def open_rig(build: Path, eeprom: Path) -> tuple[AvrSim, Board]:
+@contextmanager
+def rig(build: Path, eeprom: Path) -> Iterator[tuple[AvrSim, Board]]:
+    """The Uno rig powered on with its host handshaken; powered off at the end (its EEPROM
+    written), or, when the test failed, stopped whatever state it is in: never left running."""
     sim = AvrSim(build, build / "uno_rig" / "firmware.elf", eeprom=eeprom)
     # (a bound on a call: a rig behind the host's time answers late, and one whose power was
     # cut has exited, its link gone at once)
-    board = Board(open_transport(sim.url), timeout=20.0)
-    board.handshake()
-    return sim, board
-
-
-def power_off(sim: AvrSim, board: Board) -> None:
-    board.close()
-    sim.power_off()
+    sim.timeout = 20.0
+    try:
+        yield sim, sim.host()
+        sim.power_off()  # (a rig that cut its own power has exited: nothing to write)
+    finally:
+        sim.close()
 
 
 def rangings(sim: AvrSim, seconds: float) -> tuple[int, float]:
@@ -56,19 +58,17 @@ def rangings(sim: AvrSim, seconds: float) -> tuple[int, float]:
 def test_the_same_keys_as_the_micropython_firmware(avr_build: Path, tmp_path: Path) -> None:
     """gen-firmware makes the key table from the board file and the drivers' CONFIG: byte for
     byte what the MicroPython firmware serves for the same board file."""
-    sim, board = open_rig(avr_build, tmp_path / "ee.bin")
-    try:
+    with rig(avr_build, tmp_path / "ee.bin") as (_sim, board):
         avr_keys = board.read_many("a2jConfigKeys")
+        set_index = board.index["a2jConfigSet"]
         assert board.config()["sonar.units"] == "cm"
-    finally:
-        power_off(sim, board)
     mpy = FirmwareSim(UNO)
     try:
         b = Board(open_transport(mpy.url), timeout=5.0)
         try:
             b.handshake()
             assert b.read_many("a2jConfigKeys") == avr_keys
-            assert b.index["a2jConfigSet"] == board.index["a2jConfigSet"]
+            assert b.index["a2jConfigSet"] == set_index
         finally:
             b.close()
     finally:
@@ -76,8 +76,7 @@ def test_the_same_keys_as_the_micropython_firmware(avr_build: Path, tmp_path: Pa
 
 
 def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> None:
-    sim, board = open_rig(avr_build, tmp_path / "ee.bin")
-    try:
+    with rig(avr_build, tmp_path / "ee.bin") as (sim, board):
         assert board.config()["sonar.rate_hz"] == 10.0
         # the SRF02 pings at the new rate (the firmware's own timer decides)
         for rate in (2, 10):
@@ -88,7 +87,9 @@ def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> N
         seen: list[int] = []
         board.on_sif(None, lambda sif, now: seen.append(sif.cmd))
         board.configure({"dist_ir.enabled": False})
-        time.sleep(0.2)
+        seen.clear()
+        # two wheel SIFs (id 0) from later turns than the configure: every older SIF is here
+        assert wait_for(lambda: seen.count(0) >= 2, 10)
         seen.clear()
         assert wait_for(lambda: seen.count(0) >= 25, 10)  # the wheel (id 0): 0.5 s of the board's
         assert 1 not in seen  # dist_ir (id 1, 25 Hz) silent meanwhile
@@ -96,10 +97,9 @@ def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> N
         assert wait_for(lambda: 1 in seen, 5)
         # the servo: limits clamp the pulse; a combination it cannot take changes nothing
         assert board.call("a2j_set_servo", struct.pack("<b", 127)).code == 0
-        time.sleep(0.1)
         board.configure({"servo.max_us": 1800})
-        time.sleep(0.1)
-        assert sim.ctl("pulse").split()[1] == "1800.0"
+        # (the pulse the simulated rig measures on the pin: the next servo period's)
+        assert wait_for(lambda: sim.ctl("pulse").split()[1] == "1800.0", 10), sim.ctl("pulse")
         with pytest.raises(ConfigRefused, match="servo: need min_us < centre_us < max_us"):
             board.configure({"servo.max_us": 1400, "sonar.rate_hz": 3})
         assert board.config()["sonar.rate_hz"] == 10.0
@@ -115,41 +115,31 @@ def test_configuration_on_avr_machine_code(avr_build: Path, tmp_path: Path) -> N
         board.configure({"servo.enabled": False})
         result = board.call("a2j_set_servo", struct.pack("<b", 10))
         assert result.code == 0xFF and result.payload == b"servo is disabled"
-    finally:
-        power_off(sim, board)
 
 
 def test_a_saved_configuration_survives_power_and_cuts_leave_old_or_new(
     avr_build: Path, tmp_path: Path
 ) -> None:
     ee = tmp_path / "ee.bin"
-    sim, board = open_rig(avr_build, ee)
-    board.configure({"sonar.rate_hz": 5, "wheel.reverse": True}, save=True)
-    power_off(sim, board)
-    sim, board = open_rig(avr_build, ee)
-    try:
+    with rig(avr_build, ee) as (_sim, board):
+        board.configure({"sonar.rate_hz": 5, "wheel.reverse": True}, save=True)
+    with rig(avr_build, ee) as (_sim, board):
         got = board.config()
         assert got["sonar.rate_hz"] == 5.0 and got["wheel.reverse"] is True
         assert board.settings.state & 3 == 3  # saved, loaded at boot
-    finally:
-        power_off(sim, board)
     # a slot is 1 + 9 + 4 * 15 = 70 bytes; what changes in a save is a part of that
     for n in (1, 2, 8, 20, 40):
-        sim, board = open_rig(avr_build, ee)
-        assert sim.ctl(f"cut {n}") == "ok"
-        try:
-            board.configure({"sonar.rate_hz": 7, "dist_ir.rate_hz": 11}, save=True)
-            cut = False
-        except MissingLinkError:
-            cut = True  # the power went in the middle of the save
-        if not cut:  # the save wrote fewer than n bytes: it completed
-            power_off(sim, board)
-        else:
-            assert sim.lines.get(timeout=10) == "CUT"
-            board.close()
-            sim.close()
-        sim, board = open_rig(avr_build, ee)
-        try:
+        with rig(avr_build, ee) as (sim, board):
+            assert sim.ctl(f"cut {n}") == "ok"
+            try:
+                board.configure({"sonar.rate_hz": 7, "dist_ir.rate_hz": 11}, save=True)
+                cut = False  # the save wrote fewer than n bytes: it completed
+            except MissingLinkError:
+                cut = True  # the power went in the middle of the save
+            if cut:
+                assert sim.lines.get(timeout=10) == "CUT"
+                sim.proc.wait(10)  # (it stops at once: gone before its power-off)
+        with rig(avr_build, ee) as (_sim, board):
             got = board.config()
             old = (got["sonar.rate_hz"], got["dist_ir.rate_hz"]) == (5.0, 25.0)
             new = (got["sonar.rate_hz"], got["dist_ir.rate_hz"]) == (7.0, 11.0)
@@ -157,5 +147,3 @@ def test_a_saved_configuration_survives_power_and_cuts_leave_old_or_new(
             assert new == (not cut), (n, cut, got)
             assert board.settings.state & 3 == 3
             board.configure({"sonar.rate_hz": 5, "dist_ir.rate_hz": 25}, save=True)  # again
-        finally:
-            power_off(sim, board)
