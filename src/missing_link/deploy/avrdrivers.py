@@ -43,6 +43,16 @@ class Part:
     #: (C condition over v[{key}], why) a run-time set must keep (config.c refuses otherwise)
     checks: list[tuple[str, str]] = field(default_factory=list)
 
+    def gather(self, entry: Part) -> None:
+        """Append an entry's code to this, every entry's before it (its ``make_safe`` and
+        ``checks`` are its own: avrgen keeps them by the entry's index)."""
+        self.setup += entry.setup
+        self.polls += entry.polls
+        self.decls += entry.decls
+        self.funcs += entry.funcs
+        self.hardware += entry.hardware
+        self.isrs += entry.isrs
+
 
 def gated(k: int, name: str, fn: str) -> str:
     """An actuator's J2A function that refuses while its transducer is disabled (config.c); a

@@ -41,15 +41,11 @@ def _na_raw(dtype: str, na: float) -> str:
 
 @dataclass
 class Parts:
-    """Every entry's part (avrdrivers.py), gathered in board file order."""
+    """Every entry's part (avrdrivers.py), gathered in board file order: their code as one
+    (``code.decls``: ``board_gen.c``'s declarations), the actuators' make_safe by entry index."""
 
-    decls: list[str] = field(default_factory=list)
-    setup: list[str] = field(default_factory=list)
-    polls: list[str] = field(default_factory=list)
-    funcs: list[tuple[str, str]] = field(default_factory=list)  #: (J2A name, C function)
-    hardware: list[tuple[str, str, str]] = field(default_factory=list)  #: the trigger's
+    code: Part = field(default_factory=Part)
     safe: list[tuple[int, str]] = field(default_factory=list)  #: (index, make_safe)
-    isrs: list[tuple[str, str]] = field(default_factory=list)  #: (vector, statement)
     claims: dict[int, str] = field(default_factory=link_claims)  #: pin -> who has it
     checks: dict[int, list[tuple[str, str]]] = field(default_factory=dict)
     lines: list[str] = field(default_factory=lambda: ["transds/1"])  #: the descriptor
@@ -64,7 +60,7 @@ def generate_avr(bf: BoardFile) -> str:
     c_ident(bf.name, f"{where}: name")
     parts = collect_parts(bf, where)
     n = len(bf.transducers)
-    out = [*_head(bf), *parts.decls, *_isrs(parts.isrs)]
+    out = [*_head(bf), *parts.code.decls, *_isrs(parts.code.isrs)]
     out += [
         f"transducer_t board_transducers[{n}] = {{{', '.join(f'T_{k}' for k in range(n))}}};",
         f"const uint8_t board_transducer_count = {n};",
@@ -80,8 +76,8 @@ def generate_avr(bf: BoardFile) -> str:
     if "timing" in features:
         out += _hardware_dispatch(parts)
     else:  # (no timed calls for the hardware to take)
-        parts.setup = [ln for ln in parts.setup if not ln.startswith("timing_hardware =")]
-    out += _function_table(parts.funcs, features)
+        parts.code.setup = [ln for ln in parts.code.setup if not ln.startswith("timing_hardware =")]
+    out += _function_table(parts.code.funcs, features)
     out += _setup_and_poll(parts, features)
     return "\n".join(out)
 
@@ -127,24 +123,19 @@ def _add_entry(
     if t.chan_count > 16:  # (runtime.h: a bit per channel in a uint16_t)
         raise ConfigError(f"{at}: {t.chan_count} channels; the AVR runtime keeps 16 at most")
     parts.lines.append(t.descriptor_line())
-    parts.decls.append(f"static uint32_t stamps_{k}[{t.chan_count}];")
-    parts.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
+    parts.code.decls.append(f"static uint32_t stamps_{k}[{t.chan_count}];")
+    parts.code.decls.append(f"static uint32_t values_{k}[{t.chan_count}];")
     part: Part = part_of(k, e, t, pins, mcu, inst, at, parts.claims)
     for call, _fn in part.funcs:
         c_ident(call, f"{at}: call")
-    parts.setup += part.setup
-    parts.polls += part.polls
-    parts.decls += part.decls
-    parts.funcs += part.funcs
-    parts.hardware += part.hardware
-    parts.isrs += part.isrs
+    parts.code.gather(part)
     if part.make_safe:
         parts.safe.append((k, part.make_safe))
     if part.checks:
         parts.checks[k] = part.checks
     size = DTYPES[t.dtype][1]
-    parts.decls.append(f"/* transducer {k}: {t.name} */")
-    parts.decls.append(
+    parts.code.decls.append(f"/* transducer {k}: {t.name} */")
+    parts.code.decls.append(
         f"#define T_{k} {{{t.tid}, {DT[t.dtype]}, {t.chan_count}, {size}, "
         f"{_na_raw(t.dtype, t.na)}, 0, stamps_{k}, values_{k}, 0, 1}}"
     )
@@ -273,14 +264,14 @@ def _failsafe_table(bf: BoardFile, safe: list[tuple[int, str]]) -> list[str]:
 def _hardware_dispatch(parts: Parts) -> list[str]:
     """The timed calls the hardware makes (the trigger's), by function index: the builtins,
     then the board's own functions."""
-    if not parts.hardware:
+    if not parts.code.hardware:
         return []
-    index = {name: 11 + j for j, (name, _fn) in enumerate(parts.funcs)}  # (builtins.h, timing)
+    index = {name: 11 + j for j, (name, _fn) in enumerate(parts.code.funcs)}  # (builtins.h, timing)
     return [
         "static uint8_t hardware(uint8_t fn, uint32_t tick, const uint8_t *payload, uint8_t n) {",
         *(
             f"    if (fn == {index[call]} && {enabled}) return {fn}(payload, n, tick);"
-            for call, enabled, fn in parts.hardware
+            for call, enabled, fn in parts.code.hardware
         ),
         "    return 0;",
         "}",
@@ -328,13 +319,13 @@ def _setup_and_poll(parts: Parts, features: tuple[str, ...]) -> list[str]:
     boot = ["    config_boot(); /* the saved configuration, if any (config.c) */"]
     return [
         "void board_setup(void) {",
-        *(f"    {line}" for line in parts.setup),
+        *(f"    {line}" for line in parts.code.setup),
         f"    failsafe_init(failsafe_table, board_failsafe_ms, {len(parts.safe)});",
         *(boot if "config" in features else []),
         "}",
         "",
         "void board_poll(uint32_t now) {",
-        *([f"    {line}" for line in parts.polls] or ["    (void)now;"]),
+        *([f"    {line}" for line in parts.code.polls] or ["    (void)now;"]),
         "}",
         "",
     ]
