@@ -1,15 +1,19 @@
 """What a world costs a virtual board (issue 47.6): the example rover (on AVR rover-mega.py)
 as `missing-link board --file`, on each runtime, with `--world none` (the reference: the same
-board without a world, measured in the same run), in its default world at rest, and in it
+board without a world, measured in the same run), in its world at rest, and in it
 driving (duty 0.5 on both motors: its wheels turn, its encoders' edges flow, it meets the wall
 and its wheels spin on), a daemon taking its samples at their rates.  Per case: the board's CPU
 (its process and those under it, node or simavr's rig, from /proc, in % of one core over the
 window) and of it the board's own process (under MicroPython and AVR: the world's side), and
-what the firmware says of itself: its heap (MicroPython: allocated, and free at the lowest) and
-its IMU's sample timing (the period between two board stamps: mean and worst).  The cases
-alternate, ``--rounds`` times; each figure is the median over the rounds.  Then the world link
+what the firmware says of itself: its heap (MicroPython: allocated, and free at the lowest; AVR:
+its stack's free at the lowest) and its IMU's sample timing (the period between two board
+stamps: mean and worst).  The cases alternate, ``--rounds`` times; each figure is the median
+over the rounds, and the world's cost the median of each case less its round's reference.  The
+world starts the rover 1 m from its wall (NEAR_WALL), the scene the simulator's parts give the
+reference.  Then the world link
 alone in this process (worldlink.py ticked as a runtime ticks it, driving), per simulated
-second, and the rover under MicroPython in a Pico's heap with and without its world.  Driving
+second.  (The board's heap and sample timing with and without its world, in simulated time and
+the same on every run: tests/test_world_beside.py.)  Driving
 costs the firmware its encoders' interrupts too (some 2000 edges a second), as on a board.
 
     .venv/bin/python bench/bench_world.py [--seconds 20] [--rounds 2] \
@@ -37,8 +41,6 @@ ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.
 #: the AVR's rover (an ATmega2560 in simavr: rover-mega.py), its board's name
 AVR_ROVER, NAMES = ROVER.with_name("rover-mega.py"), {"avr": "mega_rover"}
 TICK_S = os.sysconf("SC_CLK_TCK")
-PICO_HEAP = 209936  # (a Raspberry Pi Pico's heap after MicroPython boots: docs/hardware.md)
-MEMORY = ("heap_free", "heap_free_low", "heap_alloc", "gc_collections", "gc_longest_us")
 
 
 def tree_cpu_s(pid: int, children: bool = True) -> float:
@@ -131,7 +133,8 @@ def measure(runtime: str, world: bool, duty: float, seconds: float) -> dict[str,
         "period_ms": statistics.mean(periods),
         "worst_ms": max(periods),
         "heap_alloc": status.get("heap_alloc", -1),
-        "heap_free_low": status.get("heap_free_low", -1),
+        # (the AVR's: its stack's lowest free, a2jMemory)
+        "heap_free_low": status.get("heap_free_low", status.get("stack_free_low", -1)),
     }
 
 
@@ -152,35 +155,6 @@ def world_alone(sim_s: float) -> float:
         link.tick(now, values)
         now = link.due_us()
     return (time.process_time() - c0) / sim_s * 100
-
-
-def pico_heap(world: bool, seconds: float) -> dict[str, Any]:
-    """The rover under MicroPython in a Pico's heap (host.mjs --heap), its world beside it or
-    none, driven at duty 0.5 for ``seconds``: the firmware's own memory figures (a2jMemory)."""
-    import threading
-
-    from missing_link.deploy.boardfile import load_board_file
-    from missing_link.virtual.mpyboard import MicroPythonBoard
-    from missing_link.virtual.world_mpy import NodeWorld
-    from missing_link.world.spec import WorldSpec
-
-    board = dict(load_board_file(ROVER).board)
-    beside = NodeWorld(WorldSpec(), board, 0, frozenset()) if world else None
-    server = MicroPythonBoard(ROVER, "tcp://127.0.0.1:0", None, world=beside, heap=PICO_HEAP)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        with Daemon(
-            Config(boards=[BoardSpec(server.url, timeout=3.0, handshake_timeout=20.0)])
-        ) as d:
-            if not d.wait_until_up(60):
-                raise SystemExit(f"no daemon on the rover in a Pico's heap: {d.status()}")
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < seconds:
-                drive(d, 0.5)
-                time.sleep(0.5)
-            return {k: d.status()[0].get(k) for k in MEMORY}
-    finally:
-        server.stop()
 
 
 #: node's calls into MicroPython with small integers, as worldtick.mjs makes them: what they
@@ -214,15 +188,22 @@ def median(runs: list[dict[str, float]], key: str) -> float:
 
 
 def row(runtime: str, what: str, runs: list[dict[str, float]]) -> str:
-    heap = (f"{median(runs, 'heap_alloc'):.0f} | {median(runs, 'heap_free_low'):.0f}"
-            if runs[0]["heap_alloc"] >= 0 else "- | -")  # fmt: skip
+    alloc = f"{median(runs, 'heap_alloc'):.0f}" if runs[0]["heap_alloc"] >= 0 else "-"
+    low = f"{median(runs, 'heap_free_low'):.0f}" if runs[0]["heap_free_low"] >= 0 else "-"
+    heap = f"{alloc} | {low}"
     cpu = f"{median(runs, 'cpu'):.2f} | {median(runs, 'own'):.2f}"
     timing = f"{median(runs, 'period_ms'):.2f} | {median(runs, 'worst_ms'):.1f}"
     return f"| {runtime} | {what} | {cpu} | {heap} | {timing} |"
 
 
-CASES = {"--world none (reference)": (False, 0.5), "its world, at rest": (True, 0.0),
+REFERENCE = "--world none (reference)"
+CASES = {REFERENCE: (False, 0.5), "its world, at rest": (True, 0.0),
          "its world, driving (duty 0.5)": (True, 0.5)}  # fmt: skip
+
+
+def paired(runs: list[dict[str, float]]) -> float:
+    """The median over rounds of a case's CPU less its round's reference's."""
+    return statistics.median(r["cpu"] - r["reference"] for r in runs)
 
 
 def main() -> None:
@@ -232,28 +213,29 @@ def main() -> None:
     ap.add_argument("--runtimes", default="cpython,micropython,avr")
     a = ap.parse_args()
     print("| runtime | rover | board's CPU, % of a core | of it its own process | heap allocated, "
-          "B | heap free at the lowest, B | IMU period, ms (50 Hz: 20) | worst, ms |")  # fmt: skip
+          "B | heap (AVR: stack) free at the lowest, B | IMU period, ms (50 Hz: 20) | worst, ms "
+          "|")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|")
+    costs: dict[str, list[float]] = {}
     for runtime in a.runtimes.split(","):
         runs: dict[str, list[dict[str, Any]]] = {k: [] for k in CASES}
         for _ in range(a.rounds):  # (alternating: a load that comes and goes hits all alike)
             for what, (world, duty) in CASES.items():
                 runs[what].append(measure(runtime, world, duty, a.seconds))
+            for case in runs.values():
+                case[-1]["reference"] = runs[REFERENCE][-1]["cpu"]
         for what in CASES:
             print(row(runtime, what, runs[what]))
+        costs[runtime] = [paired(runs[what]) for what in list(CASES)[1:]]
+    print("\nthe world's cost, each case less the reference of its round (median over rounds):")
+    for runtime, (rest, driving) in costs.items():
+        print(f"  {runtime}: at rest {rest:+.2f} % of a core, driving {driving:+.2f}")
     print(f"\nthe world link alone (this process, driving): {world_alone(60):.2f} % of a core")
     if "micropython" in a.runtimes:
         print(
             f"\n10000 calls from node into MicroPython, 7 small integers each: "
             f"{feed_call_bytes()} B left in its heap"
         )
-        print(
-            f"\nthe rover under MicroPython in a Pico's heap ({PICO_HEAP} B), driven for "
-            f"{a.seconds:g} s:\n\n| rover | {' | '.join(MEMORY)} |\n|---|{'---|' * len(MEMORY)}"
-        )
-        for what, world in (("--world none (reference)", False), ("its world", True)):
-            got = pico_heap(world, a.seconds)
-            print(f"| {what} | {' | '.join(str(got[k]) for k in MEMORY)} |")
 
 
 if __name__ == "__main__":

@@ -282,7 +282,7 @@ def _avr_world(server: Any, spec: Any, board: dict[str, Any], seed: int, absent:
     try:
         world = World(spec, board, sim_us(server.ctl), seed)
         hand = AvrWorld(WorldLink(world, board, absent), server.ctl_lines,
-                        board.get("transducers", []), absent)  # fmt: skip
+                        board.get("transducers", []), absent, server.ctl_send)  # fmt: skip
         hand.start()
     except BaseException:
         server.close()

@@ -64,6 +64,7 @@ class AvrBoard:
             raise FirmwareStopped(f"the firmware did not start in simavr: {err or 'no pty'}")
         self.pty = first.split()[1]
         self._lock = threading.Lock()
+        self._unheard = 0  # answers to ctl_send's lines, not taken yet
         self._wake_r, self._wake_w = os.pipe()
         if listen in ("pty", "pty://"):
             self.url = f"serial://{self.pty}"
@@ -92,12 +93,22 @@ class AvrBoard:
             self.proc.stdin.write("".join(line + "\n" for line in lines))
             self.proc.stdin.flush()
             got: list[str] = []
-            while len(got) < len(lines):
+            while len(got) < self._unheard + len(lines):
                 answer = self.lines.get(timeout=timeout)
                 if answer is None:
                     raise FirmwareStopped("the rig ended")
                 got.append(answer)
+            got, self._unheard = got[self._unheard :], 0
         return got
+
+    def ctl_send(self, lines: list[str]) -> None:
+        """Lines to the rig's control channel whose answers nobody waits for (the next
+        ctl_lines takes them first): a setting that cannot fail (a part's reading)."""
+        assert self.proc.stdin is not None
+        with self._lock:
+            self.proc.stdin.write("".join(line + "\n" for line in lines))
+            self.proc.stdin.flush()
+            self._unheard += len(lines)
 
     def serve_forever(self) -> None:
         """Until stop() (returns) or the AVR stops (FirmwareStopped)."""

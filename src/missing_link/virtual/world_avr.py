@@ -5,19 +5,20 @@ rig's control lines (firmware/avr/sim/*.h), as the rig's own models do without a
 Theory of operation
 -------------------
 At start every wheel of the rig is taken from the rig's own motor model (``wheel K off``,
-motor.h): from then on only the world turns its encoder. A thread of its own (``world``) reads
+motor.h): from then on only the world turns its encoder.  A thread of its own (``world``) reads
 the simulation's time (``stats``: simavr's µs, never the host's clock) with the motors' drives
 (``motor``: duty and direction, as the rig's model reads them from Timer0's outputs) and the
 stepper, in one round trip (the rig takes every line it has between two runs of the AVR); once
 the time has reached the world's next tick, it ticks the world link with those drives, and puts
-what the world says into the parts, again in one round trip: a ranger's target (``hcsr04 MM``,
-``srf02 CM``, ``sharp MM``), the IMU's specific force and turn rate in SI (``imu K ...``), the
-battery's voltage at its ADC pin through its divider (``ain CH MV``), a part that fails silent
-taken off the bus (``imu_absent``, ``srf02_absent``), and each encoder's edges of the tick as
-one ``enc K STEPS`` (the rig makes them 100 µs apart from then: they come at the tick, not at
-their own times). Then it sleeps until the next tick's simulated time (simavr runs paced to the
-host's clock, so a simulated ms takes about a real one); a tick that comes late first runs the
-world up to the simulation's time (worldlink.py). The rig ending ends the thread.
+what the world says into the parts in one write (its answers not waited for): a ranger's target
+(``hcsr04 MM``, ``srf02 CM``, ``sharp MM``), the IMU's specific force and turn rate in SI (``imu
+K ...``), the battery's voltage at its ADC pin through its divider (``ain CH MV``), a part that
+fails silent taken off the bus (``imu_absent``, ``srf02_absent``), and each encoder's edges of
+the tick as one ``enc K STEPS`` (the rig makes them 100 µs apart from then: they come at the
+tick, not at their own times).  Then it sleeps until the next tick's simulated time (simavr runs
+paced to the host's clock, so a simulated ms takes about a real one); a tick that comes late
+first runs the world up to the simulation's time (worldlink.py).  The rig ending ends the
+thread.
 
 What the rig has no control line for is not fed: the GPS's position (its fix stays where the
 rig's model puts it), a compass (the rig has none), a VL53L0X.
@@ -54,7 +55,8 @@ def _stats_us(stats: str) -> int:
 class AvrWorld:
     """``link``'s world on the rig answering ``ctl`` (AvrBoard.ctl_lines: lines in, as many
     out, one round trip), for the board file's ``transducers`` (the rig numbers each kind's
-    parts in their order, the ``absent`` ones left out: deploy/avrsim.rig_parts)."""
+    parts in their order, the ``absent`` ones left out: deploy/avrsim.rig_parts); ``send``
+    (AvrBoard.ctl_send) puts a tick's readings in without waiting for the rig's answers."""
 
     def __init__(
         self,
@@ -62,9 +64,11 @@ class AvrWorld:
         ctl: Callable[[list[str]], list[str]],
         transducers: list[dict[str, Any]],
         absent: Collection[str] = (),
+        send: Callable[[list[str]], None] | None = None,
     ) -> None:
         self.link = link
         self.ctl = ctl
+        self.send = send or ctl  # (the tick's lines: their answers not waited for)
         here = [t for t in transducers if t["name"] not in absent]
         self.entry = {t["name"]: t for t in here}
         self.k: dict[str, int] = {}  # a part's number among the rig's parts of its kind
@@ -120,7 +124,7 @@ class AvrWorld:
             steps[k] = steps.get(k, 0) + d
         lines += [f"enc {k} {n}" for k, n in sorted(steps.items()) if n]
         if lines:
-            self.ctl(lines)
+            self.send(lines)
         self.ticks += 1
 
     def _reads(self, motor: str, stepper: str) -> list[int]:

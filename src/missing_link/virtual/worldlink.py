@@ -10,8 +10,11 @@ that time and the integers :attr:`WorldLink.reads` asked of worldfeed.py (each a
 read in the simulator).  The tick steps the world (world.py: the sensors now, then on to one
 tick later under these commands) and hands back the feed calls that put the sensors' readings
 into the devices, and the encoders' edges of the tick ahead with their times, which the runtime
-delivers as pin interrupts when its time reaches theirs.  A runtime that comes late (a busy
-CPython loop) first runs the world up to its time, and that stretch's edges go at once.
+delivers as pin interrupts when its time reaches theirs.  A runtime comes a little late (its
+step, its poll, its sleep end after the tick's time): that tick reads the sensors at its own
+time and runs the world on to one tick after the runtime's, its edges up to now going at once;
+a runtime that comes later than a tick (a busy CPython loop) first runs the world up to its
+time without reading, and that stretch's edges go at once too.
 
 Pushes by hand (the control endpoint: virtual/worldctl.py) come from another thread: the world
 checks and queues them under a lock and applies them at its next tick, in the simulation's
@@ -87,9 +90,9 @@ class WorldLink:
         act = self._actuation(values)
         edges: list[Edge] = []
         with self._lock:
-            if now_us > self.world.t_us:  # (late: the stretch up to now first, unread)
+            if now_us > self.world.t_us + self.tick_us:  # (late: the stretch up to now first)
                 edges += self._edges(self.world.step(now_us, act, read=False))
-            frame = self.world.step(now_us + self.tick_us, act)
+            frame = self.world.step(now_us + self.tick_us, act)  # (a little late: from its time)
         self.next_us = now_us + self.tick_us
         calls = [
             (fn, args) for fn, args in self._calls(frame) if self._sent.get((fn, args[0])) != args

@@ -10,7 +10,7 @@ actuators do now (:class:`Actuation`: each H-bridge's duty and mode, each servo'
 stepper's position).  The step first applies what is due (the world file's events, pushes by
 hand), then reads every sensor from the state at that time (:class:`Frame`: ranges, IMU, field,
 fix, volts; the parts that failed), then moves the world on to the step's end under those
-commands (held for the tick, as a sample-and-hold) in substeps of at most SUBSTEP_US: the
+commands (held for the tick, as a sample-and-hold) in equal substeps of about SUBSTEP_US: the
 motors turn the wheels (motion.py), the body rolls and meets the walls, the battery drains,
 servos and steppers turn at their speed limits, and every encoder edge on the way is put in the
 frame with its time, so the runtime delivers each as a pin interrupt when the simulation gets
@@ -128,9 +128,9 @@ class World:
         t0 = self.t_us
         self._due()
         frame = self._read(t0, max(t0, until_us)) if read else self._unread(t0, until_us)
-        t = t0
-        while t < until_us:
-            dt_us = min(SUBSTEP_US, until_us - t)
+        t, n = t0, max(1, round((until_us - t0) / SUBSTEP_US))  # (equal ones, SUBSTEP_US or so)
+        for k in range(n if until_us > t0 else 0):
+            dt_us = (until_us - t0) * (k + 1) // n - (t - t0)
             self._substep(t, dt_us, act, frame.edges)
             t += dt_us
         self.t_us = max(t0, until_us)

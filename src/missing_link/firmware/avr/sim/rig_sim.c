@@ -149,15 +149,17 @@ static void command(const char *cmd) {
 static void poll_stdin(void) {
     static char line[256];
     static size_t line_n;
-    char c;
+    char buf[512]; /* (all that came at once: a byte a read was a system call a byte) */
     ssize_t r;
-    while ((r = read(0, &c, 1)) == 1) {
-        if (c == '\n') {
-            line[line_n] = 0;
-            command(line);
-            line_n = 0;
-        } else if (line_n < sizeof line - 1) {
-            line[line_n++] = c;
+    while ((r = read(0, buf, sizeof buf)) > 0) {
+        for (ssize_t i = 0; i < r; i++) {
+            if (buf[i] == '\n') {
+                line[line_n] = 0;
+                command(line);
+                line_n = 0;
+            } else if (line_n < sizeof line - 1) {
+                line[line_n++] = buf[i];
+            }
         }
     }
     if (r == 0) power_off(); /* stdin closed: the test is gone */
