@@ -11,7 +11,10 @@
 // transducers; "modules", a driver's module imported; "instance", one more transducer of it in
 // a built firmware (a board file with two of it, less one with one); "bus", an I2C bus opened.
 // This port collects only when a call into it returns (simgc.py), so every step is a call of
-// its own, with gc.collect() asked for at its end.
+// its own, with gc.collect() asked for at its end.  The clock is simulated time (simtime.py, as
+// host.mjs --fast): with the port's, which is the host's, the parts' state and how often a
+// driver polled one at its start-up came from how fast the host ran, and what a collection
+// keeps of the garbage with them, so each figure moved by up to 128 bytes from run to run.
 import { readFileSync } from "node:fs";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
@@ -41,6 +44,8 @@ mp.runPython(
   [
     "import sys",
     "sys.path.append('/lib')",
+    "import simworld.simtime",
+    "sys.modules['time'] = simworld.simtime",
     "import simworld.simgc",
     "sys.modules['gc'] = simworld.simgc",
     "import simworld.machine",
