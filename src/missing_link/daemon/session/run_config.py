@@ -34,7 +34,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ...errors import ConfigError, MissingLinkError
+from ...errors import CallTimeout, ConfigError, MissingLinkError
 from ...host.board import Board
 from ...host.config import (
     ST_DIRTY,
@@ -102,6 +102,22 @@ class RunConfig:
             self.state = board.settings.state
         self._apply_file("connect")
         self.ctx.on_keys(self.ctx.name(), self.keys, dict(self.values), self.configure)
+
+    def read_at_connect(self, board: Board, give_up: Callable[[], bool]) -> None:
+        """``on_connect``, asked again while the board does not answer in time (a late reply:
+        a busy board or host), until ``give_up()``: then CallTimeout, and the connect fails as
+        a handshake that times out does.  A configuration that cannot be read otherwise (a
+        board answering garbage) is warned, and the board still publishes."""
+        while True:
+            try:
+                self.on_connect(board)
+                return
+            except CallTimeout:
+                if give_up():
+                    raise
+            except MissingLinkError as e:
+                self.ctx.warn(f"run-time configuration unreadable: {e}")
+                return
 
     def on_reset(self) -> None:
         """The board restarted under the same link: what the file says, again."""

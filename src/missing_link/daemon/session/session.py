@@ -317,10 +317,10 @@ class BoardSession(SessionReport):
         self.path.listen(board, same)  # (before the count: no SIF falls between the two)
         board.on_sif(None, self.path.on_sif)
         self.path.resume(board, same, sif_count(board, spec.timeout))
-        try:  # a board whose configuration cannot be read still publishes
-            self.run_config.on_connect(board)
-        except MissingLinkError as e:
-            self.warn(f"run-time configuration unreadable: {e}")
+        until = self.ctx.clock.monotonic() + spec.handshake_timeout  # (the handshake's time)
+        self.run_config.read_at_connect(
+            board, lambda: self._stop.is_set() or self.ctx.clock.monotonic() >= until
+        )
         self._resets_seen = self.sync.resets if self.sync is not None else 0
         self.connects += 1
         self.error = ""
