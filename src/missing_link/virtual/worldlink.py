@@ -30,6 +30,7 @@ from typing import Any
 
 from ..world.robot import Part
 from ..world.world import Actuation, Frame, World
+from .world.units import split_degrees
 
 #: worldfeed.py's number for each kind of part (a ranger by its driver: how it says "nothing
 #: in reach")
@@ -165,7 +166,7 @@ def _fix(fix: Any) -> list[float]:
     """A fix as worldfeed.fix's numbers (its whole degrees and 1e-7 degree split here)."""
     if not (math.isfinite(fix.latitude_deg) and math.isfinite(fix.longitude_deg)):
         return [math.nan]
-    lat, lon = _split(fix.latitude_deg), _split(fix.longitude_deg)
+    lat, lon = split_degrees(fix.latitude_deg), split_degrees(fix.longitude_deg)
     knots = fix.speed_m_s * 3600 / 1852
     course = round(fix.course_deg * 10) % 3600 if math.isfinite(fix.course_deg) else math.nan
     return [*lat, *lon, fix.altitude_m * 10, knots * 10, course, fix.satellites, fix.hdop * 10]
@@ -178,13 +179,6 @@ def _small_ints(values: list[float]) -> tuple[int, ...] | None:
         return None
     out = tuple(map(round, values))
     return out if min(out) >= -SMALL_INT and max(out) < SMALL_INT else None
-
-
-def _split(deg: float) -> tuple[int, int]:
-    """Degrees as (whole degrees, 1e-7 degree), both of the sign of ``deg``: small integers."""
-    e7 = round(deg * 1e7)
-    whole = int(e7 / 1e7)
-    return whole, e7 - whole * 10_000_000
 
 
 def _here(items: Any, plugged: Collection[str]) -> list[Any]:

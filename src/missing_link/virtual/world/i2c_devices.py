@@ -9,6 +9,7 @@ attributes in SI-like units (distance_cm, accel_g, field_gauss ...) are properti
 """
 
 from .machine import WORLD, ticks_add, ticks_diff, ticks_us
+from .units import scaled
 
 
 def _now_us():
@@ -68,13 +69,7 @@ class SRF02:
         elif self._seq != [0xA0, 0xAA, 0xA5][: len(self._seq)]:
             self._seq = []
 
-    @property
-    def distance_cm(self):
-        return self.distance_mm / 10
-
-    @distance_cm.setter
-    def distance_cm(self, cm):
-        self.distance_mm = int(round(cm * 10))
+    distance_cm = scaled("distance_mm", 10)
 
     def read(self, reg, n):
         regs = [

@@ -4,6 +4,7 @@ MicroPython subset only.
 """
 
 from .machine import WORLD, ticks_add, ticks_diff, ticks_us
+from .units import degrees, scaled
 
 
 def _now_us():
@@ -30,13 +31,6 @@ def civil_date(days):
     d = doy - (153 * mp + 2) // 5 + 1
     m = mp + 3 if mp < 10 else mp - 9
     return yoe + era * 400 + (1 if m <= 2 else 0), m, d
-
-
-def _split(deg):
-    # degrees -> (whole degrees, 1e-7 degree), both of the sign of deg
-    e7 = int(round(deg * 10000000))
-    whole = int(e7 / 10000000)
-    return whole, e7 - whole * 10000000
 
 
 def _tenths(v, width):
@@ -88,53 +82,12 @@ class GpsReceiver:
             d, m4 = d + 1, m4 - 600000
         return ("%02d" if width == 2 else "%03d") % d + "%02d.%04d" % (m4 // 10000, m4 % 10000)
 
-    @property
-    def lat(self):
-        return self.lat_deg + self.lat_e7 / 10000000
-
-    @lat.setter
-    def lat(self, deg):
-        self.lat_deg, self.lat_e7 = _split(deg)
-
-    @property
-    def lon(self):
-        return self.lon_deg + self.lon_e7 / 10000000
-
-    @lon.setter
-    def lon(self, deg):
-        self.lon_deg, self.lon_e7 = _split(deg)
-
-    @property
-    def alt(self):
-        return self.alt_dm / 10
-
-    @alt.setter
-    def alt(self, m):
-        self.alt_dm = int(round(m * 10))
-
-    @property
-    def speed_kn(self):
-        return self.speed_dkn / 10
-
-    @speed_kn.setter
-    def speed_kn(self, kn):
-        self.speed_dkn = int(round(kn * 10))
-
-    @property
-    def course(self):
-        return self.course_dd / 10
-
-    @course.setter
-    def course(self, deg):
-        self.course_dd = int(round(deg * 10))
-
-    @property
-    def hdop(self):
-        return self.hdop_d / 10
-
-    @hdop.setter
-    def hdop(self, h):
-        self.hdop_d = int(round(h * 10))
+    lat = degrees("lat_deg", "lat_e7")
+    lon = degrees("lon_deg", "lon_e7")
+    alt = scaled("alt_dm", 10)  # m
+    speed_kn = scaled("speed_dkn", 10)
+    course = scaled("course_dd", 10)  # degrees
+    hdop = scaled("hdop_d", 10)
 
     def _sentences(self, utc):
         t, (y, mo, d) = utc % 86400, civil_date(utc // 86400)
