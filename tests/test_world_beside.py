@@ -32,8 +32,8 @@ BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[
 PICO = FREE_HEAP["rp2040"].bytes
 SECONDS = 20
 NEAR_WALL = "[start]\nx_m = 3.88\n"  # (its rangers' front edge 1 m from the wall ahead)
-HEAP_SLACK = 1024  # B: a few allocations (measured: 160)
-JITTER_US = 100  # (measured: 16 at most; a sample is 20 ms apart at the most)
+HEAP_SLACK = 1024  # B: a few allocations (measured: 16)
+JITTER_US = 100  # (measured: 7 at most; a sample is 20 ms apart at the most)
 pytestmark = [pytest.mark.micropython, pytest.mark.slow]
 
 
