@@ -227,11 +227,30 @@ class FdTransport(Transport):
 
     def _wait_writable(self, left: int) -> None:
         """Until the descriptor has room again, at most ``write_timeout`` s (``left``: the
-        bytes still to go, for the error)."""
-        _, ready, _ = select.select([], [self._fd], [], self.write_timeout)
-        self._check()
-        if not ready:
-            raise TransportBroken(
-                f"{self.url}: write failed: the board took nothing for {self.write_timeout:g} s "
-                f"({left} bytes not sent: its input is full, it reads no more)"
-            )
+        bytes still to go, for the error).  A board that took some meanwhile is waited for
+        again: a TCP socket is writable only once a third of its buffer is free, which a board
+        reading slowly but steadily (its window opening a little at a time) may take longer than
+        ``write_timeout`` to give; what it has taken is what left the output queue."""
+        queued = self._queued()
+        while True:
+            _, ready, _ = select.select([], [self._fd], [], self.write_timeout)
+            self._check()
+            if ready:
+                return
+            now = self._queued()
+            if queued is None or now is None or now >= queued:
+                raise TransportBroken(
+                    f"{self.url}: write failed: the board took nothing for "
+                    f"{self.write_timeout:g} s ({left} bytes not sent: its input is full, it "
+                    "reads no more)"
+                )
+            queued = now
+
+    def _queued(self) -> int | None:
+        """The bytes written that the other side has not taken yet (TIOCOUTQ: a socket's
+        unacknowledged and unsent bytes, a tty's output queue); None where it cannot say."""
+        try:
+            raw = fcntl.ioctl(self._fd, termios.TIOCOUTQ, b"\0\0\0\0")
+        except (OSError, ValueError):
+            return None
+        return int(struct.unpack("i", raw)[0])
