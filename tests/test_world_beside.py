@@ -16,25 +16,33 @@ from __future__ import annotations
 import ast
 import itertools
 import statistics
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from missing_link.daemon.session.board_memory import parse_memory
+from missing_link.daemon.session.status import MemoryStatus
 from missing_link.deploy.heap import FREE_HEAP
+from missing_link.host.board import Board
+from missing_link.transport import open_transport
 from missing_link.virtual.world_mpy import NodeWorld
 from missing_link.world.worldfile import parse
 
 from .memory_soak import FastSim, SoakResult, soak
 
 ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.py"
+AVR_ROVER = ROVER.with_name("rover-mega.py")
 BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[1])
 PICO = FREE_HEAP["rp2040"].bytes
 SECONDS = 20
 NEAR_WALL = "[start]\nx_m = 3.88\n"  # (its rangers' front edge 1 m from the wall ahead)
 HEAP_SLACK = 1024  # B: a few allocations (measured: 16)
 JITTER_US = 100  # (measured: 7 at most; a sample is 20 ms apart at the most)
-pytestmark = [pytest.mark.micropython, pytest.mark.slow]
+pytestmark = [pytest.mark.slow]
 
 
 def _soaked(world: bool) -> tuple[SoakResult, dict[str, Any], NodeWorld | None]:
@@ -58,6 +66,7 @@ def _periods(stamps: list[int]) -> list[int]:
     return [b - a for a, b in itertools.pairwise(stamps)]
 
 
+@pytest.mark.micropython
 def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> None:
     res, _gc, world = both[True]
     assert world is not None and world.link is not None and world.failed is None
@@ -65,6 +74,7 @@ def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> 
     assert res.valid["imu"] > 0 and res.valid["sonar"] > 0
 
 
+@pytest.mark.micropython
 def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without(
     both: dict[bool, Any],
 ) -> None:
@@ -80,6 +90,7 @@ def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without
     assert beside.board_us // 1000 == without.board_us // 1000
 
 
+@pytest.mark.micropython
 @pytest.mark.parametrize("name", ["imu", "compass", "wheel_l", "sonar", "tof", "gps"])
 def test_each_sensors_sample_timing_is_the_same_with_its_world_and_without(
     both: dict[bool, Any], name: str
@@ -92,3 +103,37 @@ def test_each_sensors_sample_timing_is_the_same_with_its_world_and_without(
     assert len(p1) == len(p0) >= SECONDS - 2  # (the GPS: once a second)
     assert statistics.mean(p1) == pytest.approx(statistics.mean(p0), abs=JITTER_US / 10)
     assert abs(max(p1) - max(p0)) <= JITTER_US and abs(min(p1) - min(p0)) <= JITTER_US
+
+
+def _avr_memory(world: Path | None) -> MemoryStatus:
+    """The AVR rover (rover-mega.py in simavr, `board --file --runtime avr`) with ``world`` or
+    none: its own memory figures (a2jMemory) after its handshake, configuration and 2 s of
+    samples on its clock."""
+    cmd = [sys.executable, "-m", "missing_link", "board", "--file", str(AVR_ROVER), "--runtime",
+           "avr", "--listen", "tcp://127.0.0.1:0", "--world", str(world or "none")]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout is not None
+        url = proc.stdout.readline().split()[1]
+        with Board(open_transport(url), timeout=5.0) as board:
+            board.handshake()
+            board.config()
+            t0 = board.clock_exchange(5.0).t3
+            while board.clock_exchange(5.0).t3 - t0 < 2_000_000:
+                time.sleep(0.2)
+            return parse_memory(board.call_ok("a2jMemory"))
+    finally:
+        proc.terminate()
+        proc.wait(15)
+
+
+@pytest.mark.avr
+def test_the_avr_boards_memory_is_the_same_with_its_world_and_without(tmp_path: Path) -> None:
+    """On AVR the world drives the rig's parts from outside the AVR (their control lines,
+    world_avr.py): the firmware's static RAM and its stack's lowest free are the same."""
+    near = tmp_path / "near-wall.toml"
+    near.write_text(NEAR_WALL)
+    without, beside = _avr_memory(None), _avr_memory(near)
+    assert without.problem == beside.problem == ""
+    assert beside.ram_static == without.ram_static and beside.ram_size == without.ram_size
+    assert beside.stack_free_low == without.stack_free_low, (without, beside)
