@@ -28,6 +28,7 @@ from missing_link.ros.standard.imu import variances
 from missing_link.topics import Command
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
+IMU_TYPE = "sensor_msgs/msg/Imu"
 G = 9.80665
 #: a minimal board file entry per driver (its pins; what it needs)
 ENTRIES: dict[str, dict[str, Any]] = {
@@ -157,6 +158,21 @@ def test_an_imu_vector_with_an_na_axis_is_no_estimate_not_nan() -> None:
     assert msg.linear_acceleration.z == G and msg.linear_acceleration_covariance[0] > 0
     neither = [None, None, None, 25.0, None, None, 0.3]
     assert imu.sample([0, 0, 0, ns(3), 0, 0, ns(3)], neither) is None
+
+
+def test_an_imu_vector_with_an_infinite_axis_is_no_estimate_either() -> None:
+    """A float channel, or a board's scale= beyond float range, gives an infinite axis: no
+    more a reading than a NaN is."""
+    imu, _ = maps(of_driver("mpu6050"))
+    assert imu.sample is not None
+    msg = decode(imu.sample([ns(1)] * 7, [math.inf, 0.0, G, 25.0, 0.1, 0.2, 0.3]), IMU_TYPE)
+    a, w = msg.linear_acceleration, msg.angular_velocity
+    assert (a.x, a.y, a.z) == (0.0, 0.0, 0.0) and msg.linear_acceleration_covariance[0] == -1
+    assert (w.x, w.y, w.z) == (0.1, 0.2, 0.3) and msg.angular_velocity_covariance[0] > 0
+    msg = decode(imu.sample([ns(2)] * 7, [0.0, 0.0, G, 25.0, 0.1, 0.2, -math.inf]), IMU_TYPE)
+    assert msg.angular_velocity.z == 0.0 and msg.angular_velocity_covariance[0] == -1
+    assert msg.linear_acceleration.z == G and msg.linear_acceleration_covariance[0] > 0
+    assert imu.sample([ns(3)] * 7, [math.inf, 0.0, G, 25.0, math.inf, 0.2, 0.3]) is None
 
 
 def test_imu_covariance_follows_the_boards_range_and_filter() -> None:

@@ -66,12 +66,12 @@ def build(c: Ctx) -> list[StandardMapping]:
     def imu(host_ns: list[int], values: list[Any]) -> bytes | None:
         ax, ay, az, _t, gx, gy, gz = (math.nan if v is None else float(v) for v in values)
         accel_cov, gyro_cov = covariances()
-        # an N/A on an axis: the vector is no estimate (covariance[0] = -1, as the message
+        # an N/A (or infinite) axis: the vector is no estimate (covariance[0] = -1, as the message
         # says; never a NaN a consumer would take for a reading); neither vector: no message
-        if any(map(math.isnan, (ax, ay, az))):
+        if not all(map(math.isfinite, (ax, ay, az))):
             ax = ay = az = 0.0
             accel_cov = no_estimate
-        if any(map(math.isnan, (gx, gy, gz))):
+        if not all(map(math.isfinite, (gx, gy, gz))):
             gx = gy = gz = 0.0
             gyro_cov = no_estimate
         if accel_cov is no_estimate and gyro_cov is no_estimate:
