@@ -362,3 +362,42 @@ def test_all_na_update_is_logged_at_host_realtime() -> None:
     session.path.on_sif(SifReceived(1, 2, struct.pack("<QhQh", 9, -1, 9, -1), 0), time.monotonic())
     measured, na = got[-2:]
     assert na.host_ns == [0, 0] and na.stamp_ns == measured.stamp_ns + 1
+
+
+def test_a_topics_first_all_na_sample_is_logged_when_the_board_assembled_it() -> None:
+    """A topic's first sample, all N/A, that arrives late (a busy host read it together with
+    the next one) is logged where the board put it, before that next sample's measurement:
+    it took its arrival, and a log-time reader (a replay's recording read back) put it after."""
+    import struct
+
+    from missing_link.daemon import BoardSession
+    from missing_link.descriptors import parse_transds
+    from missing_link.j2a import SifReceived
+    from missing_link.timesync.exchange import Exchange
+    from missing_link.timesync.sync import ClockSync, SyncOptions
+    from missing_link.topics import Topic
+
+    d = Daemon(Config())
+    session = BoardSession(d.session_context(), BoardSpec("memory://unused"))
+    (t,) = parse_transds("transds/1\nquad,1,p,M,1,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/quad", "b", t, "missing_link_msgs")
+    session.path.topics[1] = topic
+    session.path.realtime_offset_ns = 0  # (host times on the monotonic clock, as the map's)
+    sync = ClockSync(SyncOptions(), seed=1)
+    base = time.monotonic_ns() - 10**9  # the board's clock: the host's, in µs
+    sync.start(base / 1e9)
+    for k in range(12):  # (a clock map from exchanges of 120 µs)
+        t1 = base + k * 10**7
+        sync.on_exchange(Exchange(t1, t1 // 1000 + 50, t1 // 1000 + 60, t1 + 120_000), t1 / 1e9)
+    session.path.sync = sync
+    d.bus.add_topic(topic)
+    got: list[Update] = []
+    d.subscribe("/b/quad", got.append, queue=0)
+    assembled, measured = base // 1000 + 200_000, base // 1000 + 300_000  # board µs
+    now = time.monotonic()  # both read now, long after either
+    session.path.on_sif(SifReceived(1, 0, struct.pack("<Qh", assembled, -1), 0), now)
+    session.path.on_sif(SifReceived(1, 1, struct.pack("<Qh", measured, 5), 0), now)
+    na, sample = got
+    assert na.values == [None] and sample.values == [5]
+    assert na.stamp_ns < sample.stamp_ns < int(now * 1e9)
+    assert abs(na.stamp_ns - assembled * 1000) < 10**6  # (the map's error: µs)

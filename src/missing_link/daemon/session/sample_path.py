@@ -256,12 +256,10 @@ class SamplePath:
                 )
             self._last_host[cmd] = newest
             stamp = newest  # the log time: the newest measurement (Update would take max again)
-        else:  # all N/A: just after the topic's last sample, where the board sent it (its
-            # arrival, late on a busy machine, may pass the next one's measurement)
-            last = self._last_host.get(cmd)
-            stamp = arrived
-            if last is not None:
-                stamp = self._last_host[cmd] = min(arrived, last + 1)
+        else:  # all N/A: where the board sent it, not at its arrival (late on a busy machine,
+            # it may pass the next one's measurement): just after the topic's last sample, or
+            # for its first, when the board assembled it (the stamps of N/A channels), mapped
+            stamp = self._all_na_stamp(cmd, got, arrived)
         update = Update.build(
             topic=topic,
             board_us=board_us,
@@ -312,6 +310,18 @@ class SamplePath:
             flags |= OFF_GRID
             self.off_grid_samples += 1
         return host_ns, newest, flags
+
+    def _all_na_stamp(
+        self, cmd: int, got: tuple[list[int], int, int, int] | None, arrived: int
+    ) -> int:
+        last = self._last_host.get(cmd)
+        if last is not None:
+            stamp = self._last_host[cmd] = min(arrived, last + 1)
+        elif got is not None and not got[3] & OUTLIER:
+            stamp = self._last_host[cmd] = min(arrived, max(got[0]))
+        else:
+            stamp = arrived  # (no map yet: the next sample's time is its arrival too)
+        return stamp
 
     def _nudged(
         self, host_ns: list[int], newest: int, last: int, bound: int, est_error: int
