@@ -104,10 +104,11 @@ class RunConfig:
         self.ctx.on_keys(self.ctx.name(), self.keys, dict(self.values), self.configure)
 
     def read_at_connect(self, board: Board, give_up: Callable[[], bool]) -> None:
-        """``on_connect``, asked again while the board does not answer in time (a late reply:
-        a busy board or host), until ``give_up()``: then CallTimeout, and the connect fails as
-        a handshake that times out does.  A configuration that cannot be read otherwise (a
-        board answering garbage) is warned, and the board still publishes."""
+        """``on_connect``, asked again while the board does not answer in time (a late reply
+        to the read or to the file's keys: a busy board or host), until ``give_up()``: then
+        CallTimeout, and the connect fails as a handshake that times out does.  A
+        configuration that cannot be read otherwise (a board answering garbage) is warned, and
+        the board still publishes."""
         while True:
             try:
                 self.on_connect(board)
@@ -131,6 +132,8 @@ class RunConfig:
         try:
             self.configure(wanted, by=f"config file ({why})")
         except (ConfigError, MissingLinkError) as e:
+            if isinstance(e, CallTimeout) and why == "connect":
+                raise  # (a late reply: read_at_connect asks again; the board may have them)
             self.ctx.warn(f"[boards.{self.ctx.name()}.config] not applied: {e}")
 
     # ---- changes (any thread but the I/O loop) ------------------------------------------------

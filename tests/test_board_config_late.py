@@ -1,0 +1,42 @@
+"""A board that answers its configuration late when it connects (a busy board or host): the
+session asks again on the same link, and ends with the configuration the file asks for."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from missing_link.virtual import make_sim
+
+from .helpers import wait_for
+
+
+def test_a_board_that_applies_the_files_keys_late_is_asked_again(serve: Any) -> None:
+    """Its first a2jConfigSet (the config file's keys) answers after twice the call's timeout:
+    the session reads and applies again on the same link, and says nothing was lost.  Before,
+    only a late a2jConfigGet was asked again (aa589ab); a late set left the link's whole life
+    with the file's keys 'not applied' (a warning) though the board had them, and the keys'
+    values on every face the ones from before."""
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+
+    rt = make_sim("thesis", 1)
+    name, kind, set_ = rt.functions[rt.index["a2jConfigSet"]]
+    late: list[bytes] = []
+
+    def first_late(payload: bytes) -> Any:
+        if not late:
+            late.append(payload)
+            time.sleep(1.0)  # (twice the call's timeout: it cannot be in time, however busy)
+        return set_(payload)
+
+    rt.functions[rt.index["a2jConfigSet"]] = (name, kind, first_late)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    cfg = Config(boards=[BoardSpec(server.url, timeout=0.5)])
+    cfg.board_config = {"thesis": {"dist_ir.rate_hz": 5}}
+    with Daemon(cfg) as d:
+        assert wait_for(lambda: d.status()[0]["state"] == "up", 30), d.status()
+        st = d.status()[0]
+        assert late and st["connects"] == 1 and st["failures"] == 0, st
+        assert "dist_ir.rate_hz=5" in st["config"] and not st["warnings"], st
+    assert rt.config.values()[[k.name for k in rt.config.keys].index("dist_ir.rate_hz")] == 5.0
