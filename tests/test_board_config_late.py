@@ -40,3 +40,36 @@ def test_a_board_that_applies_the_files_keys_late_is_asked_again(serve: Any) -> 
         assert late and st["connects"] == 1 and st["failures"] == 0, st
         assert "dist_ir.rate_hz=5" in st["config"] and not st["warnings"], st
     assert rt.config.values()[[k.name for k in rt.config.keys].index("dist_ir.rate_hz")] == 5.0
+
+
+def test_a_board_that_never_answers_its_configuration_in_time_still_publishes(
+    serve: Any,
+) -> None:
+    """Every a2jConfigGet of this board answers after its call's timeout (a configuration
+    function that hangs a while; the board is otherwise well): after asking for as long as a
+    handshake may take, the session says so and publishes the board, as it does one that
+    answers them with garbage.  Before, every connect failed after the handshake's time and
+    the session backed off and connected again, for good: not one sample of the board's."""
+    from missing_link.daemon import Daemon
+    from missing_link.daemon.config import BoardSpec, Config
+
+    rt = make_sim("thesis", 1)
+    name, kind, get = rt.functions[rt.index["a2jConfigGet"]]
+    asked: list[bytes] = []
+
+    def always_late(payload: bytes) -> Any:
+        asked.append(payload)
+        time.sleep(0.6)  # (beyond the call's timeout: never in time, however fast the host)
+        return get(payload)
+
+    rt.functions[rt.index["a2jConfigGet"]] = (name, kind, always_late)
+    server = serve(rt, "tcp://127.0.0.1:0")
+    cfg = Config(boards=[BoardSpec(server.url, timeout=0.3, handshake_timeout=1.0)])
+    got: list[object] = []
+    with Daemon(cfg) as d:
+        d.subscribe("/thesis/dist_ir", got.append)
+        assert wait_for(lambda: d.status()[0]["state"] == "up", 30), d.status()
+        st = d.status()[0]
+        assert len(asked) >= 2 and st["connects"] == 1 and st["failures"] == 0, st
+        assert "run-time configuration unread: no answer in time" in st["warnings"], st
+        assert wait_for(lambda: got, 10)

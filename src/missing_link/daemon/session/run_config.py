@@ -105,17 +105,18 @@ class RunConfig:
 
     def read_at_connect(self, board: Board, give_up: Callable[[], bool]) -> None:
         """``on_connect``, asked again while the board does not answer in time (a late reply
-        to the read or to the file's keys: a busy board or host), until ``give_up()``: then
-        CallTimeout, and the connect fails as a handshake that times out does.  A
-        configuration that cannot be read otherwise (a board answering garbage) is warned, and
-        the board still publishes."""
+        to the read or to the file's keys: a busy board or host), until ``give_up()`` (a
+        handshake's time).  A configuration that cannot be read then, or otherwise (a board
+        answering garbage), is warned, and the board still publishes: an optional function
+        that hangs must not cost the board its samples."""
         while True:
             try:
                 self.on_connect(board)
                 return
-            except CallTimeout:
+            except CallTimeout as e:
                 if give_up():
-                    raise
+                    self.ctx.warn(f"run-time configuration unread: no answer in time ({e})")
+                    return
             except MissingLinkError as e:
                 self.ctx.warn(f"run-time configuration unreadable: {e}")
                 return
