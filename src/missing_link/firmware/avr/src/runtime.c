@@ -9,9 +9,9 @@
  * drivers run, then writes each transducer with new values as one sample SIF, but only when the
  * TX ring has room for the SIF's worst case: a SIF never waits and never splits a reply.  A value
  * that arrives on a channel that still holds an unsent one flushes that SIF first; if the ring
- * is full then, that older SIF is dropped whole and counted (sifs_dropped): the newest sample
- * wins, a sample is never torn (the Python runtime's queue drops its oldest SIF whole too), and
- * every loss has a number.
+ * is full then, that older SIF is dropped whole and counted (sifs_dropped), its seq taken so
+ * the host counts it lost: the newest sample wins, a sample is never torn (the Python runtime's
+ * queue drops its oldest SIF whole too), and every loss has a number.
  *
  * Function table order and every reply byte follow the Python runtime (board/runtime.py), so
  * the host cannot tell the two apart: a2jGetMapping, a2jMany, a2jGetProperties, a2jDebug,
@@ -338,6 +338,8 @@ static void keep(transducer_t *t, uint8_t ch, uint32_t raw, uint32_t stamp) {
         if (!flush_sif(t, clock_widen(stamp))) { /* no room: the older SIF goes, counted */
             sifs_dropped++;
             t->pending = 0;
+            sif_seq++; /* (its seq with it, as the Python runtime's queue drops: the host */
+            sif_total++; /* sees the gap and counts it lost; a2jSifCount counts it too) */
         }
     }
     t->stamps[ch] = stamp;
