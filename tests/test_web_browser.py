@@ -24,6 +24,7 @@ from typing import Any
 import pytest
 
 from missing_link.daemon.config import BoardSpec
+from missing_link.testing import wait_for
 from missing_link.virtual.process import start_board_process, stop_process
 from missing_link.world.datasheets import DLPF_DEFAULT, FIGURES, G, imu_sigmas
 
@@ -265,7 +266,10 @@ def test_every_channel_named_one_plot_per_quantity(rig_page: Any, shots: Path) -
     ticks = rig_page.evaluate("timeAxis().values({scales: {x: {max: 1000}}}, "
                           "[970, 975, 980, 985, 990, 995, 1000])")  # fmt: skip
     assert ticks == ["-30 s", "-25 s", "-20 s", "-15 s", "-10 s", "-5 s", "now"]
-    rig_page.wait_for_function("[...S.topics.values()].every(t => t.plots.every(p => p.plot))")
+    # (polled from here: Playwright's wait_for_function evaluates a string again in the page,
+    # which the console's CSP, script-src 'self', refuses once the first try was not yet true)
+    every_plot = "[...S.topics.values()].every(t => t.plots.every(p => p.plot))"
+    assert wait_for(lambda: rig_page.evaluate(every_plot), 30)
     stepped = rig_page.evaluate(
         "[...S.topics.values()].map(t => [t.meta.name, t.meta.kind, "
         "t.plots.every(p => p.plot.series[1].stepped === true)])"
