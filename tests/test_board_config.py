@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import itertools
 import struct
-import time
 from pathlib import Path
 from typing import Any
 
@@ -264,35 +263,3 @@ def test_a_board_answering_garbage_is_an_error_and_the_session_lives(serve: Any)
         with pytest.raises(BoardError, match="does not fit"):
             d.configure("thesis", {"dist_ir.rate_hz": 5})
         assert wait_for(lambda: got, 5) and d.status()[0]["state"] == "up"
-
-
-def test_a_board_that_does_not_answer_its_configuration_in_time_is_asked_again(
-    serve: Any,
-) -> None:
-    """Its first a2jConfigGet answers after twice the call's timeout (the board is busy): the
-    session asks again on the same link and has the configuration, the file's keys applied.
-    Before, the link ran its whole life without them, said only as a warning (a replay's
-    recording under load lost /board_b/config)."""
-    from missing_link.daemon import Daemon
-    from missing_link.daemon.config import BoardSpec, Config
-
-    rt = make_sim("thesis", 1)
-    name, kind, get = rt.functions[rt.index["a2jConfigGet"]]
-    late: list[bytes] = []
-
-    def first_late(payload: bytes) -> Any:
-        if not late:
-            late.append(payload)
-            time.sleep(1.0)  # (twice the call's timeout: it cannot be in time, however busy)
-        return get(payload)
-
-    rt.functions[rt.index["a2jConfigGet"]] = (name, kind, first_late)
-    server = serve(rt, "tcp://127.0.0.1:0")
-    cfg = Config(boards=[BoardSpec(server.url, timeout=0.5)])
-    cfg.board_config = {"thesis": {"dist_ir.rate_hz": 5}}
-    with Daemon(cfg) as d:
-        assert wait_for(lambda: d.status()[0]["state"] == "up", 30), d.status()
-        st = d.status()[0]
-        assert late and st["connects"] == 1 and st["failures"] == 0, st
-        assert "dist_ir.rate_hz=5" in st["config"] and not st["warnings"], st
-    assert rt.config.values()[[k.name for k in rt.config.keys].index("dist_ir.rate_hz")] == 5.0

@@ -6,31 +6,36 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import pytest
+
 from missing_link.virtual import make_sim
 
 from .helpers import wait_for
 
 
-def test_a_board_that_applies_the_files_keys_late_is_asked_again(serve: Any) -> None:
-    """Its first a2jConfigSet (the config file's keys) answers after twice the call's timeout:
-    the session reads and applies again on the same link, and says nothing was lost.  Before,
-    only a late a2jConfigGet was asked again (aa589ab); a late set left the link's whole life
-    with the file's keys 'not applied' (a warning) though the board had them, and the keys'
-    values on every face the ones from before."""
+@pytest.mark.parametrize("late_call", ["a2jConfigGet", "a2jConfigSet"])
+def test_a_board_that_answers_its_configuration_late_is_asked_again(
+    serve: Any, late_call: str
+) -> None:
+    """Its first a2jConfigGet (the read) or a2jConfigSet (the config file's keys) answers after
+    twice the call's timeout (the board is busy): the session asks again on the same link and
+    has the configuration, the file's keys applied.  Before, the link ran its whole life without
+    them, said only as a warning (a replay's recording under load lost /board_b/config), and a
+    late set left the keys' values on every face the ones from before (aa589ab, ead7385)."""
     from missing_link.daemon import Daemon
     from missing_link.daemon.config import BoardSpec, Config
 
     rt = make_sim("thesis", 1)
-    name, kind, set_ = rt.functions[rt.index["a2jConfigSet"]]
+    name, kind, call = rt.functions[rt.index[late_call]]
     late: list[bytes] = []
 
     def first_late(payload: bytes) -> Any:
         if not late:
             late.append(payload)
             time.sleep(1.0)  # (twice the call's timeout: it cannot be in time, however busy)
-        return set_(payload)
+        return call(payload)
 
-    rt.functions[rt.index["a2jConfigSet"]] = (name, kind, first_late)
+    rt.functions[rt.index[late_call]] = (name, kind, first_late)
     server = serve(rt, "tcp://127.0.0.1:0")
     cfg = Config(boards=[BoardSpec(server.url, timeout=0.5)])
     cfg.board_config = {"thesis": {"dist_ir.rate_hz": 5}}
