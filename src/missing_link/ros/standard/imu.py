@@ -65,17 +65,19 @@ def build(c: Ctx) -> list[StandardMapping]:
 
     def imu(host_ns: list[int], values: list[Any]) -> bytes | None:
         ax, ay, az, _t, gx, gy, gz = (math.nan if v is None else float(v) for v in values)
-        accel_cov, gyro_cov = covariances()
         # an N/A (or infinite) axis: the vector is no estimate (covariance[0] = -1, as the message
         # says; never a NaN a consumer would take for a reading); neither vector: no message
-        if not all(map(math.isfinite, (ax, ay, az))):
+        accel_ok = all(map(math.isfinite, (ax, ay, az)))
+        gyro_ok = all(map(math.isfinite, (gx, gy, gz)))
+        if not (accel_ok or gyro_ok):
+            return None
+        accel_cov, gyro_cov = covariances()
+        if not accel_ok:
             ax = ay = az = 0.0
             accel_cov = no_estimate
-        if not all(map(math.isfinite, (gx, gy, gz))):
+        if not gyro_ok:
             gx = gy = gz = 0.0
             gyro_cov = no_estimate
-        if accel_cov is no_estimate and gyro_cov is no_estimate:
-            return None
         msg = Imu(
             header=c.header(max(host_ns)),
             orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=0.0),
