@@ -131,3 +131,33 @@ def test_a_reading_that_is_no_small_integer_is_not_fed_and_is_counted() -> None:
     assert all(abs(v) < 1 << 30 for _fn, args in fed for v in args)
     assert link.state()["readings_dropped"] == 10  # (five steps' IMU and sonar each)
     assert [a for fn, a in fed if fn == "ranger" and a[0] == sonar]
+
+
+def test_a_board_paused_for_a_minute_finds_its_world_paused_not_a_minute_run_at_once() -> None:
+    """A host that stopped the board 60 s (SIGSTOP, a laptop's suspend): the board's clock jumps
+    a minute at its next tick.  The world runs at most MAX_CATCHUP_US of it (a minute's run at
+    once was 57,210 encoder edges on the rover, all delivered at once), stands still for the
+    rest, and says so in its state; its own time (events, pushes) paused with it."""
+    from missing_link.virtual.worldlink import MAX_CATCHUP_US
+
+    link = WorldLink(World(parse("", "room.toml"), ROVER, 0), ROVER)
+    full = {"motor": 100000 + 50000 + 5000, "servo": 1500, "stepper": 0, "stepper_on": 1}
+    values = [full[fn] for fn, _ in link.reads]
+    for _ in range(100):  # (a second driving at half duty, ticking on time)
+        _calls, edges = link.tick(link.due_us(), values)
+    per_tick = len(edges)
+    assert per_tick > 0
+    before = link.state()
+    now = link.due_us() + 60_000_000
+    _calls, edges = link.tick(now, values)
+    # the stretch the world ran: MAX_CATCHUP_US and the tick ahead, its edges in it
+    ran = (MAX_CATCHUP_US + link.tick_us) // link.tick_us
+    assert len(edges) <= (ran + 1) * per_tick, len(edges)
+    assert all(now - MAX_CATCHUP_US <= t <= now + link.tick_us for t, *_ in edges)
+    st = link.state()
+    assert st["skips"] == 1 and st["skipped_s"] == pytest.approx(60 - MAX_CATCHUP_US / 1e6)
+    assert st["t_s"] == pytest.approx(before["t_s"] + MAX_CATCHUP_US / 1e6 + link.tick_us / 1e6)
+    travelled = math.hypot(st["x_m"] - before["x_m"], st["y_m"] - before["y_m"])
+    assert travelled <= (ran + 1) * before["speed_m_s"] * link.tick_us / 1e6
+    _calls, edges = link.tick(link.due_us(), values)  # (and then on as before)
+    assert 0 < len(edges) <= per_tick + 1 and link.state()["skips"] == 1

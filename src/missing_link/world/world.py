@@ -122,6 +122,13 @@ class World:
     def now_s(self) -> float:
         return (self.t_us - self.start_us) / 1e6
 
+    def skip(self, us: int) -> None:
+        """Stand still for ``us`` of the board's clock: the world's own time (its events, pushes
+        under way, the GPS's wander) pauses, nothing moves, reads or draws (a host that stopped
+        its board for a while: worldlink.py)."""
+        self.t_us += us
+        self.start_us += us
+
     def step(self, until_us: int, act: Actuation, read: bool = True) -> Frame:
         """Read the sensors now (``read``; else the frame has the edges alone), then run the
         world to ``until_us`` under ``act``."""
