@@ -416,7 +416,7 @@ class BoardLink:
     def stats(self) -> LinkStats:
         """The link's counters now (a snapshot: the reading goes on meanwhile)."""
         with self._lock:
-            counts = {**self.conn.decoder.stats.as_dict(), **self.conn.stats.as_dict()}
+            counts = self.conn.stats.as_dict()
         return LinkStats(
             **counts, unheard_sifs=self.sifs.unheard, transport=self.transport.link_stats()
         )

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any, NamedTuple
 
 from ..errors import BoardError, CallError, CallTimeout, FunctionFailed, LinkLost
-from ..j2a import CallCompleted, CallFailed, FailureReason, TransferCompleted
+from ..j2a import CallCompleted, CallFailed, ConnectionStats, FailureReason, TransferCompleted
 from ..timesync.exchange import Exchange
 
 
@@ -35,26 +35,14 @@ class CallResult:
         return self.code == 0
 
 
-@dataclass(frozen=True)
-class LinkStats:
-    """A link's counters at one moment: the frame decoder's and the connection's, and what the
-    transport counts of its own (a signed link's dropped records), by name.  Counters of
-    several links add up (``a + b``: a session's over every link it had)."""
+@dataclass(slots=True)
+class LinkStats(ConnectionStats):
+    """A link's counters at one moment: its connection's (the frame decoder's and the
+    connection's own, j2a's ConnectionStats) and the link's, and what the transport counts of
+    its own (a signed link's dropped records), by name.  A snapshot (``BoardLink.stats``: the
+    link counts on in its own struct).  Counters of several links add up (``a + b``: a
+    session's over every link it had)."""
 
-    frames: int = 0
-    junk_bytes: int = 0
-    bad_checksums: int = 0
-    bad_escapes: int = 0
-    cut_frames: int = 0
-    requests: int = 0
-    replies: int = 0
-    late_replies: int = 0
-    foreign_replies: int = 0
-    timeouts: int = 0
-    board_errors: int = 0
-    retries: int = 0
-    sifs: int = 0
-    lost_sifs: int = 0
     #: SIFs that came while nothing listened for them (before the session's sample path is on:
     #: a board streams from its boot, the host handshakes first); not lost, not published
     unheard_sifs: int = 0

@@ -181,9 +181,11 @@ class FrameDecoder:
 
     __slots__ = ("_buf", "stats")
 
-    def __init__(self) -> None:
+    def __init__(self, stats: DecoderStats | None = None) -> None:
         self._buf = b""
-        self.stats = DecoderStats()
+        #: its counters: its own, or a larger struct it counts into (a connection's: every
+        #: counter of a link in one place)
+        self.stats = DecoderStats() if stats is None else stats
 
     @property
     def buffered(self) -> int:

@@ -43,7 +43,16 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .blobs import FLAG_LAST, FLAG_WRITE, MANY_CHUNK, MANY_HEADER
-from .codec import ERROR_CODES, SOF, SOS, Frame, FrameDecoder, FrameError, encode_frame
+from .codec import (
+    ERROR_CODES,
+    SOF,
+    SOS,
+    DecoderStats,
+    Frame,
+    FrameDecoder,
+    FrameError,
+    encode_frame,
+)
 from .events import (
     CallCompleted,
     CallFailed,
@@ -68,8 +77,11 @@ _SOF_BYTE = bytes((SOF,))
 _LATE_MEMORY = 64
 
 
-@dataclass
-class ConnectionStats:
+@dataclass(slots=True)
+class ConnectionStats(DecoderStats):
+    """A connection's counters: its frame decoder's (the decoder counts into this struct) and
+    its own, one struct under one spelling (host/results.py's LinkStats adds the link's)."""
+
     requests: int = 0
     replies: int = 0
     late_replies: int = 0
@@ -79,9 +91,6 @@ class ConnectionStats:
     retries: int = 0
     sifs: int = 0
     lost_sifs: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(self.__dict__)
 
 
 @dataclass
@@ -127,8 +136,8 @@ class HostConnection:
             raise ValueError("window must be 1..128 requests in flight")
         self.window = window
         self.retries = retries
-        self.decoder = FrameDecoder()
         self.stats = ConnectionStats()
+        self.decoder = FrameDecoder(self.stats)
         self._next_op = 1
         self._seq = 0
         self._queue: deque[_Op] = deque()
