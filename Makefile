@@ -72,9 +72,11 @@ unit: venv system-deps node ros2
 test: lint typecheck unit
 
 # The inner loop: lint, types and the tests not marked slow (no board processes, MicroPython,
-# simavr, ROS or browsers: tests/*.py mark those), under a minute here.  `make test` runs all.
+# simavr, ROS or browsers: tests/*.py mark those), under a minute here; on every core as make unit
+# (most of these tests wait on sockets and threads: one process used half a core).  `make test`
+# runs all.
 check: lint typecheck node
-	$(VENV)/bin/pytest -q -m "not slow"
+	$(VENV)/bin/pytest -q -m "not slow" -n $(PYTEST_WORKERS) --dist loadgroup
 
 bench: venv ros2
 	$(PY) bench/bench_codec.py
