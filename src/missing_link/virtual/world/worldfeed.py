@@ -20,7 +20,7 @@ from .machine import WORLD
 from .pin_devices import motor_code
 
 MAX_PARTS = 32
-TICKS_MAX = (1 << 30) - 1  # (the board clock's wrap: simtime.py)
+TICKS_MAX = 0x3FFFFFFF  # (the board clock's wrap: simtime.py; a small integer as written)
 HCSR04, SRF02, VL53L0X, SHARP, IMU, COMPASS, GPS, BATTERY = 0, 1, 2, 3, 4, 5, 6, 7
 MOTOR, SERVO, STEPPER, ENCODER = 8, 9, 10, 11
 _devs = [None] * MAX_PARTS  # index -> device model (an ADC or PWM part: its pin)
@@ -96,13 +96,24 @@ def step_at(t, pin_a, pin_b, d):
 
 def steps_at(pin_a, pin_b, d, n, t0, span):
     # n edges the same way, spread evenly from t0 to t0 + span (µs; t0 wrapped as the clock
-    # is, and the sum kept a small integer: 2^30 is not one on a 32-bit port)
+    # is): the k-th at t0 + span * k // (n - 1), made by adding (span * k is not a small integer
+    # on a 32-bit port once span * n passes 2^30: a second's span and a few hundred edges), each
+    # sum below TICKS_MAX and wrapped as the clock is
     # (no range object, no tuple of four: nothing of the world's garbage in the board's heap)
     rest = TICKS_MAX - t0
+    gaps = n - 1 if n > 1 else 1
+    whole = span // gaps
+    part = span - whole * gaps  # (0 <= part < gaps)
+    dt = 0
+    carry = 0
     k = 0
     while k < n:
-        dt = span * k // (n - 1) if n > 1 else 0
         step_at(t0 + dt if dt <= rest else dt - rest - 1, pin_a, pin_b, d)
+        dt += whole
+        carry += part
+        if carry >= gaps:
+            carry -= gaps
+            dt += 1
         k += 1
     if release is not None:  # (heldtime: the port's clock again)
         release()
