@@ -308,10 +308,11 @@ def test_status_keys_stay_as_documented(held: Any) -> None:
     assert st["state"] == "up" and type(st["state"]) is str and type(st["level"]) is int
     assert list(st)[10:19] == ["frames", "bad_checksums", "bad_escapes", "cut_frames", "junk_bytes",
                                "lost_sifs", "timeouts", "late_replies", "unheard_sifs"]  # fmt: skip
-    assert {"commands", "command_errors", "values_refused", "rtt_us", "warnings", "clock_epoch",
-            "map_pushes", "configurable", "aligned", "failsafe_trips", "failsafe_last_trip_ms",
-            "sync_state", "log_warn", "log_dropped", "log_faults"} <= set(st)  # fmt: skip
-    assert len(st) == 75  # (a thesis board: with its failsafe; 73 without one)
+    assert {"commands", "command_errors", "values_refused", "timed_within_us", "rtt_us", "warnings",
+            "clock_epoch", "map_pushes", "configurable", "aligned", "failsafe_trips",
+            "failsafe_last_trip_ms", "sync_state", "log_warn", "log_dropped", "log_faults",
+            } <= set(st)  # fmt: skip
+    assert len(st) == 76  # (a thesis board: with its failsafe; 74 without one)
     snap = d.snapshots()[0]  # the same, typed
     assert (
         list(snap.to_json()) == list(st) and snap.state == SessionState.UP and snap.link.frames > 0

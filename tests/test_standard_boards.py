@@ -213,6 +213,12 @@ def test_a_joint_command_stamped_in_the_future_is_a_timed_one(robot: Daemon) -> 
     )
     assert wait_for(lambda: got and msg(got[-1]).position[0] != 0.0, 5)
     moved = next(u for u in got if msg(u).position[0] != 0.0)
-    # not before the asked host time (an untimed command would act 500 ms early): within the
-    # clock map's bound and the wasm port's clock, which counts whole milliseconds
-    assert moved.host_ns[0] >= at - moved.bound_ns - 1_000_000, (moved.host_ns[0] - at) / 1e6
+    # Not before the asked host time (an untimed command would act 500 ms early), to within
+    # what is promised: the board acts at the tick the map it was given puts at that time,
+    # which is that map's hard bound there from the truth (the status's timed_within_us); the
+    # movement's stamp maps within its own bound.  The estimate the movement is mapped with is
+    # newer than the one the board was given (once 2.37 ms apart: more than its bound).
+    rig = next(s for s in robot.status() if s["board"] == "rig")
+    within = rig["timed_within_us"] * 1000
+    early = at - moved.host_ns[0]
+    assert early <= moved.bound_ns + within, (early / 1e6, moved.bound_ns / 1e6, within / 1e6)

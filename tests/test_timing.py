@@ -14,11 +14,14 @@ from missing_link.board.timing import MAP_LIFE_US
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.session.alignment import ECHO_LAG_NS, grid_of, off_grid
+from missing_link.daemon.session.prober import map_payload
 from missing_link.descriptors import Transducer
 from missing_link.errors import MissingLinkError
 from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame
 from missing_link.testing import FakeBoardClock
 from missing_link.timesync import OFF_GRID
+from missing_link.timesync.exchange import Exchange
+from missing_link.timesync.sync import ClockSync, SyncOptions
 from missing_link.topics import Topic, Update
 from missing_link.virtual import make_sim
 from missing_link.virtual.server import start_board_thread
@@ -95,6 +98,52 @@ def test_timed_calls_and_their_refusals() -> None:
     assert (stamp, value) == (5_002_000, 12)
     code, info = call(rt, "a2jAlignInfo", b"")
     assert struct.unpack("<BIIII", info) == (1, 2, 0, 1, 5)  # (valid, age ms, ..., refused)
+
+
+def test_a_timed_call_acts_within_the_map_it_was_given_not_the_newer_one() -> None:
+    """The board acts on the map it was given; the host maps the action's stamp with a newer
+    estimate, which the exchanges since may have moved by more than its own bound: the action
+    is within the given map's bound there (``given_bound_ns``), not within the newer bound.
+    Deterministic: the first exchanges' replies are 4 ms slow (a busy host reading late), so
+    the given map lies ~2 ms late; the next ones are fast and pin the truth to ~50 µs."""
+    true_ns = lambda b: 7_000_000_000 + (b - 5_000_000) * 1000  # noqa: E731 - the truth
+    sync = ClockSync(SyncOptions(res_us=1))
+    sync.start(0.0)
+    b = 5_000_000
+
+    def exchange(up_ns: int, down_ns: int) -> None:
+        nonlocal b
+        b += 20_000
+        ex = Exchange(true_ns(b) - up_ns, b, b, true_ns(b) + down_ns)
+        sync.on_exchange(ex, true_ns(b) / 1e9)
+
+    for _ in range(6):
+        exchange(50_000, 4_000_000)
+    est = sync.estimate
+    assert est is not None
+    clock = FakeBoardClock(b)
+    rt = board(clock)
+    assert call(rt, "a2jHostMap", map_payload(est, 0))[0] == 0
+    sync.given = est  # (the prober sets it when the board has taken it)
+    at = true_ns(b) + 500_000_000
+    trig = rt.index["a2j_trigger"]  # type: ignore[attr-defined]
+    code, reply = call(rt, "a2jAt", struct.pack("<qB", at, trig) + struct.pack("<H", 12))
+    assert code == 0
+    tick = struct.unpack("<Q", reply)[0]
+    for _ in range(20):
+        exchange(50_000, 50_000)
+    rt.take_frames()  # type: ignore[attr-defined]
+    clock.us = tick
+    rt.poll()  # type: ignore[attr-defined]
+    (sif,) = [f for f in FrameDecoder().feed(b"".join(rt.take_frames()[1])) if f.opcode == 1]  # type: ignore[attr-defined]
+    stamp = struct.unpack_from("<Q", sif.payload)[0]
+    mapped = sync.map(stamp)
+    assert mapped is not None and stamp == tick
+    early = at - mapped.host_ns
+    assert early > mapped.bound_ns + 1_000_000  # the newer map's bound (and a ms) do not cover it
+    within = sync.given_bound_ns(tick)
+    assert within is not None and early <= mapped.bound_ns + within
+    assert abs(true_ns(tick) - at) <= within  # the truth: within the given map's bound
 
 
 def test_aligned_samples_fall_on_the_grid_and_free_ones_are_counted() -> None:
@@ -174,6 +223,9 @@ def test_the_daemon_keeps_the_maps_and_flags_a_board_that_runs_free() -> None:
                 d.send("/good/trigger/cmd", 10, at_ns=time.time_ns() - 50_000_000)
             tick = d.send("/good/trigger/cmd", 10, at_ns=time.time_ns() + 200_000_000)
             assert tick is not None and tick > 0
+            # how close to its time it acts: the given map's hard bound at its tick
+            within = next(s for s in d.status() if s["board"] == "good")["timed_within_us"]
+            assert isinstance(within, int) and 0 < within < 10_000, within
     finally:
         for s, t in servers:
             s.stop()

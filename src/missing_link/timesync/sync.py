@@ -132,6 +132,9 @@ class ClockSync:
         self._last_jump = -math.inf
         self.started_at: float | None = None
         self.first_bound_at: float | None = None  # s after start when the bound fell below 1 ms
+        #: the estimate the board last took as its map (a2jHostMap): what its timed calls and
+        #: its grid act on, however the estimate moved since (set by the shell that pushed it)
+        self.given: Estimate | None = None
 
     # ---- schedule ----------------------------------------------------------------------------
     def start(self, now: float) -> None:
@@ -270,6 +273,7 @@ class ClockSync:
         if prior is not None:  # the counter restarted, not the crystal: keep its skew
             self.estimator.set_prior(prior.skew, prior.h_ref)
         self._map = PublishedMap(max_slew=self.opt.max_slew, tau_s=self.opt.tau_s)
+        self.given = None  # (a board that restarted has no map)
         self.state = UNSYNCED
 
     # ---- output ------------------------------------------------------------------------------
@@ -344,11 +348,18 @@ class ClockSync:
         self._next = now or 0.0
         return None if reset else ([], -1, -1, OUTLIER)
 
-    def host_map(self) -> tuple[int, float, float] | None:
-        """The current estimate as (board µs, host ns, ns per µs), to hand to the board for
-        actions at a host time: the best guess of the truth, not the slewing published map."""
-        est = self.estimator.estimate
-        return None if est is None else (est.b_ref, est.h_ref, est.rate)
+    def given_bound_ns(self, board_us: int) -> int | None:
+        """How far from the host time the map the board was given (``given``) puts
+        ``board_us`` the truth may lie: that map's hard band there, plus one board µs (the
+        board acts at the tick at or before the asked time).  A timed call due at ``board_us``
+        acts this close to its asked time; the estimate may have moved since the map was
+        given, so the published bound does not cover it.  None: no map given."""
+        est = self.given
+        if est is None:
+            return None
+        lo, hi = est.interval(board_us)
+        centre = est.host_at(board_us)
+        return math.ceil(max(centre - lo, hi - centre) + est.rate)
 
     def status(self) -> dict[str, Any]:
         est = self.estimator.estimate

@@ -26,6 +26,9 @@ a later one: each goes to the board as ``a2jAt`` in arrival order, the board's c
 first, and the board acts at that host time or refuses (past, beyond what the map vouches for,
 no map): refusals are counted and said, and a caller waiting on ``Command.done`` gets them.
 One batch of timed commands is out at a time (the map, then its ``a2jAt`` calls, in order).
+The board acts at the tick the map it was given puts at the asked time: as close to that time
+as that map's hard bound there (``within``, kept for the newest one taken: ``timed_within_ns``),
+which the estimate may have narrowed and moved by the time the action's sample is mapped.
 
 Every call goes through ``call`` (the session's ``Farewell.call_future``): once the board has
 been told goodbye, none reaches it - not a command the supervisor was starting as the daemon
@@ -62,12 +65,21 @@ Outcome = CallResult | Exception
 
 class Actuators:
     def __init__(
-        self, wake: Callable[[], None], on_error: Callable[[str], None], call: CallFn | None = None
+        self,
+        wake: Callable[[], None],
+        on_error: Callable[[str], None],
+        call: CallFn | None = None,
+        within: Callable[[int], int | None] = lambda tick: None,
     ) -> None:
         """``wake()``: a command is pending (wake the supervisor); ``on_error(text)``: a call
         the board refused or a link that failed under it; ``call``: how a call is sent (default
-        ``board.call_future``; the session's refuses once the board was told goodbye)."""
+        ``board.call_future``; the session's refuses once the board was told goodbye);
+        ``within(tick)``: how close to its asked host time a timed call due at board ``tick``
+        acts (ns: the hard bound there of the map the board was given; None: unknown)."""
         self._call: CallFn = call or (lambda board, name, payload: board.call_future(name, payload))
+        self._within = within
+        #: the newest timed command the board took acts this close to its asked time (ns)
+        self.timed_within_ns: int | None = None
         self._wake = wake
         self._on_error = on_error
         self._pending: dict[str, tuple[Transducer, bytes]] = {}  # latest payload per actuator
@@ -233,8 +245,10 @@ class Actuators:
         if isinstance(got, CallResult):
             reply = got.payload
             self.commands += 1
+            tick = struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1
+            self.timed_within_ns = self._within(tick) if tick >= 0 else None
             if done is not None and not done.done():  # (a caller may have cancelled it)
-                done.set_result(struct.unpack("<Q", reply[:8])[0] if len(reply) >= 8 else -1)
+                done.set_result(tick)
             return
         if not self._stopping():  # (closing: a command cut short is not worth a line)
             self.command_errors += 1

@@ -36,10 +36,10 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
 
-from ...errors import CallTimeout, LinkLost, MissingLinkError
+from ...errors import CallTimeout, FunctionFailed, LinkLost, MissingLinkError
 from ...host.board import Board
 from ...host.link import CallResult
-from ...timesync.estimator import AddResult
+from ...timesync.estimator import AddResult, Estimate
 from ...timesync.exchange import Exchange
 from ...timesync.sync import TRACKING, ClockSync
 
@@ -104,20 +104,38 @@ class ClockProber:
 
     def push_map(self) -> None:
         """Hand the board the current clock map now (blocking; before a trigger)."""
-        payload = self._map_payload()
-        if payload is not None:
-            self.board.call_ok("a2jHostMap", payload, timeout=self.ctx.timeout)
-            self.ctx.on_map_pushed()
+        fut = self.push_map_future()
+        if fut is not None:
+            result = self.board.link.wait(fut, self.ctx.timeout)
+            if result.code != 0:
+                raise FunctionFailed(self.board.name, "a2jHostMap", result.code, result.payload)
 
     def push_map_future(self) -> Future[CallResult] | None:
         """Hand the board the current clock map, not waited for (the session's supervisor,
         before timed commands): the call's future, whose result says whether the board took
         it (counted when it did); None when there is no map yet."""
-        payload = self._map_payload()
-        if payload is None:
+        fut = self._push()
+        if fut is not None:
+            fut.add_done_callback(self._map_counted)
+        return fut
+
+    def _push(self) -> Future[CallResult] | None:
+        # The map is the estimate (the best guess of the truth), not the slewing published
+        # map.  Once the board has taken it, it is the sync's ``given``: what the board's timed
+        # calls act on (set in reply order on the reading thread, so an a2jAt answered after
+        # it was converted with it).
+        est = self.sync.estimate
+        if est is None:
             return None
+        payload = map_payload(est, self.ctx.realtime_offset_ns)
         fut = self.board.call_future("a2jHostMap", payload, timeout=self.ctx.timeout)
-        fut.add_done_callback(self._map_counted)
+        sync = self.sync
+
+        def took(f: Future[CallResult]) -> None:
+            if f.exception() is None and f.result().code == 0:
+                sync.given = est
+
+        fut.add_done_callback(took)
         return fut
 
     def _map_counted(self, fut: Future[CallResult]) -> None:
@@ -159,13 +177,12 @@ class ClockProber:
         # grid; otherwise only right before a timed command (push_map): a round trip a second
         # on every board costs the idle ones a third more CPU.
         if self._pushes and self.ctx.wants_map():
-            payload = self._map_payload()
-            if payload is not None:
-                try:
-                    fut = self.board.call_future("a2jHostMap", payload, timeout=self.ctx.timeout)
-                except MissingLinkError as e:
-                    self._report(e)
-                    return
+            try:
+                fut = self._push()
+            except MissingLinkError as e:
+                self._report(e)
+                return
+            if fut is not None:
                 fut.add_done_callback(self._map_pushed)
 
     def _map_pushed(self, fut: Future[CallResult]) -> None:
@@ -207,10 +224,9 @@ class ClockProber:
         if not isinstance(e, (CallTimeout, LinkLost)):
             self.ctx.on_error(str(e))
 
-    def _map_payload(self) -> bytes | None:
-        got = self.sync.host_map()
-        if got is None:
-            return None
-        b, h, rate = got
-        ppb = round((rate / 1000.0 - 1.0) * 1e9)
-        return struct.pack("<Qqi", b, round(h) + self.ctx.realtime_offset_ns, ppb)
+
+def map_payload(est: Estimate, realtime_offset_ns: int) -> bytes:
+    """``a2jHostMap``'s payload for an estimate: ``<Q board µs><q host ns><i rate - 1 in
+    ppb>``, host times in CLOCK_REALTIME (the monotonic estimate plus the offset)."""
+    ppb = round((est.rate / 1000.0 - 1.0) * 1e9)
+    return struct.pack("<Qqi", est.b_ref, round(est.h_ref) + realtime_offset_ns, ppb)

@@ -74,6 +74,7 @@ class SessionReport:
             commands=self.actuators.commands,
             command_errors=self.actuators.command_errors,
             values_refused=self.actuators.values_refused,
+            timed_within_ns=self.actuators.timed_within_ns,
             errors=self.faults.to_json(),
             rtt_us=round(self.rtt_us) if self.rtt_us is not None else None,
             warnings="; ".join(self._warnings_now()),

@@ -152,7 +152,9 @@ class BoardSession(SessionReport):
         self.past_links = LinkStats()  #: link counters of its earlier links (cumulative)
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self.actuators = Actuators(self._wake.set, self._set_error, self.farewell.call_future)
+        self.actuators = Actuators(
+            self._wake.set, self._set_error, self.farewell.call_future, self._timed_within
+        )
         self._actuator_calls: dict[str, str] = {}  # an actuator's function -> its command topic
         self._command_topics: list[str] = []  # every command topic offered (withdrawn at the end)
         self.frames = FrameIds()  #: its transducers' frame ids (a run-time change survives)
@@ -396,6 +398,10 @@ class BoardSession(SessionReport):
     def _call_failed(self, e: MissingLinkError) -> None:
         if not isinstance(e, LinkLost):  # (a lost link: the session says why, e.g. stale)
             self._set_error(str(e))
+
+    def _timed_within(self, tick: int) -> int | None:
+        sync = self.clock.sync
+        return sync.given_bound_ns(tick) if sync is not None else None
 
     def _push_map_now(self) -> None:
         try:

@@ -197,6 +197,9 @@ class SessionStatus:
     commands: int
     command_errors: int
     values_refused: int  #: commands whose value their actuator's type cannot hold (actuators.py)
+    #: how close to its asked time the newest timed command acts (the board's map's hard bound
+    #: at its tick, ns; None: none yet): actuators.py
+    timed_within_ns: int | None
     errors: Mapping[str, Any]  #: bugs caught, by kind (``ErrorCounts.to_json``)
     rtt_us: int | None
     warnings: str
@@ -230,6 +233,7 @@ class SessionStatus:
             "commands": self.commands,
             "command_errors": self.command_errors,
             "values_refused": self.values_refused,
+            "timed_within_us": _us_up(self.timed_within_ns),
             **self.errors,
             "rtt_us": self.rtt_us,
             "warnings": self.warnings,
@@ -244,3 +248,8 @@ class SessionStatus:
             **(self.sync if self.sync is not None else {"sync_state": "none"}),
             **({"update": dict(self.update)} if self.update is not None else {}),
         }
+
+
+def _us_up(ns: int | None) -> int | None:
+    """Whole µs, rounded up (a bound stays a bound)."""
+    return None if ns is None else -(-ns // 1000)
