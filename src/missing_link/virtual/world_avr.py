@@ -102,6 +102,7 @@ class AvrWorld:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
+                asked = time.monotonic()
                 got = self.ctl(self.asks)
                 now = _stats_us(got[0])
                 due = self.link.due_us()
@@ -110,6 +111,10 @@ class AvrWorld:
                     time.sleep(min(0.02, (due - now) / 1e6 + LATE_S))
                     continue
                 self.tick(now, self._reads(got[1], got[2] if len(got) > 2 else "stepper 0 0"))
+                # the next tick is a tick away in the simulation: slept here, less this tick's
+                # own time, not found by asking the rig once more (a round trip a tick)
+                ahead = (self.link.due_us() - now) / 1e6 - (time.monotonic() - asked)
+                time.sleep(max(0.0, min(0.02, ahead + LATE_S)))
         except Exception as e:  # noqa: BLE001 - the rig ended (power off, a crash): said once
             self.failed = f"{type(e).__name__}: {e}"
 

@@ -9,6 +9,7 @@ import itertools
 import math
 import random
 from dataclasses import dataclass
+from typing import Any
 
 from .datasheets import G, cep_sigma, imu_sigmas
 from .geometry import Segment, Vec, apply_t, body_rates, cross, nearest, rotation
@@ -91,9 +92,24 @@ def _attitude(body: Body) -> tuple[Vec, Vec, Vec]:
     return rotation(body.roll, body.pitch, body.yaw)
 
 
-def imu(part: Part, body: Body, rng: random.Random, noisy: bool) -> ImuReading:
+def imu_fixed(part: Part) -> tuple[Any, float, float, Vec, Vec, float]:
+    """What an IMU's readings take of its part that does not change: its mounting's rotation,
+    its noise (accelerometer, gyroscope), its biases in SI and its temperature (looked up once,
+    not every reading)."""
+    sa, sg = imu_sigmas(part.fig, int(part.fig["dlpf"]))
+    ab = part.triple("accel_bias_mg")
+    gb = part.triple("gyro_bias_dps")
+    return (rotation(part.roll, part.pitch, part.yaw), sa, sg,
+            (ab[0] * 1e-3 * G, ab[1] * 1e-3 * G, ab[2] * 1e-3 * G),
+            (math.radians(gb[0]), math.radians(gb[1]), math.radians(gb[2])),
+            part.number("temperature_c"))  # fmt: skip
+
+
+def imu(part: Part, body: Body, rng: random.Random, noisy: bool, fixed: Any = None) -> ImuReading:
     """The MPU-6050 at its mounting: specific force (gravity up, the body's acceleration and the
-    lever arm's) and turn rate, in the chip's axes, with the datasheet's noise."""
+    lever arm's) and turn rate, in the chip's axes, with the datasheet's noise; ``fixed``:
+    imu_fixed(part), when the caller keeps it."""
+    mount, sa, sg, ab, gb, temperature = fixed or imu_fixed(part)
     world_f = (body.ax, body.ay, G)  # (the body moves in the plane; gravity as a push up)
     f = apply_t(_attitude(body), world_f)
     w = body_rates(body.roll, body.pitch, body.roll_rate, body.pitch_rate, body.yaw_rate)
@@ -103,17 +119,13 @@ def imu(part: Part, body: Body, rng: random.Random, noisy: bool) -> ImuReading:
     centripetal = cross(w, cross(w, r))
     f = (f[0] + lever[0] + centripetal[0], f[1] + lever[1] + centripetal[1],
          f[2] + lever[2] + centripetal[2])  # fmt: skip
-    mount = rotation(part.roll, part.pitch, part.yaw)
     f, w = apply_t(mount, f), apply_t(mount, w)
-    sa, sg = imu_sigmas(part.fig, int(part.fig["dlpf"]))
-    ab = part.triple("accel_bias_mg")
-    gb = part.triple("gyro_bias_dps")
     draws = [rng.gauss(0.0, 1.0) for _ in range(6)]
     if not noisy:
         sa = sg = 0.0
-    accel = tuple(f[i] + ab[i] * 1e-3 * G + sa * draws[i] for i in range(3))
-    gyro = tuple(w[i] + math.radians(gb[i]) + sg * draws[3 + i] for i in range(3))
-    return ImuReading(accel, gyro, part.number("temperature_c"))  # type: ignore[arg-type]
+    accel = tuple(f[i] + ab[i] + sa * draws[i] for i in range(3))
+    gyro = tuple(w[i] + gb[i] + sg * draws[3 + i] for i in range(3))
+    return ImuReading(accel, gyro, temperature)  # type: ignore[arg-type]
 
 
 def compass(part: Part, body: Body, field_ut: Vec, rng: random.Random, noisy: bool) -> Vec:

@@ -103,6 +103,7 @@ class World:
         self.gps_err = {p.name: GpsError(p, self.rng[p.name], spec.noise)
                         for p in self.robot.of_kind("gps")}  # fmt: skip
         self.beams = {p.name: Beam.of(p) for p in self.robot.of_kind("ranger")}
+        self.imu_fixed = {p.name: sensing.imu_fixed(p) for p in self.robot.of_kind("imu")}
         self.turned = {p.name: 0.0 for p in self.robot.parts.values()
                        if p.kind in ("servo", "stepper")}  # fmt: skip
         self.turning = {n: _turning(self.robot.parts[n]) for n in self.turned}
@@ -240,7 +241,8 @@ class World:
                     got = self.blocks[p.name][0]
                 ranges[p.name] = got = self.held.get(p.name, got)
             elif p.kind == "imu":
-                imus[p.name] = got = self.held.get(p.name, sensing.imu(p, b, rng, noisy))
+                got = sensing.imu(p, b, rng, noisy, self.imu_fixed[p.name])
+                imus[p.name] = got = self.held.get(p.name, got)
             elif p.kind == "compass":
                 got = sensing.compass(p, b, site.field_ut, rng, noisy)
                 fields[p.name] = got = self.held.get(p.name, got)
