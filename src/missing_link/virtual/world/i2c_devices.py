@@ -16,6 +16,20 @@ def _now_us():
     return ticks_us()
 
 
+class _Registers:
+    # a part on the bus that acknowledges whenever it is addressed and takes a write as one
+    # register after another (_write1: a part with registers that do more says so there)
+    def ack(self):
+        return True
+
+    def write(self, reg, data):
+        for i, b in enumerate(data):
+            self._write1(reg + i, b)
+
+    def _write1(self, r, b):
+        self.regs[r] = b
+
+
 class SRF02:
     # Devantech SRF02 (datasheet "SRF02 Ultrasonic range finder", I2C mode): 6 registers; a
     # ranging takes 65 ms during which it does not acknowledge; range in the unit asked for.
@@ -84,7 +98,7 @@ class SRF02:
         return [regs[r] if r < len(regs) else 0 for r in range(reg, reg + n)]
 
 
-class MPU6050:
+class MPU6050(_Registers):
     # InvenSense MPU-6050 (register map rev 4.2): asleep at power-up (PWR_MGMT_1 = 0x40), data
     # registers read 0 while asleep; scaled by GYRO_CONFIG / ACCEL_CONFIG's FS_SEL bits.
     def __init__(self, bus, address=0x68):
@@ -95,13 +109,6 @@ class MPU6050:
         self.gyro = [0, 0, 0]  # LSB at +-250 deg/s (1/131 deg/s)
         self.temp_c = 25.0
         WORLD.i2c[(bus, address)] = self
-
-    def ack(self):
-        return True
-
-    def write(self, reg, data):
-        for i, b in enumerate(data):
-            self.regs[reg + i] = b
 
     def _sample(self):
         if self.regs[0x6B] & 0x40:
@@ -151,7 +158,7 @@ def _bytes_i16(values, big):
     return out
 
 
-class _Field:
+class _Field(_Registers):
     # a magnetometer's field, kept in 1/12000 gauss (the QMC5883L's finest LSB)
     def _init_field(self):
         self.field = [2400, -1200, 4800]  # 0.2, -0.1, 0.4 gauss
@@ -183,13 +190,9 @@ class HMC5883L(_Field):
         self._data = bytearray(6)
         WORLD.i2c[(bus, address)] = self
 
-    def ack(self):
-        return True
-
-    def write(self, reg, data):
-        for i, b in enumerate(data):
-            if reg + i < 10:
-                self.regs[reg + i] = b
+    def _write1(self, r, b):
+        if r < 10:
+            self.regs[r] = b
 
     def read(self, reg, n):
         reg = 0 if reg is None else reg
@@ -218,17 +221,12 @@ class QMC5883L(_Field):
         self.resets = 0
         WORLD.i2c[(bus, address)] = self
 
-    def ack(self):
-        return True
-
-    def write(self, reg, data):
-        for i, b in enumerate(data):
-            r = reg + i
-            if r == 0x0A and b & 0x80:
-                self.regs[:0x0D] = bytes(0x0D)
-                self.resets += 1
-            elif r < 0x0D:
-                self.regs[r] = b
+    def _write1(self, r, b):
+        if r == 0x0A and b & 0x80:
+            self.regs[:0x0D] = bytes(0x0D)
+            self.resets += 1
+        elif r < 0x0D:
+            self.regs[r] = b
 
     def read(self, reg, n):
         reg = 0 if reg is None else reg
@@ -244,7 +242,7 @@ class QMC5883L(_Field):
         return out
 
 
-class VL53L0X:
+class VL53L0X(_Registers):
     # ST VL53L0X, the registers the driver's start-up and ranging touch (ST's API, UM2039):
     # model id 0xC0 = 0xEE; the "stop variable" at 0x91 is reached behind the page sequence
     # 0x80 = 1, 0xFF = 1, 0x00 = 0 (while 0xFF = 1, register 0 is the page register, not
@@ -271,15 +269,8 @@ class VL53L0X:
         self.rangings = 0
         WORLD.i2c[(bus, address)] = self
 
-    def ack(self):
-        return True
-
     def _paged(self):
         return self._page_regs[1] == 1
-
-    def write(self, reg, data):
-        for i, b in enumerate(data):
-            self._write1(reg + i, b)
 
     def _write1(self, r, b):
         if r == 0x80:
