@@ -9,7 +9,7 @@ attributes in SI-like units (distance_cm, accel_g, field_gauss ...) are properti
 """
 
 from .machine import WORLD, ticks_add, ticks_diff, ticks_us
-from .units import scaled
+from .units import scaled, scaled_xyz
 
 
 def _now_us():
@@ -131,23 +131,8 @@ class MPU6050(_Registers):
             return self._sample()[:n]
         return self.regs[reg : reg + n]
 
-    @property
-    def accel_g(self):
-        return tuple(v / 16384 for v in self.accel)
-
-    @accel_g.setter
-    def accel_g(self, g):
-        for i in range(3):
-            self.accel[i] = int(round(g[i] * 16384))
-
-    @property
-    def gyro_dps(self):
-        return tuple(v / 131 for v in self.gyro)
-
-    @gyro_dps.setter
-    def gyro_dps(self, dps):
-        for i in range(3):
-            self.gyro[i] = int(round(dps[i] * 131))
+    accel_g = scaled_xyz("accel", 16384)
+    gyro_dps = scaled_xyz("gyro", 131)
 
 
 def _bytes_i16(values, big):
@@ -163,14 +148,7 @@ class _Field(_Registers):
     def _init_field(self):
         self.field = [2400, -1200, 4800]  # 0.2, -0.1, 0.4 gauss
 
-    @property
-    def field_gauss(self):
-        return tuple(v / 12000 for v in self.field)
-
-    @field_gauss.setter
-    def field_gauss(self, gauss):
-        for i in range(3):
-            self.field[i] = int(round(gauss[i] * 12000))
+    field_gauss = scaled_xyz("field", 12000)
 
 
 class HMC5883L(_Field):

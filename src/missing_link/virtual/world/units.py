@@ -19,6 +19,21 @@ def scaled(attr, per_unit):
     return property(get, put)
 
 
+def scaled_xyz(attr, per_unit):
+    """``scaled`` for a vector: a property in units over the list ``attr`` of three integers
+    (x, y, z) kept in 1/``per_unit`` of one; it reads a tuple, a set rounds each axis in place."""
+
+    def get(self):
+        return tuple(v / per_unit for v in getattr(self, attr))
+
+    def put(self, value):
+        xyz = getattr(self, attr)
+        for i in range(3):
+            xyz[i] = int(round(value[i] * per_unit))
+
+    return property(get, put)
+
+
 def split_degrees(deg):
     """Degrees as (whole degrees, 1e-7 degree), both of the sign of ``deg``: small integers, where
     one float would lose the seventh decimal under MicroPython."""
