@@ -10,6 +10,8 @@
  *   motor.c    DC motors at Timer0's outputs, and the wheels they turn (an encoder each)
  *   stepper.c, hcsr04.c, gps.c  a stepper driver, an HC-SR04, a GPS receiver on USART1
  *   eeprom.c   the EEPROM across power cycles, and power cuts
+ *   link.c     the board's link: simavr's uart_pty, and the AVR held while its FIFO is nearly
+ *              full (its thread runs late: a busy machine), so that no byte is lost
  *
  *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--part SPEC]...
  *
@@ -60,6 +62,7 @@
 #include "encoder.h"
 #include "mpu6050.h"
 #include "gps.h"
+#include "link.h"
 #include "hcsr04.h"
 #include "motor.h"
 #include "probes.h"
@@ -210,7 +213,9 @@ static int load(const char *elf, const char *mcu, const char *eeprom_file) {
     if (!strcmp(mcu, "atmega2560")) mega_port_k_pcint();
     eeprom_open(avr, eeprom_file);
     uart_pty_init(avr, &uart);
-    uart_pty_connect(&uart, strcmp(mcu, "atmega32u4") ? '0' : '1');
+    char which = strcmp(mcu, "atmega32u4") ? '0' : '1';
+    uart_pty_connect(&uart, which);
+    link_watch(&uart, which);
     return 1;
 }
 
@@ -253,7 +258,7 @@ static int wire(const char *mcu, const char **specs, int n_specs) {
     int uno = !strcmp(mcu, "atmega328p"); /* INT0/INT1: PD2/PD3; Mega and Leonardo: PD0/PD1 */
     static const rig_command_t commands[] = {rig_command, probes_command, analog_command,
         srf02_command, encoder_command, mpu6050_command, motor_command, stepper_command,
-        hcsr04_command, gps_command};
+        hcsr04_command, gps_command, link_command};
     probes_init(mcu);
     motor_init(mcu);
     twi_bus_init();
@@ -293,6 +298,11 @@ int main(int argc, char **argv) {
     fflush(stdout);
     start_ns = mono_ns();
     for (unsigned long n = 0;; n++) {
+        if (link_backed_up()) { /* (link.h: the pty's thread runs late) */
+            usleep(100);
+            poll_stdin();
+            continue;
+        }
         int state = avr_run(avr);
         if (state == cpu_Done || state == cpu_Crashed) {
             fprintf(stderr, "rig_sim: the AVR stopped (state %d)\n", state);
