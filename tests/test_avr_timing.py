@@ -245,23 +245,44 @@ def test_refusals_say_why(mapped: tuple[Board, int]) -> None:
     assert refused == 5  # (a malformed request is an error, not a refused timed call)
 
 
+#: the wait's last look at TCNT1 (a tick is 8 cycles) and the call into the conversion: 1.0 to
+#: 1.9 µs after the instant in simavr when no interrupt comes between
+CONVERSION_NS = 3_000
+#: what the rig's irqoff leaves out of a routine: its entry (4) and the one instruction the AVR
+#: runs after a reti before it takes the next interrupt (5)
+AROUND = 9
+
+
+def _first_conversions(rig: AvrSim, since: int) -> list[float]:
+    """The board µs of each sample's first conversion after ``since`` (the rig keeps the last
+    64 conversions: the first of them may be a sample's second)."""
+    starts = [float(x) for x in rig.ctl("adc").split()[2:]]
+    return [t for i, t in enumerate(starts) if i > 0 and t - starts[i - 1] > 5_000 and t > since]
+
+
 def test_aligned_adc_conversions_start_on_the_grid(mapped: tuple[Board, int], rig: AvrSim) -> None:
     """dist_ir aligned at 10 Hz, phase 0.25: each sample's first ADC conversion starts (where
     simavr starts it) on the host-time grid in board ticks, a few µs after the instant (the call
-    into the conversion); three conversions per sample, as the driver takes a median."""
+    into the conversion); three conversions per sample, as the driver takes a median.  The wait
+    runs with interrupts on, so a routine that comes in its last stretch (a byte sent on the link,
+    Timer1's wrap) starts it later by that routine: once each at most, a few µs apart (the rig's
+    irqoff measures them).  A loaded CI run saw 5227 ns: 1039 ns, the usual, and one USART_UDRE
+    routine (58 + 9 cycles) when the bound was a flat 5 µs."""
     board, b0 = mapped
+    rig.ctl("irqoff")  # (from here on)
     board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 10, "dist_ir.phase": 0.25})
     since = board.clock_exchange(5.0).t3  # (before: free running at 25 Hz)
-    time.sleep(1.2)
-    starts = [float(x) for x in rig.ctl("adc").split()[2:]]
-    firsts = [t for i, t in enumerate(starts) if i == 0 or t - starts[i - 1] > 5_000]
-    firsts = [t for t in firsts if t > since]
-    assert len(firsts) >= 8
+    # eight samples of the board's time (a machine that holds the rig back: more of the host's)
+    assert wait_for(lambda: len(_first_conversions(rig, since)) >= 8, 30)
+    firsts = _first_conversions(rig, since)
+    off = dict(place.split(":") for place in rig.ctl("irqoff").split()[1:])
+    routines = sum(int(n) + AROUND for place, n in off.items() if place != "main")
+    bound = CONVERSION_NS + routines * 1000 // 16  # (the main loop is the one waiting)
     lags = []
     for t in firsts:
-        off = (H0 + round((t - b0) * 1000) - 25_000_000) % 100_000_000
-        lags.append(off if off < 50_000_000 else off - 100_000_000)
-    assert all(0 <= lag <= 5_000 for lag in lags), lags  # ns
+        off_ns = (H0 + round((t - b0) * 1000) - 25_000_000) % 100_000_000
+        lags.append(off_ns if off_ns < 50_000_000 else off_ns - 100_000_000)
+    assert all(0 <= lag <= bound for lag in lags), (lags, bound, off)  # ns
     unaligned = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))[2]
     assert unaligned == 0
     board.configure({"dist_ir.aligned": False})
