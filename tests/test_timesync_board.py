@@ -181,7 +181,9 @@ def test_cli_sync_reports_the_board_clock() -> None:
 def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
     """A board process whose clock drifts and that resets 3 s in (100 ms boot gap, link kept):
     per topic, host times strictly increase through it, synced samples are within their bound,
-    and the reset is found and recovered from."""
+    and the reset is found and recovered from.  Which boot a sample is from is read from the
+    board's stamps (they go back at the reset), not from when it arrived: on a busy machine the
+    last samples before the reset arrived 315 ms after it, with the first of the next boot."""
     ref = time.monotonic_ns()
     extra = [
         *("--clock-offset-us", "5e8", "--clock-skew-ppm", "120"),
@@ -192,27 +194,35 @@ def test_host_times_through_a_real_reset_never_repeat_or_go_back() -> None:
     from missing_link.virtual.clocks import DriftClock
 
     truth = DriftClock(5e8, 120.0, 0.3, ref, [3.0])
-    back_at = truth.reset_ns[0] + 100_000_000
     got: list[Update] = []
     try:
         with Daemon(Config(boards=[BoardSpec(url)])) as d:
             off = d.realtime_offset_ns
             d.subscribe("/r/signal", got.append, queue=0)
 
-            # the whole scenario: 3 s, the reset, and ~3 s after it (the misses right at the
-            # reset are held against a run of this length: not a wait for a condition)
-            while time.monotonic_ns() < ref + 6e9:
-                time.sleep(0.1)
+            # the whole scenario: 3 s, the reset, and at least ~3 s after it (the misses right
+            # at the reset are held against a run of this length), until a synced sample of
+            # the new boot has come (however slow the machine; the new boot's stamps start at
+            # 0, the first boot's at 500 s)
+            def recovered() -> bool:
+                return time.monotonic_ns() >= ref + 6e9 and any(
+                    u.board_us[0] < truth.offset_us and not u.clock_flags & NOT_SYNCED
+                    for u in got[-50:]
+                )
+
+            assert wait_for(recovered, 60)
             st = d.status()[0]
     finally:
         stop_process(proc)
     hosts = [u.host_ns[0] for u in got]
     assert all(b > a for a, b in itertools.pairwise(hosts))
-    synced = [u for u in got if not u.clock_flags & (NOT_SYNCED | OUTLIER)]
-    inside = 0
-    for u in synced:
-        boot = 0 if u.recv_ns < back_at else 1
-        inside += abs(u.host_ns[0] - off - truth.host_ns(u.board_us[0], boot)) <= u.bound_ns
-    assert inside >= 0.999 * len(synced), (inside, len(synced))
+    inside = synced = boot = 0
+    for i, u in enumerate(got):
+        if i and u.board_us[0] < got[i - 1].board_us[-1]:
+            boot += 1  # the counter restarted (in the order the board sent them)
+        if not u.clock_flags & (NOT_SYNCED | OUTLIER):
+            synced += 1
+            inside += abs(u.host_ns[0] - off - truth.host_ns(u.board_us[0], boot)) <= u.bound_ns
+    assert boot == 1
+    assert inside >= 0.999 * synced, (inside, synced)
     assert st["sync_resets"] >= 1, st
-    assert any(u.recv_ns > back_at and not u.clock_flags & NOT_SYNCED for u in got)
