@@ -14,7 +14,8 @@ reference.  Then the world link
 alone in this process (worldlink.py ticked as a runtime ticks it, driving), per simulated
 second.  (The board's heap and sample timing with and without its world, in simulated time and
 the same on every run: tests/test_world_beside.py.)  Driving
-costs the firmware its encoders' interrupts too (some 2000 edges a second), as on a board.
+costs the firmware its encoders' interrupts too (some 1000 edges a second), as on a board;
+and under MicroPython the simulator's own work an edge, paired with each edge a call.
 
     .venv/bin/python bench/bench_world.py [--seconds 20] [--rounds 2] \
         [--runtimes cpython,micropython,avr]
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import os
 import statistics
 import subprocess
@@ -183,6 +185,67 @@ def feed_call_bytes() -> int:
     return int(r.stdout.split()[-1])
 
 
+#: the simulator's own work for an encoder edge in MicroPython (the firmware's handler a count
+#: only): worldfeed.steps_at's run of edges, and the reference, each edge as worldfeed.step_at
+#: (machine.encoder_steps and set_level: how steps_at delivered them before), alternating
+EDGE_PROBE = """
+const { loadMicroPython } = await import(process.env.MPY_ENTRY);
+const { copyTree } = await import(process.env.MPFS);
+const mp = await loadMicroPython({});
+mp.FS.mkdir("/lib");
+copyTree(mp, process.env.SIMWORLD, "/lib/simworld");
+mp.runPython(`
+import sys
+sys.path.append('/lib')
+import simworld.simtime as simtime
+sys.modules['time'] = simtime
+import simworld.machine
+sys.modules['machine'] = simworld.machine
+from machine import Pin
+from simworld import worldfeed
+worldfeed.clock = simtime
+N = [0]
+def edge(pin):
+    N[0] += 1
+Pin(2, Pin.IN).irq(edge)
+Pin(3, Pin.IN).irq(edge)
+def each(d, n):
+    k = 0
+    while k < n:
+        worldfeed.step_at(1000 + k * 100, 2, 3, d)
+        k += 1
+`);
+const [run, each] = [mp.globals.get("worldfeed").steps_at, mp.globals.get("each")];
+const us = (f) => {
+  const t = process.cpuUsage();
+  for (let i = 0; i < 20; i++) f(i % 2 ? -1 : 1);
+  const c = process.cpuUsage(t);
+  return (c.user + c.system) / 20000;
+};
+const got = { run: [], each: [] };
+for (let r = 0; r < 7; r++) {
+  got.run.push(us((d) => run(2, 3, d, 1000, 1000, 100000)));
+  got.each.push(us((d) => each(d, 1000)));
+}
+console.log(JSON.stringify(got));
+"""
+
+
+def edge_us() -> tuple[float, float]:
+    """µs of CPU an encoder edge takes the simulator in MicroPython: (steps_at, each edge a
+    call: the reference), medians of seven alternating rounds of 20,000 edges."""
+    from missing_link.virtual.mpyboard import find_micropython
+
+    node, entry = find_micropython()
+    sim = Path(__file__).resolve().parent.parent / "src" / "missing_link" / "virtual" / "world"
+    env = {**os.environ, "MPY_ENTRY": str(entry), "MPFS": (sim / "mpfs.mjs").as_uri(),
+           "SIMWORLD": str(sim)}  # fmt: skip
+    r = subprocess.run([node, "--input-type=module", "-e", EDGE_PROBE], env=env,
+                       capture_output=True, text=True, timeout=120, check=True)  # fmt: skip
+    got = json.loads(r.stdout.split("\n")[-2])
+    return statistics.median(got["run"]), statistics.median(got["each"])
+
+
 def median(runs: list[dict[str, float]], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
@@ -236,6 +299,9 @@ def main() -> None:
             f"\n10000 calls from node into MicroPython, 7 small integers each: "
             f"{feed_call_bytes()} B left in its heap"
         )
+        run, each = edge_us()
+        print(f"an encoder edge, the simulator's work in MicroPython: {run:.1f} µs of CPU "
+              f"(worldfeed.steps_at); each edge a call (the reference): {each:.1f} µs")  # fmt: skip
 
 
 if __name__ == "__main__":
