@@ -42,7 +42,20 @@ def driver_class(name):
     return getattr(mod, cls)
 
 
-class Periodic:
+class Driver:
+    # The board rule, said once: set_cb(fn) (the runtime's), then emit(channel, value[,
+    # stamp_us]) hands it a measurement or an actuator's new state; nothing goes out before it.
+    _cb = None
+
+    def set_cb(self, fn):
+        self._cb = fn
+
+    def emit(self, channel, value, stamp_us=None):
+        if self._cb is not None:
+            self._cb(channel, value, stamp_us)
+
+
+class Periodic(Driver):
     # A driver that measures every period: poll(now) calls measure(now) when due.  A late poll
     # skips the missed slots instead of bursting to catch up (a stale burst measures nothing).
     # Its rate is a run-time key (`rate_hz`, up to MAX_RATE_HZ); a new rate takes effect at
@@ -64,7 +77,6 @@ class Periodic:
         self.period_us = max(1, int(1000000 / rate_hz))
         self._due = None
         self._last = None
-        self._cb = None
         self.aligned = False
         self.phase = 0.0
         self.timing = None  # set by the runtime's configuration when the board has timing
@@ -94,13 +106,6 @@ class Periodic:
             due = self._last + self.period_us
             if due < self._due:
                 self._due = due
-
-    def set_cb(self, fn):
-        self._cb = fn
-
-    def emit(self, channel, value, stamp_us=None):
-        if self._cb is not None:
-            self._cb(channel, value, stamp_us)
 
     def next_due_us(self):
         return self._due

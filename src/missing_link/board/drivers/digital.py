@@ -6,8 +6,10 @@
 # report nothing.  `active_low` inverts (a switch to ground with the pull-up: pressed = 1).
 # Optionally the level is also reported every 1 / rate_hz s as a heartbeat (rate_hz = 0: off).
 
+from . import Driver
 
-class DigitalIn:
+
+class DigitalIn(Driver):
     PREFIX = "gpio"
     MODEL = "switch"
     CHANNELS = 1
@@ -31,7 +33,6 @@ class DigitalIn:
         self.level = self._read()
         self._first_edge_us = None
         self._last_edge_us = None
-        self._cb = None
         self._next_beat = None
         self.edges = 0
         self._pin.irq(handler=self._edge, trigger=Pin.IRQ_RISING | Pin.IRQ_FALLING)
@@ -56,7 +57,7 @@ class DigitalIn:
         return self._pin.value() ^ self._invert
 
     def set_cb(self, fn):
-        self._cb = fn
+        Driver.set_cb(self, fn)
         fn(0, self.level, self.clock())  # the level at start-up
 
     def _edge(self, _pin):
@@ -92,5 +93,4 @@ class DigitalIn:
                     self._emit(now)
 
     def _emit(self, stamp):
-        if self._cb is not None:
-            self._cb(0, self.level, stamp)
+        self.emit(0, self.level, stamp)

@@ -33,6 +33,7 @@
 # said, every one counted.
 
 from ..log import CHECKSUM, report
+from . import Driver
 
 NA = -2147483648
 MAX_SENTENCE = 82
@@ -111,7 +112,7 @@ def _date_days(ddmmyy):
     return days_since_1970(y + (1900 if y >= 80 else 2000), m, d)
 
 
-class GpsNmea:
+class GpsNmea(Driver):
     PREFIX = "gps"
     MODEL = "NMEA 0183"
     CHANNELS = 10
@@ -141,14 +142,10 @@ class GpsNmea:
         self.fixes = 0
         self.pps_edges = 0
         self._due = None
-        self._cb = None
 
     def _on_pps(self, _pin):
         self._pps = self.clock()
         self.pps_edges += 1
-
-    def set_cb(self, fn):
-        self._cb = fn
 
     def next_due_us(self):
         return self._due
@@ -241,9 +238,8 @@ class GpsNmea:
             if stamp == pps:  # the fix of the edge's own second: its UTC
                 values += self._utc(f[1])
         self.fixes += 1 if fixed else 0
-        if self._cb is not None:
-            for ch in range(self.CHANNELS):
-                self._cb(ch, values[ch] if ch < len(values) else None, stamp)
+        for ch in range(self.CHANNELS):
+            self.emit(ch, values[ch] if ch < len(values) else None, stamp)
 
     def _utc(self, hhmmss):
         # [UTC day, ms of day] of the GGA's time, the day from the last valid RMC's date: the

@@ -14,10 +14,12 @@
 
 import struct
 
+from . import Driver
+
 RAMP_STEP_US = 20000
 
 
-class HBridge:
+class HBridge(Driver):
     PREFIX = "motor"
     MODEL = "H-bridge"
     CHANNELS = 1
@@ -64,7 +66,6 @@ class HBridge:
         self._last_us = None
         self._due = None
         self.commands = 0
-        self._cb = None
         self._apply(0.0)
 
     def _check(self, stop):
@@ -74,9 +75,6 @@ class HBridge:
     def _set_freq(self, f):
         for p in (self._pwm,) if self._in is None else self._in:
             p.freq(f)
-
-    def set_cb(self, fn):
-        self._cb = fn
 
     def get_config(self, key):
         return getattr(self, key)
@@ -114,8 +112,7 @@ class HBridge:
             rev.duty_u16(u16)
 
     def _report(self, now):
-        if self._cb is not None:
-            self._cb(0, self.duty, now)
+        self.emit(0, self.duty, now)
 
     def command(self, payload):
         if len(payload) != 4:

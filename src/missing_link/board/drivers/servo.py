@@ -10,8 +10,10 @@
 
 import struct
 
+from . import Driver
 
-class Servo:
+
+class Servo(Driver):
     PREFIX = "servo"
     MODEL = "HS-645MG"
     CHANNELS = 1
@@ -55,7 +57,6 @@ class Servo:
         self.pulse_us = None
         self._value = None  # the last commanded value
         self.commands = 0
-        self._cb = None
 
     def get_config(self, key):
         if key == "span_us":
@@ -85,9 +86,6 @@ class Servo:
             self._pwm.duty_ns(self.pulse_us * 1000)
         return None
 
-    def set_cb(self, fn):
-        self._cb = fn
-
     def pulse_for(self, value):
         us = self.centre_us + value * self.half_span_us / 127
         return max(self.min_us, min(self.max_us, int(us + 0.5)))
@@ -102,8 +100,7 @@ class Servo:
         self.pulse_us = self.pulse_for(value)
         self._pwm.duty_ns(self.pulse_us * 1000)
         self.commands += 1
-        if self._cb is not None:
-            self._cb(0, value, self.clock())
+        self.emit(0, value, self.clock())
         return 0, struct.pack("<H", self.pulse_us)
 
     def make_safe(self):
@@ -112,5 +109,4 @@ class Servo:
             self._pwm.duty_ns(0)
             self.pulse_us = None
             self._value = None
-        if self._cb is not None:
-            self._cb(0, self._value, self.clock())
+        self.emit(0, self._value, self.clock())

@@ -20,13 +20,15 @@
 import math
 import struct
 
+from . import Driver
+
 REPORT_US = 50000
 MICROSTEPS = (1, 2, 4, 8, 16, 32)
 MODES = ("position", "velocity")
 GOTO, SPEED, STOP = 0, 1, 2
 
 
-class Stepper:
+class Stepper(Driver):
     PREFIX = "stepper"
     MODEL = "A4988"
     CHANNELS = 2
@@ -79,10 +81,6 @@ class Stepper:
         self._reported = None
         self.enabled = False
         self.commands = 0
-        self._cb = None
-
-    def set_cb(self, fn):
-        self._cb = fn
 
     def get_config(self, key):
         return getattr(self, key)
@@ -97,9 +95,9 @@ class Stepper:
 
     def _report(self, now):
         self._reported = now
-        if self._cb is not None:
-            self._cb(0, self.position / self.per_rev, now)
-            self._cb(1, self.speed / self.per_rev, now)
+        if self._cb is not None:  # (no floats made for nobody)
+            self.emit(0, self.position / self.per_rev, now)
+            self.emit(1, self.speed / self.per_rev, now)
 
     def command(self, payload):
         if len(payload) != 4:

@@ -7,10 +7,12 @@
 # up to 1 ms is timed by spinning on the clock (exact); a longer one ends at the first poll
 # after it is due (at least its width, longer by the loop's latency).
 
+from . import Driver
+
 SPIN_US = 1000
 
 
-class Trigger:
+class Trigger(Driver):
     PREFIX = "gpio"
     MODEL = "trigger"
     CHANNELS = 1
@@ -26,10 +28,6 @@ class Trigger:
         self.pulse_us = pulse_us
         self._end = None
         self.fired = 0
-        self._cb = None
-
-    def set_cb(self, fn):
-        self._cb = fn
 
     def get_config(self, key):
         return self.pulse_us
@@ -51,8 +49,7 @@ class Trigger:
             self._pin.value(1 - self._on)
         else:
             self._end = start + width
-        if self._cb is not None:
-            self._cb(0, width, start)
+        self.emit(0, width, start)
         return 0, b""
 
     def next_due_us(self):
