@@ -94,6 +94,16 @@ static void error_frame(uint8_t seq, uint8_t code, uint16_t diag) {
 
 void function_get(uint8_t i, function_t *f) { memcpy_P(f, &board_functions[i], sizeof *f); }
 
+/* The function at index i into *f; an index past the table is answered here (ERR_INDEX): 0 */
+static uint8_t function_or_refuse(uint8_t seq, uint8_t i, function_t *f) {
+    if (i >= board_function_count) {
+        error_frame(seq, ERR_INDEX, DIAG_INDEX);
+        return 0;
+    }
+    function_get(i, f);
+    return 1;
+}
+
 /* ---- blobs -------------------------------------------------------------------------------- */
 static const char *function_name(uint8_t i) {
     return (const char *)pgm_read_ptr(&board_functions[i].name);
@@ -188,12 +198,8 @@ static void many(uint8_t seq, const uint8_t *in, uint8_t n) {
     uint8_t target = in[0], flags = in[1];
     uint32_t offset = (uint32_t)in[2] | ((uint32_t)in[3] << 8) | ((uint32_t)in[4] << 16) |
                       ((uint32_t)in[5] << 24);
-    if (target >= board_function_count) {
-        error_frame(seq, ERR_INDEX, DIAG_INDEX);
-        return;
-    }
     function_t fn;
-    function_get(target, &fn);
+    if (!function_or_refuse(seq, target, &fn)) return;
     const function_t *f = &fn;
     uint8_t ret = 0xFF, last = 1, len = 0;
     uint8_t *data = scratch + 6;
@@ -227,12 +233,8 @@ static void many(uint8_t seq, const uint8_t *in, uint8_t n) {
 static __attribute__((noinline)) void dispatch(uint8_t seq, uint8_t op, const uint8_t *in,
                                                uint8_t n) {
     calls++;
-    if (op >= board_function_count) {
-        error_frame(seq, ERR_INDEX, DIAG_INDEX);
-        return;
-    }
     function_t fn_op;
-    function_get(op, &fn_op);
+    if (!function_or_refuse(seq, op, &fn_op)) return;
     const function_t *f = &fn_op;
     if (op == 1) {
         many(seq, in, n);
