@@ -1,9 +1,10 @@
 # Sensor and actuator drivers for MicroPython's `machine` API (the thesis rig and common parts).
 #
 # Every driver follows the board rule: set_cb(fn), then fn(channel, value[, stamp_us]) when it
-# has a measurement; drivers that need CPU time implement poll(now_us) and next_due_us().  A
-# driver gets the `machine` module and the board clock passed in, so nothing here imports a
-# port: the same code runs on RP2040, ESP32, CPython (host-side checks) and the simulator.
+# has a measurement (Driver below: set_cb and emit); drivers that need CPU time implement
+# poll(now_us) and next_due_us().  A driver gets the `machine` module and the board clock
+# passed in, so nothing here imports a port: the same code runs on RP2040, ESP32, CPython
+# (host-side checks) and the simulator.
 #
 # A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS);
 # a board file entry may override any of them.  Its run-time configuration (board/config.py) is
