@@ -86,6 +86,7 @@ bench: venv ros2
 	ML_ROS2_PYTHON=$(abspath $(ROS2_VENV))/bin/python $(PY) bench/bench_zenoh.py
 	$(PY) bench/bench_idle.py
 	$(PY) bench/bench_world.py
+	$(PY) bench/bench_world_timing.py
 	# the soak (minutes, not in make test): $(PY) bench/soak.py --boards 4 --minutes 3
 
 clean:
