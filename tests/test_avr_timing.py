@@ -293,11 +293,14 @@ def test_without_a_map_aligned_sampling_runs_free_and_counts(rig: AvrSim) -> Non
     try:
         board.handshake()
         board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 20})
-        time.sleep(0.6)
-        valid, age, unaligned, _done, _refused = struct.unpack(
-            "<BIIII", board.call_ok("a2jAlignInfo")
-        )
-        assert valid == 0 and age == 0xFFFFFFFF and unaligned >= 8
+
+        def info() -> tuple[int, ...]:
+            return struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
+
+        # eight samples of the board's time (0.6 s of the host's made seven beside busy work)
+        assert wait_for(lambda: info()[2] >= 8, 30), info()
+        valid, age, _unaligned, _done, _refused = info()
+        assert valid == 0 and age == 0xFFFFFFFF
     finally:
         board.close()
 
