@@ -331,6 +331,10 @@ def test_corruption_is_counted_and_the_session_lives(serve: Serve) -> None:
         got: list[Update] = []
         d.subscribe("/noisy/signal", got.append)
         assert wait_for(lambda: len(got) > 2000, 30)
+        # What is checked against the status and the clock is what had arrived before them:
+        # samples go on arriving until the daemon has stopped (a second more when the goodbye
+        # is corrupted, longer on a busy machine), with losses the status never saw.
+        seen = got[:]
         (st,) = d.status()
         now_rt = time.time_ns()
     assert relay.corrupted > 0
@@ -339,9 +343,9 @@ def test_corruption_is_counted_and_the_session_lives(serve: Serve) -> None:
     # host times: strictly increasing on the topic, never in the future
     hosts = [max(u.host_ns) for u in got]
     assert all(b > a for a, b in pairwise(hosts))
-    assert max(hosts) < now_rt + 1_000_000_000
+    assert max(max(u.host_ns) for u in seen) < now_rt + 1_000_000_000
     # every SIF is either here or counted as lost (seq gaps)
-    assert sum(u.lost for u in got[1:]) <= st["lost_sifs"]
+    assert sum(u.lost for u in seen[1:]) <= st["lost_sifs"]
 
 
 @pytest.mark.slow  # (seconds of real time)
