@@ -221,13 +221,16 @@ def _failsafe(sim: FirmwareSim) -> None:
             board.call_ok("a2j_motor_r", struct.pack("<f", 0.75))
             board.call_ok("a2j_mast", struct.pack("<f", 5.0))  # a long way: still turning
 
-            def driving(board: Board = board) -> bool:  # (the host talks meanwhile)
+            sent = [0.0]  # when the host last sent the board a frame: the failsafe counts from it
+
+            def driving(board: Board = board, sent: list[float] = sent) -> bool:  # (the host talks)
+                sent[0] = time.monotonic()  # (before: the board hears it no earlier)
                 board.call("a2jEcho")  # (it answers 0xBA, as the 2014 firmware's)
                 (duty, mode), enabled = sim.ctl(state)
                 return bool(abs(duty - 0.75) < 1e-3 and mode == "drive" and enabled)
 
             assert wait_for(driving, 5)
-            t0 = time.monotonic()
+            t0 = sent[0]  # the host's last frame (the poll after it may have been slow)
             if goodbye:
                 board.call_ok("a2jGoodbye")
                 assert sim.ctl(state) == ((0.0, "brake"), False)
