@@ -16,6 +16,7 @@ import pytest
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config, ConfigError, parse_config
+from missing_link.daemon.control.endpoint import ask
 from missing_link.topics import Update
 from missing_link.virtual.process import start_board_process, stop_process
 
@@ -100,8 +101,9 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
     control.parent.mkdir(mode=0o700)  # (no directory is made for a control path but the default)
     env = {**os.environ, "MISSING_LINK_CONTROL": str(control)}
     proc, url = start_board_process("thesis", 5, "pty")
+    nowhere = "tcp://127.0.0.1:1"  # a board the daemon holds that never comes up
     daemon = subprocess.Popen(
-        [*ML, "run", url, "-p", "bus", "--duration", "60"],
+        [*ML, "run", url, nowhere, "-p", "bus", "--duration", "60"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -111,6 +113,13 @@ def test_the_cli_reaches_a_board_the_daemon_holds(tmp_path: Path) -> None:
         assert wait_for(lambda: control.exists(), 15)
         assert stat.S_IMODE(os.stat(control).st_mode) == 0o600
         assert stat.S_IMODE(os.stat(control.parent).st_mode) == 0o700
+        # the socket is there before the boards are up: a board not up yet is one line, exit 1
+        r = ml("info", nowhere, "--json", env=env)
+        assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+        assert f"{nowhere}: not up (" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert wait_for(
+            lambda: ask(str(control), {"op": "find", "board": url})["state"] == "up", 15
+        )
         r = ml("info", url, "--json", env=env)
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["name"] == "thesis"  # (not "Could not exclusively lock")
