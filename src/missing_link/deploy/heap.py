@@ -65,14 +65,14 @@ FREE_HEAP = {
 }
 
 #: the firmware's modules and a firmware with no transducers (bytes, live)
-RUNTIME = 57_584
+RUNTIME = 58_064
 #: an I2C bus
 BUS = 64
 #: a driver module, imported once (by module: two drivers may share one)
 MODULES = {
-    "encoder": 1_648, "sharp": 1_808, "srf02": 2_352, "servo": 2_208, "digital": 1_840,
+    "encoder": 1_648, "sharp": 1_760, "srf02": 2_272, "servo": 2_208, "digital": 1_840,
     "analog": 864, "mpu6050": 2_112, "trigger": 1_216, "gps_nmea": 3_808, "compass": 3_664,
-    "hbridge": 2_768, "stepper": 3_408, "hcsr04": 1_640, "vl53l0x": 3_056, "battery": 3_904,
+    "hbridge": 2_768, "stepper": 3_408, "hcsr04": 1_560, "vl53l0x": 2_976, "battery": 3_904,
 }  # fmt: skip
 #: a transducer, by driver
 INSTANCES = {

@@ -6,12 +6,13 @@
 # passed in, so nothing here imports a port: the same code runs on RP2040, ESP32, CPython
 # (host-side checks) and the simulator.
 #
-# A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS);
-# a board file entry may override any of them.  Its run-time configuration (board/config.py) is
-# CONFIG, a tuple of (key, kind, limits, read_only), with get_config(key) and set_config(key,
-# value) (a Periodic's PLAIN keys are its attributes of the same name, nothing more to do);
-# check_config() (optional) says what is wrong with a combination after a set.  An actuator has
-# command(payload) -> (code, reply), registered as the J2A function named by the entry's `call`.
+# A driver class carries its descriptor defaults (PREFIX, MODEL, CHANNELS, DTYPE, NA, OPTIONS;
+# a Ranger's are said once, below); a board file entry may override any of them.  Its run-time
+# configuration (board/config.py) is CONFIG, a tuple of (key, kind, limits, read_only), with
+# get_config(key) and set_config(key, value) (a Periodic's PLAIN keys are its attributes of the
+# same name, nothing more to do); check_config() (optional) says what is wrong with a
+# combination after a set.  An actuator has command(payload) -> (code, reply), registered as the
+# J2A function named by the entry's `call`.
 #
 # DRIVERS maps the board file's `driver` names to module and class, imported only when used (RAM).
 
@@ -144,3 +145,24 @@ class Periodic(Driver):
 
     def measure(self, now):
         raise NotImplementedError
+
+
+class Ranger(Periodic):
+    # A single-beam ranger (HC-SR04, VL53L0X, SRF02, Sharp GP2Y0A02): one distance a
+    # measurement, channel 0, a uint16_t in the part's unit; 0 is N/A (no echo, nothing in
+    # range, too close).  The host publishes it as sensor_msgs/msg/Range (ros/standard/ranges.py
+    # knows each part by its PREFIX).  A part says its PREFIX, MODEL and OPTIONS =
+    # ranger_options(its unit[, min, max]): the limits where its descriptor states them.
+    CHANNELS = 1
+    DTYPE = "uint16_t"
+    NA = 0
+
+
+def ranger_options(unit, least=None, most=None):
+    # A Ranger's descriptor options (least, most: its limits in `unit`, as the descriptor says
+    # them).  Each a whole literal: MicroPython orders a dict's keys by its table, and a key added
+    # later would reorder the descriptor's fields.
+    ros = "sensor_msgs/msg/Range"
+    if least is None:
+        return {"unit": unit, "kind": "sensor", "ros": ros}
+    return {"unit": unit, "kind": "sensor", "ros": ros, "min": least, "max": most}

@@ -10,7 +10,7 @@
 # the echo's end (when time_pulse_us returned) minus half the flight, as the SRF02's.
 
 from ..log import NO_ANSWER, report
-from . import Periodic
+from . import Ranger, ranger_options
 
 TRIG_US = 10
 MIN_MM = 20
@@ -20,14 +20,10 @@ def sound_m_per_s(temperature_c):
     return 331.3 + 0.606 * temperature_c
 
 
-class HCSR04(Periodic):
+class HCSR04(Ranger):
     PREFIX = "ultrasonic"
     MODEL = "HC-SR04"
-    CHANNELS = 1
-    DTYPE = "uint16_t"
-    NA = 0
-    OPTIONS = {"unit": "mm", "kind": "sensor", "ros": "sensor_msgs/msg/Range", "min": "20",
-               "max": "4000"}  # fmt: skip
+    OPTIONS = ranger_options("mm", "20", "4000")
     CONFIG = (
         ("rate_hz", "float", (0.1, 16.6), False),  # 60 ms between rangings at the most
         ("temperature_c", "float", (-40.0, 85.0), False),
@@ -38,7 +34,7 @@ class HCSR04(Periodic):
     def __init__(
         self, machine, clock, trig_pin, echo_pin, rate_hz=10, temperature_c=20.0, max_range_cm=400
     ):
-        Periodic.__init__(self, clock, min(rate_hz, 16.6))
+        Ranger.__init__(self, clock, min(rate_hz, 16.6))
         self._machine = machine
         self._trig = machine.Pin(trig_pin, machine.Pin.OUT, value=0)
         self._echo = machine.Pin(echo_pin, machine.Pin.IN)

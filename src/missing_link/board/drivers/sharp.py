@@ -8,7 +8,7 @@
 # within 150 cm.  For 50 ms after start-up the output is not valid (first measurement), also N/A.
 # Reading faster than the sensor updates only repeats values, so the rate is capped at 26 Hz.
 
-from . import Periodic
+from . import Ranger, ranger_options
 
 # (volts, mm) from the datasheet's typical curve, volts falling
 CURVE = (
@@ -45,17 +45,14 @@ def volts_to_mm(v):
     return None
 
 
-class SharpGP2Y0A02(Periodic):
+class SharpGP2Y0A02(Ranger):
     PREFIX = "sharp"
     MODEL = "GP2Y0A02YK"
-    CHANNELS = 1
-    DTYPE = "uint16_t"
-    NA = 0
-    OPTIONS = {"unit": "mm", "kind": "sensor", "ros": "sensor_msgs/msg/Range"}
+    OPTIONS = ranger_options("mm")
     CONFIG = (("rate_hz", "float", (0.1, 26.0), False),)  # it updates every 38 ms
 
     def __init__(self, machine, clock, pin, rate_hz=25, vref=3.3, reads=3):
-        Periodic.__init__(self, clock, min(rate_hz, 26))
+        Ranger.__init__(self, clock, min(rate_hz, 26))
         self._adc = machine.ADC(machine.Pin(pin))
         self._scale = vref / 65535.0
         self._reads = max(1, reads)

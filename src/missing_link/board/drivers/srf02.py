@@ -11,7 +11,7 @@
 # written to register 0 in four transactions (change_address).
 
 from ..log import TIMEOUT, bus_fault, report
-from . import Periodic
+from . import Ranger, ranger_options
 
 CMD_INCH = 0x50
 CMD_CM = 0x51
@@ -22,13 +22,10 @@ CHECK_US = 5000
 US_PER_CM = 58.3  # round trip of sound at 343 m/s over 1 cm
 
 
-class SRF02(Periodic):
+class SRF02(Ranger):
     PREFIX = "srf02"
     MODEL = "SRF02"
-    CHANNELS = 1
-    DTYPE = "uint16_t"
-    NA = 0
-    OPTIONS = {"unit": "cm", "kind": "sensor", "ros": "sensor_msgs/msg/Range"}
+    OPTIONS = ranger_options("cm")
     # The SRF02 has no range or gain registers (the SRF08 has): what can change at run time is
     # how often it pings (a ranging takes 65 ms) and the shortest range it reports.
     CONFIG = (
@@ -39,7 +36,7 @@ class SRF02(Periodic):
     PLAIN = ("min_range", "units")  # (units: read only)
 
     def __init__(self, machine, clock, i2c, address=0x70, rate_hz=10, units="cm", min_range=16):
-        Periodic.__init__(self, clock, min(rate_hz, 1000000 / RANGING_US))
+        Ranger.__init__(self, clock, min(rate_hz, 1000000 / RANGING_US))
         self._i2c = i2c
         self.address = address
         if units not in ("cm", "us", "inch"):
@@ -57,7 +54,7 @@ class SRF02(Periodic):
 
     def poll(self, now):
         if self._ping_us is None:
-            Periodic.poll(self, now)
+            Ranger.poll(self, now)
             return
         if now < self._check_us:
             return

@@ -24,20 +24,16 @@
 # unpowered), another part's model id, a calibration that never ends, a bus error, a timeout.
 
 from ..log import TIMEOUT, NoReady, WrongPart, bus_fault, report
-from . import Periodic
+from . import Ranger, ranger_options
 
 BUDGET_US = 33000
 MODES = ("single", "continuous")
 
 
-class VL53L0X(Periodic):
+class VL53L0X(Ranger):
     PREFIX = "tof"
     MODEL = "VL53L0X"
-    CHANNELS = 1
-    DTYPE = "uint16_t"
-    NA = 0
-    OPTIONS = {"unit": "mm", "kind": "sensor", "ros": "sensor_msgs/msg/Range", "min": "30",
-               "max": "2000"}  # fmt: skip
+    OPTIONS = ranger_options("mm", "30", "2000")
     CONFIG = (
         ("rate_hz", "float", (0.1, 30.0), False),  # a 33 ms budget
         ("mode", "enum", MODES, False),
@@ -46,7 +42,7 @@ class VL53L0X(Periodic):
     def __init__(self, machine, clock, i2c, address=0x29, rate_hz=10, mode="single"):
         if mode not in MODES:
             raise ValueError("vl53l0x mode: single or continuous")
-        Periodic.__init__(self, clock, min(rate_hz, 30.0))
+        Ranger.__init__(self, clock, min(rate_hz, 30.0))
         self._i2c = i2c
         self.address = address
         self.mode = mode
@@ -61,14 +57,14 @@ class VL53L0X(Periodic):
     def get_config(self, key):
         if key == "mode":
             return self.mode
-        return Periodic.get_config(self, key)
+        return Ranger.get_config(self, key)
 
     def set_config(self, key, value):
         if key == "mode":
             self.mode = value
             self._ok = False  # started again in the new mode
         else:
-            Periodic.set_config(self, key, value)
+            Ranger.set_config(self, key, value)
 
     # ---- registers ----
     def _w(self, reg, value):
@@ -134,7 +130,7 @@ class VL53L0X(Periodic):
             if now >= self._check:
                 self._collect(now)
             return
-        Periodic.poll(self, now)
+        Ranger.poll(self, now)
 
     def measure(self, now):
         starting = not self._ok
