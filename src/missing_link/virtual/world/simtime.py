@@ -5,7 +5,7 @@ simulated machine and the devices all read it.  The MicroPython subset only.
 
 Theory of operation
 -------------------
-The clock counts simulated µs, wrapping at TICKS_PERIOD as the RP2040 port's ticks_us does
+The clock counts simulated µs, wrapping at TICKS_MAX + 1 (2^30) as the RP2040 port's ticks_us does
 (board/clock.py extends it to 64 bit, as on a board), with the ns below a µs kept apart (work
 is charged in ns: a clock read costs 9.6 µs, so reads land 9 or 10 µs apart, as on a board).
 Between two firmware steps the host sets it (set_now, fastclock.mjs).  Within a step it moves
@@ -22,8 +22,11 @@ control request) are free: now_us(), or while `free` is set.
 
 from . import simcost
 
-TICKS_PERIOD = 1 << 30
-TICKS_MAX = TICKS_PERIOD - 1
+# (written as small integers: the period, 2^30, is a long integer on a 32-bit port, and any
+# sum with it would put one in the board's heap on every call, where a board's own clock
+# allocates nothing)
+TICKS_MAX = 0x3FFFFFFF  # the period less one
+TICKS_HALF = 0x20000000
 
 _now = 0  # simulated µs, wrapped
 _ns = 0  # ... and the ns below it (0..999)
@@ -43,7 +46,7 @@ def advance(us):
     # the clock moves on by `us` (a sleep, a transfer on a bus, a charge)
     global _now, _slept
     if us > 0:
-        _now = (_now + us) & TICKS_MAX
+        _now = ticks_add(_now, us)
         _slept += us
 
 
@@ -86,12 +89,17 @@ def ticks_cpu():
 
 
 def ticks_add(t, delta):
-    return (t + delta) & TICKS_MAX
+    # t + delta wrapped, without the sum past TICKS_MAX (a long integer) that (t + delta) &
+    # TICKS_MAX would make at the wrap
+    t &= TICKS_MAX
+    d = delta & TICKS_MAX
+    room = TICKS_MAX - t
+    return d - room - 1 if d > room else t + d
 
 
 def ticks_diff(a, b):
     d = (a - b) & TICKS_MAX
-    return d - TICKS_PERIOD if d >= TICKS_PERIOD >> 1 else d
+    return d - TICKS_MAX - 1 if d >= TICKS_HALF else d
 
 
 def sleep_us(us):
