@@ -1,7 +1,9 @@
 """The world beside the firmware, not in it (issue 47.6): the rover's MicroPython firmware in a
 Raspberry Pi Pico's heap, in simulated time and in lockstep with its host (memory_soak.py:
 host.mjs --heap --fast --lockstep), served the same way with its world beside it and with
-none, shows the same heap, the same collections and the same sample timing.
+none, shows the same heap, the same collections (within one: they follow the firmware's
+allocation) and the same sample timing (outside collections; a collection moved is one more
+or less in a sample's period).
 
 The world runs in this process (world_mpy.py) and reaches the firmware's devices between its
 steps with small integers only; the simulated clock moves on by what the firmware's own work
@@ -14,6 +16,7 @@ a quiet machine or a busy one."""
 from __future__ import annotations
 
 import ast
+import bisect
 import itertools
 import statistics
 import subprocess
@@ -66,6 +69,19 @@ def _periods(stamps: list[int]) -> list[int]:
     return [b - a for a, b in itertools.pairwise(stamps)]
 
 
+def _between_collections(stamps: list[int], log: list[list[Any]]) -> list[int]:
+    """The periods between two samples that no collection overlaps (log: [from, to, kind] in
+    board µs, in time order, as the samples' stamps are)."""
+    starts = [span[0] for span in log]
+    out = []
+    for a, b in itertools.pairwise(stamps):
+        i = bisect.bisect_left(starts, a)
+        if (i < len(log) and log[i][0] < b) or (i > 0 and log[i - 1][1] > a):
+            continue
+        out.append(b - a)
+    return out
+
+
 @pytest.mark.micropython
 def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> None:
     res, _gc, world = both[True]
@@ -78,15 +94,23 @@ def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> 
 def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without(
     both: dict[bool, Any],
 ) -> None:
-    """The same collections, at the same cost within a block or two, the heap's lowest within
-    a few allocations (what the firmware makes of what it reads: a fix's digits, a number's
-    size) and the same simulated seconds: the world took no simulated time of the board's."""
+    """The same collections within one, each at the same cost within a few µs, the heap's
+    lowest within a few allocations (what the firmware makes of what it reads: a fix's digits, a
+    number's size) and the same simulated seconds: the world took no simulated time of the
+    board's.  Within one, not equal: the firmware collects on a period that follows its
+    allocation rate (board/memory.py), so a few allocations more or less move its collections by
+    a turn and can fit one more or one fewer into the run.  That is the firmware's behaviour,
+    not the world's: without any world, a heap 128 B larger (PICO + 128) gives 690 collections
+    for 691 (the simulator's clock is a function of the simulation: the same run every time)."""
     (without, gc0, _), (beside, gc1, _) = both[False], both[True]
     m0, m1 = without.memory, beside.memory
-    assert m1.gc_collections == m0.gc_collections and gc1["collections"] == gc0["collections"]
+    assert abs(m1.gc_collections - m0.gc_collections) <= 1
+    assert gc1["collections"]["auto"] == gc0["collections"]["auto"]  # (the allocator's own)
+    assert abs(gc1["collections"]["req"] - gc0["collections"]["req"]) <= 1
     assert m0.heap_free_low is not None and m1.heap_free_low is not None
     assert abs(m1.heap_free_low - m0.heap_free_low) <= HEAP_SLACK, (m0, m1)
-    assert max(abs(a - b) for a, b in zip(gc0["us"], gc1["us"], strict=True)) <= 20
+    for figure in (min, statistics.median, max):  # (what each collection took, µs)
+        assert abs(figure(gc1["us"]) - figure(gc0["us"])) <= 20
     assert beside.board_us // 1000 == without.board_us // 1000
 
 
@@ -95,14 +119,26 @@ def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without
 def test_each_sensors_sample_timing_is_the_same_with_its_world_and_without(
     both: dict[bool, Any], name: str
 ) -> None:
-    """Every sample in its place: as many, the same mean period, and the shortest and longest
-    within JITTER_US of each other's (each step's cost is its work's, and that work reads
-    other numbers)."""
-    without, beside = both[False][0], both[True][0]
+    """Every sample in its place: as many, the same mean period, the shortest within JITTER_US
+    (each step's cost is its work's, and that work reads other numbers), and the periods that
+    no collection overlaps the same within JITTER_US at both ends: there a world that took the
+    board's time would show.  The longest of all periods within one collection of each other:
+    a collection (6.8 ms) lands in a sample's period or the next as the collections move (the
+    test above), the firmware's timing with a few allocations more or less, not the world's
+    (without any world, a heap 128 B larger moves the IMU's longest by 3.4 ms and its longest
+    outside collections by 15 µs).  The sonar, the ToF ranger and the GPS have no period
+    without a collection (one every ~30 ms)."""
+    (without, gc0, _), (beside, gc1, _) = both[False], both[True]
     p0, p1 = _periods(without.stamps[name]), _periods(beside.stamps[name])
     assert len(p1) == len(p0) >= SECONDS - 2  # (the GPS: once a second)
     assert statistics.mean(p1) == pytest.approx(statistics.mean(p0), abs=JITTER_US / 10)
-    assert abs(max(p1) - max(p0)) <= JITTER_US and abs(min(p1) - min(p0)) <= JITTER_US
+    assert abs(min(p1) - min(p0)) <= JITTER_US
+    assert abs(max(p1) - max(p0)) <= JITTER_US + max(gc0["us"] + gc1["us"])
+    q0 = _between_collections(without.stamps[name], gc0["log"])
+    q1 = _between_collections(beside.stamps[name], gc1["log"])
+    assert bool(q0) == bool(q1) == (name in {"imu", "compass", "wheel_l"})
+    if q0:
+        assert abs(max(q1) - max(q0)) <= JITTER_US and abs(min(q1) - min(q0)) <= JITTER_US
 
 
 def _avr_memory(world: Path | None) -> MemoryStatus:
