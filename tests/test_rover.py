@@ -121,9 +121,15 @@ def test_hbridge_ramps_reverses_and_brakes(rover: Daemon, sim: FirmwareSim) -> N
     rover.send("/rover/motor_l/cmd", 0.5)
     assert wait_for(lambda: sim.ctl(state) == (0.5, "drive"), 5), sim.ctl(state)
     assert wait_for(lambda: got[-1].values[0] == 0.5, 5), got[-1]  # (its report on its way)
-    duties = [u.values[0] for u in got]
-    assert len(duties) >= 5  # ramped (4 per second): steps on the way
-    assert all(b > a for a, b in itertools.pairwise(duties))
+    # Ramped at 4 a second, a step at least every 20 ms of the board's clock: a step never
+    # moves more than the ramp allows for the board's time since the one before (a board the
+    # host starves takes fewer, larger steps: how many is the machine's, not the firmware's)
+    # and there are steps on the way, not one jump.
+    steps = [(u.board_us[0], u.values[0]) for u in got]
+    assert len(steps) >= 3, steps
+    assert steps[0][1] <= 4.0 * 0.020 + 1e-6, steps  # the first, as the command arrives
+    for (t0, a), (t1, b) in itertools.pairwise(steps):
+        assert 0 < b - a <= 4.0 * max((t1 - t0) / 1e6, 0.020) + 1e-6, steps
     rover.send("/rover/motor_l/cmd", -0.25)
     assert wait_for(lambda: sim.ctl(state) == (-0.25, "drive"), 5), sim.ctl(state)
     assert sim.ctl("result = WORLD.duty(12)") == 0.0  # reverse: IN1 low, IN2 driven
