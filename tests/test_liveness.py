@@ -49,11 +49,15 @@ Serve = Callable[..., Any]
 
 # ---- the watch's rules, on virtual time ---------------------------------------------------------
 def run_watch(
-    watch: LinkWatch, frames: Callable[[float], float], keep: float | None, until: float
+    watch: LinkWatch,
+    frames: Callable[[float], float],
+    keep: float | None,
+    until: float,
+    now: float = 0.0,
 ) -> list[tuple[float, str]]:
-    """Drive ``watch`` as the supervisor does, sleeping exactly as long as it says;
-    ``frames(now)``: the last frame's time then.  Returns (time, what) for all it did."""
-    now, out = 0.0, []
+    """Drive ``watch`` as the supervisor does from ``now``, sleeping exactly as long as it
+    says; ``frames(now)``: the last frame's time then.  Returns (time, what) for all it did."""
+    out: list[tuple[float, str]] = []
     while now < until:
         now += watch.wait_s(now, frames(now), keep)
         turn = watch.turn(now, frames(now), keep)
@@ -73,6 +77,28 @@ def test_a_silent_link_is_stale_at_link_timeout_with_heartbeats_before() -> None
     keeps = [t for t, what in did if what == "keepalive"]
     assert keeps[0] == 0.0 and len(keeps) == 9 and max(keeps) < 1.5  # every third of 500 ms
     assert [t for t, what in did if what == "ping"] == [0.0, 1.0]
+
+
+def test_silence_while_the_host_was_stopped_is_not_the_boards() -> None:
+    """A host process stopped or starved for longer than link_timeout (its reading thread
+    too: the board's frames wait in the kernel) wakes to a silence that is its own: the watch
+    asks the board and gives it half a timeout before a verdict.  A board that stays silent
+    through it is stale; one whose waiting frames are read in time is not."""
+    for answers in (False, True):
+        watch = LinkWatch(link_timeout=1.5, period=10.0, now=0.0)
+        watch.turn(watch.wait_s(0.0, 0.0, None), 0.0, None)  # (the first ping)
+        assert watch.wait_s(0.0, 0.0, None) == 0.75
+        turn = watch.turn(5.0, 0.0, None)  # woke 4.25 s late: the host was not running
+        assert not turn.stale and turn.heartbeat and watch.host_stalls == 1
+        heard = 5.001 if answers else 0.0  # the reading thread reads what waited
+        did = run_watch(watch, lambda now, heard=heard: heard, keep=None, until=5.75, now=5.0)
+        assert did == (
+            [(5.751, "heartbeat")] if answers else [(5.375, "heartbeat"), (5.75, "stale")]
+        )
+    # a supervisor on time is judged as before: the verdict at link_timeout
+    on_time = LinkWatch(link_timeout=1.5, period=10.0, now=0.0)
+    assert run_watch(on_time, lambda now: 0.0, keep=None, until=5.0)[-1] == (1.5, "stale")
+    assert on_time.host_stalls == 0
 
 
 def test_a_talking_link_is_never_stale_and_a_quiet_one_is_asked_in_time() -> None:

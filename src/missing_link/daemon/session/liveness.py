@@ -22,6 +22,11 @@ supervisor's wake-up.  That holds only because the supervisor never waits for th
 thing it asks is sent and answered in the background, one of a kind at a time (inflight.py),
 so a queue of requests ahead of it, a control call with a long timeout or a board that never
 answers cannot hold it up.
+
+Silence is evidence only while the host listened: a supervisor that wakes more than ``T / 4``
+after the instant it asked for (the host's process was stopped or starved, its reading thread
+too, with the board's bytes waiting in the kernel) gives the link ``T / 2`` more before a
+verdict, asks the board at once, and counts it (``host_stalls``).
 """
 
 from __future__ import annotations
@@ -52,25 +57,36 @@ class LinkWatch:
         self.next_ping = now  # the first at once (the board's counts in the status)
         self.next_beat = 0.0
         self.next_keep = now
+        self.wake_by: float | None = None  # the instant the supervisor asked to wake by
+        self.grace_until = 0.0  # no stale verdict before it (the host was not listening)
+        self.host_stalls = 0  #: wake-ups later than T / 4: the host, not the board, was silent
 
     def due(self, last_frame: float, keep: float | None) -> float:
         """The next instant something may be due (CLOCK_MONOTONIC s)."""
         t = self.link_timeout
-        due = min(self.next_ping, max(last_frame + t / 2, self.next_beat), last_frame + t)
+        stale_at = max(last_frame + t, self.grace_until)
+        due = min(self.next_ping, max(last_frame + t / 2, self.next_beat), stale_at)
         if keep is not None:
             due = min(due, self.next_keep)
         return due
 
     def wait_s(self, now: float, last_frame: float, keep: float | None) -> float:
         """How long the supervisor may sleep (commands and a closing link wake it earlier)."""
-        return max(0.0, min(MAX_SLEEP_S, self.due(last_frame, keep) - now))
+        wait = max(0.0, min(MAX_SLEEP_S, self.due(last_frame, keep) - now))
+        self.wake_by = now + wait
+        return wait
 
     def turn(self, now: float, last_frame: float, keep: float | None) -> Turn:
         """What is due at ``now``; the schedule moves on for what it returns.  (Each instant
         is computed as ``due`` computes it: a wake-up at ``due`` always finds its work.)"""
         t = self.link_timeout
         silent = now - last_frame
-        if now >= last_frame + t:
+        if self.wake_by is not None and now - self.wake_by > t / 4:
+            self.host_stalls += 1  # (the reading thread was held too: its frames may wait)
+            self.grace_until = now + t / 2
+            self.next_beat = 0.0  # ask the board at once
+        self.wake_by = None
+        if now >= max(last_frame + t, self.grace_until):
             return Turn(stale=True, silent=silent)
         keepalive = keep is not None and now >= self.next_keep
         if keepalive:
