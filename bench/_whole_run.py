@@ -57,8 +57,14 @@ def whole_run(
                 )
 
             d.subscribe("/w/signal", on_update, queue=0)
+            # ``seconds`` of the board's clock, and at least a second of samples: on a busy
+            # machine the board process and the daemon's first map can take most of a short
+            # run (then there was nothing 0.5 s after the first sample to check)
             t_end = truth.ref_ns + seconds * 1e9
-            while time.monotonic_ns() < t_end:
+            give_up = time.monotonic_ns() + (seconds + 120) * 1e9  # (bounded, whatever)
+            while time.monotonic_ns() < t_end or (
+                (not rows or rows[-1][0] < rows[0][0] + 1e9) and time.monotonic_ns() < give_up
+            ):
                 time.sleep(0.2)
             st = d.status()[0]
     finally:
@@ -67,6 +73,8 @@ def whole_run(
         **_figures(rows, answering_again),
         "probes_per_s": st["sync_exchanges"] / seconds,
         "resets": st["sync_resets"],
+        "lost": st["sync_lost"],
+        "interval_ms": st["sync_interval_ms"],  # (the sync's own schedule at the end)
         "truth": truth,
         "first_sample_ns": rows[0][0],
         "answering_again_ns": answering_again,

