@@ -29,10 +29,11 @@ void link_watch(uart_pty_t *pty, char which) {
                             byte_hook, NULL);
 }
 
-/* the pty takes bytes now: its thread is only late (else the host's buffer is full) */
+/* the pty takes bytes now: its thread is only late (else the host's buffer is full).  A pty
+ * whose host end closed says POLLOUT with POLLHUP while its writes fail: no room. */
 static int pty_has_room(void) {
     struct pollfd p = {.fd = link_pty->pty.s, .events = POLLOUT};
-    return poll(&p, 1, 0) == 1 && (p.revents & POLLOUT);
+    return poll(&p, 1, 0) == 1 && (p.revents & (POLLOUT | POLLHUP | POLLERR)) == POLLOUT;
 }
 
 int link_backed_up(void) {
