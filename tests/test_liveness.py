@@ -90,11 +90,21 @@ def test_silence_while_the_host_was_stopped_is_not_the_boards() -> None:
         assert watch.wait_s(0.0, 0.0, None) == 0.75
         turn = watch.turn(5.0, 0.0, None)  # woke 4.25 s late: the host was not running
         assert not turn.stale and turn.heartbeat and watch.host_stalls == 1
+        assert turn.host_late == pytest.approx(4.25)
         heard = 5.001 if answers else 0.0  # the reading thread reads what waited
         did = run_watch(watch, lambda now, heard=heard: heard, keep=None, until=5.75, now=5.0)
         assert did == (
             [(5.751, "heartbeat")] if answers else [(5.375, "heartbeat"), (5.75, "stale")]
         )
+    # once per silence: a host late again and again does not put off a dead board's verdict
+    for t, late in ((1.5, 0.38), (1.5, 2.0), (0.2, 0.051)):
+        watch, now = LinkWatch(link_timeout=t, period=60.0, now=0.0), 0.0
+        for _ in range(1000):
+            now += watch.wait_s(now, 0.0, None) + late
+            if watch.turn(now, 0.0, None).stale:
+                break
+        assert now <= 1.5 * t + 2 * late, (t, late, now)  # (T + T/2 and the wake-ups' lateness)
+        assert watch.host_stalls >= 1
     # a supervisor on time is judged as before: the verdict at link_timeout
     on_time = LinkWatch(link_timeout=1.5, period=10.0, now=0.0)
     assert run_watch(on_time, lambda now: 0.0, keep=None, until=5.0)[-1] == (1.5, "stale")

@@ -160,6 +160,7 @@ class Actuators:
         with self._lock:
             self._sending.clear()
             self._timed_out = False
+        self.timed_within_ns = None  # (the map it was for went with the link)
 
     # ---- commands now ---------------------------------------------------------------------------
     def _send(self, board: Board, t: Transducer, payload: bytes) -> None:

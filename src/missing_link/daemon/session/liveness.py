@@ -26,7 +26,10 @@ answers cannot hold it up.
 Silence is evidence only while the host listened: a supervisor that wakes more than ``T / 4``
 after the instant it asked for (the host's process was stopped or starved, its reading thread
 too, with the board's bytes waiting in the kernel) gives the link ``T / 2`` more before a
-verdict, asks the board at once, and counts it (``host_stalls``).
+verdict, asks the board at once, counts it (``host_stalls``) and says it in its turn
+(``host_late``, logged by the session).  Once per silence: a host late again before the board
+was heard does not put the verdict off again, so a dead board is found within ``T + T / 2``
+plus the wake-ups however late the host keeps running.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ class Turn:
     heartbeat: bool = False
     keepalive: bool = False
     ping: bool = False
+    host_late: float = 0.0  #: s the supervisor woke late, when that earned the link a grace
 
 
 class LinkWatch:
@@ -60,6 +64,7 @@ class LinkWatch:
         self.wake_by: float | None = None  # the instant the supervisor asked to wake by
         self.grace_until = 0.0  # no stale verdict before it (the host was not listening)
         self.host_stalls = 0  #: wake-ups later than T / 4: the host, not the board, was silent
+        self.graced: float | None = None  # the last frame whose silence had its grace
 
     def due(self, last_frame: float, keep: float | None) -> float:
         """The next instant something may be due (CLOCK_MONOTONIC s)."""
@@ -81,11 +86,18 @@ class LinkWatch:
         is computed as ``due`` computes it: a wake-up at ``due`` always finds its work.)"""
         t = self.link_timeout
         silent = now - last_frame
-        if self.wake_by is not None and now - self.wake_by > t / 4:
-            self.host_stalls += 1  # (the reading thread was held too: its frames may wait)
-            self.grace_until = now + t / 2
-            self.next_beat = 0.0  # ask the board at once
+        late = 0.0 if self.wake_by is None else now - self.wake_by
         self.wake_by = None
+        if late > t / 4:
+            self.host_stalls += 1  # (the reading thread was held too: its frames may wait)
+            if self.graced != last_frame:  # (one grace per silence)
+                self.graced = last_frame
+                self.grace_until = now + t / 2
+                self.next_beat = 0.0  # ask the board at once
+            else:
+                late = 0.0
+        else:
+            late = 0.0
         if now >= max(last_frame + t, self.grace_until):
             return Turn(stale=True, silent=silent)
         keepalive = keep is not None and now >= self.next_keep
@@ -98,4 +110,4 @@ class LinkWatch:
         ping = now >= self.next_ping
         if ping:
             self.next_ping = now + self.period
-        return Turn(False, silent, heartbeat, keepalive, ping)
+        return Turn(False, silent, heartbeat, keepalive, ping, late)

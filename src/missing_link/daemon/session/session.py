@@ -366,6 +366,8 @@ class BoardSession(SessionReport):
                 self.actuators.run(board, self._stop.is_set, self.clock.push_map_future)
                 self._notice_reset()
                 turn = watch.turn(clock.monotonic(), board.last_frame, keep)
+                if turn.host_late:  # (its silence is not the board's: asked again first)
+                    log.warning("%s: the daemon ran %.2f s late", self.name, turn.host_late)
                 if turn.stale:
                     self.stale_links += 1
                     raise LinkStale(
