@@ -5,6 +5,7 @@ a condition (``wait_for``) and the MicroPython and AVR firmware in their simulat
 
 from __future__ import annotations
 
+import json
 import queue
 import socket
 import subprocess
@@ -23,7 +24,7 @@ from missing_link.testing import MicroPythonSim
 from missing_link.testing import wait_for as wait_for
 from missing_link.testing.sims import start_with_lines as start_with_lines
 from missing_link.transport import Transport
-from missing_link.virtual.mpyboard import HOST_MJS
+from missing_link.virtual.mpyboard import HOST_MJS, find_micropython
 from missing_link.virtual.process import hang_up, reap
 
 
@@ -174,3 +175,18 @@ def board_process(*args: str, cmd: list[str] = ML, cwd: Path | None = None) -> I
     finally:
         p.terminate()
         p.wait(10)
+
+
+def simworld_probe(probe: str, cases: Any) -> list[dict[str, Any]]:
+    """Run ``tests/micropython/<probe>.py`` against the MicroPython simulator's modules in real
+    MicroPython (tests/micropython/simworld.mjs): its ``run(*case)`` for each case, the JSON
+    line each printed."""
+    node, _mpy = find_micropython()
+    here = Path(__file__).resolve().parent
+    out = subprocess.run(
+        [node, str(here / "micropython" / "simworld.mjs"),
+         str(here.parent / "src" / "missing_link" / "virtual" / "world"),
+         str(here / "micropython" / f"{probe}.py"), json.dumps(cases)],
+        capture_output=True, text=True, timeout=60, check=True, cwd=here.parent,
+    ).stdout  # fmt: skip
+    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]

@@ -8,16 +8,12 @@ answers are a board's: the difference of two tick counts taken modulo 2^30 into
 
 from __future__ import annotations
 
-import json
-import subprocess
-from pathlib import Path
+from typing import Any
 
 import pytest
 
-from missing_link.virtual.mpyboard import find_micropython
+from .helpers import simworld_probe
 
-ROOT = Path(__file__).resolve().parent.parent
-SIMWORLD = ROOT / "src" / "missing_link" / "virtual" / "world"
 WRAP = 1 << 30
 HALF = WRAP >> 1
 
@@ -27,14 +23,8 @@ def board_ticks_diff(a: int, b: int) -> int:
     return ((a - b + HALF) & (WRAP - 1)) - HALF
 
 
-def calls(*cases: tuple[int, int, int]) -> list[dict[str, int]]:
-    node, _mpy = find_micropython()
-    out = subprocess.run(
-        [node, str(ROOT / "tests" / "micropython" / "simtime_heap.mjs"), str(SIMWORLD),
-         json.dumps(cases)],
-        capture_output=True, text=True, timeout=60, check=True, cwd=ROOT,
-    ).stdout  # fmt: skip
-    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+def calls(*cases: tuple[int, int, int]) -> list[dict[str, Any]]:
+    return simworld_probe("simtime_heap", cases)
 
 
 @pytest.mark.micropython

@@ -6,27 +6,17 @@ throughout.  The heap figure is MicroPython's own (gc.mem_alloc, collections off
 
 from __future__ import annotations
 
-import json
-import subprocess
-from pathlib import Path
+from typing import Any
 
 import pytest
 
-from missing_link.virtual.mpyboard import find_micropython
+from .helpers import simworld_probe
 
-ROOT = Path(__file__).resolve().parent.parent
-SIMWORLD = ROOT / "src" / "missing_link" / "virtual" / "world"
 WRAP = 1 << 30
 
 
-def steps_at(*cases: tuple[int, int, int]) -> list[dict[str, object]]:
-    node, _mpy = find_micropython()
-    out = subprocess.run(
-        [node, str(ROOT / "tests" / "micropython" / "worldfeed_heap.mjs"), str(SIMWORLD),
-         json.dumps(cases)],
-        capture_output=True, text=True, timeout=60, check=True, cwd=ROOT,
-    ).stdout  # fmt: skip
-    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+def steps_at(*cases: tuple[int, int, int]) -> list[dict[str, Any]]:
+    return simworld_probe("worldfeed_heap", cases)
 
 
 @pytest.mark.micropython
