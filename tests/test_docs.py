@@ -97,6 +97,27 @@ def test_the_readme_stays_inside_the_repository() -> None:
     assert not [h for h in hashes if re.search(r"\d", h)], f"commit hashes in README.md: {hashes}"
 
 
+@pytest.mark.parametrize("doc", DOCS[1:], ids=lambda p: p.name)
+def test_no_document_sends_a_reader_outside_the_repository(doc: Path) -> None:
+    """A user with a clone has what the docs name: the wire protocol is docs/protocol.md."""
+    assert "../shared" not in doc.read_text(encoding="utf-8"), f"{doc.name} names ../shared"
+
+
+def test_the_protocols_golden_vectors_are_the_tests() -> None:
+    """Every fully given request and reply in docs/protocol.md's vector table, and its SIF, is
+    one the tests check the implementations against (tests/vectors.py)."""
+    from .vectors import SIF, VECTORS, h
+
+    text = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
+    table = text[text.index("## Golden vectors") :]
+    given = {pair for _, req, rep in VECTORS for pair in (req, rep)}
+    rows = re.findall(r"^\| [^|]+ \| ([0-9a-f ]+) \| ([0-9a-f ]+) \|$", table, re.M)
+    assert len(rows) >= 3, "the vector table lost its rows"
+    for req, rep in rows:
+        assert {h(req), h(rep)} <= given, (req, rep)
+    assert h(re.findall(r"`(ed [0-9a-f ]+)`", table)[0]) == SIF
+
+
 def thread_names() -> dict[str, str]:
     """Every thread the host side, the daemon and the faces start, by the name it gets (an
     f-string's fixed start, then ``<``), and where."""

@@ -1,4 +1,4 @@
-"""Golden vectors from ../shared/spec/j2a-vectors.md (the original 2014 host and board)."""
+"""Golden vectors of docs/protocol.md (captured from the original 2014 host and board)."""
 
 ORIGINAL_TABLE = [
     "a2jGetMapping",
