@@ -264,7 +264,11 @@ def board_url() -> Iterator[str]:
         (["listen", "{url}", "--count", "-5"], 2, "must be 0 or more"),
         (["run", "ftp://x"], 2, "unknown transport 'ftp'"),
         (["run", "{url}", "--foxglove", "99999"], 2, "not a TCP port"),
-        (["run", "tcp://127.0.0.1:1", "--wait-up", "1"], 1, "not up within 1 s"),
+        (
+            ["run", "tcp://127.0.0.1:1", "--wait-up", "1"],
+            1,
+            ":1: not up within 1 s: cannot connect",
+        ),
         (["sync", "{url}", "--uart-baud", "115200", "--duration", "1"], 2, "UART"),
         (["demo", "--duration", "0"], 2, "at least 1 s"),
         (["recover", "README.md"], 2, "not an MCAP file"),

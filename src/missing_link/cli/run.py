@@ -125,7 +125,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 if s.state != "up":
                     print(
                         f"missing-link: error: {s.spec.url}: not up within {args.wait_up:g} s: "
-                        f"{s.error or s.state}",
+                        f"{without_prefix(s.spec.url, s.error or s.state)}",
                         file=sys.stderr,
                     )
             code = EXIT_FAIL
