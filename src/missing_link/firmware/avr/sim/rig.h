@@ -1,4 +1,4 @@
-/* What the rig's parts share (rig_sim.c runs them): the simulated AVR, its time, its pins, and
+/* What the rig's parts share (rig.c; rig_sim.c runs them): the simulated AVR, its time, its pins, and
  * the shape of a part's control lines.
  *
  * The seam for a world around the rig (a physics model driving the parts: issue 47): every

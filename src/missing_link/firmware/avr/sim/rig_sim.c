@@ -70,7 +70,6 @@
 #include "stepper.h"
 #include "twi_bus.h"
 
-avr_t *avr;
 static uart_pty_t uart;
 static double skew;
 static double worst_lag_us; /* how far simulated time fell behind the host's (a loaded machine) */
@@ -80,33 +79,6 @@ static uint64_t mono_ns(void) {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
-
-uint64_t sim_us(void) { return avr->cycle / (avr->frequency / 1000000); }
-
-void rig_pin(char port, int bit, int level) {
-    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit), level);
-}
-
-avr_irq_t *rig_pin_irq(char port, int bit) {
-    return avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit);
-}
-
-int rig_port_bit(char port, int bit) {
-    for (avr_io_t *io = avr->io_port; io; io = io->next) {
-        avr_ioport_t *p = (avr_ioport_t *)io;
-        if (!strcmp(io->kind, "port") && p->name == port) return (avr->data[p->r_port] >> bit) & 1;
-    }
-    return 0;
-}
-
-int rig_parse_pin(const char *text, char *port, int *bit) {
-    if ((text[0] == 'P' || text[0] == 'p') && text[1] >= 'A') text++;
-    char p = (char)(text[0] & ~0x20);
-    if (p < 'A' || p > 'L' || text[1] < '0' || text[1] > '7' || text[2]) return 0;
-    *port = p;
-    *bit = text[1] - '0';
-    return 1;
 }
 
 /* ---- control channel and pacing ---------------------------------------------------------------- */

@@ -10,7 +10,6 @@
 #include <string.h>
 
 #include "hal.h"
-#include "runtime.h"
 
 #define BURST 8
 #define INTERVAL_US 250000UL
@@ -23,6 +22,7 @@
 static uint32_t tat; /* the budget's theoretical arrival time (board µs, low 32 bits) */
 static uint16_t said, dropped, pending, other;
 static uint8_t n_faults;
+static log_send_t send; /* (set by runtime_init before any line: log_init) */
 static struct {
     uint8_t source, kind;
     uint16_t count;
@@ -43,7 +43,7 @@ static uint8_t emit(uint64_t now, uint8_t level, uint8_t source, uint8_t kind, c
     head[9] = source;
     head[10] = kind;
     memcpy(head + 11, &pending, 2);
-    if (!runtime_sif_P(LOG_CMD, head, sizeof head, a, b)) return 0;
+    if (!send(LOG_CMD, head, sizeof head, a, b)) return 0;
     tat = ((int32_t)(tat - t) > 0 ? tat : t) + INTERVAL_US;
     pending = 0;
     add16(&said);
@@ -83,6 +83,8 @@ void log_poll(uint32_t now) {
     if ((int32_t)(tat - t) < 0) tat = t; /* (idle: within a turn of now, whatever the wrap) */
     if (pending) emit(clock_widen(now), LOG_WARN, LOG_BOARD, FAULT_LINE, 0, 0);
 }
+
+void log_init(log_send_t s) { send = s; }
 
 static uint8_t put32(uint8_t *out, uint16_t v) {
     uint32_t w = v;

@@ -27,7 +27,13 @@ enum {
     FAULT_ECHOED /* a request whose opcode is an error code: an error frame heard back */
 };
 
+/* How a line leaves: the runtime's SIF writer (runtime_sif_P), handed over at start as the
+ * Python runtime hands BoardLog its send; 1 if the UART's ring took the frame. */
+typedef uint8_t (*log_send_t)(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a,
+                              const char *b);
+
 #if ML_LOG
+void log_init(log_send_t send);
 /* A line: text_P (and then more_P, either may be 0) from flash, if the budget allows. */
 void log_line_P(uint8_t level, uint8_t source, const char *text_P, const char *more_P);
 /* A fault: said once per (source, kind) - WARN, ERROR for a reply J2A cannot carry - then
@@ -36,6 +42,7 @@ void log_fault_P(uint8_t source, uint8_t kind, const char *text_P);
 void log_poll(uint32_t now); /* a count of dropped lines, once the budget has room */
 uint8_t log_info(const uint8_t *in, uint8_t n, uint8_t *out, uint8_t *out_n); /* a2jLogInfo */
 #else /* no log: the drivers' counters are all there is */
+static inline void log_init(log_send_t send) { (void)send; }
 static inline void log_line_P(uint8_t l, uint8_t s, const char *t, const char *m) {
     (void)l, (void)s, (void)t, (void)m;
 }

@@ -19,8 +19,9 @@
  * a2jSifCount), then the board's own functions.  a2jClock's t2 is the interrupt's stamp of the
  * request's last byte, t3 is taken just before the reply's first byte enters the TX ring.
  * No dynamic allocation; the one 255-byte scratch buffer is shared by replies and SIFs.  The
- * board's log (log.c) writes its lines as SIFs of their own (runtime_sif_P), straight from
- * flash: the scratch buffer may hold a reply in the making when a driver says something.
+ * board's log (log.c) writes its lines as SIFs of their own (runtime_sif_P, handed to it by
+ * log_init: the log never calls the runtime by name), straight from flash: the scratch buffer
+ * may hold a reply in the making when a driver says something.
  */
 #include "builtins.h"
 
@@ -322,7 +323,9 @@ static uint8_t flush_sif(transducer_t *t, uint64_t now) {
     return 1;
 }
 
-uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b) {
+/* A SIF whose payload is head[0..hn) then the flash strings a, b (0: none), written whole into
+ * the UART's ring if it has room; 1 if it was, 0 if not (nothing written): the log's send. */
+static uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b) {
     uint8_t an = a ? (uint8_t)strlen_P(a) : 0, bn = b ? (uint8_t)strlen_P(b) : 0;
     if (link_tx_free() < FRAME_MAX((uint16_t)hn + an + bn)) return 0;
     encode_frame_P(tx, SOS, sif_seq++, cmd, head, hn, a, an, b, bn);
@@ -373,4 +376,7 @@ void runtime_poll(void) {
     }
 }
 
-void runtime_init(void) { frame_parser_init(&parser); }
+void runtime_init(void) {
+    frame_parser_init(&parser);
+    log_init(runtime_sif_P); /* the log writes its lines as SIFs of their own, through us */
+}

@@ -66,9 +66,6 @@ void runtime_poll(void);
  * low 32 bits: widened when its SIF is written, hal.h). */
 void record(transducer_t *t, uint8_t channel, uint32_t raw, uint32_t stamp_us);
 void record_na(transducer_t *t, uint8_t channel, uint32_t stamp_us);
-/* A SIF whose payload is head[0..hn) then the flash strings a, b (0: none), written whole into
- * the UART's ring if it has room; 1 if it was, 0 if not (nothing written).  The log's (log.c). */
-uint8_t runtime_sif_P(uint8_t cmd, const uint8_t *head, uint8_t hn, const char *a, const char *b);
 /* The 255-byte buffer replies are made in: a timed call's reply, which goes nowhere (timing.c),
  * is made there too, between two turns of the main loop. */
 uint8_t *runtime_scratch(void);
