@@ -254,40 +254,45 @@ class BoardServer:
             return
         try:
             while not self._stop.is_set():
-                fds = []
-                if self._link is not None:
-                    fds.append(self._link.fd)
-                if self._listener is not None:
-                    fds.append(self._listener.fileno())
-                wfds = [self._link.fd] if self._link is not None and self._link.pending else []
-                ready, _, _ = select.select(fds, wfds, [], self._wait_time())
-                rx_us = self.runtime.clock()  # input (if any) arrived before select returned
-                data = b""
-                if self._link is not None and self._link.fd in ready:
-                    received = self._link.recv()
-                    if received is None:
-                        self._drop_link()
-                    else:
-                        data = received
-                        age = self._link.arrived_age_ns
-                        if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
-                            rx_us = self.runtime.clock() - age // 1000
-                # (after the link's own end: a host that closes and one that connects in the
-                # same turn is a handover, not a second host to turn away)
-                if self._listener is not None and self._listener.fileno() in ready:
-                    self._accept()
-                if self._dialer is not None and self._link is None:
-                    sock = self._dialer.poll()  # (select wakes within _MAX_WAIT: dial steps)
-                    if sock is not None:
-                        self._link = _Link(sock.fileno(), sock)
-                        self.connections += 1
-                if self._lifecycle():
-                    continue  # booting: input is lost, nothing is sent
-                replies, sifs = self._turn(data, rx_us)
-                if self._link is not None and not self._link.send(replies, sifs):
-                    self._drop_link()
+                self.serve_once()
         finally:
             self.close()
+
+    def serve_once(self) -> None:
+        """One pass of the process loop: wait (at most ``_MAX_WAIT``) for input, a host or the
+        next driver deadline; read; take a host that connected; run a turn; write."""
+        fds = []
+        if self._link is not None:
+            fds.append(self._link.fd)
+        if self._listener is not None:
+            fds.append(self._listener.fileno())
+        wfds = [self._link.fd] if self._link is not None and self._link.pending else []
+        ready, _, _ = select.select(fds, wfds, [], self._wait_time())
+        rx_us = self.runtime.clock()  # input (if any) arrived before select returned
+        data = b""
+        if self._link is not None and self._link.fd in ready:
+            received = self._link.recv()
+            if received is None:
+                self._drop_link()
+            else:
+                data = received
+                age = self._link.arrived_age_ns
+                if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
+                    rx_us = self.runtime.clock() - age // 1000
+        # (after the link's own end: a host that closes and one that connects in the
+        # same turn is a handover, not a second host to turn away)
+        if self._listener is not None and self._listener.fileno() in ready:
+            self._accept()
+        if self._dialer is not None and self._link is None:
+            sock = self._dialer.poll()  # (select wakes within _MAX_WAIT: dial steps)
+            if sock is not None:
+                self._link = _Link(sock.fileno(), sock)
+                self.connections += 1
+        if self._lifecycle():
+            return  # booting: input is lost, nothing is sent
+        replies, sifs = self._turn(data, rx_us)
+        if self._link is not None and not self._link.send(replies, sifs):
+            self._drop_link()
 
     def _accept(self) -> None:
         assert self._listener is not None
