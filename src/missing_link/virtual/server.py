@@ -5,7 +5,9 @@ The loop is the board's process loop: wait for input or the next driver deadline
 write.  Like a real board it never blocks on output: when the host does not read, output waits in
 a bounded queue of whole frames; past its limit the oldest SIFs are dropped (counted), never a
 reply and never part of a frame.
-One host at a time; a second connection is refused until the first goes away.
+One host at a time; a second connection is refused (closed at once) until the first goes away.
+A host that connects as the last one closes is the next host, not a second one, even when the
+last one's final bytes are still unread: they are read first, and its close behind them.
 
 With ``dial=True`` the board connects out to ``tcp://HOST:PORT`` instead (a daemon that runs
 ``run --listen``), and again with the firmware's own backoff whenever the connection ends: the
@@ -37,6 +39,7 @@ from .listen import dial_address, listen_socket
 OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
 _MAX_WAIT = 0.05
+_HANDOVER_READ = 64 * 1024  # what a host that connects waits behind (see _handover)
 
 
 class _Link:
@@ -260,7 +263,7 @@ class BoardServer:
 
     def serve_once(self) -> None:
         """One pass of the process loop: wait (at most ``_MAX_WAIT``) for input, a host or the
-        next driver deadline; read; take a host that connected; run a turn; write."""
+        next driver deadline; read; run a turn; write; then take a host that connected."""
         fds = []
         if self._link is not None:
             fds.append(self._link.fd)
@@ -279,20 +282,43 @@ class BoardServer:
                 age = self._link.arrived_age_ns
                 if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
                     rx_us = self.runtime.clock() - age // 1000
-        # (after the link's own end: a host that closes and one that connects in the
-        # same turn is a handover, not a second host to turn away)
-        if self._listener is not None and self._listener.fileno() in ready:
-            self._accept()
+        newcomer = self._listener is not None and self._listener.fileno() in ready
+        if newcomer and self._link is not None:
+            rest, newcomer = self._handover()
+            data += rest
         if self._dialer is not None and self._link is None:
             sock = self._dialer.poll()  # (select wakes within _MAX_WAIT: dial steps)
             if sock is not None:
                 self._link = _Link(sock.fileno(), sock)
                 self.connections += 1
-        if self._lifecycle():
-            return  # booting: input is lost, nothing is sent
-        replies, sifs = self._turn(data, rx_us)
-        if self._link is not None and not self._link.send(replies, sifs):
-            self._drop_link()
+        if not self._lifecycle():  # (booting: input is lost, nothing is sent)
+            replies, sifs = self._turn(data, rx_us)
+            if self._link is not None and not self._link.send(replies, sifs):
+                self._drop_link()
+        if newcomer:
+            # (after the turn: what the last host's last bytes are answered is not the new one's)
+            self._accept()
+
+    def _handover(self) -> tuple[bytes, bool]:
+        """A host connects while the link is up: the last host may have sent its last frame and
+        closed in the same moment, its close still unread behind the frame.  Read what it left
+        (the turn answers it to nobody): its close ends the link and the newcomer is the next
+        host; nothing more (it is still there) and the newcomer is a second host, turned away.
+        Returns (bytes read, take the newcomer this turn); past ``_HANDOVER_READ`` bytes the
+        last host is still sending: the newcomer waits in the backlog for the next turn."""
+        assert self._link is not None
+        parts: list[bytes] = []
+        size = 0
+        while size < _HANDOVER_READ:
+            got = self._link.recv()
+            if got is None:  # it went: the link ends before the turn
+                self._drop_link()
+                return b"".join(parts), True
+            if not got:
+                return b"".join(parts), True  # still there: _accept() turns the newcomer away
+            parts.append(got)
+            size += len(got)
+        return b"".join(parts), False
 
     def _accept(self) -> None:
         assert self._listener is not None

@@ -1,0 +1,97 @@
+"""A virtual board on TCP serves one host at a time, and the next one once the last has gone,
+even when the last one's close and the next one's connection come in the same pass of its
+loop with the last one's final frame still unread (the README's snippets run one after another
+once got LinkLost on the second).  The board's loop is run a pass at a time (serve_once), so
+each case happens on purpose: everything a test's hosts do is in the kernel before the pass."""
+
+from __future__ import annotations
+
+import select
+import socket
+from collections.abc import Iterator
+
+import pytest
+
+from missing_link.j2a.codec import SOF, Frame, FrameDecoder, encode_frame
+from missing_link.virtual import BoardServer, make_sim
+
+PASSES = 200  # each pass waits at most virtual.server._MAX_WAIT: a bound, not a timing
+
+
+@pytest.fixture
+def board() -> Iterator[BoardServer]:
+    server = BoardServer(make_sim("thesis", seed=1), "tcp://127.0.0.1:0")
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+def connect(server: BoardServer) -> socket.socket:
+    host, port = server.url.removeprefix("tcp://").rsplit(":", 1)
+    return socket.create_connection((host, int(port)), timeout=5)
+
+
+def request(seq: int) -> bytes:
+    return encode_frame(SOF, seq, 0)  # function 0: every board has it and answers it
+
+
+def answer(server: BoardServer, host: socket.socket, seq: int) -> str:
+    """Run the board until ``host`` has its reply to ``seq`` ("answered") or is closed by the
+    board ("closed")."""
+    decoder = FrameDecoder()
+    for _ in range(PASSES):
+        server.serve_once()
+        while select.select([host], [], [], 0)[0]:
+            try:
+                data = host.recv(65536)
+            except ConnectionResetError:  # closed with what it sent unread
+                return "closed"
+            if not data:
+                return "closed"
+            for item in decoder.feed(data):
+                if isinstance(item, Frame) and item.kind == SOF and item.seq == seq:
+                    return "answered"
+    raise AssertionError(f"no reply to seq {seq} and no close in {PASSES} passes")
+
+
+def test_a_host_that_connects_as_the_last_one_closes_is_served(board: BoardServer) -> None:
+    first = connect(board)
+    first.sendall(request(1))
+    assert answer(board, first, 1) == "answered"
+    first.sendall(request(2))  # its last frame, and its close behind it: both unread
+    first.close()
+    second = connect(board)  # in the same pass as the close
+    with second:
+        second.sendall(request(3))
+        assert answer(board, second, 3) == "answered"
+    assert board.connections == 2
+
+
+def test_the_next_host_waits_behind_a_long_last_word(board: BoardServer) -> None:
+    """A last host that left more unread than one pass reads before it (its close read then)."""
+    first = connect(board)
+    first.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)  # all of it in the kernel
+    first.sendall(request(1))
+    assert answer(board, first, 1) == "answered"
+    first.sendall(bytes(150_000) + request(2))
+    first.close()
+    second = connect(board)
+    with second:
+        second.sendall(request(3))
+        assert answer(board, second, 3) == "answered"
+    assert board.connections == 2
+
+
+def test_a_second_host_while_the_first_is_there_is_turned_away(board: BoardServer) -> None:
+    with connect(board) as first:
+        first.sendall(request(1))
+        assert answer(board, first, 1) == "answered"
+        first.sendall(request(2))  # in the pass the second one connects
+        with connect(board) as second:
+            second.sendall(request(3))
+            assert answer(board, second, 3) == "closed"
+        assert answer(board, first, 2) == "answered"  # the first is still served
+        first.sendall(request(4))
+        assert answer(board, first, 4) == "answered"
+    assert board.connections == 1
