@@ -6,7 +6,8 @@ simulated machine and the devices all read it.  The MicroPython subset only.
 Theory of operation
 -------------------
 The clock counts simulated µs, wrapping at TICKS_MAX + 1 (2^30) as the RP2040 port's ticks_us does
-(board/clock.py extends it to 64 bit, as on a board), with the ns below a µs kept apart (work
+(board/clock.py extends it to 64 bit, as on a board; ticks_add refuses a delta of 2^29 or more
+either way, OverflowError, as the port's does), with the ns below a µs kept apart (work
 is charged in ns: a clock read costs 9.6 µs, so reads land 9 or 10 µs apart, as on a board).
 Between two firmware steps the host sets it (set_now, fastclock.mjs).  Within a step it moves
 only by what the step's work costs in the cost model (simcost.py), charged as the work happens,
@@ -27,6 +28,7 @@ from . import simcost
 # allocates nothing)
 TICKS_MAX = 0x3FFFFFFF  # the period less one
 TICKS_HALF = 0x20000000
+_WORD_MAX = 0x7FFFFFFF  # (only compared with where ticks_add refuses: no long integer a call)
 
 _now = 0  # simulated µs, wrapped
 _ns = 0  # ... and the ns below it (0..999)
@@ -46,7 +48,7 @@ def advance(us):
     # the clock moves on by `us` (a sleep, a transfer on a bus, a charge)
     global _now, _slept
     if us > 0:
-        _now = ticks_add(_now, us)
+        _now = _wrap_add(_now, us)  # (a sleep of any length: ticks_add takes under 2^29)
         _slept += us
 
 
@@ -89,6 +91,19 @@ def ticks_cpu():
 
 
 def ticks_add(t, delta):
+    # As the port's (extmod/modtime.c): a delta ticks_diff could not give back, |delta| >= 2^29,
+    # is an OverflowError, not a wrap (a board that asks for one has a bug: it must show here)
+    kind = type(delta)
+    if kind is not int and kind is not bool:  # (MicroPython: a bool is no int; no tuple a call)
+        raise TypeError("can't convert %s to int" % kind.__name__)
+    if delta >= TICKS_HALF or delta <= -TICKS_HALF:
+        if delta > _WORD_MAX or delta < -_WORD_MAX:  # (a 32-bit board's word, as the port sees it)
+            raise OverflowError("overflow converting long int to machine word")
+        raise OverflowError("ticks interval overflow")
+    return _wrap_add(t, delta)
+
+
+def _wrap_add(t, delta):
     # t + delta wrapped, without the sum past TICKS_MAX (a long integer) that (t + delta) &
     # TICKS_MAX would make at the wrap
     t &= TICKS_MAX
