@@ -60,6 +60,7 @@ import { Lockstep } from "./lockstep.mjs";
 import { copyTree } from "./mpfs.mjs";
 import { FlashCut } from "./flashcut.mjs";
 import { SIM_ROOM, capHeap, quietGrowth } from "./heap.mjs";
+import { rememberTableEntries } from "./wasmtable.mjs";
 import { worldBeside } from "./worldtick.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
@@ -96,6 +97,7 @@ if (heapArg !== null) quietGrowth();
 const fromFlash = flashDir !== null && existsSync(join(flashDir, "main.py")); // (flashboot.py)
 const cut = new FlashCut(opt("--cut-after"), opt("--journal"));
 
+rememberTableEntries(); // (a tenth of a --fast soak's time: wasmtable.mjs)
 const { loadMicroPython } = await import(
   mpyPath ? pathToFileURL(mpyPath).href : "@micropython/micropython-webassembly-pyscript"
 );
@@ -327,12 +329,14 @@ function run() {
       const s = conns.get(Number(tok.slice(1)));
       conns.delete(Number(tok.slice(1)));
       inbox.delete(Number(tok.slice(1)));
+      lock?.flush(Number(tok.slice(1))); // (what it was sent first)
       if (s) s.destroy();
     } else {
       const at = tok.indexOf(":");
       const s = conns.get(Number(tok.slice(0, at)));
-      if (s) s.write(Buffer.from(tok.slice(at + 1), "hex"));
-      if (s && lock) lock.wrote(Number(tok.slice(0, at)), (tok.length - at - 1) / 2);
+      const data = s ? Buffer.from(tok.slice(at + 1), "hex") : null;
+      if (s && lock) lock.hold(Number(tok.slice(0, at)), data, (d) => s.write(d));
+      else if (s) s.write(data);
       if (s && fast && s.writableLength > BACKLOG) full = s;
     }
   }
