@@ -8,10 +8,12 @@ import math
 from pathlib import Path
 from typing import Any
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
+from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from missing_link.descriptors import parse_transds
@@ -28,6 +30,7 @@ from missing_link.ros.board_record import (
     description_from_cdr,
     stamps_cdr,
     stamps_from_cdr,
+    stamps_size,
 )
 from missing_link.ros.clock import (
     CLOCK_MSG,
@@ -76,17 +79,30 @@ def test_a_configuration_is_the_cdr_rosbags_reads(board: str, keys: str, kv: lis
 
 
 @given(
-    st.lists(st.tuples(st.integers(0, 2), st.integers(0, 255), st.integers(0, 2**64 - 1)),
-             max_size=40),
+    st.lists(st.tuples(st.integers(0, 2), st.integers(0, 255), st.integers(0, 2**64 - 1),
+                       st.integers(-1, 2**63 - 1)), max_size=40),
 )  # fmt: skip
-def test_stamps_are_the_cdr_rosbags_reads(rows: list[tuple[int, int, int]]) -> None:
+def test_stamps_are_the_cdr_rosbags_reads(rows: list[tuple[int, int, int, int]]) -> None:
     s = StampsRecord("b", ("/b/x", "/b/y", "/b/z"), tuple(r[0] for r in rows),
-                     tuple(r[1] for r in rows), tuple(r[2] for r in rows))  # fmt: skip
+                     tuple(r[1] for r in rows), tuple(r[2] for r in rows),
+                     tuple(r[3] for r in rows))  # fmt: skip
     cdr = stamps_cdr(s)
     msg = STORE.deserialize_cdr(cdr, STAMPS_TYPE)
     assert list(msg.topic) == list(s.topic) and list(msg.board_us) == list(s.board_us)
+    assert list(msg.bound_ns) == list(s.bound_ns)
     assert list(msg.seq) == list(s.seq) and stamps_from_cdr(cdr) == s
     assert bytes(STORE.serialize_cdr(msg, STAMPS_TYPE)) == cdr
+    assert len(cdr) <= stamps_size("b", s.topics, len(rows), len(rows))
+
+
+def test_stamps_recorded_before_the_bounds_were_kept_read() -> None:
+    """A recording from before the samples' bounds were kept (no bound_ns at the end) replays:
+    its stamps read with no bounds; bounds that do not fit the samples are a ValueError."""
+    s = StampsRecord("b", ("/b/x",), (0, 0), (7, 8), (100, 200))
+    old = stamps_cdr(s)[:-4]  # (the empty bound_ns array's count)
+    assert stamps_from_cdr(old) == s and s.bound_ns == ()
+    with pytest.raises(ValueError, match="bounds"):
+        stamps_from_cdr(stamps_cdr(StampsRecord("b", ("/b/x",), (0, 0), (7, 8), (1, 2), (5,))))
 
 
 @given(st.binary(max_size=80))
@@ -153,6 +169,27 @@ def test_a_recorded_clock_plays_back_with_its_offset_skew_and_reset() -> None:
 
 
 # ---- the recorder -----------------------------------------------------------------------------
+def test_each_samples_clock_bound_is_recorded_with_its_stamps(tmp_path: Path) -> None:
+    """A recording keeps the hard bound each sample was published with (``Update.bound_ns``,
+    -1 without a map), next to its board stamps: the clock record's bound is the estimate's, not
+    the published map's, which can be ms from it while it slews (issue 42)."""
+    (t,) = parse_transds("transds/1\nsonar,2,srf,SRF02,2,uint32_t,0\n")
+    topic = Topic.for_transducer("/b/sonar", "b", t, "missing_link_msgs")
+    pub = McapPublisher({"path": str(tmp_path)})
+    pub.add_topic(topic)
+    bounds = [-1, 1_234_567, 40_000]
+    for i, bound in enumerate(bounds):
+        pub.publish(Update.build(topic=topic, board_us=[i * 10, i * 10 + 1],
+                                 host_ns=[10**18 + i * 10_000] * 2, values=[i, i], seq=i,
+                                 lost=0, recv_ns=i, bound_ns=bound))  # fmt: skip
+    pub.close()
+    with AnyReader(list(pub.bags), default_typestore=STORE) as reader:
+        conns = [c for c in reader.connections if c.topic == "/b/stamps"]
+        got = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conns)]
+    assert [int(b) for m in got for b in m.bound_ns] == bounds
+    assert [int(b) for m in got for b in m.board_us] == [0, 1, 10, 11, 20, 21]
+
+
 def test_stamps_stay_in_the_chunk_of_their_samples(tmp_path: Path) -> None:
     """Past rosbags' 1 MiB chunks: every chunk holds its samples' stamps, so a file cut anywhere
     keeps both or neither."""

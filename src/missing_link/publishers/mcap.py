@@ -286,10 +286,10 @@ class McapPublisher(RosPublisher):
                 return
             replay = self._replay
             stamped = replay is not None and update.topic.encoder is not None
-            self._write(name, conn, stamp, data, 3 + 8 * len(update.board_us) if stamped else 0)
+            self._write(name, conn, stamp, data, 11 + 8 * len(update.board_us) if stamped else 0)
             if stamped:  # (a thesis-format topic: a replay derives the standard ones again)
                 assert replay is not None
-                replay.sample(update.topic, update.seq, update.board_us)
+                replay.sample(update.topic, update.seq, update.board_us, update.bound_ns)
         elif kind == "own":
             _, name, type_name, stamp, data = item
             self._write(name, self._connect_own(name, type_name), stamp, data)

@@ -96,6 +96,7 @@ class _Batch:
         self.topic: list[int] = []
         self.seq: list[int] = []
         self.board_us: list[int] = []
+        self.bound_ns: list[int] = []
 
 
 class ReplayRecords:
@@ -146,7 +147,7 @@ class ReplayRecords:
         return out
 
     # ---- stamps ---------------------------------------------------------------------------------
-    def sample(self, topic: Topic, seq: int, board_us: list[int]) -> None:
+    def sample(self, topic: Topic, seq: int, board_us: list[int], bound_ns: int = -1) -> None:
         board = topic.board
         batch = self._batches.get(board)
         if batch is None:
@@ -161,14 +162,15 @@ class ReplayRecords:
         batch.topic.append(index)
         batch.seq.append(seq & 0xFF)
         batch.board_us.extend(board_us)
-        self.pending_bytes += 3 + 8 * len(board_us)
+        batch.bound_ns.append(bound_ns)
+        self.pending_bytes += 11 + 8 * len(board_us)
 
     def take_stamps(self) -> list[tuple[str, str, bytes]]:
         """The pending stamps, one record per board; pending is empty after it."""
         out = []
         for board, b in self._batches.items():
             record = StampsRecord(board, tuple(b.topics), tuple(b.topic), tuple(b.seq),
-                                  tuple(b.board_us))  # fmt: skip
+                                  tuple(b.board_us), tuple(b.bound_ns))  # fmt: skip
             out.append((self.topic(board, "stamps"), STAMPS_TYPE, stamps_cdr(record)))
         self._batches = {}
         self.pending_bytes = 0

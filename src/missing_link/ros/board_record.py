@@ -55,12 +55,14 @@ STAMPS_MSG = """\
 # The board's own stamps of the samples recorded on its topics since its previous BoardStamps,
 # in recording order (missing-link replay).  Sample k is the next message recorded on
 # topics[topic[k]]; its SIF's seq was seq[k]; its channels' board stamps (us) are the next
-# channel-count entries of board_us.
+# channel-count entries of board_us; its hard clock bound (ns) was bound_ns[k] (-1: none), as
+# its Update had it: the truth of its newest measured channel is within that of its host time.
 string board
 string[] topics
 uint16[] topic
 uint8[] seq
 uint64[] board_us
+int64[] bound_ns
 """
 MESSAGES = {DESCRIPTION_TYPE: DESCRIPTION_MSG, CONFIG_TYPE: CONFIG_MSG, STAMPS_TYPE: STAMPS_MSG}
 KINDS = ("description", "config", "stamps")
@@ -119,6 +121,9 @@ class StampsRecord:
     topic: tuple[int, ...]
     seq: tuple[int, ...]
     board_us: tuple[int, ...]
+    #: per sample, its hard clock bound in ns (``Update.bound_ns``; -1: none); () in a
+    #: recording made before it was kept
+    bound_ns: tuple[int, ...] = ()
 
 
 # ---- CDR (ROS 2, little endian; alignment counts from after the 4-byte header) -------------
@@ -194,6 +199,10 @@ class _In:
             raise ValueError("string array longer than the record")
         return tuple(self.string() for _ in range(n))
 
+    def more(self) -> bool:
+        """Bytes left (a field a later version added)."""
+        return self.i < len(self.data)
+
     def array(self, code: str, size: int) -> tuple[int, ...]:
         n = self.u32()
         if not n:
@@ -247,6 +256,7 @@ def stamps_cdr(s: StampsRecord) -> bytes:
     out.array("H", 2, s.topic)
     out.array("B", 1, s.seq)
     out.array("Q", 8, s.board_us)
+    out.array("q", 8, s.bound_ns)
     return out.bytes()
 
 
@@ -254,13 +264,16 @@ def stamps_from_cdr(data: bytes) -> StampsRecord:
     r = _In(data)
     board, topics = r.string(), r.strings()
     topic, seq, board_us = r.array("H", 2), r.array("B", 1), r.array("Q", 8)
+    bound_ns = r.array("q", 8) if r.more() else ()  # (none in older recordings)
     if len(topic) != len(seq) or any(i >= len(topics) for i in topic):
         raise ValueError("stamps that do not fit their topics")
-    return StampsRecord(board, topics, topic, seq, board_us)
+    if bound_ns and len(bound_ns) != len(topic):
+        raise ValueError("stamps whose bounds do not fit their samples")
+    return StampsRecord(board, topics, topic, seq, board_us, bound_ns)
 
 
 def stamps_size(board: str, topics: Iterable[str], samples: int, channels: int) -> int:
     """At most the bytes ``stamps_cdr`` gives for a batch of this size (the recorder keeps a
     chunk's stamps in that chunk: it reserves this much room)."""
     names = len(board.encode()) + sum(len(t.encode()) + 8 for t in topics)
-    return 48 + names + 3 * samples + 8 * channels
+    return 56 + names + 11 * samples + 8 * channels
