@@ -297,3 +297,35 @@ def test_a_simulated_run_is_reproducible() -> None:
     a = sim.run("missing-link", "usb", 3, duration_s=20.0)
     b = sim.run("missing-link", "usb", 3, duration_s=20.0)
     assert (a.pct(50), a.pct(99), a.exchanges) == (b.pct(50), b.pct(99), b.exchanges)
+
+
+def test_a_samples_bound_covers_the_published_maps_slew_the_estimates_does_not() -> None:
+    """The bound a sample carries is the published map's: a start on slow, lopsided round trips
+    (a busy host) puts the map ms off, the map then slews at most ``max_slew`` towards the
+    estimate, so 1.5 s later the estimate's band (what a clock record holds) is tens of µs and
+    does not reach the sample's host time, but the sample's own bound does (the demo's replay
+    test once took the first for the second: issue 42)."""
+    sync = ClockSync(seed=5)  # (the daemon's options: the map starts at 4 exchanges)
+    sync.start(0.0)
+    h = 1_000_000_000  # host ns; the board's clock is the host's in µs (truth: b * 1000)
+    for k in range(4):  # requests held 3 ms on the way, replies back in 10 µs
+        t1 = h + k * 20_000_000
+        sync.on_exchange(Exchange(t1, (t1 + 3_000_000) // 1000, (t1 + 3_010_000) // 1000,
+                                  t1 + 3_020_000), (t1 + 3_020_000) / 1e9)  # fmt: skip
+    first = sync.map_many([(h + 80_000_000) // 1000], (h + 80_100_000) / 1e9)
+    assert first is not None and first[3] & STEP and abs(first[0][0] - (h + 80_000_000)) > 1e6
+    t = h + 100_000_000
+    while t < h + 1_600_000_000:  # fast even round trips at 50 Hz, a sample between each
+        sync.on_exchange(Exchange(t, (t + 20_000) // 1000, (t + 25_000) // 1000, t + 45_000),
+                         (t + 45_000) / 1e9)  # fmt: skip
+        got = sync.map_many([(t + 10_000_000) // 1000], (t + 10_100_000) / 1e9)
+        assert got is not None
+        (host,), _est_error, bound, _ = got
+        assert abs(host - (t + 10_000_000)) <= bound  # every sample within its own bound
+        t += 20_000_000
+    est = sync.estimate
+    assert est is not None
+    b = (t - 10_000_000) // 1000  # the last sample's stamp
+    lo, hi = est.interval(b)
+    assert hi - lo < 100_000 and not lo <= host <= hi  # the estimate's band: narrow, elsewhere
+    assert abs(host - b * 1000) > 200_000 and bound >= abs(host - b * 1000)
