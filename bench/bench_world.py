@@ -9,13 +9,14 @@ what the firmware says of itself: its heap (MicroPython: allocated, and free at 
 its stack's free at the lowest) and its IMU's sample timing (the period between two board
 stamps: mean and worst).  The cases alternate, ``--rounds`` times; each figure is the median
 over the rounds, and the world's cost the median of each case less its round's reference.  The
-world starts the rover 1 m from its wall (NEAR_WALL), the scene the simulator's parts give the
-reference.  Then the world link
+world starts the rover 1 m from its wall (NEAR_WALL) with its rangers held at 1000 mm, the
+scene the simulator's parts give the reference.  Then the world link
 alone in this process (worldlink.py ticked as a runtime ticks it, driving), per simulated
 second.  (The board's heap and sample timing with and without its world, in simulated time and
 the same on every run: tests/test_world_beside.py.)  Driving
 costs the firmware its encoders' interrupts too (some 1000 edges a second), as on a board;
-and under MicroPython the simulator's own work an edge, paired with each edge a call.
+and under MicroPython the simulator's own work an edge, paired with each edge a call, and an
+edge's whole cost with the firmware's own handler.
 
     .venv/bin/python bench/bench_world.py [--seconds 20] [--rounds 2] \
         [--runtimes cpython,micropython,avr]
@@ -76,18 +77,32 @@ def tree_cpu_s(pid: int, children: bool = True) -> float:
 #: the world of the bench: the default room, the rover 1 m from its wall (its rangers' front
 #: edge), where the simulator's parts put a target without a world (1000 mm: pin_devices.py,
 #: i2c_devices.py), so the firmware does the same work in both (a sonar that sees nothing in
-#: reach waits out the HC-SR04's 38 ms echo: that is the scene's cost, not the world's)
+#: reach waits out the HC-SR04's 38 ms echo: that is the scene's cost, not the world's).  Its
+#: two rangers are blocked at that 1000 mm for good: driving, the rover reaches its wall in
+#: some 4 s and its wheels spin on there, where the sonar sees less than its 2 cm and waited
+#: out its timeout (24 ms of every 100, busy under node and simavr) in all but the first
+#: seconds: 4 to 5 % of a core of the driving case's cost under MicroPython was that.  A
+#: blocked ranger is still ray-cast (world.py): the world's work is the same.
 NEAR_WALL = "[start]\nx_m = 3.88\n"
-WORLD_FILE = Path(tempfile.mkdtemp(prefix="bench-world-")) / "near-wall.toml"
+BLOCK = '[[events]]\nat_s = 0\nkind = "block"\npart = "{}"\ndistance_m = 1.0\n'
+#: the rangers of each runtime's rover (the AVR's has no ToF)
+RANGERS = {"avr": ("sonar",)}
+WORLD_DIR = Path(tempfile.mkdtemp(prefix="bench-world-"))
+
+
+def world_file(runtime: str) -> Path:
+    path = WORLD_DIR / f"near-wall-{runtime}.toml"
+    if not path.exists():
+        rangers = RANGERS.get(runtime, ("sonar", "tof"))
+        path.write_text(NEAR_WALL + "".join(BLOCK.format(r) for r in rangers))
+    return path
 
 
 def start(runtime: str, world: bool) -> tuple[subprocess.Popen[str], str]:
     file = AVR_ROVER if runtime == "avr" else ROVER
     cmd = [sys.executable, "-m", "missing_link", "board", "--file", str(file), "--runtime",
            runtime, "--listen", "tcp://127.0.0.1:0"]  # fmt: skip
-    if not WORLD_FILE.exists():
-        WORLD_FILE.write_text(NEAR_WALL)
-    cmd += ["--world", str(WORLD_FILE) if world else "none"]
+    cmd += ["--world", str(world_file(runtime)) if world else "none"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -187,28 +202,37 @@ def feed_call_bytes() -> int:
 
 #: the simulator's own work for an encoder edge in MicroPython (the firmware's handler a count
 #: only): worldfeed.steps_at's run of edges, and the reference, each edge as worldfeed.step_at
-#: (machine.encoder_steps and set_level: how steps_at delivered them before), alternating
+#: (machine.encoder_steps and set_level: how steps_at delivered them before), alternating; and
+#: steps_at with the firmware's own handler (the rover's quadrature driver, board/drivers), the
+#: edge's whole cost in node: what the firmware's handler adds is the board's own work.  In
+#: real time, as the bench's rovers run (the clock an edge's handler reads: heldtime.py)
 EDGE_PROBE = """
 const { loadMicroPython } = await import(process.env.MPY_ENTRY);
 const { copyTree } = await import(process.env.MPFS);
 const mp = await loadMicroPython({});
 mp.FS.mkdir("/lib");
 copyTree(mp, process.env.SIMWORLD, "/lib/simworld");
+copyTree(mp, process.env.BOARD, "/lib/mlboard");
 mp.runPython(`
 import sys
 sys.path.append('/lib')
-import simworld.simtime as simtime
-sys.modules['time'] = simtime
+import simworld.heldtime as heldtime
+sys.modules['time'] = heldtime
 import simworld.machine
 sys.modules['machine'] = simworld.machine
+import machine
 from machine import Pin
 from simworld import worldfeed
-worldfeed.clock = simtime
+from mlboard.clock import default_clock
+from mlboard.drivers.encoder import Quadrature
+worldfeed.clock = heldtime
+worldfeed.release = heldtime.release
 N = [0]
 def edge(pin):
     N[0] += 1
 Pin(2, Pin.IN).irq(edge)
 Pin(3, Pin.IN).irq(edge)
+Q = Quadrature(machine, default_clock(), 6, 7)
 def each(d, n):
     k = 0
     while k < n:
@@ -222,28 +246,32 @@ const us = (f) => {
   const c = process.cpuUsage(t);
   return (c.user + c.system) / 20000;
 };
-const got = { run: [], each: [] };
+const got = { run: [], each: [], firmware: [] };
 for (let r = 0; r < 7; r++) {
   got.run.push(us((d) => run(2, 3, d, 1000, 1000, 100000)));
   got.each.push(us((d) => each(d, 1000)));
+  got.firmware.push(us((d) => run(6, 7, d, 1000, 1000, 100000)));
 }
 console.log(JSON.stringify(got));
 """
 
 
-def edge_us() -> tuple[float, float]:
-    """µs of CPU an encoder edge takes the simulator in MicroPython: (steps_at, each edge a
-    call: the reference), medians of seven alternating rounds of 20,000 edges."""
+def edge_us() -> tuple[float, float, float]:
+    """µs of CPU an encoder edge takes in MicroPython: the simulator's work (steps_at, and each
+    edge a call: the reference) and the edge's whole (steps_at to the firmware's quadrature
+    handler), medians of seven alternating rounds of 20,000 edges."""
     from missing_link.virtual.mpyboard import find_micropython
 
     node, entry = find_micropython()
-    sim = Path(__file__).resolve().parent.parent / "src" / "missing_link" / "virtual" / "world"
+    src = Path(__file__).resolve().parent.parent / "src" / "missing_link"
+    sim = src / "virtual" / "world"
     env = {**os.environ, "MPY_ENTRY": str(entry), "MPFS": (sim / "mpfs.mjs").as_uri(),
-           "SIMWORLD": str(sim)}  # fmt: skip
+           "SIMWORLD": str(sim), "BOARD": str(src / "board")}  # fmt: skip
     r = subprocess.run([node, "--input-type=module", "-e", EDGE_PROBE], env=env,
                        capture_output=True, text=True, timeout=120, check=True)  # fmt: skip
     got = json.loads(r.stdout.split("\n")[-2])
-    return statistics.median(got["run"]), statistics.median(got["each"])
+    run, each, whole = (statistics.median(got[k]) for k in ("run", "each", "firmware"))
+    return run, each, whole
 
 
 def median(runs: list[dict[str, float]], key: str) -> float:
@@ -299,9 +327,10 @@ def main() -> None:
             f"\n10000 calls from node into MicroPython, 7 small integers each: "
             f"{feed_call_bytes()} B left in its heap"
         )
-        run, each = edge_us()
+        run, each, whole = edge_us()
         print(f"an encoder edge, the simulator's work in MicroPython: {run:.1f} µs of CPU "
-              f"(worldfeed.steps_at); each edge a call (the reference): {each:.1f} µs")  # fmt: skip
+              f"(worldfeed.steps_at); each edge a call (the reference): {each:.1f} µs; "
+              f"with the firmware's quadrature handler: {whole:.1f} µs")  # fmt: skip
 
 
 if __name__ == "__main__":
