@@ -103,6 +103,21 @@ def test_no_document_sends_a_reader_outside_the_repository(doc: Path) -> None:
     assert "../shared" not in doc.read_text(encoding="utf-8"), f"{doc.name} names ../shared"
 
 
+def test_what_ships_names_only_documents_the_repository_has() -> None:
+    """The package (what a wheel holds: the AVR C, its Makefile, the simulator's modules) names
+    a document only if docs/ has it: the golden vectors are docs/protocol.md's, not a spec page
+    outside the repository."""
+    pkg = ROOT / "src" / "missing_link"
+    named = {
+        (name, str(path.relative_to(ROOT)))
+        for path in pkg.rglob("*")
+        if path.suffix in {".py", ".c", ".h", ".mjs"} or path.name == "Makefile"
+        for name in re.findall(r"\b[\w-]+\.md\b", path.read_text("utf-8", errors="replace"))
+    }
+    have = {p.name for p in DOCS}
+    assert not [(n, where) for n, where in sorted(named) if n not in have]
+
+
 def test_the_protocols_golden_vectors_are_the_tests() -> None:
     """Every fully given request and reply in docs/protocol.md's vector table, and its SIF, is
     one the tests check the implementations against (tests/vectors.py)."""

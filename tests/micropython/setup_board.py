@@ -1,4 +1,4 @@
-# Runs on MicroPython: the golden-vector board of spec j2a-vectors.md (original function table),
+# Runs on MicroPython: the golden-vector board of docs/protocol.md (original function table),
 # built from the unchanged board runtime.  _step() is one turn of the board's process loop.
 import struct
 import sys

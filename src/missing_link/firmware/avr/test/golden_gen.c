@@ -1,6 +1,7 @@
-/* The golden-vector board of spec j2a-vectors.md in C: the original (Part 1) function table of
- * the 2014 firmware - the built-ins, getTime, syncTime, bigBlob - so the vectors' exact bytes can
- * be checked against this runtime on AVR machine code (tests/test_avr.py). */
+/* The golden-vector board of docs/protocol.md (Golden vectors) in C: the original (Part 1)
+ * function table of the 2014 firmware - the built-ins, getTime, syncTime, bigBlob - so the
+ * vectors' exact bytes can be checked against this runtime on AVR machine code
+ * (tests/test_avr.py). */
 #include <avr/pgmspace.h>
 #include <string.h>
 
