@@ -95,3 +95,21 @@ def test_a_second_host_while_the_first_is_there_is_turned_away(board: BoardServe
         first.sendall(request(4))
         assert answer(board, first, 4) == "answered"
     assert board.connections == 1
+
+
+def test_a_last_host_that_half_closed_has_its_reply_when_the_next_connects(
+    board: BoardServer,
+) -> None:
+    """A host that sends its last request and shuts its side (shutdown(SHUT_WR), as `nc -N` does)
+    reads the reply; one that connects in that pass changes nothing for it, and is served."""
+    first = connect(board)
+    first.sendall(request(1))
+    assert answer(board, first, 1) == "answered"
+    first.sendall(request(2))
+    first.shutdown(socket.SHUT_WR)  # its close behind its last frame, still reading
+    second = connect(board)  # in the same pass
+    with first, second:
+        assert answer(board, first, 2) == "answered"
+        second.sendall(request(3))
+        assert answer(board, second, 3) == "answered"
+    assert board.connections == 2

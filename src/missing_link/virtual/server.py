@@ -283,8 +283,9 @@ class BoardServer:
                 if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
                     rx_us = self.runtime.clock() - age // 1000
         newcomer = self._listener is not None and self._listener.fileno() in ready
+        gone = False
         if newcomer and self._link is not None:
-            rest, newcomer = self._handover()
+            rest, newcomer, gone = self._handover()
             data += rest
         if self._dialer is not None and self._link is None:
             sock = self._dialer.poll()  # (select wakes within _MAX_WAIT: dial steps)
@@ -295,30 +296,33 @@ class BoardServer:
             replies, sifs = self._turn(data, rx_us)
             if self._link is not None and not self._link.send(replies, sifs):
                 self._drop_link()
+        if gone:  # (after its answer: a host that shut only its side still reads it)
+            self._drop_link()
         if newcomer:
             # (after the turn: what the last host's last bytes are answered is not the new one's)
             self._accept()
 
-    def _handover(self) -> tuple[bytes, bool]:
+    def _handover(self) -> tuple[bytes, bool, bool]:
         """A host connects while the link is up: the last host may have sent its last frame and
         closed in the same moment, its close still unread behind the frame.  Read what it left
-        (the turn answers it to nobody): its close ends the link and the newcomer is the next
-        host; nothing more (it is still there) and the newcomer is a second host, turned away.
-        Returns (bytes read, take the newcomer this turn); past ``_HANDOVER_READ`` bytes the
-        last host is still sending: the newcomer waits in the backlog for the next turn."""
+        (the turn answers it on its own link, which a host that shut only its sending side still
+        reads): its close ends the link after the turn and the newcomer is the next host;
+        nothing more (it is still there) and the newcomer is a second host, turned away.
+        Returns (bytes read, take the newcomer this turn, the last host closed); past
+        ``_HANDOVER_READ`` bytes the last host is still sending: the newcomer waits in the
+        backlog for the next turn."""
         assert self._link is not None
         parts: list[bytes] = []
         size = 0
         while size < _HANDOVER_READ:
             got = self._link.recv()
-            if got is None:  # it went: the link ends before the turn
-                self._drop_link()
-                return b"".join(parts), True
-            if not got:
-                return b"".join(parts), True  # still there: _accept() turns the newcomer away
+            if got is None:  # it went: the link ends after the turn
+                return b"".join(parts), True, True
+            if not got:  # still there: _accept() turns the newcomer away
+                return b"".join(parts), True, False
             parts.append(got)
             size += len(got)
-        return b"".join(parts), False
+        return b"".join(parts), False, False
 
     def _accept(self) -> None:
         assert self._listener is not None
