@@ -6,21 +6,24 @@ each case happens on purpose: everything a test's hosts do is in the kernel befo
 
 from __future__ import annotations
 
+import contextlib
 import select
 import socket
 from collections.abc import Iterator
 
 import pytest
 
+from missing_link.board.runtime import BoardRuntime
 from missing_link.j2a.codec import SOF, Frame, FrameDecoder, encode_frame
 from missing_link.virtual import BoardServer, make_sim
 
+URL = "tcp://127.0.0.1:0"
 PASSES = 200  # each pass waits at most virtual.server._MAX_WAIT: a bound, not a timing
 
 
 @pytest.fixture
 def board() -> Iterator[BoardServer]:
-    server = BoardServer(make_sim("thesis", seed=1), "tcp://127.0.0.1:0")
+    server = BoardServer(make_sim("thesis", seed=1), URL)
     try:
         yield server
     finally:
@@ -113,3 +116,29 @@ def test_a_last_host_that_half_closed_has_its_reply_when_the_next_connects(
         second.sendall(request(3))
         assert answer(board, second, 3) == "answered"
     assert board.connections == 2
+
+
+def test_a_frame_the_last_host_cut_is_not_answered_to_the_next() -> None:
+    """A host that dies in the middle of a frame leaves the board's parser inside it; the next
+    host's request must start a frame of its own, not end that one: no error about the last
+    host's seq reaches the next host (its reply to its own request does).  The board's clock
+    stands still, so its inter-byte wait (10 ms) never drops the cut frame first."""
+    server = BoardServer(BoardRuntime("still", "test", "1", clock=lambda: 1_000_000), URL)
+    with contextlib.closing(server):
+        first = connect(server)
+        first.sendall(encode_frame(SOF, 9, 0, b"x" * 40)[:10])  # seq 9, cut: then it dies
+        server.serve_once()
+        first.close()
+        second = connect(server)
+        decoder = FrameDecoder()
+        seqs: list[int] = []
+        with second:
+            second.sendall(request(3))
+            for _ in range(PASSES):
+                server.serve_once()
+                while select.select([second], [], [], 0)[0]:
+                    got = decoder.feed(second.recv(65536))
+                    seqs += [i.seq for i in got if isinstance(i, Frame) and i.kind == SOF]
+                if 3 in seqs:
+                    break
+        assert seqs[:1] == [3], seqs  # (before: 9's error frame, then 3's reply)

@@ -7,7 +7,8 @@ a bounded queue of whole frames; past its limit the oldest SIFs are dropped (cou
 reply and never part of a frame.
 One host at a time; a second connection is refused (closed at once) until the first goes away.
 A host that connects as the last one closes is the next host, not a second one, even when the
-last one's final bytes are still unread: they are read first, and its close behind them.
+last one's final bytes are still unread: they are read first, and its close behind them.  A
+frame a host cut off as it went is forgotten: the next host's bytes start frames of their own.
 
 With ``dial=True`` the board connects out to ``tcp://HOST:PORT`` instead (a daemon that runs
 ``run --listen``), and again with the firmware's own backoff whenever the connection ends: the
@@ -337,6 +338,8 @@ class BoardServer:
         if self._link is not None and self._link.sock is not None:
             self._link.close()
             self._link = None
+            # a frame the host cut is not the next host's to end (its error goes to nobody)
+            self.runtime.parser.abort()
             if self._dialer is not None:
                 self._dialer.ended()
 
