@@ -7,9 +7,14 @@ each case happens on purpose: everything a test's hosts do is in the kernel befo
 from __future__ import annotations
 
 import contextlib
+import json
 import select
 import socket
+import subprocess
+import sys
+import textwrap
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -142,3 +147,61 @@ def test_a_frame_the_last_host_cut_is_not_answered_to_the_next() -> None:
                 if 3 in seqs:
                     break
         assert seqs[:1] == [3], seqs  # (before: 9's error frame, then 3's reply)
+
+
+_OUT_OF_DESCRIPTORS = textwrap.dedent("""
+    import json, os, resource, socket, sys
+    sys.path.insert(0, sys.argv[1])
+    from test_virtual_server import URL, answer, connect, request
+    from missing_link.logs import install
+    from missing_link.virtual import BoardServer, make_sim
+
+    install(sys.stderr)  # (as the CLI does: warnings on stderr)
+    server = BoardServer(make_sim("thesis", seed=1), URL)
+    first = connect(server)
+    first.sendall(request(1))
+    out = {"first": answer(server, first, 1)}
+    second = socket.socket()  # (made now: it needs no descriptor of the board's to connect)
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    top = max(int(fd) for fd in os.listdir("/proc/self/fd"))
+    resource.setrlimit(resource.RLIMIT_NOFILE, (top + 1, hard))
+    fillers = []
+    try:
+        while True:  # (every gap below the limit filled: no accept can have a descriptor)
+            fillers.append(os.open("/dev/null", os.O_RDONLY))
+    except OSError:
+        pass
+    host, port = server.url.removeprefix("tcp://").rsplit(":", 1)
+    second.connect((host, int(port)))
+    for _ in range(200):
+        if getattr(server, "accept_errors", 0):  # (before: serve_once raised EMFILE)
+            break
+        server.serve_once()
+    first.sendall(request(2))
+    out["first_meanwhile"] = answer(server, first, 2)
+    for fd in fillers:
+        os.close(fd)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    second.sendall(request(3))
+    out["second"] = answer(server, second, 3)
+    out["accept_errors"] = server.accept_errors
+    print(json.dumps(out))
+""")
+
+
+@pytest.mark.slow
+def test_a_board_out_of_descriptors_goes_on_serving() -> None:
+    """accept() failing (EMFILE: `board --count N` in one process can reach the limit) once
+    ended the board's loop with a traceback.  Now it is counted and said once, the listener
+    rests while the host there is served, and the waiting connection is taken after (turned
+    away here: the first host is still there).  A child process: the limit is per process."""
+    run = subprocess.run(
+        [sys.executable, "-c", _OUT_OF_DESCRIPTORS, str(Path(__file__).parent)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = json.loads(run.stdout)
+    assert out["first"] == out["first_meanwhile"] == "answered"
+    assert out["second"] == "closed"
+    assert out["accept_errors"] >= 1
+    assert run.stderr.count("accept failed (Too many open files)") == 1, run.stderr

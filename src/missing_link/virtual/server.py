@@ -6,6 +6,9 @@ write.  Like a real board it never blocks on output: when the host does not read
 a bounded queue of whole frames; past its limit the oldest SIFs are dropped (counted), never a
 reply and never part of a frame.
 One host at a time; a second connection is refused (closed at once) until the first goes away.
+A failed accept (out of descriptors: EMFILE, which ``board --count N`` can reach) is counted
+(``accept_errors``, said once) and the listener rests a while (10 ms doubling to 1 s; the
+connection waits in the backlog), the host that is there served meanwhile.
 A host that connects as the last one closes is the next host, not a second one, even when the
 last one's final bytes are still unread: they are read first, and its close behind them.  A
 frame a host cut off as it went is forgotten: the next host's bytes start frames of their own.
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import errno
 import itertools
+import logging
 import os
 import select
 import socket
@@ -41,6 +45,9 @@ OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
 _MAX_WAIT = 0.05
 _HANDOVER_READ = 64 * 1024  # what a host that connects waits behind (see _handover)
+_ACCEPT_PAUSE = (0.01, 1.0)  # after a failed accept: first pause, longest pause (s)
+
+log = logging.getLogger(__name__)
 
 
 class _Link:
@@ -190,6 +197,10 @@ class BoardServer:
         self._mem_link: MemoryTransport | None = None
         self._pty_slave: int | None = None
         self.connections = 0
+        self.accept_errors = 0  #: accepts that failed (out of descriptors: EMFILE, ...)
+        self._accept_pause = _ACCEPT_PAUSE[0]
+        self._listen_after = 0.0  # (time.monotonic) the listener rests until then
+        self._said: set[int] = set()
         self._dialer = _Dialer(listen_url) if dial else None
         self.url = f"dial {listen_url}" if dial else self._bind(listen_url)
 
@@ -268,8 +279,10 @@ class BoardServer:
         fds = []
         if self._link is not None:
             fds.append(self._link.fd)
-        if self._listener is not None:
-            fds.append(self._listener.fileno())
+        lfd = self._listener.fileno() if self._listener is not None else -1
+        listening = lfd >= 0 and time.monotonic() >= self._listen_after  # (not while it rests)
+        if listening:
+            fds.append(lfd)
         wfds = [self._link.fd] if self._link is not None and self._link.pending else []
         ready, _, _ = select.select(fds, wfds, [], self._wait_time())
         rx_us = self.runtime.clock()  # input (if any) arrived before select returned
@@ -283,7 +296,7 @@ class BoardServer:
                 age = self._link.arrived_age_ns
                 if 0 < age < 1_000_000_000:  # the kernel's stamp, as a board clock reading
                     rx_us = self.runtime.clock() - age // 1000
-        newcomer = self._listener is not None and self._listener.fileno() in ready
+        newcomer = listening and lfd in ready
         gone = False
         if newcomer and self._link is not None:
             rest, newcomer, gone = self._handover()
@@ -327,12 +340,28 @@ class BoardServer:
 
     def _accept(self) -> None:
         assert self._listener is not None
-        sock, _ = self._listener.accept()
+        try:
+            sock, _ = self._listener.accept()
+        except OSError as e:
+            self._accept_failed(e)
+            return
+        self._accept_pause = _ACCEPT_PAUSE[0]
         if self._link is not None:
             sock.close()  # one host at a time
             return
         self._link = _Link(sock.fileno(), sock)  # (TCP_NODELAY and kernel receive stamps)
         self.connections += 1
+
+    def _accept_failed(self, e: OSError) -> None:
+        """Out of descriptors (or memory; or the connection aborted): the connection stays in
+        the backlog, so the listener rests (longer while it lasts) instead of spinning on it."""
+        self.accept_errors += 1
+        if (e.errno or 0) not in self._said:
+            self._said.add(e.errno or 0)
+            log.warning("board %s: accept failed (%s): counted, tried again after a pause",
+                        self.url, e.strerror or e)  # fmt: skip
+        self._listen_after = time.monotonic() + self._accept_pause
+        self._accept_pause = min(self._accept_pause * 2, _ACCEPT_PAUSE[1])
 
     def _drop_link(self) -> None:
         if self._link is not None and self._link.sock is not None:
@@ -381,6 +410,8 @@ class BoardServer:
 
     def close(self) -> None:
         self._stop.set()
+        if self.accept_errors and self._listener is not None:
+            log.warning("board %s: %d accepts failed", self.url, self.accept_errors)
         if self._listener is not None:
             if self._listener.family == socket.AF_UNIX:
                 try:
