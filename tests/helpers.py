@@ -1,5 +1,6 @@
 """Test helpers, each written once: the command line (``ML``, ``ml``), board processes
-(``board_process``), a pipe transport to a board in a child process, thread checks; waiting for
+(``board_process``), a pipe transport to a board in a child process, thread checks, a periodic
+transducer's interval from its stamps (``period_seen_us``); waiting for
 a condition (``wait_for``) and the MicroPython and AVR firmware in their simulators
 (``FirmwareSim``, ``AvrSim``) are the library's (missing_link.testing)."""
 
@@ -190,3 +191,17 @@ def simworld_probe(probe: str, cases: Any) -> list[dict[str, Any]]:
         capture_output=True, text=True, timeout=60, check=True, cwd=here.parent,
     ).stdout  # fmt: skip
     return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+
+
+def period_seen_us(stamps: list[int], span: int = 10) -> float:
+    """A periodic transducer's interval from its board stamps: the shortest time ``span``
+    consecutive intervals took, per interval.  A Periodic (board/drivers) keeps its slots: a
+    sample measured late (the loop was busy: the HC-SR04's echo wait blocks it up to 26 ms) is
+    followed by one on its slot, so ``span`` intervals at period P take at least (span - 1) P
+    less one hold of the loop (at 20 Hz beside the rover's sonar: over 42 ms an interval),
+    however often it was held; and a stall (slots skipped) only lengthens the windows it is
+    in, not the shortest.  Not the median interval: a driver that blocks every other slot makes
+    the intervals alternate P + x, P - x, and their median is either (tests/test_periodic.py)."""
+    if len(stamps) <= span:
+        raise ValueError(f"{len(stamps)} stamps: at least {span + 1} needed")
+    return min(b - a for a, b in zip(stamps, stamps[span:], strict=False)) / span
