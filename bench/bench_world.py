@@ -292,9 +292,11 @@ CASES = {REFERENCE: (False, 0.5), "its world, at rest": (True, 0.0),
          "its world, driving (duty 0.5)": (True, 0.5)}  # fmt: skip
 
 
-def paired(runs: list[dict[str, float]]) -> float:
-    """The median over rounds of a case's CPU less its round's reference's."""
-    return statistics.median(r["cpu"] - r["reference"] for r in runs)
+def paired(runs: list[dict[str, float]]) -> str:
+    """The median over rounds of a case's CPU less its round's reference's, and each round's
+    (the spread: on a shared machine the load moves them)."""
+    each = [r["cpu"] - r["reference"] for r in runs]
+    return f"{statistics.median(each):+.2f} ({', '.join(f'{c:+.2f}' for c in each)})"
 
 
 def main() -> None:
@@ -307,7 +309,7 @@ def main() -> None:
           "B | heap (AVR: stack) free at the lowest, B | IMU period, ms (50 Hz: 20) | worst, ms "
           "|")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|")
-    costs: dict[str, list[float]] = {}
+    costs: dict[str, list[str]] = {}
     for runtime in a.runtimes.split(","):
         runs: dict[str, list[dict[str, Any]]] = {k: [] for k in CASES}
         for _ in range(a.rounds):  # (alternating: a load that comes and goes hits all alike)
@@ -318,9 +320,10 @@ def main() -> None:
         for what in CASES:
             print(row(runtime, what, runs[what]))
         costs[runtime] = [paired(runs[what]) for what in list(CASES)[1:]]
-    print("\nthe world's cost, each case less the reference of its round (median over rounds):")
+    print("\nthe world's cost, each case less the reference of its round (median over rounds; "
+          "each round's):")  # fmt: skip
     for runtime, (rest, driving) in costs.items():
-        print(f"  {runtime}: at rest {rest:+.2f} % of a core, driving {driving:+.2f}")
+        print(f"  {runtime}: at rest {rest} % of a core, driving {driving}")
     print(f"\nthe world link alone (this process, driving): {world_alone(60):.2f} % of a core")
     if "micropython" in a.runtimes:
         print(
