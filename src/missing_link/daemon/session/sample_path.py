@@ -26,7 +26,9 @@ Per SIF:
 
 A bug past the decoding (a publisher that raises) is the SIF handler's: the link counts it by
 kind and reads on; the SIFs held during a handshake (``resume``) are guarded and counted the
-same way, in the session's ``faults``, so a bug never ends a connect.
+same way, in the session's ``faults``, so a bug never ends a connect.  A handshake that fails
+between ``listen`` and ``resume`` leaves its held SIFs to the next ``listen``: taken with that
+handshake's when the board did not restart, else counted lost.
 
 A log SIF (the board's log, cmd ``LOG_CMD``) counts in 1 like any SIF, then goes to the board's
 log path (``board_log.py``), which hands its lines to ``log``.
@@ -116,9 +118,17 @@ class SamplePath:
         falls between the count and the listening (a replay sends its samples once the count is
         read: docs/recording.md).  ``same_boot``: the seq goes on from the last SIF seen."""
         with self._hold_lock:
-            self._holding = []
-        if self.next_seq is not None and same_boot:
-            board.link.expect_sif_seq(self.next_seq)
+            # SIFs held by a handshake that failed before ``resume`` (its count call timed
+            # out on a busy host) were never taken: of the same boot they go out with this
+            # one's, in order; of a board that restarted meanwhile they are counted lost
+            left = self._holding or []
+            self._holding = left if same_boot else []
+        if left and not same_boot:
+            self.outage_lost_sifs += len(left)
+            board.link.count_lost_sifs(len(left))
+        expect = left[-1][0].seq + 1 if left and same_boot else self.next_seq
+        if expect is not None and same_boot:
+            board.link.expect_sif_seq(expect)
 
     def follow(self, values: dict[str, Any]) -> bool:
         """The host-time grid of the board's configuration ``values`` (alignment.py); True
