@@ -21,6 +21,7 @@ import pytest
 from missing_link.board.runtime import BoardRuntime
 from missing_link.j2a.codec import SOF, Frame, FrameDecoder, encode_frame
 from missing_link.virtual import BoardServer, make_sim
+from missing_link.virtual import server as server_module
 
 URL = "tcp://127.0.0.1:0"
 PASSES = 200  # each pass waits at most virtual.server._MAX_WAIT: a bound, not a timing
@@ -89,6 +90,37 @@ def test_the_next_host_waits_behind_a_long_last_word(board: BoardServer) -> None
         second.sendall(request(3))
         assert answer(board, second, 3) == "answered"
     assert board.connections == 2
+
+
+def test_a_newcomer_waits_behind_an_endless_sender_a_bounded_while() -> None:
+    """A last host that always has more than a pass reads (64 KiB) unread is still there: a
+    newcomer waits behind it ``_HANDOVER_PASSES`` passes, then is turned away as a second host
+    (it once waited forever, neither served nor closed), and the sender is served on."""
+    server = BoardServer(make_sim("thesis", seed=1), URL)
+    with contextlib.closing(server), connect(server) as first:
+        first.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        first.sendall(request(1))
+        assert answer(server, first, 1) == "answered"
+        first.sendall(bytes(2 * 65536))  # (zeros: no frame, nothing answered)
+        with connect(server) as second:
+            second.sendall(request(3))
+            second.setblocking(False)
+            state, passes = "waiting", 0
+            while state == "waiting" and passes < 64:  # (64: its bound is 16; the buffers hold)
+                first.sendall(bytes(72 * 1024))  # more than a pass reads (4 KiB + 64 KiB)
+                server.serve_once()
+                passes += 1
+                try:
+                    state = "answered" if second.recv(4096) else "closed"
+                except BlockingIOError:
+                    pass
+                except ConnectionResetError:  # closed with its request unread
+                    state = "closed"
+        assert state == "closed", f"the newcomer {state} after {passes} passes"
+        assert passes == server_module._HANDOVER_PASSES
+        first.sendall(request(4))
+        assert answer(server, first, 4) == "answered"
+    assert server.connections == 1
 
 
 def test_a_second_host_while_the_first_is_there_is_turned_away(board: BoardServer) -> None:

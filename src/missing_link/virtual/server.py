@@ -10,7 +10,8 @@ A failed accept (out of descriptors: EMFILE, which ``board --count N`` can reach
 (``accept_errors``, said once) and the listener rests a while (10 ms doubling to 1 s; the
 connection waits in the backlog), the host that is there served meanwhile.
 A host that connects as the last one closes is the next host, not a second one, even when the
-last one's final bytes are still unread: they are read first, and its close behind them.  A
+last one's final bytes are still unread: they are read first, and its close behind them (for
+``_HANDOVER_PASSES`` passes at most: a last host still sending then is there).  A
 frame a host cut off as it went is forgotten: the next host's bytes start frames of their own.
 
 With ``dial=True`` the board connects out to ``tcp://HOST:PORT`` instead (a daemon that runs
@@ -45,6 +46,7 @@ OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
 _MAX_WAIT = 0.05
 _HANDOVER_READ = 64 * 1024  # what a host that connects waits behind (see _handover)
+_HANDOVER_PASSES = 16  # ... for at most this many passes (1 MiB; at most 0.8 s), then turned away
 _ACCEPT_PAUSE = (0.01, 1.0)  # after a failed accept: first pause, longest pause (s)
 
 log = logging.getLogger(__name__)
@@ -201,6 +203,7 @@ class BoardServer:
         self._accept_pause = _ACCEPT_PAUSE[0]
         self._listen_after = 0.0  # (time.monotonic) the listener rests until then
         self._said: set[int] = set()
+        self._handover_waits = 0  # passes a newcomer has waited behind the last host's bytes
         self._dialer = _Dialer(listen_url) if dial else None
         self.url = f"dial {listen_url}" if dial else self._bind(listen_url)
 
@@ -324,7 +327,7 @@ class BoardServer:
         nothing more (it is still there) and the newcomer is a second host, turned away.
         Returns (bytes read, take the newcomer this turn, the last host closed); past
         ``_HANDOVER_READ`` bytes the last host is still sending: the newcomer waits in the
-        backlog for the next turn."""
+        backlog for the next turn, ``_HANDOVER_PASSES`` at most (then it is a second host)."""
         assert self._link is not None
         parts: list[bytes] = []
         size = 0
@@ -336,10 +339,12 @@ class BoardServer:
                 return b"".join(parts), True, False
             parts.append(got)
             size += len(got)
-        return b"".join(parts), False, False
+        self._handover_waits += 1  # (reset as it is taken: _accept)
+        return b"".join(parts), self._handover_waits >= _HANDOVER_PASSES, False
 
     def _accept(self) -> None:
         assert self._listener is not None
+        self._handover_waits = 0
         try:
             sock, _ = self._listener.accept()
         except OSError as e:
