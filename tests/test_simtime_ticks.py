@@ -36,3 +36,19 @@ def test_ticks_add_is_the_ports() -> None:
         "(1 << 31) - 1", "1 << 31", "-(1 << 31)", "-(1 << 31) - 1", "1 << 40", "-(1 << 40)",
         "10 ** 30", "1.5", "'1'",
     }  # fmt: skip
+
+
+@pytest.mark.micropython
+@pytest.mark.slow
+def test_ticks_ms_and_time_go_on_past_the_wrap_of_ticks_us() -> None:
+    """Derived from the µs counter, ticks_ms and time() restarted with it every 2^30 µs (17.9
+    simulated minutes); a board's ticks_ms wraps at 2^30 ms (12.4 days) and time() never.  Now
+    they count the time unwrapped, in small integers (nothing in the board's heap a read)."""
+    cases = [(1, 1000), (11, 100_000_000), (30, 123_456_789), (200, 400_000_000)]
+    got = simworld_probe("simtime_unwrapped", cases)
+    assert len(got) == len(cases)
+    for (steps, us), g in zip(cases, got, strict=True):
+        total = steps * us + 1000 * 997  # (and the probe's own thousand steps)
+        assert g["us"] == total % (1 << 30), (steps, us, g)
+        assert (g["ms"], g["s"]) == (total // 1000 % (1 << 30), total // 10**6), (steps, us, g)
+        assert g["grew"] == 0, (steps, us, g)

@@ -18,7 +18,9 @@ machine.time_pulse_us) and what a collection is charged at gc.collect() (simgc.p
 total (slept(), with the ns left over: ns()) goes back to the host with its output.  Never by
 the host's CPU time or its clock: the same simulation moves the clock the same way on any
 machine.  The simulator's own reads (the world's devices, the host's bookkeeping, a test's
-control request) are free: now_us(), or while `free` is set.
+control request) are free: now_us(), or while `free` is set.  ticks_ms and time() count the
+same time unwrapped (in ms wrapping at 2^30 ms, 12.4 days, as the port's ticks_ms; and whole s),
+kept beside the µs as small integers: they do not restart when ticks_us wraps (17.9 minutes).
 """
 
 from . import simcost
@@ -33,13 +35,19 @@ _WORD_MAX = 0x7FFFFFFF  # (only compared with where ticks_add refuses: no long i
 _now = 0  # simulated µs, wrapped
 _ns = 0  # ... and the ns below it (0..999)
 _slept = 0  # µs the clock moved in the current step
+_ms = 0  # ... the same time in ms (unwrapped: wraps at 2^30 ms as the port's ticks_ms)
+_sub = 0  # ... the µs below that ms (0..999)
+_s = 0  # ... and in whole seconds (time())
+_ms_in_s = 0  # ... the ms below that second (0..999)
 free = False  # the simulator reads the clock: no charge (mpyhost.py)
 
 
 def set_now(us, ns=0):
     # a new step begins at simulated µs `us` (wrapped) and `ns` below it: nothing spent yet
     global _now, _ns, _slept
-    _now = us & TICKS_MAX
+    us &= TICKS_MAX
+    _count(ticks_diff(us, _now))  # (a step's moves are small: an idle jump, an edge's time)
+    _now = us
     _ns = ns
     _slept = 0
 
@@ -50,6 +58,19 @@ def advance(us):
     if us > 0:
         _now = _wrap_add(_now, us)  # (a sleep of any length: ticks_add takes under 2^29)
         _slept += us
+        _count(us)
+
+
+def _count(us):
+    # the unwrapped ms and s move on by `us` (either way), in small integers only
+    global _ms, _sub, _s, _ms_in_s
+    sub = _sub + us % 1000
+    ms = us // 1000 + sub // 1000
+    _sub = sub % 1000
+    _ms = _wrap_add(_ms, ms)
+    within = _ms_in_s + ms
+    _s += within // 1000
+    _ms_in_s = within % 1000
 
 
 def charge_ns(ns):
@@ -83,7 +104,7 @@ def ticks_us():
 def ticks_ms():
     if not free:
         charge_ns(simcost.READ_NS)
-    return (_now // 1000) & TICKS_MAX
+    return _ms
 
 
 def ticks_cpu():
@@ -130,8 +151,8 @@ def sleep(s):
 
 
 def time():
-    return _now // 1000000
+    return _s
 
 
 def time_ns():
-    return _now * 1000
+    return ((_s * 1000 + _ms_in_s) * 1000 + _sub) * 1000 + _ns
