@@ -195,3 +195,16 @@ def test_the_simulated_receivers_rmc_has_its_date_turning_at_midnight() -> None:
         world.WORLD.uart_sources.pop(uart, None)
     rmcs = [line.split(",") for line in text.split() if line.startswith("$GPRMC")]
     assert [(f[1], f[9]) for f in rmcs] == [("235959.00", "311299"), ("000000.00", "010100")]
+
+
+@pytest.mark.micropython
+@pytest.mark.slow
+def test_the_simulated_receiver_counts_seconds_across_a_long_gap() -> None:
+    """Unread (or off) for longer than ticks_diff spans (537 s), the receiver measured its gap in
+    wrapped µs: OverflowError out of the driver's poll near 537 s, 474 s back at 600 s, 26 s
+    counted for 1100 s.  Real MicroPython, under simulated time as --fast runs it."""
+    from .helpers import simworld_probe
+
+    gaps_ms = [1000, 536_900, 600_000, 1_100_000, 7_200_000, 1000]
+    got = simworld_probe("gps_gap", [[g] for g in gaps_ms])
+    assert [g["got"] for g in got] == [["=", (2500 + g + 1) // 1000 - 2] for g in gaps_ms]

@@ -25,6 +25,7 @@ from . import simcost
 
 try:  # MicroPython: the port's tick counter (it wraps; ticks_diff copes)
     ticks_us = time.ticks_us
+    ticks_ms = time.ticks_ms  # (wraps at 2^30 ms: 12.4 days)
     ticks_add = time.ticks_add
     ticks_diff = time.ticks_diff
     sleep_us = time.sleep_us
@@ -32,6 +33,9 @@ except AttributeError:  # CPython: the same over CLOCK_MONOTONIC, as board/clock
 
     def ticks_us():
         return time.monotonic_ns() // 1000
+
+    def ticks_ms():
+        return time.monotonic_ns() // 1000000
 
     def ticks_add(t, delta):
         return t + delta
@@ -51,6 +55,7 @@ except AttributeError:  # CPython: the same over CLOCK_MONOTONIC, as board/clock
 _charge = getattr(time, "charge_ns", None)
 if hasattr(time, "now_us"):
     ticks_us = time.now_us  # noqa: F811 - (simulated time: the world's reads are free)
+    ticks_ms = time.now_ms  # noqa: F811
 
 
 def _call(ns=0):

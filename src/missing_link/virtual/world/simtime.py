@@ -95,6 +95,11 @@ def now_us():
     return _now
 
 
+def now_ms():
+    # ticks_ms as the simulator reads it (free)
+    return _ms
+
+
 def ticks_us():
     if not free:
         charge_ns(simcost.READ_NS)

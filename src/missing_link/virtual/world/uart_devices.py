@@ -3,7 +3,7 @@ speaking NMEA 0183 at its baud rate, with its PPS pulse, at WORLD.uart_sources[i
 MicroPython subset only.
 """
 
-from .machine import WORLD, ticks_add, ticks_diff, ticks_us
+from .machine import WORLD, ticks_add, ticks_diff, ticks_ms, ticks_us
 from .units import degrees, scaled
 
 
@@ -69,6 +69,7 @@ class GpsReceiver:
         self.pps_at = []  # ticks_us of the PPS edges (newest last, at most 20)
         self.edges = []  # (ticks_us, UTC second) of the same edges
         self._mark, self._base = _now_us(), 0  # a whole second since it was made, and which
+        self._mark_ms = ticks_ms()  # ... in ms (ticks_ms spans 6.2 days, ticks_us 537 s)
         self._sec = -1
         self._out = b""  # this second's sentences
         self._out_t0 = 0
@@ -88,6 +89,12 @@ class GpsReceiver:
     speed_kn = scaled("speed_dkn", 10)
     course = scaled("course_dd", 10)  # degrees
     hdop = scaled("hdop_d", 10)
+
+    def _skip(self, k):
+        # the mark moves on by k whole seconds, in both clocks
+        self._mark = ticks_add(self._mark, k * 1000000)
+        self._mark_ms = ticks_add(self._mark_ms, k * 1000)
+        self._base += k
 
     def _sentences(self, utc):
         t, (y, mo, d) = utc % 86400, civil_date(utc // 86400)
@@ -115,8 +122,14 @@ class GpsReceiver:
         return out.encode()
 
     def produce(self, now):
-        k = ticks_diff(now, self._mark) // 1000000  # (from a mark moved on: ticks_diff spans 537 s)
-        self._mark, self._base = ticks_add(self._mark, k * 1000000), self._base + k
+        # Whole seconds since the mark: unread (or off) longer than ticks_us spans (537 s), the
+        # most of them counted in ms first, then the rest (under 2 s) in µs
+        k = ticks_diff(ticks_ms(), self._mark_ms) // 1000 - 1
+        while k > 0:  # (ticks_add takes under 2^29: steps of 500 s)
+            step = k if k < 500 else 500
+            self._skip(step)
+            k -= step
+        self._skip(ticks_diff(now, self._mark) // 1000000)
         if self._base > self._sec:
             self._sec = self._base
             utc = self.utc0 + self._sec
