@@ -73,6 +73,12 @@ def ranger(
 ) -> float | None:
     """Metres to the nearest wall in the part's field of view (``turned``: the angle of what it
     is mounted on), with its noise; None when nothing is within its reach."""
+    return reading(beam, cast(part, beam, body, turned, walls), rng, noisy)
+
+
+def cast(part: Part, beam: Beam, body: Body, turned: float, walls: list[Segment]) -> float | None:
+    """The nearest wall across a ranger's rays, before its reach and noise: a function of the
+    body's x, y and yaw, ``turned`` and the walls alone (world.py keeps it while they stay)."""
     c, s = math.cos(body.yaw), math.sin(body.yaw)
     origin = (body.x + c * part.x - s * part.y, body.y + s * part.x + c * part.y)
     looking = body.yaw + part.yaw + turned
@@ -81,6 +87,11 @@ def ranger(
         d = nearest(origin, looking + ray, walls)
         if d is not None and (best is None or d < best):
             best = d
+    return best
+
+
+def reading(beam: Beam, best: float | None, rng: random.Random, noisy: bool) -> float | None:
+    """A ranger's reading of the nearest wall ``best`` (cast()'s), with its noise."""
     draw = rng.gauss(0.0, 1.0)  # (drawn every time: each part's stream stays in step)
     if best is None or best > beam.max_m:
         return None
@@ -88,7 +99,8 @@ def ranger(
     return max(0.0, best + (sigma * draw if noisy else 0.0))
 
 
-def _attitude(body: Body) -> tuple[Vec, Vec, Vec]:
+def attitude(body: Body) -> tuple[Vec, Vec, Vec]:
+    """The body's rotation (an IMU's and a compass's reading take it: world.py once a read)."""
     return rotation(body.roll, body.pitch, body.yaw)
 
 
@@ -105,13 +117,15 @@ def imu_fixed(part: Part) -> tuple[Any, float, float, Vec, Vec, float]:
             part.number("temperature_c"))  # fmt: skip
 
 
-def imu(part: Part, body: Body, rng: random.Random, noisy: bool, fixed: Any = None) -> ImuReading:
+def imu(
+    part: Part, body: Body, rng: random.Random, noisy: bool, fixed: Any = None, att: Any = None
+) -> ImuReading:
     """The MPU-6050 at its mounting: specific force (gravity up, the body's acceleration and the
     lever arm's) and turn rate, in the chip's axes, with the datasheet's noise; ``fixed``:
-    imu_fixed(part), when the caller keeps it."""
+    imu_fixed(part), ``att``: attitude(body), when the caller keeps them."""
     mount, sa, sg, ab, gb, temperature = fixed or imu_fixed(part)
     world_f = (body.ax, body.ay, G)  # (the body moves in the plane; gravity as a push up)
-    f = apply_t(_attitude(body), world_f)
+    f = apply_t(att or attitude(body), world_f)
     w = body_rates(body.roll, body.pitch, body.roll_rate, body.pitch_rate, body.yaw_rate)
     r = (part.x, part.y, part.z)
     alpha = (0.0, 0.0, body.yaw_acc)  # (the tilt's own angular acceleration is left out)
@@ -128,12 +142,28 @@ def imu(part: Part, body: Body, rng: random.Random, noisy: bool, fixed: Any = No
     return ImuReading(accel, gyro, temperature)  # type: ignore[arg-type]
 
 
-def compass(part: Part, body: Body, field_ut: Vec, rng: random.Random, noisy: bool) -> Vec:
-    """The local field (north, east, down in µT) in the chip's axes, in gauss, with its noise."""
+def compass_fixed(part: Part, noisy: bool) -> tuple[Any, float]:
+    """A compass's mounting's rotation and its noise in gauss (looked up once, not every
+    reading)."""
+    sigma = part.number("noise_mg") * 1e-3 if noisy else 0.0
+    return rotation(part.roll, part.pitch, part.yaw), sigma
+
+
+def compass(
+    part: Part,
+    body: Body,
+    field_ut: Vec,
+    rng: random.Random,
+    noisy: bool,
+    fixed: Any = None,
+    att: Any = None,
+) -> Vec:
+    """The local field (north, east, down in µT) in the chip's axes, in gauss, with its noise;
+    ``fixed``: compass_fixed(part, noisy), ``att``: attitude(body), when the caller keeps them."""
+    mount, sigma = fixed or compass_fixed(part, noisy)
     north, east, down = field_ut
     enu = (east / 100.0, north / 100.0, -down / 100.0)  # (1 gauss = 100 µT)
-    b = apply_t(rotation(part.roll, part.pitch, part.yaw), apply_t(_attitude(body), enu))
-    sigma = part.number("noise_mg") * 1e-3 if noisy else 0.0
+    b = apply_t(mount, apply_t(att or attitude(body), enu))
     return (b[0] + sigma * rng.gauss(0.0, 1.0), b[1] + sigma * rng.gauss(0.0, 1.0),
             b[2] + sigma * rng.gauss(0.0, 1.0))  # fmt: skip
 

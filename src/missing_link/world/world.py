@@ -104,6 +104,10 @@ class World:
                         for p in self.robot.of_kind("gps")}  # fmt: skip
         self.beams = {p.name: Beam.of(p) for p in self.robot.of_kind("ranger")}
         self.imu_fixed = {p.name: sensing.imu_fixed(p) for p in self.robot.of_kind("imu")}
+        self.compass_fixed = {p.name: sensing.compass_fixed(p, spec.noise)
+                              for p in self.robot.of_kind("compass")}  # fmt: skip
+        # ranger -> ((x, y, yaw, turned), its cast): a pose the body still has is not cast again
+        self.casts: dict[str, tuple[tuple[float, float, float, float], float | None]] = {}
         self.turned = {p.name: 0.0 for p in self.robot.parts.values()
                        if p.kind in ("servo", "stepper")}  # fmt: skip
         self.turning = {n: _turning(self.robot.parts[n]) for n in self.turned}
@@ -232,19 +236,21 @@ class World:
         fields: dict[str, Vec] = {}
         fixes: dict[str, GpsReading] = {}
         volts: dict[str, float] = {}
+        att = sensing.attitude(b)  # (the IMU's and the compass's: once)
         for p in self.robot.parts.values():
             rng = self.rng[p.name]
-            turned = self.turned.get(p.on, 0.0)
             if p.kind == "ranger":
-                got: Any = sensing.ranger(p, self.beams[p.name], b, turned, self.walls, rng, noisy)
+                beam = self.beams[p.name]
+                got: Any = sensing.reading(beam, self._cast(p, beam), rng, noisy)
                 if p.name in self.blocks:
                     got = self.blocks[p.name][0]
                 ranges[p.name] = got = self.held.get(p.name, got)
             elif p.kind == "imu":
-                got = sensing.imu(p, b, rng, noisy, self.imu_fixed[p.name])
+                got = sensing.imu(p, b, rng, noisy, self.imu_fixed[p.name], att)
                 imus[p.name] = got = self.held.get(p.name, got)
             elif p.kind == "compass":
-                got = sensing.compass(p, b, site.field_ut, rng, noisy)
+                fixed = self.compass_fixed[p.name]
+                got = sensing.compass(p, b, site.field_ut, rng, noisy, fixed, att)
                 fields[p.name] = got = self.held.get(p.name, got)
             elif p.kind == "gps":
                 site_deg = (site.latitude_deg, site.longitude_deg, site.altitude_m)
@@ -258,6 +264,19 @@ class World:
         failed = {n: m for n, (m, _) in self.fails.items() if m == "silent"}
         edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
         return Frame(t0, until, edges, ranges, imus, fields, fixes, volts, failed)
+
+    def _cast(self, p: Any, beam: sensing.Beam) -> float | None:
+        """The ranger's nearest wall (sensing.cast), cast again only when the body or what the
+        part is mounted on has moved since its last (at rest, against a wall: the same rays,
+        the same sums; its noise is still drawn every read)."""
+        b = self.body
+        pose = (b.x, b.y, b.yaw, self.turned.get(p.on, 0.0))
+        kept = self.casts.get(p.name)
+        if kept is not None and kept[0] == pose:
+            return kept[1]
+        best = sensing.cast(p, beam, b, pose[3], self.walls)
+        self.casts[p.name] = (pose, best)
+        return best
 
     def _unread(self, t0: int, until: int) -> Frame:
         edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
