@@ -190,6 +190,24 @@ def test_each_samples_clock_bound_is_recorded_with_its_stamps(tmp_path: Path) ->
     assert [int(b) for m in got for b in m.board_us] == [0, 1, 10, 11, 20, 21]
 
 
+def test_a_bound_outside_int64_is_packed_within_it(tmp_path: Path) -> None:
+    """Every value is checked against its type before it is packed: a bound past int64 (or
+    below -1, or not an int) is recorded as the most (or none), never a recording that fails."""
+    (t,) = parse_transds("transds/1\nsonar,2,srf,SRF02,1,uint32_t,0\n")
+    topic = Topic.for_transducer("/b/sonar", "b", t, "missing_link_msgs")
+    pub = McapPublisher({"path": str(tmp_path)})
+    pub.add_topic(topic)
+    for i, bound in enumerate([5, 2**63, -7, 2**64 + 3]):
+        pub.publish(Update.build(topic=topic, board_us=[i], host_ns=[10**18 + i], values=[i],
+                                 seq=i, lost=0, recv_ns=i, bound_ns=bound))  # fmt: skip
+    pub.close()
+    assert pub.dropped == 0
+    with AnyReader(list(pub.bags), default_typestore=STORE) as reader:
+        conns = [c for c in reader.connections if c.topic == "/b/stamps"]
+        got = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conns)]
+    assert [int(b) for m in got for b in m.bound_ns] == [5, 2**63 - 1, -1, 2**63 - 1]
+
+
 def test_stamps_stay_in_the_chunk_of_their_samples(tmp_path: Path) -> None:
     """Past rosbags' 1 MiB chunks: every chunk holds its samples' stamps, so a file cut anywhere
     keeps both or neither."""

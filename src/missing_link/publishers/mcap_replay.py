@@ -90,6 +90,9 @@ def command_cdr(topic: Topic, value: Any, now_ns: int) -> bytes | None:
         return None
 
 
+_INT64_MAX = (1 << 63) - 1
+
+
 class _Batch:
     def __init__(self) -> None:
         self.topics: dict[str, int] = {}
@@ -162,7 +165,9 @@ class ReplayRecords:
         batch.topic.append(index)
         batch.seq.append(seq & 0xFF)
         batch.board_us.extend(board_us)
-        batch.bound_ns.append(bound_ns)
+        # (int64 in the record: a bound not an int of that range is packed as none or the most)
+        ok = isinstance(bound_ns, int) and bound_ns >= -1
+        batch.bound_ns.append(min(bound_ns, _INT64_MAX) if ok else -1)
         self.pending_bytes += 11 + 8 * len(board_us)
 
     def take_stamps(self) -> list[tuple[str, str, bytes]]:
