@@ -219,6 +219,43 @@ def test_sifs_held_by_a_handshake_that_failed_are_not_lost_silently() -> None:
         assert calls == ([("expect", 3)] if same_boot else [("lost", 3)])
 
 
+def test_sifs_held_before_the_count_are_not_counted_as_a_wrap_lost() -> None:
+    """The board's count is read after the SIFs held since ``listen`` (and those a failed
+    handshake left) came: every one is taken, and only what the outage lost counts lost,
+    whatever their number.  (Over 128 held, the count put them as a seq wrap lost: 256 more
+    counted lost, all of them published.)"""
+    (t,) = parse_transds("transds/1\nx,1,p,M,1,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    now = time.monotonic()
+
+    def sif(n: int, gap: int = 0) -> SifReceived:  # (gap: the link's count of seqs skipped)
+        return SifReceived(1, n & 0xFF, struct.pack("<Qh", 10 + n, n & 0x7FFF), gap & 0xFF)
+
+    for held, failed, gone in ((200, False, 0), (300, True, 0), (1000, True, 0), (300, True, 300)):
+        published: list[Update] = []
+        path = SamplePath(published.append, realtime_offset_ns=0)
+        path.topics[1] = topic
+        lost: list[int] = []
+        link = SimpleNamespace(expect_sif_seq=lambda s: None, count_lost_sifs=lost.append)
+        board = cast(Board, SimpleNamespace(index={}, properties={}, timeout=1.0, link=link))
+        path.listen(board, same_boot=False)
+        path.resume(board, same_boot=False, count=0)
+        for n in range(10):
+            path.on_sif(sif(n), now)
+        path.listen(board, same_boot=True)  # after an outage, of the same boot
+        for n in range(10 + gone, 10 + gone + held):  # (`gone` lost in the outage)
+            path.on_sif(sif(n, gone if n == 10 + gone else 0), now)
+        if failed:  # (its count call timed out: the next handshake's)
+            path.listen(board, same_boot=True)
+            for n in range(10 + gone + held, 15 + gone + held):
+                path.on_sif(sif(n), now)
+        sent = 10 + gone + held + (5 if failed else 0)
+        path.resume(board, same_boot=True, count=sent)
+        assert len(published) == sent - gone
+        assert path.counters()["outage_lost_sifs"] == gone, (held, failed, gone)
+        assert sum(lost) == gone - gone % 256  # (the link counted the rest by the seq)
+
+
 def test_an_update_is_built_by_keyword_only() -> None:
     """Board stamps and host times are both lists of ints: built by position they could swap
     silently, so ``Update.build`` takes keywords and ``Update(...)`` takes nothing."""

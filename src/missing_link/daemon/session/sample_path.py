@@ -152,6 +152,7 @@ class SamplePath:
         ``a2jSifCount``).  The board's log learns the names and reads the board's counts (a
         call: the supervisor's thread).  Then the SIFs held since ``listen``, in order (one
         that comes meanwhile waits for them)."""
+        count = self._count_before_held(count)
         self.board = board
         lg = self.log
         lg.name, lg.sync = self.name, self.sync
@@ -169,6 +170,16 @@ class SamplePath:
                 except Exception as e:  # noqa: BLE001 - as the SIF handler's: never ends a handshake
                     self.faults.caught("SIF handler", e, f"SIF handler {named(self.on_sif)}")
             self._holding = None
+
+    def _count_before_held(self, count: int | None) -> int | None:
+        """``count`` as if read just before the first SIF held: it was read after them (and
+        after those a failed handshake left), so it counts each one and the gap before it; left
+        in, their number over 128 read as a wrap of the seq lost (256 SIFs counted lost)."""
+        with self._hold_lock:
+            held = self._holding
+            if count is None or not held:
+                return count
+            return count - sum(1 + sif.lost for sif, _ in held) + held[0][0].lost
 
     def _hold(self, sif: SifReceived, now_mono: float) -> bool:
         """Between ``listen`` and ``resume``: the SIF waits (True)."""
