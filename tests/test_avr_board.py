@@ -6,9 +6,12 @@ run."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
+import sys
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -113,6 +116,80 @@ def test_a_pty_an_absent_part_and_the_eeprom_kept_in_the_flash(tmp_path: Path) -
                 if f is not None:
                     f.close()
     assert (flash / "eeprom.bin").stat().st_size == 1024
+
+
+_OUT_OF_DESCRIPTORS = textwrap.dedent("""
+    import json, os, resource, socket, sys, threading, time
+    from pathlib import Path
+    from missing_link.deploy.avrsim import build
+    from missing_link.deploy.boardfile import load_board_file
+    from missing_link.j2a.codec import SOF, Frame, FrameDecoder, encode_frame
+    from missing_link.logs import install
+    from missing_link.virtual.avrboard import AvrBoard
+
+    install(sys.stderr)  # (as the CLI does: warnings on stderr)
+    sim = build(load_board_file(Path(sys.argv[1])), "avr-0123456789ab")
+    board = AvrBoard(sim.command(None), "tcp://127.0.0.1:0")
+    serving = threading.Thread(target=board.serve_forever, daemon=True)
+    serving.start()
+    while board.pty not in {os.path.realpath(f"/proc/self/fd/{fd}")
+                            for fd in os.listdir("/proc/self/fd")}:
+        assert serving.is_alive(), "the relay ended before it opened the pty"
+        time.sleep(0.01)  # (the relay opens the pty first: its own start, not the case here)
+    host = socket.socket()  # (made now: it needs no descriptor of the board's to connect)
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    top = max(int(fd) for fd in os.listdir("/proc/self/fd"))
+    resource.setrlimit(resource.RLIMIT_NOFILE, (top + 1, hard))
+    fillers = []
+    try:
+        while True:  # (every gap below the limit filled: no accept can have a descriptor)
+            fillers.append(os.open("/dev/null", os.O_RDONLY))
+    except OSError:
+        pass
+    addr, port = board.url.removeprefix("tcp://").rsplit(":", 1)
+    host.connect((addr, int(port)))
+    deadline = time.monotonic() + 20
+    while serving.is_alive() and not getattr(board, "accept_errors", 0):
+        assert time.monotonic() < deadline, "the board neither failed an accept nor ended"
+        time.sleep(0.01)
+    for fd in fillers:
+        os.close(fd)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    host.settimeout(20)
+    host.sendall(encode_frame(SOF, 7, 0))  # a2jGetMapping: every board answers it
+    decoder, answered = FrameDecoder(), False
+    try:
+        while not answered:
+            data = host.recv(4096)
+            if not data:
+                break
+            answered = any(isinstance(f, Frame) and f.kind == SOF and f.seq == 7
+                           for f in decoder.feed(data))
+    except OSError:
+        pass
+    out = {"answered": answered, "accept_errors": getattr(board, "accept_errors", 0)}
+    board.stop()
+    serving.join(10)
+    print(json.dumps(out))
+""")
+
+
+@pytest.mark.avr
+@pytest.mark.slow
+def test_an_avr_board_out_of_descriptors_goes_on_serving() -> None:
+    """The relay's accept() failing (EMFILE) ended it with a traceback, the AVR powered off.
+    Now it is counted and said once, the listener rests, and the host waiting in the backlog
+    is taken once descriptors are free.  A child process: the limit is per process."""
+    run = subprocess.run(
+        [sys.executable, "-c", _OUT_OF_DESCRIPTORS, str(UNO)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = json.loads(run.stdout)
+    assert out["answered"], run.stderr[-2000:]
+    assert out["accept_errors"] >= 1
+    assert run.stderr.count("accept failed (Too many open files)") == 1, run.stderr
+    assert "accepts failed" in run.stderr, run.stderr  # (the count, as it stops)
 
 
 def test_the_rigs_parts_are_the_board_files_at_its_pins() -> None:
