@@ -16,6 +16,7 @@ import pytest
 
 from missing_link.daemon.claims import Claims
 from missing_link.daemon.config import BoardSpec, Config
+from missing_link.daemon.session import held_sifs
 from missing_link.daemon.session.context import CommandHandler, SessionContext
 from missing_link.daemon.session.prober import ClockProber, ProbeContext
 from missing_link.daemon.session.sample_path import SamplePath
@@ -254,6 +255,67 @@ def test_sifs_held_before_the_count_are_not_counted_as_a_wrap_lost() -> None:
         assert len(published) == sent - gone
         assert path.counters()["outage_lost_sifs"] == gone, (held, failed, gone)
         assert sum(lost) == gone - gone % 256  # (the link counted the rest by the seq)
+
+
+class SeqLink:
+    """The link's side of the seq, as the J2A connection keeps it: each SIF's gap from the one
+    expected (``expect_sif_seq`` after an outage), and the SIFs counted lost besides."""
+
+    def __init__(self) -> None:
+        self.expected: int | None = None
+        self.lost = 0  # the link's lost_sifs: its gaps and what it was told
+
+    def expect_sif_seq(self, seq: int) -> None:
+        self.expected = seq & 0xFF
+
+    def count_lost_sifs(self, n: int) -> None:
+        self.lost += n
+
+    def sif(self, n: int) -> SifReceived:
+        gap = 0 if self.expected is None else (n - self.expected) & 0xFF
+        self.lost, self.expected = self.lost + gap, (n + 1) & 0xFF
+        return SifReceived(1, n & 0xFF, struct.pack("<Qh", 10 + n, n & 0x7FFF), gap)
+
+
+def test_sifs_held_by_failed_handshakes_are_bounded_and_the_rest_counted_lost(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A board that keeps sending while its count call keeps timing out: the SIFs held stop
+    at ``HOLD_MAX``, those past it count lost exactly (outage_lost_sifs and the link's), and
+    the seq and the board's count go on from the last one received, so nothing more counts
+    lost after.  (200 failed handshakes of 1000 SIFs each held all 200,000: 37 MB.)"""
+    monkeypatch.setattr(held_sifs, "HOLD_MAX", 100)
+    (t,) = parse_transds("transds/1\nx,1,p,M,1,int16_t,-1\n")
+    topic = Topic.for_transducer("/b/x", "b", t, "missing_link_msgs")
+    now = time.monotonic()
+    for restarted in (False, True):
+        published: list[Update] = []
+        path = SamplePath(published.append, realtime_offset_ns=0)
+        path.topics[1] = topic
+        link = SeqLink()
+        board = cast(Board, SimpleNamespace(index={}, properties={}, timeout=1.0, link=link))
+        path.listen(board, same_boot=False)
+        path.resume(board, same_boot=False, count=0)
+        for n in range(10):
+            path.on_sif(link.sif(n), now)
+        for k in range(6):  # an outage, then 5 handshakes whose count call timed out
+            path.listen(board, same_boot=True)
+            for n in range(10 + 300 * k, 310 + 300 * k):
+                path.on_sif(link.sif(n), now)
+        if restarted:  # (then the board restarted: every SIF held or dropped is lost)
+            path.listen(board, same_boot=False)
+            assert path.counters()["outage_lost_sifs"] == 1800 == link.lost
+            continue
+        path.resume(board, same_boot=True, count=n + 1)
+        assert len(published) == 10 + 100  # no more held than HOLD_MAX ...
+        assert path.counters()["outage_lost_sifs"] == 1700 == link.lost  # ... the rest lost
+        path.on_sif(link.sif(n + 1), now)  # the seq goes on from the last one received
+        path.listen(board, same_boot=True)  # another outage: 300 lost, then 5 held
+        for m in range(n + 302, n + 307):
+            path.on_sif(link.sif(m), now)
+        path.resume(board, same_boot=True, count=n + 307)
+        assert len(published) == 10 + 100 + 1 + 5
+        assert path.counters()["outage_lost_sifs"] == 1700 + 300 == link.lost
 
 
 def test_an_update_is_built_by_keyword_only() -> None:

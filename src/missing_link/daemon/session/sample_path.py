@@ -44,7 +44,6 @@ from __future__ import annotations
 import logging
 import math
 import struct
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -61,6 +60,7 @@ from ...topics import Topic, Update
 from .alignment import grid_of, off_grid
 from .board_log import BoardLogPath
 from .board_topics import BoardTopics
+from .held_sifs import HeldSifs
 
 log = logging.getLogger(__name__)
 
@@ -108,25 +108,29 @@ class SamplePath:
         self._outage_count: int | None = None  # a2jSifCount read after an outage
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
         self._said: set[str] = set()  # standard-type topics whose failure was logged
-        #: SIFs that came between ``listen`` and ``resume`` (None: not in a handshake)
-        self._holding: list[tuple[SifReceived, float]] | None = None
-        self._hold_lock = threading.Lock()
+        self._hold = HeldSifs()  #: SIFs that came between ``listen`` and ``resume``
 
     def listen(self, board: Board, same_boot: bool) -> None:
         """At a handshake, before the board's count is read (``resume``), with this path's
         handler on the board: the SIFs from here on wait, in order, until ``resume``, so none
         falls between the count and the listening (a replay sends its samples once the count is
         read: docs/recording.md).  ``same_boot``: the seq goes on from the last SIF seen."""
-        with self._hold_lock:
+        hold = self._hold
+        with hold.lock:
             # SIFs held by a handshake that failed before ``resume`` (its count call timed
             # out on a busy host) were never taken: of the same boot they go out with this
             # one's, in order; of a board that restarted meanwhile they are counted lost
-            left = self._holding or []
-            self._holding = left if same_boot else []
-        if left and not same_boot:
-            self.outage_lost_sifs += len(left)
-            board.link.count_lost_sifs(len(left))
-        expect = left[-1][0].seq + 1 if left and same_boot else self.next_seq
+            left = hold.sifs or []
+            hold.sifs = left if same_boot else []
+            dropped, hold.dropped, last = hold.dropped, 0, hold.last_seq
+            if not same_boot:
+                hold.forget_dropped()
+        gone = dropped + (0 if same_boot else len(left))
+        if gone:
+            self.outage_lost_sifs += gone
+            board.link.count_lost_sifs(gone)
+        last = left[-1][0].seq if last is None and left else last
+        expect = last + 1 if last is not None else self.next_seq
         if expect is not None and same_boot:
             board.link.expect_sif_seq(expect)
 
@@ -152,7 +156,7 @@ class SamplePath:
         ``a2jSifCount``).  The board's log learns the names and reads the board's counts (a
         call: the supervisor's thread).  Then the SIFs held since ``listen``, in order (one
         that comes meanwhile waits for them)."""
-        count = self._count_before_held(count)
+        count = self._hold.count_before(count)
         self.board = board
         lg = self.log
         lg.name, lg.sync = self.name, self.sync
@@ -163,31 +167,23 @@ class SamplePath:
         else:
             self._total = count
             self._outage_count = None
-        with self._hold_lock:
-            for sif, now_mono in self._holding or ():
+        hold = self._hold
+        with hold.lock:
+            for sif, now_mono in hold.sifs or ():
                 try:
                     self._take(sif, now_mono)
                 except Exception as e:  # noqa: BLE001 - as the SIF handler's: never ends a handshake
                     self.faults.caught("SIF handler", e, f"SIF handler {named(self.on_sif)}")
-            self._holding = None
-
-    def _count_before_held(self, count: int | None) -> int | None:
-        """``count`` as if read just before the first SIF held: it was read after them (and
-        after those a failed handshake left), so it counts each one and the gap before it; left
-        in, their number over 128 read as a wrap of the seq lost (256 SIFs counted lost)."""
-        with self._hold_lock:
-            held = self._holding
-            if count is None or not held:
-                return count
-            return count - sum(1 + sif.lost for sif, _ in held) + held[0][0].lost
-
-    def _hold(self, sif: SifReceived, now_mono: float) -> bool:
-        """Between ``listen`` and ``resume``: the SIF waits (True)."""
-        with self._hold_lock:
-            if self._holding is None:
-                return False
-            self._holding.append((sif, now_mono))
-            return True
+            hold.sifs = None
+            # those dropped past HOLD_MAX count lost; the seq and the board's total go on
+            # from the last one received
+            if hold.dropped:
+                self.outage_lost_sifs += hold.dropped
+                board.link.count_lost_sifs(hold.dropped)
+            if hold.last_seq is not None:
+                self.next_seq = hold.last_seq + 1
+                self._total = None if self._total is None else self._total + hold.span
+            hold.forget_dropped()
 
     def _outage_loss(self, mod: int, total: int) -> int:
         """The first SIF after an outage: the seq gives the loss modulo 256 (``mod``); the
@@ -220,7 +216,7 @@ class SamplePath:
     def on_sif(self, sif: SifReceived, now_mono: float) -> None:
         """The SIF handler (the board's reading thread), for every sample (held while a
         handshake is between ``listen`` and ``resume``)."""
-        if self._holding is not None and self._hold(sif, now_mono):
+        if self._hold.sifs is not None and self._hold.hold(sif, now_mono):
             return
         self._take(sif, now_mono)
 
