@@ -104,6 +104,11 @@ class SamplePath:
         self.grid_since_ns = 0
         self.off_grid_samples = 0  #: samples of aligned transducers that were not on their grid
         self.next_seq: int | None = None  # after the last SIF seen on this board boot
+        #: the board boot (clock epoch) the seq and the count go on from, set at ``resume``:
+        #: a handshake that failed before it leaves it, so the next one is not taken as the
+        #: same boot (the new boot's SIFs before it would count as lost); the session's test
+        self.boot = ""
+        self._held_boot = ""  # the board boot of the SIFs held (set at ``listen``)
         self._total: int | None = None  # the next SIF's number since boot (unwrapped seq)
         self._outage_count: int | None = None  # a2jSifCount read after an outage
         self._last_host: dict[int, int] = {}  # transducer id -> newest host ns published
@@ -115,24 +120,26 @@ class SamplePath:
         handler on the board: the SIFs from here on wait, in order, until ``resume``, so none
         falls between the count and the listening (a replay sends its samples once the count is
         read: docs/recording.md).  ``same_boot``: the seq goes on from the last SIF seen."""
-        hold = self._hold
+        boot, hold = board.properties.get("clock.epoch", ""), self._hold
         with hold.lock:
             # SIFs held by a handshake that failed before ``resume`` (its count call timed
             # out on a busy host) were never taken: of the same boot they go out with this
             # one's, in order; of a board that restarted meanwhile they are counted lost
             left = hold.sifs or []
-            hold.sifs = left if same_boot else []
+            keep = same_boot or (bool(boot) and boot == self._held_boot)
+            hold.sifs, self._held_boot = (left if keep else []), boot
             dropped, hold.dropped, last = hold.dropped, 0, hold.last_seq
-            if not same_boot:
+            if not keep:
                 hold.forget_dropped()
-        gone = dropped + (0 if same_boot else len(left))
+        gone = dropped + (0 if keep else len(left))
         if gone:
             self.outage_lost_sifs += gone
             board.link.count_lost_sifs(gone)
         last = left[-1][0].seq if last is None and left else last
-        expect = last + 1 if last is not None else self.next_seq
-        if expect is not None and same_boot:
-            board.link.expect_sif_seq(expect)
+        if keep and last is not None:  # (the seq goes on from the last SIF received)
+            board.link.expect_sif_seq(last + 1)
+        elif same_boot and self.next_seq is not None:
+            board.link.expect_sif_seq(self.next_seq)
 
     def follow(self, values: dict[str, Any]) -> bool:
         """The host-time grid of the board's configuration ``values`` (alignment.py); True
@@ -184,6 +191,7 @@ class SamplePath:
                 self.next_seq = hold.last_seq + 1
                 self._total = None if self._total is None else self._total + hold.span
             hold.forget_dropped()
+        self.boot = board.properties.get("clock.epoch", "")
 
     def _outage_loss(self, mod: int, total: int) -> int:
         """The first SIF after an outage: the seq gives the loss modulo 256 (``mod``); the

@@ -315,7 +315,9 @@ class BoardSession(SessionReport):
             board.properties, transducers,
             [declared.topics[t.id].name for t in transducers]))  # fmt: skip
         epoch = board.properties.get("clock.epoch", "")
-        same, self.epoch = bool(epoch) and epoch == self.epoch, epoch
+        # (the path's boot, not self.epoch: a handshake that failed before its count leaves
+        # the path's seq and count to the boot before, and this one must not take them on)
+        same, self.epoch = bool(epoch) and epoch == self.path.boot, epoch
         self.path.listen(board, same)  # (before the count: no SIF falls between the two)
         board.on_sif(None, self.path.on_sif)
         self.path.resume(board, same, sif_count(board, spec.timeout))
