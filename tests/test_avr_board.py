@@ -119,8 +119,10 @@ def test_a_pty_an_absent_part_and_the_eeprom_kept_in_the_flash(tmp_path: Path) -
 
 
 _OUT_OF_DESCRIPTORS = textwrap.dedent("""
-    import json, os, resource, socket, sys, threading, time
+    import json, os, socket, sys, threading, time
     from pathlib import Path
+    sys.path.insert(0, sys.argv[2])
+    from descriptors import none_left
     from missing_link.deploy.avrsim import build
     from missing_link.deploy.boardfile import load_board_file
     from missing_link.j2a.codec import SOF, Frame, FrameDecoder, encode_frame
@@ -132,29 +134,19 @@ _OUT_OF_DESCRIPTORS = textwrap.dedent("""
     board = AvrBoard(sim.command(None), "tcp://127.0.0.1:0")
     serving = threading.Thread(target=board.serve_forever, daemon=True)
     serving.start()
+    failures = lambda: getattr(getattr(board, "accept_failures", None), "count", 0)  # (or none)
     while board.pty not in {os.path.realpath(f"/proc/self/fd/{fd}")
                             for fd in os.listdir("/proc/self/fd")}:
         assert serving.is_alive(), "the relay ended before it opened the pty"
         time.sleep(0.01)  # (the relay opens the pty first: its own start, not the case here)
     host = socket.socket()  # (made now: it needs no descriptor of the board's to connect)
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    top = max(int(fd) for fd in os.listdir("/proc/self/fd"))
-    resource.setrlimit(resource.RLIMIT_NOFILE, (top + 1, hard))
-    fillers = []
-    try:
-        while True:  # (every gap below the limit filled: no accept can have a descriptor)
-            fillers.append(os.open("/dev/null", os.O_RDONLY))
-    except OSError:
-        pass
-    addr, port = board.url.removeprefix("tcp://").rsplit(":", 1)
-    host.connect((addr, int(port)))
-    deadline = time.monotonic() + 20
-    while serving.is_alive() and not getattr(board, "accept_errors", 0):
-        assert time.monotonic() < deadline, "the board neither failed an accept nor ended"
-        time.sleep(0.01)
-    for fd in fillers:
-        os.close(fd)
-    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    with none_left():
+        addr, port = board.url.removeprefix("tcp://").rsplit(":", 1)
+        host.connect((addr, int(port)))
+        deadline = time.monotonic() + 20
+        while serving.is_alive() and not failures():
+            assert time.monotonic() < deadline, "the board neither failed an accept nor ended"
+            time.sleep(0.01)
     host.settimeout(20)
     host.sendall(encode_frame(SOF, 7, 0))  # a2jGetMapping: every board answers it
     decoder, answered = FrameDecoder(), False
@@ -167,7 +159,7 @@ _OUT_OF_DESCRIPTORS = textwrap.dedent("""
                            for f in decoder.feed(data))
     except OSError:
         pass
-    out = {"answered": answered, "accept_errors": getattr(board, "accept_errors", 0)}
+    out = {"answered": answered, "accept_errors": failures()}
     board.stop()
     serving.join(10)
     print(json.dumps(out))
@@ -181,7 +173,7 @@ def test_an_avr_board_out_of_descriptors_goes_on_serving() -> None:
     Now it is counted and said once, the listener rests, and the host waiting in the backlog
     is taken once descriptors are free.  A child process: the limit is per process."""
     run = subprocess.run(
-        [sys.executable, "-c", _OUT_OF_DESCRIPTORS, str(UNO)],
+        [sys.executable, "-c", _OUT_OF_DESCRIPTORS, str(UNO), str(Path(__file__).parent)],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]

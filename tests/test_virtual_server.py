@@ -182,8 +182,9 @@ def test_a_frame_the_last_host_cut_is_not_answered_to_the_next() -> None:
 
 
 _OUT_OF_DESCRIPTORS = textwrap.dedent("""
-    import json, os, resource, socket, sys
+    import json, socket, sys
     sys.path.insert(0, sys.argv[1])
+    from descriptors import none_left
     from test_virtual_server import URL, answer, connect, request
     from missing_link.logs import install
     from missing_link.virtual import BoardServer, make_sim
@@ -194,26 +195,15 @@ _OUT_OF_DESCRIPTORS = textwrap.dedent("""
     first.sendall(request(1))
     out = {"first": answer(server, first, 1)}
     second = socket.socket()  # (made now: it needs no descriptor of the board's to connect)
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    top = max(int(fd) for fd in os.listdir("/proc/self/fd"))
-    resource.setrlimit(resource.RLIMIT_NOFILE, (top + 1, hard))
-    fillers = []
-    try:
-        while True:  # (every gap below the limit filled: no accept can have a descriptor)
-            fillers.append(os.open("/dev/null", os.O_RDONLY))
-    except OSError:
-        pass
-    host, port = server.url.removeprefix("tcp://").rsplit(":", 1)
-    second.connect((host, int(port)))
-    for _ in range(200):
-        if getattr(server, "accept_errors", 0):  # (before: serve_once raised EMFILE)
-            break
-        server.serve_once()
-    first.sendall(request(2))
-    out["first_meanwhile"] = answer(server, first, 2)
-    for fd in fillers:
-        os.close(fd)
-    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    with none_left():
+        host, port = server.url.removeprefix("tcp://").rsplit(":", 1)
+        second.connect((host, int(port)))
+        for _ in range(200):
+            if getattr(server, "accept_errors", 0):  # (before: serve_once raised EMFILE)
+                break
+            server.serve_once()
+        first.sendall(request(2))
+        out["first_meanwhile"] = answer(server, first, 2)
     second.sendall(request(3))
     out["second"] = answer(server, second, 3)
     out["accept_errors"] = server.accept_errors

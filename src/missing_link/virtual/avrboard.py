@@ -17,7 +17,6 @@ rig ending on its own means the AVR stopped: serve_forever() raises :class:`Firm
 
 from __future__ import annotations
 
-import logging
 import os
 import queue
 import select
@@ -29,11 +28,10 @@ import tty
 
 from ..errors import MissingLinkError
 from .boardfile import listener
+from .listen import AcceptFailures
 from .process import hang_up, reap
 
 START_TIMEOUT_S = 30.0
-ACCEPT_PAUSE = (0.01, 1.0)  # after a failed accept: first pause, longest pause (s)
-log = logging.getLogger(__name__)
 
 
 class FirmwareStopped(MissingLinkError):
@@ -46,9 +44,7 @@ class AvrBoard:
 
     def __init__(self, command: list[str], listen: str) -> None:
         self._server: socket.socket | None = None
-        self.accept_errors = 0  #: accepts that failed (out of descriptors: EMFILE, ...)
-        self._accept_pause = ACCEPT_PAUSE[0]
-        self._said: set[int] = set()
+        self.accept_failures = AcceptFailures()
         self._wake_r = self._wake_w = -1
         # (a session of its own: a terminal's Ctrl-C is this process's to handle)
         self.proc = subprocess.Popen(
@@ -149,25 +145,15 @@ class AvrBoard:
                 try:
                     conn, _ = server.accept()
                 except OSError as e:  # (out of descriptors: the connection waits in the backlog)
-                    if self._rest_after_failed_accept(e):
-                        return True
+                    pause = self.accept_failures.failed(self.url, e)
+                    if select.select([self._wake_r], [], [], pause)[0]:
+                        return True  # (stop() meanwhile)
                     continue
-                self._accept_pause = ACCEPT_PAUSE[0]
+                self.accept_failures.taken()
                 with conn:
                     if self._relay(conn, pty):
                         return True
         return False
-
-    def _rest_after_failed_accept(self, e: OSError) -> bool:
-        """Counted, said once a kind, and the listener rests (10 ms doubling to 1 s) instead of
-        spinning on the connection still queued; True if stop() came meanwhile."""
-        self.accept_errors += 1
-        if (e.errno or 0) not in self._said:
-            self._said.add(e.errno or 0)
-            log.warning("board %s: accept failed (%s): counted, tried again after a pause",
-                        self.url, e.strerror or e)  # fmt: skip
-        pause, self._accept_pause = self._accept_pause, min(self._accept_pause * 2, ACCEPT_PAUSE[1])
-        return bool(select.select([self._wake_r], [], [], pause)[0])
 
     def _relay(self, conn: socket.socket, pty: int) -> bool:
         """Bytes both ways until the host leaves (False) or stop() (True)."""
@@ -199,8 +185,7 @@ class AvrBoard:
         hang_up(self.proc)
         reap(self.proc)
         if self._server is not None:
-            if self.accept_errors:
-                log.warning("board %s: %d accepts failed", self.url, self.accept_errors)
+            self.accept_failures.said_at_stop(self.url)
             self._server.close()
             self._server = None
         for fd in ("_wake_r", "_wake_w"):

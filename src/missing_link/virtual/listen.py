@@ -7,6 +7,7 @@ instead (``--dial``), where it dials."""
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import socket
 import stat
@@ -14,7 +15,10 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ..errors import BadURL
+from ..text import safe_text
 from ..transport.sockets import parse_host_port
+
+log = logging.getLogger(__name__)
 
 
 def listen_socket(url: str, backlog: int, *others: str) -> tuple[socket.socket, str]:
@@ -63,3 +67,36 @@ def dial_address(url: str) -> tuple[str, int]:
     if not port:
         raise BadURL(f"{url!r}: a board cannot dial port 0")
     return host, port
+
+
+class AcceptFailures:
+    """A virtual board's failed accepts (out of descriptors: EMFILE, which ``board --count N``
+    in one process can reach; out of memory; a connection aborted): counted, said once a kind
+    on stderr and the count again as the board stops, and the pause before the listener tries
+    again (10 ms doubling to 1 s, back to 10 ms once one is taken): the connection stays in
+    the backlog, so trying again at once would spin.  One for the CPython board's server and
+    one for an AVR board's relay."""
+
+    FIRST_S, LONGEST_S = 0.01, 1.0
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._pause = self.FIRST_S
+        self._said: set[int] = set()
+
+    def failed(self, url: str, e: OSError) -> float:
+        """One more failure: how long the listener rests now (s)."""
+        self.count += 1
+        if (e.errno or 0) not in self._said:
+            self._said.add(e.errno or 0)
+            log.warning("board %s: accept failed (%s): counted, tried again after a pause",
+                        safe_text(url), e.strerror or e)  # fmt: skip
+        pause, self._pause = self._pause, min(self._pause * 2, self.LONGEST_S)
+        return pause
+
+    def taken(self) -> None:
+        self._pause = self.FIRST_S
+
+    def said_at_stop(self, url: str) -> None:
+        if self.count:
+            log.warning("board %s: %d accepts failed", safe_text(url), self.count)

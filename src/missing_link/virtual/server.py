@@ -40,14 +40,13 @@ from ..board.runtime import BoardRuntime
 from ..errors import TransportBroken, TransportClosed
 from ..transport.in_process import MemoryListener, MemoryTransport
 from ..transport.sockets import enable_rx_stamps, recv_stamped
-from .listen import dial_address, listen_socket
+from .listen import AcceptFailures, dial_address, listen_socket
 
 OUT_LIMIT = 64 * 1024
 _WRITE_CHUNK = 16 * 1024
 _MAX_WAIT = 0.05
 _HANDOVER_READ = 64 * 1024  # what a host that connects waits behind (see _handover)
 _HANDOVER_PASSES = 16  # ... for at most this many passes (1 MiB; at most 0.8 s), then turned away
-_ACCEPT_PAUSE = (0.01, 1.0)  # after a failed accept: first pause, longest pause (s)
 
 log = logging.getLogger(__name__)
 
@@ -199,13 +198,16 @@ class BoardServer:
         self._mem_link: MemoryTransport | None = None
         self._pty_slave: int | None = None
         self.connections = 0
-        self.accept_errors = 0  #: accepts that failed (out of descriptors: EMFILE, ...)
-        self._accept_pause = _ACCEPT_PAUSE[0]
+        self._accept_failures = AcceptFailures()
         self._listen_after = 0.0  # (time.monotonic) the listener rests until then
-        self._said: set[int] = set()
         self._handover_waits = 0  # passes a newcomer has waited behind the last host's bytes
         self._dialer = _Dialer(listen_url) if dial else None
         self.url = f"dial {listen_url}" if dial else self._bind(listen_url)
+
+    @property
+    def accept_errors(self) -> int:
+        """Accepts that failed (out of descriptors: EMFILE, ...)."""
+        return self._accept_failures.count
 
     def _bind(self, url: str) -> str:
         if url == "pty" or url == "pty://":
@@ -347,26 +349,15 @@ class BoardServer:
         self._handover_waits = 0
         try:
             sock, _ = self._listener.accept()
-        except OSError as e:
-            self._accept_failed(e)
+        except OSError as e:  # (the connection stays in the backlog: the listener rests)
+            self._listen_after = time.monotonic() + self._accept_failures.failed(self.url, e)
             return
-        self._accept_pause = _ACCEPT_PAUSE[0]
+        self._accept_failures.taken()
         if self._link is not None:
             sock.close()  # one host at a time
             return
         self._link = _Link(sock.fileno(), sock)  # (TCP_NODELAY and kernel receive stamps)
         self.connections += 1
-
-    def _accept_failed(self, e: OSError) -> None:
-        """Out of descriptors (or memory; or the connection aborted): the connection stays in
-        the backlog, so the listener rests (longer while it lasts) instead of spinning on it."""
-        self.accept_errors += 1
-        if (e.errno or 0) not in self._said:
-            self._said.add(e.errno or 0)
-            log.warning("board %s: accept failed (%s): counted, tried again after a pause",
-                        self.url, e.strerror or e)  # fmt: skip
-        self._listen_after = time.monotonic() + self._accept_pause
-        self._accept_pause = min(self._accept_pause * 2, _ACCEPT_PAUSE[1])
 
     def _drop_link(self) -> None:
         if self._link is not None and self._link.sock is not None:
@@ -415,8 +406,8 @@ class BoardServer:
 
     def close(self) -> None:
         self._stop.set()
-        if self.accept_errors and self._listener is not None:
-            log.warning("board %s: %d accepts failed", self.url, self.accept_errors)
+        if self._listener is not None:
+            self._accept_failures.said_at_stop(self.url)
         if self._listener is not None:
             if self._listener.family == socket.AF_UNIX:
                 try:
