@@ -16,7 +16,16 @@ from typing import Any
 
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import parse_config
-from missing_link.daemon.intake.listener import GRACE_S, MAX_PENDING, PER_ADDRESS
+from missing_link.daemon.intake.listener import (
+    FIRST_REPLY_S,
+    GRACE_S,
+    MAX_PENDING,
+    PER_ADDRESS,
+    Listener,
+    ListenerContext,
+)
+from missing_link.daemon.listen_spec import parse_listen
+from missing_link.testing.clock import FakeClock
 from missing_link.virtual import make_sim
 from missing_link.virtual.server import BoardServer
 
@@ -201,3 +210,31 @@ def test_a_flood_of_clients_costs_the_listener_nothing_it_keeps() -> None:
         with dialing(port, seed=2):
             assert wait_for(lambda: d.sessions and d.wait_until_up(0.1), 20), d.status()
             assert d.dialins.status()["errors"] == 0 and d.sessions[0].name == "board_b"
+
+
+def test_a_silent_greeting_is_closed_on_the_daemons_clock() -> None:
+    """(issue 42.2: the listener's grace and first-reply deadline are on the clock it is
+    handed, the daemon's, not on time.monotonic) A connection that never answers stays open
+    while the fake clock stands still, however long that is in real time, and is closed as
+    soon as the fake clock passes FIRST_REPLY_S."""
+    clock = FakeClock()
+    listener = Listener(parse_listen("tcp://127.0.0.1:0"), clock)
+    # (the handshake's own deadline far off: only the listener's first-reply rule can close it)
+    listener.start(ListenerContext(None, 60.0, 600.0, lambda board: "not wanted"))
+    try:
+        silent = socket.create_connection(("127.0.0.1", listener.port))
+        silent.settimeout(10)
+        assert wait_for(lambda: listener.status()["greeting"] == 1, 5), listener.status()
+        request = silent.recv(4096)  # (the greeting's first request: never answered)
+        assert request
+        # longer than FIRST_REPLY_S in real time (on time.monotonic it would be closed by now),
+        # not yet on its clock
+        time.sleep(FIRST_REPLY_S + 0.5)
+        assert listener.status()["greeting"] == 1 and not listener.refused, listener.status()
+        clock.advance(FIRST_REPLY_S + 0.1)
+        assert wait_for(lambda: listener.refused.get("silent") == 1, 5), listener.status()
+        while silent.recv(4096):  # (the daemon's later requests, then its end)
+            pass
+        silent.close()
+    finally:
+        listener.stop()

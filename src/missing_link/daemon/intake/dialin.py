@@ -136,7 +136,7 @@ class DialIns:
         #: does a link answer (its board alive)?  (tests hand fakes their own)
         self.probe: Callable[[Board], bool] = answers
         self._lock = threading.Lock()
-        self.listener = Listener(spec)
+        self.listener = Listener(spec, clock)
 
     def start(self, reactor: Reactor | None) -> None:
         defaults = BoardSpec(url="")

@@ -40,13 +40,13 @@ import logging
 import select
 import socket
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from ...errors import MissingLinkError
 from ...host.board import Board
+from ...host.clock import SYSTEM_CLOCK, Clock
 from ...host.reactor import Reactor
 from ...logs import ErrorCounts
 from ...transport.signed import SignedTransport, load_key
@@ -97,8 +97,9 @@ class Listener:
     """Accepts boards on ``spec`` (bound at once: an address in use is a ``MissingLinkError``
     naming it); ``start(ctx)``, ``stop()``, ``status()``."""
 
-    def __init__(self, spec: ListenSpec) -> None:
+    def __init__(self, spec: ListenSpec, clock: Clock = SYSTEM_CLOCK) -> None:
         self.spec = spec
+        self.clock = clock  #: the daemon's: a greeting's grace and first-reply deadline
         self.ctx: ListenerContext | None = None
         self._key = load_key(spec.key_file) if spec.key_file else None
         try:
@@ -150,7 +151,7 @@ class Listener:
 
     def _take(self, sock: socket.socket, host: str, address: str) -> None:
         """A connection to greet on a thread of its own, in a place of its own (see above)."""
-        now = time.monotonic()
+        now = self.clock.monotonic()
         with self._lock:
             victim, busy = self._place(host, now)
             entry = _Greeting(sock, host, now)
@@ -194,7 +195,7 @@ class Listener:
 
     def _drop_silent(self) -> None:
         """Close the connections that have not answered within FIRST_REPLY_S."""
-        now = time.monotonic()
+        now = self.clock.monotonic()
         with self._lock:
             due = [g for g in self._greeting.values() if now - g.since > FIRST_REPLY_S]
             late = [g for g in due if not g.dropped and not g.answered()]
