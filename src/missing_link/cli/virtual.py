@@ -282,7 +282,8 @@ def _avr_world(server: Any, spec: Any, board: dict[str, Any], seed: int, absent:
     try:
         world = World(spec, board, sim_us(server.ctl), seed)
         hand = AvrWorld(WorldLink(world, board, absent), server.ctl_lines,
-                        board.get("transducers", []), absent, server.ctl_send)  # fmt: skip
+                        board.get("transducers", []), absent, server.ctl_post)  # fmt: skip
+        server.on_tick = hand.answer  # (the rig's answers at each tick's time)
         hand.start()
     except BaseException:
         server.close()

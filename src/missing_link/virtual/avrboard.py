@@ -11,6 +11,8 @@ time to the pty, as a serial server in front of a board: a second host waits unt
 leaves; what the board says while no host is connected goes nowhere (the pty's far end is read
 and dropped, as a UART with nothing on its line).  rig_sim's stdin is the rig's control channel
 (:meth:`ctl`: one line in, one line out; rig.h: the parts' state, the seam a world drives);
+a world's ``tick`` line (:meth:`ctl_post`) is answered at the tick's simulated time, its answer
+handed to :attr:`on_tick` in the thread that reads the rig, not queued with the others;
 closing it powers the board off, its EEPROM saved to ``--eeprom`` (``board --flash DIR``).  The
 rig ending on its own means the AVR stopped: serve_forever() raises :class:`FirmwareStopped`.
 """
@@ -25,6 +27,7 @@ import subprocess
 import threading
 import time
 import tty
+from collections.abc import Callable
 
 from ..errors import MissingLinkError
 from .boardfile import listener
@@ -52,6 +55,9 @@ class AvrBoard:
             text=True, start_new_session=True,
         )  # fmt: skip
         self.lines: queue.Queue[str | None] = queue.Queue()
+        #: where the rig's answers to ctl_post's ``tick`` lines go (world_avr.py), in the
+        #: thread that reads the rig: it must not block on ctl_lines, nor raise
+        self.on_tick: Callable[[str], None] | None = None
         threading.Thread(target=self._pump, name="board:rig", daemon=True).start()
         first: str | None = ""
         deadline = time.monotonic() + START_TIMEOUT_S
@@ -65,8 +71,8 @@ class AvrBoard:
             err = self.proc.stderr.read().strip() if self.proc.stderr else ""
             raise FirmwareStopped(f"the firmware did not start in simavr: {err or 'no pty'}")
         self.pty = first.split()[1]
-        self._lock = threading.Lock()
-        self._unheard = 0  # answers to ctl_send's lines, not taken yet
+        self._lock = threading.Lock()  # (ctl_lines: a caller's lines and its answers)
+        self._write = threading.Lock()  # (a write: ctl_post takes this one alone)
         self._wake_r, self._wake_w = os.pipe()
         if listen in ("pty", "pty://"):
             self.url = f"serial://{self.pty}"
@@ -80,7 +86,11 @@ class AvrBoard:
     def _pump(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
-            self.lines.put(line.rstrip("\n"))
+            on_tick = self.on_tick
+            if on_tick is not None and line.startswith("tick "):
+                on_tick(line.rstrip("\n"))
+            else:
+                self.lines.put(line.rstrip("\n"))
         self.lines.put(None)
 
     def ctl(self, line: str, timeout: float = 10.0) -> str:
@@ -92,25 +102,25 @@ class AvrBoard:
         (the rig takes every line it has between two runs of the AVR)."""
         assert self.proc.stdin is not None
         with self._lock:
-            self.proc.stdin.write("".join(line + "\n" for line in lines))
-            self.proc.stdin.flush()
+            self._put(lines)
             got: list[str] = []
-            while len(got) < self._unheard + len(lines):
+            while len(got) < len(lines):
                 answer = self.lines.get(timeout=timeout)
                 if answer is None:
                     raise FirmwareStopped("the rig ended")
                 got.append(answer)
-            got, self._unheard = got[self._unheard :], 0
         return got
 
-    def ctl_send(self, lines: list[str]) -> None:
-        """Lines to the rig's control channel whose answers nobody waits for (the next
-        ctl_lines takes them first): a setting that cannot fail (a part's reading)."""
+    def ctl_post(self, line: str) -> None:
+        """A ``tick`` line (rig_sim.c), its answer not waited for: it comes at the tick's
+        simulated time, to :attr:`on_tick`."""
+        self._put([line])
+
+    def _put(self, lines: list[str]) -> None:
         assert self.proc.stdin is not None
-        with self._lock:
+        with self._write:
             self.proc.stdin.write("".join(line + "\n" for line in lines))
             self.proc.stdin.flush()
-            self._unheard += len(lines)
 
     def serve_forever(self) -> None:
         """Until stop() (returns) or the AVR stops (FirmwareStopped)."""

@@ -5,20 +5,22 @@ rig's control lines (firmware/avr/sim/*.h), as the rig's own models do without a
 Theory of operation
 -------------------
 At start every wheel of the rig is taken from the rig's own motor model (``wheel K off``,
-motor.h): from then on only the world turns its encoder.  A thread of its own (``world``) reads
-the simulation's time (``stats``: simavr's µs, never the host's clock) with the motors' drives
-(``motor``: duty and direction, as the rig's model reads them from Timer0's outputs) and the
-stepper, in one round trip (the rig takes every line it has between two runs of the AVR); once
-the time has reached the world's next tick, it ticks the world link with those drives, and puts
-what the world says into the parts in one write (its answers not waited for): a ranger's target
-(``hcsr04 MM``, ``srf02 CM``, ``sharp MM``), the IMU's specific force and turn rate in SI (``imu
-K ...``), the battery's voltage at its ADC pin through its divider (``ain CH MV``), a part that
-fails silent taken off the bus (``imu_absent``, ``srf02_absent``), and each encoder's edges of
-the tick as one ``enc K STEPS`` (the rig makes them 100 µs apart from then: they come at the
-tick, not at their own times).  Then it sleeps until the next tick's simulated time (simavr runs
-paced to the host's clock, so a simulated ms takes about a real one); a tick that comes late
-first runs the world up to the simulation's time (worldlink.py).  The rig ending ends the
-thread.
+motor.h): from then on only the world turns its encoder.  Then the world and the rig trade one
+line each way a tick (rig_sim.c's ``tick T ASKS|FEEDS``): the world's line puts what it says
+into the parts now (the FEEDS: a ranger's target, ``hcsr04 MM``, ``srf02 CM``, ``sharp MM``; the
+IMU's specific force and turn rate in SI, ``imu K ...``; the battery's voltage at its ADC pin
+through its divider, ``ain CH MV``; a part that fails silent taken off the bus, ``imu_absent``,
+``srf02_absent``; each encoder's edges of the tick as one ``enc K STEPS``, which the rig makes
+100 µs apart from then: they come at the tick, not at their own times) and asks for the next
+tick at its simulated time T.  The rig answers when its time reaches T with that time (simavr's
+µs, never the host's clock), the motors' drives (``motor``: duty and direction, as the rig's
+model reads them from Timer0's outputs), the stepper's, and the FEEDS' own answers (an error
+among them counted and said once).  The answer comes to :meth:`AvrWorld.answer` in the thread
+that reads the rig (AvrBoard.on_tick): it ticks the world link with those drives at that time
+and sends the next line.  So nothing sleeps to a tick or asks for the time: the rig wakes the
+world once a tick, in the simulation's time (simavr runs paced to the host's clock; a tick that
+comes late first runs the world up to the simulation's time: worldlink.py).  The rig ending
+ends the ticks (no answer comes).
 
 What the rig has no control line for is not fed: the GPS's position (its fix stays where the
 rig's model puts it), a compass (the rig has none), a VL53L0X.
@@ -26,18 +28,15 @@ rig's model puts it), a compass (the rig has none), a VL53L0X.
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
-import time
 from collections.abc import Callable, Collection
 from typing import Any
 
 from .worldlink import WorldLink
 
 G = 9.80665
-#: how far past a tick's time the world sleeps (s): a tick a little late costs nothing (the
-#: world runs up to the simulation's time first), asking for the time again costs a round trip
-LATE_S = 0.0005
 #: the world link's integers back to SI (worldlink.py: the MPU-6050's LSB at +-2 g, +-250 deg/s)
 ACCEL_LSB, GYRO_LSB = 16384 / G, 131.0
 
@@ -52,11 +51,14 @@ def _stats_us(stats: str) -> int:
     return int(words[words.index("sim_us") + 1])
 
 
+log = logging.getLogger(__name__)
+
+
 class AvrWorld:
     """``link``'s world on the rig answering ``ctl`` (AvrBoard.ctl_lines: lines in, as many
     out, one round trip), for the board file's ``transducers`` (the rig numbers each kind's
-    parts in their order, the ``absent`` ones left out: deploy/avrsim.rig_parts); ``send``
-    (AvrBoard.ctl_send) puts a tick's readings in without waiting for the rig's answers."""
+    parts in their order, the ``absent`` ones left out: deploy/avrsim.rig_parts); ``post``
+    (AvrBoard.ctl_post) sends a tick's line, whose answer the board hands to :meth:`answer`."""
 
     def __init__(
         self,
@@ -64,11 +66,11 @@ class AvrWorld:
         ctl: Callable[[list[str]], list[str]],
         transducers: list[dict[str, Any]],
         absent: Collection[str] = (),
-        send: Callable[[list[str]], None] | None = None,
+        post: Callable[[str], None] | None = None,
     ) -> None:
         self.link = link
         self.ctl = ctl
-        self.send = send or ctl  # (the tick's lines: their answers not waited for)
+        self.post = post or (lambda line: None)
         here = [t for t in transducers if t["name"] not in absent]
         self.entry = {t["name"]: t for t in here}
         self.k: dict[str, int] = {}  # a part's number among the rig's parts of its kind
@@ -77,13 +79,13 @@ class AvrWorld:
                 self.k[t["name"]] = k
         self.wheels = min(sum(t["driver"] == d for t in here) for d in ("quadrature", "hbridge"))
         self.enc_of_pin = {a: self.k[name] for name, (a, _b) in link.pins.items()}
-        #: what is asked before each tick: the simulation's time, the drives, the stepper's
-        self.asks = ["stats", "motor"] + (["stepper"] if any(
-            fn == "stepper" for fn, _a in link.reads) else [])  # fmt: skip
+        #: what the rig says with each tick's time: the drives, the stepper's
+        stepper = any(fn == "stepper" for fn, _a in link.reads)
+        self.asks = "motor;stepper" if stepper else "motor"
         self.ticks = 0
         self.failed: str | None = None
+        self.rig_errors = 0  #: the rig's errors to the world's lines (the first one logged)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="world", daemon=True)
 
     # ---- the hand and the state (virtual/worldctl.py) ----
     def push(self, kind: str, args: dict[str, Any]) -> None:
@@ -94,33 +96,36 @@ class AvrWorld:
 
     def start(self) -> None:
         self.ctl([f"wheel {k} off" for k in range(self.wheels)])
-        self._thread.start()
+        self.post(f"tick {self.link.due_us()} {self.asks}|")  # (the first: due now)
 
     def stop(self) -> None:
         self._stop.set()
 
-    def _run(self) -> None:
+    def answer(self, line: str) -> None:
+        """The rig's ``tick SIM_US ASKS|FEEDS`` at a tick's time: the world ticked, the next
+        tick's line sent; never raises (it runs in the thread that reads the rig)."""
+        if self._stop.is_set() or self.failed is not None:
+            return
         try:
-            while not self._stop.is_set():
-                asked = time.monotonic()
-                got = self.ctl(self.asks)
-                now = _stats_us(got[0])
-                due = self.link.due_us()
-                if now < due:  # (paced: a simulated µs takes about a real one; a little
-                    # past it, not to ask twice)
-                    time.sleep(min(0.02, (due - now) / 1e6 + LATE_S))
-                    continue
-                self.tick(now, self._reads(got[1], got[2] if len(got) > 2 else "stepper 0 0"))
-                # the next tick is a tick away in the simulation: slept here, less this tick's
-                # own time, not found by asking the rig once more (a round trip a tick)
-                ahead = (self.link.due_us() - now) / 1e6 - (time.monotonic() - asked)
-                time.sleep(max(0.0, min(0.02, ahead + LATE_S)))
+            head, fed = line.split("|", 1)
+            _tick, now, asked = head.split(" ", 2)
+            self._said(fed)
+            motor, stepper = (asked + ";stepper 0 0").split(";")[:2]
+            feeds = self.tick(int(now), self._reads(motor, stepper))
+            self.post(f"tick {self.link.due_us()} {self.asks}|{';'.join(feeds)}")
         except Exception as e:  # noqa: BLE001 - the rig ended (power off, a crash): said once
             self.failed = f"{type(e).__name__}: {e}"
 
-    def tick(self, now: int, values: list[int]) -> None:
-        """The world's tick at ``now`` under the actuators' ``values`` (worldlink.py's reads),
-        what it says put into the rig's parts in one round trip."""
+    def _said(self, fed: str) -> None:
+        """The rig's answers to the last tick's feeds: an error counted, the first logged."""
+        errors = [a for a in fed.split(";") if a.startswith("error")]
+        if errors and not self.rig_errors:
+            log.warning("world: the rig refused a line: %s", errors[0][:200])
+        self.rig_errors += len(errors)
+
+    def tick(self, now: int, values: list[int]) -> list[str]:
+        """The world's tick at ``now`` under the actuators' ``values`` (worldlink.py's reads):
+        the lines that put what it says into the rig's parts."""
         calls, edges = self.link.tick(now, values)
         lines = [line for fn, args in calls for line in self._lines(fn, args)]
         steps: dict[int, int] = {}
@@ -128,9 +133,8 @@ class AvrWorld:
             k = self.enc_of_pin[a]
             steps[k] = steps.get(k, 0) + d
         lines += [f"enc {k} {n}" for k, n in sorted(steps.items()) if n]
-        if lines:
-            self.send(lines)
         self.ticks += 1
+        return lines
 
     def _reads(self, motor: str, stepper: str) -> list[int]:
         """The integers worldlink.py's reads ask for, from the rig's ``motor`` and ``stepper``

@@ -45,6 +45,11 @@
  *          firmware that changes it: avr-libc's eeprom_update_* writes only those): the EEPROM
  *          is saved as it is then and the rig stops at once, printing "CUT"
  *   quit: the power goes (the EEPROM saved)
+ *   tick T ASK;ASK...|FEED;FEED...: a world's tick (virtual/world_avr.py) in one line each
+ *          way: the FEED lines run now, the ASK lines when the simulated time reaches T µs (at
+ *          once if it has), and then it is answered "tick SIM_US A;A...|F;F..." (each line's
+ *          own answer, the FEEDs' too, so that an error is seen); one pending at a time (a new
+ *          one takes its place), so the rig, not a host's sleep, wakes the world at its tick
  * A line no part takes is answered "error unknown command: LINE". */
 #define _GNU_SOURCE
 #include <fcntl.h>
@@ -85,6 +90,63 @@ static uint64_t mono_ns(void) {
 static rig_command_t parts[16];
 static int n_parts;
 
+static void command(const char *cmd);
+
+/* ---- a world's tick (tick T ASKS|FEEDS) ---------------------------------------------------------- */
+static char tick_asks[512], tick_feeds[1024]; /* (the feeds' answers, kept for the answer) */
+static uint64_t tick_at;
+static int tick_pending;
+
+/* each of `cmds` (';' between) run, its answer line (less its newline) appended to `out` */
+static void run_each(char *cmds, char *out, size_t size) {
+    char *answer = NULL;
+    size_t len = 0, used = strlen(out);
+    FILE *real = stdout, *mem = open_memstream(&answer, &len);
+    if (!mem) return;
+    stdout = mem; /* (glibc: a part's printf goes to the answer) */
+    for (char *c = cmds, *next; c && *c; c = next) {
+        next = strchr(c, ';');
+        if (next) *next++ = 0;
+        command(c);
+    }
+    fclose(mem);
+    stdout = real;
+    for (size_t i = 0; i < len && used + 1 < size; i++)
+        out[used++] = answer[i] == '\n' ? (i + 1 < len ? ';' : 0) : answer[i];
+    out[used < size ? used : size - 1] = 0;
+    free(answer);
+}
+
+static void tick_command(const char *cmd) {
+    unsigned long long at;
+    int n = 0;
+    if (sscanf(cmd, "tick %llu %n", &at, &n) != 1 || !n) {
+        printf("error tick T ASK;...|FEED;...: %s\n", cmd);
+        return;
+    }
+    char line[1024];
+    strncpy(line, cmd + n, sizeof line - 1);
+    line[sizeof line - 1] = 0;
+    char *bar = strchr(line, '|');
+    if (bar) *bar++ = 0;
+    tick_feeds[0] = 0;
+    if (bar) run_each(bar, tick_feeds, sizeof tick_feeds);
+    strncpy(tick_asks, line, sizeof tick_asks - 1);
+    tick_at = at;
+    tick_pending = 1;
+}
+
+static void tick_answer(void) {
+    static char asks[1024];
+    if (!tick_pending || sim_us() < tick_at) return;
+    tick_pending = 0;
+    uint64_t now = sim_us();
+    asks[0] = 0;
+    run_each(tick_asks, asks, sizeof asks);
+    printf("tick %llu %s|%s\n", (unsigned long long)now, asks, tick_feeds);
+    fflush(stdout);
+}
+
 static int rig_command(const char *cmd) {
     unsigned v, rangings, msgs;
     uint32_t last;
@@ -106,6 +168,8 @@ static int rig_command(const char *cmd) {
     } else if (sscanf(cmd, "cut %u", &v) == 1 && v > 0) {
         eeprom_cut((int)v);
         printf("ok\n");
+    } else if (!strncmp(cmd, "tick ", 5)) {
+        tick_command(cmd); /* (answered at its time: tick_answer) */
     } else if (!strncmp(cmd, "quit", 4)) {
         power_off();
     } else {
@@ -118,11 +182,10 @@ static void command(const char *cmd) {
     int i = 0;
     while (i < n_parts && !parts[i](cmd)) i++;
     if (i == n_parts) printf("error unknown command: %s\n", cmd);
-    fflush(stdout);
 }
 
 static void poll_stdin(void) {
-    static char line[256];
+    static char line[1024];
     static size_t line_n;
     char buf[512]; /* (all that came at once: a byte a read was a system call a byte) */
     ssize_t r;
@@ -137,6 +200,7 @@ static void poll_stdin(void) {
             }
         }
     }
+    fflush(stdout); /* (the answers to all that came: one write) */
     if (r == 0) power_off(); /* stdin closed: the test is gone */
 }
 
@@ -289,6 +353,7 @@ int main(int argc, char **argv) {
         if ((n & 1023) == 0) {
             pace();
             poll_stdin();
+            tick_answer();
         }
     }
 }
