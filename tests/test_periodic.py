@@ -1,10 +1,12 @@
 """A Periodic (board/drivers) beside a driver that blocks the board's one loop, on a clock the test
 turns: a compass beside the rover's 10 Hz HC-SR04, whose echo wait held the MicroPython rover's
-loop 26 to 33 ms each ranging (measured in the simulator: the echo's timeout at ``max_range_cm``
-400).  A compass slot the ranging covers is measured late, the next one on its slot: the rate
-holds, the intervals alternate.  How the tests read a rate from the stamps
-(helpers.period_seen_us) must see 20 Hz there; the median interval did not (the update tests
-saw 33 ms for 20 Hz, once)."""
+loop 26 to 33 ms each ranging (measured in the simulator on a quiet machine: the echo's timeout
+at ``max_range_cm`` 400).  A compass slot the ranging covers is measured late, the next one on
+time: the rate holds, the intervals alternate, and a slot covered whole is skipped, never
+measured twice in a row (the loop's time was the one from before the ranging: a 50 Hz compass
+measured twice within 0 ms of each other, the MicroPython rover's IMU and compass within 1 to
+5 ms).  How the tests read a rate from the stamps (helpers.period_seen_us) must see 20 Hz there;
+the median interval did not (the update tests saw 33 ms for 20 Hz, once)."""
 
 from __future__ import annotations
 
@@ -61,3 +63,13 @@ def test_a_rate_beside_a_driver_that_blocks_the_loop_is_read_from_its_slots() ->
     assert statistics.median(gaps[:31]) == 23_000
     for start in range(len(stamps) - 31):  # every window of 31 samples the tests might see
         assert 45_000 < period_seen_us(stamps[start : start + 31]) <= 50_000
+
+
+def test_a_slot_the_blocking_covers_is_skipped_not_measured_twice() -> None:
+    """At 50 Hz the ranging (27 ms) covers a whole slot: lost, no burst after it."""
+    stamps = run(50, 10)
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
+    assert len(stamps) == 400  # one slot of five lost to each ranging
+    assert set(gaps) == {20_000, 40_000}  # (0 and 13 ms when it went by the loop's old time)
+    for start in range(len(stamps) - 31):
+        assert period_seen_us(stamps[start : start + 31]) == 24_000  # (2 rangings in 10)

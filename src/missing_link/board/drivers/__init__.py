@@ -58,8 +58,9 @@ class Driver:
 
 
 class Periodic(Driver):
-    # A driver that measures every period: poll(now) calls measure(now) when due.  A late poll
-    # skips the missed slots instead of bursting to catch up (a stale burst measures nothing).
+    # A driver that measures every period: poll(now) calls measure(now) when due, `now` read
+    # from the clock then.  A late poll skips the missed slots instead of bursting to catch up
+    # (a stale burst measures nothing).
     # Its rate is a run-time key (`rate_hz`, up to MAX_RATE_HZ); a new rate takes effect at
     # once: the next measurement is at most one new period after the last one.
     # Aligned (board/timing.py): the measurements fall on the host-time grid of the period, so
@@ -121,6 +122,10 @@ class Periodic(Driver):
             self._due = now
         if now < self._due:
             return
+        # The loop's time is from before the drivers polled ahead of this one, which may have
+        # held the loop (the HC-SR04 waits for its echo up to 33 ms): measure and reckon the
+        # next slot from the clock now, or a slot that went by meanwhile is measured at once.
+        now = self.clock()
         if self.aligned and self._free and self.timing is not None:
             self.timing.unaligned += 1  # measured now, but not on the grid: said
         grid = self._grid(now)
