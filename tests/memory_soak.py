@@ -106,7 +106,9 @@ class FastSim(FirmwareSim):
 
     def figure(self, what: str) -> Any:
         """{"sim": what}: "time" (simulated µs since the start), "held" (whether --lead-ms
-        holds the simulation for the host's bytes) or "gc" (the collections)."""
+        holds the simulation for the host's bytes) or "gc" (the collections: "log" [from, to,
+        kind] board µs, "us" what each took, and with a heap "heap" [bytes in use as it began,
+        bytes live after])."""
         return self._ask({"sim": what}, 30)
 
     def run(self, us: int, rx: list[int]) -> dict[str, Any]:

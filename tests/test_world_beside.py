@@ -1,9 +1,7 @@
 """The world beside the firmware, not in it (issue 47.6): the rover's MicroPython firmware in a
 Raspberry Pi Pico's heap, in simulated time and in lockstep with its host (memory_soak.py:
 host.mjs --heap --fast --lockstep), served the same way with its world beside it and with
-none, shows the same heap, the same collections (within one: they follow the firmware's
-allocation) and the same sample timing (outside collections; a collection moved is one more
-or less in a sample's period).
+none, holds the same live data, allocates the same, and keeps the same sample timing.
 
 The world runs in this process (world_mpy.py) and reaches the firmware's devices between its
 steps with small integers only; the simulated clock moves on by what the firmware's own work
@@ -11,7 +9,28 @@ costs (simcost.py), never by the world's.  The world puts the rover 1 m before a
 the simulator's parts put their target without a world (pin_devices.py, i2c_devices.py), so
 the firmware does the same work in both: what differs is only what its sensors read.  Same
 host, same commands, same simulated seconds: the figures are statements about the firmware, on
-a quiet machine or a busy one."""
+a quiet machine or a busy one.
+
+Which figures: the run is chaotic in where things land, so a figure held here is one that does
+not follow where they land.  A few allocations more or less (what the firmware makes of what
+it reads: a fix's digits) move a collection by a loop turn; a periodic driver whose slot went by
+while a collection and the sonar's echo wait held the loop skips it (board/drivers, Periodic),
+so which slots are skipped follows the collections; and where the firmware's own reading of its
+lowest free (board/memory.py, LOW: gc.mem_free() before its collection) falls follows them
+too.  Without any world, a heap 128 B larger is enough: 695 collections for 692, the compass's
+shortest period 1054 µs for 1656 (a sample the sonar made late, the next on its instant: the
+sonar's phase), the lowest free 43600 B for 62192.  That last is the start-up's: the host's
+handshake and configuration allocate some 60 KiB between 0.52 and 0.62 s; at a Pico's heap the
+allocator's own collection (gc.threshold reached) cuts that burst before the firmware's next
+LOW, which then comes from later turns (62 to 66 KiB free), while 128 B more moved the
+firmware's collections by a turn so that its LOW fell at the burst's end, before the
+allocator's threshold was reached (the simulator's heap, collection by collection).
+So the heap is held by what the collections see (the simulator's, fastclock.mjs "heap"): the
+bytes live after each, past start-up, and the bytes allocated over the run; the timing by each
+sensor's count, its periods that no collection overlaps, and for the aligned ones how late each
+sample is against its host-time instant.  A world that kept 14 KiB in the board's heap by the
+end, made 0.54 % more garbage there, or took 16 µs of the board's time at each step or 300 µs
+at each of its ticks fails here (throwaway probes: docs/performance.md)."""
 
 from __future__ import annotations
 
@@ -43,8 +62,13 @@ BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[
 PICO = FREE_HEAP["rp2040"].bytes
 SECONDS = 20
 NEAR_WALL = "[start]\nx_m = 3.88\n"  # (its rangers' front edge 1 m from the wall ahead)
-HEAP_SLACK = 1024  # B: a few allocations (measured: 16)
-JITTER_US = 100  # (measured: 7 at most; a sample is 20 ms apart at the most)
+#: board µs of start-up: the host's handshake and configuration (the allocator collects there)
+STARTUP_US = 1_000_000
+LIVE_SLACK = 1024  # B: a few objects (measured: the world's run 304 B more at most)
+ALLOCATED = 0.005  # of all the run allocated (measured: 0.16 % at most, 19 KB of 11.5 MB)
+JITTER_US = 100  # (measured: 56 at most; a sample is 20 ms apart at the most)
+LATE_US = 5  # (an aligned sample's lateness, median and tenth: measured the same to the µs)
+LATE_TAIL_US = 50  # (... its ninetieth: measured 13 µs apart at most)
 pytestmark = [pytest.mark.slow]
 
 
@@ -90,28 +114,42 @@ def test_the_world_was_there_and_the_firmware_read_it(both: dict[bool, Any]) -> 
     assert res.valid["imu"] > 0 and res.valid["sonar"] > 0
 
 
+def _heap(gc: dict[str, Any]) -> tuple[float, int, int]:
+    """The collections' heap (fastclock.mjs "heap"): the median and the most bytes live after
+    those past start-up, and the bytes allocated in the run (in use at each collection beyond
+    what the one before left live)."""
+    live = [h[1] for h, span in zip(gc["heap"], gc["log"], strict=True) if span[0] >= STARTUP_US]
+    allocated = sum(b[0] - a[1] for a, b in itertools.pairwise(gc["heap"]))
+    return statistics.median(live), max(live), allocated
+
+
 @pytest.mark.micropython
 def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without(
     both: dict[bool, Any],
 ) -> None:
-    """The same collections within one, each at the same cost within a few µs, the heap's
-    lowest within a few allocations (what the firmware makes of what it reads: a fix's digits, a
-    number's size) and the same simulated seconds: the world took no simulated time of the
-    board's.  Within one, not equal: the firmware collects on a period that follows its
-    allocation rate (board/memory.py), so a few allocations more or less move its collections by
-    a turn and can fit one more or one fewer into the run.  That is the firmware's behaviour,
-    not the world's: without any world, a heap 128 B larger (PICO + 128) gives 690 collections
-    for 691 (the simulator's clock is a function of the simulation: the same run every time)."""
+    """The same live data after the collections within a few objects, the same bytes allocated
+    within 0.5 %, each collection at the same cost within a few µs.  A world that held data in
+    the board's heap would show in the live data, one that made garbage there in what was
+    allocated.  Not held: the firmware's own lowest free (a2jMemory) and how many collections,
+    which follow where the collections land (the module's docstring): 62192 and 43600 B, 692
+    and 695 collections, without any world at a Pico's heap and 128 B more."""
     (without, gc0, _), (beside, gc1, _) = both[False], both[True]
-    m0, m1 = without.memory, beside.memory
-    assert abs(m1.gc_collections - m0.gc_collections) <= 1
-    assert gc1["collections"]["auto"] == gc0["collections"]["auto"]  # (the allocator's own)
-    assert abs(gc1["collections"]["req"] - gc0["collections"]["req"]) <= 1
-    assert m0.heap_free_low is not None and m1.heap_free_low is not None
-    assert abs(m1.heap_free_low - m0.heap_free_low) <= HEAP_SLACK, (m0, m1)
+    for m in (without.memory, beside.memory):
+        assert m.problem == "" and m.heap_free_low is not None and m.heap_free_low > 0, m
+    (median0, most0, alloc0), (median1, most1, alloc1) = _heap(gc0), _heap(gc1)
+    assert abs(median1 - median0) <= LIVE_SLACK and abs(most1 - most0) <= LIVE_SLACK
+    assert abs(alloc1 - alloc0) <= ALLOCATED * alloc0, (alloc0, alloc1)
     for figure in (min, statistics.median, max):  # (what each collection took, µs)
         assert abs(figure(gc1["us"]) - figure(gc0["us"])) <= 20
-    assert beside.board_us // 1000 == without.board_us // 1000
+    assert min(without.board_us, beside.board_us) >= SECONDS * 1_000_000
+
+
+def _lateness(stamps: list[int], period_us: int) -> tuple[int, int, int]:
+    """How late an aligned transducer's samples are against their instants (whole multiples of
+    its period in board µs: memory_soak.py's host map): the median, the tenth and ninetieth."""
+    late = sorted(t % period_us for t in stamps)
+    n = len(late)
+    return late[n // 2], late[n // 10], late[n * 9 // 10]
 
 
 @pytest.mark.micropython
@@ -119,26 +157,39 @@ def test_the_boards_heap_and_collections_are_the_same_with_its_world_and_without
 def test_each_sensors_sample_timing_is_the_same_with_its_world_and_without(
     both: dict[bool, Any], name: str
 ) -> None:
-    """Every sample in its place: as many, the same mean period, the shortest within JITTER_US
-    (each step's cost is its work's, and that work reads other numbers), and the periods that
-    no collection overlaps the same within JITTER_US at both ends: there a world that took the
-    board's time would show.  The longest of all periods within one collection of each other:
-    a collection (6.8 ms) lands in a sample's period or the next as the collections move (the
-    test above), the firmware's timing with a few allocations more or less, not the world's
-    (without any world, a heap 128 B larger moves the IMU's longest by 3.4 ms and its longest
-    outside collections by 15 µs).  The sonar, the ToF ranger and the GPS have no period
-    without a collection (one every ~30 ms)."""
+    """As many samples within 1 % (a slot that went by while a collection and the sonar held the
+    loop is skipped, as they land: the IMU's 993 to 998 of 1000 without any world at heaps from
+    a Pico's to 256 B more), the shortest and longest periods that no collection overlaps within
+    JITTER_US (where a world that took the board's time would show; the aligned ones' shortest
+    not: it follows the sonar's phase, 1054 or 1656 µs as above), and the longest of all within
+    one collection (6.8 ms: it lands in a period or the next).  An aligned sample's lateness
+    against its host-time instant is what aligned sampling promises: its median and tenth
+    within LATE_US, its ninetieth within LATE_TAIL_US.  The sonar, the ToF ranger and the GPS
+    have no period without a collection (one every ~30 ms)."""
     (without, gc0, _), (beside, gc1, _) = both[False], both[True]
     p0, p1 = _periods(without.stamps[name]), _periods(beside.stamps[name])
-    assert len(p1) == len(p0) >= SECONDS - 2  # (the GPS: once a second)
-    assert statistics.mean(p1) == pytest.approx(statistics.mean(p0), abs=JITTER_US / 10)
-    assert abs(min(p1) - min(p0)) <= JITTER_US
+    aligned = name in {"compass", "wheel_l"}
+    assert len(p0) >= SECONDS - 2  # (the GPS: once a second)
+    assert abs(len(p1) - len(p0)) <= max(1, len(p0) // 100)
+    if not aligned:
+        assert abs(min(p1) - min(p0)) <= JITTER_US
     assert abs(max(p1) - max(p0)) <= JITTER_US + max(gc0["us"] + gc1["us"])
     q0 = _between_collections(without.stamps[name], gc0["log"])
     q1 = _between_collections(beside.stamps[name], gc1["log"])
     assert bool(q0) == bool(q1) == (name in {"imu", "compass", "wheel_l"})
     if q0:
-        assert abs(max(q1) - max(q0)) <= JITTER_US and abs(min(q1) - min(q0)) <= JITTER_US
+        assert abs(max(q1) - max(q0)) <= JITTER_US
+        assert aligned or abs(min(q1) - min(q0)) <= JITTER_US
+    if aligned:
+        period = int(
+            1_000_000 / next(t for t in BOARD["transducers"] if t["name"] == name)["rate_hz"]
+        )
+        (med0, tenth0, tail0), (med1, tenth1, tail1) = (
+            _lateness(without.stamps[name], period),
+            _lateness(beside.stamps[name], period),
+        )
+        assert abs(med1 - med0) <= LATE_US and abs(tenth1 - tenth0) <= LATE_US
+        assert abs(tail1 - tail0) <= LATE_TAIL_US
 
 
 def _avr_memory(world: Path | None) -> MemoryStatus:

@@ -19,7 +19,8 @@
 // collection goes into `log` as [start, end] board µs: for a requested one, from where it was
 // asked for, as long as its charge and what it took beyond (that beyond falls after the step on
 // the board's clock: a few µs, as the live blocks change little from one collection to the
-// next); for the allocator's, from the step's end; with "req" or "auto".
+// next); for the allocator's, from the step's end; with "req" or "auto".  With --heap, `heap`
+// has each collection's [bytes in use as it began, bytes live after it] (simgc.py), as `log`.
 
 export const IDLE_US = 10000; // (the firmware's own longest wait: board/firmware.py run())
 const TICKS_MASK = 2 ** 30 - 1;
@@ -31,6 +32,7 @@ export class FastClock {
     this.log = []; // [start board µs, end board µs, "req" | "auto"]
     this.collections = { req: 0, auto: 0 };
     this.gcUs = []; // what each collection took (simulated µs), for the figures
+    this.heap = []; // [bytes in use, bytes live after] of each collection (--heap)
     this.due = -1; // µs from the last step to the drivers' next deadline (-1: none)
     this.steps = 0;
   }
@@ -45,9 +47,9 @@ export class FastClock {
   }
 
   // One step: run(nowWrapped, ns) -> its output, having reported its figures (mpyhost.py
-  // _step); settle() -> ns the collection it left took (mpyhost.py _settle).  Returns the
-  // output.
-  step(run, settle) {
+  // _step); settle() -> ns the collection it left took (mpyhost.py _settle); heap() -> that
+  // collection's [bytes in use, bytes live after] (--heap; null: none).  Returns the output.
+  step(run, settle, heap = null) {
     const start = this.nowNs;
     const rem = start % 1000;
     this.figures = null;
@@ -67,6 +69,7 @@ export class FastClock {
         this.nowNs += took;
         this._record(end, end + Math.ceil(took / 1000), "auto", took);
       }
+      if (heap && this.heap.length < LOG_MAX) this.heap.push(heap());
     }
     return out;
   }

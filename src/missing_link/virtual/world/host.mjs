@@ -245,14 +245,16 @@ if (fast) mp.runPython("import simjs\nfrom simworld import mpyhost\nmpyhost.repo
 if (fast && heapArg !== null) mp.runPython("import simworld.simgc\nsimworld.simgc.watch_heap()");
 mp.runPython(
   "from simworld.mpyhost import _open, _feed, _closed, _tick, _step, _settle, _due_us, _ctl, " +
-    "_ident",
+    "_ident, _heap_used, _heap_live",
 );
 const open = mp.globals.get("_open");
 const feed = mp.globals.get("_feed");
 const closed = mp.globals.get("_closed");
 const step = mp.globals.get("_step"); // (--fast: the connections' bytes go in with the step)
 const settle = mp.globals.get("_settle");
-const tick = fast ? () => fast.step((now, ns) => step(now, ns, feedSome()), settle) :
+const [used, live] = [mp.globals.get("_heap_used"), mp.globals.get("_heap_live")];
+const heapNow = heapArg === null ? null : () => [Number(used()), Number(live())];
+const tick = fast ? () => fast.step((now, ns) => step(now, ns, feedSome()), settle, heapNow) :
   mp.globals.get("_tick");
 const dueUs = mp.globals.get("_due_us");
 const ctl = mp.globals.get("_ctl");
@@ -415,8 +417,8 @@ function simCtl(what) {
   if (what === "time") return String(Math.floor(fast.now));
   if (what === "held") return String(Boolean(held()));
   if (what === "gc") {
-    const { log, collections, gcUs, steps } = fast;
-    return JSON.stringify({ collections, log, us: gcUs, steps });
+    const { log, collections, gcUs, steps, heap } = fast;
+    return JSON.stringify({ collections, log, us: gcUs, steps, heap });
   }
   throw new Error(`no such figure: ${what}`);
 }

@@ -26,8 +26,9 @@ collections it asked for (simgc.py), where, µs into the step, and what they wer
 the board clock at the step's start; whether the allocator collects as it returns (simgc.py,
 --heap); µs to the drivers' next deadline, -1 none): a call into node with small ints, which
 makes no garbage (a string of them made the firmware's heap pay ~40 bytes more a step).  After
-a step that collected, _settle() says what the collection took (ns).  The simulator's own
-reads of the board clock are free.
+a step that collected, _settle() says what the collection took (ns), and with --heap
+_heap_used() and _heap_live() the bytes in use as it began and live after it.  The simulator's
+own reads of the board clock are free.
 """
 
 from . import devices, machine, simcost, simgc, simtime
@@ -273,6 +274,16 @@ def _step(now, ns, inputs):
 def _settle():
     # after a step whose collection ran as it returned: what it took, ns (simgc.py)
     return simgc.settle()
+
+
+def _heap_used():
+    # ... then the bytes in use as it began (--heap: simgc.py)
+    return simgc.used()
+
+
+def _heap_live():
+    # ... and the bytes live after it
+    return simgc.live_bytes()
 
 
 def _due_us():

@@ -26,7 +26,11 @@ end of every step (end_step: a scan of the simulator's own, free): a collection 
 allocated since the last one have reached the threshold (a board's allocator collects at the
 allocation that reaches it; this port collects only when a step returns anyway; a board counts
 every allocation, freed or not, this what is still allocated: a little later), so the host
-knows every collection and what it took.
+knows every collection and what it took.  Each collection's heap is kept for the host too
+(used(), live_bytes(): small integers, nothing allocated): the bytes in use as it began, read
+at the step's end where it runs, and the bytes live after it.  Between them they say what the
+firmware allocated and what it holds, where its own gc.mem_free() readings say where in its
+allocation they fell (tests/test_world_beside.py).
 """
 
 import gc as _gc
@@ -45,6 +49,7 @@ requested = 0  # collections asked for in this step
 at = 0  # where the last one was asked for: simulated µs into the step
 charged = 0  # ns the step's request was charged (its estimate)
 live = 0  # blocks live after the last collection (watch)
+_used = 0  # bytes in use as the last collection began (watch: the step's end)
 _since = 0  # bytes allocated right after the last collection
 _threshold = -1  # the firmware's gc.threshold while watched (bytes; -1: none)
 
@@ -82,10 +87,16 @@ def begin_step():
 def end_step():
     # The step's end (watch): the allocator's collection if the firmware's threshold is reached
     # (-> 1).  The scan is the simulator's.
-    if requested or _threshold <= 0 or not _gc.isenabled():
+    global _used
+    if requested:
+        _used = _gc.mem_alloc()  # (the firmware's collection runs as the step returns)
         return 0
-    if _gc.mem_alloc() - _since < _threshold:
+    if _threshold <= 0 or not _gc.isenabled():
         return 0
+    used = _gc.mem_alloc()
+    if used - _since < _threshold:
+        return 0
+    _used = used
     _gc.collect()  # (runs when the step returns)
     return 1
 
@@ -96,6 +107,16 @@ def settle():
     _since = _gc.mem_alloc()
     live = max(0, _since - BASE) // simcost.BLOCK
     return simcost.collection_ns(live, heap_blocks)
+
+
+def used():
+    # bytes in use as the last collection began (watch): the live data and the garbage
+    return max(0, _used - BASE)
+
+
+def live_bytes():
+    # bytes live after the last collection (watch)
+    return max(0, _since - BASE)
 
 
 def collect():
