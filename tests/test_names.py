@@ -78,6 +78,9 @@ def test_a_running_daemon_says_its_typos(serve: Serve, caplog: pytest.LogCapture
         assert "dist_irr.rate_hz: no such key on thesis (did you mean 'dist_ir.rate_hz'?)" in (
             caplog.text
         )  # (the board's own keys: the session's check, said as it connects)
+        # (all six said before the count: one check logs its lines one by one, and 'ghost' is
+        # not its last; counted between two of them, the last looked like a round after)
+        assert wait_for(lambda: len(caplog.records) >= 6, 10), caplog.text
         n = len(caplog.records)
         assert not wait_for(lambda: len(caplog.records) > n, 0.3)  # (the rounds after: quiet)
     said = [r.getMessage() for r in caplog.records]
