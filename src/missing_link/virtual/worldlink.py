@@ -21,9 +21,18 @@ nothing moved, no edge, its events and pushes held), said in the log and counted
 state (``skips``, ``skipped_s``); integrating a minute's pause at once took 1.4 s of CPU and
 57,210 encoder edges on the rover, all delivered at once.
 
+A runtime may ask for the ticks of the next BATCH_US at once (:meth:`WorldLink.ahead`, node
+under MicroPython: each wake-up of the world's thread there costs more than the tick's sums):
+the tick at its time and those after it on time, each at the one before's end, under the same
+actuators.  It makes each happen at its time while the actuators read the same and it is less
+than a tick late, else asks again, saying how many it made; the world goes back to where they
+left it (its snapshot before the batch, random streams too, and those ticks again: the same
+sums), so what it answers is what tick() at those times gives, to the bit
+(tests/test_world_ahead.py).
+
 Pushes by hand (the control endpoint: virtual/worldctl.py) come from another thread: the world
-checks and queues them under a lock and applies them at its next tick, in the simulation's
-time.
+checks them under a lock and applies them at its next tick (under :meth:`ahead`, its next
+batch's first), in the simulation's time.
 """
 
 from __future__ import annotations
@@ -46,12 +55,19 @@ FEED_KINDS = {"hcsr04": 0, "srf02": 1, "vl53l0x": 2, "sharp_gp2y0a02": 3, "imu":
 Call = tuple[str, tuple[int, ...]]
 #: an encoder edge: (board µs, pin A, pin B, +1 | -1)
 Edge = tuple[int, int, int, int]
+#: a tick computed ahead: (its board µs, the feed calls then, the edges of its run)
+Tick = tuple[int, list[Call], list[Edge]]
+#: ahead()'s last: the world's and the link's state before it, its pushes, its first tick's
+#: time and actuation, its number of ticks
+Batch = tuple[tuple[Any, Any], list[tuple[str, dict[str, Any]]], tuple[int, "Actuation"], int]
 MODES = ("coast", "drive", "brake", "shoot-through")
 #: a reading's integers are below this in size: MicroPython's small integers on a 32-bit port
 SMALL_INT = 1 << 30
 #: the most of the board's time a late tick runs the world over at once (beyond any firmware
 #: step or a loaded host's stall; beyond it, the host stopped the board and the world stands)
 MAX_CATCHUP_US = 1_000_000
+#: the world's time :meth:`WorldLink.ahead` computes at once (its ticks on time)
+BATCH_US = 100_000
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +104,10 @@ class WorldLink:
         self.dropped = 0  #: readings not fed: not finite, or beyond a small integer
         self.skips = 0  #: the times the runtime came later than MAX_CATCHUP_US
         self.skipped_us = 0  #: ... and the board's time the world stood still for them
+        self.batch = max(1, BATCH_US // self.tick_us)  #: ticks an :meth:`ahead` computes
+        self._pushes: list[tuple[str, dict[str, Any]]] = []  # (checked, not yet in the world)
+        self._replaying = False
+        self._batch: Batch | None = None
 
     def attach(self) -> list[Call]:
         """worldfeed.attach's calls: each part's number, its transducer's in the board file,
@@ -101,13 +121,61 @@ class WorldLink:
     def tick(self, now_us: int, values: list[int]) -> tuple[list[Call], list[Edge]]:
         """The world at ``now_us`` under the actuators' ``values`` (as :attr:`reads` asked):
         the feed calls to make now, and the edges to deliver at their times."""
-        act = self._actuation(values)
-        edges: list[Edge] = []
         with self._lock:
-            self._skip(now_us - MAX_CATCHUP_US - self.world.t_us)
-            if now_us > self.world.t_us + self.tick_us:  # (late: the stretch up to now first)
-                edges += self._edges(self.world.step(now_us, act, read=False))
-            frame = self.world.step(now_us + self.tick_us, act)  # (a little late: from its time)
+            self._pushed()
+            return self._tick(now_us, self._actuation(values))
+
+    def ahead(self, now_us: int, used: int, values: list[int]) -> list[Tick]:
+        """:attr:`batch` ticks at once: the one at ``now_us`` and those after it on time (each at
+        the one before's end), all under ``values`` (the runtime checks that they hold at each
+        tick's time).  ``used``: how many of the last batch the runtime made happen; fewer than
+        all (the actuators changed, or it came a tick late), the world goes back to its state
+        at the first it did not (restore, then the used ones again, the same sums)."""
+        with self._lock:
+            if self._batch is not None and used < self._batch[3]:
+                self._back(used)
+            snap, pushes = (self.world.snapshot(), self._state()), self._pushes
+            self._pushed()
+            act = self._actuation(values)
+            ticks = [(now_us, *self._tick(now_us, act))]
+            while len(ticks) < self.batch:
+                ticks.append((self.next_us, *self._tick(self.next_us, act)))
+            self._batch = (snap, pushes, (now_us, act), len(ticks))
+            return ticks
+
+    def _back(self, used: int) -> None:
+        """The world and what it fed as after the first ``used`` ticks of the last batch."""
+        assert self._batch is not None
+        (world, link), pushes, (now_us, act), _ = self._batch
+        self.world.restore(world)
+        sent, off, self.dropped, self.skips, self.skipped_us, self.next_us = link
+        self._sent, self._off = dict(sent), set(off)
+        later, self._pushes = self._pushes, pushes
+        self._pushed()  # (the batch's own pushes, at its start; those since wait for the next)
+        self._pushes = later
+        self._replaying = True  # (a pause it stood still for was said the first time)
+        try:
+            for k in range(used):
+                self._tick(now_us if k == 0 else self.next_us, act)
+        finally:
+            self._replaying = False
+
+    def _state(self) -> tuple[dict[tuple[str, int], tuple[int, ...]], set[str], int, int, int, int]:
+        return (dict(self._sent), set(self._off), self.dropped, self.skips, self.skipped_us,
+                self.next_us)  # fmt: skip
+
+    def _pushed(self) -> None:
+        """The pushes by hand since the last tick into the world (at its time now)."""
+        for kind, args in self._pushes:
+            self.world.command(kind, args)
+        self._pushes = []
+
+    def _tick(self, now_us: int, act: Actuation) -> tuple[list[Call], list[Edge]]:
+        edges: list[Edge] = []
+        self._skip(now_us - MAX_CATCHUP_US - self.world.t_us)
+        if now_us > self.world.t_us + self.tick_us:  # (late: the stretch up to now first)
+            edges += self._edges(self.world.step(now_us, act, read=False))
+        frame = self.world.step(now_us + self.tick_us, act)  # (a little late: from its time)
         self.next_us = now_us + self.tick_us
         calls = [
             (fn, args) for fn, args in self._calls(frame) if self._sent.get((fn, args[0])) != args
@@ -123,14 +191,16 @@ class WorldLink:
         self.world.skip(us)
         self.skips += 1
         self.skipped_us += us
-        log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
-                    "paused?): the world ran the last %.3f s and stood still for the rest",
-                    (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
+        if not self._replaying:
+            log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
+                        "paused?): the world ran the last %.3f s and stood still for the "
+                        "rest", (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
 
     def push(self, kind: str, args: dict[str, Any]) -> None:
-        """A push by hand, checked now (WorldFileError: one line), applied at the next tick."""
+        """A push by hand, checked now (WorldFileError: one line), applied at the next tick (of
+        :meth:`ahead`: at the next batch's first)."""
         with self._lock:
-            self.world.command(kind, args)
+            self._pushes.append((kind, self.world.checked(kind, args)))
 
     def state(self) -> dict[str, Any]:
         with self._lock:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from . import motion, sensing
@@ -154,10 +154,37 @@ class World:
     def command(self, kind: str, args: dict[str, Any]) -> None:
         """A push by hand (``missing-link world URL KIND ...``), applied at the next step;
         WorldFileError when it cannot be done."""
+        self.queue.insert(0, Event(self.now_s(), kind, self.checked(kind, args)))
+
+    def checked(self, kind: str, args: dict[str, Any]) -> dict[str, Any]:
+        """A push's arguments, checked (WorldFileError: one line), not applied."""
         checked = hand(kind, args)
-        event = Event(self.now_s(), kind, checked)
-        self._check(event, f"world: {kind} ")
-        self.queue.insert(0, event)
+        self._check(Event(self.now_s(), kind, checked), f"world: {kind} ")
+        return checked
+
+    # ---- back to an earlier state (a runtime's ticks computed ahead: virtual/worldlink.py) ----
+    def snapshot(self) -> tuple[Any, ...]:
+        """What changes as the world runs (its random streams' states too), for restore()."""
+        return (self.t_us, self.start_us, replace(self.body), [replace(w) for w in self.wheels],
+                {n: r.getstate() for n, r in self.rng.items()},
+                {n: list(e.e) for n, e in self.gps_err.items()}, dict(self.casts),
+                dict(self.turned), self.charge, self.current, list(self.imposed),
+                dict(self.blocks), dict(self.fails), dict(self.slips), dict(self.held),
+                dict(self.last), list(self.queue))  # fmt: skip
+
+    def restore(self, snap: tuple[Any, ...]) -> None:
+        """The world as it was at ``snap`` (snapshot()'s; it may be restored again)."""
+        (self.t_us, self.start_us, body, wheels, rngs, gps, casts, turned, self.charge,
+         self.current, imposed, blocks, fails, slips, held, last, queue) = snap  # fmt: skip
+        self.body = replace(body)
+        self.wheels = (replace(wheels[0]), replace(wheels[1]))
+        for n, state in rngs.items():
+            self.rng[n].setstate(state)
+        for n, e in gps.items():
+            self.gps_err[n].e = list(e)
+        self.casts, self.turned, self.imposed = dict(casts), dict(turned), list(imposed)
+        self.blocks, self.fails, self.slips = dict(blocks), dict(fails), dict(slips)
+        self.held, self.last, self.queue = dict(held), dict(last), list(queue)
 
     def _check(self, e: Event, where: str) -> None:
         part = e.args.get("part")

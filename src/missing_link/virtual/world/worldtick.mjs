@@ -8,12 +8,17 @@
 // At the firmware's first step: "HELLO <now µs>" on REQ; the answer (one JSON line on RESP) numbers the world's parts
 // for worldfeed.attach and says which actuator reads it wants before each tick and how long a
 // tick is.  Before every firmware step (before(), at the simulation's `now`): when it has
-// reached the next tick, the
-// actuators are read (worldfeed: one small integer each), "T <now> <values...>" goes out and the
-// answer comes back at once (a blocking read: the simulation stands still meanwhile, so the
-// world's time is the simulation's, and the same simulation gives the same world); its feed
-// calls are made (small integers), its encoder edges queued with their times.  Then every
-// queued edge due by `now` is delivered, a run of one encoder's edges in one call
+// reached the next tick, the actuators are read (worldfeed: one small integer each).  The world
+// answers a batch of ticks at once (100 ms of them: worldlink.py's ahead), each with its time,
+// its feed calls and its encoders' edges, computed on the assumption that the actuators hold:
+// while they read as the batch took them and the step is less than a tick late, the batch's
+// next tick happens here at its time (its feed calls made, its edges queued), with no word to
+// the world.  Else, and when the batch is used up, "T <now> <used> <values...>" goes out
+// (`used`: how many of the last batch happened; the world goes back to there) and the answer
+// comes back at once (a blocking read: the simulation stands still meanwhile, so the world's
+// time is the simulation's, and the same simulation gives the same world); its first tick is
+// now's.  Asking once a batch, not once a tick: a wake-up of the world's thread costs far more
+// than its tick.  Then every queued edge due by `now` is delivered, a run of one encoder's edges in one call
 // (worldfeed.steps_at: each with its time, so the board's clock reads that time while the
 // interrupt handler runs, under simulated time).  The function proxies are taken before the
 // board's heap is capped (host.mjs), and every call carries small integers: nothing of the
@@ -82,7 +87,12 @@ export class WorldTick {
     this.buf = Buffer.alloc(0);
     this.chunk = Buffer.alloc(65536); // (one, read into each time: not 64 KiB of garbage a tick)
     this.ticks = 0;
+    this.asked = 0; // (the world's batches asked for)
     this.delivered = 0;
+    this.batch = []; // the world's ticks ahead: [t, calls, edges], this.used of them made
+    this.used = 0;
+    this.values = null; // the actuators' reads the batch was computed under
+    this.end = null; // the world's time after the batch
   }
 
   line() {
@@ -133,15 +143,28 @@ export class WorldTick {
     if (n) this.deliver(this.edges.splice(0, n));
   }
 
+  // A tick: the next of the world's batch when it is due, the actuators read as the batch
+  // took them and not a whole tick late; else the world's next batch from now (world_mpy.py),
+  // told how many of the last one happened
   tick(now) {
-    const values = this.reads.map(([fn, i]) => this.feed[fn](i));
-    const answer = this.ask(`T ${Math.floor(now)} ${values.join(" ")}`);
-    for (const [fn, ...args] of answer.calls) this.feed[fn](...args);
-    if (answer.edges.length) {
-      this.edges = this.edges.concat(answer.edges).sort((x, y) => x[0] - y[0]);
+    const values = this.reads.map(([fn, i]) => this.feed[fn](i)).join(" ");
+    const next = this.batch[this.used];
+    if (next && values === this.values && now < next[0] + this.tickUs) {
+      this.apply(next);
+    } else {
+      const answer = this.ask(`T ${Math.floor(now)} ${this.used} ${values}`);
+      [this.batch, this.values, this.used, this.end] = [answer.ticks, values, 0, answer.due];
+      this.apply(this.batch[0]);
+      this.asked += 1;
     }
-    this.due = answer.due;
+    this.due = this.used < this.batch.length ? this.batch[this.used][0] : this.end;
     this.ticks += 1;
+  }
+
+  apply([, calls, edges]) {
+    for (const [fn, ...args] of calls) this.feed[fn](...args);
+    if (edges.length) this.edges = this.edges.concat(edges).sort((x, y) => x[0] - y[0]);
+    this.used += 1;
   }
 
   deliver(due) {
