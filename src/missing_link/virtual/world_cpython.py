@@ -7,11 +7,13 @@ Theory of operation
 The firmware's link is handed to it wrapped (:class:`WorldAtTheLink`): at every turn of its loop
 (its read of the link comes first) the world is pumped, and its sleeps end no later than the
 world's next tick, so ticks come when due by the board's clock.  A tick reads the actuators
-through worldfeed.py, steps the world and makes the feed calls it hands back; the encoders'
-edges of the tick ahead wait in :attr:`CPythonWorld.pending` and each is delivered at the first
-turn after its time, with the board's clock held at the edge's own time while its interrupt
-handler runs (:class:`BoardClock`), as a board's handler runs when the edge comes.  Nothing
-here is the firmware's: it sees its pins, registers and clock.
+through worldfeed.py and makes the feed calls of the world's tick then: the world computes its
+ticks 100 ms at a time (worldlink.py's ahead and Ahead: a tick on its own ran cold, the
+firmware's loop between, several times its sums), asked again when the actuators change;
+the encoders' edges of the tick ahead wait in :attr:`CPythonWorld.pending` and each is
+delivered at the first turn after its time, with the board's clock held at the edge's own time
+while its interrupt handler runs (:class:`BoardClock`), as a board's handler runs when the
+edge comes.  Nothing here is the firmware's: it sees its pins, registers and clock.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import time
 from typing import Any
 
 from .world import worldfeed
-from .worldlink import Edge, WorldLink
+from .worldlink import Ahead, Edge, WorldLink
 
 
 class BoardClock:
@@ -40,6 +42,7 @@ class BoardClock:
 class CPythonWorld:
     def __init__(self, link: WorldLink, clock: BoardClock) -> None:
         self.link = link
+        self.ahead = Ahead(link)  # (the world's ticks 100 ms at a time: a tick costs it less)
         self.clock = clock
         self.pending: list[Edge] = []
         self.ticks = 0
@@ -49,9 +52,9 @@ class CPythonWorld:
 
     def pump(self) -> None:
         now = self.clock()
-        if now >= self.link.due_us():
+        if now >= self.ahead.due_us():
             values = [getattr(worldfeed, fn)(*args) for fn, args in self.link.reads]
-            calls, edges = self.link.tick(now, values)
+            _t, calls, edges = self.ahead.tick(now, values)
             for fn, args in calls:
                 getattr(worldfeed, fn)(*args)
             for e in edges:
@@ -69,7 +72,7 @@ class CPythonWorld:
             self.edges += n
 
     def until_due_us(self) -> int:
-        return max(0, self.link.due_us() - self.clock())
+        return max(0, self.ahead.due_us() - self.clock())
 
 
 class WorldAtTheLink:

@@ -281,3 +281,30 @@ def _small_ints(values: list[float]) -> tuple[int, ...] | None:
 def _here(items: Any, plugged: Collection[str]) -> list[Any]:
     """The (name, reading) of the parts plugged in."""
     return [(n, v) for n, v in items if n in plugged]
+
+
+class Ahead:
+    """A runtime's side of :meth:`WorldLink.ahead` (CPython's; node's is worldtick.mjs): the
+    batch's ticks made one by one at their times while the actuators hold."""
+
+    def __init__(self, link: WorldLink) -> None:
+        self.link = link
+        self.batch: list[Tick] = []
+        self.used = 0
+        self.values: list[int] | None = None
+        self.end = link.due_us()
+
+    def due_us(self) -> int:
+        return self.batch[self.used][0] if self.used < len(self.batch) else self.end
+
+    def tick(self, now_us: int, values: list[int]) -> Tick:
+        """The tick to make at ``now_us`` (at or after due_us()) under the actuators'
+        ``values``: the batch's next, or the first of a new one."""
+        if self.used < len(self.batch) and values == self.values:
+            tick = self.batch[self.used]
+            if now_us < tick[0] + self.link.tick_us:
+                self.used += 1
+                return tick
+        self.batch = self.link.ahead(now_us, self.used, values)
+        self.values, self.used, self.end = values, 1, self.link.due_us()
+        return self.batch[0]
