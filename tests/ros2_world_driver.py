@@ -10,8 +10,12 @@ Phases, each waiting for what it needs (never a fixed sleep), the commands sent 
 while a phase runs (as a controller publishes every cycle):
   rest      the IMU's acceleration, the forward ranger, the wheels' positions, the compass, a fix;
   straight  both motors at --drive until the wheels have rolled --distance m (--wheel-radius),
-            the wheels' velocities and the gyro's z in the drive's second half; stopped: the
-            ranger, the wheels, a fix again;
+            the wheels' velocities and the gyro's z while the drive is steady: where both motors'
+            own state (the duty each acts at, published stamped when it acted) has held --drive
+            for --settle s (a busy host's board makes its motors safe mid-drive and refuses a
+            timed command come past its instant, so one wheel may start again a command later
+            than the other: a wall-clock window is not steady); stopped: the ranger, the
+            wheels, a fix again;
   turn      left motor back, right forward (--turn) until the gyro's z integrates to --angle
             degrees; stopped: the gyro's integral over the whole turn and the compass's heading
             followed over it.
@@ -28,7 +32,7 @@ import time
 from typing import Any
 
 import rclpy
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Imu, JointState, MagneticField, NavSatFix, Range
 
 
@@ -41,7 +45,8 @@ class Driver:
         self.a = a
         self.node = rclpy.create_node("world_driver")
         b = a.board
-        self.got: dict[str, list[Any]] = {k: [] for k in ("imu", "wl", "wr", "range", "mag", "fix")}
+        keys = ("imu", "wl", "wr", "range", "mag", "fix", "ml", "mr")
+        self.got: dict[str, list[Any]] = {k: [] for k in keys}
         for key, cls, topic in (
             ("imu", Imu, f"/{b}/imu/imu"), ("wl", JointState, f"/{b}/wheel_l/joint_states"),
             ("wr", JointState, f"/{b}/wheel_r/joint_states"), ("range", Range, f"/{b}/sonar/range"),
@@ -49,6 +54,11 @@ class Driver:
         ):  # fmt: skip
             self.node.create_subscription(cls, topic, lambda m, k=key: self.got[k].append(m),
                                           qos_profile_sensor_data)  # fmt: skip
+        for key, side in (("ml", "l"), ("mr", "r")):
+            # (reliable: a motor's every change of duty is what the steady drive is found from)
+            self.node.create_subscription(JointState, f"/{b}/motor_{side}/joint_states",
+                                          lambda m, k=key: self.got[k].append(m),
+                                          QoSProfile(depth=100))  # fmt: skip
         self.joints = self.node.create_publisher(JointState, "/joint_commands", 10)
         self.cmd = (0.0, 0.0)
         self.next_cmd = 0.0
@@ -133,20 +143,43 @@ class Driver:
         t1 = self.now()
         self.cmd = (0.0, 0.0)
         self.spin_until(lambda: self.settled(t1 + 0.5), "the robot to stop")
-        half = (t0 + t1) / 2  # (the drive's second half: the motors' start long over)
-        pairs = self._velocity_pairs(half, t1)
-        gz = [m.angular_velocity.z for m in self.got["imu"] if half < stamp(m) <= t1]
-        return {"velocity_pairs": pairs, "gyro_z": gz, **self.snapshot(t1 + 0.5)}
+        spans = self.steady(t0, t1, self.a.drive)
+        pairs = self._velocity_pairs(spans)
+        gz = [m.angular_velocity.z for m in self.got["imu"] if within(spans, stamp(m))]
+        return {"velocity_pairs": pairs, "gyro_z": gz, "steady": spans,
+                **self.snapshot(t1 + 0.5)}  # fmt: skip
 
-    def _velocity_pairs(self, t0: float, t1: float) -> list[list[float]]:
+    def steady(self, t0: float, t1: float, duty: float) -> list[list[float]]:
+        """The spans of (t0, t1] where both motors have acted at ``duty`` for --settle s (each
+        motor's state, stamped when it acted: a command, or the board making it safe)."""
+        changes = sorted(
+            (stamp(m), k, m.effort[0] if len(m.effort) else math.nan)
+            for k in ("ml", "mr") for m in self.got[k]
+        )  # fmt: skip
+        duties = {"ml": math.nan, "mr": math.nan}
+        spans: list[list[float]] = []
+        since = None  # when both last came to ``duty``
+        for t, k, e in [*changes, (math.inf, "", math.nan)]:
+            done = spans[-1][1] if spans else t0  # (a span goes on past a repeated duty)
+            start = t1 if since is None else max(since + self.a.settle, done)
+            if min(t, t1) > start:
+                spans.append([start, min(t, t1)])
+            if k:
+                duties[k] = e
+            both = all(abs(d - duty) < 1e-3 for d in duties.values())
+            since = (since if since is not None else t) if both else None
+        return spans
+
+    def _velocity_pairs(self, spans: list[list[float]]) -> list[list[float]]:
         """(left, right, stamp) velocities of the two wheels' samples nearest in time (each is
-        stamped at its newest edge: within one period)."""
-        right = [(stamp(m), m.velocity[0]) for m in self.got["wr"] if t0 < stamp(m) <= t1]
+        stamped at its newest edge: within one period) in the steady spans."""
+        right = [(stamp(m), m.velocity[0]) for m in self.got["wr"] if within(spans, stamp(m))]
         pairs = []
         for m in self.got["wl"]:
             t = stamp(m)
             near = min(right, key=lambda r: abs(r[0] - t), default=None)
-            if t0 < t <= t1 and near and abs(near[0] - t) < 0.01 and not math.isnan(m.velocity[0]):
+            ok = within(spans, t) and not math.isnan(m.velocity[0])
+            if ok and near and abs(near[0] - t) < 0.01:
                 pairs.append([m.velocity[0], near[1], t])
         return [p for p in pairs if not math.isnan(p[1])]
 
@@ -170,6 +203,10 @@ class Driver:
                 **self.snapshot(t1 + 0.5)}  # fmt: skip
 
 
+def within(spans: list[list[float]], t: float) -> bool:
+    return any(a < t <= b for a, b in spans)
+
+
 def integral(imu: list[Any]) -> float:
     """The gyro's z integrated over the samples' stamps (trapezoids)."""
     out = 0.0
@@ -181,8 +218,8 @@ def integral(imu: list[Any]) -> float:
 def brief(m: Any) -> list[float]:
     if isinstance(m, Imu):
         return [m.angular_velocity.z, m.linear_acceleration.x]
-    if isinstance(m, JointState):
-        return [m.position[0], m.velocity[0]]
+    if isinstance(m, JointState):  # (a motor's: its duty as effort)
+        return [*m.position[:1], *m.velocity[:1], *m.effort[:1]]
     if isinstance(m, Range):
         return [m.range]
     if isinstance(m, MagneticField):
@@ -207,6 +244,8 @@ def main() -> None:
     ap.add_argument("--turn", type=float, default=0.4)
     ap.add_argument("--angle", type=float, default=90.0)
     ap.add_argument("--lead", type=float, default=0.4, help="s a command is stamped ahead")
+    # (the bridges' ramp, 0.15 s to 0.6 at 4/s, then five of the drive's 0.1 s time constants)
+    ap.add_argument("--settle", type=float, default=0.65, help="s from a duty to a steady drive")
     ap.add_argument("--dump", help="a JSON file for every IMU and compass sample")
     a = ap.parse_args()
     rclpy.init()
