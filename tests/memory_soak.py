@@ -272,7 +272,7 @@ def soak(
             host.run_until(due)
         res.board_us = now - start
         res.memory = parse_memory(board.call_ok("a2jMemory"))
-        res.align = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))
+        res.align = struct.unpack_from("<BIIII", board.call_ok("a2jAlignInfo"))
         res.debug = board.call_ok("a2jDebug").decode(errors="replace")
         return res
     finally:

@@ -66,7 +66,7 @@ def test_a_timed_command_never_runs_after_the_host_has_gone(
     else:
         assert inside(thesis, "(rt.timing.cancelled, rt.timing.done)") == (dropped, 0)
     debug = thesis.call("a2jDebug").payload.decode()  # (a host again; 64 bytes on AVR)
-    assert struct.unpack("<BIIII", thesis.call("a2jAlignInfo").payload)[3] == 0  # none done
+    assert struct.unpack_from("<BIIII", thesis.call("a2jAlignInfo").payload)[3] == 0  # none done
     why = "the host said goodbye" if goodbye else "no frame from the host for 500 ms"
     said = f"timing: {dropped} timed call{'s' * (dropped > 1)} dropped ({why});"
     if thesis.runtime == "cpython" or goodbye:

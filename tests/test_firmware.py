@@ -290,3 +290,51 @@ def test_aligned_sampling_and_a_timed_trigger_on_micropython() -> None:
     finally:
         board.close()
         sim.close()
+
+
+def test_aligned_reads_stay_on_time_beside_a_free_running_imu() -> None:
+    """The rig's MPU-6050 holds the board's one loop about 1.6 ms of a Pico's time a read
+    (simulated time, as above); at 97 Hz its reads drift through every phase of the aligned
+    ranger's 10 Hz grid.  A read under way at an instant made that ADC read late by what was
+    left of it: 5 of 199 over 2 ms, 25 over 1 ms (max 2.24 ms) in 20 board seconds.  Now an IMU
+    read waits for room before an instant (board/pacing.py): none over 1 ms, the reads put off
+    counted in a2jAlignInfo, none reaching an instant."""
+    sim = FirmwareSim(RIG, args=["--fast", "--lead-ms", "200"])
+    board = Board(open_transport(sim.url), timeout=5.0)
+    raw: list[int] = []  # the device's ticks_us of each ADC read
+    try:
+        board.handshake()
+        now = board.clock_exchange(5.0).t3
+        h0 = 1_795_000_000_000_000_000 + 3_456_789
+
+        def host(tick: int) -> int:
+            return h0 + (tick - now) * 1000
+
+        board.call_ok("a2jHostMap", struct.pack("<Qqi", now, h0, 0))
+        board_now, raw_now = sim.ctl("import time; result = (rt.clock(), time.ticks_us())")
+        board.configure({"imu.rate_hz": 97.0})
+        board.configure({"dist_ir.aligned": True, "dist_ir.rate_hz": 10, "dist_ir.phase": 0.25})
+        sim.ctl("WORLD.adc_log.clear()")
+        taken = start = board.clock_exchange(5.0).t3
+        while taken < start + 20_000_000:
+            t3 = board.clock_exchange(5.0).t3
+            # a map vouches for 10 s around its reference: the same line, a new one now
+            board.call_ok("a2jHostMap", struct.pack("<Qqi", t3, host(t3), 0))
+            if t3 - taken >= 2_000_000:  # (the device keeps its newest 2000 reads)
+                raw += sim.ctl("result = list(WORLD.adc_log); WORLD.adc_log.clear()")
+                taken = t3
+            time.sleep(0.05)
+        info = board.call_ok("a2jAlignInfo")
+    finally:
+        board.close()
+        sim.close()
+    reads = [board_now + (t - raw_now) % (1 << 30) for t in raw]  # (ticks_us wraps at 2^30)
+    firsts = [t for i, t in enumerate(reads) if i == 0 or t - reads[i - 1] > 5_000]
+    offs = []
+    for t in firsts[1:]:  # (the first was planned under the old plan)
+        off = (host(t) - 25_000_000) % 100_000_000
+        offs.append(min(off, 100_000_000 - off))
+    assert len(offs) >= 190
+    assert max(offs) <= 1_000_000, sorted(offs)[-5:]
+    deferred, overlaps = struct.unpack("<II", info[17:])
+    assert deferred > 0 and overlaps == 0

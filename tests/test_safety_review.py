@@ -77,7 +77,7 @@ def test_only_actuator_calls_and_goodbye_can_be_timed(thesis: RuntimeBoard) -> N
 
     moved_then_limp = thesis.run_until(lambda: any(seen) and seen[-1] == 0, 10_000_000, look)
     assert moved_then_limp, seen  # the timed command, then the timed goodbye
-    assert struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))[3] == 2  # both done
+    assert struct.unpack_from("<BIIII", board.call_ok("a2jAlignInfo"))[3] == 2  # both done
     if thesis.runtime != "avr":
         assert inside(thesis, "rt.failsafe.trips") == 1
     if thesis.runtime == "cpython":
@@ -97,7 +97,7 @@ def test_a_timed_call_refused_when_due_is_counted_and_said(thesis: RuntimeBoard)
     thesis.run(800_000, each=lambda: thesis.call("a2jEcho"))
     if thesis.runtime != "avr":
         assert inside(thesis, "rt.timing.pending()") == 0
-    done, refused = struct.unpack("<BIIII", board.call_ok("a2jAlignInfo"))[3:5]
+    done, refused = struct.unpack_from("<BIIII", board.call_ok("a2jAlignInfo"))[3:5]
     assert (done, refused) == (0, 1) and servo_us(thesis) == 0  # (before: done 1)
     if thesis.runtime == "cpython":
         assert driver(thesis, "servo").commands == 0

@@ -97,7 +97,7 @@ def test_timed_calls_and_their_refusals() -> None:
     stamp, value = struct.unpack("<QH", sifs[0].payload)
     assert (stamp, value) == (5_002_000, 12)
     code, info = call(rt, "a2jAlignInfo", b"")
-    assert struct.unpack("<BIIII", info) == (1, 2, 0, 1, 5)  # (valid, age ms, ..., refused)
+    assert struct.unpack("<BIIIIII", info) == (1, 2, 0, 1, 5, 0, 0)  # (valid, age, ..., pacing)
 
 
 def test_a_timed_call_acts_within_the_map_it_was_given_not_the_newer_one() -> None:

@@ -20,7 +20,8 @@
 # driver passes its own stamp (fn(channel, value, stamp_us): taken in an interrupt or computed
 # from the measurement, e.g. half an ultrasonic echo's flight after the ping).  A channel
 # that already holds an unsent value flushes the transducer's SIF first, so no value is lost.
-# Drivers that need CPU time implement poll(now_us) and next_due_us().
+# Drivers that need CPU time implement poll(now_us) and next_due_us(); a free-running one's
+# measurement waits for room before the instants the board must be on time for (pacing.py).
 #
 # The board's log (log.py, rt.log) queues its lines with the SIFs, as SIFs of their own (cmd
 # LOG_CMD, the same seq).  A driver is handed `driver.log` (its transducer's faults: said once,
@@ -35,6 +36,7 @@ from .builtins import ERR_INDEX, MANY_CHUNK, MANY_KIND, PLAIN_KIND, install
 from .clock import default_clock, new_epoch
 from .identity import runtime_hash
 from .log import BAD_REPLY, ECHOED, ERROR, LOG_CMD, RAISED_CALL, SOURCE_BOARD, BoardLog, SourceLog
+from .pacing import Pacing
 from .transducer import Transducer  # noqa: F401 - re-exported: boards import it from here
 from .wire import (
     EV_BREAK,
@@ -107,6 +109,7 @@ class BoardRuntime:
         self.config = None  # the run-time configuration (config.py), when the board has one
         self.timing = None  # acting on host time (timing.py), when the board has it
         self.failsafe = None  # actuators made safe when the host is gone (failsafe.py)
+        self.pacing = Pacing(self)  # the drivers' polls, kept off the instants (pacing.py)
         self.last_frame_us = 0  # when the host's last request (an intact frame) came: failsafe
         self.sifs_dropped = 0
         self.sifs_sent = 0
@@ -265,9 +268,7 @@ class BoardRuntime:
             self.failsafe.poll(now)  # first: a silent host's timed calls are dropped, not run
         if self.timing is not None:
             self.timing.poll(now)  # then timed calls: they are due at a tick
-        for t in self.transducers:
-            if t._poll is not None and t.enabled:
-                t._poll(now)
+        self.pacing.poll(now)  # the drivers: a free-running one off the instants (pacing.py)
         for t in self.transducers:
             if t._dirty:
                 self._queue_sif(t, now)
@@ -282,7 +283,7 @@ class BoardRuntime:
         due = None
         for tr in self.transducers:
             if tr._due is not None and tr.enabled:
-                t = tr._due()
+                t = self.pacing.due_us(tr.tid, tr._due())  # (one waiting: its instant)
                 if t is not None and (due is None or t < due):
                     due = t
         if self.parser.in_frame():

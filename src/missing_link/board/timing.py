@@ -36,7 +36,9 @@
 #   the firmware can keep its own pauses off it (a garbage collection: memory.py).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
-#                 [I timed calls refused, when asked or when due]: what the daemon shows.
+#                 [I timed calls refused, when asked or when due][I measurements deferred]
+#                 [I polls that reached an instant] (the last two: pacing.py; an AVR board
+#                 answers without them): what the daemon shows.
 #
 # Integer maths only (MicroPython's floats may be 32 bit; its ints are arbitrary precision).
 
@@ -190,9 +192,10 @@ class Timing:
         valid = self.map_valid(now)
         age = (now - self.rt.host_map[0]) // 1000 if self.rt.host_map is not None else 0xFFFFFFFF
         age = max(0, min(age, 0xFFFFFFFF))
-        return 0, struct.pack(
-            "<BIIII", 1 if valid else 0, age, self.unaligned & 0xFFFFFFFF, self.done, self.refused
-        )
+        pacing = self.rt.pacing
+        n = [v & 0xFFFFFFFF for v in (self.unaligned, self.done, self.refused, pacing.deferred,
+             pacing.overlaps)]  # fmt: skip
+        return 0, struct.pack("<BIIIIII", 1 if valid else 0, age, *n)
 
 
 def _first(item):

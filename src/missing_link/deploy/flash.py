@@ -44,7 +44,7 @@ BOARD_PKG = Path(drivers_pkg.__file__).resolve().parent.parent
 RUNTIME = (
     "__init__.py", "clock.py", "dtypes.py", "transducer.py", "runtime.py", "config.py", "store.py",
     "timing.py", "failsafe.py", "memory.py", "wire.py", "firmware.py", "link.py", "identity.py",
-    "dial.py", "log.py", "signing.py", "boot.py", "update.py", "builtins.py",
+    "dial.py", "log.py", "signing.py", "boot.py", "update.py", "builtins.py", "pacing.py",
 )  # fmt: skip
 #: where the runtime goes on the board: fw.hash is over the files under it (board/identity.py)
 LIB = "lib/mlboard/"

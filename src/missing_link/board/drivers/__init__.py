@@ -72,6 +72,8 @@ class Periodic(Driver):
     # run-time keys that are the driver's attribute of the same name, read and set as they are
     PLAIN = ()
     ALIGNABLE = True
+    # while not aligned, a measurement waits for room before the board's instants (pacing.py)
+    PACED = True
 
     def __init__(self, clock, rate_hz):
         if not rate_hz > 0:

@@ -62,16 +62,20 @@ def off_grid(host_ns: int, grid: tuple[int, int, int], bound_ns: int, slack_ns: 
 
 def parse_align_info(p: bytes) -> AlignInfo:
     """``a2jAlignInfo``'s reply: whether the board's map is valid and its age, its samples not
-    on the grid, its timed calls done and refused."""
-    if len(p) != 17:
-        return AlignInfo(problem=f"a reply of {len(p)} bytes, not 17")
-    valid, age, unaligned, done, refused = struct.unpack("<BIIII", p)
+    on the grid, its timed calls done and refused; a Python board's also its free-running
+    measurements put off for an instant and its polls that reached one (board/pacing.py)."""
+    if len(p) not in (17, 25):
+        return AlignInfo(problem=f"a reply of {len(p)} bytes, not 17 or 25")
+    valid, age, unaligned, done, refused = struct.unpack("<BIIII", p[:17])
+    deferred, overlaps = struct.unpack("<II", p[17:]) if len(p) == 25 else (None, None)
     return AlignInfo(
         map_valid=bool(valid),
         map_age_ms=None if age == 0xFFFFFFFF else age,
         unaligned_samples=unaligned,
         timed_done=done,
         timed_refused=refused,
+        polls_deferred=deferred,
+        poll_overlaps=overlaps,
     )
 
 

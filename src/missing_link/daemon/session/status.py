@@ -90,18 +90,26 @@ class AlignInfo(_Account):
     unaligned_samples: int = 0
     timed_done: int = 0
     timed_refused: int = 0
+    #: free-running measurements put off for an instant, polls that reached one (pacing.py;
+    #: None: a board that does not say, an AVR board)
+    polls_deferred: int | None = None
+    poll_overlaps: int | None = None
     problem: str = ""
 
     def figures(self) -> dict[str, Any]:
         if self.map_valid is None:
             return {}
-        return {
+        out: dict[str, Any] = {
             "map_valid": self.map_valid,
             "map_age_ms": self.map_age_ms,
             "unaligned_samples": self.unaligned_samples,
             "timed_done": self.timed_done,
             "timed_refused": self.timed_refused,
         }
+        if self.polls_deferred is not None:
+            out["polls_deferred"] = self.polls_deferred
+            out["poll_overlaps"] = self.poll_overlaps
+        return out
 
 
 @dataclass(frozen=True)

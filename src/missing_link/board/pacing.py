@@ -1,0 +1,127 @@
+# The drivers' polls (runtime.poll), the free-running measurements kept off the instants the
+# board must be on time for (docs/hardware.md, "One loop").
+#
+# Theory of operation
+# -------------------
+# The board has one loop, and a driver's poll holds it for as long as its measurement takes: an
+# MPU-6050's 14-byte I2C read 1.65 ms of a Pico's time at 100 kHz, an HC-SR04's ranging up to
+# 33 ms (its echo wait).  A free-running measurement that starts just before an aligned
+# measurement's instant or a timed call's tick makes that one late by what is left of it (the
+# thesis rig: aligned ADC reads up to 2.27 ms late behind its free-running 100 Hz IMU).  So the
+# rule the heap's work follows (memory.py) holds for a paced driver's measurement too: it runs
+# only when timing.next_instant(now) (_instant) is further away than the longest its poll took
+# lately plus MARGIN_US, else at a later turn.  Paced: a driver that says PACED (Periodic: a
+# measurement on a rate, which promises a rate and not an instant) and is not aligned now.  An
+# aligned one is what the room is kept for; an actuator's or an event driver's poll acts at its
+# own time.
+#
+# * A measurement put off waits out the instant it was put off for, no longer: once that one is
+#   served (the next instant is a later one, none is due now), it runs at the next turn, room
+#   or not.  A poll longer than any room the grid leaves (a 30 ms one beside a 10 ms grid) so
+#   runs right after an instant - as much room as there is - at most one instant late,
+#   and is never starved; it still reaches the next instant (counted in `overlaps`).
+# * A driver not yet timed (its first measurement) has no room known: it is put off to right
+#   after the next instant in the same way (none ahead, as at boot before any map: at once).
+# * A measurement put off is late, neither lost nor doubled: Periodic measures once when it runs
+#   and reckons its next slot from then (a slot the wait covered whole is skipped).
+# A poll's length is the board clock around it; `longest` (per transducer id) is the longest
+# lately, as the heap's pieces' longest so far, but losing a sixteenth a measurement (DECAY): a
+# part's start-up in its first measurement (the VL53L0X's calibration, 69 ms) must not keep its
+# reads waiting an instant out for ever.  While one waits, the loop sleeps until the instant
+# (due_us), not spinning on a due that went by.
+# Counted: `deferred`, measurements put off (once each, however many turns they wait);
+# `overlaps`, paced polls whose span reached the instant they were let through before (a planned
+# one never should: the margin was too thin; one that waited an instant out may).  The host
+# reads the two in a2jAlignInfo (timing.py).
+#
+# MicroPython subset only.
+
+#: beyond a poll's longest so far: a measurement's length moves little from one to the next (the
+#: bus, the part), and the turn after it must start before the instant (a turn's own work, ~0.3
+#: ms on a Pico); the heap's pieces keep the same margin (memory.py)
+MARGIN_US = 1000
+#: the longest poll lately, not since boot: it loses a sixteenth a measurement, so a start-up
+#: (the rover's VL53L0X calibrates in its first poll: 69 ms) is forgotten within tens of them
+#: while a part's usual length holds it up
+DECAY = 16
+
+
+class Pacing:
+    def __init__(self, runtime):
+        self.rt = runtime
+        self.deferred = 0
+        self.overlaps = 0
+        self.longest = {}  # transducer id -> its longest measuring poll so far (board µs)
+        self._waits = {}  # transducer id -> (the instant it waits out, its measurement's due)
+        self._at = None  # the next instant, as last looked for (_instant)
+        self._calls = -1  # ... with the runtime's calls then
+
+    def poll(self, now):
+        # Every enabled driver's poll, in the transducers' order; a paced one that is due only
+        # when there is room for it (or it has waited an instant out).
+        rt = self.rt
+        timing = rt.timing
+        instant = False  # (not looked for yet: once per turn, again after a measurement)
+        for t in rt.transducers:
+            poll = t._poll
+            if poll is None or not t.enabled:
+                continue
+            drv = t.driver
+            if timing is None or not getattr(drv, "PACED", False) or drv.aligned:
+                poll(now)
+                continue
+            due = t._due()
+            if due is not None and now < due:
+                poll(now)  # (not due: it only looks)
+                continue
+            t0 = rt.clock()
+            if instant is False:
+                instant = self._instant(timing, t0)
+            if instant is not None and not self._room(t.tid, instant, t0, due):
+                continue
+            poll(now)
+            t1 = rt.clock()
+            took = self.longest.get(t.tid, 0)
+            self.longest[t.tid] = max(t1 - t0, took - took // DECAY)
+            if instant is not None and t1 >= instant:
+                self.overlaps += 1
+            instant = False
+
+    def _instant(self, timing, now):
+        # timing.next_instant(now), kept while it is ahead and no request came (a new map, a
+        # rate, a timed call: rt.calls): its grid maths make big integers of host ns, garbage
+        # that, on every due poll, brought the allocator's own collections onto the rover's grid
+        if self._at is None or self._at <= now or self._calls != self.rt.calls:
+            self._at = timing.next_instant(now)
+            self._calls = self.rt.calls
+        return self._at
+
+    def due_us(self, tid, due):
+        # When the driver of transducer `tid` wants its poll (runtime.next_deadline_us): its
+        # own due, or, while it waits an instant out, that instant (the loop sleeps until
+        # then, not spinning on a due that has gone by).
+        waits = self._waits.get(tid)
+        if waits is None or waits[1] != due or (due is not None and due > waits[0]):
+            return due
+        return waits[0]
+
+    def _room(self, tid, instant, now, due):
+        # Whether the measurement due at `due` may run now, before `instant`; counts one put
+        # off.  A wait is the measurement's: one whose due moved meanwhile (a new rate, the
+        # driver off and on) is a new one, not one that has waited an instant out.
+        took = self.longest.get(tid)
+        waits = self._waits.get(tid)
+        if waits is not None and waits[1] != due:
+            waits = None
+        if took is not None and instant - now > took + MARGIN_US:
+            if tid in self._waits:
+                del self._waits[tid]
+            return True
+        if waits is None:
+            self._waits[tid] = (instant, due)
+            self.deferred += 1
+            return False
+        if instant <= waits[0] or instant <= now:
+            return False  # the instant it waits out (or another, due now) is not served yet
+        del self._waits[tid]
+        return True  # right after the instant it waited out: as much room as it will get
