@@ -19,6 +19,7 @@ rig ending on its own means the AVR stopped: serve_forever() raises :class:`Firm
 
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import select
@@ -33,6 +34,8 @@ from ..errors import MissingLinkError
 from .boardfile import listener
 from .listen import AcceptFailures
 from .process import hang_up, reap
+
+log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 30.0
 
@@ -87,8 +90,11 @@ class AvrBoard:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
             on_tick = self.on_tick
-            if on_tick is not None and line.startswith("tick "):
-                on_tick(line.rstrip("\n"))
+            if on_tick is not None and line.startswith(("tick ", "error tick ")):
+                try:  # (the world's answer to its own line: never one for ctl's queue)
+                    on_tick(line.rstrip("\n"))
+                except Exception:  # (this thread must go on reading the rig)
+                    log.exception("rig: the world's tick failed")
             else:
                 self.lines.put(line.rstrip("\n"))
         self.lines.put(None)

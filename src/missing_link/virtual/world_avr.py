@@ -92,7 +92,12 @@ class AvrWorld:
         self.link.push(kind, args)
 
     def state(self) -> dict[str, Any]:
-        return self.link.state()
+        state = self.link.state()
+        if self.rig_errors:
+            state["rig_errors"] = self.rig_errors
+        if self.failed is not None:  # (the world stopped: the board runs on its last readings)
+            state["stopped"] = self.failed
+        return state
 
     def start(self) -> None:
         self.ctl([f"wheel {k} off" for k in range(self.wheels)])
@@ -107,14 +112,19 @@ class AvrWorld:
         if self._stop.is_set() or self.failed is not None:
             return
         try:
+            if line.startswith("error "):  # (the rig refused the tick line itself)
+                raise ValueError(f"the rig refused the world's tick: {line[:200]!r}")
             head, fed = line.split("|", 1)
             _tick, now, asked = head.split(" ", 2)
             self._said(fed)
             motor, stepper = (asked + ";stepper 0 0").split(";")[:2]
             feeds = self.tick(int(now), self._reads(motor, stepper))
             self.post(f"tick {self.link.due_us()} {self.asks}|{';'.join(feeds)}")
-        except Exception as e:  # noqa: BLE001 - the rig ended (power off, a crash): said once
+        except Exception as e:  # noqa: BLE001 - (a rig that ended, a line it mangled): said once
             self.failed = f"{type(e).__name__}: {e}"
+            if not self._stop.is_set():
+                log.error("world: stopped after %d ticks (the board runs on its last readings): "
+                          "%s", self.ticks, self.failed)  # fmt: skip
 
     def _said(self, fed: str) -> None:
         """The rig's answers to the last tick's feeds: an error counted, the first logged."""

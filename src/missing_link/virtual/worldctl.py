@@ -7,11 +7,11 @@ Theory of operation
 One JSON object per line: a request ``{"verb": V, "args": {...}}`` (V: state, or a kind of
 event of the world file: push, turn, bump, place, tilt, block, fail, slip, with that event's
 keys), then the answer, then the connection closes.  The answer is ``{"state": {...}}`` (the
-world's state when it was asked; a push is applied at the world's next tick) or ``{"error":
-TEXT, "kind": "usage"}`` for a push the world refuses (an unknown part, a place in a wall: one
-line, as the world file's errors).  Bounded: at most MAX_CLIENTS at once, each on a thread of
-its own with REQUEST_S to send a request of at most MAX_REQUEST bytes; nothing a client sends
-can end the accepting thread.
+world's state when it was asked; a push is applied at the world's next batch of ticks) or
+``{"error": TEXT, "kind": "usage"}`` for a push the world refuses (an unknown part, a place in
+a wall: one line, as the world file's errors).  Bounded: at most MAX_CLIENTS at once, each on
+a thread of its own with REQUEST_S to send a request of at most MAX_REQUEST bytes; nothing a
+client sends can end the accepting thread.
 """
 
 from __future__ import annotations
