@@ -36,7 +36,7 @@
 #
 # MicroPython subset only.
 
-#: beyond a poll's longest so far: a measurement's length moves little from one to the next (the
+#: beyond a poll's longest lately: a measurement's length moves little from one to the next (the
 #: bus, the part), and the turn after it must start before the instant (a turn's own work, ~0.3
 #: ms on a Pico); the heap's pieces keep the same margin (memory.py)
 MARGIN_US = 1000
@@ -51,7 +51,7 @@ class Pacing:
         self.rt = runtime
         self.deferred = 0
         self.overlaps = 0
-        self.longest = {}  # transducer id -> its longest measuring poll so far (board µs)
+        self.longest = {}  # transducer id -> its longest measuring poll lately (board µs, DECAY)
         self._waits = {}  # transducer id -> (the instant it waits out, its measurement's due)
         self._at = None  # the next instant, as last looked for (_instant)
         self._calls = -1  # ... with the runtime's calls then
