@@ -57,9 +57,9 @@ Call = tuple[str, tuple[int, ...]]
 Edge = tuple[int, int, int, int]
 #: a tick computed ahead: (its board µs, the feed calls then, the edges of its run)
 Tick = tuple[int, list[Call], list[Edge]]
-#: ahead()'s last: the world's and the link's state before it, its pushes, its first tick's
-#: time and actuation, its number of ticks
-Batch = tuple[tuple[Any, Any], list[tuple[str, dict[str, Any]]], tuple[int, "Actuation"], int]
+#: ahead()'s last: the world's and the link's state before it (its pushes in), its first
+#: tick's time and actuation
+Batch = tuple[tuple[Any, Any], tuple[int, "Actuation"]]
 MODES = ("coast", "drive", "brake", "shoot-through")
 #: a reading's integers are below this in size: MicroPython's small integers on a 32-bit port
 SMALL_INT = 1 << 30
@@ -132,33 +132,35 @@ class WorldLink:
         all (the actuators changed, or it came a tick late), the world goes back to its state
         at the first it did not (restore, then the used ones again, the same sums)."""
         with self._lock:
-            if self._batch is not None and used < self._batch[3]:
+            if self._batch is not None and used < self.batch:
                 self._back(used)
-            snap, pushes = (self.world.snapshot(), self._state()), self._pushes
-            self._pushed()
+            self._pushed()  # (before the snapshot: a going back keeps the batch's own pushes)
+            snap = (self.world.snapshot(), self._state())
             act = self._actuation(values)
-            ticks = [(now_us, *self._tick(now_us, act))]
-            while len(ticks) < self.batch:
-                ticks.append((self.next_us, *self._tick(self.next_us, act)))
-            self._batch = (snap, pushes, (now_us, act), len(ticks))
-            return ticks
+            self._batch = (snap, (now_us, act))
+            return self._run(now_us, act, self.batch)
+
+    def _run(self, now_us: int, act: Actuation, n: int) -> list[Tick]:
+        """``n`` ticks under ``act``: the one at ``now_us``, each next at the one before's end."""
+        ticks = [(now_us, *self._tick(now_us, act))]
+        while len(ticks) < n:
+            ticks.append((self.next_us, *self._tick(self.next_us, act)))
+        return ticks
 
     def _back(self, used: int) -> None:
-        """The world and what it fed as after the first ``used`` ticks of the last batch."""
+        """The world and what it fed as after the first ``used`` ticks of the last batch (the
+        pushes since wait for the next batch)."""
         assert self._batch is not None
-        (world, link), pushes, (now_us, act), _ = self._batch
+        (world, link), (now_us, act) = self._batch
         self.world.restore(world)
         sent, off, self.dropped, self.skips, self.skipped_us, self.next_us = link
         self._sent, self._off = dict(sent), set(off)
-        later, self._pushes = self._pushes, pushes
-        self._pushed()  # (the batch's own pushes, at its start; those since wait for the next)
-        self._pushes = later
-        self._replaying = True  # (a pause it stood still for was said the first time)
-        try:
-            for k in range(used):
-                self._tick(now_us if k == 0 else self.next_us, act)
-        finally:
-            self._replaying = False
+        if used:
+            self._replaying = True  # (a pause it stood still for was said the first time)
+            try:
+                self._run(now_us, act, used)
+            finally:
+                self._replaying = False
 
     def _state(self) -> tuple[dict[tuple[str, int], tuple[int, ...]], set[str], int, int, int, int]:
         return (dict(self._sent), set(self._off), self.dropped, self.skips, self.skipped_us,

@@ -87,7 +87,6 @@ export class WorldTick {
     this.buf = Buffer.alloc(0);
     this.chunk = Buffer.alloc(65536); // (one, read into each time: not 64 KiB of garbage a tick)
     this.ticks = 0;
-    this.asked = 0; // (the world's batches asked for)
     this.delivered = 0;
     this.batch = []; // the world's ticks ahead: [t, calls, edges], this.used of them made
     this.used = 0;
@@ -155,7 +154,6 @@ export class WorldTick {
       const answer = this.ask(`T ${Math.floor(now)} ${this.used} ${values}`);
       [this.batch, this.values, this.used, this.end] = [answer.ticks, values, 0, answer.due];
       this.apply(this.batch[0]);
-      this.asked += 1;
     }
     this.due = this.used < this.batch.length ? this.batch[this.used][0] : this.end;
     this.ticks += 1;

@@ -138,9 +138,10 @@ static void tick_command(const char *cmd) {
 
 static void tick_answer(void) {
     static char asks[1024];
-    if (!tick_pending || sim_us() < tick_at) return;
-    tick_pending = 0;
+    if (!tick_pending) return;
     uint64_t now = sim_us();
+    if (now < tick_at) return;
+    tick_pending = 0;
     asks[0] = 0;
     run_each(tick_asks, asks, sizeof asks);
     printf("tick %llu %s|%s\n", (unsigned long long)now, asks, tick_feeds);
