@@ -10,14 +10,19 @@ import math
 Vec = tuple[float, float, float]
 Point = tuple[float, float]
 Segment = tuple[Point, Point]
+Matrix = tuple[Vec, Vec, Vec]
 
 
-def rotation(roll: float, pitch: float, yaw: float) -> tuple[Vec, Vec, Vec]:
+def rotation(roll: float, pitch: float, yaw: float) -> Matrix:
     """The matrix (rows) that turns a vector from the rotated frame into the frame it is rotated
     in: R = Rz(yaw) Ry(pitch) Rx(roll)."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
+    return rotation_of(cr, sr, cp, sp, math.cos(yaw), math.sin(yaw))
+
+
+def rotation_of(cr: float, sr: float, cp: float, sp: float, cy: float, sy: float) -> Matrix:
+    """rotation()'s matrix from the cosines and sines of its roll, pitch and yaw."""
     return (
         (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
         (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
@@ -66,38 +71,49 @@ def wrap(angle: float) -> float:
     return a - math.pi
 
 
-def ray_hit(origin: Point, direction: float, wall: Segment) -> float | None:
-    """How far along the ray from ``origin`` at angle ``direction`` (rad, from +x) it meets the
-    segment, or None when it does not."""
-    (x1, y1), (x2, y2) = wall
-    dx, dy = math.cos(direction), math.sin(direction)
-    ex, ey = x2 - x1, y2 - y1
-    den = dx * ey - dy * ex
-    if abs(den) < 1e-12:  # parallel (a ray along a wall does not see it)
-        return None
-    ox, oy = x1 - origin[0], y1 - origin[1]
-    t = (ox * ey - oy * ex) / den
-    u = (ox * dy - oy * dx) / den
-    if t < 0 or u < 0 or u > 1:
-        return None
-    return t
+#: a wall as the world's sums take it, worked out once: (x1, y1, x2 - x1, y2 - y1, its length
+#: squared), so a ray or a body against it does no more than the sums of its own position
+Wall = tuple[float, float, float, float, float]
 
 
-def nearest(origin: Point, direction: float, walls: list[Segment]) -> float | None:
-    """The nearest wall along a ray, or None (ray_hit's sums, the ray's direction once)."""
-    dx, dy = math.cos(direction), math.sin(direction)
-    best: float | None = None
+def prepare(walls: list[Segment]) -> tuple[Wall, ...]:
+    out = []
     for (x1, y1), (x2, y2) in walls:
         ex, ey = x2 - x1, y2 - y1
-        den = dx * ey - dy * ex
-        if abs(den) < 1e-12:
-            continue
-        ox, oy = x1 - origin[0], y1 - origin[1]
-        t = (ox * ey - oy * ex) / den
-        u = (ox * dy - oy * dx) / den
-        if t >= 0 and 0 <= u <= 1 and (best is None or t < best):
-            best = t
+        out.append((x1, y1, ex, ey, ex * ex + ey * ey))
+    return tuple(out)
+
+
+def nearest(x: float, y: float, directions: list[float], walls: tuple[Wall, ...]) -> float | None:
+    """How far the nearest wall is along any of the rays from (x, y) at ``directions`` (rad,
+    from +x), or None when none meets one (a ray along a wall does not see it)."""
+    best: float | None = None
+    offsets = [(x1 - x, y1 - y, ex, ey) for x1, y1, ex, ey, _ in walls]
+    for direction in directions:
+        dx, dy = math.cos(direction), math.sin(direction)
+        for ox, oy, ex, ey in offsets:
+            den = dx * ey - dy * ex
+            if abs(den) < 1e-12:
+                continue
+            t = (ox * ey - oy * ex) / den
+            if t >= 0 and (best is None or t < best) and 0 <= (ox * dy - oy * dx) / den <= 1:
+                best = t
     return best
+
+
+def clear(x: float, y: float, radius: float, walls: tuple[Wall, ...]) -> bool:
+    """Whether a disc of ``radius`` at (x, y) touches no wall (clear_of's sums)."""
+    for x1, y1, ex, ey, length2 in walls:
+        if length2 == 0:
+            d = math.hypot(x - x1, y - y1)
+        else:
+            u = ((x - x1) * ex + (y - y1) * ey) / length2
+            u = u if u < 1.0 else 1.0  # (max(0, min(1, u)), as distance_to_segment)
+            u = u if u > 0.0 else 0.0
+            d = math.hypot(x - x1 - u * ex, y - y1 - u * ey)
+        if not d >= radius:
+            return False
+    return True
 
 
 def distance_to_segment(p: Point, wall: Segment) -> float:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .geometry import Segment, clear_of
+from .geometry import Wall, clear
 
 BRAKE_FACTOR = 0.1  #: a braking motor's time constant, of the drive's
 COAST_FACTOR = 3.0  #: a coasting one's
@@ -116,7 +116,7 @@ def step(
     rolled: tuple[float, float],
     geometry: DriveGeometry,
     imposed: tuple[float, float, float, float, float],
-    walls: list[Segment],
+    walls: tuple[Wall, ...],
     radius: float,
 ) -> None:
     """Move ``body`` over ``dt`` s: ``rolled`` the angles (rad) the left and right wheels turned
@@ -128,8 +128,8 @@ def step(
     heading = body.yaw + dyaw_drive / 2  # (the arc's mean heading)
     nx = body.x + ds * math.cos(heading) + dx_i
     ny = body.y + ds * math.sin(heading) + dy_i
-    moved = (nx, ny) != (body.x, body.y)
-    if moved and not clear_of((nx, ny), radius, walls):
+    moved = nx != body.x or ny != body.y
+    if moved and not clear(nx, ny, radius, walls):
         if not body.against_wall:
             body.bumps += 1
         body.against_wall = True

@@ -29,15 +29,17 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from . import motion, sensing
-from .geometry import Segment, Vec, clear_of
+from .geometry import Segment, Vec, clear_of, prepare
 from .motion import Body, DriveGeometry, Imposed, Wheel
 from .robot import Robot, build, counts_per_rev
-from .sensing import Beam, GpsError, GpsReading, ImuReading
+from .sensing import GpsError, GpsReading, ImuReading
 from .spec import Event, WorldSpec
 from .worldfile import WorldFileError, hand
 
 SUBSTEP_US = 5000
 SENSORS = ("ranger", "imu", "compass", "gps", "battery", "encoder")
+COAST = (0.0, "coast")  #: a motor the board does not drive
+STILL = (0.0, 0.0, 0.0, 0.0, 0.0)  #: nothing imposed from outside
 
 
 @dataclass
@@ -80,6 +82,7 @@ class World:
         self.t_us = start_us
         self.start_us = start_us
         self.walls: list[Segment] = list(spec.walls)
+        self.wall_sums = prepare(self.walls)
         self.body = Body()
         self.body.place(*spec.start)
         if not clear_of((self.body.x, self.body.y), spec.body_radius_m, self.walls):
@@ -102,10 +105,16 @@ class World:
         self.rng = {n: random.Random(f"{self.seed}/{n}") for n in self.robot.parts}
         self.gps_err = {p.name: GpsError(p, self.rng[p.name], spec.noise)
                         for p in self.robot.of_kind("gps")}  # fmt: skip
-        self.beams = {p.name: Beam.of(p) for p in self.robot.of_kind("ranger")}
-        self.imu_fixed = {p.name: sensing.imu_fixed(p) for p in self.robot.of_kind("imu")}
-        self.compass_fixed = {p.name: sensing.compass_fixed(p, spec.noise)
-                              for p in self.robot.of_kind("compass")}  # fmt: skip
+        self.sensors = sensing.readers(self.robot.parts.values(), spec, self.rng)
+        bat = spec.battery  # (a motor's current and the charge's sums: their constants once)
+        self.amp_hours_s = 3600 * bat.capacity_ah
+        self.stall_extra_a = bat.stall_a - bat.free_a
+        # each wheel's (motor, encoder, mirrored motor, encoder's counts a radian, its sign)
+        r = self.robot
+        self.sides = tuple((m, e or "", m in self.mirrored, self.per_rad.get(e) if e else None,
+                            -1 if e in self.mirrored else 1)
+                           for m, e in ((r.left_motor, r.left_encoder),
+                                        (r.right_motor, r.right_encoder)))  # fmt: skip
         # ranger -> ((x, y, yaw, turned), its cast): a pose the body still has is not cast again
         self.casts: dict[str, tuple[tuple[float, float, float, float], float | None]] = {}
         self.turned = {p.name: 0.0 for p in self.robot.parts.values()
@@ -214,6 +223,13 @@ class World:
         now = self.now_s()
         while self.queue and self.queue[0].at_s <= now:
             self._apply(self.queue.pop(0), now)
+        if self.blocks or self.fails or self.slips:  # (mostly none: not looked through)
+            self._over(now)
+        if self.imposed:
+            self.imposed = [m for m in self.imposed if not m.over_at(now)]
+
+    def _over(self, now: float) -> None:
+        """The blocks, failures and slips that are over by ``now`` gone."""
         for name, (_, until) in list(self.blocks.items()):
             if until is not None and now >= until:
                 del self.blocks[name]
@@ -225,7 +241,6 @@ class World:
             if until is not None and now >= until:
                 del self.slips[wheel]
                 self.wheels[wheel].slip = 0.0
-        self.imposed = [m for m in self.imposed if not m.over_at(now)]
 
     def _apply(self, e: Event, now: float) -> None:
         a, b = e.args, self.body
@@ -257,37 +272,29 @@ class World:
 
     # ---- the sensors at the step's start ----
     def _read(self, t0: int, until: int) -> Frame:
-        b, noisy, site = self.body, self.spec.noise, self.spec.site
+        b, noisy, held, last = self.body, self.spec.noise, self.held, self.last
         ranges: dict[str, float | None] = {}
         imus: dict[str, ImuReading] = {}
         fields: dict[str, Vec] = {}
         fixes: dict[str, GpsReading] = {}
         volts: dict[str, float] = {}
         att = sensing.attitude(b)  # (the IMU's and the compass's: once)
-        for p in self.robot.parts.values():
-            rng = self.rng[p.name]
-            if p.kind == "ranger":
-                beam = self.beams[p.name]
-                got: Any = sensing.reading(beam, self._cast(p, beam), rng, noisy)
-                if p.name in self.blocks:
-                    got = self.blocks[p.name][0]
-                ranges[p.name] = got = self.held.get(p.name, got)
-            elif p.kind == "imu":
-                got = sensing.imu(p, b, rng, noisy, self.imu_fixed[p.name], att)
-                imus[p.name] = got = self.held.get(p.name, got)
-            elif p.kind == "compass":
-                fixed = self.compass_fixed[p.name]
-                got = sensing.compass(p, b, site.field_ut, rng, noisy, fixed, att)
-                fields[p.name] = got = self.held.get(p.name, got)
-            elif p.kind == "gps":
-                site_deg = (site.latitude_deg, site.longitude_deg, site.altitude_m)
-                got = sensing.gps(p, b, site_deg, self.gps_err[p.name], noisy)
-                fixes[p.name] = got = self.held.get(p.name, got)
-            elif p.kind == "battery":
-                volts[p.name] = got = self.held.get(p.name, self.pack_volts())
+        for p, kind, rng, fixed in self.sensors:
+            name = p.name
+            if kind == "ranger":
+                got: Any = sensing.reading(fixed, self._cast(p, fixed), rng, noisy)
+                if name in self.blocks:
+                    got = self.blocks[name][0]
+                ranges[name] = got = held.get(name, got)
+            elif kind == "imu":
+                imus[name] = got = held.get(name, sensing.imu(fixed, b, rng, noisy, att))
+            elif kind == "compass":
+                fields[name] = got = held.get(name, sensing.compass(fixed, rng, att))
+            elif kind == "gps":
+                fixes[name] = got = held.get(name, sensing.gps(fixed, b, self.gps_err[name]))
             else:
-                continue
-            self.last[p.name] = got
+                volts[name] = got = held.get(name, self.pack_volts())
+            last[name] = got
         failed = {n: m for n, (m, _) in self.fails.items() if m == "silent"}
         edges: dict[str, list[tuple[int, int]]] = {e: [] for e in self.per_rad}
         return Frame(t0, until, edges, ranges, imus, fields, fixes, volts, failed)
@@ -301,7 +308,7 @@ class World:
         kept = self.casts.get(p.name)
         if kept is not None and kept[0] == pose:
             return kept[1]
-        best = sensing.cast(p, beam, b, pose[3], self.walls)
+        best = sensing.cast(p, beam, b, pose[3], self.wall_sums)
         self.casts[p.name] = (pose, best)
         return best
 
@@ -316,28 +323,27 @@ class World:
     # ---- the world moves on ----
     def _substep(self, t: int, dt_us: int, act: Actuation, edges: dict[str, Any]) -> None:
         dt = dt_us / 1e6
-        r, g = self.robot, self.geometry
-        sides = ((r.left_motor, r.left_encoder), (r.right_motor, r.right_encoder))
+        g, motors = self.geometry, act.motors
         rolled = [0.0, 0.0]
         current = self.spec.battery.idle_a
-        for i, (m, enc) in enumerate(sides):
-            duty, mode = act.motors.get(m, (0.0, "coast")) if m else (0.0, "coast")
-            duty = -duty if m in self.mirrored else duty
+        for i, (m, enc, flip, per_rad, back) in enumerate(self.sides):
+            duty, mode = motors.get(m, COAST) if m else COAST
+            duty = -duty if flip else duty
             wheel = self.wheels[i]
             before = wheel.angle
             turned = wheel.turn(dt, duty, mode, g.speed_per_duty, g.tau) if m else 0.0
             rolled[i] = turned * (1 - wheel.slip)
             current += self._motor_current(duty, wheel.speed)
-            if enc and enc in self.per_rad:
-                back = -1 if enc in self.mirrored else 1
-                for frac, d in motion.crossings(before, wheel.angle, self.per_rad[enc]):
+            if per_rad is not None:
+                for frac, d in motion.crossings(before, wheel.angle, per_rad):
                     edges[enc].append((t + max(1, round(frac * dt_us)), d * back))
-        imposed = self._imposed(t, dt_us) if self.imposed else (0.0, 0.0, 0.0, 0.0, 0.0)
-        motion.step(self.body, dt, (rolled[0], rolled[1]), g, imposed, self.walls,
+        imposed = self._imposed(t, dt_us) if self.imposed else STILL
+        motion.step(self.body, dt, (rolled[0], rolled[1]), g, imposed, self.wall_sums,
                     self.spec.body_radius_m)  # fmt: skip
         self.current = current
-        self.charge = max(0.0, self.charge - current * dt / (3600 * self.spec.battery.capacity_ah))
-        self._turn_parts(dt, act)
+        self.charge = max(0.0, self.charge - current * dt / self.amp_hours_s)
+        if self.turning:
+            self._turn_parts(dt, act)
 
     def _imposed(self, t: int, dt_us: int) -> tuple[float, float, float, float, float]:
         """What the motions imposed from outside move the body by in the substep at ``t``."""
@@ -352,10 +358,9 @@ class World:
         current as far as the wheel is slower than the duty would turn it unloaded."""
         if duty == 0:
             return 0.0
-        bat = self.spec.battery
         free = duty * self.geometry.speed_per_duty
         load = min(1.0, max(0.0, 1 - speed / free))
-        return abs(duty) * (bat.free_a + (bat.stall_a - bat.free_a) * load)
+        return abs(duty) * (self.spec.battery.free_a + self.stall_extra_a * load)
 
     def _turn_parts(self, dt: float, act: Actuation) -> None:
         for name, (servo, zero, per_unit, speed) in self.turning.items():
