@@ -334,8 +334,7 @@ class BoardFileBoard:
             if listen in ("pty", "pty://") and not dial:
                 pty = PtyLink(self.power)
                 self.link, self.url = pty, pty.url
-            else:
-                clock = machine.ticks_us
+            else:  # (the firmware's clock stays the BoardClock: an edge's handler reads its time)
 
                 def clock_ms() -> int:
                     ms: int = clock() // 1000

@@ -5,15 +5,22 @@ worldfeed.py in this process.
 Theory of operation
 -------------------
 The firmware's link is handed to it wrapped (:class:`WorldAtTheLink`): at every turn of its loop
-(its read of the link comes first) the world is pumped, and its sleeps end no later than the
-world's next tick, so ticks come when due by the board's clock.  A tick reads the actuators
-through worldfeed.py and makes the feed calls of the world's tick then: the world computes its
-ticks 100 ms at a time (worldlink.py's ahead and Ahead: a tick on its own ran cold, the
-firmware's loop between, several times its sums), asked again when the actuators change;
-the encoders' edges of the tick ahead wait in :attr:`CPythonWorld.pending` and each is
-delivered at the first turn after its time, with the board's clock held at the edge's own time
-while its interrupt handler runs (:class:`BoardClock`), as a board's handler runs when the
-edge comes.  Nothing here is the firmware's: it sees its pins, registers and clock.
+(its read of the link comes first) the world is pumped: every tick whose time has come is made,
+each at its own time, and every encoder edge due by now is delivered, all in time order.  The
+firmware's sleeps are its own (its deadlines, the link's input): the world does not wake it.
+It need not: only the firmware changes the actuators (worldfeed.py reads a PWM's duty, a pin's
+level, a stepper's steps, all set by the firmware's code), so while it sleeps they hold and the
+world's ticks of that time are the ones computed for them; and what the firmware sees of the
+world it sees when it runs, at a read of a sensor (the latest tick at or before it, made by the
+pump before) or in an edge's interrupt handler.  A tick reads the actuators through worldfeed.py
+and makes the feed calls of the world's tick then: the world computes its ticks up to 100 ms at
+a time (worldlink.py's ahead and Ahead: a tick on its own ran cold, the firmware's loop between,
+several times its sums), asked again when the actuators change.  The encoders' edges wait in
+:attr:`CPythonWorld.pending` and each is delivered with the board's clock held at the edge's
+own time while its interrupt handler runs (:class:`BoardClock`), before any tick after it: a
+handler sees the time and the pins it would on a board whose CPU its edge woke, and the
+firmware's loop, at its next turn, every edge due by then.  Nothing here is the firmware's: it
+sees its pins, registers and clock.
 """
 
 from __future__ import annotations
@@ -42,17 +49,22 @@ class BoardClock:
 class CPythonWorld:
     def __init__(self, link: WorldLink, clock: BoardClock) -> None:
         self.link = link
-        self.ahead = Ahead(link)  # (the world's ticks 100 ms at a time: a tick costs it less)
+        self.ahead = Ahead(link)  # (the world's ticks up to 100 ms at a time: cheaper a tick)
         self.clock = clock
         self.pending: list[Edge] = []
+        self.pumps = 0  #: the firmware's turns (a pump each)
         self.ticks = 0
         self.edges = 0
         for fn, args in link.attach():
             getattr(worldfeed, fn)(*args)
 
     def pump(self) -> None:
+        """Every tick due by now made and every edge due by now delivered, in time order (an
+        edge at a tick's time after it)."""
         now = self.clock()
-        if now >= self.ahead.due_us():
+        self.pumps += 1
+        while (due := self.ahead.due_us()) <= now:
+            self._deliver(due - 1)  # (a handler may change an actuator: the tick reads it)
             values = [getattr(worldfeed, fn)(*args) for fn, args in self.link.reads]
             _t, calls, edges = self.ahead.tick(now, values)
             for fn, args in calls:
@@ -60,7 +72,11 @@ class CPythonWorld:
             for e in edges:
                 bisect.insort(self.pending, e)
             self.ticks += 1
-        n = bisect.bisect_right(self.pending, (now, 1 << 62))
+        self._deliver(now)
+
+    def _deliver(self, until: int) -> None:
+        """The edges due by ``until``, each with the board's clock held at its time."""
+        n = bisect.bisect_right(self.pending, (until, 1 << 62))
         if n:
             due, self.pending = self.pending[:n], self.pending[n:]
             try:
@@ -71,13 +87,10 @@ class CPythonWorld:
                 self.clock.held = None
             self.edges += n
 
-    def until_due_us(self) -> int:
-        return max(0, self.ahead.due_us() - self.clock())
-
 
 class WorldAtTheLink:
-    """The firmware's link, with the world pumped at each read and no sleep past its next tick;
-    everything else is the link's."""
+    """The firmware's link, with the world pumped at each read; everything else is the
+    link's (its waits too: the world does not cut them)."""
 
     def __init__(self, link: Any, world: CPythonWorld) -> None:
         self._link = link
@@ -86,9 +99,6 @@ class WorldAtTheLink:
     def read(self) -> Any:
         self._world.pump()
         return self._link.read()
-
-    def wait(self, us: int) -> None:
-        self._link.wait(min(us, self._world.until_due_us()))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._link, name)

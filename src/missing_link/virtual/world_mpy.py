@@ -9,14 +9,13 @@ through as the same descriptors); a thread of its own (``world``) answers node's
 JSON line each: ``HELLO <now>`` (the simulation's µs at the firmware's start: the world's
 clock starts there) with the parts numbered for worldfeed.attach, the actuator reads wanted
 before each tick and the tick's length; ``T <now> <used> <values...>`` with a batch of ticks
-(worldlink.py's ahead: the one at ``now`` and those of the next 100 ms on time, each its time,
-feed calls and encoders' edges), ``used`` saying how many of the last batch node made happen
-(the rest were not: the actuators changed, or node came a whole tick late; the world goes
-back).  Node blocks on the answer, so the world steps in the simulation's time, in lockstep
-with it; it asks once a batch, not once a tick: a wake-up of this thread costs some 250 µs of
-CPU more than its tick's sums (its code and data cold), most of what the world cost under
-MicroPython.  A world that raises answers
-``{"error": ...}`` once and node stops the board with it (as a firmware that crashed).
+(worldlink.py's ahead: the one at ``now`` and those of up to the next 100 ms on time, each its
+time, feed calls and encoders' edges), ``used`` saying how many of the last batch node made
+happen (the rest were not: the actuators changed; the world goes back).  Node blocks on the
+answer, so the world steps in the simulation's time, in lockstep with it; it asks once a batch,
+not once a tick: a wake-up of this thread costs some 250 µs of CPU more than its tick's sums
+(its code and data cold), most of what the world cost under MicroPython.  A world that raises
+answers ``{"error": ...}`` once and node stops the board with it (as a firmware that crashed).
 Pushes by hand (worldctl.py) reach the world link from their own threads, as on CPython.
 """
 
@@ -30,7 +29,7 @@ from typing import Any, BinaryIO
 from ..errors import MissingLinkError
 from ..world.spec import WorldSpec
 from ..world.world import World
-from .worldlink import WorldLink
+from .worldlink import MAX_CATCHUP_US, WorldLink
 
 
 class NodeWorld:
@@ -107,7 +106,7 @@ class NodeWorld:
         self.ready.set()
         return {"attach": [list(args) for _fn, args in self.link.attach()],
                 "reads": [[fn, *args] for fn, args in self.link.reads],
-                "tick_us": self.link.tick_us}  # fmt: skip
+                "tick_us": self.link.tick_us, "catchup_us": MAX_CATCHUP_US}  # fmt: skip
 
 
 class WorldNotThere(MissingLinkError):

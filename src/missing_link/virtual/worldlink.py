@@ -22,13 +22,21 @@ state (``skips``, ``skipped_s``); integrating a minute's pause at once took 1.4 
 57,210 encoder edges on the rover, all delivered at once.
 
 A runtime may ask for the ticks of the next BATCH_US at once (:meth:`WorldLink.ahead`, node
-under MicroPython: each wake-up of the world's thread there costs more than the tick's sums):
-the tick at its time and those after it on time, each at the one before's end, under the same
-actuators.  It makes each happen at its time while the actuators read the same and it is less
-than a tick late, else asks again, saying how many it made; the world goes back to where they
-left it (its snapshot before the batch, random streams too, and those ticks again: the same
-sums), so what it answers is what tick() at those times gives, to the bit
-(tests/test_world_ahead.py).
+under MicroPython and CPython: a wake-up of the world, its code and data cold, costs more than a
+tick's sums): the tick at its time, made at once, and those after it on time, each at the one
+before's end, under the same actuators.  It makes each happen at its time while the actuators
+read the same, and asks again when they change or the batch is used up, saying how many it
+made; the world goes back to where they left it (its snapshot after the batch's first tick,
+random streams too, and those ticks again: the same sums), so what it answers is what tick() at
+those times gives, to the bit (tests/test_world_ahead.py).  A runtime that comes a tick late
+or more under the same actuators makes the batch's ticks due by then at once, each at its own
+time (a tick runs from its own time: a late visit under the actuators it was computed for is
+the same tick), and one that used a batch up under them asks for the next on time, from the
+batch's end (within MAX_CATCHUP_US): a late runtime no longer throws a batch away.  The batch's
+length follows how long the actuators hold: after a batch cut short at its k-th tick the next
+is k ticks long (one when they change at every tick: nothing computed in vain, no snapshot),
+and after two used whole it doubles, up to BATCH_US (a snapshot costs more than a tick); a
+batch grown so and cut doubles the wait before the next growth (up to MOST_PATIENCE batches).
 
 Pushes by hand (the control endpoint: virtual/worldctl.py) come from another thread: the world
 checks them under a lock and applies them at its next tick (under :meth:`ahead`, its next
@@ -57,17 +65,21 @@ Call = tuple[str, tuple[int, ...]]
 Edge = tuple[int, int, int, int]
 #: a tick computed ahead: (its board µs, the feed calls then, the edges of its run)
 Tick = tuple[int, list[Call], list[Edge]]
-#: ahead()'s last: the world's and the link's state before it (its pushes in), its first
-#: tick's time and actuation
-Batch = tuple[tuple[Any, Any], tuple[int, "Actuation"]]
+#: ahead()'s last: the world's and the link's state after its first tick (None: one tick
+#: long), its actuation and its length
+Batch = tuple[tuple[Any, Any] | None, "Actuation", int]
 MODES = ("coast", "drive", "brake", "shoot-through")
 #: a reading's integers are below this in size: MicroPython's small integers on a 32-bit port
 SMALL_INT = 1 << 30
 #: the most of the board's time a late tick runs the world over at once (beyond any firmware
 #: step or a loaded host's stall; beyond it, the host stopped the board and the world stands)
 MAX_CATCHUP_US = 1_000_000
-#: the world's time :meth:`WorldLink.ahead` computes at once (its ticks on time)
+#: the most of the world's time :meth:`WorldLink.ahead` computes at once (its ticks on time)
 BATCH_US = 100_000
+#: batches used whole in a row before the next is twice as long (at first: see _adapt)
+GROW_AFTER = 2
+#: ... and the most it waits for (twice as many each time a batch it grew was cut short)
+MOST_PATIENCE = 32
 
 log = logging.getLogger(__name__)
 
@@ -104,9 +116,14 @@ class WorldLink:
         self.dropped = 0  #: readings not fed: not finite, or beyond a small integer
         self.skips = 0  #: the times the runtime came later than MAX_CATCHUP_US
         self.skipped_us = 0  #: ... and the board's time the world stood still for them
-        self.batch = max(1, BATCH_US // self.tick_us)  #: ticks an :meth:`ahead` computes
+        self.most = max(1, BATCH_US // self.tick_us)  #: the longest batch, in ticks
+        self.batch = self.most  #: ticks the next :meth:`ahead` computes (it adapts)
+        self.batches = 0  #: :meth:`ahead`'s answers
+        self.rewound = 0  #: ... and the times it went back over the last, cut short
+        self._whole = 0  # (batches used whole in a row)
+        self._patience = GROW_AFTER  # (... before the next grows)
+        self._grown = False  # (the last batch was one grown)
         self._pushes: list[tuple[str, dict[str, Any]]] = []  # (checked, not yet in the world)
-        self._replaying = False
         self._batch: Batch | None = None
 
     def attach(self) -> list[Call]:
@@ -126,41 +143,63 @@ class WorldLink:
             return self._tick(now_us, self._actuation(values))
 
     def ahead(self, now_us: int, used: int, values: list[int]) -> list[Tick]:
-        """:attr:`batch` ticks at once: the one at ``now_us`` and those after it on time (each at
-        the one before's end), all under ``values`` (the runtime checks that they hold at each
-        tick's time).  ``used``: how many of the last batch the runtime made happen; fewer than
-        all (the actuators changed, or it came a tick late), the world goes back to its state
-        at the first it did not (restore, then the used ones again, the same sums)."""
+        """:attr:`batch` ticks at once: the one at ``now_us`` (the runtime makes it at once) and
+        those after it on time (each at the one before's end), all under ``values`` (the
+        runtime checks that they hold at each tick's time).  ``used``: how many of the last
+        batch the runtime made happen (its first at least); fewer than all (the actuators
+        changed), the world goes back to its state at the first it did not (restore, then the
+        used ones again, the same sums), and the next batch is as long as that one was used."""
         with self._lock:
-            if self._batch is not None and used < self.batch:
-                self._back(used)
-            self._pushed()  # (before the snapshot: a going back keeps the batch's own pushes)
-            snap = (self.world.snapshot(), self._state())
+            if self._batch is not None:
+                self._adapt(used)
+            self._pushed()
             act = self._actuation(values)
-            self._batch = (snap, (now_us, act))
-            return self._run(now_us, act, self.batch)
+            first = (now_us, *self._tick(now_us, act))
+            snap = (self.world.snapshot(), self._state()) if self.batch > 1 else None
+            self._batch = (snap, act, self.batch)
+            self.batches += 1
+            return [first, *self._run(self.next_us, act, self.batch - 1)]
+
+    def _adapt(self, used: int) -> None:
+        """The last batch cut after ``used`` ticks: the world back there, the next as long;
+        used whole: the next twice as long after :attr:`_patience` of them, a patience that
+        doubles each time a batch grown so was cut (actuators that change at every tick)."""
+        assert self._batch is not None
+        if not 1 <= used <= self._batch[2]:
+            raise ValueError(f"used {used} of a batch of {self._batch[2]} (its first at least)")
+        if used < self._batch[2]:
+            self._back(used)
+            self.rewound += 1
+            if self._grown:
+                self._patience = min(MOST_PATIENCE, 2 * self._patience)
+            self.batch, self._whole, self._grown = used, 0, False
+            return
+        if self._grown:
+            self._patience = GROW_AFTER
+        self._whole, self._grown = self._whole + 1, False
+        if self._whole >= self._patience and self.batch < self.most:
+            self.batch, self._whole, self._grown = min(self.most, 2 * self.batch), 0, True
 
     def _run(self, now_us: int, act: Actuation, n: int) -> list[Tick]:
-        """``n`` ticks under ``act``: the one at ``now_us``, each next at the one before's end."""
-        ticks = [(now_us, *self._tick(now_us, act))]
+        """``n`` ticks under ``act``: the first at ``now_us``, each next at the one before's
+        end."""
+        ticks: list[Tick] = []
         while len(ticks) < n:
-            ticks.append((self.next_us, *self._tick(self.next_us, act)))
+            ticks.append((now_us, *self._tick(now_us, act)))
+            now_us = self.next_us
         return ticks
 
     def _back(self, used: int) -> None:
         """The world and what it fed as after the first ``used`` ticks of the last batch (the
         pushes since wait for the next batch)."""
         assert self._batch is not None
-        (world, link), (now_us, act) = self._batch
+        snap, act, _n = self._batch
+        assert snap is not None  # (a batch one tick long is used whole)
+        world, link = snap
         self.world.restore(world)
         sent, off, self.dropped, self.skips, self.skipped_us, self.next_us = link
         self._sent, self._off = dict(sent), set(off)
-        if used:
-            self._replaying = True  # (a pause it stood still for was said the first time)
-            try:
-                self._run(now_us, act, used)
-            finally:
-                self._replaying = False
+        self._run(self.next_us, act, used - 1)  # (on time: no pause to stand still for)
 
     def _state(self) -> tuple[dict[tuple[str, int], tuple[int, ...]], set[str], int, int, int, int]:
         return (dict(self._sent), set(self._off), self.dropped, self.skips, self.skipped_us,
@@ -193,10 +232,9 @@ class WorldLink:
         self.world.skip(us)
         self.skips += 1
         self.skipped_us += us
-        if not self._replaying:
-            log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
-                        "paused?): the world ran the last %.3f s and stood still for the "
-                        "rest", (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
+        log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
+                    "paused?): the world ran the last %.3f s and stood still for the rest",
+                    (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
 
     def push(self, kind: str, args: dict[str, Any]) -> None:
         """A push by hand, checked now (WorldFileError: one line), applied at the next tick (of
@@ -207,7 +245,8 @@ class WorldLink:
     def state(self) -> dict[str, Any]:
         with self._lock:
             return {**self.world.state(), "readings_dropped": self.dropped,
-                    "skips": self.skips, "skipped_s": self.skipped_us / 1e6}  # fmt: skip
+                    "skips": self.skips, "skipped_s": self.skipped_us / 1e6,
+                    "batches": self.batches, "rewound": self.rewound}  # fmt: skip
 
     # ---- integers to and from the simulator ----
     def _actuation(self, values: list[int]) -> Actuation:
@@ -300,13 +339,17 @@ class Ahead:
         return self.batch[self.used][0] if self.used < len(self.batch) else self.end
 
     def tick(self, now_us: int, values: list[int]) -> Tick:
-        """The tick to make at ``now_us`` (at or after due_us()) under the actuators'
-        ``values``: the batch's next, or the first of a new one."""
-        if self.used < len(self.batch) and values == self.values:
-            tick = self.batch[self.used]
-            if now_us < tick[0] + self.link.tick_us:
+        """The tick to make next, at due_us() (``now_us`` or before), the actuators reading
+        ``values`` now: the batch's next while they read as the batch took them (late too: it
+        runs from its own time); else the first of a new batch: from the last one's end when
+        that was used up under them (within MAX_CATCHUP_US), from ``now_us`` when they changed
+        (as a tick one at a time: their change is seen now)."""
+        if values == self.values:
+            if self.used < len(self.batch):
                 self.used += 1
-                return tick
+                return self.batch[self.used - 1]
+            if now_us - self.end <= MAX_CATCHUP_US:
+                now_us = self.end
         self.batch = self.link.ahead(now_us, self.used, values)
         self.values, self.used, self.end = values, 1, self.link.due_us()
         return self.batch[0]

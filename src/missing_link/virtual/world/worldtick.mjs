@@ -9,16 +9,19 @@
 // for worldfeed.attach and says which actuator reads it wants before each tick and how long a
 // tick is.  Before every firmware step (before(), at the simulation's `now`): when it has
 // reached the next tick, the actuators are read (worldfeed: one small integer each).  The world
-// answers a batch of ticks at once (100 ms of them: worldlink.py's ahead), each with its time,
-// its feed calls and its encoders' edges, computed on the assumption that the actuators hold:
-// while they read as the batch took them and the step is less than a tick late, the batch's
-// next tick happens here at its time (its feed calls made, its edges queued), with no word to
-// the world.  Else, and when the batch is used up, "T <now> <used> <values...>" goes out
-// (`used`: how many of the last batch happened; the world goes back to there) and the answer
-// comes back at once (a blocking read: the simulation stands still meanwhile, so the world's
-// time is the simulation's, and the same simulation gives the same world); its first tick is
-// now's.  Asking once a batch, not once a tick: a wake-up of the world's thread costs far more
-// than its tick.  Then every queued edge due by `now` is delivered, a run of one encoder's edges in one call
+// answers a batch of ticks at once (up to 100 ms of them: worldlink.py's ahead), each with its
+// time, its feed calls and its encoders' edges, computed on the assumption that the actuators
+// hold: while they read as the batch took them, the batch's next tick happens here at its time
+// (its feed calls made, its edges queued), with no word to the world; a step that ends a tick
+// or more late (a sonar's echo wait under --fast) makes every tick due by then, each at its own
+// time (as it was computed: a tick runs from its own time), the edges before each tick first.
+// When they changed, "T <now> <used> <values...>" goes out (`used`: how many of the last batch
+// happened; the world goes back to there), and when the batch is used up under them, "T <end>
+// ..." (the next on time, from the batch's end); the answer comes back at once (a blocking
+// read: the simulation stands still meanwhile, so the world's time is the simulation's, and the
+// same simulation gives the same world); its first tick is made at once.  Asking once a batch,
+// not once a tick: a wake-up of the world's thread costs far more than its tick.  Then every
+// queued edge due by `now` is delivered, a run of one encoder's edges in one call
 // (worldfeed.steps_at: each with its time, so the board's clock reads that time while the
 // interrupt handler runs, under simulated time).  The function proxies are taken before the
 // board's heap is capped (host.mjs), and every call carries small integers: nothing of the
@@ -84,6 +87,7 @@ export class WorldTick {
     this.edges = []; // [t, a, b, d], in time order
     this.reads = [];
     this.tickUs = 10000;
+    this.catchupUs = 1000000; // (worldlink.py's MAX_CATCHUP_US: later, the world asked from now)
     this.buf = Buffer.alloc(0);
     this.chunk = Buffer.alloc(65536); // (one, read into each time: not 64 KiB of garbage a tick)
     this.ticks = 0;
@@ -127,6 +131,7 @@ export class WorldTick {
     for (const args of hello.attach) this.feed.attach(...args);
     this.reads = hello.reads;
     this.tickUs = hello.tick_us;
+    this.catchupUs = hello.catchup_us;
     this.due = now;
   }
 
@@ -136,22 +141,31 @@ export class WorldTick {
     if (this.due !== null && this.now.before(next)) return; // (neither a tick nor an edge due)
     const now = this.now.asked();
     if (this.due === null) this.start(now);
-    if (now >= this.due) this.tick(now);
+    while (now >= this.due) {
+      this.deliverBy(this.due - 1); // (a handler may change an actuator: the tick reads it)
+      this.tick(now);
+    }
+    this.deliverBy(now);
+  }
+
+  deliverBy(t) {
     let n = 0;
-    while (n < this.edges.length && this.edges[n][0] <= now) n++;
+    while (n < this.edges.length && this.edges[n][0] <= t) n++;
     if (n) this.deliver(this.edges.splice(0, n));
   }
 
-  // A tick: the next of the world's batch when it is due, the actuators read as the batch
-  // took them and not a whole tick late; else the world's next batch from now (world_mpy.py),
-  // told how many of the last one happened
+  // The tick due (at this.due, now or before): the next of the world's batch while the
+  // actuators read as the batch took them (late too); else the world's next batch
+  // (world_mpy.py), told how many of the last one happened: from now when they changed, from
+  // the last batch's end when it was used up under them (within catchupUs)
   tick(now) {
     const values = this.reads.map(([fn, i]) => this.feed[fn](i)).join(" ");
     const next = this.batch[this.used];
-    if (next && values === this.values && now < next[0] + this.tickUs) {
+    if (next && values === this.values) {
       this.apply(next);
     } else {
-      const answer = this.ask(`T ${Math.floor(now)} ${this.used} ${values}`);
+      const at = values === this.values && now - this.end <= this.catchupUs ? this.end : now;
+      const answer = this.ask(`T ${Math.floor(at)} ${this.used} ${values}`);
       [this.batch, this.values, this.used, this.end] = [answer.ticks, values, 0, answer.due];
       this.apply(this.batch[0]);
     }
