@@ -1,10 +1,11 @@
 """The AVR world's own CPU (issue 47.6), steadier than bench_world.py's process figures on a
 shared machine: the AVR rover (rover-mega.py in simavr) with bench_world's world (1 m from its
 wall, its sonar held) in this process, as `board --file --runtime avr` wires it, a daemon
-driving it at ``--duty``.  Per round: the world's ticks per simulated second, the CPU of the
-thread that runs it (the one that reads the rig: world_avr.py) per simulated second and per
-tick, of it the world link's tick (``time.thread_time`` around WorldLink.tick), and the rig's
-(simavr's) CPU.  Simulated seconds from the rig's ``stats``.
+driving it at ``--duty``.  Per round: the world's ticks per simulated second (those the rig
+made), the CPU of the thread that runs it (the one that reads the rig: world_avr.py) per
+simulated second and per tick, of it the world link's (``time.thread_time`` around
+WorldLink.ahead, its going back included), the ticks a batch made (the rest asked again where
+the drives changed), and the rig's (simavr's) CPU.  Simulated seconds from the rig's ``stats``.
 
     .venv/bin/python bench/bench_world_avr.py [--seconds 12] [--rounds 3] [--duty 0.5]
 """
@@ -45,17 +46,16 @@ def one_round(duty: float, seconds: float) -> dict[str, float]:
     link = WorldLink(
         World(parse(world_file("avr").read_text(), "w"), board, sim_us(server.ctl)), board
     )
-    spent = [0.0, 0]
-    tick = link.tick
+    spent = [0.0]
+    ahead = link.ahead
 
-    def timed(now: int, values: list[int]) -> Any:
+    def timed(now: int, used: int, values: list[int]) -> Any:
         c = time.thread_time()
-        got = tick(now, values)
+        got = ahead(now, used, values)
         spent[0] += time.thread_time() - c
-        spent[1] += 1
         return got
 
-    link.tick = timed  # type: ignore[method-assign,assignment]
+    link.ahead = timed  # type: ignore[method-assign,assignment]
     hand = AvrWorld(link, server.ctl_lines, board["transducers"], (), server.ctl_post)
     server.on_tick = hand.answer
     hand.start()
@@ -74,14 +74,14 @@ def one_round(duty: float, seconds: float) -> dict[str, float]:
                 sim_us(server.ctl),
                 cpu_s(thread),
                 cpu_s(f"/proc/{server.proc.pid}/stat"),
-                spent[:],
+                [spent[0], hand.ticks, link.batches],
             )
             t0 = time.monotonic()
             while time.monotonic() - t0 < seconds:
                 time.sleep(0.5)
                 drive(d, duty, "mega_rover")
             s1, c1, r1 = sim_us(server.ctl), cpu_s(thread), cpu_s(f"/proc/{server.proc.pid}/stat")
-            n1 = spent[:]
+            n1 = [spent[0], hand.ticks, link.batches]
     finally:
         server.stop()
     if hand.failed:
@@ -89,6 +89,7 @@ def one_round(duty: float, seconds: float) -> dict[str, float]:
     sim_s, ticks = (s1 - s0) / 1e6, int(n1[1] - n0[1])
     return {"ticks_s": ticks / sim_s, "cpu": (c1 - c0) / sim_s * 100,
             "us_tick": (c1 - c0) / ticks * 1e6, "link_us": (n1[0] - n0[0]) / ticks * 1e6,
+            "per_batch": ticks / max(1, n1[2] - n0[2]),
             "rig": (r1 - r0) / sim_s * 100, "load": os.getloadavg()[0]}  # fmt: skip
 
 
@@ -99,12 +100,13 @@ def main() -> None:
     ap.add_argument("--duty", type=float, default=0.5)
     a = ap.parse_args()
     print("| round | ticks a simulated s | world's thread, % of a core | µs a tick | of it the "
-          "world link's tick, µs | the rig's CPU, % | load |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|")
+          "world link's, µs | ticks a batch | the rig's CPU, % | load |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
     for k in range(a.rounds):
         r = one_round(a.duty, a.seconds)
         print(f"| {k + 1} | {r['ticks_s']:.1f} | {r['cpu']:.2f} | {r['us_tick']:.0f} | "
-              f"{r['link_us']:.0f} | {r['rig']:.1f} | {r['load']:.1f} |")  # fmt: skip
+              f"{r['link_us']:.0f} | {r['per_batch']:.1f} | {r['rig']:.1f} | "
+              f"{r['load']:.1f} |")  # fmt: skip
 
 
 if __name__ == "__main__":

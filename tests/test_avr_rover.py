@@ -313,28 +313,3 @@ def test_the_same_keys_and_functions_as_the_micropython_firmware(rig: AvrSim) ->
         mpy.close()
     assert b"motor_l.failsafe_ms;int;300;0..60000;" in avr_keys
     assert b"servo.safe;enum;limp;hold|limp;" in avr_keys
-
-
-@pytest.mark.slow
-def test_a_worlds_tick_is_a_line_each_way_answered_at_its_simulated_time(rig: AvrSim) -> None:
-    """rig_sim's ``tick T ASKS|FEEDS`` (world_avr.py's one line a tick): the feeds go into the
-    parts at once, each one's answer kept (an error among them seen); lines after it are
-    answered before it; it is answered when the simulated time reaches T, with that time and
-    the asks' answers."""
-    assert rig.proc.stdin is not None
-    pos0 = int(rig.ctl("encpos 0").split()[2])
-    due = rig.board_us() + 50_000
-    rig.proc.stdin.write(f"tick {due} motor;encpos 0|wheel 0 off;enc 0 4;hcsr04 1234;nope\n")
-    rig.proc.stdin.write("lag\n")
-    rig.proc.stdin.flush()
-    assert rig.lines.get(timeout=10).startswith("lag ")  # (not held behind the tick)
-    answer = rig.lines.get(timeout=10)
-    assert answer is not None and answer.startswith("tick "), answer
-    head, fed = answer.split("|")
-    _tick, at, asked = head.split(" ", 2)
-    assert due <= int(at) < due + 2000  # (simulated µs: the rig looks every 1024 instructions)
-    motor, encpos = asked.split(";")
-    assert motor.startswith("motor ") and len(motor.split()) == 5  # (two motors: duty, back)
-    assert int(encpos.split()[2]) == pos0 + 4  # (the feed's four edges, 100 µs apart, are in)
-    assert fed == "ok;ok;ok;error unknown command: nope"
-    assert rig.ctl("wheel 0 on") == "ok"

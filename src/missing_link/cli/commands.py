@@ -312,8 +312,8 @@ COMMANDS = (
         "world:cmd_world",
         board_args.world,
         "A hand on the world of a running `board --file ... --world-control URL` (docs/world.md): "
-        "what it does is applied at the world's next batch of ticks (up to 100 ms on; AVR: its "
-        "next tick); the state printed is the world's as it was asked, before that.",
+        "what it does is applied at the world's next batch of ticks (up to 100 ms on); the "
+        "state printed is the world's as it was asked, before that.",
     ),
     Command(
         "replay",

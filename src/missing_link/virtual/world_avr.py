@@ -6,21 +6,30 @@ Theory of operation
 -------------------
 At start every wheel of the rig is taken from the rig's own motor model (``wheel K off``,
 motor.h): from then on only the world turns its encoder.  Then the world and the rig trade one
-line each way a tick (rig_sim.c's ``tick T ASKS|FEEDS``): the world's line puts what it says
-into the parts now (the FEEDS: a ranger's target, ``hcsr04 MM``, ``srf02 CM``, ``sharp MM``; the
-IMU's specific force and turn rate in SI, ``imu K ...``; the battery's voltage at its ADC pin
-through its divider, ``ain CH MV``; a part that fails silent taken off the bus, ``imu_absent``,
-``srf02_absent``; each encoder's edges of the tick as one ``enc K STEPS``, which the rig makes
-100 µs apart from then: they come at the tick, not at their own times) and asks for the next
-tick at its simulated time T.  The rig answers when its time reaches T with that time (simavr's
-µs, never the host's clock), the motors' drives (``motor``: duty and direction, as the rig's
-model reads them from Timer0's outputs), the stepper's, and the FEEDS' own answers (an error
-among them counted and said once).  The answer comes to :meth:`AvrWorld.answer` in the thread
-that reads the rig (AvrBoard.on_tick): it ticks the world link with those drives at that time
-and sends the next line.  So nothing sleeps to a tick or asks for the time: the rig wakes the
-world once a tick, in the simulation's time (simavr runs paced to the host's clock; a tick that
-comes late first runs the world up to the simulation's time: worldlink.py).  The rig ending
-ends the ticks (no answer comes).
+line each way a batch of ticks (the rig's world.c: ``tick ASKS|T0 FEEDS|T1 FEEDS|...|TN``): the
+world computes up to the next 100 ms of ticks at once (worldlink.py's ahead) on the assumption that
+the drives hold, and each tick's FEEDS are the lines that put what it says into the parts (a
+ranger's target, ``hcsr04 MM``, ``srf02 CM``, ``sharp MM``; the IMU's specific force and turn
+rate in SI, ``imu K ...``; the battery's voltage at its ADC pin through its divider, ``ain CH
+MV``; a part that fails silent taken off the bus, ``imu_absent``, ``srf02_absent``; each
+encoder's edges of the tick as one ``enc K STEPS``, which the rig makes 100 µs apart from then:
+they come at the tick, not at their own times).  The rig makes each tick at its simulated time T
+(simavr's µs, never the host's clock) while the drives (``motor``: duty and direction, as the
+rig's model reads them from Timer0's outputs; the stepper's) read as the rig last answered
+them (a line that came late: the ticks due by then at once, each its own), and answers at the
+first tick where they do not, or at the batch's end, with that time, how many ticks it made,
+the drives then and the feeds' errors (counted, the first said once).  The answer comes to
+:meth:`AvrWorld.answer` in the thread that reads the rig (AvrBoard.on_tick): the world goes back
+to the first tick not made and computes the next batch under the drives, from the batch's end
+when it was made whole under them (the ticks stay on time), else from the answer's time (their
+change seen then, as one tick at a time would), and sends it (ahead: the same sums as ticking
+one at a time at those times, to the bit: tests/test_world_avr_ahead.py).  So nothing
+sleeps to a tick or asks for the time: the rig wakes the world once a batch (each wake-up of
+the world costs more than a tick's sums), in the simulation's time (simavr runs paced to the
+host's clock; an answer that comes late first runs the world up to the simulation's time:
+worldlink.py).  A batch's line is cut to the ticks that fit the rig's longest line
+(RIG_LINE_MAX; the rest asked again at the cut).  The rig ending ends the ticks (no answer
+comes).
 
 What the rig has no control line for is not fed: the GPS's position (its fix stays where the
 rig's model puts it), a compass (the rig has none), a VL53L0X.
@@ -34,9 +43,11 @@ import threading
 from collections.abc import Callable, Collection
 from typing import Any
 
-from .worldlink import WorldLink
+from .worldlink import MAX_CATCHUP_US, Call, Edge, WorldLink
 
 G = 9.80665
+#: the longest line the rig takes (rig_sim's world.h), a batch's line cut to it
+RIG_LINE_MAX = 16383
 #: the world link's integers back to SI (worldlink.py: the MPU-6050's LSB at +-2 g, +-250 deg/s)
 ACCEL_LSB, GYRO_LSB = 16384 / G, 131.0
 
@@ -82,10 +93,15 @@ class AvrWorld:
         #: what the rig says with each tick's time: the drives, the stepper's
         stepper = any(fn == "stepper" for fn, _a in link.reads)
         self.asks = "motor;stepper" if stepper else "motor"
-        self.ticks = 0
+        self.ticks = 0  #: the ticks the rig made
         self.failed: str | None = None
         self.rig_errors = 0  #: the rig's errors to the world's lines (the first one logged)
         self._stop = threading.Event()
+        self._values: list[int] = []  # the pending batch's drives
+        self._sent: list[tuple[int, list[str]]] = []  # ... its ticks: their times and lines
+        self._end = 0  # ... and where it asks the world again
+        #: when a list: each tick the rig made, (µs, the drives' values, its lines)
+        self.record: list[tuple[int, list[int], list[str]]] | None = None
 
     # ---- the hand and the state (virtual/worldctl.py) ----
     def push(self, kind: str, args: dict[str, Any]) -> None:
@@ -101,54 +117,87 @@ class AvrWorld:
 
     def start(self) -> None:
         self.ctl([f"wheel {k} off" for k in range(self.wheels)])
-        self.post(f"tick {self.link.due_us()} {self.asks}|")  # (the first: due now)
+        self.post(f"tick {self.asks}|{self.link.due_us()}")  # (no tick yet: asked at the first's)
 
     def stop(self) -> None:
         self._stop.set()
 
     def answer(self, line: str) -> None:
-        """The rig's ``tick SIM_US ASKS|FEEDS`` at a tick's time: the world ticked, the next
-        tick's line sent; never raises (it runs in the thread that reads the rig)."""
+        """The rig's ``tick SIM_US MADE ASKS|ERRORS FIRST`` at a tick's time: the ticks it made
+        counted, the next batch's line sent; never raises (it runs in the thread that reads
+        the rig)."""
         if self._stop.is_set() or self.failed is not None:
             return
         try:
             if line.startswith("error "):  # (the rig refused the tick line itself)
+                self.rig_errors += 1
                 raise ValueError(f"the rig refused the world's tick: {line[:200]!r}")
             head, fed = line.split("|", 1)
-            _tick, now, asked = head.split(" ", 2)
-            self._said(fed)
-            motor, stepper = (asked + ";stepper 0 0").split(";")[:2]
-            feeds = self.tick(int(now), self._reads(motor, stepper))
-            self.post(f"tick {self.link.due_us()} {self.asks}|{';'.join(feeds)}")
+            _tick, now, made_s, asked = head.split(" ", 3)
+            made = int(made_s)
+            if not 0 <= made <= len(self._sent):
+                raise ValueError(f"the rig made {made} of {len(self._sent)} ticks")
+            values, n = self.drives(asked), int(fed.partition(" ")[0])  # (all read first)
+            self._said(n, fed)
+            self._made(made)
+            self.post(self._next(int(now), made, values))
         except Exception as e:  # noqa: BLE001 - (a rig that ended, a line it mangled): said once
             self.failed = f"{type(e).__name__}: {e}"
             if not self._stop.is_set():
                 log.error("world: stopped after %d ticks (the board runs on its last readings): "
                           "%s", self.ticks, self.failed)  # fmt: skip
 
-    def _said(self, fed: str) -> None:
-        """The rig's answers to the last tick's feeds: an error counted, the first logged."""
-        errors = [a for a in fed.split(";") if a.startswith("error")]
-        if errors and not self.rig_errors:
-            log.warning("world: the rig refused a line: %s", errors[0][:200])
-        self.rig_errors += len(errors)
+    def _said(self, n: int, fed: str) -> None:
+        """The rig's count ``n`` of the errors among its answers to the feeds, and the first
+        (``fed``: "N FIRST"): counted, the first ever logged."""
+        if n and not self.rig_errors:
+            log.warning("world: the rig refused a line: %s", fed.partition(" ")[2][:200])
+        self.rig_errors += n
+
+    def _made(self, made: int) -> None:
+        self.ticks += made
+        if self.record is not None:
+            self.record += [(t, self._values, lines) for t, lines in self._sent[:made]]
+
+    def _next(self, now: int, made: int, values: list[int]) -> str:
+        """The next batch's line: the world back to the first tick not made, ticked ahead from
+        ``now`` under ``values``, as many ticks as fit the rig's line."""
+        held = values == self._values and made == len(self._sent)
+        start = self._end if held and now - self._end <= MAX_CATCHUP_US else now
+        ticks = self.link.ahead(start, made, values)
+        self._values, self._sent = values, []
+        entries: list[str] = []
+        size = len(self.asks) + 48  # ("tick ", the bars, the end's time)
+        for t, calls, edges in ticks:
+            lines = self.lines(calls, edges)
+            entry = f"{t} {';'.join(lines)}" if lines else str(t)
+            size += len(entry) + 1
+            if size > RIG_LINE_MAX and entries:  # (the rest asked again from the cut)
+                break
+            entries.append(entry)
+            self._sent.append((t, lines))
+        self._end = ticks[len(entries)][0] if len(entries) < len(ticks) else self.link.due_us()
+        return f"tick {self.asks}|{'|'.join(entries)}|{self._end}"
 
     def tick(self, now: int, values: list[int]) -> list[str]:
-        """The world's tick at ``now`` under the actuators' ``values`` (worldlink.py's reads):
-        the lines that put what it says into the rig's parts."""
-        calls, edges = self.link.tick(now, values)
+        """The world's tick at ``now`` under the actuators' ``values`` one at a time (what the
+        batches give, to the bit): the lines that put what it says into the rig's parts."""
+        return self.lines(*self.link.tick(now, values))
+
+    def lines(self, calls: list[Call], edges: list[Edge]) -> list[str]:
+        """A tick's feed calls and edges as the rig's control lines."""
         lines = [line for fn, args in calls for line in self._lines(fn, args)]
         steps: dict[int, int] = {}
         for _t, a, _b, d in edges:
             k = self.enc_of_pin[a]
             steps[k] = steps.get(k, 0) + d
         lines += [f"enc {k} {n}" for k, n in sorted(steps.items()) if n]
-        self.ticks += 1
         return lines
 
-    def _reads(self, motor: str, stepper: str) -> list[int]:
-        """The integers worldlink.py's reads ask for, from the rig's ``motor`` and ``stepper``
-        lines."""
+    def drives(self, asked: str) -> list[int]:
+        """The integers worldlink.py's reads ask for, from the rig's answers to the asks (its
+        ``motor`` and ``stepper`` lines, ';' between)."""
+        motor, stepper = (asked + ";stepper 0 0").split(";")[:2]
         drives = motor.split()[1:]  # (D0 R0 D1 R1 ...: each motor's drive)
         steps = stepper.split()[1:]
         out = []

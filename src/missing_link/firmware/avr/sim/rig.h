@@ -5,8 +5,8 @@
  * part's state is set through its control lines on rig_sim's stdin (one line in, one line out),
  * and each part says in its header which lines it takes.  A world that computes the state
  * itself (where the wheels are, what the IMU feels) sets it there, and turns the rig's own
- * models off where it has one of its own (motor.c: `wheel K off`); its lines of a tick go in
- * one `tick` line, answered at the tick's simulated time (rig_sim.c). */
+ * models off where it has one of its own (motor.c: `wheel K off`); its ticks go in a
+ * `tick` line, a batch of them, each made at its simulated time (world.c). */
 #ifndef RIG_RIG_H
 #define RIG_RIG_H
 #include <stdint.h>

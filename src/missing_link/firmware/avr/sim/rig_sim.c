@@ -12,6 +12,8 @@
  *   eeprom.c   the EEPROM across power cycles, and power cuts
  *   link.c     the board's link: simavr's uart_pty, and the AVR held while its FIFO is nearly
  *              full (its thread runs late: a busy machine), so that no byte is lost
+ *   world.c    a world beside the rig (virtual/world_avr.py): its batches of ticks, each tick's
+ *              readings into the parts at its simulated time
  *
  *   rig_sim FIRMWARE.elf [--mcu atmega328p] [--skew-ppm P] [--eeprom FILE] [--part SPEC]...
  *
@@ -45,12 +47,14 @@
  *          firmware that changes it: avr-libc's eeprom_update_* writes only those): the EEPROM
  *          is saved as it is then and the rig stops at once, printing "CUT"
  *   quit: the power goes (the EEPROM saved)
- *   tick T ASK;ASK...|FEED;FEED...: a world's tick (virtual/world_avr.py) in one line each
- *          way: the FEED lines run now, the ASK lines when the simulated time reaches T µs (at
- *          once if it has), and then it is answered "tick SIM_US A;A...|F;F..." (each line's
- *          own answer, the FEEDs' too, so that an error is seen); one pending at a time (a new
- *          one takes its place), so the rig, not a host's sleep, wakes the world at its tick
- * A line no part takes is answered "error unknown command: LINE". */
+ *   tick ASKS|T0 FEEDS|T1 FEEDS|...|TN: a world's batch of ticks (virtual/world_avr.py), one
+ *          line each way a batch: each tick's readings go into the parts at its simulated time
+ *          while the drives read as the world assumed, and the rig answers "tick SIM_US MADE
+ *          ASKS'ANSWERS|ERRORS FIRST_ERROR" where they do not, or at the batch's end (world.c)
+ * A line no part takes is answered "error unknown command: LINE"; a line longer than
+ * RIG_LINE_MAX bytes (world.h: a batch's line fits) is refused whole, "error line of N bytes,
+ * over the rig's RIG_LINE_MAX: refused: ..." ("error tick: ..." for a `tick` line, so that its
+ * world sees it). */
 #define _GNU_SOURCE
 #include <fcntl.h>
 #include <stdio.h>
@@ -74,6 +78,7 @@
 #include "srf02.h"
 #include "stepper.h"
 #include "twi_bus.h"
+#include "world.h"
 
 static uart_pty_t uart;
 static double skew;
@@ -91,62 +96,6 @@ static rig_command_t parts[16];
 static int n_parts;
 
 static void command(const char *cmd);
-
-/* ---- a world's tick (tick T ASKS|FEEDS) ---------------------------------------------------------- */
-static char tick_asks[512], tick_feeds[1024]; /* (the feeds' answers, kept for the answer) */
-static uint64_t tick_at;
-static int tick_pending;
-
-/* each of `cmds` (';' between) run, its answer line (less its newline) appended to `out` */
-static void run_each(char *cmds, char *out, size_t size) {
-    char *answer = NULL;
-    size_t len = 0, used = strlen(out);
-    FILE *real = stdout, *mem = open_memstream(&answer, &len);
-    if (!mem) return;
-    stdout = mem; /* (glibc: a part's printf goes to the answer) */
-    for (char *c = cmds, *next; c && *c; c = next) {
-        next = strchr(c, ';');
-        if (next) *next++ = 0;
-        command(c);
-    }
-    fclose(mem);
-    stdout = real;
-    for (size_t i = 0; i < len && used + 1 < size; i++)
-        out[used++] = answer[i] == '\n' ? (i + 1 < len ? ';' : 0) : answer[i];
-    out[used < size ? used : size - 1] = 0;
-    free(answer);
-}
-
-static void tick_command(const char *cmd) {
-    unsigned long long at;
-    int n = 0;
-    if (sscanf(cmd, "tick %llu %n", &at, &n) != 1 || !n) {
-        printf("error tick T ASK;...|FEED;...: %s\n", cmd);
-        return;
-    }
-    char line[1024];
-    strncpy(line, cmd + n, sizeof line - 1);
-    line[sizeof line - 1] = 0;
-    char *bar = strchr(line, '|');
-    if (bar) *bar++ = 0;
-    tick_feeds[0] = 0;
-    if (bar) run_each(bar, tick_feeds, sizeof tick_feeds);
-    strncpy(tick_asks, line, sizeof tick_asks - 1);
-    tick_at = at;
-    tick_pending = 1;
-}
-
-static void tick_answer(void) {
-    static char asks[1024];
-    if (!tick_pending) return;
-    uint64_t now = sim_us();
-    if (now < tick_at) return;
-    tick_pending = 0;
-    asks[0] = 0;
-    run_each(tick_asks, asks, sizeof asks);
-    printf("tick %llu %s|%s\n", (unsigned long long)now, asks, tick_feeds);
-    fflush(stdout);
-}
 
 static int rig_command(const char *cmd) {
     unsigned v, rangings, msgs;
@@ -169,8 +118,6 @@ static int rig_command(const char *cmd) {
     } else if (sscanf(cmd, "cut %u", &v) == 1 && v > 0) {
         eeprom_cut((int)v);
         printf("ok\n");
-    } else if (!strncmp(cmd, "tick ", 5)) {
-        tick_command(cmd); /* (answered at its time: tick_answer) */
     } else if (!strncmp(cmd, "quit", 4)) {
         power_off();
     } else {
@@ -185,19 +132,27 @@ static void command(const char *cmd) {
     if (i == n_parts) printf("error unknown command: %s\n", cmd);
 }
 
+/* a line longer than RIG_LINE_MAX: refused whole, said (a `tick` line's refusal to the world) */
+static void refuse_long(const char *line, size_t n) {
+    printf("error%s line of %zu bytes, over the rig's %d: refused: %.60s...\n",
+           strncmp(line, "tick", 4) ? "" : " tick:", n, RIG_LINE_MAX, line);
+}
+
 static void poll_stdin(void) {
-    static char line[1024];
+    static char line[RIG_LINE_MAX + 1];
     static size_t line_n;
-    char buf[512]; /* (all that came at once: a byte a read was a system call a byte) */
+    char buf[4096]; /* (all that came at once: a byte a read was a system call a byte) */
     ssize_t r;
     while ((r = read(0, buf, sizeof buf)) > 0) {
         for (ssize_t i = 0; i < r; i++) {
             if (buf[i] == '\n') {
-                line[line_n] = 0;
-                command(line);
+                line[line_n < RIG_LINE_MAX ? line_n : RIG_LINE_MAX] = 0;
+                if (line_n > RIG_LINE_MAX) refuse_long(line, line_n);
+                else command(line);
                 line_n = 0;
-            } else if (line_n < sizeof line - 1) {
-                line[line_n++] = buf[i];
+            } else {
+                if (line_n < RIG_LINE_MAX) line[line_n] = buf[i];
+                line_n++; /* (counted on past the end: the line is refused whole) */
             }
         }
     }
@@ -293,9 +248,10 @@ static int add_part(const char *spec) {
 /* the parts of --part, else the thesis rig's */
 static int wire(const char *mcu, const char **specs, int n_specs) {
     int uno = !strcmp(mcu, "atmega328p"); /* INT0/INT1: PD2/PD3; Mega and Leonardo: PD0/PD1 */
-    static const rig_command_t commands[] = {rig_command, probes_command, analog_command,
+    static const rig_command_t commands[] = {rig_command, world_command, probes_command, analog_command,
         srf02_command, encoder_command, mpu6050_command, motor_command, stepper_command,
         hcsr04_command, gps_command, link_command};
+    world_init(command);
     probes_init(mcu);
     motor_init(mcu);
     twi_bus_init();
@@ -354,7 +310,7 @@ int main(int argc, char **argv) {
         if ((n & 1023) == 0) {
             pace();
             poll_stdin();
-            tick_answer();
+            world_watch();
         }
     }
 }
