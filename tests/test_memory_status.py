@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from missing_link.board.memory import MARGIN_US, MAX_PERIOD_US, MIN_PERIOD_US, PERIOD_US, Memory
+from missing_link.board.memory import MAX_PERIOD_US, MIN_PERIOD_US, PERIOD_US, Memory
 from missing_link.board.runtime import BoardRuntime
-from missing_link.board.timing import Timing
+from missing_link.board.timing import MARGIN_US, Timing
 from missing_link.daemon import Daemon
 from missing_link.daemon.config import BoardSpec, Config
 from missing_link.daemon.session.board_memory import parse_memory

@@ -12,9 +12,8 @@ import itertools
 import struct
 
 from missing_link.board.drivers import Periodic
-from missing_link.board.pacing import MARGIN_US
 from missing_link.board.runtime import BoardRuntime
-from missing_link.board.timing import Timing
+from missing_link.board.timing import MARGIN_US, Timing
 from missing_link.board.transducer import Transducer
 from missing_link.daemon.session.alignment import parse_align_info
 from missing_link.j2a.codec import SOF, FrameDecoder, encode_frame

@@ -14,9 +14,10 @@
 # firmware found no room for a long while.
 #
 # The heap's work is done in pieces at the turns' end, each only when the next instant the board
-# must be on time for (timing.next_instant: an aligned measurement on the host-time grid, a
+# must be on time for (timing.instant_kept: an aligned measurement on the host-time grid, a
 # timed call; none: any time will do) is further away than the longest that piece took so far
-# plus MARGIN_US, else at a later turn (the next piece at once while there is room for it, but
+# plus MARGIN_US (timing.fits, the rule a paced driver's measurement follows too), else at a
+# later turn (the next piece at once while there is room for it, but
 # for the figures after a collection):
 #   LOW      gc.mem_free() right before the collection: the lowest the heap got since the last
 #            one (free only falls between collections but for the allocator's own);
@@ -46,13 +47,11 @@
 
 import struct
 
+from .timing import fits
+
 MIN_PERIOD_US = 10000
 MAX_PERIOD_US = 500000
 PERIOD_US = 100000  # (until the first two collections have measured the allocation rate)
-#: beyond the longest so far: a collection's length moves only with the live data (a few µs
-#: from one to the next), and the turn after it must start before the instant (a turn's own
-#: work, ~0.3 ms on a Pico); 2 ms left the thesis rig's 100 Hz grid no room at all
-MARGIN_US = 1000
 MIN_THRESHOLD = 4096
 #: the allocated bytes (ALLOC: a scan, ~5 ms on a Pico) read after a collection this often at
 #: most: read after every one, with the other two scans, they held the rover's collections
@@ -101,8 +100,8 @@ class Memory:
                 step = self._step = LOW
             took = self.longest_us if step == COLLECT else self.scan_us
             if due is None and timing is not None:
-                due = timing.next_instant(now)
-            if due is not None and due - now <= took + MARGIN_US:
+                due = timing.instant_kept(now)
+            if not fits(due, now, took):
                 if step == COLLECT:
                     self.deferred += 1
                 return

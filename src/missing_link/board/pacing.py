@@ -8,12 +8,12 @@
 # 33 ms (its echo wait).  A free-running measurement that starts just before an aligned
 # measurement's instant or a timed call's tick makes that one late by what is left of it (the
 # thesis rig: aligned ADC reads up to 2.27 ms late behind its free-running 100 Hz IMU).  So the
-# rule the heap's work follows (memory.py) holds for a paced driver's measurement too: it runs
-# only when timing.next_instant(now) (_instant) is further away than the longest its poll took
-# lately plus MARGIN_US, else at a later turn.  Paced: a driver that says PACED (Periodic: a
-# measurement on a rate, which promises a rate and not an instant) and is not aligned now.  An
-# aligned one is what the room is kept for; an actuator's or an event driver's poll acts at its
-# own time.
+# rule the heap's work follows (memory.py) holds for a paced driver's measurement too
+# (timing.fits): it runs only when timing.instant_kept(now) is further away than the longest
+# its poll took lately plus MARGIN_US, else at a later turn.  Paced: a driver that says PACED
+# (Periodic: a measurement on a rate, which promises a rate and not an instant) and is not
+# aligned now.  An aligned one is what the room is kept for; an actuator's or an event driver's
+# poll acts at its own time.
 #
 # * A measurement put off waits out the instant it was put off for, no longer: once that one is
 #   served (the next instant is a later one, none is due now), it runs at the next turn, room
@@ -24,6 +24,10 @@
 #   after the next instant in the same way (none ahead, as at boot before any map: at once).
 # * A measurement put off is late, neither lost nor doubled: Periodic measures once when it runs
 #   and reckons its next slot from then (a slot the wait covered whole is skipped).
+# * A paced driver not due is not polled (its poll only looks: drivers/__init__.py, Periodic);
+#   one due is polled with the clock read for its room (poll(now, True): it does not read it
+#   again).  While nothing waits, the loop's sleep (runtime.next_deadline_us) is the drivers'
+#   own dues, not asked here (`waits` empty).
 # A poll's length is the board clock around it; `longest` (per transducer id) is the longest
 # lately, as the heap's pieces' longest so far, but losing a sixteenth a measurement (DECAY): a
 # part's start-up in its first measurement (the VL53L0X's calibration, 69 ms) must not keep its
@@ -36,10 +40,8 @@
 #
 # MicroPython subset only.
 
-#: beyond a poll's longest lately: a measurement's length moves little from one to the next (the
-#: bus, the part), and the turn after it must start before the instant (a turn's own work, ~0.3
-#: ms on a Pico); the heap's pieces keep the same margin (memory.py)
-MARGIN_US = 1000
+from .timing import fits
+
 #: the longest poll lately, not since boot: it loses a sixteenth a measurement, so a start-up
 #: (the rover's VL53L0X calibrates in its first poll: 69 ms) is forgotten within tens of them
 #: while a part's usual length holds it up
@@ -52,13 +54,11 @@ class Pacing:
         self.deferred = 0
         self.overlaps = 0
         self.longest = {}  # transducer id -> its longest measuring poll lately (board µs, DECAY)
-        self._waits = {}  # transducer id -> (the instant it waits out, its measurement's due)
-        self._at = None  # the next instant, as last looked for (_instant)
-        self._calls = -1  # ... with the runtime's calls then
+        self.waits = {}  # transducer id -> (the instant it waits out, its measurement's due)
 
     def poll(self, now):
-        # Every enabled driver's poll, in the transducers' order; a paced one that is due only
-        # when there is room for it (or it has waited an instant out).
+        # Every enabled driver's poll, in the transducers' order; a paced one only when due,
+        # and then only when there is room for it (or it has waited an instant out).
         rt = self.rt
         timing = rt.timing
         instant = False  # (not looked for yet: once per turn, again after a measurement)
@@ -72,14 +72,13 @@ class Pacing:
                 continue
             due = t._due()
             if due is not None and now < due:
-                poll(now)  # (not due: it only looks)
-                continue
+                continue  # (not due: its poll would only look)
             t0 = rt.clock()
             if instant is False:
-                instant = self._instant(timing, t0)
+                instant = timing.instant_kept(t0)
             if instant is not None and not self._room(t.tid, instant, t0, due):
                 continue
-            poll(now)
+            poll(t0, True)  # (the clock just read: Periodic does not read it again)
             t1 = rt.clock()
             took = self.longest.get(t.tid, 0)
             self.longest[t.tid] = max(t1 - t0, took - took // DECAY)
@@ -87,20 +86,11 @@ class Pacing:
                 self.overlaps += 1
             instant = False
 
-    def _instant(self, timing, now):
-        # timing.next_instant(now), kept while it is ahead and no request came (a new map, a
-        # rate, a timed call: rt.calls): its grid maths make big integers of host ns, garbage
-        # that, on every due poll, brought the allocator's own collections onto the rover's grid
-        if self._at is None or self._at <= now or self._calls != self.rt.calls:
-            self._at = timing.next_instant(now)
-            self._calls = self.rt.calls
-        return self._at
-
     def due_us(self, tid, due):
-        # When the driver of transducer `tid` wants its poll (runtime.next_deadline_us): its
-        # own due, or, while it waits an instant out, that instant (the loop sleeps until
-        # then, not spinning on a due that has gone by).
-        waits = self._waits.get(tid)
+        # When the driver of transducer `tid` wants its poll (runtime.next_deadline_us, only
+        # while any waits): its own due, or, while it waits an instant out, that instant (the
+        # loop sleeps until then, not spinning on a due that has gone by).
+        waits = self.waits.get(tid)
         if waits is None or waits[1] != due or (due is not None and due > waits[0]):
             return due
         return waits[0]
@@ -110,18 +100,18 @@ class Pacing:
         # off.  A wait is the measurement's: one whose due moved meanwhile (a new rate, the
         # driver off and on) is a new one, not one that has waited an instant out.
         took = self.longest.get(tid)
-        waits = self._waits.get(tid)
+        waits = self.waits.get(tid)
         if waits is not None and waits[1] != due:
             waits = None
-        if took is not None and instant - now > took + MARGIN_US:
-            if tid in self._waits:
-                del self._waits[tid]
+        if took is not None and fits(instant, now, took):
+            if tid in self.waits:
+                del self.waits[tid]
             return True
         if waits is None:
-            self._waits[tid] = (instant, due)
+            self.waits[tid] = (instant, due)
             self.deferred += 1
             return False
         if instant <= waits[0] or instant <= now:
             return False  # the instant it waits out (or another, due now) is not served yet
-        del self._waits[tid]
+        del self.waits[tid]
         return True  # right after the instant it waited out: as much room as it will get

@@ -281,9 +281,13 @@ class BoardRuntime:
     def next_deadline_us(self):
         # Board time by which poll() should run again (None: only on input).
         due = None
+        pacing = self.pacing
+        waits = pacing.waits  # (while one waits: its instant, pacing.py)
         for tr in self.transducers:
             if tr._due is not None and tr.enabled:
-                t = self.pacing.due_us(tr.tid, tr._due())  # (one waiting: its instant)
+                t = tr._due()
+                if waits:
+                    t = pacing.due_us(tr.tid, t)
                 if t is not None and (due is None or t < due):
                     due = t
         if self.parser.in_frame():

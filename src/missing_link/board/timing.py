@@ -33,7 +33,11 @@
 #   take) is counted as refused, not done, and said in the log (WARN).
 # * next_instant(now): the soonest board tick the board must be on time for (a timed call, or an
 #   aligned transducer's next grid instant; its measurement if that is due already), so that
-#   the firmware can keep its own pauses off it (a garbage collection: memory.py).
+#   the firmware can keep its own pauses off it.  The firmware's own work (a garbage
+#   collection: memory.py; a free-running driver's measurement: pacing.py) follows one rule,
+#   fits(): it starts only when that instant is further away than the longest it took plus
+#   MARGIN_US; both ask instant_kept(now), next_instant kept while it is ahead and nothing
+#   changed it (no request since, no timed call dropped).
 #
 # a2jAlignInfo -> [B map valid][I map age ms][I unaligned samples][I timed calls done]
 #                 [I timed calls refused, when asked or when due][I measurements deferred]
@@ -47,6 +51,11 @@ import struct
 from .log import ERROR, RAISED_TIMED, SOURCE_BOARD, WARN
 
 MAP_LIFE_US = 10000000
+#: beyond the longest the firmware's own work took (a collection, a heap scan: memory.py; a
+#: driver's measuring poll: pacing.py): its length moves little from one to the next, and the
+#: turn after it must start before the instant (a turn's own work, ~0.3 ms on a Pico); 2 ms
+#: left the thesis rig's 100 Hz grid no room at all
+MARGIN_US = 1000
 QUEUE = 8
 _BILLION = 1000000000
 _MILLION = 1000000
@@ -63,6 +72,8 @@ class Timing:
         self._queue = []  # (board tick, handler, payload, name), soonest first
         self.acting_tick = None  # while a timed call runs: the tick it was due at
         self.calls = None  # the actuators' commands a2jAt takes (None: the transducers' call=)
+        self._kept = None  # the next instant, as last looked for (instant_kept)
+        self._requests = -1  # ... with the runtime's count of requests then
         runtime.add_function("a2jAt", self._at)
         runtime.add_function("a2jAlignInfo", self._info)
 
@@ -103,6 +114,17 @@ class Timing:
             if at is not None and (due is None or at < due):
                 due = at
         return due
+
+    def instant_kept(self, now):
+        # next_instant(now), kept while it is ahead and no request came (a new map, a rate, a
+        # timed call: rt.calls) nor a timed call was dropped: its grid maths make big integers
+        # of host ns, garbage that, asked at every turn with work to place, brought the
+        # allocator's own collections onto the rover's grid
+        kept = self._kept
+        if kept is None or kept <= now or self._requests != self.rt.calls:
+            kept = self._kept = self.next_instant(now)
+            self._requests = self.rt.calls
+        return kept
 
     # ---- timed calls ----------------------------------------------------------------------------
     def _at(self, payload):
@@ -160,6 +182,7 @@ class Timing:
         n = len(self._queue) - len(keep)
         if n:
             self._queue = keep
+            self._kept = None  # (the instant kept may have been one of them)
             self.cancelled += n
             text = "%d timed call%s dropped (%s)" % (n, "" if n == 1 else "s", why)
             self.rt.debug("timing: %s;" % text)
@@ -196,6 +219,13 @@ class Timing:
         n = [v & 0xFFFFFFFF for v in (self.unaligned, self.done, self.refused, pacing.deferred,
              pacing.overlaps)]  # fmt: skip
         return 0, struct.pack("<BIIIIII", 1 if valid else 0, age, *n)
+
+
+def fits(instant, now, took):
+    # The room rule of the firmware's own work (memory.py, pacing.py): work whose longest is
+    # `took` µs may start at `now` before `instant` (None: none, any time will do) only when
+    # that is further away than `took` and MARGIN_US.
+    return instant is None or instant - now > took + MARGIN_US
 
 
 def _first(item):

@@ -115,7 +115,9 @@ class Periodic(Driver):
     def next_due_us(self):
         return self._due
 
-    def poll(self, now):
+    def poll(self, now, fresh=False):
+        # Does nothing while `now` is before next_due_us() (pacing.py polls a paced driver only
+        # when due); `fresh`: `now` is the clock just read (pacing's), not the loop's.
         if self._due is None:
             grid = self._grid(now)
             if grid is not None:
@@ -127,7 +129,8 @@ class Periodic(Driver):
         # The loop's time is from before the drivers polled ahead of this one, which may have
         # held the loop (the HC-SR04 waits for its echo up to 33 ms): measure and reckon the
         # next slot from the clock now, or a slot that went by meanwhile is measured at once.
-        now = self.clock()
+        if not fresh:
+            now = self.clock()
         if self.aligned and self._free and self.timing is not None:
             self.timing.unaligned += 1  # measured now, but not on the grid: said
         grid = self._grid(now)

@@ -52,9 +52,9 @@ class SRF02(Ranger):
     def next_due_us(self):
         return self._check_us if self._ping_us is not None else self._due
 
-    def poll(self, now):
+    def poll(self, now, fresh=False):
         if self._ping_us is None:
-            Ranger.poll(self, now)
+            Ranger.poll(self, now, fresh)
             return
         if now < self._check_us:
             return

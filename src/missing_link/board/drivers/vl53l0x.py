@@ -125,12 +125,12 @@ class VL53L0X(Ranger):
             return self._check
         return self._due
 
-    def poll(self, now):
+    def poll(self, now, fresh=False):
         if self._started is not None and self.mode == "single":
             if now >= self._check:
                 self._collect(now)
             return
-        Ranger.poll(self, now)
+        Ranger.poll(self, now, fresh)
 
     def measure(self, now):
         starting = not self._ok
