@@ -94,7 +94,7 @@ def test_a_ranging_longer_than_the_grid_runs_right_after_an_instant_and_is_never
     """A 30 ms hold (a part's wait; the HC-SR04 itself is not paced: hcsr04.py) at 10 Hz beside
     a 100 Hz grid never finds room: it waits out one instant and runs right after it, at its
     rate, reaching the next instants (as any start would) and said so.  Its first measurement,
-    not yet timed, waits out one instant too (the map is there from the start)."""
+    not yet timed, runs when due (the next instant 10 ms ahead: the margin alone is its room)."""
     rt, held, aligned = rig(10, 30_000, grid_us=10_000)
     run(rt, 10)
     assert 99 <= len(held.at) <= 101  # its rate: never starved
@@ -102,8 +102,8 @@ def test_a_ranging_longer_than_the_grid_runs_right_after_an_instant_and_is_never
     assert max(after) <= 3 * TURN_US  # right after an instant (its aligned read, a turn)
     gaps = [b - a for a, b in itertools.pairwise(held.at)]
     assert min(gaps) >= 100_000 - 10_000 - 3 * TURN_US  # late by one grid period at most
-    # each put off (the first: not timed yet) and each reaching the next instant
-    assert rt.pacing.deferred == rt.pacing.overlaps == len(held.at)
+    # each put off but the first (not timed yet), and each reaching the next instant
+    assert rt.pacing.deferred == len(held.at) - 1 and rt.pacing.overlaps == len(held.at)
     # two instants a ranging lost (as it did when it ran at its due, on an instant), the one it
     # ends in measured as the loop gets there: the ranging's end and a turn
     assert len(aligned.at) >= 1000 - 2 * len(held.at) - 1
@@ -149,3 +149,73 @@ def test_the_host_reads_the_counts_and_an_avr_boards_reply_without_them() -> Non
     assert (py.polls_deferred, py.poll_overlaps) == (31, 0)
     assert py.figures()["polls_deferred"] == 31 and py.figures()["timed_done"] == 2
     assert parse_align_info(head + b"\0").problem == "a reply of 18 bytes, not 17 or 25"
+
+
+def test_a_first_measurement_does_not_wait_for_a_far_instant() -> None:
+    """F1: a driver not yet timed waits out only an instant that is close (within the margin:
+    its poll's length is not known yet), never a far one: beside a 0.1 Hz aligned driver (its
+    instant 9 s ahead) the 97 Hz reads start at once and keep their rate (they did none in 3 s,
+    waiting for that instant), and the same beside a timed call 9 s ahead and nothing aligned."""
+    rt, held, _aligned = rig(97, 2_000, grid_us=10_000_000)
+    run(rt, 3)
+    assert len(held.at) >= 3 * 97 - 1 and held.at[0] - 1_000_000 <= TURN_US
+    assert rt.pacing.overlaps == 0 and rt.pacing.deferred == 0
+
+    rt, held, _aligned = rig(97, 2_000)
+    rt.transducers[1].set_enabled(False)  # (no grid: only the timed call's instant)
+    rt.add_function("act", lambda payload: (0, b""))
+    rt.timing.calls = ("act",)  # (an actuator's command: timeable)
+    at = struct.pack("<q", 10_000_000 * 1000) + bytes([rt.index["act"]])
+    rt.feed(encode_frame(SOF, 1, rt.index["a2jAt"], at))
+    assert rt.timing.next_precise_us() == 10_000_000, FrameDecoder().feed(rt.take_output())
+    run(rt, 3)
+    assert len(held.at) >= 3 * 97 - 1 and held.at[0] - 1_000_000 <= TURN_US
+
+
+def test_a_wait_left_over_across_disable_and_enable_does_not_skip_the_room_check() -> None:
+    """F2: a measurement put off for an instant, its driver disabled past that instant and
+    enabled again just before another (room for less than its poll): it waits that one out
+    (it ran at once, into the instant: the wait left over counted as one served)."""
+    rt, held, aligned = rig(97, 2_000)
+    clock = rt.clock
+    while not rt.pacing.waits:  # (until a read is put off)
+        rt.poll()
+        rt.take_frames()
+        clock.advance(TURN_US)  # type: ignore[attr-defined]
+    t = rt.transducers[0]
+    t.set_enabled(False)
+    for _ in range(3):  # (the loop turns while it is off)
+        clock.advance(50_000)  # type: ignore[attr-defined]
+        rt.poll()
+    reads, late = len(held.at), len(aligned.at)
+    clock.advance((clock() // GRID_US + 2) * GRID_US - 1_500 - clock())
+    t.set_enabled(True)
+    rt.poll()  # (due long since: 1.5 ms before an instant, a 2 ms read has no room)
+    assert len(held.at) == reads and rt.pacing.overlaps == 0
+    run(rt, 0.5)
+    # (the aligned read due while the clock jumped, at once; the next on their instants)
+    assert len(aligned.at) > late + 1 and max(lateness(aligned)[late + 1 :]) <= TURN_US
+    assert len(held.at) > reads and rt.pacing.overlaps == 0
+
+
+def test_two_reads_after_the_instant_they_waited_out_do_not_both_run_into_the_next() -> None:
+    """F3: two paced drivers that waited out the same instant: the first runs right after it,
+    the second's room is what the first left (it ran at once too, back to back, into the next
+    instant: 26 polls did in 5 s, the aligned reads 2.5 ms late); it waits the next one out, and
+    not a second time (never starved)."""
+    clock = FakeBoardClock(1_000_000)
+    rt = BoardRuntime("paced", "test", "p-1", clock=clock)
+    rt.timing = Timing(rt)
+    first, second = Measures(clock, 15, 6_000), Measures(clock, 15, 6_000)
+    aligned = Measures(clock, 100)
+    aligned.aligned, aligned.timing = True, rt.timing
+    for i, drv in enumerate((first, second, aligned)):
+        rt.add_transducer(Transducer(f"t{i}", i + 1, "p", "m", 1, "uint8_t", 0), drv)
+    rt.host_map = (6_000_000, 6_000_000_000, 0)
+    run(rt, 5)
+    assert rt.pacing.overlaps <= 2  # (the first reads, not timed: at once, into an instant)
+    assert max(lateness(aligned, 10_000)[10:]) <= TURN_US
+    for drv in (first, second):
+        assert abs(len(drv.at) - 75) <= 2  # their rate (15 Hz): neither starved
+        gaps = [b - a for a, b in itertools.pairwise(drv.at)]
+        assert max(gaps) <= 66_666 + 2 * 10_000 + 2 * TURN_US  # (two instants waited out at most)
