@@ -28,6 +28,9 @@ from .helpers import AvrRig, AvrSim
 
 pytestmark = [pytest.mark.avr, pytest.mark.slow]
 RIG_LINE_MAX = 16383  # (world.h; world_avr.py's)
+#: how far ahead of the rig's time a test's ticks are (beyond the line's way there on a busy
+#: machine: each tick is then made at its own time, not at the line's coming)
+LEAD_US = 300_000
 ROVER = Path(__file__).resolve().parents[1] / "examples" / "boards" / "rover-mega.py"
 WORLD = """
 [start]
@@ -74,7 +77,7 @@ def test_a_batch_is_made_tick_by_tick_and_answered_at_its_end(rig: AvrSim) -> No
     assert made == 0 and asks.startswith("motor ") and errors == "0", (made, asks, errors)
     pos0 = encpos(rig)
     t0 = rig.board_us()
-    ts = [t0 + 20_000 * k for k in range(5)]
+    ts = [t0] + [t0 + LEAD_US + 20_000 * k for k in range(4)]
     line = f"tick motor|{ts[0]} enc 0 1|{ts[1]} enc 0 2;nope|{ts[2]}|{ts[3]} enc 0 4|{ts[4]}"
     at, made, again, errors = asked(rig, line)
     assert ts[4] <= at < ts[4] + 2000  # (simulated µs: the rig looks every 1024 instructions)
@@ -89,7 +92,7 @@ def test_the_drives_changing_stop_the_batch_at_that_tick(rig: AvrSim) -> None:
     assert rig.ctl("wheel 0 off") == "ok"
     asked(rig, f"tick encpos 0|{rig.board_us()}")
     t0 = rig.board_us()
-    ts = [t0 + 20_000 * k for k in range(5)]
+    ts = [t0] + [t0 + LEAD_US + 20_000 * k for k in range(4)]
     at, made, asks, errors = asked(
         rig, f"tick encpos 0|{ts[0]}|{ts[1]} enc 0 3|{ts[2]}|{ts[3]}|{ts[4]}"
     )
@@ -101,7 +104,7 @@ def test_ticks_whose_time_has_passed_are_made_at_once_while_the_drives_hold(rig:
     asked(rig, f"tick motor|{rig.board_us()}")
     while (now := rig.board_us()) < 100_000:  # (times in the past: the rig's after 0.1 s)
         time.sleep(0.05)
-    ts = [now - 30_000, now - 20_000, now - 10_000, now + 40_000]
+    ts = [now - 30_000, now - 20_000, now - 10_000, now + LEAD_US]
     at, made, _asks, _errors = asked(rig, "tick motor|" + "|".join(map(str, ts)))
     assert made == 3 and ts[3] <= at < ts[3] + 2000  # (the three past at once, each its own)
 
@@ -165,6 +168,7 @@ def test_beside_the_driven_firmware_its_parts_get_what_one_tick_at_a_time_gives(
     server.on_tick = hand.answer
     hand.start()
     threading.Thread(target=server.serve_forever, daemon=True).start()
+    reader = next(t for t in threading.enumerate() if t.name == "board:rig")
     try:
         with Daemon(
             Config(boards=[BoardSpec(server.url, timeout=3.0, handshake_timeout=20.0)])
@@ -176,6 +180,8 @@ def test_beside_the_driven_firmware_its_parts_get_what_one_tick_at_a_time_gives(
                 time.sleep(0.6)
     finally:
         server.stop()
+    reader.join(10)  # (the thread that hands the world the rig's answers: none comes after)
+    assert not reader.is_alive()
     assert hand.failed is None and hand.rig_errors == 0, hand.state()
     made = list(hand.record)
     one = AvrWorld(world(), server.ctl_lines, board["transducers"])
