@@ -1,16 +1,18 @@
 """The world model's tick, in µs of CPU (issue 47.6): the example rover's world link (its
 default world, as `missing-link board --file examples/boards/rover.py` builds it, worldlink.py)
 ticked at rest and driving (duty 0.5 on both motors, the rover off its walls), hot (one tick
-after another) and cold (a 10 ms sleep before each, as a runtime ticks it: the interpreter
-comes back to the tick's code and data), and a batch of 10 ticks after a 100 ms sleep
-(WorldLink.ahead, as MicroPython's and CPython's runtimes ask for them), per tick.  Per case
-the median of ``--ticks`` ticks' `time.thread_time` around the link's tick, and in a second
-pass around the model's (World.step; its clock reads would add to the first); each child
-process builds its own worlds.  The reference is another
-revision's src (``--against REV``: `git archive` into a temporary directory), measured in the
-same run, the two alternating ``--rounds`` times; each figure the median of the rounds.
+after another), cold (a 10 ms sleep before each, as a runtime that wakes the world every tick:
+the interpreter comes back to the tick's code and data), and in batches after a 100 ms sleep
+(WorldLink.ahead, as the runtimes ask for them now: up to 10 ticks, all used), per tick.
+Per case the median of ``--ticks`` ticks' `time.thread_time` around the link's tick, and in a
+second pass around the model's (World.step; its clock reads would add to the first); each child
+process builds its own worlds.  The reference is another revision's src (``--against REV``:
+`git archive` into a temporary directory; ``--model-only``: this tree's src with REV's model,
+src/missing_link/world, the link the same in both), measured in the same run, the two
+alternating ``--rounds`` times; each figure the median of the rounds.
 
-    .venv/bin/python bench/bench_world_tick.py [--against REV] [--rounds 3] [--ticks 300]
+    .venv/bin/python bench/bench_world_tick.py [--against REV] [--model-only] [--rounds 3] \
+        [--ticks 300]
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -61,11 +64,11 @@ def measure(ticks: int) -> dict[str, tuple[float, float]]:
             now = link.due_us()
             t0 = time.thread_time()
             if batch:
-                link.ahead(now, link.batch, values)
+                made = len(link.ahead(now, link.batch, values))
             else:
-                link.tick(now, values)
-            ticks.append(time.thread_time() - t0)
-        return statistics.median(ticks) * 1e6 / (link.batch if batch else 1)
+                made = len(link.tick(now, values)[:1])  # (one tick)
+            ticks.append((time.thread_time() - t0) / made)
+        return statistics.median(ticks) * 1e6
 
     def case(duty: float, n: int, sleep: float, batch: bool) -> tuple[float, float]:
         tick = run(duty, n, sleep, batch)
@@ -86,9 +89,14 @@ def measure(ticks: int) -> dict[str, tuple[float, float]]:
     }
 
 
-def reference_src(rev: str, into: Path) -> Path:
-    """``rev``'s src tree, unpacked under ``into``."""
-    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src"], capture_output=True,
+def reference_src(rev: str, into: Path, model_only: bool) -> Path:
+    """``rev``'s src tree, unpacked under ``into`` (``model_only``: this tree's, its model
+    ``rev``'s)."""
+    part = "src/missing_link/world" if model_only else "src"
+    if model_only:
+        shutil.copytree(ROOT / "src", into / "src", ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.rmtree(into / part)
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, part], capture_output=True,
                          check=True).stdout  # fmt: skip
     with tarfile.open(fileobj=BytesIO(tar)) as t:
         t.extractall(into, filter="data")
@@ -106,6 +114,7 @@ def child(src: Path, ticks: int) -> dict[str, list[float]]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--against", default="main", help="the reference revision (default main)")
+    ap.add_argument("--model-only", action="store_true", help="REV's world/ in this tree's src")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--ticks", type=int, default=300)
     ap.add_argument("--child", type=int, help=argparse.SUPPRESS)
@@ -115,13 +124,14 @@ def main() -> None:
         return
     runs: dict[str, list[dict[str, list[float]]]] = {"ref": [], "this": []}
     with tempfile.TemporaryDirectory() as tmp:
-        ref = reference_src(a.against, Path(tmp))
+        ref = reference_src(a.against, Path(tmp), a.model_only)
         for _ in range(a.rounds):  # (alternating: a load that comes and goes hits both alike)
             runs["ref"].append(child(ref, a.ticks))
             runs["this"].append(child(ROOT / "src", a.ticks))
     load = os.getloadavg()[0]
     print(f"world link tick, µs of CPU (median of {a.rounds} rounds; load {load:.1f} at the end)")
-    print(f"| case | {a.against}: link tick | of it World.step | this tree: link tick | "
+    against = f"{a.against}'s model" if a.model_only else a.against
+    print(f"| case | {against}: link tick | of it World.step | this tree: link tick | "
           "of it World.step | link tick, change |")  # fmt: skip
     print("|---|---|---|---|---|---|")
     for c in CASES:
