@@ -241,3 +241,24 @@ def test_a_board_file_too_big_for_its_mcu_is_refused_with_the_numbers(tmp_path: 
     r = ml("board", "--file", str(bf), "--runtime", "avr", "--listen", "pty", timeout=300)
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "does not fit the atmega328p" in r.stderr
+
+
+@pytest.mark.avr
+def test_a_tick_line_the_rig_refuses_goes_to_the_world_not_to_the_control_queue() -> None:
+    """The rig's refusal of a world's tick line ("error tick: WHY ...": sim/world.c) is the
+    world's to hear: put in the control queue instead, the world never heard again and every
+    later control line was answered with the one before's (adversary, issue 47.6)."""
+    from missing_link.deploy.avrsim import build
+    from missing_link.virtual.avrboard import AvrBoard
+
+    sim = build(load_board_file(ROOT / "examples" / "boards" / "rover-mega.py"), "avr-0123456789ab")
+    board = AvrBoard(sim.command(None), "tcp://127.0.0.1:0")
+    heard: list[str] = []
+    board.on_tick = heard.append
+    try:
+        board.ctl_post("tick motor|1e6")  # (a time the rig's strict parse refuses)
+        first, second = board.ctl("stats"), board.ctl("stats")
+        assert first.startswith("stats ") and second.startswith("stats "), (first, second)
+        assert len(heard) == 1 and heard[0].startswith("error tick: "), heard
+    finally:
+        board.close()

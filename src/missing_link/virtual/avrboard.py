@@ -90,8 +90,10 @@ class AvrBoard:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
             on_tick = self.on_tick
-            if on_tick is not None and line.startswith(("tick ", "error tick ")):
-                try:  # (the world's answer to its own line: never one for ctl's queue)
+            if on_tick is not None and line.startswith(("tick ", "error tick")):
+                # (the world's answer to its own line, its refusal "error tick: ..." too: never
+                # one for ctl's queue, which would then answer each caller the line before)
+                try:
                     on_tick(line.rstrip("\n"))
                 except Exception:  # (this thread must go on reading the rig)
                     log.exception("rig: the world's tick failed")
