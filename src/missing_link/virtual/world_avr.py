@@ -160,8 +160,9 @@ class AvrWorld:
             self.record += [(t, self._values, lines) for t, lines in self._sent[:made]]
 
     def _next(self, now: int, made: int, values: list[int]) -> str:
-        """The next batch's line: the world back to the first tick not made, ticked ahead from
-        ``now`` under ``values``, as many ticks as fit the rig's line."""
+        """The next batch's line: the world back to the first tick not made, ticked ahead under
+        ``values`` from the last line's end when the rig made it whole under them (Ahead's rule:
+        its ticks stay on time), else from ``now``; as many ticks as fit the rig's line."""
         held = values == self._values and made == len(self._sent)
         start = self._end if held and now - self._end <= MAX_CATCHUP_US else now
         ticks = self.link.ahead(start, made, values)
