@@ -92,7 +92,7 @@ def test_a_crash_makes_the_actuators_safe_first(thesis: RuntimeBoard) -> None:
     board.call_ok("a2j_set_servo", struct.pack("<b", SET))
     thesis.hang_up()
     thesis.ctl(  # type: ignore[attr-defined]  # a driver that raises, as a bug would
-        "def boom(now):\n    raise RuntimeError('driver bug')\n"
+        "def boom(now, fresh=False):\n    raise RuntimeError('driver bug')\n"
         "next(t for t in rt.transducers if t.name == 'imu')._poll = boom"
     )
     assert thesis.next_line(10) == "CRASH"  # type: ignore[attr-defined]
@@ -113,7 +113,7 @@ def test_virtual_a_board_that_fails_makes_its_actuators_safe_first() -> None:
         board.configure({"servo.safe": "limp"})
         board.call_ok("a2j_set_servo", struct.pack("<b", SET))
 
-        def boom(now: int) -> None:
+        def boom(now: int, fresh: bool = False) -> None:  # (a paced driver's poll: Periodic)
             raise RuntimeError("driver bug")
 
         rt.transducers[0]._poll = boom  # type: ignore[attr-defined]  # (as a bug would)
