@@ -10,7 +10,7 @@ import math
 import random
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from .datasheets import G, cep_sigma, imu_sigmas
 from .geometry import Matrix, Vec, Wall, apply_t, nearest, rotation, rotation_of
@@ -27,15 +27,15 @@ RAYS = 5
 NARROW_DEG = 5.0
 
 
-@dataclass(frozen=True)
-class ImuReading:
+#: the readings are named tuples, not frozen dataclasses: as immutable, and a frozen dataclass's
+#: __init__ (a call a field) took 3 µs of a 25 µs tick at rest
+class ImuReading(NamedTuple):
     accel: Vec  #: m/s^2, the chip's axes
     gyro: Vec  #: rad/s
     temperature_c: float
 
 
-@dataclass(frozen=True)
-class GpsReading:
+class GpsReading(NamedTuple):
     latitude_deg: float
     longitude_deg: float
     altitude_m: float

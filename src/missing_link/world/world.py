@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 from . import motion, sensing
 from .geometry import Segment, Vec, clear_of, prepare
@@ -51,9 +51,9 @@ class Actuation:
     steppers: dict[str, tuple[int, bool]] = field(default_factory=dict)  #: microsteps, enabled
 
 
-@dataclass(frozen=True)
-class Frame:
-    """The sensors at ``t_us`` and the encoders' edges from then to ``until_us``."""
+class Frame(NamedTuple):
+    """The sensors at ``t_us`` and the encoders' edges from then to ``until_us`` (a named
+    tuple: see sensing.ImuReading)."""
 
     t_us: int
     until_us: int
