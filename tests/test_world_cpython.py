@@ -74,6 +74,18 @@ def test_actuators_changing_at_every_tick_cost_barely_more_than_their_ticks() ->
     assert world.batch == world.most
 
 
+def test_a_batch_none_of_which_was_made_is_gone_back_over_from_before_its_first() -> None:
+    world, one = link(), link()  # (made_first unset: AVR's rig may make none of a batch)
+    b = driving(2000)
+    world.ahead(0, 0, driving(5000))
+    made = world.ahead(0, 0, b)  # (the drives changed before its first tick)
+    made += world.ahead(world.due_us(), 1, b)  # (each one tick long: the last was used so)
+    grown = world.ahead(world.due_us(), 1, b)  # (two used whole: two ticks)
+    made += grown[:1] + world.ahead(grown[1][0], 1, b)  # (only its first made)
+    assert made == [(t, *one.tick(t, b)) for t, _c, _e in made]
+    assert [len(made), len(grown), world.rewound] == [4, 2, 2]
+
+
 @pytest.fixture
 def simulator() -> Iterator[None]:
     """The simulated world of one board file (one per process), emptied after the test."""

@@ -103,6 +103,7 @@ class NodeWorld:
     def _hello(self, now: int) -> dict[str, Any]:
         self.link = WorldLink(World(self.spec, self.board, now, self.seed), self.board,
                               self.absent)  # fmt: skip
+        self.link.made_first = True  # (worldtick.mjs makes a batch's first tick at once)
         self.ready.set()
         return {"attach": [list(args) for _fn, args in self.link.attach()],
                 "reads": [[fn, *args] for fn, args in self.link.reads],

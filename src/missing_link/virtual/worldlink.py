@@ -26,15 +26,17 @@ under MicroPython and CPython: a wake-up of the world, its code and data cold, c
 tick's sums): the tick at its time, made at once, and those after it on time, each at the one
 before's end, under the same actuators.  It makes each happen at its time while the actuators
 read the same, and asks again when they change or the batch is used up, saying how many it
-made; the world goes back to where they left it (its snapshot after the batch's first tick,
-random streams too, and those ticks again: the same sums), so what it answers is what tick() at
+made; the world goes back to where they left it (its snapshot before the batch's first tick,
+or after it for a runtime that makes it at once, random streams too, and those ticks again:
+the same sums), so what it answers is what tick() at
 those times gives, to the bit (tests/test_world_ahead.py).  A runtime that comes a tick late
 or more under the same actuators makes the batch's ticks due by then at once, each at its own
 time (a tick runs from its own time: a late visit under the actuators it was computed for is
 the same tick), and one that used a batch up under them asks for the next on time, from the
 batch's end (within MAX_CATCHUP_US): a late runtime no longer throws a batch away.  The batch's
 length follows how long the actuators hold: after a batch cut short at its k-th tick the next
-is k ticks long (one when they change at every tick: nothing computed in vain, no snapshot),
+is k ticks long (one when they change at every tick: nothing computed in vain; no snapshot for
+a runtime that makes a batch's first tick at once),
 and after two used whole it doubles, up to BATCH_US (a snapshot costs more than a tick); a
 batch grown so and cut doubles the wait before the next growth (up to MOST_PATIENCE batches).
 
@@ -65,9 +67,10 @@ Call = tuple[str, tuple[int, ...]]
 Edge = tuple[int, int, int, int]
 #: a tick computed ahead: (its board µs, the feed calls then, the edges of its run)
 Tick = tuple[int, list[Call], list[Edge]]
-#: ahead()'s last: the world's and the link's state after its first tick (None: one tick
-#: long), its actuation and its length
-Batch = tuple[tuple[Any, Any] | None, "Actuation", int]
+#: ahead()'s last: the world's and the link's state before its first tick or after it (None:
+#: one tick long, its first made at once), its actuation, its length, the ticks of it in that
+#: state (0 or 1) and the time of the tick after them
+Batch = tuple[tuple[Any, Any] | None, "Actuation", int, int, int]
 MODES = ("coast", "drive", "brake", "shoot-through")
 #: a reading's integers are below this in size: MicroPython's small integers on a 32-bit port
 SMALL_INT = 1 << 30
@@ -125,6 +128,10 @@ class WorldLink:
         self._grown = False  # (the last batch was one grown)
         self._pushes: list[tuple[str, dict[str, Any]]] = []  # (checked, not yet in the world)
         self._batch: Batch | None = None
+        #: the runtime makes each batch's first tick at once (Ahead, node's worldtick.mjs): the
+        #: snapshot after it, none for a batch of one tick; else (AVR's rig may make none) before
+        self.made_first = False
+        self._replaying = False
 
     def attach(self) -> list[Call]:
         """worldfeed.attach's calls: each part's number, its transducer's in the board file,
@@ -146,33 +153,41 @@ class WorldLink:
         """:attr:`batch` ticks at once: the one at ``now_us`` (the runtime makes it at once) and
         those after it on time (each at the one before's end), all under ``values`` (the
         runtime checks that they hold at each tick's time).  ``used``: how many of the last
-        batch the runtime made happen (its first at least); fewer than all (the actuators
-        changed), the world goes back to its state at the first it did not (restore, then the
-        used ones again, the same sums), and the next batch is as long as that one was used."""
+        batch the runtime made happen (its first at least under :attr:`made_first`); fewer
+        than all (the actuators changed), the world goes back to its state at the first it did
+        not (restore, then the used ones again, the same sums), and the next batch is as long
+        as that one was used."""
         with self._lock:
             if self._batch is not None:
                 self._adapt(used)
-            self._pushed()
+            self._pushed()  # (before the snapshot: a going back keeps the batch's own pushes)
             act = self._actuation(values)
+            if not self.made_first:
+                self._batch = (self._snapshot(), act, self.batch, 0, now_us)
             first = (now_us, *self._tick(now_us, act))
-            snap = (self.world.snapshot(), self._state()) if self.batch > 1 else None
-            self._batch = (snap, act, self.batch)
+            if self.made_first:
+                snap = self._snapshot() if self.batch > 1 else None
+                self._batch = (snap, act, self.batch, 1, self.next_us)
             self.batches += 1
             return [first, *self._run(self.next_us, act, self.batch - 1)]
+
+    def _snapshot(self) -> tuple[Any, Any]:
+        return self.world.snapshot(), self._state()
 
     def _adapt(self, used: int) -> None:
         """The last batch cut after ``used`` ticks: the world back there, the next as long;
         used whole: the next twice as long after :attr:`_patience` of them, a patience that
         doubles each time a batch grown so was cut (actuators that change at every tick)."""
         assert self._batch is not None
-        if not 1 <= used <= self._batch[2]:
-            raise ValueError(f"used {used} of a batch of {self._batch[2]} (its first at least)")
-        if used < self._batch[2]:
+        n, least = self._batch[2], self._batch[3]
+        if not least <= used <= n:
+            raise ValueError(f"used {used} of a batch of {n} (at least {least}: made_first)")
+        if used < n:
             self._back(used)
             self.rewound += 1
             if self._grown:
                 self._patience = min(MOST_PATIENCE, 2 * self._patience)
-            self.batch, self._whole, self._grown = used, 0, False
+            self.batch, self._whole, self._grown = max(1, used), 0, False
             return
         if self._grown:
             self._patience = GROW_AFTER
@@ -193,13 +208,17 @@ class WorldLink:
         """The world and what it fed as after the first ``used`` ticks of the last batch (the
         pushes since wait for the next batch)."""
         assert self._batch is not None
-        snap, act, _n = self._batch
-        assert snap is not None  # (a batch one tick long is used whole)
+        snap, act, _n, done, at = self._batch
+        assert snap is not None  # (a batch one tick long, its first made at once, is used whole)
         world, link = snap
         self.world.restore(world)
         sent, off, self.dropped, self.skips, self.skipped_us, self.next_us = link
         self._sent, self._off = dict(sent), set(off)
-        self._run(self.next_us, act, used - 1)  # (on time: no pause to stand still for)
+        self._replaying = True  # (a pause it stood still for was said the first time)
+        try:
+            self._run(at, act, used - done)
+        finally:
+            self._replaying = False
 
     def _state(self) -> tuple[dict[tuple[str, int], tuple[int, ...]], set[str], int, int, int, int]:
         return (dict(self._sent), set(self._off), self.dropped, self.skips, self.skipped_us,
@@ -232,9 +251,10 @@ class WorldLink:
         self.world.skip(us)
         self.skips += 1
         self.skipped_us += us
-        log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
-                    "paused?): the world ran the last %.3f s and stood still for the rest",
-                    (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
+        if not self._replaying:
+            log.warning("world: the board's clock jumped %.3f s ahead of the world (its host "
+                        "paused?): the world ran the last %.3f s and stood still for the "
+                        "rest", (us + MAX_CATCHUP_US) / 1e6, MAX_CATCHUP_US / 1e6)  # fmt: skip
 
     def push(self, kind: str, args: dict[str, Any]) -> None:
         """A push by hand, checked now (WorldFileError: one line), applied at the next tick (of
@@ -330,6 +350,7 @@ class Ahead:
 
     def __init__(self, link: WorldLink) -> None:
         self.link = link
+        link.made_first = True  # (tick() makes a batch's first at once)
         self.batch: list[Tick] = []
         self.used = 0
         self.values: list[int] | None = None
