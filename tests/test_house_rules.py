@@ -187,11 +187,11 @@ def test_tests_that_start_processes_are_marked_slow() -> None:
     ],
 )
 def test_the_process_walk_sees_helpers_and_fixtures(
-    source: str, unmarked: list[str] | None
+    source: str, unmarked: list[str] | None, tmp_path: Path
 ) -> None:
-    tmp = ROOT / ".pytest_cache" / "arch_probe"
-    tmp.mkdir(parents=True, exist_ok=True)
-    path = tmp / "probe.py"
+    # (each case its own file: xdist's workers run the cases at once, and one shared probe.py
+    # was read by one case while another wrote it)
+    path = tmp_path / "probe.py"
     path.write_text(source)
     assert unmarked_process_tests(path) == (["probe.py::test_a"] if unmarked is None else unmarked)
 
