@@ -37,9 +37,11 @@
 # * A measurement put off is late, neither lost nor doubled: Periodic measures once when it runs
 #   and reckons its next slot from then (a slot the wait covered whole is skipped).
 # * A paced driver not due is not polled (its poll only looks: drivers/__init__.py, Periodic);
-#   one due is polled with the clock read for its room (poll(now, True): it does not read it
+#   one due is polled with the clock read after its room (poll(now, True): it does not read it
 #   again).  While nothing waits, the loop's sleep (runtime.next_deadline_us) is the drivers'
-#   own dues, not asked here (`waits` empty).
+#   own dues, not asked here (`waits` empty).  The clock it is handed is read after the room
+#   was looked at (timing.instant_kept's lookup may take a Pico hundreds of µs): drivers that
+#   stamp their sample with it (analog.py, sharp.py) stamp their read, not the lookup's start.
 # A poll's length is the board clock around it; `longest` (per transducer id) is the longest
 # lately, as the heap's pieces' longest so far, but losing a sixteenth a measurement (DECAY): a
 # part's start-up in its first measurement (the VL53L0X's calibration, 69 ms) must not keep its
@@ -103,6 +105,9 @@ class Pacing:
                 instant = timing.instant_kept(t0)
             if instant is not None and not self._room(t.tid, instant, t0, due):
                 continue
+            # (read again: the lookup's grid maths and the room's take board time, and the
+            # poll stamps its sample with the time it is handed)
+            t0 = rt.clock()
             poll(t0, True)  # (the clock just read: Periodic does not read it again)
             t1 = self._used = rt.clock()
             took = self.longest.get(t.tid, 0)
