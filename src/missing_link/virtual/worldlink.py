@@ -132,6 +132,14 @@ class WorldLink:
         #: snapshot after it, none for a batch of one tick; else (AVR's rig may make none) before
         self.made_first = False
         self._replaying = False
+        # the last actuators' values and their Actuation (the model only reads it; a function
+        # of the values alone: nothing a snapshot or restore() changes)
+        self._values: list[int] | None = None
+        self._act = Actuation()
+        # each kind of reading's plugged parts (name, number), in the frame's order (the board
+        # file's: sensing.readers); every one is in its dict of a frame read
+        self._sensing = {k: [(p.name, i) for i, p in enumerate(self.parts) if p.kind == k]
+                         for k in ("ranger", "imu", "compass", "gps", "battery")}  # fmt: skip
 
     def attach(self) -> list[Call]:
         """worldfeed.attach's calls: each part's number, its transducer's in the board file,
@@ -237,10 +245,11 @@ class WorldLink:
             edges += self._edges(self.world.step(now_us, act, read=False))
         frame = self.world.step(now_us + self.tick_us, act)  # (a little late: from its time)
         self.next_us = now_us + self.tick_us
-        calls = [
-            (fn, args) for fn, args in self._calls(frame) if self._sent.get((fn, args[0])) != args
-        ]  # (what changed only: a call costs)
-        self._sent.update(((fn, args[0]), args) for fn, args in calls)
+        sent, calls = self._sent, []
+        for fn, args in self._calls(frame):
+            if sent.get((fn, args[0])) != args:  # (what changed only: a call costs)
+                sent[fn, args[0]] = args
+                calls.append((fn, args))
         return calls, edges + self._edges(frame)
 
     def _skip(self, us: int) -> None:
@@ -270,6 +279,8 @@ class WorldLink:
 
     # ---- integers to and from the simulator ----
     def _actuation(self, values: list[int]) -> Actuation:
+        if values == self._values:  # (mostly: the actuators hold)
+            return self._act
         act = Actuation()
         got = dict(zip([(fn, a[0]) for fn, a in self.reads], values, strict=True))
         for p in self.parts:
@@ -283,41 +294,52 @@ class WorldLink:
                 act.servos[p.name] = None if pulse < 0 else float(pulse)
             elif p.kind == "stepper":
                 act.steppers[p.name] = (got[("stepper", i)], bool(got[("stepper_on", i)]))
+        self._values, self._act = list(values), act
         return act
 
     def _edges(self, frame: Frame) -> list[Edge]:
         out: list[Edge] = []
-        for name, edges in _here(frame.edges.items(), self.pins):
-            a, b = self.pins[name]
-            out += [(t, a, b, d) for t, d in edges]
+        for name, edges in frame.edges.items():
+            if edges and name in self.pins:  # (at rest: none)
+                a, b = self.pins[name]
+                out += [(t, a, b, d) for t, d in edges]
         out.sort()
         return out
 
     def _calls(self, frame: Frame) -> list[Call]:
         calls: list[Call] = []
-        silent = set(frame.failed) & set(self.index)
-        for name in silent ^ self._off:  # (failed or back: said once)
-            calls.append(("off", (self.index[name], 1 if name in silent else 0)))
-        self._off = silent
-        readings: list[tuple[str, str, list[float]]] = []
-        for name, metres in _here(frame.ranges.items(), self.index):
-            readings.append(("ranger", name, [-1.0 if metres is None else metres * 1000]))
-        for name, imu in _here(frame.imus.items(), self.index):
-            readings.append(("imu", name, [v / 9.80665 * 16384 for v in imu.accel]
-                             + [math.degrees(v) * 131 for v in imu.gyro]))  # fmt: skip
-        for name, gauss in _here(frame.fields.items(), self.index):
-            readings.append(("field", name, [v * 12000 for v in gauss]))
-        for name, fix in _here(frame.fixes.items(), self.index):
-            readings.append(("fix", name, _fix(fix)))
-        for name, volts in _here(frame.volts.items(), self.index):
-            readings.append(("volts", name, [volts * 1000]))
-        for fn, name, values in readings:
-            args = _small_ints(values)
-            if args is None:  # (not a number a part holds: it keeps its last reading)
-                self.dropped += 1
-            else:
-                calls.append((fn, (self.index[name], *args)))
+        if frame.failed or self._off:  # (mostly neither)
+            silent = set(frame.failed) & set(self.index)
+            for name in silent ^ self._off:  # (failed or back: said once)
+                calls.append(("off", (self.index[name], 1 if name in silent else 0)))
+            self._off = silent
+        of = self._sensing
+        for name, i in of["ranger"]:
+            metres = frame.ranges[name]
+            self._add(calls, "ranger", i, [-1.0 if metres is None else metres * 1000])
+        for name, i in of["imu"]:
+            imu, deg = frame.imus[name], math.degrees
+            (ax, ay, az), (gx, gy, gz) = imu.accel, imu.gyro
+            self._add(calls, "imu", i, [ax / 9.80665 * 16384, ay / 9.80665 * 16384,
+                                        az / 9.80665 * 16384, deg(gx) * 131, deg(gy) * 131,
+                                        deg(gz) * 131])  # fmt: skip
+        for name, i in of["compass"]:
+            x, y, z = frame.fields[name]
+            self._add(calls, "field", i, [x * 12000, y * 12000, z * 12000])
+        for name, i in of["gps"]:
+            self._add(calls, "fix", i, _fix(frame.fixes[name]))
+        for name, i in of["battery"]:
+            self._add(calls, "volts", i, [frame.volts[name] * 1000])
         return calls
+
+    def _add(self, calls: list[Call], fn: str, i: int, values: list[float]) -> None:
+        """Part ``i``'s reading as feed call ``fn``, rounded, unless it is not a number a part
+        holds (it keeps its last reading: counted)."""
+        args = _small_ints(values)
+        if args is None:
+            self.dropped += 1
+        else:
+            calls.append((fn, (i, *args)))
 
 
 def _fix(fix: Any) -> list[float]:
@@ -337,11 +359,6 @@ def _small_ints(values: list[float]) -> tuple[int, ...] | None:
         return None
     out = tuple(map(round, values))
     return out if min(out) >= -SMALL_INT and max(out) < SMALL_INT else None
-
-
-def _here(items: Any, plugged: Collection[str]) -> list[Any]:
-    """The (name, reading) of the parts plugged in."""
-    return [(n, v) for n, v in items if n in plugged]
 
 
 class Ahead:
