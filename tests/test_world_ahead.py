@@ -11,12 +11,12 @@ restored is, in every part, the world it was."""
 
 from __future__ import annotations
 
-import ast
 import math
 import random
 from pathlib import Path
 from typing import Any
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.virtual.worldlink import Ahead, Tick, WorldLink
 from missing_link.world.sensing import ImuReading
 from missing_link.world.world import Actuation, Frame, World
@@ -26,8 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def board(name: str) -> dict[str, Any]:
-    text = (ROOT / "examples" / "boards" / name).read_text()
-    return ast.literal_eval(text.split("BOARD = ", 1)[1])  # type: ignore[no-any-return]
+    return load_board_file(ROOT / "examples" / "boards" / name).board
 
 
 ROVER = board("rover.py")

@@ -45,7 +45,6 @@ where the board's clock is held the same as without a world driven the same way.
 
 from __future__ import annotations
 
-import ast
 import itertools
 import statistics
 import struct
@@ -60,6 +59,7 @@ import pytest
 
 from missing_link.daemon.session.board_memory import parse_memory
 from missing_link.daemon.session.status import MemoryStatus
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.deploy.heap import FREE_HEAP
 from missing_link.host.board import Board
 from missing_link.transport import open_transport
@@ -71,7 +71,7 @@ from .world_beside_sim import DUTIES, EDGE, FEED_HEAP, FLOAT, GARBAGE, HOLD
 
 ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.py"
 AVR_ROVER = ROVER.with_name("rover-mega.py")
-BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[1])
+BOARD: dict[str, Any] = load_board_file(ROVER).board
 PICO = FREE_HEAP["rp2040"].bytes
 SECONDS = 20
 ALIGNED = ("compass", "wheel_l", "wheel_r")

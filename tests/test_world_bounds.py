@@ -7,13 +7,13 @@ line naming the key now, or, within the bounds, runs: every feed call is integer
 
 from __future__ import annotations
 
-import ast
 import math
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.errors import ConfigError
 from missing_link.virtual.worldlink import WorldLink
 from missing_link.world.sensing import ImuReading
@@ -21,9 +21,7 @@ from missing_link.world.world import World
 from missing_link.world.worldfile import WorldFileError, parse
 
 ROOT = Path(__file__).resolve().parent.parent
-ROVER: dict[str, Any] = ast.literal_eval(
-    (ROOT / "examples" / "boards" / "rover.py").read_text().split("BOARD = ", 1)[1]
-)
+ROVER: dict[str, Any] = load_board_file(ROOT / "examples" / "boards" / "rover.py").board
 
 
 def run(text: str, pushes: tuple[tuple[str, dict[str, Any]], ...] = (), ticks: int = 50) -> None:

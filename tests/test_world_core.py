@@ -6,7 +6,6 @@ by hand, not from the code's tables."""
 
 from __future__ import annotations
 
-import ast
 import itertools
 import math
 import statistics
@@ -18,14 +17,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.world.spec import Drive, WorldSpec
 from missing_link.world.world import Actuation, Frame, World
 from missing_link.world.worldfile import parse
 
 ROOT = Path(__file__).resolve().parent.parent
-ROVER: dict[str, Any] = ast.literal_eval(
-    (ROOT / "examples" / "boards" / "rover.py").read_text().split("BOARD = ", 1)[1]
-)
+ROVER: dict[str, Any] = load_board_file(ROOT / "examples" / "boards" / "rover.py").board
 G = 9.80665
 TICK = 10_000
 #: a room so large nothing is near: the kinematics alone
@@ -67,9 +65,7 @@ def test_a_mirrored_motor_and_encoder_drive_straight_as_their_firmware_flips_the
     """A right motor mounted mirrored ("invert": its firmware drives its bridge backward for
     forward) turns its wheel forward, and its encoder ("reverse") counts backward, as the
     AVR rover's (examples/boards/rover-mega.py): the body rolls straight ahead."""
-    mega: dict[str, Any] = ast.literal_eval(
-        (ROOT / "examples" / "boards" / "rover-mega.py").read_text().split("BOARD = ", 1)[1]
-    )
+    mega: dict[str, Any] = load_board_file(ROOT / "examples" / "boards" / "rover-mega.py").board
     w = world("[room]\nwalls = [[[-1000, -1000], [1000, -1000]]]\n", mega)
     frames = drive(w, 0.5, -0.5, 1.0)  # (the bridges' pins: the right one backward)
     assert w.body.x > 0.1 and w.body.yaw == pytest.approx(0.0, abs=1e-12)

@@ -7,13 +7,13 @@ actuators change at every tick computes barely more ticks than it makes."""
 
 from __future__ import annotations
 
-import ast
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.virtual.world import machine, worldfeed
 from missing_link.virtual.world.parts import populate
 from missing_link.virtual.world_cpython import BoardClock, CPythonWorld
@@ -22,9 +22,7 @@ from missing_link.world.world import World
 from missing_link.world.worldfile import parse
 
 ROOT = Path(__file__).resolve().parent.parent
-ROVER: dict[str, Any] = ast.literal_eval(
-    (ROOT / "examples" / "boards" / "rover.py").read_text().split("BOARD = ", 1)[1]
-)
+ROVER: dict[str, Any] = load_board_file(ROOT / "examples" / "boards" / "rover.py").board
 ROOM = parse("[start]\nx_m = 3.0\n", "room.toml")
 
 

@@ -4,7 +4,6 @@ every key there is one it knows; every mistake is one line naming the file and t
 
 from __future__ import annotations
 
-import ast
 import math
 import re
 from dataclasses import fields
@@ -13,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.errors import ConfigError
 from missing_link.world.datasheets import FIGURES
 from missing_link.world.spec import Battery, Drive, Site
@@ -21,9 +21,7 @@ from missing_link.world.worldfile import EVENTS, MOUNT_KEYS, WorldFileError, par
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = (ROOT / "docs" / "world.md").read_text()
-ROVER: dict[str, Any] = ast.literal_eval(
-    (ROOT / "examples" / "boards" / "rover.py").read_text().split("BOARD = ", 1)[1]
-)
+ROVER: dict[str, Any] = load_board_file(ROOT / "examples" / "boards" / "rover.py").board
 
 
 def example() -> str:

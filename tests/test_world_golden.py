@@ -9,7 +9,6 @@ its feed's rounding shows here; the same hashes before and after a cost cut say 
 
 from __future__ import annotations
 
-import ast
 import hashlib
 import random
 from collections.abc import Callable
@@ -18,15 +17,16 @@ from typing import Any
 
 import pytest
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.virtual.worldlink import WorldLink
 from missing_link.world.world import World
 from missing_link.world.worldfile import parse
 
 
 def _board(name: str) -> dict[str, Any]:
-    text = (Path(__file__).resolve().parent.parent / "examples" / "boards" / name).read_text()
-    board: dict[str, Any] = ast.literal_eval(text.split("BOARD = ", 1)[1])
-    return board
+    return load_board_file(
+        Path(__file__).resolve().parent.parent / "examples" / "boards" / name
+    ).board
 
 
 ROVER, MEGA = _board("rover.py"), _board("rover-mega.py")

@@ -14,7 +14,6 @@ times, those before a tick first (worldfeed.steps_at: a run of one encoder's edg
 
 from __future__ import annotations
 
-import ast
 import json
 import random
 import shutil
@@ -25,6 +24,7 @@ from typing import Any
 
 import pytest
 
+from missing_link.deploy.boardfile import load_board_file
 from missing_link.virtual.world_mpy import NodeWorld
 from missing_link.virtual.worldlink import MAX_CATCHUP_US, Edge, WorldLink
 from missing_link.world.world import World
@@ -33,9 +33,7 @@ from missing_link.world.worldfile import parse
 pytestmark = pytest.mark.slow
 
 HERE = Path(__file__).resolve().parent
-MEGA: dict[str, Any] = ast.literal_eval(
-    (HERE.parent / "examples" / "boards" / "rover-mega.py").read_text().split("BOARD = ", 1)[1]
-)
+MEGA: dict[str, Any] = load_board_file(HERE.parent / "examples" / "boards" / "rover-mega.py").board
 #: the world's events while the script runs, and a small pack (its charge falls a millivolt or
 #: so a batch: a world that forgot where the pack was reads another voltage)
 WORLD = """

@@ -5,12 +5,13 @@ run.  Python source as text: it runs there, not here."""
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 from typing import Any
 
+from missing_link.deploy.boardfile import load_board_file
+
 ROVER = Path(__file__).resolve().parent.parent / "examples" / "boards" / "rover.py"
-BOARD: dict[str, Any] = ast.literal_eval(ROVER.read_text().split("BOARD = ", 1)[1])
+BOARD: dict[str, Any] = load_board_file(ROVER).board
 
 #: Faults a world in the firmware would bring (test code run in the simulator, on the parts the
 #: world feeds: worldfeed.py), to show the figures catch them.  GARBAGE: each IMU feed leaves
