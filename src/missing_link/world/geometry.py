@@ -48,21 +48,6 @@ def apply_t(r: tuple[Vec, Vec, Vec], v: Vec) -> Vec:
     )
 
 
-def cross(a: Vec, b: Vec) -> Vec:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def body_rates(roll: float, pitch: float, d_roll: float, d_pitch: float, d_yaw: float) -> Vec:
-    """The body's angular velocity (p, q, r) in its own axes from the rates of its ZYX angles."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    return (
-        d_roll - d_yaw * sp,
-        d_pitch * cr + d_yaw * cp * sr,
-        -d_pitch * sr + d_yaw * cp * cr,
-    )
-
-
 def wrap(angle: float) -> float:
     """An angle in (-pi, pi]."""
     a = math.fmod(angle + math.pi, 2 * math.pi)
@@ -102,33 +87,19 @@ def nearest(x: float, y: float, directions: list[float], walls: tuple[Wall, ...]
 
 
 def clear(x: float, y: float, radius: float, walls: tuple[Wall, ...]) -> bool:
-    """Whether a disc of ``radius`` at (x, y) touches no wall (clear_of's sums)."""
+    """Whether a disc of ``radius`` at (x, y) touches no wall (closer than ``radius`` to its
+    nearest point)."""
     for x1, y1, ex, ey, length2 in walls:
         if length2 == 0:
             d = math.hypot(x - x1, y - y1)
         else:
             u = ((x - x1) * ex + (y - y1) * ey) / length2
-            u = u if u < 1.0 else 1.0  # (max(0, min(1, u)), as distance_to_segment)
+            u = u if u < 1.0 else 1.0  # (max(0, min(1, u)): the wall's nearest point)
             u = u if u > 0.0 else 0.0
             d = math.hypot(x - x1 - u * ex, y - y1 - u * ey)
         if not d >= radius:
             return False
     return True
-
-
-def distance_to_segment(p: Point, wall: Segment) -> float:
-    (x1, y1), (x2, y2) = wall
-    ex, ey = x2 - x1, y2 - y1
-    length2 = ex * ex + ey * ey
-    if length2 == 0:
-        return math.hypot(p[0] - x1, p[1] - y1)
-    u = max(0.0, min(1.0, ((p[0] - x1) * ex + (p[1] - y1) * ey) / length2))
-    return math.hypot(p[0] - x1 - u * ex, p[1] - y1 - u * ey)
-
-
-def clear_of(p: Point, radius: float, walls: list[Segment]) -> bool:
-    """Whether a disc of ``radius`` at ``p`` touches no wall."""
-    return all(distance_to_segment(p, w) >= radius for w in walls)
 
 
 def square_room(side: float) -> list[Segment]:

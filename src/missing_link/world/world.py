@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 from . import motion, sensing
-from .geometry import Segment, Vec, clear_of, prepare
+from .geometry import Segment, Vec, clear, prepare
 from .motion import Body, DriveGeometry, Imposed, Wheel
 from .robot import Robot, build, counts_per_rev
 from .sensing import GpsError, GpsReading, ImuReading
@@ -85,7 +85,7 @@ class World:
         self.wall_sums = prepare(self.walls)
         self.body = Body()
         self.body.place(*spec.start)
-        if not clear_of((self.body.x, self.body.y), spec.body_radius_m, self.walls):
+        if not clear(self.body.x, self.body.y, spec.body_radius_m, self.wall_sums):
             raise WorldFileError(f"{spec.source}: start: the body ({spec.body_radius_m:g} m "
                                  "round) stands in a wall")  # fmt: skip
         d = spec.drive
@@ -208,7 +208,7 @@ class World:
                 raise WorldFileError(f"{where}part: {part!r} is on no wheel of the drive")
         if e.kind == "place":
             at = (float(e.args["x_m"]), float(e.args["y_m"]))
-            if not clear_of(at, self.spec.body_radius_m, self.walls):
+            if not clear(*at, self.spec.body_radius_m, self.wall_sums):
                 raise WorldFileError(f"{where}place: ({at[0]:g}, {at[1]:g}) is in a wall")
 
     def _wheel_of(self, part: str) -> int | None:
