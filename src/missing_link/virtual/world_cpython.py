@@ -52,7 +52,6 @@ class CPythonWorld:
         self.ahead = Ahead(link)  # (the world's ticks up to 100 ms at a time: cheaper a tick)
         self.clock = clock
         self.pending: list[Edge] = []
-        self.pumps = 0  #: the firmware's turns (a pump each)
         self.ticks = 0
         self.edges = 0
         for fn, args in link.attach():
@@ -62,7 +61,6 @@ class CPythonWorld:
         """Every tick due by now made and every edge due by now delivered, in time order (an
         edge at a tick's time after it)."""
         now = self.clock()
-        self.pumps += 1
         while (due := self.ahead.due_us()) <= now:
             self._deliver(due - 1)  # (a handler may change an actuator: the tick reads it)
             values = [getattr(worldfeed, fn)(*args) for fn, args in self.link.reads]
