@@ -135,7 +135,7 @@ static void command(const char *cmd) {
 /* a line longer than RIG_LINE_MAX: refused whole, said (a `tick` line's refusal to the world) */
 static void refuse_long(const char *line, size_t n) {
     printf("error%s line of %zu bytes, over the rig's %d: refused: %.60s...\n",
-           strncmp(line, "tick", 4) ? "" : " tick:", n, RIG_LINE_MAX, line);
+           world_is_tick(line) ? " tick:" : "", n, RIG_LINE_MAX, line);
 }
 
 static void poll_stdin(void) {

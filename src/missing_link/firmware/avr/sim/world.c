@@ -70,6 +70,8 @@ static char *run_each(char *cmds) {
 /* a tick's feeds into the parts, their errors counted (each answer looked at, however many) */
 static void make(int k) {
     char *out = run_each(feeds[k]);
+    if (!out && *feeds[k] && !errors++) /* (no memory for the answers: the feeds not made) */
+        snprintf(first_error, sizeof first_error, " error no memory for a tick's feeds: not made");
     for (char *a = out, *nxt; a && *a; a = nxt) {
         nxt = strchr(a, '\n');
         if (nxt) *nxt++ = 0;
@@ -131,8 +133,12 @@ static const char *parse(const char *line) {
     return NULL;
 }
 
+int world_is_tick(const char *line) {
+    return !strncmp(line, "tick", 4) && (!line[4] || line[4] == ' ');
+}
+
 int world_command(const char *line) {
-    if (strncmp(line, "tick", 4) || (line[4] && line[4] != ' ')) return 0;
+    if (!world_is_tick(line)) return 0;
     if (inside) { /* (a feed or an ask that is a tick: refused, the batch left as it is) */
         printf("error tick: a tick inside a tick: %.120s\n", line);
         return 1;

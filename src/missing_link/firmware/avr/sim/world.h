@@ -12,6 +12,8 @@
 typedef void (*rig_run_t)(const char *line);
 
 void world_init(rig_run_t run);
+/* whether `line` is the world's `tick ...` line (its refusals are "error tick: ...") */
+int world_is_tick(const char *line);
 /* the `tick ...` line (rig_command_t) */
 int world_command(const char *line);
 /* at each look at the simulated time: the batch's ticks whose time has come */
