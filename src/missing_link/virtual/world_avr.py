@@ -43,7 +43,7 @@ import threading
 from collections.abc import Callable, Collection
 from typing import Any
 
-from .worldlink import MAX_CATCHUP_US, Call, Edge, WorldLink
+from .worldlink import Call, Edge, WorldLink, next_from
 
 G = 9.80665
 #: the longest line the rig takes (rig_sim's world.h), a batch's line cut to it
@@ -80,6 +80,7 @@ class AvrWorld:
         post: Callable[[str], None] | None = None,
     ) -> None:
         self.link = link
+        link.made_first = True  # (the rig makes a batch's first tick as its line comes: world.c)
         self.ctl = ctl
         self.post = post or (lambda line: None)
         here = [t for t in transducers if t["name"] not in absent]
@@ -164,8 +165,7 @@ class AvrWorld:
         ``values`` from the last line's end when the rig made it whole under them (Ahead's rule:
         its ticks stay on time), else from ``now``; as many ticks as fit the rig's line."""
         held = values == self._values and made == len(self._sent)
-        start = self._end if held and now - self._end <= MAX_CATCHUP_US else now
-        ticks = self.link.ahead(start, made, values)
+        ticks = self.link.ahead(next_from(now, self._end, held), made, values)
         self._values, self._sent = values, []
         entries: list[str] = []
         size = len(self.asks) + 48  # ("tick ", the bars, the end's time)

@@ -361,6 +361,13 @@ def _small_ints(values: list[float]) -> tuple[int, ...] | None:
     return out if min(out) >= -SMALL_INT and max(out) < SMALL_INT else None
 
 
+def next_from(now_us: int, end_us: int, held: bool) -> int:
+    """Where a runtime's next batch starts: at the last one's end ``end_us`` when it was used
+    up under the actuators it was computed for (``held``: its ticks stay on time), unless that
+    is more than MAX_CATCHUP_US ago; else at ``now_us`` (the actuators' change seen now)."""
+    return end_us if held and now_us - end_us <= MAX_CATCHUP_US else now_us
+
+
 class Ahead:
     """A runtime's side of :meth:`WorldLink.ahead` (CPython's; node's is worldtick.mjs): the
     batch's ticks made one by one at their times while the actuators hold."""
@@ -382,12 +389,11 @@ class Ahead:
         runs from its own time); else the first of a new batch: from the last one's end when
         that was used up under them (within MAX_CATCHUP_US), from ``now_us`` when they changed
         (as a tick one at a time: their change is seen now)."""
-        if values == self.values:
-            if self.used < len(self.batch):
-                self.used += 1
-                return self.batch[self.used - 1]
-            if now_us - self.end <= MAX_CATCHUP_US:
-                now_us = self.end
+        held = values == self.values
+        if held and self.used < len(self.batch):
+            self.used += 1
+            return self.batch[self.used - 1]
+        now_us = next_from(now_us, self.end, held)
         self.batch = self.link.ahead(now_us, self.used, values)
         self.values, self.used, self.end = values, 1, self.link.due_us()
         return self.batch[0]
